@@ -1,0 +1,105 @@
+"""Parameters of the lower bevel pair and of the polygonal contact method (SI units).
+
+Defaults follow ``RIG.md``. Values the paper does not give are project choices and are marked
+"default (project choice)"; they stay parameters.
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class BevelGearParams:
+    """Straight bevel pair, spherical-involute flanks, common apex, all cones through the apex."""
+
+    z_pinion: int = 15
+    z_wheel: int = 60
+    module: float = 3.0e-3                 # outer transverse module [m]
+    pressure_angle: float = math.radians(20.0)
+    shaft_angle: float = math.radians(90.0)
+    face_width: float = 25.0e-3            # default (project choice), <= cone distance / 3
+    x_pinion: float = 0.43                 # profile shift of the pinion; wheel gets -x (default, project choice)
+    addendum_coefficient: float = 1.0      # h_a* (outer end)
+    dedendum_coefficient: float = 1.25     # h_f* (outer end)
+    backlash: float = 0.075e-3             # circumferential backlash at the outer pitch circle [m] (default)
+    tip_radius: float = 0.2e-3             # tip edge rounding radius at the outer end [m] (default)
+
+    @property
+    def ratio(self) -> float:
+        return self.z_wheel / self.z_pinion
+
+    @property
+    def delta_pinion(self) -> float:
+        """Pitch cone angle of the pinion [rad] (shaft angle 90 deg)."""
+        return math.atan2(self.z_pinion, self.z_wheel)
+
+    @property
+    def delta_wheel(self) -> float:
+        return self.shaft_angle - self.delta_pinion
+
+    @property
+    def outer_cone_distance(self) -> float:
+        return self.module * self.z_pinion / (2.0 * math.sin(self.delta_pinion))
+
+
+@dataclass(frozen=True)
+class PCMParams:
+    """Polygonal contact (elastic layer) parameters, paper values for the lower gear mesh."""
+
+    E: float = 206e9                 # Young's modulus [Pa]
+    nu: float = 0.3                  # Poisson's ratio
+    layer_depth: float = 0.5e-3      # elastic layer depth b of each body [m]
+    c_compression: float = 4e10      # damping while compressing [N·s/m³] (4e4 MN·s/m³)
+    c_expansion: float = 3e9         # damping while expanding [N·s/m³] (3e3 MN·s/m³)
+    transformation_depth: float = 5e-6   # damping ramps in over this penetration [m]
+    mu: float = 0.002                # friction coefficient (lubricated)
+    v_friction: float = 1e-3         # friction regularisation velocity [m/s]
+    u_max: float = 1e-3              # maximum penetration [m]; beyond it is an error state
+
+    @property
+    def K(self) -> float:
+        """Elastic modulus of a laterally constrained layer, K = (1-nu) E / ((1+nu)(1-2 nu)) [Pa]."""
+        return (1.0 - self.nu) * self.E / ((1.0 + self.nu) * (1.0 - 2.0 * self.nu))
+
+    @property
+    def layer_stiffness(self) -> float:
+        """Pressure per penetration of one layer, K/b [N/m³]."""
+        return self.K / self.layer_depth
+
+    @property
+    def stiffness(self) -> float:
+        """Pressure per penetration of the two layers in series, c1 c2/(c1+c2) [N/m³]."""
+        c = self.layer_stiffness
+        return c * c / (c + c)
+
+
+@dataclass(frozen=True)
+class MeshResolution:
+    """Element size of the tooth surface meshes, set separately along the profile and the face width.
+
+    Sizes are measured at the mean cone distance (the teeth scale with the cone distance)."""
+
+    profile: float = 0.05e-3
+    face: float = 1.0e-3
+
+
+def params_hash(*objs) -> str:
+    """Stable short hash of dataclasses / plain values, for disk caches."""
+
+    def enc(o):
+        if dataclasses.is_dataclass(o):
+            return {"__type__": type(o).__name__, **{f.name: enc(getattr(o, f.name)) for f in dataclasses.fields(o)}}
+        if isinstance(o, float):
+            return repr(o)
+        if isinstance(o, (list, tuple)):
+            return [enc(v) for v in o]
+        if isinstance(o, dict):
+            return {str(k): enc(v) for k, v in sorted(o.items())}
+        return o
+
+    payload = json.dumps([enc(o) for o in objs], sort_keys=True, default=str).encode()
+    return hashlib.sha256(payload).hexdigest()[:16]

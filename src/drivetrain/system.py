@@ -1,0 +1,40 @@
+"""System description: which FMUs, their parameters, and which flanges are connected.
+
+Plain data, produced by the assembler from a scene and consumed by the master. A flange is the triple
+``<port>_phi`` [rad], ``<port>_w`` [rad/s], ``<port>_tau`` [N·m]. A port is either on the
+``"spring"`` side (inputs phi, w; output tau = torque applied to the connected body) or the
+``"inertia"`` side (input tau; outputs phi, w). A connection joins one spring-side port to one
+inertia-side port.
+
+Every component FMU also outputs the energy-audit variables ``energy_stored`` [J],
+``energy_dissipated`` [J] (cumulative) and ``energy_supplied`` [J] (cumulative work of sources inside the
+FMU, e.g. motors), so that the master can close the balance with the power through every connection.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+SPRING = "spring"
+INERTIA = "inertia"
+
+
+@dataclass
+class ComponentSpec:
+    name: str                      # instance name in the system, e.g. "gear"
+    model: str                     # FMU model name, e.g. "GearContact" (file fmus/<model>.fmu)
+    parameters: dict = field(default_factory=dict)   # FMU variable name -> value (real/int/bool/str)
+    inputs: dict = field(default_factory=dict)       # non-flange input variable -> constant value
+
+
+@dataclass
+class Connection:
+    spring: str                    # "component.port" on the spring side
+    inertia: str                   # "component.port" on the inertia side
+
+
+@dataclass
+class SystemSpec:
+    components: list[ComponentSpec]
+    connections: list[Connection]
+    comm_step: float               # communication step H [s]; must divide the output period
+    metadata: dict = field(default_factory=dict)

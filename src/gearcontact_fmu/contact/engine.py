@@ -1,0 +1,268 @@
+"""Polygonal contact method (PCM) between two rigid bodies with triangle surface meshes.
+
+Python API over the numba kernels of :mod:`.kernels`:
+
+* :class:`PCMBody` - one body: its mesh in the body frame, element data and AABB tree;
+* :func:`evaluate_pair` - contact search, element forces and body forces of a base/target pair in
+  a general pose, returning a :class:`ContactResult`;
+* :func:`make_fixed_axis_data` + :func:`fixed_axis_eval` - the numba kernel of a pair whose bodies
+  only rotate about fixed axes through the world origin (the gear stage's ``mesh_eval``).
+
+Conventions (docs/ARCHITECTURE.md): SI units; pose ``(R, t)`` with R body->world and t the body
+origin in the world; velocities ``(v, omega)`` with v the velocity of the body origin, both in the
+world. The base body's elements probe the target surface: a penetration line runs from each base
+element point along the base element's inward normal; the penetration u is its distance to the
+first facing target triangle (to the exact tangent plane of that element when the target has exact
+face data). The element normal force acts along the base element's outward normal at the point
+``p - u/2 n`` (mid-layer): on the target with +, on the base with -.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..params import PCMParams
+from . import kernels as K
+from .bvh import LEAF_SIZE, build_bvh, node_slabs, refit_segment_boxes
+from .kernels import fixed_axis_eval  # noqa: F401  (re-exported: the gear stage imports it here)
+
+__all__ = [
+    "PCMBody", "ContactResult", "PenetrationError", "evaluate_pair", "make_fixed_axis_data",
+    "fixed_axis_eval", "rot_z",
+]
+
+
+class PenetrationError(RuntimeError):
+    """An element penetrates deeper than PCMParams.u_max (an error state of the model)."""
+
+
+def rot_z(theta: float) -> np.ndarray:
+    c, s = np.cos(theta), np.sin(theta)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+class PCMBody:
+    """A rigid body's triangle surface mesh (body frame, m) prepared for PCM.
+
+    ``vertices`` (n, 3) [m], ``faces`` (m, 3) int (counter-clockwise seen from outside: the
+    geometric normal points out of the body). Optional ``face_points`` (m, 3) and ``face_normals``
+    (m, 3): exact surface point and outward normal per element (e.g. from an analytic flank); they
+    replace the centroid and the facet normal as element point/normal, and a target's penetration
+    is measured to that exact tangent plane.
+
+    Attributes (triangle order): ``tri`` (m,3,3), ``area`` (m,), ``points`` (m,3), ``normals``
+    (m,3), ``geo_normals`` (m,3); tree ``node_box``, ``node_int``, ``order``; slot-ordered kernel
+    arrays ``belem`` (m,7) and ``ttri`` (m,18), node normal slabs ``node_slab`` (N,5) (see
+    :mod:`.kernels`).
+    """
+
+    def __init__(self, vertices, faces, face_points=None, face_normals=None,
+                 leaf_size: int = LEAF_SIZE):
+        v = np.ascontiguousarray(vertices, dtype=np.float64)
+        f = np.ascontiguousarray(faces, dtype=np.int64)
+        if v.ndim != 2 or v.shape[1] != 3:
+            raise ValueError("vertices must have shape (n, 3)")
+        if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] == 0:
+            raise ValueError("faces must have shape (m, 3), m > 0")
+        if f.min() < 0 or f.max() >= v.shape[0]:
+            raise ValueError("faces index outside the vertex array")
+        self.vertices = v
+        self.faces = f
+        tri = np.ascontiguousarray(v[f])
+        m = f.shape[0]
+        has_exact = face_points is not None or face_normals is not None
+        if has_exact:
+            if face_points is None or face_normals is None:
+                raise ValueError("give both face_points and face_normals, or neither")
+            fp = np.ascontiguousarray(face_points, dtype=np.float64)
+            fn = np.ascontiguousarray(face_normals, dtype=np.float64)
+            if fp.shape != (m, 3) or fn.shape != (m, 3):
+                raise ValueError("face_points/face_normals must have shape (m, 3)")
+            nrm = np.linalg.norm(fn, axis=1)
+            if np.any(nrm <= 0.0) or not np.all(np.isfinite(fn)) or not np.all(np.isfinite(fp)):
+                raise ValueError("face_normals must be finite and non-zero")
+            fn = fn / nrm[:, None]
+        else:
+            fp = np.zeros((1, 3))
+            fn = np.zeros((1, 3))
+        belem, ttri = K.element_data(tri, fp, fn, has_exact)
+        if has_exact:
+            geo = ttri[:, 3:6]
+            ok = belem[:, 6] > 0.0
+            bad = np.count_nonzero(np.einsum("ij,ij->i", geo[ok], fn[ok]) < 0.0)
+            if bad:
+                raise ValueError(f"{bad} face_normals point against the triangle winding "
+                                 "(faces must be counter-clockwise seen from outside)")
+        self.tri = tri
+        self.has_exact = has_exact
+        self.area = belem[:, 6].copy()
+        self.points = belem[:, 0:3].copy()
+        self.normals = belem[:, 3:6].copy()
+        self.geo_normals = ttri[:, 3:6].copy()
+        self.node_box, self.node_int, self.order, self.max_depth = build_bvh(
+            tri, leaf_size=leaf_size, extra_points=self.points if has_exact else None)
+        self.node_slab = node_slabs(self.node_int, self.order, tri)
+        self.belem = np.ascontiguousarray(belem[self.order])
+        self.ttri = np.ascontiguousarray(ttri[self.order])
+        self._seg_boxes = {}
+        self._ws = None
+
+    @property
+    def n_faces(self) -> int:
+        return self.faces.shape[0]
+
+    def segment_boxes(self, length: float) -> np.ndarray:
+        """Node boxes (centre, half extents) of the penetration lines of length ``length``."""
+        key = float(length)
+        box = self._seg_boxes.get(key)
+        if box is None:
+            box = refit_segment_boxes(self.node_int, np.ascontiguousarray(self.belem[:, 0:3]),
+                                      np.ascontiguousarray(self.belem[:, 3:6]), key)
+            self._seg_boxes[key] = box
+        return box
+
+    def new_workspace(self):
+        """Base-role work arrays: ``(stamp, call, best_u, best_j, line, active, stack)``."""
+        m = self.n_faces
+        return (np.zeros(m, dtype=np.int64), np.zeros(1, dtype=np.int64), np.full(m, np.inf),
+                -np.ones(m, dtype=np.int64), np.zeros((m, 6)), np.zeros(m, dtype=np.int64),
+                np.zeros((4 * (self.max_depth + 64), 2), dtype=np.int64))
+
+    def workspace(self):
+        if self._ws is None:
+            self._ws = self.new_workspace()
+        return self._ws
+
+
+@dataclass
+class ContactResult:
+    """Result of :func:`evaluate_pair` (world frame, SI).
+
+    Body forces: ``force_base`` = -``force_target``; ``moment_base``/``moment_target`` about the
+    world origin; ``moment_base_origin``/``moment_target_origin`` about each body's origin t.
+    Elements (one row per base element in contact): ``base_idx``, ``target_idx`` (triangle
+    indices), ``u`` penetration, ``point`` force point, ``normal`` base outward normal, ``F_n``
+    normal force (on the target along +normal), ``F_t`` friction force on the target, ``area``.
+    """
+
+    force_base: np.ndarray
+    force_target: np.ndarray
+    moment_base: np.ndarray
+    moment_target: np.ndarray
+    moment_base_origin: np.ndarray
+    moment_target_origin: np.ndarray
+    base_idx: np.ndarray
+    target_idx: np.ndarray
+    u: np.ndarray
+    point: np.ndarray
+    normal: np.ndarray
+    F_n: np.ndarray
+    F_t: np.ndarray
+    area: np.ndarray
+    n_contact: int
+    contact_area: float
+    peak_pressure: float
+    max_penetration: float
+    normal_force: float
+    elastic_energy: float
+    dissipated_power: float
+    status: int
+
+
+def _pose(pose):
+    R, t = pose
+    R = np.ascontiguousarray(R, dtype=np.float64).reshape(3, 3)
+    t = np.ascontiguousarray(t, dtype=np.float64).reshape(3)
+    return R, t
+
+
+def _vel(vel):
+    if vel is None:
+        return np.zeros(3), np.zeros(3)
+    v, w = vel
+    return (np.ascontiguousarray(v, dtype=np.float64).reshape(3),
+            np.ascontiguousarray(w, dtype=np.float64).reshape(3))
+
+
+def evaluate_pair(base: PCMBody, target: PCMBody, pose_base, pose_target, vel_base=None,
+                  vel_target=None, pcm: PCMParams = PCMParams(), friction: bool = True,
+                  damping: bool = True, search_length: float | None = None,
+                  check_penetration: bool = True) -> ContactResult:
+    """Contact of ``base`` against ``target`` in the given poses ``(R, t)`` and velocities
+    ``(v_origin, omega)`` (world). ``search_length`` defaults to 2 u_max. Raises
+    :class:`PenetrationError` when an element penetrates deeper than ``pcm.u_max`` (unless
+    ``check_penetration`` is False: then ``status`` is 1 in the result)."""
+    Rb, tb = _pose(pose_base)
+    Rt, tt = _pose(pose_target)
+    vb, wb = _vel(vel_base)
+    vt, wt = _vel(vel_target)
+    params = K.make_params(pcm, search_length, friction, damping)
+    L = params[K.P_L]
+    Rbt = np.ascontiguousarray(Rt.T @ Rb)
+    tbt = Rt.T @ (tb - tt)
+    stamp, call, best_u, best_j, line, active, stack = base.workspace()
+    n = K.search_pair(base.node_int, base.segment_boxes(L), base.belem, target.node_int,
+                      target.node_box, target.node_slab, target.ttri, Rbt, tbt, L,
+                      stamp, call, best_u, best_j, line, active, stack)
+    e_base = np.empty(n, dtype=np.int64)
+    e_target = np.empty(n, dtype=np.int64)
+    e_u = np.empty(n)
+    e_point = np.empty((n, 3))
+    e_normal = np.empty((n, 3))
+    e_fn = np.empty(n)
+    e_ft = np.empty((n, 3))
+    e_area = np.empty(n)
+    force_t = np.zeros(3)
+    moment_t = np.zeros(3)
+    diag = np.zeros(K.N_DIAG)
+    K.pair_forces(n, active, best_u, best_j, line, base.belem, base.order, target.order,
+                  Rt, tt, tb, vb, wb, vt, wt, params,
+                  e_base, e_target, e_u, e_point, e_normal, e_fn, e_ft, e_area,
+                  force_t, moment_t, diag)
+    status = int(diag[K.D_STATUS])
+    if status and check_penetration:
+        raise PenetrationError(
+            f"penetration {diag[K.D_UMAX]:.6g} m exceeds u_max = {pcm.u_max:.6g} m "
+            f"({np.count_nonzero(e_u > pcm.u_max)} elements)")
+    force_b = -force_t
+    moment_b = -moment_t
+    return ContactResult(
+        force_base=force_b, force_target=force_t.copy(),
+        moment_base=moment_b, moment_target=moment_t.copy(),
+        moment_base_origin=moment_b - np.cross(tb, force_b),
+        moment_target_origin=moment_t - np.cross(tt, force_t),
+        base_idx=e_base, target_idx=e_target, u=e_u, point=e_point, normal=e_normal,
+        F_n=e_fn, F_t=e_ft, area=e_area,
+        n_contact=int(diag[K.D_N]), contact_area=float(diag[K.D_AREA]),
+        peak_pressure=float(diag[K.D_PEAK_P]), max_penetration=float(diag[K.D_UMAX]),
+        normal_force=float(diag[K.D_FN]), elastic_energy=float(diag[K.D_EEL]),
+        dissipated_power=float(diag[K.D_PDISS]), status=status)
+
+
+def make_fixed_axis_data(base_body: PCMBody, target_body: PCMBody, R0_base, R0_target,
+                         pcm: PCMParams = PCMParams(), friction: bool = True,
+                         damping: bool = True, search_length: float | None = None) -> tuple:
+    """numba-typable data tuple of :func:`fixed_axis_eval` for a pair rotating about fixed axes
+    through the world origin: pose_base = (R0_base @ Rz(theta_base), 0), likewise the target; the
+    axes are R0[:, 2]. The tuple owns its own work arrays (one tuple per concurrent user).
+
+    Layout: ``(b_int, b_seg, belem, b_order, t_int, t_box, t_slab, ttri, t_order, M, ab0, params, stamp,
+    call, best_u, best_j, line, active, stack, Rbt, tbt)`` with ``M = R0_target.T @ R0_base``,
+    ``ab0 = M[:, 2]`` (base axis in the target's reference frame), ``params`` see
+    :func:`kernels.make_params`, the rest work arrays (see :mod:`.kernels`).
+    """
+    R0b = np.asarray(R0_base, dtype=np.float64).reshape(3, 3)
+    R0t = np.asarray(R0_target, dtype=np.float64).reshape(3, 3)
+    for R in (R0b, R0t):
+        if not np.allclose(R.T @ R, np.eye(3), atol=1e-9) or np.linalg.det(R) < 0:
+            raise ValueError("R0 must be a rotation matrix")
+    params = K.make_params(pcm, search_length, friction, damping)
+    L = params[K.P_L]
+    M = np.ascontiguousarray(R0t.T @ R0b)
+    ab0 = np.ascontiguousarray(M[:, 2].copy())
+    ws = base_body.new_workspace()
+    return (base_body.node_int, base_body.segment_boxes(L), base_body.belem, base_body.order,
+            target_body.node_int, target_body.node_box, target_body.node_slab, target_body.ttri,
+            target_body.order,
+            M, ab0, params) + ws + (np.zeros((3, 3)), np.zeros(3))

@@ -136,8 +136,8 @@ def tooth_axis_body(role: str) -> np.ndarray:
 def backlash_angle(params: BevelGearParams | None = None) -> float:
     """Angular backlash s_b [rad at the pinion]: ``j / r_e1 = 2 j / (m z1)``.
 
-    The free play of the exact geometry equals this to < 1e-9 relative (see
-    :func:`backlash_angle_exact`, tested); drive flanks close at s = +s_b/2, coast at -s_b/2."""
+    The free play of the exact geometry equals this to sampling accuracy (~1e-9..1e-7 relative,
+    see :func:`backlash_angle_exact`, tested); drive flanks close at s = +s_b/2, coast at -s_b/2."""
     p = params or BevelGearParams()
     return 2.0 * p.backlash / (p.module * p.z_pinion)
 

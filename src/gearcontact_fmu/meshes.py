@@ -23,12 +23,15 @@ Validation (:func:`validate_gear_mesh`) refuses with :class:`MeshError` and says
 empty mesh; wrong scale (max distance from the apex vs. the outer cone distance outside
 [0.5, 2]x; ~1000x / ~0.001x are reported as a metres-vs-millimetres mix-up); degenerate
 (zero-area) faces — **refused** by :func:`validate_gear_mesh`; :func:`load_gear_mesh` drops them
-first by default (``drop_degenerate=True``) and warns with the count; inconsistent winding;
-normals into the material (closed meshes: volume < 0; open meshes: the area-weighted mean of
-n . e_radial must be > 0, as for involute flanks whose outward normal has a component away from the
-axis); not facing the partner (less than ``min_zone_fraction`` of the area in the mesh zone:
-cone distance within the face width band and polar angle from the tooth axis between the root
-and tip cones, with tolerances).
+first by default (``drop_degenerate=True``) and warns with the count; inconsistent winding
+(trimesh ``is_winding_consistent`` after merging coincident vertices); closed meshes with volume
+<= 0 (inside out); not facing the partner (less than ``min_zone_fraction`` = 50 % of the area in
+the mesh zone: cone distance in ``[R_i - 0.1 b, R_e/cos(theta_a) + 0.1 b]`` and polar angle from
+the tooth axis within the root..tip cone range widened by 25 % of its span each side; a wheel whose
+teeth point to +z is recognised and the message says so); open meshes with normals into the
+material (area-weighted mean of n . e_radial must be > 0, as for involute flanks whose outward
+normal has a component away from the axis; checked after the zone so that it is meaningful).
+Checks run in this order and the first failure is reported.
 """
 from __future__ import annotations
 
@@ -330,22 +333,12 @@ def validate_gear_mesh(mesh: SurfaceMesh, params=None, role: str = "pinion", *, 
         raise MeshError(f"{name} has inconsistent normals: the face winding is not consistent between "
                         "neighbouring faces, so some normals point into the material")
     # orientation: closed -> volume > 0; open -> area-weighted mean n . e_radial > 0
-    if tm.is_watertight:
+    closed = tm.is_watertight
+    if closed:
         vol = float(tm.volume)
         if not vol > 0:
             raise MeshError(f"{name} is closed but its volume is {vol:.3g} m^3 <= 0: the normals point into "
                             "the material (faces are wound inside out)")
-    else:
-        c = mesh.centroids()
-        er = c.copy()
-        er[:, 2] = 0.0
-        rn = np.linalg.norm(er, axis=1)
-        ok = rn > 0
-        er[ok] /= rn[ok, None]
-        mean = float(np.sum(a * np.einsum("ij,ij->i", mesh.normals(), er)) / a.sum())
-        if not mean > 0:
-            raise MeshError(f"{name}: normals point into the material (area-weighted mean of n . e_radial = "
-                            f"{mean:.3g} <= 0; outward flank normals have a component away from the axis)")
     # faces its partner: area in the mesh zone
     c = mesh.centroids()
     rho = np.linalg.norm(c, axis=1)
@@ -370,6 +363,17 @@ def validate_gear_mesh(mesh: SurfaceMesh, params=None, role: str = "pinion", *, 
             f"tooth axis {math.degrees(g.delta_f - tol_p):.2f}..{math.degrees(g.delta_a + tol_p):.2f} deg), "
             f"need {100 * min_zone_fraction:.0f} %. The body frame must have the apex at the origin and "
             f"the rotation axis along z.{hint}")
+    if not closed:
+        c = mesh.centroids()
+        er = c.copy()
+        er[:, 2] = 0.0
+        rn = np.linalg.norm(er, axis=1)
+        ok = rn > 0
+        er[ok] /= rn[ok, None]
+        mean = float(np.sum(a * np.einsum("ij,ij->i", mesh.normals(), er)) / a.sum())
+        if not mean > 0:
+            raise MeshError(f"{name}: normals point into the material (area-weighted mean of n . e_radial = "
+                            f"{mean:.3g} <= 0; outward flank normals have a component away from the axis)")
     return mesh
 
 

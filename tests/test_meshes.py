@@ -75,10 +75,13 @@ def test_normals_consistent_outward_and_exact(role, pinion, wheel3):
 
 @pytest.mark.parametrize("role", ["pinion", "wheel"])
 @pytest.mark.parametrize("res", [MeshResolution(), MeshResolution(profile=0.5e-3, face=5e-3)])
-def test_area_matches_analytic(role, res):
+@pytest.mark.parametrize("top_land", [False, True])
+def test_area_matches_analytic(role, res, top_land):
     teeth = [0, 1]
-    m = G.build_gear_mesh(P, role, res, teeth=teeth)
-    a_exact = G.analytic_area(P, role, n_teeth=len(teeth))
+    m = G.build_gear_mesh(P, role, res, teeth=teeth, top_land=top_land)
+    assert _is_winding_consistent(m)
+    assert np.einsum("ij,ij->i", m.normals(), m.face_normals).min() > 0.99
+    a_exact = G.analytic_area(P, role, n_teeth=len(teeth), top_land=top_land)
     assert m.area() == pytest.approx(a_exact, rel=5e-3)
     if res.profile <= 0.05e-3:
         assert m.area() == pytest.approx(a_exact, rel=2e-4)

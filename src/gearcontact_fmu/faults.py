@@ -83,7 +83,7 @@ def mild_flank_fracture(mesh: SurfaceMesh, params: BevelGearParams | None = None
     if depth > 0.5 * g.s_pitch:
         raise ValueError("void deeper than half the tooth thickness")
     res = MeshResolution(profile=mesh.meta["profile"], face=mesh.meta["face"])
-    faulty = geometry.build_gear_mesh(params, role, res, teeth=[tooth], top_land=mesh.meta.get("top_land", True),
+    faulty = geometry.build_gear_mesh(params, role, res, teeth=[tooth], top_land=mesh.meta.get("top_land", False),
                                       notch={tooth: (1, s_a, s_b, depth / g.Rm)})
     out = concatenate([mesh.subset(~sel), faulty])
     out.meta = dict(mesh.meta)

@@ -22,7 +22,9 @@ teeth at +z, the tooth centred on azimuth 0), consists of (from the root cone up
 3. the tip rounding: a small circle on the unit sphere of angular radius ``kappa = r_tip / R_e``
    tangent to the involute and to the tip circle (so its physical radius scales with rho and is
    ``tip_radius`` at the outer end); exact normal ``(cos kappa u - c) / sin kappa``;
-4. half of the top land (tip cone, normal along +polar direction).
+4. half of the top land (tip cone, normal along +polar direction). The top land cannot touch the
+   partner at fixed axes, so meshes leave it out by default (``build_gear_mesh(top_land=False)``);
+   each tooth is then two strips (drive and coast side, each root -> rounding end).
 
 The other flank is the mirror image ``y -> -y``. Tooth thickness at the outer pitch circle
 ``s = m (pi/2 + 2 x tan alpha) - j/2`` (``j`` = circumferential backlash, split equally over both
@@ -85,6 +87,7 @@ __all__ = [
 
 ROLES = ("pinion", "wheel")
 _F_WHEEL = np.diag([1.0, -1.0, -1.0])       # wheel: gear frame <-> body frame (rotation by pi about x)
+_MIN_ROUND_SEGMENTS = 6                     # the tip rounding gets at least this many elements
 
 
 # ----------------------------------------------------------------------------- placement
@@ -537,7 +540,7 @@ def _flank_breaks(g: GearGeometry):
     return out
 
 
-def _tooth_pieces(g: GearGeometry, top_land: bool = True, notch=None):
+def _tooth_pieces(g: GearGeometry, top_land: bool = False, notch=None):
     """Pieces of one tooth's profile: coast side root -> tip (-> land) -> drive side tip -> root.
 
     notch: None or (side, s_a, s_b, depth_angle) - a void in that flank's radial/involute part."""
@@ -586,7 +589,7 @@ def _split_for_notch(g, side, s_from, s_to, kind, notch, down):
     return out
 
 
-def _tooth_template(g: GearGeometry, resolution: MeshResolution, top_land=True, notch=None):
+def _tooth_template(g: GearGeometry, resolution: MeshResolution, top_land=False, notch=None):
     """Mesh of tooth 0 in the gear frame: vertices, faces and per-face data (strips of the polyline)."""
     ds = resolution.profile / g.Rm
     nf = max(1, int(math.ceil(g.b / resolution.face - 1e-9)))
@@ -608,6 +611,8 @@ def _tooth_template(g: GearGeometry, resolution: MeshResolution, top_land=True, 
         seg_piece, seg_t0, seg_t1 = [], [], []
         for ip, pc in enumerate(strip):
             n = max(1, int(math.ceil(pc.length / ds - 1e-9)))
+            if pc.kind == KIND_TIP_ROUND:
+                n = max(n, _MIN_ROUND_SEGMENTS)
             t = np.linspace(0.0, 1.0, n + 1)
             u, _ = pc.eval(t)
             nodes_u.append(u if not nodes_u else u[1:])
@@ -676,12 +681,12 @@ def _teeth_list(g: GearGeometry, teeth):
 
 
 def build_gear_mesh(params: BevelGearParams | None, role: str, resolution: MeshResolution | None = None,
-                    teeth=None, *, top_land: bool = True, notch: dict | None = None) -> SurfaceMesh:
-    """Surface mesh (body frame, m) of both flanks of the teeth incl. tip rounding (and top land).
+                    teeth=None, *, top_land: bool = False, notch: dict | None = None) -> SurfaceMesh:
+    """Surface mesh (body frame, m) of both flanks of the teeth incl. tip rounding (top land optional).
 
     Element size: ``resolution.profile`` along the profile and ``resolution.face`` along the face
     width, both at the mean cone distance (the profile spacing scales with rho, the face spacing is
-    uniform in rho). ``teeth``: subset of tooth indices (mod z), default all. Each tooth is one
+    uniform in rho); the tip rounding gets at least 6 elements along the profile. ``teeth``: subset of tooth indices (mod z), default all. Each tooth is one
     structured strip (shared vertices, consistent winding, geometric normals outward). Exact face
     data: ``face_points`` on the analytic surface at the element centroid's profile parameter,
     ``face_normals`` the analytic outward normal. ``notch`` (used by :mod:`faults`):
@@ -721,7 +726,7 @@ def build_gear_mesh(params: BevelGearParams | None, role: str, resolution: MeshR
               "top_land": top_land, "params": params})
 
 
-def analytic_area(params: BevelGearParams | None, role: str, top_land: bool = True, n_teeth: int | None = None) -> float:
+def analytic_area(params: BevelGearParams | None, role: str, top_land: bool = False, n_teeth: int | None = None) -> float:
     """Exact area of the meshed tooth surfaces: (Re^2 - Ri^2)/2 * (profile arc length) per tooth."""
     g = gear_geometry(params, role)
     L = 2.0 * (g.L_half if top_land else g.L_flank)

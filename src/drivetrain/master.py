@@ -1172,3 +1172,18 @@ def simulate(spec: SystemSpec, duration_s: float, output_rate_Hz: float, record:
 __all__ = ["Master", "simulate", "CosimResult", "ConfigurationError", "CosimError", "check_system",
            "check_comm_step", "ensure_fmus", "stale_models", "sources_hash", "load_fmu_info", "extracted_dir",
            "energy_audit", "load_slave_class"]
+
+
+def record_built(fmu_dir: str | Path, paths: Sequence[str | Path]) -> None:
+    """Record that these FMUs were just built from the current sources (staleness stamp)."""
+    fmu_dir = Path(fmu_dir)
+    current = sources_hash()
+    with _file_lock(fmu_dir / ".build.lock"):
+        stamp = _read_stamp(fmu_dir)
+        for p in paths:
+            p = Path(p)
+            if p.suffix == ".fmu" and p.is_file() and p.parent.resolve() == fmu_dir.resolve():
+                stamp[p.stem] = current
+        tmp = fmu_dir / (STAMP_FILE + f".{os.getpid()}")
+        tmp.write_text(json.dumps(stamp, indent=1, sort_keys=True))
+        os.replace(tmp, fmu_dir / STAMP_FILE)

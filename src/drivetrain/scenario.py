@@ -392,6 +392,8 @@ def _parse_quantity(key: str, spec: Key, value: str, problems) -> float | None:
         problems.append((key, value, f"{expected}; unknown unit {unit!r}"))
         return None
     dim, factor = _UNITS[unit]
+    if spec.dimension == "speed" and unit == "Hz":      # a rotation frequency: revolutions per second
+        dim, factor = "speed", 60.0
     if dim != spec.dimension:
         problems.append((key, value, f"a {spec.dimension} in {spec.unit} (got a {dim} unit {unit!r}; "
                                      f"e.g. {_BASE_UNIT.get(spec.dimension, spec.unit)})"))

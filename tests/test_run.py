@@ -1,0 +1,151 @@
+"""`run_scene`, the result files, `drivetrain run` and sweeps."""
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from _cosim_test_fmus import build_test_fmus
+from drivetrain.cli import main
+from drivetrain.outputs import AALTO_COLUMNS, read_hdf5
+from drivetrain.run import SUMMARY_KEYS, run_scene
+from drivetrain.scenario import load_scene, load_scenes
+from drivetrain.system import ComponentSpec, Connection, SystemSpec
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE = ROOT / "scenarios" / "example.toml"
+HAVE_ASSEMBLER = importlib.util.find_spec("drivetrain.assemble") is not None
+
+
+@pytest.fixture(scope="module")
+def fmus(tmp_path_factory):
+    return build_test_fmus(tmp_path_factory.mktemp("mtfmus_run"))
+
+
+def toy_spec():
+    """Motor inertia -> spring -> load inertia, standing in for the drivetrain (sensors mapped)."""
+    return SystemSpec(
+        components=[ComponentSpec("motor", "MTInertia", {"J": 0.01, "d": 0.002, "tau_src": 1.0}),
+                    ComponentSpec("shaft", "MTSpring", {"k": 300.0, "c": 0.05}),
+                    ComponentSpec("load", "MTInertia", {"J": 0.02, "d": 0.01})],
+        connections=[Connection("shaft.flange_a", "motor.flange"), Connection("shaft.flange_b", "load.flange")],
+        comm_step=1.0 / 12000.0,
+        metadata={"sensors": {"drive_shaft_torque": "shaft.flange_b_tau", "propeller_shaft_torque": "shaft.flange_b_tau",
+                              "enc1": "motor.flange_phi", "enc5": "load.flange_phi"}})
+
+
+def test_run_scene_writes_everything(tmp_path, fmus):
+    scene = load_scene(EXAMPLE, ["time.duration_s=0.6", "outputs.variables=[\"load.flange_w\"]"])
+    res = run_scene(scene, tmp_path / "out", spec=toy_spec(), fmu_paths=fmus, progress=False)
+    out = tmp_path / "out"
+    for f in ("signals.h5", "summary.json", "torques.png", "spectra.png", "sensors.csv"):
+        assert (out / f).is_file() and (out / f).stat().st_size > 1000, f
+    s = json.loads((out / "summary.json").read_text())
+    for k in SUMMARY_KEYS:
+        assert k in s, k
+    assert s["sim_time_s"] == pytest.approx(0.6)
+    assert s["real_time_factor"] > 0 and s["wall_time_s"] > 0
+    assert (s["f_DSH"], s["f_MSH"], s["f_PSH"], s["f_GMF"]) == pytest.approx((25.0, 25 / 3, 25 / 12, 125.0))
+    assert set(s["torque"]) == {"drive_shaft_torque", "propeller_shaft_torque"}
+    assert s["torque"]["drive_shaft_torque"]["mean"] > 0 and s["torque"]["drive_shaft_torque"]["rms"] > 0
+    assert 0 <= s["energy_residual"] < 1e-3 and s["energy"]["complete"]
+    assert [f["name"] for f in s["fmus"]] == ["motor", "shaft", "load"]
+    assert any("enc2" in w for w in s["warnings"])            # not provided by the toy system
+    h = read_hdf5(out / "signals.h5")
+    assert h["attrs"]["format"] == "drivetrain-run/1"
+    assert h["scene"]["scene"] == scene.to_dict()            # the full resolved scene
+    assert h["scene"]["overrides"] == list(scene.overrides)
+    assert h["units"]["drive_shaft_torque"] == "N.m" and h["units"]["enc1"] == "rad"
+    assert h["units"]["load.flange_w"] == "rad/s"
+    assert h["meta"]["enc1"]["source"] == "motor.flange_phi"
+    assert len(h["time"]) == 1801 and h["time"][1] == pytest.approx(1 / 3000.0)
+    for name, x in h["signals"].items():
+        assert np.all(np.isfinite(x)) and len(x) == len(h["time"]), name
+    np.testing.assert_allclose(h["signals"]["drive_shaft_torque"], res.signals["drive_shaft_torque"])
+    header = (out / "sensors.csv").read_text().splitlines()[0]
+    assert header.split(",") == list(AALTO_COLUMNS)
+
+
+def test_cli_refuses_malformed_scene_before_running(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[time]\nduration_s = -1\n[gear]\nhealth = "cracked"\n')
+    out = tmp_path / "never"
+    rc = main(["run", str(bad), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert "time.duration_s = -1" in err and "> 0 s" in err
+    assert "gear.health = 'cracked'" in err and "'healthy'" in err
+    assert not out.exists()
+    rc = main(["run", str(EXAMPLE), "--set", "numerics.comm_step_s=1e-4", "--out", str(out)])
+    assert rc == 2 and "divides the output period" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_sweep_local_processes(tmp_path, fmus):
+    from drivetrain.sweep import run_sweep
+
+    scenes = [load_scene(EXAMPLE, ["time.duration_s=0.2", f"scenario.name=toy{i}", f"operating_point.load_torque_Nm={v}"])
+              for i, v in enumerate((0.12, 1.31))]
+    specs = {s.name: toy_spec() for s in scenes}
+    man = run_sweep(scenes, tmp_path / "sw", workers=2, specs=specs, fmu_paths=fmus, plots=False, progress=False)
+    assert [r["status"] for r in man["runs"]] == ["ok", "ok"], man
+    assert (tmp_path / "sw" / "manifest.csv").is_file() and (tmp_path / "sw" / "manifest.json").is_file()
+    for r in man["runs"]:
+        assert Path(r["signals"]).is_file()
+        assert r["pid"] != os.getpid()
+    # the same case in this process gives the same signals (deterministic, independent of the process)
+    ref = run_scene(scenes[0], None, spec=toy_spec(), fmu_paths=fmus, progress=False)
+    h = read_hdf5(man["runs"][0]["signals"])
+    np.testing.assert_array_equal(h["signals"]["drive_shaft_torque"], ref.signals["drive_shaft_torque"])
+
+
+@pytest.mark.skipif(not HAVE_ASSEMBLER, reason="drivetrain.assemble not available yet")
+def test_cli_run_example(tmp_path):
+    out = tmp_path / "tmp"
+    r = subprocess.run([sys.executable, "-m", "drivetrain.cli", "run", str(EXAMPLE), "--set", "time.duration_s=0.5",
+                        "--out", str(out), "--quiet"], cwd=ROOT, capture_output=True, text=True, timeout=1200)
+    assert r.returncode == 0, r.stderr
+    for f in ("signals.h5", "summary.json", "torques.png", "spectra.png"):
+        assert (out / f).is_file(), f
+    s = json.loads((out / "summary.json").read_text())
+    for k in SUMMARY_KEYS:
+        assert k in s, k
+    h = read_hdf5(out / "signals.h5")
+    for name, x in h["signals"].items():
+        assert np.all(np.isfinite(x)), name
+    assert h["units"]["drive_shaft_torque"] in ("N.m", "N·m")
+    assert s["f_GMF"] == pytest.approx(125.0)
+    # physics sanity (measured at 1500 rpm, 1.31 N·m: 1.85 and 14.75 N·m): right sign and magnitude
+    tq = s["torque"]
+    assert 0.5 * 1.85 < tq["drive_shaft_torque"]["mean"] < 2.0 * 1.85
+    assert 0.5 * 14.75 < tq["propeller_shaft_torque"]["mean"] < 2.0 * 14.75
+    assert s["energy_residual"] < 0.05
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not HAVE_ASSEMBLER, reason="drivetrain.assemble not available yet")
+def test_hard_scenes_finite(tmp_path):
+    for f in sorted((ROOT / "scenarios" / "hard").glob("*.toml")):
+        scene = load_scenes(f)[0]
+        res = run_scene(scene, tmp_path / scene.name, progress=False)
+        assert not res.summary["nonfinite_channels"], scene.name
+        assert res.summary["energy_residual"] < 0.01, scene.name
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not HAVE_ASSEMBLER, reason="drivetrain.assemble not available yet")
+def test_paper_sweep_short_on_dask(tmp_path):
+    """All 54 paper scenes (shortened to 1 s) through a Dask LocalCluster executor."""
+    from distributed import LocalCluster
+
+    from drivetrain.sweep import run_sweep
+
+    scenes = load_scenes(ROOT / "scenarios" / "paper" / "paper.toml",
+                         ["time.duration_s=1.0", "time.settle_s=0.5"])
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True) as cluster:
+        man = run_sweep(scenes, tmp_path / "paper", address=cluster.scheduler_address, plots=False, progress=False)
+    assert [r["status"] for r in man["runs"]] == ["ok"] * 54

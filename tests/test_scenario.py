@@ -1,0 +1,228 @@
+"""Scene files: validation, overrides, grid expansion, shipped scenes (drivetrain.scenario)."""
+import itertools
+from pathlib import Path
+
+import pytest
+
+from drivetrain.scenario import (SCHEMA, ScenarioError, all_keys, load_scene, load_scenes, parse_override, resolve,
+                                 scene_from_dict)
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENARIOS = ROOT / "scenarios"
+
+
+def refused(raw, base_dir=".", **kw):
+    with pytest.raises(ScenarioError) as ei:
+        resolve(raw, base_dir=base_dir, **kw)
+    return ei.value
+
+
+def assert_problem(err, key, value_text, expected_text):
+    """One of the problems names the key, shows the value and says what was expected."""
+    for k, v, exp in err.problems:
+        if k == key and expected_text in exp:
+            assert value_text.lower() in str(err).lower(), str(err)
+            assert key in str(err)
+            return
+    raise AssertionError(f"no problem for {key!r} expecting {expected_text!r} in:\n{err}")
+
+
+# ------------------------------------------------------------------------------------------------ malformed
+
+
+def test_unknown_key_and_section():
+    e = refused({"time": {"duration_s": 1.0, "durration_s": 2.0}, "timing": {"x": 1}})
+    assert_problem(e, "time.durration_s", "2.0", "a known key of [time]")
+    assert "did you mean 'duration_s'" in str(e)
+    assert_problem(e, "timing", "{...}", "a known section")
+
+
+def test_wrong_unit():
+    # a key with another unit suffix
+    e = refused({"operating_point": {"drive_speed_Hz": 25.0}})
+    assert_problem(e, "operating_point.drive_speed_Hz", "25.0", "wrong unit: the key is 'drive_speed_rpm'")
+    # a quantity string of the wrong kind
+    e = refused({"operating_point": {"load_torque_Nm": "3 N"}})
+    assert_problem(e, "operating_point.load_torque_Nm", "'3 N'", "a torque in N·m")
+    e = refused({"time": {"duration_s": "3 rpm"}})
+    assert_problem(e, "time.duration_s", "'3 rpm'", "a time in s")
+    e = refused({"time": {"duration_s": "3 parsecs"}})
+    assert_problem(e, "time.duration_s", "'3 parsecs'", "unknown unit")
+
+
+def test_quantity_strings_are_converted():
+    s = scene_from_dict({"time": {"duration_s": "500 ms", "sample_rate_Hz": "3.012 kHz"},
+                         "operating_point": {"drive_speed_rpm": "25 Hz", "load_torque_Nm": "710 mN·m"},
+                         "numerics": {"comm_step_s": 1.0 / 12048.0}})
+    assert s.time.duration_s == pytest.approx(0.5)
+    assert s.time.sample_rate_Hz == pytest.approx(3012.0)
+    assert s.operating_point.drive_speed_rpm == pytest.approx(1500.0)
+    assert s.operating_point.load_torque_Nm == pytest.approx(0.71)
+
+
+def test_wrong_types():
+    e = refused({"time": {"duration_s": "long"}, "effects": {"shaft_elements": 2.5, "friction": 1},
+                 "outputs": {"sensors": "enc1"}, "scenario": {"name": 7}})
+    assert_problem(e, "time.duration_s", "'long'", "a number in s")
+    assert_problem(e, "effects.shaft_elements", "2.5", "an integer")
+    assert_problem(e, "effects.friction", "1", "true or false")
+    assert_problem(e, "outputs.sensors", "'enc1'", "a list of strings")
+    assert_problem(e, "scenario.name", "7", "a string")
+    e = refused({"time": {"duration_s": True}})
+    assert_problem(e, "time.duration_s", "true", "not a boolean")
+
+
+@pytest.mark.parametrize("section,key,value,expected", [
+    ("time", "duration_s", -1.0, "> 0 s"),
+    ("time", "duration_s", 0.0, "> 0 s"),
+    ("time", "sample_rate_Hz", -3000.0, "> 0 Hz"),
+    ("operating_point", "load_torque_Nm", -0.5, ">= 0 N·m"),
+    ("operating_point", "drive_speed_rpm", float("nan"), "finite"),
+    ("effects", "shaft_elements", 0, ">= 1"),
+    ("numerics", "max_substep_s", -1e-6, "> 0 s"),
+])
+def test_impossible_values(section, key, value, expected):
+    e = refused({section: {key: value}})
+    assert_problem(e, f"{section}.{key}", str(value)[:3], expected)
+
+
+def test_cross_key_rules():
+    e = refused({"time": {"duration_s": 1.0, "settle_s": 1.5}})
+    assert_problem(e, "time.settle_s", "1.5", "shorter than time.duration_s")
+    e = refused({"numerics": {"comm_step_s": 1e-4, "max_substep_s": 1e-3}})
+    assert_problem(e, "numerics.comm_step_s", "0.0001", "divides the output period")
+    assert "8.333333333333333e-05" in str(e)                       # the suggestion
+    e = refused({"time": {"sample_rate_Hz": 3012.0}})              # default H = 1/12000 does not divide 1/3012
+    assert_problem(e, "numerics.comm_step_s", "8.33", "divides the output period")
+    e = refused({"numerics": {"max_substep_s": 1e-3}})
+    assert_problem(e, "numerics.max_substep_s", "0.001", "<= numerics.comm_step_s")
+    e = refused({"gear": {"health": "severe"}, "effects": {"mesh_contact": "ideal"}})
+    assert_problem(e, "effects.mesh_contact", "'ideal'", "tooth geometry")
+    e = refused({"operating_point": {"speed_profile_rpm": [[0.0, 0.0], [1.0, 1500.0], [0.5, 10.0]]}})
+    assert_problem(e, "operating_point.speed_profile_rpm", "[[0.0, 0.0]", "strictly increasing")
+    e = refused({"operating_point": {"load_profile_Nm": [[1.0, 1.31], [2.0, 0.12]]}})
+    assert_problem(e, "operating_point.load_profile_Nm", "[[1.0, 1.31]", "starting at time 0")
+
+
+def test_health_and_mesh_files(tmp_path):
+    e = refused({"gear": {"health": "broken"}})
+    assert_problem(e, "gear.health", "'broken'", "one of 'healthy', 'mild', 'severe', 'mesh'")
+    e = refused({"gear": {"health": "mesh", "pinion_mesh": "faults/nope.obj"}}, base_dir=tmp_path)
+    assert_problem(e, "gear.pinion_mesh", "'faults/nope.obj'", "an existing mesh file")
+    e = refused({"gear": {"health": "mesh"}})
+    assert_problem(e, "gear.pinion_mesh", "(missing)", 'when gear.health = "mesh"')
+    (tmp_path / "faults").mkdir()
+    (tmp_path / "faults" / "p.obj").write_text("v 0 0 0\n")
+    e = refused({"gear": {"health": "severe", "pinion_mesh": "faults/p.obj"}}, base_dir=tmp_path)
+    assert_problem(e, "gear.pinion_mesh", "p.obj", 'unless gear.health = "mesh"')
+    e = refused({"gear": {"health": "mesh", "pinion_mesh": "faults/p.txt"}}, base_dir=tmp_path)
+    assert_problem(e, "gear.pinion_mesh", "p.txt", ".obj or .stl")
+    # accepted: relative to the scene file's directory, stored absolute
+    f = tmp_path / "scene.toml"
+    f.write_text('[gear]\nhealth = "mesh"\npinion_mesh = "faults/p.obj"\n')
+    s = load_scene(f)
+    assert s.gear.pinion_mesh == (tmp_path / "faults" / "p.obj").resolve()
+
+
+def test_all_problems_reported_together_from_file(tmp_path):
+    f = tmp_path / "bad.toml"
+    f.write_text('[time]\nduration_s = -2\n[gear]\nhealth = "rusty"\n[effects]\nfriction = "yes"\n')
+    with pytest.raises(ScenarioError) as ei:
+        load_scene(f)
+    assert len(ei.value.problems) == 3
+    assert str(f) in str(ei.value)
+    f.write_text("[time\nduration_s = 1")
+    with pytest.raises(ScenarioError, match="valid TOML"):
+        load_scene(f)
+
+
+# ------------------------------------------------------------------------------------------------ overrides
+
+
+def test_set_overrides_are_typed():
+    s = load_scene(SCENARIOS / "example.toml", [
+        "time.duration_s=0.5", "effects.shaft_elements=6", "effects.friction=false", "gear.health=severe",
+        'outputs.sensors=["drive_shaft_torque", "enc5"]', "operating_point.drive_speed_rpm=500",
+        'scenario.description="a b c"'])
+    assert s.time.duration_s == 0.5 and isinstance(s.time.duration_s, float)
+    assert s.effects.shaft_elements == 6 and isinstance(s.effects.shaft_elements, int)
+    assert s.effects.friction is False
+    assert s.gear.health == "severe"
+    assert s.outputs.sensors == ("drive_shaft_torque", "enc5")
+    assert s.operating_point.drive_speed_rpm == 500.0 and isinstance(s.operating_point.drive_speed_rpm, float)
+    assert s.scenario.description == "a b c"
+    assert s.time.settle_s == pytest.approx(0.1)        # default: min(2 s, 20 % of duration)
+    assert s.overrides[0] == "time.duration_s=0.5"
+    assert load_scene(SCENARIOS / "example.toml", ["time.duration_s=500ms"]).time.duration_s == pytest.approx(0.5)
+    assert parse_override("a.b = [1, 2]") == (["a", "b"], [1, 2])
+
+
+def test_bad_overrides_refused():
+    with pytest.raises(ScenarioError) as ei:
+        load_scene(SCENARIOS / "example.toml", ["time.duration_s=-3"])
+    assert_problem(ei.value, "time.duration_s", "-3", "> 0 s")
+    with pytest.raises(ScenarioError, match="unknown: enc9"):
+        load_scene(SCENARIOS / "example.toml", ['outputs.sensors=["enc9"]'])
+    with pytest.raises(ScenarioError, match="section.key=value"):
+        load_scene(SCENARIOS / "example.toml", ["duration"])
+    with pytest.raises(ScenarioError, match="section.key"):
+        load_scene(SCENARIOS / "example.toml", ["duration_s=3"])
+    with pytest.raises(ScenarioError, match="a known key of \\[time\\]"):
+        load_scene(SCENARIOS / "example.toml", ["time.duraton_s=3"])
+
+
+# ------------------------------------------------------------------------------------------------ grids, shipped
+
+
+def test_paper_grid_expands_to_54():
+    scenes = load_scenes(SCENARIOS / "paper" / "paper.toml")
+    assert len(scenes) == 54
+    combos = {(s.operating_point.drive_speed_rpm, s.operating_point.load_torque_Nm, s.gear.health) for s in scenes}
+    expected = set(itertools.product([250.0, 500.0, 750.0, 1000.0, 1250.0, 1500.0], [0.12, 0.71, 1.31],
+                                     ["healthy", "mild", "severe"]))
+    assert combos == expected
+    assert len({s.name for s in scenes}) == 54
+    for s in scenes:
+        assert s.time.duration_s == 20.0 and s.time.sample_rate_Hz == 3000.0 and s.time.settle_s == 2.0
+        assert s.effects.mesh_contact == "table"
+        assert s.name == (f"paper_{s.gear.health}_{s.operating_point.drive_speed_rpm:g}rpm_"
+                          f"{s.operating_point.load_torque_Nm:g}Nm")
+    one = load_scene(SCENARIOS / "paper" / "paper.toml", case="paper_severe_1500rpm_1.31Nm")
+    assert (one.gear.health, one.operating_point.drive_speed_rpm) == ("severe", 1500.0)
+    with pytest.raises(ScenarioError, match="expands to 54"):
+        load_scene(SCENARIOS / "paper" / "paper.toml")
+    with pytest.raises(ScenarioError, match="sweep axis"):
+        load_scenes(SCENARIOS / "paper" / "paper.toml", ["gear.health=healthy"])
+    short = load_scenes(SCENARIOS / "paper" / "paper.toml", ["time.duration_s=1", "time.settle_s=0.5"])
+    assert {s.time.duration_s for s in short} == {1.0}
+
+
+def test_all_shipped_scenes_validate():
+    files = sorted(SCENARIOS.rglob("*.toml"))
+    assert len(files) >= 6
+    names = set()
+    for f in files:
+        for s in load_scenes(f):
+            assert s.name not in names
+            names.add(s.name)
+    hard = {s.name: s for f in (SCENARIOS / "hard").glob("*.toml") for s in load_scenes(f)}
+    assert hard["hard_missing_tooth_1500rpm"].gear.health == "severe"
+    assert hard["hard_low_load_rattle"].operating_point.load_torque_Nm == 0.12
+    assert hard["hard_startup_ramp"].operating_point.speed_profile_rpm[0] == (0.0, 0.0)
+    assert hard["hard_load_step"].operating_point.load_at(3.0) == pytest.approx(0.12)
+    assert hard["hard_load_step"].operating_point.load_at(1.0) == pytest.approx(1.31)
+
+
+def test_round_trip_and_docs_cover_every_key():
+    s = load_scene(SCENARIOS / "example.toml")
+    again = resolve(s.to_dict(), base_dir=SCENARIOS)
+    assert again.to_dict() == s.to_dict()
+    import tomllib
+
+    assert tomllib.loads(s.to_toml()) == s.to_dict()
+    doc = (ROOT / "docs" / "SCENARIOS.md").read_text()
+    for section, keys in SCHEMA.items():
+        assert f"[{section}]" in doc
+        for key in keys:
+            assert f"`{key}`" in doc, f"{section}.{key} undocumented"
+    assert len(all_keys()) == sum(len(k) for k in SCHEMA.values())

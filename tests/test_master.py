@@ -3,6 +3,7 @@
 Real component FMUs are exercised in test_run.py once the assembler and the components exist.
 """
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -169,3 +170,46 @@ def test_staleness_keyed_on_source_hash(tmp_path, fmus):
 def test_per_step_cost_is_reported(fmus):
     r = simulate(two_mass(), 0.5, 3000.0, fmu_paths=fmus)
     assert r.loop_time_s > 0 and 0 < r.us_per_step < 2000
+
+
+GEAR_SLAVE = Path(__file__).resolve().parents[1] / "src" / "gearcontact_fmu" / "slaves" / "GearContact.py"
+
+
+@pytest.fixture(scope="module")
+def gear_fmus(tmp_path_factory, fmus):
+    if not GEAR_SLAVE.is_file():
+        pytest.skip("GearContact slave not available yet")
+    d = tmp_path_factory.mktemp("gearfmu")
+    try:
+        paths = M.ensure_fmus(["GearContact"], d)          # built on demand (missing)
+    except Exception as exc:  # pragma: no cover - depends on the parallel work
+        pytest.skip(f"GearContact FMU cannot be built yet: {exc}")
+    assert M.stale_models(["GearContact"], d) == []
+    return {**fmus, **paths}
+
+
+def gear_system(H=H12):
+    """Motor inertia -> GearContact stage (real component, analytic mesh) -> load inertia."""
+    return SystemSpec(
+        components=[ComponentSpec("motor", "MTInertia", {"J": 0.01, "d": 0.0, "tau_src": 2.0, "n_sub": 8}),
+                    ComponentSpec("gear", "GearContact", {"fidelity": "analytic"}),
+                    ComponentSpec("load", "MTInertia", {"J": 0.05, "d": 0.01, "n_sub": 8})],
+        connections=[Connection("gear.flange_a", "motor.flange"), Connection("gear.flange_b", "load.flange")],
+        comm_step=H)
+
+
+def test_energy_audit_and_backends_with_real_gear_fmu(gear_fmus):
+    rec = ["gear.flange_a_tau", "gear.flange_b_tau", "load.flange_w"]
+    r1 = simulate(gear_system(), 0.3, 3000.0, rec, backend="fmi", fmu_paths=gear_fmus, keep_raw=True)
+    r2 = simulate(gear_system(), 0.3, 3000.0, rec, backend="inprocess", fmu_paths=gear_fmus, keep_raw=True)
+    for k in r1.raw:
+        np.testing.assert_allclose(r1.raw[k], r2.raw[k], rtol=0, atol=1e-12, err_msg=k)
+    e = r1.energy
+    assert e["complete"] and e["reference_J"] > 1.0
+    for name in ("motor", "load"):
+        assert abs(e["per_fmu"][name]["residual_J"]) < 1e-10 * e["reference_J"]
+    assert e["residual_J"] == pytest.approx(sum(p["residual_J"] for p in e["per_fmu"].values()),
+                                            abs=1e-12 * e["reference_J"])
+    assert e["relative_residual"] < 1e-2
+    assert r1.signals["load.flange_w"][-1] > 1.0                     # the load is driven through the mesh
+    assert r1.fmus[1]["parameters"]["fidelity"] == "analytic"

@@ -165,6 +165,7 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
         "real_time_factor": res.sim_time_s / wall if wall > 0 else None,
         "loop_time_s": res.loop_time_s,
         "us_per_step": res.us_per_step,
+        "us_per_step_steady": res.us_per_step_steady,
         "n_steps": res.n_steps,
         "comm_step_s": res.comm_step_s,
         "sample_rate_Hz": fs,

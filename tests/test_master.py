@@ -213,3 +213,18 @@ def test_energy_audit_and_backends_with_real_gear_fmu(gear_fmus):
     assert e["relative_residual"] < 1e-2
     assert r1.signals["load.flange_w"][-1] > 1.0                     # the load is driven through the mesh
     assert r1.fmus[1]["parameters"]["fidelity"] == "analytic"
+
+
+def test_instantiates_exactly_the_spec(fmus, monkeypatch):
+    made = []
+    orig = M._FmiSlave
+
+    class Counting(orig):
+        def __init__(self, comp, info, cb):
+            made.append((comp.name, comp.model))
+            super().__init__(comp, info, cb)
+
+    monkeypatch.setattr(M, "_FmiSlave", Counting)
+    spec = two_mass()
+    simulate(spec, 0.01, 3000.0, fmu_paths=fmus)
+    assert made == [(c.name, c.model) for c in spec.components]

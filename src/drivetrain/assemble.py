@@ -1,0 +1,167 @@
+"""The assembler: a resolved Scene -> the SystemSpec the master runs (docs/DRIVETRAIN.md).
+
+Only what the scene needs is instantiated:
+
+| effects | FMUs |
+|---|---|
+| shaft_flexibility = "flexible" | motors (MotorLoad), drive_shaft (FlexibleShaft, ``shaft_elements``), upper (UpperTransmission), gear (GearContact) |
+| shaft_flexibility = "rigid" | motors, upper, gear: no shaft FMU |
+| mesh_contact = "ideal" | gear with fidelity "ideal": a rigid ratio, no contact engine |
+
+The parameters come from :func:`drivetrain.rig.partition` (the lumped public model, the calibrated
+coupling stiffness and losses); every cut is checked by :func:`drivetrain.rig.check_cuts` before the
+spec is returned (an unstable cut is refused with the numbers). The initial state is the steady state
+at the initial speed and load (every spring of my components pre-twisted, the PI integrator
+pre-loaded), so a constant-speed scene starts close to its operating point.
+
+``metadata``: ``sensors`` (rig sensor -> "component.variable"), ``characteristic`` (frequencies from
+the final drive speed), ``fidelity`` (component -> fidelity), ``partition`` (bodies and cuts),
+``cuts`` (the stability report of every cut), ``steady_state``, ``calibration``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+from drivetrain import rig
+from drivetrain.components import RPM, FlexibleShaft, params_from, FlexibleShaftParams
+from drivetrain.system import ComponentSpec, Connection, SystemSpec
+
+#: Sensor variables per configuration (docs/DRIVETRAIN.md, "Sensors").
+SENSORS_COMMON = {
+    "propeller_shaft_torque": "gear.flange_b_tau_mean",
+    "enc1": "motors.motor_phi",
+    "enc2": "upper.flange_a_phi",
+    "enc3": "upper.flange_b_phi",
+    "enc4": "gear.pinion_phi",
+    "enc5": "gear.wheel_phi",
+}
+
+
+def sensor_map(shafts: str) -> dict:
+    m = {"drive_shaft_torque": "drive_shaft.torque_sensor" if shafts == "flexible" else "upper.torque_sensor"}
+    m.update(SENSORS_COMMON)
+    return m
+
+
+def _gear_parameters(scene, part: rig.Partition, max_substep: float) -> dict:
+    from gearcontact_fmu.params import PCMParams
+
+    eff = scene.effects
+    pcm = PCMParams()
+    p = dict(part.params["gear"])
+    p.update(fidelity=eff.mesh_contact, health=scene.gear.health, max_substep=float(max_substep),
+             profile_element_size=scene.numerics.profile_element_mm * 1e-3,
+             face_element_size=scene.numerics.face_element_mm * 1e-3)
+    if scene.gear.pinion_mesh is not None:
+        p["pinion_mesh_file"] = str(scene.gear.pinion_mesh)
+    if scene.gear.wheel_mesh is not None:
+        p["wheel_mesh_file"] = str(scene.gear.wheel_mesh)
+    if not eff.friction:
+        p["mu"] = 0.0
+    if not eff.contact_damping:
+        p["c_compression"] = 0.0
+        p["c_expansion"] = 0.0
+        p["mesh_damping_ratio"] = 0.0
+    else:
+        p.setdefault("c_compression", pcm.c_compression)
+    return p
+
+
+def initial_mesh_deflection(T_msh: float, fidelity: str) -> float:
+    """Pinion-referred mesh coordinate s = theta_p - (z2/z1) theta_w of the loaded drive flank at
+    the steady middle-shaft torque (backlash/2 + T/K_mean); 0 for the ideal gear."""
+    if fidelity == "ideal":
+        return 0.0
+    try:
+        from gearcontact_fmu.analytic import backlash_angle, mesh_stiffness
+        from gearcontact_fmu.params import BevelGearParams
+
+        g = BevelGearParams()
+        return 0.5 * float(backlash_angle(g)) + T_msh / float(mesh_stiffness(g)["K_mean"])
+    except Exception:  # pragma: no cover - the gear package decides; a start-up transient only
+        return 0.0
+
+
+def assemble(scene, calibration: dict | str | None = None, check: bool = True) -> SystemSpec:
+    """Build the SystemSpec for a resolved Scene.
+
+    ``calibration``: a calibration dict or a JSON file written by ``drivetrain calibrate`` (default:
+    the shipped ``drivetrain/data/calibration.json``). ``check``: refuse unstable cuts (before any
+    step) with :class:`drivetrain.master.ConfigurationError`."""
+    eff = scene.effects
+    num = scene.numerics
+    op = scene.operating_point
+    cal = calibration if isinstance(calibration, dict) else rig.load_calibration(calibration)
+    part = rig.partition(eff.shaft_flexibility, eff.shaft_elements, cal, losses=eff.losses)
+    H = float(num.comm_step_s)
+    sub = float(num.max_substep_s)
+
+    # ---- steady state at the initial operating point -------------------------------------------
+    n0 = float(op.speed_at(0.0))
+    T0 = float(op.load_at(0.0))
+    up = dict(part.params["upper"])
+    mo = dict(part.params["motors"])
+    ss = rig.steady_state(n0, T0, up, mo)
+    w = ss.w_drive
+    th_motor = 0.0
+    th_fw = th_motor - ss.T_dsh / mo["k_c1"]
+    th_next = th_fw - ss.T_dsh / mo["k_c2"]          # hub A of the drive shaft, or the upper gearbox
+    comps = []
+    if eff.shaft_flexibility == "flexible":
+        ds = dict(part.params["drive_shaft"])
+        ds.update(n_elements=int(eff.shaft_elements), max_substep=sub, phi0=th_next, w0=w, tau0=ss.T_dsh)
+        fs = FlexibleShaft(params_from(FlexibleShaftParams, ds))
+        th_ut = th_next - ss.T_dsh * fs.compliance_to_port()
+        comps.append(("drive_shaft", "FlexibleShaft", ds))
+    else:
+        th_ut = th_next
+    up.update(max_substep=sub, phi0=th_ut, w0=w)
+    phi_a = th_ut / up["ratio"]
+    s0 = initial_mesh_deflection(ss.T_msh, eff.mesh_contact)
+    phi_b = (phi_a - s0) / rig.LOWER_RATIO
+    mo.update(max_substep=sub, phi0_motor=th_motor, w0=w, tau0=ss.T_dsh, phi0_load=phi_b, w0_load=ss.w_prop,
+              load_w_nom=ss.w_prop if ss.w_prop > 0 else 1.0)
+    gear = _gear_parameters(scene, part, sub)
+
+    inputs = {}
+    inputs["speed_ref_rpm"] = ([list(p) for p in op.speed_profile_rpm] if op.speed_profile_rpm
+                               else float(op.drive_speed_rpm))
+    inputs["load_torque"] = ([list(p) for p in op.load_profile_Nm] if op.load_profile_Nm
+                             else float(op.load_torque_Nm))
+    components = [ComponentSpec("motors", "MotorLoad", mo, inputs)]
+    for name, model, params in comps:
+        components.append(ComponentSpec(name, model, params))
+    components.append(ComponentSpec("upper", "UpperTransmission", up))
+    components.append(ComponentSpec("gear", "GearContact", gear))
+    connections = [Connection(s, i) for s, i in part.connections]
+
+    from drivetrain.signals import characteristic_frequencies
+
+    meta = {
+        "sensors": sensor_map(eff.shaft_flexibility),
+        "characteristic": characteristic_frequencies(op.final_speed_rpm),
+        "fidelity": {"gear": eff.mesh_contact},
+        "partition": {"shafts": part.shafts, "n_elements": part.n_elements if part.shafts == "flexible" else 0,
+                      "bodies": part.bodies,
+                      "cuts": [{k: v for k, v in c.items()} for c in part.cuts]},
+        "steady_state": dataclasses.asdict(ss),
+        "calibration": part.calibration,
+        "fmus": [c.model for c in components],
+    }
+    spec = SystemSpec(components, connections, H, meta)
+    if check:
+        try:
+            reports, rho = rig.check_cuts(spec)
+        except rig.UnstableCutError as exc:
+            from drivetrain.master import ConfigurationError
+
+            err = ConfigurationError(exc.problems)
+            err.reports = exc.reports
+            raise err from None
+        meta["cuts"] = [r.as_dict() for r in reports]
+        meta["cosim_spectral_radius"] = rho
+    return spec
+
+
+__all__ = ["assemble", "sensor_map", "SENSORS_COMMON"]

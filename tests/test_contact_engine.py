@@ -11,8 +11,9 @@ from scipy.spatial.transform import Rotation
 
 from gearcontact_fmu.contact import primitives as P
 from gearcontact_fmu.contact.bvh import build_bvh
-from gearcontact_fmu.contact.engine import (PCMBody, PenetrationError, evaluate_pair,
-                                            fixed_axis_eval, make_fixed_axis_data, rot_z)
+from gearcontact_fmu.contact.engine import (PCMBody, PenetrationError, cache_stats,
+                                            evaluate_pair, fixed_axis_eval, make_fixed_axis_data,
+                                            reset_cache, rot_z)
 from gearcontact_fmu.fidelity import (N_OUT, OUT_CONTACT_AREA, OUT_DISSIPATED_POWER,
                                       OUT_ELASTIC_ENERGY, OUT_MAX_PENETRATION, OUT_N_CONTACT,
                                       OUT_NORMAL_FORCE, OUT_PEAK_PRESSURE, OUT_STATUS,
@@ -226,6 +227,49 @@ def test_fixed_axis_matches_evaluate_pair(friction, damping):
         assert out[OUT_STATUS] == 0.0
         if not damping:
             assert out[OUT_DISSIPATED_POWER] == 0.0
+
+
+@njit(cache=True)
+def _run_path(mesh_eval, data, thb, tht, wb, wt, outs):
+    for k in range(thb.shape[0]):
+        mesh_eval(data, thb[k], tht[k], wb[k], wt[k], outs[k])
+
+
+def test_candidate_cache_is_exact():
+    """The cached kernel gives the exact search's result along a path that starts out of contact,
+    sweeps the contact across the target, with small steps and some jumps."""
+    base, target, R0b, R0t = fixed_axis_scene(u0=2e-5)
+    exact = make_fixed_axis_data(base, target, R0b, R0t, PCM, cache_margin=0.0)
+    cached = make_fixed_axis_data(base, target, R0b, R0t, PCM, cache_margin=5e-6,
+                                  cache_far=2e-5)
+    n = 600
+    k = np.arange(n)
+    thb = -1.5e-3 + 5e-6 * k                   # the cap (r ~ 5 cm) enters and crosses contact
+    thb[350:360] += 3e-4                        # a jump
+    tht = 2e-4 * np.sin(k / 50.0)
+    wb = np.full(n, 2.0)
+    wt = -np.cos(k / 30.0)
+    o1 = np.zeros((n, N_OUT))
+    o2 = np.zeros((n, N_OUT))
+    _run_path(fixed_axis_eval, exact, thb, tht, wb, wt, o1)
+    _run_path(fixed_axis_eval, cached, thb, tht, wb, wt, o2)
+    st = cache_stats(cached)
+    print("cache stats", st, "calls in contact", int((o1[:, OUT_N_CONTACT] > 0).sum()))
+    assert (o1[:, OUT_N_CONTACT] == 0).sum() > 20 and (o1[:, OUT_N_CONTACT] > 100).sum() > 100
+    assert np.array_equal(o1[:, OUT_N_CONTACT], o2[:, OUT_N_CONTACT])
+    scale = np.abs(o1).max(axis=0) + 1e-300
+    assert np.all(np.abs(o1 - o2) <= 1e-12 * scale)
+    assert st["builds"] + st["exact_calls"] < n / 2 and st["cached_calls"] > n / 2
+    # large steps: the adaptive fallback turns to the exact search (still exact results)
+    reset_cache(cached)
+    thb2 = -1.5e-3 + 2e-4 * np.arange(15)
+    z = np.zeros(15)
+    o3 = np.zeros((15, N_OUT))
+    o4 = np.zeros((15, N_OUT))
+    _run_path(fixed_axis_eval, exact, thb2, z, z, z, o3)
+    _run_path(fixed_axis_eval, cached, thb2, z, z, z, o4)
+    assert np.all(np.abs(o3 - o4) <= 1e-12 * (np.abs(o3).max(axis=0) + 1e-300))
+    assert cache_stats(cached)["exact_calls"] > 0
 
 
 def test_penetration_beyond_u_max():

@@ -13,6 +13,8 @@ The split is a median split of the primitive centres along the longest axis of t
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -227,4 +229,119 @@ def node_slabs(node_int, order, tri):
         out[node, 2] = nz
         out[node, 3] = lo
         out[node, 4] = hi
+    return out
+
+
+@njit(cache=True)
+def _node_frame(sx, sy, sz, pts, npts):
+    """Orthonormal rows (t1, t2, n): n the normalised normal sum (sx, sy, sz) (or z when it
+    vanishes), t1 the principal direction of the points in the plane normal to n."""
+    nn = math.sqrt(sx * sx + sy * sy + sz * sz)
+    if nn > 0.0:
+        nx, ny, nz = sx / nn, sy / nn, sz / nn
+    else:
+        nx, ny, nz = 0.0, 0.0, 1.0
+    # any tangent basis (u, v)
+    if abs(nx) < 0.9:
+        ux, uy, uz = 0.0, -nz, ny          # e_x x n
+    else:
+        ux, uy, uz = nz, 0.0, -nx          # e_y x n
+    un = math.sqrt(ux * ux + uy * uy + uz * uz)
+    ux, uy, uz = ux / un, uy / un, uz / un
+    vx = ny * uz - nz * uy
+    vy = nz * ux - nx * uz
+    vz = nx * uy - ny * ux
+    # 2x2 covariance of the points in (u, v)
+    mu = 0.0
+    mv = 0.0
+    for k in range(npts):
+        mu += pts[k, 0] * ux + pts[k, 1] * uy + pts[k, 2] * uz
+        mv += pts[k, 0] * vx + pts[k, 1] * vy + pts[k, 2] * vz
+    mu /= npts
+    mv /= npts
+    cuu = 0.0
+    cuv = 0.0
+    cvv = 0.0
+    for k in range(npts):
+        a = pts[k, 0] * ux + pts[k, 1] * uy + pts[k, 2] * uz - mu
+        b = pts[k, 0] * vx + pts[k, 1] * vy + pts[k, 2] * vz - mv
+        cuu += a * a
+        cuv += a * b
+        cvv += b * b
+    ang = 0.5 * math.atan2(2.0 * cuv, cuu - cvv)
+    ca = math.cos(ang)
+    sa = math.sin(ang)
+    t1x, t1y, t1z = ca * ux + sa * vx, ca * uy + sa * vy, ca * uz + sa * vz
+    t2x = ny * t1z - nz * t1y
+    t2y = nz * t1x - nx * t1z
+    t2z = nx * t1y - ny * t1x
+    return t1x, t1y, t1z, t2x, t2y, t2z, nx, ny, nz
+
+
+@njit(cache=True)
+def node_obbs(node_int, order, tri, seg_points, seg_normals, length):
+    """Oriented box of every node: ``(N, 15) = [axes (3 rows: t1, t2, n), centre(3), half(3)]``.
+
+    The axes follow the surface patch of the node (n the mean facet normal, t1 its principal
+    tangent direction), so thin nearly planar patches get thin boxes whatever their orientation in
+    the body frame. Extents enclose the triangle vertices (``length`` = 0, target role) or the
+    penetration-line segments ``[p, p - length*n_e]`` of the elements (``length`` > 0, base role;
+    ``seg_points``/``seg_normals`` in slot order)."""
+    n = node_int.shape[0]
+    out = np.empty((n, 15))
+    m = order.shape[0]
+    buf = np.empty((3 * m, 3))
+    for node in range(n):
+        start = node_int[node, 2]
+        count = node_int[node, 3]
+        sx = 0.0
+        sy = 0.0
+        sz = 0.0
+        npts = 0
+        for k in range(start, start + count):
+            p = order[k]
+            e1x = tri[p, 1, 0] - tri[p, 0, 0]
+            e1y = tri[p, 1, 1] - tri[p, 0, 1]
+            e1z = tri[p, 1, 2] - tri[p, 0, 2]
+            e2x = tri[p, 2, 0] - tri[p, 0, 0]
+            e2y = tri[p, 2, 1] - tri[p, 0, 1]
+            e2z = tri[p, 2, 2] - tri[p, 0, 2]
+            sx += e1y * e2z - e1z * e2y
+            sy += e1z * e2x - e1x * e2z
+            sz += e1x * e2y - e1y * e2x
+            if length > 0.0:
+                for a in range(3):
+                    buf[npts, a] = seg_points[k, a]
+                    buf[npts + 1, a] = seg_points[k, a] - length * seg_normals[k, a]
+                npts += 2
+            else:
+                for v in range(3):
+                    for a in range(3):
+                        buf[npts, a] = tri[p, v, a]
+                    npts += 1
+        f = _node_frame(sx, sy, sz, buf, npts)
+        for r in range(3):
+            lo = np.inf
+            hi = -np.inf
+            ax, ay, az = f[3 * r], f[3 * r + 1], f[3 * r + 2]
+            for k in range(npts):
+                d = ax * buf[k, 0] + ay * buf[k, 1] + az * buf[k, 2]
+                if d < lo:
+                    lo = d
+                if d > hi:
+                    hi = d
+            out[node, 3 * r] = ax
+            out[node, 3 * r + 1] = ay
+            out[node, 3 * r + 2] = az
+            mid = 0.5 * (lo + hi)
+            out[node, 12 + r] = 0.5 * (hi - lo)
+            # centre accumulates mid * axis
+            if r == 0:
+                out[node, 9] = mid * ax
+                out[node, 10] = mid * ay
+                out[node, 11] = mid * az
+            else:
+                out[node, 9] += mid * ax
+                out[node, 10] += mid * ay
+                out[node, 11] += mid * az
     return out

@@ -24,13 +24,17 @@ import numpy as np
 
 from ..params import PCMParams
 from . import kernels as K
-from .bvh import LEAF_SIZE, build_bvh, node_slabs, refit_segment_boxes
+from .bvh import LEAF_SIZE, build_bvh, node_obbs, refit_segment_boxes
 from .kernels import fixed_axis_eval  # noqa: F401  (re-exported: the gear stage imports it here)
 
 __all__ = [
     "PCMBody", "ContactResult", "PenetrationError", "evaluate_pair", "make_fixed_axis_data",
-    "fixed_axis_eval", "rot_z",
+    "fixed_axis_eval", "rot_z", "cache_stats", "reset_cache",
 ]
+
+DEFAULT_CACHE_MARGIN = 2e-5   # [m] candidate cache margin of the fixed-axis kernel
+DEFAULT_CACHE_FAR = 1e-4      # [m] far margin of the candidate cache
+FAR_CHECK_NODES = 256         # size of the base-tree cut used by the cache validity check
 
 
 class PenetrationError(RuntimeError):
@@ -53,7 +57,7 @@ class PCMBody:
 
     Attributes (triangle order): ``tri`` (m,3,3), ``area`` (m,), ``points`` (m,3), ``normals``
     (m,3), ``geo_normals`` (m,3); tree ``node_box``, ``node_int``, ``order``; slot-ordered kernel
-    arrays ``belem`` (m,7) and ``ttri`` (m,18), node normal slabs ``node_slab`` (N,5) (see
+    arrays ``belem`` (m,7) and ``ttri`` (m,18), oriented node boxes ``node_obb`` (N,15) (see
     :mod:`.kernels`).
     """
 
@@ -102,8 +106,17 @@ class PCMBody:
         self.geo_normals = ttri[:, 3:6].copy()
         self.node_box, self.node_int, self.order, self.max_depth = build_bvh(
             tri, leaf_size=leaf_size, extra_points=self.points if has_exact else None)
-        self.node_slab = node_slabs(self.node_int, self.order, tri)
         self.belem = np.ascontiguousarray(belem[self.order])
+        self.node_obb = node_obbs(self.node_int, self.order, tri, np.zeros((1, 3)),
+                                  np.zeros((1, 3)), 0.0)
+        self._tri = tri
+        # outward reach of a penetration line needed when u is measured to the exact tangent
+        # plane: 2 x the largest distance of a triangle's vertices from its exact tangent plane
+        if has_exact:
+            dev = np.abs(np.einsum("ijk,ik->ij", tri - belem[:, None, 0:3], belem[:, 3:6]))
+            self.s_neg = float(2.0 * dev.max())
+        else:
+            self.s_neg = 0.0
         self.ttri = np.ascontiguousarray(ttri[self.order])
         self._seg_boxes = {}
         self._ws = None
@@ -112,15 +125,57 @@ class PCMBody:
     def n_faces(self) -> int:
         return self.faces.shape[0]
 
-    def segment_boxes(self, length: float) -> np.ndarray:
-        """Node boxes (centre, half extents) of the penetration lines of length ``length``."""
+    def segment_boxes(self, length: float):
+        """Base-role node volumes of the penetration lines of length ``length``: axis-aligned
+        ``(N, 6) = [centre, half]`` and oriented ``(N, 15)`` (see :func:`bvh.node_obbs`)."""
         key = float(length)
         box = self._seg_boxes.get(key)
         if box is None:
-            box = refit_segment_boxes(self.node_int, np.ascontiguousarray(self.belem[:, 0:3]),
-                                      np.ascontiguousarray(self.belem[:, 3:6]), key)
+            p = np.ascontiguousarray(self.belem[:, 0:3])
+            n = np.ascontiguousarray(self.belem[:, 3:6])
+            box = (refit_segment_boxes(self.node_int, p, n, key),
+                   node_obbs(self.node_int, self.order, self._tri, p, n, key))
             self._seg_boxes[key] = box
         return box
+
+    def far_check_nodes(self, n_target: int = FAR_CHECK_NODES):
+        """A cut of the tree into about ``n_target`` subtrees (nodes at one depth, or shallower
+        leaves), numbered in depth-first order: ``fnode`` (F,) their node indices, ``fc``
+        (N, 2) the range [f_lo, f_hi) of cut nodes under (or above) each node."""
+        key = ("fc", n_target)
+        hit = self._seg_boxes.get(key)
+        if hit is not None:
+            return hit
+        depth = max(0, int(np.ceil(np.log2(max(n_target, 1)))))
+        ni = self.node_int
+        fc = np.zeros((ni.shape[0], 2), dtype=np.int64)
+        fnode = []
+        # iterative DFS: (node, depth, state)
+        stack = [(0, 0, 0)]
+        while stack:
+            node, d, state = stack.pop()
+            if state == 0:
+                fc[node, 0] = len(fnode)
+                if d == depth or ni[node, 0] < 0:
+                    fnode.append(node)
+                    fc[node, 1] = len(fnode)
+                    # the subtree below the cut maps to this cut node
+                    sub = [ni[node, 0], ni[node, 1]] if ni[node, 0] >= 0 else []
+                    while sub:
+                        q = sub.pop()
+                        fc[q, 0] = len(fnode) - 1
+                        fc[q, 1] = len(fnode)
+                        if ni[q, 0] >= 0:
+                            sub += [ni[q, 0], ni[q, 1]]
+                    continue
+                stack.append((node, d, 1))
+                stack.append((ni[node, 1], d + 1, 0))
+                stack.append((ni[node, 0], d + 1, 0))
+            else:
+                fc[node, 1] = len(fnode)
+        hit = (np.array(fnode, dtype=np.int64), fc)
+        self._seg_boxes[key] = hit
+        return hit
 
     def new_workspace(self):
         """Base-role work arrays: ``(stamp, call, best_u, best_j, line, active, stack)``."""
@@ -197,14 +252,15 @@ def evaluate_pair(base: PCMBody, target: PCMBody, pose_base, pose_target, vel_ba
     Rt, tt = _pose(pose_target)
     vb, wb = _vel(vel_base)
     vt, wt = _vel(vel_target)
-    params = K.make_params(pcm, search_length, friction, damping)
+    params = K.make_params(pcm, search_length, friction, damping, s_neg=target.s_neg)
     L = params[K.P_L]
     Rbt = np.ascontiguousarray(Rt.T @ Rb)
     tbt = Rt.T @ (tb - tt)
     stamp, call, best_u, best_j, line, active, stack = base.workspace()
-    n = K.search_pair(base.node_int, base.segment_boxes(L), base.belem, target.node_int,
-                      target.node_box, target.node_slab, target.ttri, Rbt, tbt, L,
-                      stamp, call, best_u, best_j, line, active, stack)
+    b_seg, b_obb = base.segment_boxes(L)
+    n = K.search_pair(base.node_int, b_seg, b_obb, base.belem, target.node_int,
+                      target.node_box, target.node_obb, target.ttri, Rbt, tbt, L,
+                      params[K.P_SNEG], stamp, call, best_u, best_j, line, active, stack)
     e_base = np.empty(n, dtype=np.int64)
     e_target = np.empty(n, dtype=np.int64)
     e_u = np.empty(n)
@@ -242,27 +298,68 @@ def evaluate_pair(base: PCMBody, target: PCMBody, pose_base, pose_target, vel_ba
 
 def make_fixed_axis_data(base_body: PCMBody, target_body: PCMBody, R0_base, R0_target,
                          pcm: PCMParams = PCMParams(), friction: bool = True,
-                         damping: bool = True, search_length: float | None = None) -> tuple:
+                         damping: bool = True, search_length: float | None = None,
+                         cache_margin: float | None = None, cache_far: float | None = None,
+                         cache_phi: float = 0.02, cache_capacity: int | None = None) -> tuple:
     """numba-typable data tuple of :func:`fixed_axis_eval` for a pair rotating about fixed axes
     through the world origin: pose_base = (R0_base @ Rz(theta_base), 0), likewise the target; the
-    axes are R0[:, 2]. The tuple owns its own work arrays (one tuple per concurrent user).
+    axes are R0[:, 2]. The tuple owns its work arrays and cache (one tuple per concurrent user).
 
-    Layout: ``(b_int, b_seg, belem, b_order, t_int, t_box, t_slab, ttri, t_order, M, ab0, params, stamp,
-    call, best_u, best_j, line, active, stack, Rbt, tbt)`` with ``M = R0_target.T @ R0_base``,
-    ``ab0 = M[:, 2]`` (base axis in the target's reference frame), ``params`` see
-    :func:`kernels.make_params`, the rest work arrays (see :mod:`.kernels`).
+    Candidate cache (temporal coherence, results identical to the exact search): candidate pairs
+    are collected with margin ``cache_margin`` [m] (default 20 um; 0 disables the cache) for the
+    base parts within ``cache_far`` (default 0.1 mm, or 10 x a given margin) of the target and
+    reused while the relative motion since the collection stays below the margins (see
+    :func:`kernels.cached_search`; relative rotation below ``cache_phi`` rad). ``cache_capacity``: candidate pairs (default max(1e5, m_base/2)); on
+    overflow the call falls back to the exact search (counted in the cache statistics).
+
+    Layout: ``(b_int, b_seg, b_obb, belem, b_order, t_int, t_box, t_obb, ttri, t_order, M, ab0,
+    params, stamp, call, best_u, best_j, line, active, stack, Rbt, tbt, cache, cand, cand_tri,
+    nstamp, icount, fnode, fc, minsep, nbox, close, dR, dt)`` with
+    ``M = R0_target.T @ R0_base``, ``ab0 = M[:, 2]`` (base axis in the target's reference frame),
+    ``params`` see :func:`kernels.make_params`, ``cache`` (kernels.N_CACHE,) cache state and
+    statistics (see ``kernels.C_*``), the rest work arrays (see :mod:`.kernels`).
     """
     R0b = np.asarray(R0_base, dtype=np.float64).reshape(3, 3)
     R0t = np.asarray(R0_target, dtype=np.float64).reshape(3, 3)
     for R in (R0b, R0t):
         if not np.allclose(R.T @ R, np.eye(3), atol=1e-9) or np.linalg.det(R) < 0:
             raise ValueError("R0 must be a rotation matrix")
-    params = K.make_params(pcm, search_length, friction, damping)
+    if cache_margin is None:
+        cache_margin = DEFAULT_CACHE_MARGIN
+        if cache_far is None:
+            cache_far = DEFAULT_CACHE_FAR
+    params = K.make_params(pcm, search_length, friction, damping, s_neg=target_body.s_neg,
+                           cache_margin=cache_margin, cache_far=cache_far, cache_phi=cache_phi)
     L = params[K.P_L]
     M = np.ascontiguousarray(R0t.T @ R0b)
     ab0 = np.ascontiguousarray(M[:, 2].copy())
     ws = base_body.new_workspace()
-    return (base_body.node_int, base_body.segment_boxes(L), base_body.belem, base_body.order,
-            target_body.node_int, target_body.node_box, target_body.node_slab, target_body.ttri,
-            target_body.order,
-            M, ab0, params) + ws + (np.zeros((3, 3)), np.zeros(3))
+    b_seg, b_obb = base_body.segment_boxes(L)
+    if cache_capacity is None:
+        cache_capacity = max(100_000, base_body.n_faces // 2)
+    cap = int(cache_capacity) if cache_margin > 0 else 1
+    nb = base_body.node_int.shape[0]
+    fnode, fc = base_body.far_check_nodes()
+    nf = fnode.shape[0]
+    return (base_body.node_int, b_seg, b_obb, base_body.belem, base_body.order,
+            target_body.node_int, target_body.node_box, target_body.node_obb, target_body.ttri,
+            target_body.order, M, ab0, params) + ws + (
+        np.zeros((3, 3)), np.zeros(3), np.zeros(K.N_CACHE), np.zeros((cap, 2), dtype=np.int64),
+        np.zeros((cap, 18)), np.zeros(nb, dtype=np.int64), np.zeros(1, dtype=np.int64),
+        fnode, fc, np.full(nf, np.inf), np.zeros((nf, 6)), np.zeros(nf, dtype=np.int64),
+        np.zeros((3, 3)), np.zeros(3))
+
+
+def cache_stats(data: tuple) -> dict:
+    """Statistics of the candidate cache of a fixed-axis data tuple."""
+    c = data[22]
+    return {"builds": int(c[K.C_BUILDS]), "cached_calls": int(c[K.C_CALLS]),
+            "overflows": int(c[K.C_OVERFLOW]), "n_candidates": int(c[K.C_NCAND]),
+            "exact_calls": int(c[K.C_EXACT]), "near_leaves": int(c[K.C_NNEAR]),
+            "valid": bool(c[K.C_VALID])}
+
+
+def reset_cache(data: tuple) -> None:
+    """Invalidate the candidate cache (the next call rebuilds it) and end any cool-down."""
+    data[22][K.C_VALID] = 0.0
+    data[22][K.C_COOL] = 0.0

@@ -14,6 +14,12 @@ holds triangle ``order[k]``):
   (N, 6) ``[min, max]`` and normal slabs ``t_slab`` (N, 5) ``[n, d_min, d_max]``; base node boxes ``b_seg`` (N, 6) ``[centre, half extents]`` of the
   penetration-line segments ``[p, p - L n]`` (see :func:`bvh.refit_segment_boxes`).
 * ``params`` (N_PARAMS,): see the ``P_*`` indices.
+* candidate cache (fixed-axis kernel): ``cache`` (N_CACHE,) state (see ``C_*``), ``cand`` (C, 2)
+  int64 candidate pairs (base slot, target slot) sorted by base slot, ``cand_tri`` (C, 18) their
+  target rows of ``ttri``; ``nstamp`` (N_base_nodes,) int64, ``icount`` (1,) int64; far-check
+  nodes of the base tree ``fnode`` (F,) int64 and ``fc`` (N_base_nodes, 2) int64 (range of
+  far-check nodes under each node); ``minsep`` (F,), ``nbox`` (F, 6), ``close`` (F,) int64;
+  ``dR`` (3, 3), ``dt`` (3,) scratch.
 * base workspace (per base body): ``stamp`` (m,) int64, ``call`` (1,) int64, ``best_u`` (m,),
   ``best_j`` (m,) int64 (target slot of the winning hit), ``line`` (m, 6) ``[p', d']`` element point
   and inward direction in the target frame, ``active`` (m,) int64 (base slots with a hit),
@@ -41,7 +47,11 @@ P_L = 7            # search length (>= u_max) [m]
 P_FRICTION = 8     # 1.0 on, 0.0 off
 P_DAMPING = 9      # 1.0 on, 0.0 off
 P_RATIO = 10       # force point on the penetration line: p + ratio*u*d (0.5 = mid-layer)
-N_PARAMS = 11
+P_SNEG = 11        # outward reach of the line (target facet vs exact tangent plane) [m]
+P_DELTA = 12       # candidate cache margin [m] (0: no cache, exact search every call)
+P_FAR = 13         # cache: far margin [m] (base leaves within it bound the near region)
+P_PHI = 14         # cache: largest relative rotation before a rebuild [rad]
+N_PARAMS = 15
 
 # diagnostics layout of the generic force kernel (matches fidelity.OUT_* minus the torques)
 D_N = 0
@@ -58,11 +68,16 @@ DOT_EPS = 1e-9      # |cos| below which a line and a plane count as parallel / n
 BARY_EPS = 1e-9     # tolerance of the inside test (shared edges: the smallest u wins, no double count)
 
 
-def make_params(pcm, search_length=None, friction=True, damping=True, ratio=0.5):
+def make_params(pcm, search_length=None, friction=True, damping=True, ratio=0.5, s_neg=0.0,
+                cache_margin=0.0, cache_far=None, cache_phi=0.02):
     """Parameter vector of the kernels from a :class:`~gearcontact_fmu.params.PCMParams`."""
     L = 2.0 * pcm.u_max if search_length is None else float(search_length)
     if L < pcm.u_max:
         raise ValueError(f"search length {L} must be >= u_max {pcm.u_max}")
+    delta = float(cache_margin)
+    far = 10.0 * delta if cache_far is None else float(cache_far)
+    if delta < 0.0 or (delta > 0.0 and far <= delta):
+        raise ValueError("cache margins must satisfy 0 < cache_margin < cache_far")
     p = np.zeros(N_PARAMS)
     p[P_C] = pcm.stiffness
     p[P_CC] = pcm.c_compression
@@ -75,6 +90,10 @@ def make_params(pcm, search_length=None, friction=True, damping=True, ratio=0.5)
     p[P_FRICTION] = 1.0 if friction else 0.0
     p[P_DAMPING] = 1.0 if damping else 0.0
     p[P_RATIO] = ratio
+    p[P_SNEG] = min(float(s_neg), L)
+    p[P_DELTA] = delta
+    p[P_FAR] = far
+    p[P_PHI] = float(cache_phi)
     return p
 
 
@@ -152,12 +171,209 @@ def element_data(tri, face_points, face_normals, has_exact):
 # contact search (broad + narrow phase)
 # ----------------------------------------------------------------------------------------------
 @njit(cache=True)
-def search_pair(b_int, b_seg, belem, t_int, t_box, t_slab, ttri, Rbt, tbt, L,
-                stamp, call, best_u, best_j, line, active, stack):
-    """Dual-tree traversal + penetration lines. ``Rbt``, ``tbt``: pose of the base frame in the
-    target frame (x_target = Rbt x_base + tbt). Returns the number of base elements with a hit;
-    their slots are ``active[:n]``, penetration ``best_u[slot]``, target slot ``best_j[slot]``, line
-    ``line[slot] = [p', d']`` (target frame; d' = inward base normal)."""
+def _obb_overlap(b_obb, i, t_obb, j, r00, r01, r02, r10, r11, r12, r20, r21, r22, t0, t1, t2,
+                 infl):
+    """Separating-axis test of base node i (its oriented box mapped by (R, t) into the target
+    frame, half extents grown by ``infl``) and target node j on the 6 face axes of the two boxes
+    (conservative: True may be a false overlap, False proves a distance > infl)."""
+    a0x = r00 * b_obb[i, 0] + r01 * b_obb[i, 1] + r02 * b_obb[i, 2]
+    a0y = r10 * b_obb[i, 0] + r11 * b_obb[i, 1] + r12 * b_obb[i, 2]
+    a0z = r20 * b_obb[i, 0] + r21 * b_obb[i, 1] + r22 * b_obb[i, 2]
+    a1x = r00 * b_obb[i, 3] + r01 * b_obb[i, 4] + r02 * b_obb[i, 5]
+    a1y = r10 * b_obb[i, 3] + r11 * b_obb[i, 4] + r12 * b_obb[i, 5]
+    a1z = r20 * b_obb[i, 3] + r21 * b_obb[i, 4] + r22 * b_obb[i, 5]
+    a2x = r00 * b_obb[i, 6] + r01 * b_obb[i, 7] + r02 * b_obb[i, 8]
+    a2y = r10 * b_obb[i, 6] + r11 * b_obb[i, 7] + r12 * b_obb[i, 8]
+    a2z = r20 * b_obb[i, 6] + r21 * b_obb[i, 7] + r22 * b_obb[i, 8]
+    cx = r00 * b_obb[i, 9] + r01 * b_obb[i, 10] + r02 * b_obb[i, 11] + t0 - t_obb[j, 9]
+    cy = r10 * b_obb[i, 9] + r11 * b_obb[i, 10] + r12 * b_obb[i, 11] + t1 - t_obb[j, 10]
+    cz = r20 * b_obb[i, 9] + r21 * b_obb[i, 10] + r22 * b_obb[i, 11] + t2 - t_obb[j, 11]
+    eb0, eb1, eb2 = b_obb[i, 12] + infl, b_obb[i, 13] + infl, b_obb[i, 14] + infl
+    et0, et1, et2 = t_obb[j, 12], t_obb[j, 13], t_obb[j, 14]
+    g0x, g0y, g0z = t_obb[j, 0], t_obb[j, 1], t_obb[j, 2]
+    g1x, g1y, g1z = t_obb[j, 3], t_obb[j, 4], t_obb[j, 5]
+    g2x, g2y, g2z = t_obb[j, 6], t_obb[j, 7], t_obb[j, 8]
+    # C[q][k] = target axis q . base axis k
+    c00 = g0x * a0x + g0y * a0y + g0z * a0z
+    c01 = g0x * a1x + g0y * a1y + g0z * a1z
+    c02 = g0x * a2x + g0y * a2y + g0z * a2z
+    c10 = g1x * a0x + g1y * a0y + g1z * a0z
+    c11 = g1x * a1x + g1y * a1y + g1z * a1z
+    c12 = g1x * a2x + g1y * a2y + g1z * a2z
+    c20 = g2x * a0x + g2y * a0y + g2z * a0z
+    c21 = g2x * a1x + g2y * a1y + g2z * a1z
+    c22 = g2x * a2x + g2y * a2y + g2z * a2z
+    d0 = g0x * cx + g0y * cy + g0z * cz
+    d1 = g1x * cx + g1y * cy + g1z * cz
+    d2 = g2x * cx + g2y * cy + g2z * cz
+    ac00, ac01, ac02 = abs(c00), abs(c01), abs(c02)
+    ac10, ac11, ac12 = abs(c10), abs(c11), abs(c12)
+    ac20, ac21, ac22 = abs(c20), abs(c21), abs(c22)
+    # target axes (normal first: the thin direction of surface patches)
+    if abs(d2) > et2 + ac20 * eb0 + ac21 * eb1 + ac22 * eb2:
+        return False
+    if abs(d0) > et0 + ac00 * eb0 + ac01 * eb1 + ac02 * eb2:
+        return False
+    if abs(d1) > et1 + ac10 * eb0 + ac11 * eb1 + ac12 * eb2:
+        return False
+    # base axes
+    if abs(c02 * d0 + c12 * d1 + c22 * d2) > eb2 + ac02 * et0 + ac12 * et1 + ac22 * et2:
+        return False
+    if abs(c00 * d0 + c10 * d1 + c20 * d2) > eb0 + ac00 * et0 + ac10 * et1 + ac20 * et2:
+        return False
+    if abs(c01 * d0 + c11 * d1 + c21 * d2) > eb1 + ac01 * et0 + ac11 * et1 + ac21 * et2:
+        return False
+    return True
+
+
+@njit(cache=True)
+def _obb_gap(b_obb, i, t_obb, j, r00, r01, r02, r10, r11, r12, r20, r21, r22, t0, t1, t2,
+                 infl):
+    """Largest separation of the two oriented boxes over the 6 face axes (> 0: separated, and the
+    distance between the boxes is larger than this + infl). See :func:`_obb_overlap`."""
+    a0x = r00 * b_obb[i, 0] + r01 * b_obb[i, 1] + r02 * b_obb[i, 2]
+    a0y = r10 * b_obb[i, 0] + r11 * b_obb[i, 1] + r12 * b_obb[i, 2]
+    a0z = r20 * b_obb[i, 0] + r21 * b_obb[i, 1] + r22 * b_obb[i, 2]
+    a1x = r00 * b_obb[i, 3] + r01 * b_obb[i, 4] + r02 * b_obb[i, 5]
+    a1y = r10 * b_obb[i, 3] + r11 * b_obb[i, 4] + r12 * b_obb[i, 5]
+    a1z = r20 * b_obb[i, 3] + r21 * b_obb[i, 4] + r22 * b_obb[i, 5]
+    a2x = r00 * b_obb[i, 6] + r01 * b_obb[i, 7] + r02 * b_obb[i, 8]
+    a2y = r10 * b_obb[i, 6] + r11 * b_obb[i, 7] + r12 * b_obb[i, 8]
+    a2z = r20 * b_obb[i, 6] + r21 * b_obb[i, 7] + r22 * b_obb[i, 8]
+    cx = r00 * b_obb[i, 9] + r01 * b_obb[i, 10] + r02 * b_obb[i, 11] + t0 - t_obb[j, 9]
+    cy = r10 * b_obb[i, 9] + r11 * b_obb[i, 10] + r12 * b_obb[i, 11] + t1 - t_obb[j, 10]
+    cz = r20 * b_obb[i, 9] + r21 * b_obb[i, 10] + r22 * b_obb[i, 11] + t2 - t_obb[j, 11]
+    eb0, eb1, eb2 = b_obb[i, 12] + infl, b_obb[i, 13] + infl, b_obb[i, 14] + infl
+    et0, et1, et2 = t_obb[j, 12], t_obb[j, 13], t_obb[j, 14]
+    g0x, g0y, g0z = t_obb[j, 0], t_obb[j, 1], t_obb[j, 2]
+    g1x, g1y, g1z = t_obb[j, 3], t_obb[j, 4], t_obb[j, 5]
+    g2x, g2y, g2z = t_obb[j, 6], t_obb[j, 7], t_obb[j, 8]
+    # C[q][k] = target axis q . base axis k
+    c00 = g0x * a0x + g0y * a0y + g0z * a0z
+    c01 = g0x * a1x + g0y * a1y + g0z * a1z
+    c02 = g0x * a2x + g0y * a2y + g0z * a2z
+    c10 = g1x * a0x + g1y * a0y + g1z * a0z
+    c11 = g1x * a1x + g1y * a1y + g1z * a1z
+    c12 = g1x * a2x + g1y * a2y + g1z * a2z
+    c20 = g2x * a0x + g2y * a0y + g2z * a0z
+    c21 = g2x * a1x + g2y * a1y + g2z * a1z
+    c22 = g2x * a2x + g2y * a2y + g2z * a2z
+    d0 = g0x * cx + g0y * cy + g0z * cz
+    d1 = g1x * cx + g1y * cy + g1z * cz
+    d2 = g2x * cx + g2y * cy + g2z * cz
+    ac00, ac01, ac02 = abs(c00), abs(c01), abs(c02)
+    ac10, ac11, ac12 = abs(c10), abs(c11), abs(c12)
+    ac20, ac21, ac22 = abs(c20), abs(c21), abs(c22)
+    g = abs(d2) - (et2 + ac20 * eb0 + ac21 * eb1 + ac22 * eb2)
+    g = max(g, abs(d0) - (et0 + ac00 * eb0 + ac01 * eb1 + ac02 * eb2))
+    g = max(g, abs(d1) - (et1 + ac10 * eb0 + ac11 * eb1 + ac12 * eb2))
+    g = max(g, abs(c02 * d0 + c12 * d1 + c22 * d2) - (eb2 + ac02 * et0 + ac12 * et1 + ac22 * et2))
+    g = max(g, abs(c00 * d0 + c10 * d1 + c20 * d2) - (eb0 + ac00 * et0 + ac10 * et1 + ac20 * et2))
+    g = max(g, abs(c01 * d0 + c11 * d1 + c21 * d2) - (eb1 + ac01 * et0 + ac11 * et1 + ac21 * et2))
+    return g
+
+
+@njit(cache=True)
+def _segment_vs_leaf(ax, ay, az, bx, by, bz, t_box, t_obb, j, grow):
+    """False if the segment a-b (target frame) is separated from target node j's boxes grown by
+    ``grow`` (axis-aligned box, then the 3 axes of the oriented box)."""
+    if min(ax, bx) > t_box[j, 3] + grow or max(ax, bx) < t_box[j, 0] - grow:
+        return False
+    if min(ay, by) > t_box[j, 4] + grow or max(ay, by) < t_box[j, 1] - grow:
+        return False
+    if min(az, bz) > t_box[j, 5] + grow or max(az, bz) < t_box[j, 2] - grow:
+        return False
+    for q in range(3):
+        gx, gy, gz = t_obb[j, 3 * q], t_obb[j, 3 * q + 1], t_obb[j, 3 * q + 2]
+        pa = gx * (ax - t_obb[j, 9]) + gy * (ay - t_obb[j, 10]) + gz * (az - t_obb[j, 11])
+        pb = gx * (bx - t_obb[j, 9]) + gy * (by - t_obb[j, 10]) + gz * (bz - t_obb[j, 11])
+        hw = t_obb[j, 12 + q] + grow
+        if (pa > hw and pb > hw) or (pa < -hw and pb < -hw):
+            return False
+    return True
+
+
+@njit(cache=True)
+def tri_hit(ox, oy, oz, dx, dy, dz, ttri, l, L, s_neg):
+    """Exact narrow phase of one penetration line (origin o, inward unit direction d, target
+    frame) against target triangle slot l. Returns the penetration u > 0, or -1.0 when there is
+    no accepted hit: the target must face the base (d.ne > 0), the line must meet the flat
+    triangle (inside test) at a line parameter s in [-s_neg, L], and u (distance along the line to
+    the element's exact tangent plane) must lie in (0, L]."""
+    dne = dx * ttri[l, 15] + dy * ttri[l, 16] + dz * ttri[l, 17]
+    if dne <= DOT_EPS:
+        return -1.0
+    ngx, ngy, ngz = ttri[l, 3], ttri[l, 4], ttri[l, 5]
+    den = dx * ngx + dy * ngy + dz * ngz
+    if abs(den) <= DOT_EPS:
+        return -1.0
+    rax = ttri[l, 0] - ox
+    ray = ttri[l, 1] - oy
+    raz = ttri[l, 2] - oz
+    s = (rax * ngx + ray * ngy + raz * ngz) / den
+    if s > L or s < -s_neg:
+        return -1.0
+    wx = s * dx - rax
+    wy = s * dy - ray
+    wz = s * dz - raz
+    beta = wx * ttri[l, 6] + wy * ttri[l, 7] + wz * ttri[l, 8]
+    if beta < -BARY_EPS:
+        return -1.0
+    gamma = wx * ttri[l, 9] + wy * ttri[l, 10] + wz * ttri[l, 11]
+    if gamma < -BARY_EPS or beta + gamma > 1.0 + BARY_EPS:
+        return -1.0
+    u = ((ttri[l, 12] - ox) * ttri[l, 15] + (ttri[l, 13] - oy) * ttri[l, 16]
+         + (ttri[l, 14] - oz) * ttri[l, 17]) / dne
+    if u <= 0.0 or u > L:
+        return -1.0
+    return u
+
+
+@njit(cache=True)
+def tri_near(ax, ay, az, bx, by, bz, dx, dy, dz, ttri, l, delta, dot_min):
+    """Candidate filter (superset of every hit after a rigid motion that moves each point of the
+    segment a-b by less than ``delta`` and turns it by less than the facing tolerance): False
+    when the segment is farther than ``delta`` from the triangle's plane or from one of its edge
+    lines on the outer side, or the target does not face the line (d.ne <= dot_min)."""
+    dne = dx * ttri[l, 15] + dy * ttri[l, 16] + dz * ttri[l, 17]
+    if dne <= dot_min:
+        return False
+    ngx, ngy, ngz = ttri[l, 3], ttri[l, 4], ttri[l, 5]
+    vx, vy, vz = ttri[l, 0], ttri[l, 1], ttri[l, 2]
+    ha = (ax - vx) * ngx + (ay - vy) * ngy + (az - vz) * ngz
+    hb = (bx - vx) * ngx + (by - vy) * ngy + (bz - vz) * ngz
+    if (ha > delta and hb > delta) or (ha < -delta and hb < -delta):
+        return False
+    g1x, g1y, g1z = ttri[l, 6], ttri[l, 7], ttri[l, 8]
+    g2x, g2y, g2z = ttri[l, 9], ttri[l, 10], ttri[l, 11]
+    b_a = (ax - vx) * g1x + (ay - vy) * g1y + (az - vz) * g1z
+    b_b = (bx - vx) * g1x + (by - vy) * g1y + (bz - vz) * g1z
+    lim = -delta * math.sqrt(g1x * g1x + g1y * g1y + g1z * g1z) - BARY_EPS
+    if b_a < lim and b_b < lim:
+        return False
+    c_a = (ax - vx) * g2x + (ay - vy) * g2y + (az - vz) * g2z
+    c_b = (bx - vx) * g2x + (by - vy) * g2y + (bz - vz) * g2z
+    lim = -delta * math.sqrt(g2x * g2x + g2y * g2y + g2z * g2z) - BARY_EPS
+    if c_a < lim and c_b < lim:
+        return False
+    sx, sy, sz = g1x + g2x, g1y + g2y, g1z + g2z
+    lim = -delta * math.sqrt(sx * sx + sy * sy + sz * sz) - BARY_EPS
+    if 1.0 - b_a - c_a < lim and 1.0 - b_b - c_b < lim:
+        return False
+    return True
+
+
+@njit(cache=True)
+def _traverse(mode, b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L, s_neg,
+              infl, delta, dot_min, stamp, call, best_u, best_j, line, active, stack,
+              cand, nstamp, icount, fc, minsep, nbox):
+    """Dual-tree traversal. mode 0: exact search (fills the base workspace, returns the number
+    of base elements with a hit). mode 1: candidate collection for the cache (pairs (base slot,
+    target slot) into ``cand``; returns the number of pairs, or -1 when ``cand`` overflows).
+    Node volumes are grown by ``infl``. Mode 1 also records, per far-check node f of the base
+    (``fc[i] = [f_lo, f_hi)`` the far-check nodes under base node i), a lower bound of the
+    distance of its non-near elements to the target (``minsep[f]``) and the box of its near
+    leaves (``nbox[f] = [lo, hi]``, base frame); ``icount[0]`` = number of near leaves."""
     call[0] += 1
     cid = call[0]
     r00, r01, r02 = Rbt[0, 0], Rbt[0, 1], Rbt[0, 2]
@@ -167,8 +383,9 @@ def search_pair(b_int, b_seg, belem, t_int, t_box, t_slab, ttri, Rbt, tbt, L,
     a10, a11, a12 = abs(r10), abs(r11), abs(r12)
     a20, a21, a22 = abs(r20), abs(r21), abs(r22)
     t0, t1, t2 = tbt[0], tbt[1], tbt[2]
-    n_active = 0
-    sp = 0
+    n_out = 0
+    cap = cand.shape[0]
+    icount[0] = 0
     stack[0, 0] = 0
     stack[0, 1] = 0
     sp = 1
@@ -177,28 +394,38 @@ def search_pair(b_int, b_seg, belem, t_int, t_box, t_slab, ttri, Rbt, tbt, L,
         i = stack[sp, 0]
         j = stack[sp, 1]
         c0, c1, c2 = b_seg[i, 0], b_seg[i, 1], b_seg[i, 2]
-        e0, e1, e2 = b_seg[i, 3], b_seg[i, 4], b_seg[i, 5]
+        e0, e1, e2 = b_seg[i, 3] + infl, b_seg[i, 4] + infl, b_seg[i, 5] + infl
         # base box in the target frame (centre R c + t, half extents |R| e)
         cx = r00 * c0 + r01 * c1 + r02 * c2 + t0
         ex = a00 * e0 + a01 * e1 + a02 * e2
-        if cx - ex > t_box[j, 3] or cx + ex < t_box[j, 0]:
-            continue
         cy = r10 * c0 + r11 * c1 + r12 * c2 + t1
         ey = a10 * e0 + a11 * e1 + a12 * e2
-        if cy - ey > t_box[j, 4] or cy + ey < t_box[j, 1]:
-            continue
         cz = r20 * c0 + r21 * c1 + r22 * c2 + t2
         ez = a20 * e0 + a21 * e1 + a22 * e2
-        if cz - ez > t_box[j, 5] or cz + ez < t_box[j, 2]:
-            continue
-        # slab of the target node vs the base box as an oriented box (axes = columns of Rbt)
-        snx, sny, snz = t_slab[j, 0], t_slab[j, 1], t_slab[j, 2]
-        sc = snx * cx + sny * cy + snz * cz
-        sr = (e0 * abs(snx * r00 + sny * r10 + snz * r20)
-              + e1 * abs(snx * r01 + sny * r11 + snz * r21)
-              + e2 * abs(snx * r02 + sny * r12 + snz * r22))
-        if sc - sr > t_slab[j, 4] or sc + sr < t_slab[j, 3]:
-            continue
+        if mode == 0:
+            if cx - ex > t_box[j, 3] or cx + ex < t_box[j, 0]:
+                continue
+            if cy - ey > t_box[j, 4] or cy + ey < t_box[j, 1]:
+                continue
+            if cz - ez > t_box[j, 5] or cz + ez < t_box[j, 2]:
+                continue
+            # oriented boxes (surface-patch frames)
+            if not _obb_overlap(b_obb, i, t_obb, j, r00, r01, r02, r10, r11, r12, r20, r21,
+                                r22, t0, t1, t2, infl):
+                continue
+        else:
+            g = max(cx - ex - t_box[j, 3], t_box[j, 0] - cx - ex,
+                    cy - ey - t_box[j, 4], t_box[j, 1] - cy - ey,
+                    cz - ez - t_box[j, 5], t_box[j, 2] - cz - ez)
+            if g <= 0.0:
+                g = _obb_gap(b_obb, i, t_obb, j, r00, r01, r02, r10, r11, r12, r20, r21, r22,
+                             t0, t1, t2, infl)
+            if g > 0.0:
+                dist = g + infl
+                for f in range(fc[i, 0], fc[i, 1]):
+                    if dist < minsep[f]:
+                        minsep[f] = dist
+                continue
         bl = b_int[i, 0]
         tl = t_int[j, 0]
         if bl >= 0 or tl >= 0:
@@ -232,8 +459,17 @@ def search_pair(b_int, b_seg, belem, t_int, t_box, t_slab, ttri, Rbt, tbt, L,
         be = bs + b_int[i, 3]
         ts = t_int[j, 2]
         te = ts + t_int[j, 3]
-        bx0, by0, bz0 = t_box[j, 0], t_box[j, 1], t_box[j, 2]
-        bx1, by1, bz1 = t_box[j, 3], t_box[j, 4], t_box[j, 5]
+        if mode == 1 and nstamp[i] != cid:
+            nstamp[i] = cid
+            icount[0] += 1
+            f = fc[i, 0]
+            for a in range(3):
+                lo = b_seg[i, a] - b_seg[i, 3 + a]
+                hi = b_seg[i, a] + b_seg[i, 3 + a]
+                if lo < nbox[f, a]:
+                    nbox[f, a] = lo
+                if hi > nbox[f, 3 + a]:
+                    nbox[f, 3 + a] = hi
         for k in range(bs, be):
             if stamp[k] != cid:
                 stamp[k] = cid
@@ -249,57 +485,256 @@ def search_pair(b_int, b_seg, belem, t_int, t_box, t_slab, ttri, Rbt, tbt, L,
                 best_j[k] = -1
             ox, oy, oz = line[k, 0], line[k, 1], line[k, 2]
             dx, dy, dz = line[k, 3], line[k, 4], line[k, 5]
-            # segment box vs target leaf box
-            qx = ox + L * dx
-            qy = oy + L * dy
-            qz = oz + L * dz
-            if min(ox, qx) > bx1 or max(ox, qx) < bx0:
-                continue
-            if min(oy, qy) > by1 or max(oy, qy) < by0:
-                continue
-            if min(oz, qz) > bz1 or max(oz, qz) < bz0:
-                continue
-            so = snx * ox + sny * oy + snz * oz
-            sq = snx * qx + sny * qy + snz * qz
-            if min(so, sq) > t_slab[j, 4] or max(so, sq) < t_slab[j, 3]:
-                continue
-            for l in range(ts, te):
-                # facing: n_base . n_target < 0  <=>  d . ne > 0
-                dne = dx * ttri[l, 15] + dy * ttri[l, 16] + dz * ttri[l, 17]
-                if dne <= DOT_EPS:
+            # the line segment s in [-s_neg, L]
+            ax, ay, az = ox - s_neg * dx, oy - s_neg * dy, oz - s_neg * dz
+            bx, by, bz = ox + L * dx, oy + L * dy, oz + L * dz
+            if mode == 0:
+                if not _segment_vs_leaf(ax, ay, az, bx, by, bz, t_box, t_obb, j, 0.0):
                     continue
-                ngx, ngy, ngz = ttri[l, 3], ttri[l, 4], ttri[l, 5]
-                den = dx * ngx + dy * ngy + dz * ngz
-                if abs(den) <= DOT_EPS:
+                for l in range(ts, te):
+                    u = tri_hit(ox, oy, oz, dx, dy, dz, ttri, l, L, s_neg)
+                    if u > 0.0 and u < best_u[k]:
+                        if best_j[k] < 0:
+                            active[n_out] = k
+                            n_out += 1
+                        best_u[k] = u
+                        best_j[k] = l
+            else:
+                if not _segment_vs_leaf(ax, ay, az, bx, by, bz, t_box, t_obb, j, delta):
                     continue
-                rax = ttri[l, 0] - ox
-                ray = ttri[l, 1] - oy
-                raz = ttri[l, 2] - oz
-                s = (rax * ngx + ray * ngy + raz * ngz) / den
-                if s > L or s < -L:
-                    continue
-                # q - a = (o + s d) - a
-                wx = s * dx - rax
-                wy = s * dy - ray
-                wz = s * dz - raz
-                beta = wx * ttri[l, 6] + wy * ttri[l, 7] + wz * ttri[l, 8]
-                if beta < -BARY_EPS:
-                    continue
-                gamma = wx * ttri[l, 9] + wy * ttri[l, 10] + wz * ttri[l, 11]
-                if gamma < -BARY_EPS or beta + gamma > 1.0 + BARY_EPS:
-                    continue
-                # penetration measured to the (exact) tangent plane of the target element
-                u = ((ttri[l, 12] - ox) * ttri[l, 15] + (ttri[l, 13] - oy) * ttri[l, 16]
-                     + (ttri[l, 14] - oz) * ttri[l, 17]) / dne
-                if u <= 0.0 or u > L:
-                    continue
-                if u < best_u[k]:
-                    if best_j[k] < 0:
-                        active[n_active] = k
-                        n_active += 1
-                    best_u[k] = u
-                    best_j[k] = l
+                for l in range(ts, te):
+                    if tri_near(ax, ay, az, bx, by, bz, dx, dy, dz, ttri, l, delta, dot_min):
+                        if n_out >= cap:
+                            return -1
+                        cand[n_out, 0] = k
+                        cand[n_out, 1] = l
+                        n_out += 1
+    return n_out
+
+
+@njit(cache=True)
+def search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L, s_neg,
+                stamp, call, best_u, best_j, line, active, stack):
+    """Exact contact search (dual-tree traversal + penetration lines). ``Rbt``, ``tbt``: pose of
+    the base frame in the target frame (x_target = Rbt x_base + tbt). Returns the number of base
+    elements with a hit; their slots are ``active[:n]``, penetration ``best_u[slot]``, target slot
+    ``best_j[slot]``, line ``line[slot] = [p', d']`` (target frame; d' = inward base normal)."""
+    dummy_c = np.empty((0, 2), dtype=np.int64)
+    dummy_i = np.zeros(1, dtype=np.int64)
+    return _traverse(0, b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L,
+                     s_neg, s_neg, 0.0, DOT_EPS, stamp, call, best_u, best_j, line, active,
+                     stack, dummy_c, dummy_i, dummy_i, dummy_c, np.empty(0), np.empty((0, 6)))
+
+
+@njit(cache=True)
+def search_candidates(n_cand, cand, cand_tri, belem, L, s_neg, Rbt, tbt,
+                      best_u, best_j, line, active):
+    """Exact narrow phase over the cached candidate pairs (sorted by base slot, triangle data
+    copied to ``cand_tri`` in the same order); same outputs as :func:`search_pair`."""
+    r00, r01, r02 = Rbt[0, 0], Rbt[0, 1], Rbt[0, 2]
+    r10, r11, r12 = Rbt[1, 0], Rbt[1, 1], Rbt[1, 2]
+    r20, r21, r22 = Rbt[2, 0], Rbt[2, 1], Rbt[2, 2]
+    t0, t1, t2 = tbt[0], tbt[1], tbt[2]
+    n_active = 0
+    q = 0
+    while q < n_cand:
+        k = cand[q, 0]
+        px, py, pz = belem[k, 0], belem[k, 1], belem[k, 2]
+        nx, ny, nz = belem[k, 3], belem[k, 4], belem[k, 5]
+        ox = r00 * px + r01 * py + r02 * pz + t0
+        oy = r10 * px + r11 * py + r12 * pz + t1
+        oz = r20 * px + r21 * py + r22 * pz + t2
+        dx = -(r00 * nx + r01 * ny + r02 * nz)
+        dy = -(r10 * nx + r11 * ny + r12 * nz)
+        dz = -(r20 * nx + r21 * ny + r22 * nz)
+        best = np.inf
+        bj = -1
+        while q < n_cand and cand[q, 0] == k:
+            u = tri_hit(ox, oy, oz, dx, dy, dz, cand_tri, q, L, s_neg)
+            if u > 0.0 and u < best:
+                best = u
+                bj = cand[q, 1]
+            q += 1
+        if bj >= 0:
+            line[k, 0] = ox
+            line[k, 1] = oy
+            line[k, 2] = oz
+            line[k, 3] = dx
+            line[k, 4] = dy
+            line[k, 5] = dz
+            best_u[k] = best
+            best_j[k] = bj
+            active[n_active] = k
+            n_active += 1
     return n_active
+
+
+# cache state layout (float64 array of size N_CACHE)
+C_VALID = 0        # 1.0 when the candidate list is valid
+C_RREF = 1         # 9: Rbt at the build
+C_TREF = 10        # 3: tbt at the build
+C_NCAND = 13       # number of candidate pairs
+C_BUILDS = 14      # statistics: number of builds
+C_CALLS = 15       # statistics: number of calls served from the cache
+C_OVERFLOW = 16    # statistics: builds that overflowed the candidate array
+C_NNEAR = 17       # number of near base leaves at the last build
+C_NCLOSE = 18      # number of far-check nodes checked individually
+C_GFAR = 19        # distance bound of the other far-check nodes (checked with the root box)
+C_SINCE = 20       # calls served since the last build
+C_COOL = 21        # remaining calls of exact search after a too short reuse (adaptive fallback)
+C_EXACT = 22       # statistics: calls served by the exact search during cool-downs
+N_CACHE = 24
+CACHE_MIN_REUSE = 8      # a list reused for fewer calls than this triggers a cool-down ...
+CACHE_COOLDOWN = 64      # ... of this many exact-search calls before the next build
+
+
+@njit(cache=True)
+def _max_disp_box(dR, dt, obb, o, lo0, lo1, lo2, hi0, hi1, hi2, use_obb, grow):
+    """Largest |dR x + dt| over a box (the maximum of a convex function is at a corner): the
+    oriented box ``obb[o:o+15]`` (axes rows, centre, half) when ``use_obb``, else [lo, hi];
+    half extents grown by ``grow``."""
+    best = 0.0
+    for c in range(8):
+        if use_obb:
+            s0 = 1.0 if (c & 1) else -1.0
+            s1 = 1.0 if (c & 2) else -1.0
+            s2 = 1.0 if (c & 4) else -1.0
+            h0 = s0 * (obb[o + 12] + grow)
+            h1 = s1 * (obb[o + 13] + grow)
+            h2 = s2 * (obb[o + 14] + grow)
+            x = obb[o + 9] + h0 * obb[o + 0] + h1 * obb[o + 3] + h2 * obb[o + 6]
+            y = obb[o + 10] + h0 * obb[o + 1] + h1 * obb[o + 4] + h2 * obb[o + 7]
+            z = obb[o + 11] + h0 * obb[o + 2] + h1 * obb[o + 5] + h2 * obb[o + 8]
+        else:
+            x = hi0 + grow if (c & 1) else lo0 - grow
+            y = hi1 + grow if (c & 2) else lo1 - grow
+            z = hi2 + grow if (c & 4) else lo2 - grow
+        ex = dR[0, 0] * x + dR[0, 1] * y + dR[0, 2] * z + dt[0]
+        ey = dR[1, 0] * x + dR[1, 1] * y + dR[1, 2] * z + dt[1]
+        ez = dR[2, 0] * x + dR[2, 1] * y + dR[2, 2] * z + dt[2]
+        d2 = ex * ex + ey * ey + ez * ez
+        if d2 > best:
+            best = d2
+    return math.sqrt(best)
+
+
+@njit(cache=True)
+def _node_disp(dR, dt, b_seg, b_obb, i, grow, limit):
+    """Bound of |dR x + dt| over base node i (axis-aligned box, then oriented box if needed)."""
+    d = _max_disp_box(dR, dt, b_obb[i], 0, b_seg[i, 0] - b_seg[i, 3], b_seg[i, 1] - b_seg[i, 4],
+                      b_seg[i, 2] - b_seg[i, 5], b_seg[i, 0] + b_seg[i, 3],
+                      b_seg[i, 1] + b_seg[i, 4], b_seg[i, 2] + b_seg[i, 5], False, grow)
+    if d < limit:
+        return d
+    return min(d, _max_disp_box(dR, dt, b_obb[i], 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, True, grow))
+
+
+@njit(cache=True)
+def cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L, s_neg,
+                  delta, far, phi_tol, cache, cand, cand_tri, nstamp, icount, fnode, fc, minsep,
+                  nbox, close, dR, dt, stamp, call, best_u, best_j, line, active, stack):
+    """Exact contact search through a candidate cache (temporal coherence).
+
+    Build (at the current pose): a traversal with node volumes grown by ``far`` finds the base
+    leaves within ``far`` of the target ("near" leaves); for their elements every (element,
+    triangle) pair whose penetration segment comes within ``delta`` of the triangle is stored
+    (sorted by element, triangle data copied). Every other part of the base is proven farther from
+    the target than a recorded distance, per far-check node f (a cut of the base tree, ~64 nodes):
+    ``minsep[f]``. A later pose reuses the list when, relative to the target, (i) the near leaves
+    of every far-check node moved by less than ``delta``, (ii) every far-check node moved by less
+    than its ``minsep``, (iii) the relative rotation is below ``phi_tol`` (candidates keep targets
+    facing within that angle); otherwise it rebuilds. The motion bounds are exact maxima over
+    boxes (|dR x + dt| is convex in x). The result is identical to :func:`search_pair` (the same
+    exact narrow phase on a superset of the hits). Adaptive fallback: when a list served fewer
+    than CACHE_MIN_REUSE calls, the next CACHE_COOLDOWN calls use the exact search instead."""
+    if cache[C_COOL] > 0.0:
+        cache[C_COOL] -= 1.0
+        cache[C_EXACT] += 1.0
+        return search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L,
+                           s_neg, stamp, call, best_u, best_j, line, active, stack)
+    valid = cache[C_VALID] != 0.0
+    if valid:
+        tr = 0.0
+        for r in range(3):
+            for c in range(3):
+                dR[r, c] = Rbt[r, c] - cache[C_RREF + 3 * r + c]
+                tr += Rbt[r, c] * cache[C_RREF + 3 * r + c]
+            dt[r] = tbt[r] - cache[C_TREF + r]
+        if 0.5 * (tr - 1.0) < math.cos(phi_tol):
+            valid = False
+        if valid and cache[C_GFAR] < np.inf:
+            if _node_disp(dR, dt, b_seg, b_obb, 0, s_neg, cache[C_GFAR]) >= cache[C_GFAR]:
+                valid = False
+        if valid:
+            for q in range(int(cache[C_NCLOSE])):
+                f = close[q]
+                if nbox[f, 0] <= nbox[f, 3]:
+                    d = _max_disp_box(dR, dt, cache, 0, nbox[f, 0], nbox[f, 1], nbox[f, 2],
+                                      nbox[f, 3], nbox[f, 4], nbox[f, 5], False, s_neg)
+                    if d >= delta:
+                        valid = False
+                        break
+                if minsep[f] < np.inf:
+                    if _node_disp(dR, dt, b_seg, b_obb, fnode[f], s_neg, minsep[f]) >= minsep[f]:
+                        valid = False
+                        break
+    if not valid and cache[C_VALID] != 0.0 and cache[C_SINCE] < CACHE_MIN_REUSE:
+        # the motion between calls is too large for the margins: exact search for a while
+        cache[C_VALID] = 0.0
+        cache[C_COOL] = CACHE_COOLDOWN - 1
+        cache[C_EXACT] += 1.0
+        return search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L,
+                           s_neg, stamp, call, best_u, best_j, line, active, stack)
+    if not valid:
+        cache[C_SINCE] = 0.0
+        nf = fnode.shape[0]
+        for f in range(nf):
+            minsep[f] = np.inf
+            for a in range(3):
+                nbox[f, a] = np.inf
+                nbox[f, 3 + a] = -np.inf
+        n = _traverse(1, b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L,
+                      s_neg, far + s_neg, delta, DOT_EPS - math.sin(phi_tol), stamp, call,
+                      best_u, best_j, line, active, stack, cand, nstamp, icount, fc, minsep, nbox)
+        cache[C_BUILDS] += 1.0
+        if n < 0:
+            cache[C_VALID] = 0.0
+            cache[C_OVERFLOW] += 1.0
+            return search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt,
+                               L, s_neg, stamp, call, best_u, best_j, line, active, stack)
+        # sort the pairs by base slot (stable) and copy the triangle data in that order
+        order = np.argsort(cand[:n, 0], kind="mergesort")
+        tmp = cand[:n].copy()
+        for q in range(n):
+            cand[q, 0] = tmp[order[q], 0]
+            cand[q, 1] = tmp[order[q], 1]
+            l = cand[q, 1]
+            for a in range(18):
+                cand_tri[q, a] = ttri[l, a]
+        cache[C_NNEAR] = icount[0]
+        # far-check nodes checked one by one: those with near leaves or within 16 far; the
+        # others together through the root box against the smallest of their distances
+        nclose = 0
+        gfar = np.inf
+        for f in range(nf):
+            if nbox[f, 0] <= nbox[f, 3] or minsep[f] < 16.0 * far:
+                close[nclose] = f
+                nclose += 1
+            elif minsep[f] < gfar:
+                gfar = minsep[f]
+        cache[C_NCLOSE] = nclose
+        cache[C_GFAR] = gfar
+        cache[C_VALID] = 1.0
+        for r in range(3):
+            for c in range(3):
+                cache[C_RREF + 3 * r + c] = Rbt[r, c]
+            cache[C_TREF + r] = tbt[r]
+        cache[C_NCAND] = n
+    else:
+        cache[C_CALLS] += 1.0
+        cache[C_SINCE] += 1.0
+    return search_candidates(int(cache[C_NCAND]), cand, cand_tri, belem, L, s_neg, Rbt, tbt,
+                             best_u, best_j, line, active)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -434,28 +869,35 @@ def fixed_axis_eval(data, theta_base, theta_target, omega_base, omega_target, ou
     (fidelity.OUT_* layout): out[0] torque on the base about its axis, out[1] torque on the target
     about its axis, out[2..8] diagnostics, out[9] status (1 = penetration beyond u_max).
     """
-    (b_int, b_seg, belem, b_order, t_int, t_box, t_slab, ttri, t_order, M, ab0, params,
-     stamp, call, best_u, best_j, line, active, stack, Rbt, tbt) = data
+    (b_int, b_seg, b_obb, belem, b_order, t_int, t_box, t_obb, ttri, t_order, M, ab0, params,
+     stamp, call, best_u, best_j, line, active, stack, Rbt, tbt, cache, cand, cand_tri, nstamp,
+     icount, fnode, fc, minsep, nbox, close, dR, dt) = data
     # Rbt = Rz(-theta_t) M Rz(theta_b), M = R0_t^T R0_b
     cb = math.cos(theta_base)
     sb = math.sin(theta_base)
     ct = math.cos(theta_target)
     st = math.sin(theta_target)
-    # M Rz(theta_b): columns 0, 1 rotated
     for r in range(3):
         m0 = M[r, 0]
         m1 = M[r, 1]
         Rbt[r, 0] = m0 * cb + m1 * sb
         Rbt[r, 1] = -m0 * sb + m1 * cb
         Rbt[r, 2] = M[r, 2]
-    # Rz(-theta_t) (...): rows 0, 1 rotated
     for col in range(3):
         x0 = Rbt[0, col]
         x1 = Rbt[1, col]
         Rbt[0, col] = ct * x0 + st * x1
         Rbt[1, col] = -st * x0 + ct * x1
-    n = search_pair(b_int, b_seg, belem, t_int, t_box, t_slab, ttri, Rbt, tbt, params[P_L],
-                    stamp, call, best_u, best_j, line, active, stack)
+    L = params[P_L]
+    s_neg = params[P_SNEG]
+    if params[P_DELTA] > 0.0:
+        n = cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L,
+                          s_neg, params[P_DELTA], params[P_FAR], params[P_PHI], cache, cand,
+                          cand_tri, nstamp, icount, fnode, fc, minsep, nbox, close, dR, dt, stamp,
+                          call, best_u, best_j, line, active, stack)
+    else:
+        n = search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L,
+                        s_neg, stamp, call, best_u, best_j, line, active, stack)
     # base axis in the target frame: Rz(-theta_t) M e_z
     abx = ct * ab0[0] + st * ab0[1]
     aby = -st * ab0[0] + ct * ab0[1]

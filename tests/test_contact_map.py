@@ -1,0 +1,113 @@
+"""The fixed-axis contact map ("table"): interpolation error against the online engine, disk cache."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from gearcontact_fmu.contact_map import MapGrid, get_map, make_table_data, table_eval
+from gearcontact_fmu.fidelity import N_OUT, OUT_TAU_PINION, OUT_TAU_WHEEL, OUT_STATUS
+from gearcontact_fmu.gearpair import build_pcm_pair
+from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
+
+GEAR = BevelGearParams()
+PCM = PCMParams()
+RES = MeshResolution(profile=0.1e-3, face=2e-3)
+GRID = MapGrid(points_per_pitch=24, s_points=24, max_torque=120.0)
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory):
+    import os
+
+    d = tmp_path_factory.mktemp("cache")
+    old = os.environ.get("BEVEL_CACHE_DIR")
+    os.environ["BEVEL_CACHE_DIR"] = str(d)
+    yield d
+    if old is None:
+        os.environ.pop("BEVEL_CACHE_DIR")
+    else:
+        os.environ["BEVEL_CACHE_DIR"] = old
+
+
+@pytest.fixture(scope="module")
+def pair():
+    return build_pcm_pair(GEAR, PCM, RES)
+
+
+@pytest.fixture(scope="module")
+def cmap(cache):
+    return get_map(GEAR, PCM, RES, grid=GRID)
+
+
+def test_interpolation_error_against_online(pair, cmap):
+    """Report the table's error at random off-grid states under load (no damping/friction)."""
+    rng = np.random.default_rng(1)
+    data_el = pair.data_with(friction=False, damping=False)
+    tdata = make_table_data(cmap, friction=False, damping=False)
+    s_on = cmap.info["onset_drive"]
+    span = cmap.info["span"]
+    out_o = np.zeros(N_OUT)
+    out_t = np.zeros(N_OUT)
+    err, ref = [], []
+    for _ in range(300):
+        th = rng.uniform(0, 2 * math.pi)
+        s = s_on + rng.uniform(0.05, 0.7) * span
+        thw = (th - s) * GEAR.z_pinion / GEAR.z_wheel
+        from gearcontact_fmu.contact import engine
+
+        engine.fixed_axis_eval(data_el, th, thw, 0.0, 0.0, out_o)
+        table_eval(tdata, th, thw, 0.0, 0.0, out_t)
+        err.append(out_t[OUT_TAU_PINION] - out_o[OUT_TAU_PINION])
+        ref.append(out_o[OUT_TAU_PINION])
+    err = np.array(err)
+    ref = np.array(ref)
+    rms_rel = np.sqrt(np.mean(err**2)) / np.sqrt(np.mean(ref**2))
+    max_rel = np.max(np.abs(err)) / np.max(np.abs(ref))
+    print(f"\n table vs online: RMS error {100 * rms_rel:.2f} %, max error {100 * max_rel:.2f} % of max torque "
+          f"({cmap.info['n_theta']} x {cmap.info['n_s']} grid)")
+    assert rms_rel < 0.03
+    assert max_rel < 0.10
+
+
+def test_table_torque_ratio_and_backlash(cmap):
+    out = np.zeros(N_OUT)
+    tdata = make_table_data(cmap, friction=False, damping=False)
+    # inside the backlash: no torque
+    table_eval(tdata, 0.1, 0.1 * GEAR.z_pinion / GEAR.z_wheel, 0.0, 0.0, out)
+    assert out[OUT_TAU_PINION] == 0.0 and out[OUT_TAU_WHEEL] == 0.0
+    s = cmap.info["onset_drive"] + 0.3 * cmap.info["span"]
+    table_eval(tdata, 0.1, (0.1 - s) * GEAR.z_pinion / GEAR.z_wheel, 0.0, 0.0, out)
+    assert out[OUT_TAU_PINION] < 0 < out[OUT_TAU_WHEEL]
+    assert out[OUT_TAU_WHEEL] == pytest.approx(-out[OUT_TAU_PINION] * GEAR.z_wheel / GEAR.z_pinion, rel=0.02)
+    # NaN input: error status, no exception
+    table_eval(tdata, float("nan"), 0.0, 0.0, 0.0, out)
+    assert out[OUT_STATUS] != 0
+
+
+def test_damping_dissipates(cmap):
+    out = np.zeros(N_OUT)
+    tdata = make_table_data(cmap, friction=False, damping=True)
+    s = cmap.info["onset_drive"] + 0.3 * cmap.info["span"]
+    th = 0.05
+    thw = (th - s) * GEAR.z_pinion / GEAR.z_wheel
+    table_eval(make_table_data(cmap, friction=False, damping=False), th, thw, 0.0, 0.0, out)
+    tau0 = out[OUT_TAU_PINION]
+    table_eval(tdata, th, thw, 1e-3, 0.0, out)  # closing: more resisting torque
+    assert out[OUT_TAU_PINION] < tau0
+    assert out[8] > 0
+
+
+def test_cache_hit_and_key(cache, cmap):
+    again = get_map(GEAR, PCM, RES, grid=GRID)
+    assert again.info["from_cache"] is True
+    np.testing.assert_array_equal(again.values, cmap.values)
+    files = list(cache.glob("contactmap-*.npz"))
+    assert len(files) == 1
+    # another backlash is another key (not recomputed here: just the key)
+    from gearcontact_fmu.contact_map import cache_key
+
+    k1 = cache_key(GEAR, PCM, RES, "healthy", None, GRID)
+    k2 = cache_key(BevelGearParams(backlash=0.1e-3), PCM, RES, "healthy", None, GRID)
+    assert k1 != k2

@@ -181,58 +181,6 @@ def refit_segment_boxes(node_int, order_points, order_normals, length):
 
 
 @njit(cache=True)
-def node_slabs(node_int, order, tri):
-    """Normal slab of every node: ``(N, 5) = [n(3), d_min, d_max]`` with n the normalised
-    area-weighted mean facet normal of the node's triangles and [d_min, d_max] the range of n.x over
-    their vertices. Nearly planar subtrees get thin slabs (a tight test for oblique surfaces, where
-    axis-aligned boxes are loose). A node without a mean normal gets an infinite slab."""
-    n = node_int.shape[0]
-    out = np.empty((n, 5))
-    for node in range(n):
-        start = node_int[node, 2]
-        count = node_int[node, 3]
-        sx = 0.0
-        sy = 0.0
-        sz = 0.0
-        for k in range(start, start + count):
-            p = order[k]
-            e1x = tri[p, 1, 0] - tri[p, 0, 0]
-            e1y = tri[p, 1, 1] - tri[p, 0, 1]
-            e1z = tri[p, 1, 2] - tri[p, 0, 2]
-            e2x = tri[p, 2, 0] - tri[p, 0, 0]
-            e2y = tri[p, 2, 1] - tri[p, 0, 1]
-            e2z = tri[p, 2, 2] - tri[p, 0, 2]
-            sx += e1y * e2z - e1z * e2y
-            sy += e1z * e2x - e1x * e2z
-            sz += e1x * e2y - e1y * e2x
-        nn = np.sqrt(sx * sx + sy * sy + sz * sz)
-        if nn <= 0.0:
-            out[node, 0] = 0.0
-            out[node, 1] = 0.0
-            out[node, 2] = 0.0
-            out[node, 3] = -np.inf
-            out[node, 4] = np.inf
-            continue
-        nx, ny, nz = sx / nn, sy / nn, sz / nn
-        lo = np.inf
-        hi = -np.inf
-        for k in range(start, start + count):
-            p = order[k]
-            for v in range(3):
-                d = nx * tri[p, v, 0] + ny * tri[p, v, 1] + nz * tri[p, v, 2]
-                if d < lo:
-                    lo = d
-                if d > hi:
-                    hi = d
-        out[node, 0] = nx
-        out[node, 1] = ny
-        out[node, 2] = nz
-        out[node, 3] = lo
-        out[node, 4] = hi
-    return out
-
-
-@njit(cache=True)
 def _node_frame(sx, sy, sz, pts, npts):
     """Orthonormal rows (t1, t2, n): n the normalised normal sum (sx, sy, sz) (or z when it
     vanishes), t1 the principal direction of the points in the plane normal to n."""

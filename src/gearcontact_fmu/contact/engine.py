@@ -12,9 +12,18 @@ Conventions (docs/ARCHITECTURE.md): SI units; pose ``(R, t)`` with R body->world
 origin in the world; velocities ``(v, omega)`` with v the velocity of the body origin, both in the
 world. The base body's elements probe the target surface: a penetration line runs from each base
 element point along the base element's inward normal; the penetration u is its distance to the
-first facing target triangle (to the exact tangent plane of that element when the target has exact
-face data). The element normal force acts along the base element's outward normal at the point
-``p - u/2 n`` (mid-layer): on the target with +, on the base with -.
+smallest accepted hit: a target triangle facing the base (n_base . n_target < 0) whose flat
+triangle the line meets at a line parameter s in [-s_neg, L] (L the search length, default
+2 u_max; s_neg = 0 for facet targets, else the largest facet-to-exact-plane deviation of the target
+x 2), with u in (0, L] measured to the hit element's exact tangent plane when the target has exact
+face data (else u = s). An element deeper than u_max is an error state (PenetrationError /
+status 1), never a clipped value. The element normal force acts along the base element's outward
+normal at the point ``p - u/2 n`` (mid-layer): on the target with +, on the base with -.
+
+Cost: the search touches only tree nodes near the target (surface-patch oriented boxes), so it
+follows the number of elements within the search length of the contact, not the mesh size. The
+fixed-axis kernel adds a candidate cache (temporal coherence, exact results): see
+:func:`make_fixed_axis_data`.
 """
 from __future__ import annotations
 

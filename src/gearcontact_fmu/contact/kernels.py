@@ -66,6 +66,12 @@ N_DIAG = 8
 
 DOT_EPS = 1e-9      # |cos| below which a line and a plane count as parallel / normals as perpendicular
 BARY_EPS = 1e-9     # tolerance of the inside test (shared edges: the smallest u wins, no double count)
+# A hit counts only where the target faces the penetration line within 60 deg (d . n_target >= 0.5).
+# Real contacts have nearly opposite normals (gear flanks, a sphere on a plane at u << R); a line that
+# meets the partner at a grazing angle measures a length along the surface, not a penetration: e.g. a
+# line from the wall of a flank void runs just under the flank and meets the partner's tip rounding
+# ~1 mm away, which would report u ~ 1 mm for a contact that is micrometres deep.
+FACING_COS = 0.5
 
 
 def make_params(pcm, search_length=None, friction=True, damping=True, ratio=0.5, s_neg=0.0,
@@ -297,11 +303,11 @@ def _segment_vs_leaf(ax, ay, az, bx, by, bz, t_box, t_obb, j, grow):
 def tri_hit(ox, oy, oz, dx, dy, dz, ttri, l, L, s_neg):
     """Exact narrow phase of one penetration line (origin o, inward unit direction d, target
     frame) against target triangle slot l. Returns the penetration u > 0, or -1.0 when there is
-    no accepted hit: the target must face the base (d.ne > 0), the line must meet the flat
+    no accepted hit: the target must face the line within 60 deg (d.ne >= FACING_COS), the line must meet the flat
     triangle (inside test) at a line parameter s in [-s_neg, L], and u (distance along the line to
     the element's exact tangent plane) must lie in (0, L]."""
     dne = dx * ttri[l, 15] + dy * ttri[l, 16] + dz * ttri[l, 17]
-    if dne <= DOT_EPS:
+    if dne < FACING_COS:
         return -1.0
     ngx, ngy, ngz = ttri[l, 3], ttri[l, 4], ttri[l, 5]
     den = dx * ngx + dy * ngy + dz * ngz

@@ -38,7 +38,7 @@ class _Gear:
     def outputs(self):
         st = self.stage
         return {"flange_a_tau": st.tau_a, "flange_b_tau": st.tau_b, "flange_a_tau_mean": st.tau_a_mean,
-                "flange_b_tau_mean": st.tau_b_mean, "flange_b_tau_mean_": st.tau_b_mean,
+                "flange_b_tau_mean": st.tau_b_mean,
                 "pinion_phi": st.theta_pinion, "wheel_phi": st.theta_wheel,
                 "pinion_w": st.omega_pinion, "wheel_w": st.omega_wheel,
                 "energy_stored": st.energy_stored, "energy_dissipated": st.energy_dissipated,
@@ -132,3 +132,61 @@ class Loop:
                     c, v = r.split(".", 1)
                     rec[r][k] = self.out[c][v]
         return ts[: k + 1], {r: a[: k + 1] for r, a in rec.items()}
+
+
+def set_state_from_vector(loop: Loop, labels, x, v=None):
+    """Set every node angle (and speed) from a global vector over ``labels`` ("component.node", as in
+    drivetrain.eigen.assemble_linear), then redo the initial exchange."""
+    idx = {lbl: i for i, lbl in enumerate(labels)}
+    for name, c in loop.comps.items():
+        if isinstance(c, _Gear):
+            st = c.stage
+            if f"{name}.pinion+wheel" in idx:
+                tp = float(x[idx[f"{name}.pinion+wheel"]])
+                wp = 0.0 if v is None else float(v[idx[f"{name}.pinion+wheel"]])
+                c._init_state = dict(theta_pinion=tp, omega_pinion=wp)
+            else:
+                c._init_state = dict(theta_pinion=float(x[idx[f"{name}.pinion"]]),
+                                     theta_wheel=float(x[idx[f"{name}.wheel"]]),
+                                     omega_pinion=0.0 if v is None else float(v[idx[f"{name}.pinion"]]),
+                                     omega_wheel=0.0 if v is None else float(v[idx[f"{name}.wheel"]]))
+            continue
+        ln = c.line
+        th = np.array([x[idx[f"{name}.{nn}"]] for nn in ln.node_names])
+        om = np.zeros(ln.n) if v is None else np.array([v[idx[f"{name}.{nn}"]] for nn in ln.node_names])
+        ln.set_state(th, om, float(ln.pi_x[0]))
+    loop.out = {n: loop._outputs(n, initial=True) for n in loop.comps}
+    loop._exchange()
+    for name, c in loop.comps.items():
+        if isinstance(c, _Gear):
+            i = c.inputs
+            c.stage.initialize(0.0, i["flange_a_phi"], i["flange_a_w"], i["flange_b_phi"], i["flange_b_w"],
+                               **getattr(c, "_init_state", {}))
+    loop.out = {n: loop._outputs(n, initial=True) for n in loop.comps}
+
+
+def fit_damped_sine(t, y, f0):
+    """Least-squares fit y = c + A exp(-s t) cos(2 pi f t + p); returns (f, zeta, fit residual rms / A)."""
+    from scipy.optimize import curve_fit
+
+    y = np.asarray(y, dtype=float)
+    c0 = float(np.mean(y[-len(y) // 4:]))
+    A0 = float(np.max(np.abs(y - c0)))
+
+    def model(tt, c, A, s, f, p):
+        return c + A * np.exp(-s * tt) * np.cos(2 * np.pi * f * tt + p)
+
+    best = None
+    for p0 in (0.0, np.pi / 2, np.pi, -np.pi / 2):
+        try:
+            popt, _ = curve_fit(model, t, y, p0=[c0, A0, 1.0, f0, p0], maxfev=20000)
+        except RuntimeError:
+            continue
+        r = float(np.sqrt(np.mean((model(t, *popt) - y) ** 2)))
+        if best is None or r < best[1]:
+            best = (popt, r)
+    popt, r = best
+    c, A, s, f, p = popt
+    wd = 2 * np.pi * abs(f)
+    zeta = s / np.sqrt(s * s + wd * wd)
+    return abs(f), float(zeta), r / abs(A)

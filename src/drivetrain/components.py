@@ -523,6 +523,14 @@ class LineModel:
         return M, K, C
 
 
+def warmup() -> None:
+    """Load (or compile) the kernel with a throw-away model (numba's first dispatch costs 0.1-1 s;
+    call this to take it out of a timed section)."""
+    m = LineModel([1.0, 1.0], [1.0], [0.1], None, [Port("a", 0, INERTIA_PORT), Port("b", 1, SPRING_PORT, 1.0, 1.0, 0.1)],
+                  [Law("l", 0, 0.1, 0.1, 1.0)], motor_node=0)
+    m.step(0.0, 1e-3)
+
+
 def loss_torque(w, T_trans, c_v, T_c, w_c, a):
     """The loss law (numpy-vectorised): c_v w + (T_c + a |T_trans|) tanh(w / w_c)."""
     w = np.asarray(w, dtype=float)
@@ -622,7 +630,7 @@ class MotorLoadParams:
     k_c2: float = _d("MotorLoad", "k_c2")
     d_c2: float = _d("MotorLoad", "d_c2")
     Kp: float = 0.1
-    Ti: float = 0.1
+    Ti: float = 0.4
     Ni: float = 0.9
     tau_max: float = 10.0
     J_load: float = _d("MotorLoad", "J_load")
@@ -928,6 +936,7 @@ class MotorLoad:
                 "motor_phi": float(ln.th[0]), "motor_w": float(ln.om[0]),
                 "flywheel_phi": float(ln.th[1]), "flywheel_w": float(ln.om[1]),
                 "motor_torque": self.motor_torque, "load_motor_torque": self.load_motor_torque,
+                "load_motor_w": self.p.ratio_pg * wl,
                 "coupling_torque": float(ln.el_mean[0]),
                 "energy_stored": ln.stored_energy(), "energy_dissipated": ln.energy_dissipated,
                 "energy_supplied": ln.energy_supplied}

@@ -269,6 +269,24 @@ def modes(spec_or_scene, gear: str = "auto", controller: bool = False, damped: b
     return f, V, ls, wn / (2 * math.pi), zeta
 
 
+def damped_modes(spec_or_scene, gear: str = "auto", controller: bool = False):
+    """Complex modes of the damped linearised drivetrain: (lam, psi, ls) with the eigenvalues lam
+    (Im > 0, ascending damped frequency Im(lam)/2pi) and the state-space eigenvectors psi = [x; v] (the
+    real part of psi is an initial state that excites that mode alone), rigid-body modes removed."""
+    spec = _as_spec(spec_or_scene)
+    ls = assemble_linear(spec, gear, operating=controller)
+    K = ls.K + (ls.K_ground if controller else 0.0)
+    C = ls.C + (ls.C_ground if controller else 0.0)
+    n = ls.M.shape[0]
+    Mi = np.linalg.inv(ls.M)
+    A = np.block([[np.zeros((n, n)), np.eye(n)], [-Mi @ K, -Mi @ C]])
+    lam, psi = np.linalg.eig(A)
+    keep = np.imag(lam) > 2 * math.pi * 0.05
+    lam, psi = lam[keep], psi[:, keep]
+    o = np.argsort(np.imag(lam))
+    return lam[o], psi[:, o], ls
+
+
 def natural_frequencies(spec_or_scene, gear: str = "auto", controller: bool = False) -> np.ndarray:
     """Undamped natural frequencies [Hz] of the assembled, linearised drivetrain (rigid-body mode
     removed). Accepts a Scene (assembled first) or a SystemSpec."""

@@ -1,13 +1,17 @@
 """The common FMI 2.0 co-simulation shell (pythonfmu) of the drivetrain components.
 
-A slave script in ``drivetrain/slaves/`` only names its component; everything else is here:
+A slave script in ``drivetrain/slaves/`` defines ``class <Model>(Fmi2Slave):`` (literally: pythonfmu
+0.7.0's loader finds the slave class by that pattern in the script's source, a class deriving from an
+intermediate base is not found on a second instantiation and corrupted the host process) and
+delegates to the functions here; everything else is here:
 parameters (the fields of the component's parameter dataclass: Real, Integer or String, causality
 parameter, variability fixed), inputs (the flange inputs of its ports and extra inputs), outputs
 (Real, initial exact: flanges, sensors, energies), units (read by ``drivetrain.fmubuild``).
 
-Life cycle: the component is built in ``enter_initialization_mode`` (after the parameters are set:
-heavy setup never runs at instantiation), so the inertia-side flange outputs are valid while the
-master exchanges initial values; ``exit_initialization_mode`` takes the final inputs and publishes the
+Life cycle: the component is built in
+``enter_initialization_mode`` (after the parameters are set: the parameter-dependent setup never runs
+at instantiation), so the inertia-side flange outputs are valid while the master exchanges initial
+values; ``exit_initialization_mode`` takes the final inputs and publishes the
 spring-side torques. ``do_step`` checks the inputs (NaN/inf -> logged error and status error, the
 instance refuses further steps; the host never crashes), advances the component and publishes.
 """
@@ -36,7 +40,7 @@ OUTPUTS = {
     "FlexibleShaft": ("flange_b_tau_mean", "torque_sensor", "shaft_torque", "hub_b_phi", "hub_b_w"),
     "UpperTransmission": ("torque_sensor", "loss_torque"),
     "MotorLoad": ("drive_tau_mean", "motor_phi", "motor_w", "flywheel_phi", "flywheel_w", "motor_torque",
-                  "load_motor_torque", "coupling_torque"),
+                  "load_motor_torque", "load_motor_w", "coupling_torque"),
 }
 ENERGY = ("energy_stored", "energy_dissipated", "energy_supplied")
 
@@ -55,7 +59,7 @@ UNITS = {
     "torque_sensor": "N.m", "shaft_torque": "N.m", "loss_torque": "N.m", "motor_torque": "N.m",
     "load_motor_torque": "N.m", "coupling_torque": "N.m", "flange_b_tau_mean": "N.m", "drive_tau_mean": "N.m",
     "motor_phi": "rad", "flywheel_phi": "rad", "hub_b_phi": "rad", "motor_w": "rad/s", "flywheel_w": "rad/s",
-    "hub_b_w": "rad/s",
+    "hub_b_w": "rad/s", "load_motor_w": "rad/s",
     "energy_stored": "J", "energy_dissipated": "J", "energy_supplied": "J",
 }
 for _m, _ports in PORTS.items():
@@ -88,128 +92,126 @@ def port_outputs(model: str) -> list[str]:
     return out + list(OUTPUTS[model]) + list(ENERGY)
 
 
-class ComponentSlave(Fmi2Slave):
-    """Base of the three component slaves; a subclass sets ``MODEL``."""
-
-    MODEL = ""
-    author = "bevel-drivetrain"
-    version = "0.1.0"
-    units = UNITS            # read by drivetrain.fmubuild (modelDescription units)
-
-    def __init__(self, **kwargs):
-        super().__init__(**kwargs)
-        model = self.MODEL
-        cls, pcls = C.COMPONENTS[model]
-        self._pcls = pcls
-        defaults = pcls()
-        P, F = Fmi2Causality.parameter, Fmi2Variability.fixed
-        self._param_names = []
-        for f in dataclasses.fields(pcls):
-            v = getattr(defaults, f.name)
-            setattr(self, f.name, v)
-            self._param_names.append(f.name)
-            if isinstance(v, bool):
-                raise TypeError(f"boolean parameter {f.name} not supported")
-            if isinstance(v, int):
-                self.register_variable(Integer(f.name, causality=P, variability=F))
-            elif isinstance(v, str):
-                self.register_variable(String(f.name, causality=P, variability=F))
-            else:
-                setattr(self, f.name, float(v))
-                self.register_variable(Real(f.name, causality=P, variability=F))
-        self._inputs = port_inputs(model)
-        self._outputs = port_outputs(model)
-        for name in self._inputs:
-            setattr(self, name, 0.0)
-            self.register_variable(Real(name, causality=Fmi2Causality.input))
-        if model == "MotorLoad":
-            self.speed_ref_rpm = float(defaults.w0) / C.RPM
-        for name in self._outputs:
-            setattr(self, name, 0.0)
-            self.register_variable(Real(name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact))
-        self._comp = None
-        self._failed = None
-
-    # ---- helpers ----------------------------------------------------------------------------------
-    def _params(self):
-        vals = {}
-        for n in self._param_names:
-            vals[n] = getattr(self, n)
-        return C.params_from(self._pcls, vals)
-
-    def _fail(self, msg: str):
-        self._failed = msg
-        self.log(f"{self.MODEL}: {msg}", Fmi2Status.error)
-
-    def _check_inputs(self, t: float):
-        bad = {n: getattr(self, n) for n in self._inputs if not math.isfinite(float(getattr(self, n)))}
-        if bad:
-            raise C.ComponentError(f"non-finite input at t = {t:.9g} s: {bad}")
-
-    def _apply_inputs(self):
-        comp = self._comp
-        m = self.MODEL
-        if m == "FlexibleShaft":
-            comp.set_inputs(self.flange_a_tau, self.flange_b_phi, self.flange_b_w)
-        elif m == "UpperTransmission":
-            comp.set_inputs(self.flange_a_tau, self.flange_b_tau)
+def init_slave(slave, model: str) -> None:
+    """Register the variables of ``model`` on a pythonfmu slave (called from its ``__init__``)."""
+    slave.MODEL = model
+    cls, pcls = C.COMPONENTS[model]
+    slave._pcls = pcls
+    defaults = pcls()
+    P, F = Fmi2Causality.parameter, Fmi2Variability.fixed
+    slave._param_names = []
+    for f in dataclasses.fields(pcls):
+        v = getattr(defaults, f.name)
+        slave._param_names.append(f.name)
+        if isinstance(v, bool):
+            raise TypeError(f"boolean parameter {f.name} not supported")
+        if isinstance(v, int):
+            setattr(slave, f.name, v)
+            slave.register_variable(Integer(f.name, causality=P, variability=F))
+        elif isinstance(v, str):
+            setattr(slave, f.name, v)
+            slave.register_variable(String(f.name, causality=P, variability=F))
         else:
-            comp.set_inputs(self.drive_phi, self.drive_w, self.load_tau, self.speed_ref_rpm, self.load_torque)
+            setattr(slave, f.name, float(v))
+            slave.register_variable(Real(f.name, causality=P, variability=F))
+    slave._inputs = port_inputs(model)
+    slave._outputs = port_outputs(model)
+    for name in slave._inputs:
+        setattr(slave, name, 0.0)
+        slave.register_variable(Real(name, causality=Fmi2Causality.input))
+    if model == "MotorLoad":
+        slave.speed_ref_rpm = float(defaults.w0) / C.RPM
+    for name in slave._outputs:
+        setattr(slave, name, 0.0)
+        slave.register_variable(Real(name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact))
+    slave._comp = None
+    slave._failed = None
 
-    def _publish(self, initial: bool = False):
-        out = self._comp.outputs()
-        if initial:
-            # spring-side torques before the first step: the port spring against the current inputs
-            ln = self._comp.line
-            for p in ln.ports:
-                if p.kind == C.SPRING_PORT:
-                    q = ln.port_index[p.name]
-                    out[f"{p.name}_tau"] = ln.spring_torque(p.name, ln.p_u0[q], ln.p_u1[q])
-                    out[f"{p.name}_tau_mean"] = out[f"{p.name}_tau"]
-            out["energy_stored"] = ln.stored_energy({p.name: ln.p_u0[ln.port_index[p.name]]
-                                                     for p in ln.ports if p.kind == C.SPRING_PORT})
-        for name in self._outputs:
-            setattr(self, name, float(out[name]))
 
-    # ---- FMI callbacks ------------------------------------------------------------------------------
-    def enter_initialization_mode(self):
-        try:
-            cls, _ = C.COMPONENTS[self.MODEL]
-            self._comp = cls(self._params())
-            out = self._comp.outputs()
-            for name in self._outputs:
-                if name in out and not name.endswith("_tau") and not name.endswith("_tau_mean"):
-                    setattr(self, name, float(out[name]))
-        except Exception as exc:  # noqa: BLE001 - never propagate into the host
-            self._fail(f"initialization failed: {type(exc).__name__}: {exc}")
+def _params(slave):
+    return C.params_from(slave._pcls, {n: getattr(slave, n) for n in slave._param_names})
 
-    def exit_initialization_mode(self):
-        if self._failed is not None:
-            return
-        try:
-            if self._comp is None:
-                cls, _ = C.COMPONENTS[self.MODEL]
-                self._comp = cls(self._params())
-            self._check_inputs(0.0)
-            self._apply_inputs()
-            if self.MODEL == "MotorLoad":
-                self._comp.initialize(load_torque=self.load_torque)
-                self._apply_inputs()
-            self._publish(initial=True)
-        except Exception as exc:  # noqa: BLE001
-            self._fail(f"initialization failed: {type(exc).__name__}: {exc}")
 
-    def do_step(self, current_time, step_size):
-        if self._failed is not None:
-            self.log(f"{self.MODEL} is in the error state: {self._failed}", Fmi2Status.error)
-            return False
-        try:
-            self._check_inputs(current_time)
-            self._apply_inputs()
-            self._comp.step(current_time, step_size)
-            self._publish()
-        except Exception as exc:  # noqa: BLE001 - ComponentError and anything unexpected
-            name = "" if isinstance(exc, C.ComponentError) else f"{type(exc).__name__}: "
-            self._fail(f"do_step at t = {current_time:.9g} s failed: {name}{exc}")
-            return False
-        return True
+def _fail(slave, msg: str):
+    slave._failed = msg
+    slave.log(f"{slave.MODEL}: {msg}", Fmi2Status.error)
+
+
+def _check_inputs(slave, t: float):
+    bad = {n: getattr(slave, n) for n in slave._inputs if not math.isfinite(float(getattr(slave, n)))}
+    if bad:
+        raise C.ComponentError(f"non-finite input at t = {t:.9g} s: {bad}")
+
+
+def _apply_inputs(slave):
+    comp = slave._comp
+    m = slave.MODEL
+    if m == "FlexibleShaft":
+        comp.set_inputs(slave.flange_a_tau, slave.flange_b_phi, slave.flange_b_w)
+    elif m == "UpperTransmission":
+        comp.set_inputs(slave.flange_a_tau, slave.flange_b_tau)
+    else:
+        comp.set_inputs(slave.drive_phi, slave.drive_w, slave.load_tau, slave.speed_ref_rpm, slave.load_torque)
+
+
+def _publish(slave, initial: bool = False):
+    out = slave._comp.outputs()
+    if initial:
+        # spring-side torques before the first step: the port spring against the current inputs
+        ln = slave._comp.line
+        for p in ln.ports:
+            if p.kind == C.SPRING_PORT:
+                q = ln.port_index[p.name]
+                out[f"{p.name}_tau"] = ln.spring_torque(p.name, ln.p_u0[q], ln.p_u1[q])
+                out[f"{p.name}_tau_mean"] = out[f"{p.name}_tau"]
+        out["energy_stored"] = ln.stored_energy({p.name: ln.p_u0[ln.port_index[p.name]]
+                                                 for p in ln.ports if p.kind == C.SPRING_PORT})
+    for name in slave._outputs:
+        setattr(slave, name, float(out[name]))
+
+
+def enter_init(slave):
+    """Build the component (parameters are set by now); publish the state-only outputs."""
+    try:
+        cls, _ = C.COMPONENTS[slave.MODEL]
+        slave._comp = cls(_params(slave))
+        out = slave._comp.outputs()
+        for name in slave._outputs:
+            if name in out and not name.endswith("_tau") and not name.endswith("_tau_mean"):
+                setattr(slave, name, float(out[name]))
+    except Exception as exc:  # noqa: BLE001 - never propagate into the host
+        _fail(slave, f"initialization failed: {type(exc).__name__}: {exc}")
+
+
+def exit_init(slave):
+    if slave._failed is not None:
+        return
+    try:
+        if slave._comp is None:
+            cls, _ = C.COMPONENTS[slave.MODEL]
+            slave._comp = cls(_params(slave))
+        _check_inputs(slave, 0.0)
+        _apply_inputs(slave)
+        if slave.MODEL == "MotorLoad":
+            slave._comp.initialize(load_torque=slave.load_torque)
+            _apply_inputs(slave)
+        _publish(slave, initial=True)
+    except Exception as exc:  # noqa: BLE001
+        _fail(slave, f"initialization failed: {type(exc).__name__}: {exc}")
+
+
+def do_step(slave, current_time, step_size) -> bool:
+    """Advance one communication step; False (logged error, pythonfmu: fmi2Discard) on any failure."""
+    if slave._failed is not None:
+        slave.log(f"{slave.MODEL} is in the error state: {slave._failed}", Fmi2Status.error)
+        return False
+    try:
+        _check_inputs(slave, current_time)
+        _apply_inputs(slave)
+        slave._comp.step(current_time, step_size)
+        _publish(slave)
+    except Exception as exc:  # noqa: BLE001 - ComponentError and anything unexpected
+        name = "" if isinstance(exc, C.ComponentError) else f"{type(exc).__name__}: "
+        _fail(slave, f"do_step at t = {current_time:.9g} s failed: {name}{exc}")
+        return False
+    return True

@@ -387,6 +387,10 @@ def partition(shafts: str = "flexible", n_elements: int = 4, calibration: dict |
         models = {"motors": "MotorLoad", "drive_shaft": "FlexibleShaft", "upper": "UpperTransmission",
                   "gear": "GearContact"}
     connections = [(cu["spring"], cu["inertia"]) for cu in cuts]
+    params = {name: {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in pv.items()}
+              for name, pv in params.items()}
+    for cu in cuts:
+        cu["k"], cu["c"] = float(cu["k"]), float(cu["c"])
     return Partition(shafts, n_elements, params, models, connections, cuts,
                      {k: {int(a): float(b) for a, b in v.items()} for k, v in bodies.items()},
                      {"coupling_scale": s, **{k: v for k, v in cal.items() if k != "coupling_scale"}})

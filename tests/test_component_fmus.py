@@ -1,0 +1,155 @@
+"""The component FMUs (drivetrain/slaves: FlexibleShaft, UpperTransmission, MotorLoad): they build with
+drivetrain.fmubuild, pass fmpy's validation, carry units and causalities as documented, behave like the
+component classes, turn a NaN input into an FMI error (never a crash), and run under the master."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+fmpy = pytest.importorskip("fmpy")
+from fmpy import extract, read_model_description  # noqa: E402
+from fmpy.fmi2 import FMU2Slave  # noqa: E402
+
+from drivetrain import fmishell  # noqa: E402
+from drivetrain.components import make_component  # noqa: E402
+
+MODELS = ("FlexibleShaft", "UpperTransmission", "MotorLoad")
+H = 1.0 / 12000.0
+
+
+@pytest.fixture(scope="module")
+def fmus(tmp_path_factory):
+    fmubuild = pytest.importorskip("drivetrain.fmubuild")
+    out = tmp_path_factory.mktemp("component_fmus")
+    paths = fmubuild.build_all(out, only=list(MODELS))
+    return {Path(p).stem: Path(p) for p in paths}
+
+
+_EXTRACTED: dict = {}
+_KEEP: list = []
+
+
+def _extract_once(path):
+    """One extraction per FMU and process: pythonfmu imports the slave module by name, so a second
+    copy of the same FMU in another directory would not load (the master caches the same way)."""
+    key = str(path)
+    if key not in _EXTRACTED:
+        _EXTRACTED[key] = extract(path)
+    return _EXTRACTED[key]
+
+
+class Instance:
+    def __init__(self, path, name="x"):
+        self.md = read_model_description(path)
+        self.dir = _extract_once(path)
+        self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
+        self.logs = []
+        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.dir,
+                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=name)
+        self.fmu.instantiate(loggingOn=True, callbacks=None)
+        self.fmu.setupExperiment(startTime=0.0)
+
+    def set(self, **kw):
+        self.fmu.setReal([self.vr[k] for k in kw], [float(v) for v in kw.values()])
+
+    def get(self, *names):
+        return self.fmu.getReal([self.vr[n] for n in names])
+
+    def close(self):
+        """Terminate, but neither free the instance nor unload the library: with pythonfmu 0.7.0,
+        fmpy's freeInstance() unloads the library (a reloaded library cannot instantiate again) and
+        fmi2FreeInstance of an instance of a numba-using FMU (GearContact as well as these) leaves the
+        process crashing at exit in some runs (1/8 after a normal run, 5-6/8 after an error)."""
+        try:
+            self.fmu.terminate()
+        except Exception:
+            pass
+        _KEEP.append(self.fmu)
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_fmu_validates_with_units_and_causalities(fmus, model):
+    from fmpy.validation import validate_fmu
+
+    assert validate_fmu(str(fmus[model])) == []
+    md = read_model_description(str(fmus[model]))
+    v = {x.name: x for x in md.modelVariables}
+    for port, kind in fmishell.PORTS[model].items():
+        ins = ("phi", "w") if kind == "spring" else ("tau",)
+        for q, unit in (("phi", "rad"), ("w", "rad/s"), ("tau", "N.m")):
+            var = v[f"{port}_{q}"]
+            assert var.unit == unit
+            assert var.causality == ("input" if q in ins else "output")
+    for e in ("energy_stored", "energy_dissipated", "energy_supplied"):
+        assert v[e].causality == "output" and v[e].unit == "J" and v[e].initial == "exact"
+    for x in md.modelVariables:
+        if x.type in ("Integer", "Boolean"):
+            assert x.causality == "parameter" and x.variability == "fixed"
+        if x.causality == "output":
+            assert x.initial == "exact"
+
+
+def test_fmu_steps_like_the_component_class(fmus):
+    inst = Instance(str(fmus["UpperTransmission"]))
+    try:
+        inst.set(w0=150.0, max_substep=1e-5)
+        inst.fmu.enterInitializationMode()
+        inst.set(flange_a_tau=2.0, flange_b_tau=-5.0)
+        inst.fmu.exitInitializationMode()
+        ref = make_component("UpperTransmission", {"w0": 150.0, "max_substep": 1e-5})
+        for k in range(20):
+            inst.set(flange_a_tau=2.0 + 0.1 * k, flange_b_tau=-5.0)
+            inst.fmu.doStep(k * H, H)
+            ref.set_inputs(2.0 + 0.1 * k, -5.0)
+            ref.step(k * H, H)
+        got = inst.get("flange_a_phi", "flange_a_w", "flange_b_w", "energy_stored", "energy_dissipated")
+        o = ref.outputs()
+        want = [o["flange_a_phi"], o["flange_a_w"], o["flange_b_w"], o["energy_stored"], o["energy_dissipated"]]
+        np.testing.assert_allclose(got, want, rtol=1e-12)
+    finally:
+        inst.close()
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_nan_input_is_an_fmi_error_not_a_crash(fmus, model):
+    from fmpy.fmi1 import FMICallException
+
+    inst = Instance(str(fmus[model]), "nan")
+    try:
+        inst.fmu.enterInitializationMode()
+        inst.fmu.exitInitializationMode()
+        inst.fmu.doStep(0.0, H)                         # fine
+        first_input = fmishell.port_inputs(model)[0]
+        inst.set(**{first_input: float("nan")})
+        with pytest.raises(FMICallException, match="status ([2-4])"):
+            inst.fmu.doStep(H, H)
+        with pytest.raises(FMICallException):           # the instance stays in its error state
+            inst.fmu.doStep(2 * H, H)
+    finally:
+        inst.close()
+
+
+@pytest.mark.slow
+def test_master_runs_the_rigid_ideal_scene_through_fmi(fmus, tmp_path):
+    """End to end with the master (fmi backend): only motors, upper and an ideal gear are loaded;
+    the mean torques settle on the steady state and the energy audit closes. (Slow-marked: the master
+    frees its instances, which with pythonfmu 0.7.0 can crash the process at exit; see Instance.close.)"""
+    master = pytest.importorskip("drivetrain.master")
+    from drivetrain.assemble import assemble
+    from drivetrain.fmubuild import build_all
+    from drivetrain.scenario import default_scene
+
+    gear = build_all(tmp_path, only=["GearContact"])[0]
+    spec = assemble(default_scene(effects__shaft_flexibility="rigid", effects__mesh_contact="ideal"))
+    assert [c.model for c in spec.components] == ["MotorLoad", "UpperTransmission", "GearContact"]
+    paths = {m: fmus[m] for m in ("MotorLoad", "UpperTransmission")}
+    paths["GearContact"] = gear
+    sens = spec.metadata["sensors"]
+    res = master.Master(spec, fmu_paths=paths, build=False).run(0.3, 3000.0, record=list(sens.values()),
+                                                                 progress=False)
+    ss = spec.metadata["steady_state"]
+    assert np.mean(res.signals[sens["drive_shaft_torque"]][-300:]) == pytest.approx(ss["T_dsh"], rel=2e-3)
+    assert np.mean(res.signals[sens["propeller_shaft_torque"]][-300:]) == pytest.approx(ss["T_psh"], rel=2e-3)
+    assert res.energy["relative_residual"] < 1e-3
+    enc = res.signals[sens["enc3"]]
+    assert enc[-1] > enc[0]                              # the middle shaft turns forward

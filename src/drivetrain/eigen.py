@@ -446,8 +446,13 @@ def describe_modes(spec: SystemSpec, n_modes: int = 10, gear: str = "auto") -> l
         ke = np.diag(M) * x ** 2
         si = int(np.argmax(se))
         ki = int(np.argmax(ke))
-        out.append({"mode": m + 1, "f_Hz": float(f[m]),
-                    "zeta": float(zeta[m]) if m < len(zeta) else float("nan"),
+        # damping ratio of the damped eigenvalue closest in |lambda| (overdamped modes have none)
+        zm = float("nan")
+        if len(fd):
+            j = int(np.argmin(np.abs(fd - f[m])))
+            if abs(fd[j] / f[m] - 1.0) < 0.25:
+                zm = float(zeta[j])
+        out.append({"mode": m + 1, "f_Hz": float(f[m]), "zeta": zm,
                     "strain": springs[si][0], "strain_share": float(se[si] / se.sum()),
                     "kinetic": ls.labels[ki], "kinetic_share": float(ke[ki] / ke.sum())})
     return out

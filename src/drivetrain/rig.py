@@ -431,7 +431,7 @@ class SteadyState:
 
 
 def steady_state(speed_rpm: float, load_Nm: float, upper: dict, motors: dict, load_mode: int = 0,
-                 load_w_nom: float = 1.0) -> SteadyState:
+                 load_w_nom: float = 1.0, load_w_reg: float | None = None) -> SteadyState:
     """Torque balance at constant speed with an ideal lower gear (no mesh loss):
 
         T_PSH = 8 T_set + T_pg(w_PSH, 8 T_set)              (load side, propeller frame)
@@ -439,12 +439,18 @@ def steady_state(speed_rpm: float, load_Nm: float, upper: dict, motors: dict, lo
         T_DSH = T_MSH / 3 + T_ut(w_DSH, T_MSH / 3)         (upper gearbox, drive frame)
         T_motor = T_DSH + c_motor w_DSH
 
-    ``upper``/``motors``: the parameter dicts of UpperTransmission and MotorLoad."""
+    ``upper``/``motors``: the parameter dicts of UpperTransmission and MotorLoad. At standstill the
+    load setting is 0 (its regularisation below ``load_w_reg``), so a start from rest is at rest."""
     w = speed_rpm * math.pi / 30.0
     wm = w / upper.get("ratio", UPPER_RATIO)
     wp = wm / LOWER_RATIO
     r8 = motors.get("ratio_pg", PG_RATIO)
-    T_prop_load = r8 * load_Nm if int(load_mode) == 0 else r8 * load_Nm * wp / load_w_nom
+    if int(load_mode) == 0:
+        # the torque setting, regularised at standstill as in MotorLoad (tanh = 1 at any operating speed)
+        wr = load_w_reg if load_w_reg is not None else motors.get("load_w_reg", 0.05)
+        T_prop_load = r8 * load_Nm * math.tanh(wp / wr) if wr > 0 else r8 * load_Nm
+    else:
+        T_prop_load = r8 * load_Nm * wp / load_w_nom
     pg = {"c_v": motors["pg_c"], "T_c": motors["pg_Tc"], "w_c": motors["pg_wc"], "a": motors["pg_a"]}
     T_psh = T_prop_load + loss(wp, r8 * load_Nm, pg)
     T_msh = T_psh / LOWER_RATIO

@@ -159,7 +159,11 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
         "calibration": part.calibration,
         "fmus": [c.model for c in components],
         "substeps": {"gear": sub, "components": csub},
+        "warnings": [],
     }
+    if scene.gear.mesh_units != "mm" and (scene.gear.pinion_mesh or scene.gear.wheel_mesh):
+        meta["warnings"].append(f"gear.mesh_units = {scene.gear.mesh_units!r}: the GearContact FMU has no "
+                                "mesh-unit parameter and reads mesh files in mm")
     spec = SystemSpec(components, connections, H, meta)
     if check:
         try:

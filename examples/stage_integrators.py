@@ -8,7 +8,8 @@ contact loss and impacts every cycle.
 "overdamped": the loaded case with a mesh damping ratio of 5 (the paper's PCM contact damping
 makes the mesh mode over-damped).
 
-Reference: rk4 at 0.1 us. Error: RMS over the last 0.05 s of the flange_b torque difference,
+Reference: rk4 at 0.1 us. Error: RMS over the last 0.05 s of the difference of the flange_b torque
+(its mean over each communication step, ``tau_b_mean``),
 relative to the RMS of the reference's fluctuation about its mean (the dynamic part that matters);
 "lp" the same after an ideal low-pass at 1.5 kHz (the output band of the project).
 Cost: wall time per communication step H = 1e-4 s (numba compiled; Python call included).
@@ -51,7 +52,7 @@ def run(scheme, max_substep, case, t_end=0.1):
     t0 = time.perf_counter()
     for i in range(n):
         st.step(t[i], H, phi_a[i], dphi_a[i], phi_b[i], w_b)
-        tau_b[i] = st.tau_b
+        tau_b[i] = st.tau_b_mean
     cost = (time.perf_counter() - t0) / n
     return tau_b, cost
 

@@ -451,7 +451,9 @@ def _advance_py(f, data, mode, scheme, x, par, u, H, n_sub, out, res):
     res[_RTA] = y[4] / H
     res[_RTB] = y[5] / H
     res[_RES] = _stored(mode, par, u, H, y, out)
-    # torques at the step end and their rates (flange speeds held, internal accelerations f0[2:4])
+    # torques at the step end, and the prediction of their mean over the next step: the spring part
+    # extrapolated with the relative speed at the end (the damper's acceleration term is left out: it
+    # carries the unresolved mesh-mode and impact accelerations and adds nothing to stability)
     wa = u[1]
     wb = u[3]
     if mode == _M_RIGID:
@@ -462,8 +464,8 @@ def _advance_py(f, data, mode, scheme, x, par, u, H, n_sub, out, res):
         w_w = y[3]
     ta = par[_PKA] * (y[0] - u[0] - wa * H) + par[_PDA] * (y[2] - wa)
     tb = par[_PKB] * (th_w - u[2] - wb * H) + par[_PDB] * (w_w - wb)
-    ta_dot = par[_PKA] * (y[2] - wa) + par[_PDA] * f0[2]
-    tb_dot = par[_PKB] * (w_w - wb) + par[_PDB] * f0[3]
+    ta_dot = par[_PKA] * (y[2] - wa)
+    tb_dot = par[_PKB] * (w_w - wb)
     res[_RTAE] = ta
     res[_RTBE] = tb
     res[_RTAP] = ta + 0.5 * H * ta_dot

@@ -1,0 +1,222 @@
+"""Build every FMU of the project (``drivetrain build-fmus [--out DIR] [--only NAME ...]``).
+
+For each slave script in ``gearcontact_fmu/slaves/*.py`` and ``drivetrain/slaves/*.py``:
+
+1. pythonfmu ``FmuBuilder.build_FMU(script, dest, project_files=[_bundled], needsExecutionTool=False)``
+   where ``_bundled`` holds copies of the packages ``gearcontact_fmu`` and ``drivetrain`` (Python
+   sources and package data only: no ``__pycache__``, no numba caches). They land in
+   ``resources/_bundled/``; the slave script imports the installed packages when importable and falls
+   back to the bundled copy (``BEVEL_FMU_USE_BUNDLED=1`` forces it).
+2. Post-process ``modelDescription.xml``:
+   - ``unit=`` on every Real variable whose unit is known, from the slave class attribute ``units``
+     (name -> unit) or else from the naming table :data:`NAME_UNITS` (suffixes ``_phi``, ``_w``,
+     ``_tau``, ``energy_*`` ...), and the matching ``<UnitDefinitions>`` with SI base-unit exponents;
+   - ``<ModelStructure><Outputs>``: ``dependencies`` of every output. By default ``""`` (outputs are
+     functions of the FMU state at the communication point only: they are updated in ``do_step``, so
+     setting an input never changes an output before the next step). A slave whose outputs do react
+     to inputs immediately declares them in a class attribute ``output_dependencies``
+     (output name -> list of input names, or ``"inputs"`` for all inputs); those are written as
+     ``dependencies="<indices>"`` with ``dependenciesKind`` ``dependent``;
+   - ``needsExecutionTool="false"`` (the pythonfmu ``--no-external-tool`` flag).
+
+Slave module names must be unique across FMUs (pythonfmu issue #228); build_all checks it.
+Built FMUs are outputs, not sources (``fmus/*.fmu`` is git-ignored).
+"""
+from __future__ import annotations
+
+import importlib.util
+import re
+import shutil
+import sys
+import tempfile
+import zipfile
+from pathlib import Path
+from xml.etree import ElementTree as ET
+
+SRC_ROOT = Path(__file__).resolve().parents[1]          # src/
+PACKAGES = ("gearcontact_fmu", "drivetrain")
+SLAVE_DIRS = (SRC_ROOT / "gearcontact_fmu" / "slaves", SRC_ROOT / "drivetrain" / "slaves")
+_IGNORE = shutil.ignore_patterns("__pycache__", "*.pyc", "*.pyo", "*.nbi", "*.nbc", "*.egg-info", ".*")
+
+# SI base-unit exponents (kg, m, s, A, K, mol, cd, rad) of the units used in the project
+UNIT_DEFS: dict[str, dict[str, int]] = {
+    "rad": {"rad": 1},
+    "rad/s": {"rad": 1, "s": -1},
+    "rad/s2": {"rad": 1, "s": -2},
+    "rpm": {"rad": 1, "s": -1},                 # factor 2 pi / 60
+    "s": {"s": 1},
+    "Hz": {"s": -1},
+    "m": {"m": 1},
+    "mm": {"m": 1},                             # factor 1e-3
+    "m2": {"m": 2},
+    "m/s": {"m": 1, "s": -1},
+    "kg": {"kg": 1},
+    "kg.m2": {"kg": 1, "m": 2},
+    "N": {"kg": 1, "m": 1, "s": -2},
+    "N.m": {"kg": 1, "m": 2, "s": -2},
+    "N.m/rad": {"kg": 1, "m": 2, "s": -2, "rad": -1},
+    "N.m.s/rad": {"kg": 1, "m": 2, "s": -1, "rad": -1},
+    "N/m": {"kg": 1, "s": -2},
+    "N.s/m": {"kg": 1, "s": -1},
+    "N/m3": {"kg": 1, "m": -2, "s": -2},
+    "N.s/m3": {"kg": 1, "m": -2, "s": -1},
+    "Pa": {"kg": 1, "m": -1, "s": -2},
+    "J": {"kg": 1, "m": 2, "s": -2},
+    "W": {"kg": 1, "m": 2, "s": -3},
+    "A": {"A": 1},
+    "V": {"kg": 1, "m": 2, "s": -3, "A": -1},
+}
+UNIT_FACTORS = {"rpm": 2.0 * 3.141592653589793 / 60.0, "mm": 1e-3}
+
+# naming table: applied when the slave does not name the variable in its ``units`` attribute
+NAME_UNITS: tuple[tuple[str, str], ...] = (
+    (r"(^|_)phi$", "rad"), (r"(^|_)w$", "rad/s"), (r"(^|_)tau(_mean)?$", "N.m"),
+    (r"^energy_", "J"), (r"_power$", "W"), (r"(^|_)torque(_|$)", "N.m"), (r"^J(_|$)", "kg.m2"),
+    (r"_rpm$", "rpm"), (r"_mm$", "mm"), (r"_s$", "s"), (r"_Hz$", "Hz"),
+)
+
+
+def unit_for(name: str, overrides: dict | None = None) -> str | None:
+    """Unit of a variable: the slave's ``units`` entry, else the naming table, else None.
+    Dimensionless entries ("1", "") get no unit."""
+    if overrides and name in overrides:
+        u = overrides[name]
+        return u if u and u != "1" else None
+    for pattern, unit in NAME_UNITS:
+        if re.search(pattern, name):
+            return unit
+    return None
+
+
+def find_slave_scripts() -> list[Path]:
+    scripts = []
+    for d in SLAVE_DIRS:
+        if d.is_dir():
+            scripts += sorted(p for p in d.glob("*.py") if not p.name.startswith("_"))
+    names = [p.stem for p in scripts]
+    dup = {n for n in names if names.count(n) > 1}
+    if dup:
+        raise ValueError(f"slave module names must be unique across FMUs (pythonfmu #228): {sorted(dup)}")
+    return scripts
+
+
+def _copy_packages(dest: Path) -> Path:
+    bundled = dest / "_bundled"
+    bundled.mkdir(parents=True)
+    for pkg in PACKAGES:
+        src = SRC_ROOT / pkg
+        if src.is_dir():
+            shutil.copytree(src, bundled / pkg, ignore=_IGNORE)
+    return bundled
+
+
+def _slave_class(script: Path):
+    """Import the slave script under a private module name and return its Fmi2Slave subclass."""
+    from pythonfmu import Fmi2Slave
+
+    spec = importlib.util.spec_from_file_location(f"_fmubuild_{script.stem}", script)
+    mod = importlib.util.module_from_spec(spec)
+    sys.path.insert(0, str(script.parent))
+    try:
+        spec.loader.exec_module(mod)
+    finally:
+        sys.path.remove(str(script.parent))
+    classes = [v for v in vars(mod).values() if isinstance(v, type) and issubclass(v, Fmi2Slave)
+               and v is not Fmi2Slave and v.__module__ == mod.__name__]
+    if len(classes) != 1:
+        raise ValueError(f"{script}: expected exactly one Fmi2Slave subclass, found {len(classes)}")
+    return classes[0]
+
+
+def postprocess_model_description(fmu: Path, units: dict | None = None,
+                                  output_dependencies: dict | None = None) -> None:
+    """Add units, UnitDefinitions, output dependencies and needsExecutionTool=false in place."""
+    fmu = Path(fmu)
+    tmp = fmu.with_name(fmu.name + ".tmp")
+    with zipfile.ZipFile(fmu) as zin, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zout:
+        for item in zin.infolist():
+            data = zin.read(item.filename)
+            if item.filename == "modelDescription.xml":
+                data = _edit_xml(data, units or {}, output_dependencies or {})
+            zout.writestr(item, data)
+    tmp.replace(fmu)
+
+
+def _edit_xml(data: bytes, units: dict, output_dependencies: dict) -> bytes:
+    root = ET.fromstring(data)
+    cs = root.find("CoSimulation")
+    if cs is not None:
+        cs.set("needsExecutionTool", "false")
+    svs = list(root.find("ModelVariables"))
+    used = set()
+    for sv in svs:
+        real = sv.find("Real")
+        if real is None:
+            continue
+        u = unit_for(sv.get("name"), units)
+        if u:
+            if u not in UNIT_DEFS:
+                raise ValueError(f"unit {u!r} of {sv.get('name')} is not in fmubuild.UNIT_DEFS")
+            real.set("unit", u)
+            used.add(u)
+    for old in root.findall("UnitDefinitions"):
+        root.remove(old)
+    if used:
+        ud = ET.Element("UnitDefinitions")
+        for u in sorted(used):
+            unit = ET.SubElement(ud, "Unit", name=u)
+            attrs = {k: str(v) for k, v in UNIT_DEFS[u].items()}
+            if u in UNIT_FACTORS:
+                attrs["factor"] = repr(UNIT_FACTORS[u])
+            ET.SubElement(unit, "BaseUnit", attrs)
+        children = list(root)
+        idx = next(i for i, c in enumerate(children)
+                   if c.tag in ("TypeDefinitions", "LogCategories", "DefaultExperiment", "VendorAnnotations",
+                                "ModelVariables"))
+        root.insert(idx, ud)
+    # output dependencies (indices are 1-based positions in ModelVariables)
+    index = {sv.get("name"): i + 1 for i, sv in enumerate(svs)}
+    inputs = [sv.get("name") for sv in svs if sv.get("causality") == "input"]
+    ms = root.find("ModelStructure")
+    outs = ms.find("Outputs") if ms is not None else None
+    if outs is not None:
+        for unk in outs.findall("Unknown"):
+            name = svs[int(unk.get("index")) - 1].get("name")
+            deps = output_dependencies.get(name, [])
+            if deps == "inputs":
+                deps = inputs
+            unk.set("dependencies", " ".join(str(index[d]) for d in deps))
+            if deps:
+                unk.set("dependenciesKind", " ".join("dependent" for _ in deps))
+            elif "dependenciesKind" in unk.attrib:
+                del unk.attrib["dependenciesKind"]
+    ET.indent(root)
+    return ET.tostring(root, encoding="UTF-8", xml_declaration=True)
+
+
+def build_fmu(script: Path, out_dir: Path) -> Path:
+    """Build one FMU from a slave script (see the module docstring)."""
+    from pythonfmu.builder import FmuBuilder
+
+    script = Path(script).resolve()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    cls = _slave_class(script)
+    with tempfile.TemporaryDirectory(prefix="fmubuild_") as tmp:
+        bundled = _copy_packages(Path(tmp))
+        fmu = FmuBuilder.build_FMU(script, dest=out_dir, project_files=[bundled], needsExecutionTool=False)
+    fmu = Path(fmu)
+    postprocess_model_description(fmu, getattr(cls, "units", None), getattr(cls, "output_dependencies", None))
+    return fmu
+
+
+def build_all(out_dir: str | Path = "fmus", only=None) -> list[Path]:
+    """Build every slave script into ``out_dir``; ``only``: model names (script stems) to build."""
+    scripts = find_slave_scripts()
+    if only:
+        wanted = set(only)
+        unknown = wanted - {s.stem for s in scripts}
+        if unknown:
+            raise ValueError(f"no slave script for {sorted(unknown)}; available: {[s.stem for s in scripts]}")
+        scripts = [s for s in scripts if s.stem in wanted]
+    return [build_fmu(s, Path(out_dir)) for s in scripts]

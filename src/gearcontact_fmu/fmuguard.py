@@ -1,0 +1,79 @@
+"""Work-around for an exit-time double release in the pythonfmu 0.7.0 export library (linux64).
+
+The export library keeps its interpreter state in a namespace-scope ``std::shared_ptr<PyState>
+pyState`` and releases it twice when the process exits (or the library is unloaded): first the C++
+static destructor of ``pyState`` drops the last reference and frees the state, then the library
+destructor ``finalizePythonInterpreter`` assigns ``pyState = nullptr`` to the already destroyed
+object and releases the stale control block again (valgrind: "invalid read of size 4 in
+finalizePythonInterpreter, 8 bytes inside a block of size 128 free'd ... by __run_exit_handlers").
+The write into freed heap memory makes glibc abort later at exit ("corrupted double-linked list",
+typically in libgfortran's exit handler), after the host has finished its work. Measured with the
+GearContact FMU: about half of the fresh ``fmpy simulate`` processes abort at exit.
+
+The guard adds one reference to that control block, so that the static destructor only decrements
+and the library destructor performs the one and only release (the state is then freed exactly once).
+It touches nothing but the reference count, and only in the export library it recognises by its
+SHA-256 (the linux64 binary of pythonfmu 0.7.0; every FMU built with it carries a byte-identical copy
+named ``binaries/linux64/<modelIdentifier>.so``). Any other binary, platform or failure: no-op.
+
+Call :func:`pin_export_library_state` from a slave's ``__init__``; it acts only when the export library
+instantiated the slave (the ``logger`` keyword is present), not in pythonfmu's builder or the master's
+in-process backend. ``BEVEL_FMU_NO_EXIT_GUARD=1`` disables it.
+"""
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import sys
+from pathlib import Path
+
+# pythonfmu 0.7.0, resources/binaries/linux64/libpythonfmu-export.so
+KNOWN_EXPORT_LIBS = {
+    "4be156a552c16f30eb4395805c59855d8d4086056d0f165442565f6c5fbac0c9": {
+        "pyState": 0x45C60,          # st_value of (anonymous namespace)::pyState (.bss, LOAD vaddr = offset)
+    },
+}
+_USE_COUNT_OFFSET = 8                # _Sp_counted_base: vptr, int _M_use_count, int _M_weak_count
+
+_GUARDED: dict[str, bool] = {}
+
+
+def _mapping_base(path: Path) -> int | None:
+    real = os.path.realpath(path)
+    with open("/proc/self/maps") as f:
+        for line in f:
+            parts = line.split(maxsplit=5)
+            if len(parts) == 6 and parts[5].strip() == real and int(parts[2], 16) == 0:
+                return int(parts[0].split("-")[0], 16)
+    return None
+
+
+def pin_export_library_state(slave_kwargs: dict, model_identifier: str) -> bool:
+    """Add the missing reference for the export library that instantiated this slave (once per
+    library file and process). Returns True when the guard is in place for that library."""
+    if "logger" not in slave_kwargs or not sys.platform.startswith("linux"):
+        return False
+    if os.environ.get("BEVEL_FMU_NO_EXIT_GUARD", "").strip() not in ("", "0"):
+        return False
+    lib_path = Path(str(slave_kwargs.get("resources", ""))).parent / "binaries" / "linux64" / f"{model_identifier}.so"
+    key = os.path.realpath(lib_path)
+    if key in _GUARDED:
+        return _GUARDED[key]
+    _GUARDED[key] = False
+    try:
+        layout = KNOWN_EXPORT_LIBS.get(hashlib.sha256(Path(key).read_bytes()).hexdigest())
+        base = _mapping_base(Path(key)) if layout else None
+        if base is None:
+            return False
+        ctrl = ctypes.c_uint64.from_address(base + layout["pyState"] + 8).value
+        if ctrl == 0:
+            return False
+        use = ctypes.c_int32.from_address(ctrl + _USE_COUNT_OFFSET)
+        if use.value < 1:
+            return False
+        use.value += 1
+    except Exception:  # noqa: BLE001 - the guard must never break the FMU itself
+        return False
+    _GUARDED[key] = True
+    return True

@@ -1,0 +1,217 @@
+"""GearContact: FMI 2.0 co-simulation FMU of the lower bevel gear stage (pythonfmu slave).
+
+A thin shell over :mod:`gearcontact_fmu.stage`: the mesh model (fidelity pcm/table/analytic/ideal) is
+built once in ``exit_initialization_mode`` from the parameters, then every ``do_step`` advances the
+stage over the communication step. Both flanges are spring side (ARCHITECTURE.md): inputs
+``flange_*_phi`` [rad], ``flange_*_w`` [rad/s], outputs ``flange_*_tau`` [N.m]. See docs/FMU.md.
+
+Errors (non-finite input, penetration beyond u_max, any exception) never propagate into the host:
+``do_step`` logs the cause with status error and returns False, which pythonfmu 0.7.0 maps to
+fmi2Discard; the instance then refuses further steps. (A raised exception would become fmi2Fatal.)
+
+pythonfmu 0.7.0's export library corrupts the heap at process exit (double release of its interpreter
+state; glibc then aborts the host after its work is done): ``gearcontact_fmu.fmuguard`` fixes the
+reference count on instantiation.
+
+Package import: the installed ``gearcontact_fmu`` when importable, else the copy bundled in
+``resources/_bundled`` (``BEVEL_FMU_USE_BUNDLED=1`` forces the bundled copy).
+"""
+import importlib.util
+import os
+import sys
+from pathlib import Path
+
+_HERE = Path(__file__).resolve().parent
+_BUNDLED = _HERE / "_bundled"
+_FORCE_BUNDLED = os.environ.get("BEVEL_FMU_USE_BUNDLED", "").strip() not in ("", "0")
+if _BUNDLED.is_dir() and (_FORCE_BUNDLED or importlib.util.find_spec("gearcontact_fmu") is None):
+    sys.path.insert(0, str(_BUNDLED))
+
+import gearcontact_fmu  # noqa: E402
+from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real, String  # noqa: E402
+from pythonfmu.enums import Fmi2Status  # noqa: E402
+
+PACKAGE_ORIGIN = str(Path(gearcontact_fmu.__file__).resolve().parent)
+
+
+class GearContact(Fmi2Slave):
+    description = ("Lower bevel gear stage (15/60, m 3 mm) of the azimuth-thruster rig: pinion and wheel "
+                   "inertias, port spring-dampers and the mesh (pcm/table/analytic/ideal), sub-stepped.")
+    author = "bevel-drivetrain"
+    version = gearcontact_fmu.__version__
+
+    # units of the variables (read by drivetrain.fmubuild to post-process modelDescription.xml)
+    units = {
+        "flange_a_phi": "rad", "flange_a_w": "rad/s", "flange_b_phi": "rad", "flange_b_w": "rad/s",
+        "flange_a_tau": "N.m", "flange_b_tau": "N.m", "flange_a_tau_mean": "N.m", "flange_b_tau_mean": "N.m",
+        "n_contact": "1", "contact_area": "m2", "peak_pressure": "Pa", "max_penetration": "m",
+        "normal_force": "N", "elastic_energy": "J", "mesh_torque_pinion": "N.m", "mesh_torque_wheel": "N.m",
+        "mesh_dissipated_power": "W",
+        "pinion_phi": "rad", "pinion_w": "rad/s", "wheel_phi": "rad", "wheel_w": "rad/s",
+        "energy_stored": "J", "energy_dissipated": "J", "energy_supplied": "J",
+        "E": "Pa", "nu": "1", "layer_depth": "m", "c_compression": "N.s/m3", "c_expansion": "N.s/m3",
+        "transformation_depth": "m", "mu": "1", "v_friction": "m/s", "u_max": "m",
+        "profile_element_size": "m", "face_element_size": "m",
+        "J_pinion": "kg.m2", "J_wheel": "kg.m2", "k_a": "N.m/rad", "d_a": "N.m.s/rad", "k_b": "N.m/rad",
+        "d_b": "N.m.s/rad", "max_substep": "s",
+        "module": "m", "pressure_angle": "rad", "shaft_angle": "rad", "face_width": "m", "x_pinion": "1",
+        "addendum_coefficient": "1", "dedendum_coefficient": "1", "backlash": "m", "tip_radius": "m",
+        "mesh_damping_ratio": "1", "mesh_phase": "rad",
+    }
+
+    INPUTS = ("flange_a_phi", "flange_a_w", "flange_b_phi", "flange_b_w")
+    OUTPUTS = ("flange_a_tau", "flange_b_tau", "flange_a_tau_mean", "flange_b_tau_mean",
+               "n_contact", "contact_area", "peak_pressure", "max_penetration", "normal_force",
+               "elastic_energy", "mesh_torque_pinion", "mesh_torque_wheel", "mesh_dissipated_power",
+               "pinion_phi", "pinion_w", "wheel_phi", "wheel_w",
+               "energy_stored", "energy_dissipated", "energy_supplied")
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        from gearcontact_fmu.fmuguard import pin_export_library_state
+
+        # pythonfmu 0.7.0 releases its interpreter state twice at process exit: see fmuguard
+        pin_export_library_state(kwargs, type(self).__name__)
+        from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
+        from gearcontact_fmu.stage import StageParams
+
+        g, p, r, s = BevelGearParams(), PCMParams(), MeshResolution(), StageParams()
+        # structural choices (strings)
+        self.fidelity = "analytic"
+        self.mode = s.mode
+        self.health = "healthy"
+        self.pinion_mesh_file = ""
+        self.wheel_mesh_file = ""
+        self.scheme = s.scheme
+        self.output_torque = s.output_torque
+        # PCM constants (RIG.md)
+        self.E, self.nu, self.layer_depth = p.E, p.nu, p.layer_depth
+        self.c_compression, self.c_expansion = p.c_compression, p.c_expansion
+        self.transformation_depth, self.mu, self.v_friction, self.u_max = (
+            p.transformation_depth, p.mu, p.v_friction, p.u_max)
+        # resolution
+        self.profile_element_size, self.face_element_size = r.profile, r.face
+        # stage
+        self.J_pinion, self.J_wheel = s.J_pinion, s.J_wheel
+        self.k_a, self.d_a, self.k_b, self.d_b = s.k_a, s.d_a, s.k_b, s.d_b
+        self.max_substep = s.max_substep
+        # gear
+        self.z_pinion, self.z_wheel = g.z_pinion, g.z_wheel
+        self.module, self.pressure_angle, self.shaft_angle = g.module, g.pressure_angle, g.shaft_angle
+        self.face_width, self.x_pinion = g.face_width, g.x_pinion
+        self.addendum_coefficient, self.dedendum_coefficient = g.addendum_coefficient, g.dedendum_coefficient
+        self.backlash, self.tip_radius = g.backlash, g.tip_radius
+        # analytic mesh
+        self.mesh_damping_ratio = 0.05
+        self.mesh_phase = 0.0
+        for name in self.INPUTS + self.OUTPUTS:
+            setattr(self, name, 0.0)
+
+        P, F = Fmi2Causality.parameter, Fmi2Variability.fixed
+        for name in ("fidelity", "mode", "health", "pinion_mesh_file", "wheel_mesh_file", "scheme",
+                     "output_torque"):
+            self.register_variable(String(name, causality=P, variability=F))
+        for name in ("z_pinion", "z_wheel"):
+            self.register_variable(Integer(name, causality=P, variability=F))
+        for name in ("E", "nu", "layer_depth", "c_compression", "c_expansion", "transformation_depth", "mu",
+                     "v_friction", "u_max", "profile_element_size", "face_element_size",
+                     "J_pinion", "J_wheel", "k_a", "d_a", "k_b", "d_b", "max_substep",
+                     "module", "pressure_angle", "shaft_angle", "face_width", "x_pinion",
+                     "addendum_coefficient", "dedendum_coefficient", "backlash", "tip_radius",
+                     "mesh_damping_ratio", "mesh_phase"):
+            self.register_variable(Real(name, causality=P, variability=F))
+        for name in self.INPUTS:
+            self.register_variable(Real(name, causality=Fmi2Causality.input))
+        for name in self.OUTPUTS:
+            self.register_variable(Real(name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact))
+
+        self._stage = None
+        self._failed = None          # message once the instance is in the error state
+        self._t0 = 0.0
+
+    # ---- FMI callbacks --------------------------------------------------------------------------
+    def setup_experiment(self, start_time, stop_time=None, tolerance=None):
+        self._t0 = float(start_time)
+
+    def exit_initialization_mode(self):
+        try:
+            self._build()
+            self._stage.initialize(self._t0, self.flange_a_phi, self.flange_a_w, self.flange_b_phi,
+                                   self.flange_b_w)
+            self._publish()
+            self.log(f"GearContact: fidelity {self.fidelity}, mode {self.mode}, scheme "
+                     f"{self._stage.scheme}, package {PACKAGE_ORIGIN}", Fmi2Status.ok)
+        except Exception as exc:  # noqa: BLE001 - an exception here would be fmi2Fatal
+            self._fail(f"initialization failed: {type(exc).__name__}: {exc}")
+
+    def do_step(self, current_time, step_size):
+        if self._failed is not None:
+            self.log(f"GearContact is in the error state: {self._failed}", Fmi2Status.error)
+            return False
+        try:
+            self._stage.step(current_time, step_size, self.flange_a_phi, self.flange_a_w,
+                             self.flange_b_phi, self.flange_b_w)
+        except Exception as exc:  # noqa: BLE001 - StageError and anything unexpected
+            name = "" if type(exc).__name__ == "StageError" else f"{type(exc).__name__}: "
+            self._fail(f"do_step at t = {current_time:.9g} s failed: {name}{exc}")
+            return False
+        self._publish()
+        return True
+
+    # ---- helpers ----------------------------------------------------------------------------------
+    def _fail(self, msg):
+        self._failed = msg
+        self.log(msg, Fmi2Status.error)
+
+    def _build(self):
+        from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
+        from gearcontact_fmu.stage import StageParams, make_stage
+
+        gear = BevelGearParams(
+            z_pinion=int(self.z_pinion), z_wheel=int(self.z_wheel), module=self.module,
+            pressure_angle=self.pressure_angle, shaft_angle=self.shaft_angle, face_width=self.face_width,
+            x_pinion=self.x_pinion, addendum_coefficient=self.addendum_coefficient,
+            dedendum_coefficient=self.dedendum_coefficient, backlash=self.backlash,
+            tip_radius=self.tip_radius)
+        pcm = PCMParams(E=self.E, nu=self.nu, layer_depth=self.layer_depth, c_compression=self.c_compression,
+                        c_expansion=self.c_expansion, transformation_depth=self.transformation_depth,
+                        mu=self.mu, v_friction=self.v_friction, u_max=self.u_max)
+        res = MeshResolution(profile=self.profile_element_size, face=self.face_element_size)
+        sp = StageParams(J_pinion=self.J_pinion, J_wheel=self.J_wheel, k_a=self.k_a, d_a=self.d_a,
+                         k_b=self.k_b, d_b=self.d_b, max_substep=self.max_substep, scheme=self.scheme,
+                         mode=self.mode, output_torque=self.output_torque)
+        mesh_files = {k: v for k, v in (("pinion", self.pinion_mesh_file), ("wheel", self.wheel_mesh_file)) if v}
+        kw = {}
+        if self.fidelity.strip().lower() == "analytic":
+            # the analytic reference takes its friction from mu (the PCM constant) as well
+            kw = dict(damping_ratio=self.mesh_damping_ratio, mesh_phase=self.mesh_phase, mu=self.mu)
+        self._stage = make_stage(self.fidelity, gear, pcm, res, health=self.health,
+                                 mesh_files=mesh_files or None, stage_params=sp, **kw)
+
+    def _publish(self):
+        from gearcontact_fmu.fidelity import (OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY,
+                                              OUT_MAX_PENETRATION, OUT_N_CONTACT, OUT_NORMAL_FORCE,
+                                              OUT_PEAK_PRESSURE, OUT_TAU_PINION, OUT_TAU_WHEEL)
+
+        st = self._stage
+        out = st.out
+        self.flange_a_tau = st.tau_a
+        self.flange_b_tau = st.tau_b
+        self.flange_a_tau_mean = st.tau_a_mean
+        self.flange_b_tau_mean = st.tau_b_mean
+        self.n_contact = float(out[OUT_N_CONTACT])
+        self.contact_area = float(out[OUT_CONTACT_AREA])
+        self.peak_pressure = float(out[OUT_PEAK_PRESSURE])
+        self.max_penetration = float(out[OUT_MAX_PENETRATION])
+        self.normal_force = float(out[OUT_NORMAL_FORCE])
+        self.elastic_energy = float(out[OUT_ELASTIC_ENERGY])
+        self.mesh_torque_pinion = float(out[OUT_TAU_PINION])
+        self.mesh_torque_wheel = float(out[OUT_TAU_WHEEL])
+        self.mesh_dissipated_power = float(out[OUT_DISSIPATED_POWER])
+        self.pinion_phi = st.theta_pinion
+        self.pinion_w = st.omega_pinion
+        self.wheel_phi = st.theta_wheel
+        self.wheel_w = st.omega_wheel
+        self.energy_stored = st.energy_stored
+        self.energy_dissipated = st.energy_dissipated
+        self.energy_supplied = st.energy_supplied

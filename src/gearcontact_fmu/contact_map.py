@@ -134,7 +134,35 @@ def compute_map(pair, grid: MapGrid = MapGrid(), progress: bool = False) -> Cont
     return ContactMap(theta, s, vals, pair.gear, pair.pcm, grid, info)
 
 
-def _tabulate(pair, theta, s, grid: MapGrid) -> np.ndarray:
+def _tabulate(pair, theta, s, grid: MapGrid, workers: int | None = None) -> np.ndarray:
+    """Tabulate in parallel over pinion-angle chunks (fork: the workers inherit the built pair)."""
+    import multiprocessing as mp
+
+    if workers is None:
+        workers = int(os.environ.get("BEVEL_MAP_WORKERS", os.cpu_count() or 1))
+    workers = max(1, min(workers, len(theta)))
+    if workers == 1 or "fork" not in mp.get_all_start_methods():
+        return _tabulate_rows(pair, theta, s, grid)
+    chunks = np.array_split(np.arange(len(theta)), 4 * workers)
+    global _FORK_STATE
+    _FORK_STATE = (pair, theta, s, grid)
+    try:
+        with mp.get_context("fork").Pool(workers) as pool:
+            parts = pool.map(_tabulate_chunk, chunks)
+    finally:
+        _FORK_STATE = None
+    return np.concatenate(parts, axis=0)
+
+
+_FORK_STATE = None
+
+
+def _tabulate_chunk(idx):
+    pair, theta, s, grid = _FORK_STATE
+    return _tabulate_rows(pair, theta[idx], s, grid)
+
+
+def _tabulate_rows(pair, theta, s, grid: MapGrid) -> np.ndarray:
     from gearcontact_fmu.contact import engine
 
     z1, z2 = pair.gear.z_pinion, pair.gear.z_wheel

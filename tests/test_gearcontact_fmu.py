@@ -59,19 +59,10 @@ def test_validate_and_model_description(fmu):
     assert not any("__pycache__" in n or n.endswith((".pyc", ".nbi", ".nbc")) for n in names)
 
 
-def _single_zone_phase(theta):
-    from gearcontact_fmu.analytic import virtual_spur_gears
-    from gearcontact_fmu.params import BevelGearParams
-
-    v = virtual_spur_gears(BevelGearParams())
-    u_mid = 0.5 * ((v["eps_alpha"] - 1.0) * v["p_b"] + v["p_b"])
-    return theta - (u_mid - v["g_a"]) / v["r_b"]
-
-
 def test_simulate_steady_mesh_torque(fmu):
     """examples/gearcontact_input.csv ramps flange_a to 0.01 rad (flange_b held): the steady mesh torque
     is the series-chain closed form T = (phi_a - s_b/2) / (1/k_a + 1/K + r^2/k_b)."""
-    from gearcontact_fmu.analytic import iso6336_stiffness
+    from gearcontact_fmu.analytic import iso6336_stiffness, single_pair_phase
     from gearcontact_fmu.params import BevelGearParams
 
     g = BevelGearParams()
@@ -84,7 +75,7 @@ def test_simulate_steady_mesh_torque(fmu):
     theta_p = phi_a - T / k_a
     inp = np.genfromtxt(INPUT_CSV, delimiter=",", names=True)
     res = fmpy.simulate_fmu(str(fmu), stop_time=0.3, output_interval=1e-4, input=inp,
-                            start_values={"fidelity": "analytic", "mesh_phase": _single_zone_phase(theta_p)},
+                            start_values={"fidelity": "analytic", "mesh_phase": single_pair_phase(g, theta_p)},
                             output=["flange_a_tau", "flange_b_tau", "mesh_torque_pinion", "mesh_torque_wheel",
                                     "n_contact", "pinion_w", "energy_stored"])
     end = res[-1]

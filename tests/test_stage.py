@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from gearcontact_fmu.analytic import iso6336_stiffness, virtual_spur_gears
+from gearcontact_fmu.analytic import iso6336_stiffness, single_pair_phase
 from gearcontact_fmu.fidelity import OUT_N_CONTACT, OUT_TAU_PINION, OUT_TAU_WHEEL
 from gearcontact_fmu.params import BevelGearParams, PCMParams
 from gearcontact_fmu.stage import GearStage, StageError, StageParams, make_stage
@@ -20,14 +20,6 @@ def _K_single(gear):
     return c1 * gear.face_width * 1e3 * 1e6 * r_b ** 2
 
 
-def _single_zone_phase(gear, theta):
-    """mesh_phase that puts pinion angle ``theta`` in the middle of a single-pair zone."""
-    v = virtual_spur_gears(gear)
-    u_mid = 0.5 * ((v["eps_alpha"] - 1.0) * v["p_b"] + v["p_b"])
-    # u = g_a + r_b (theta - phase) = u_mid
-    return theta - (u_mid - v["g_a"]) / v["r_b"]
-
-
 def test_mesh_eigenfrequency_matches_two_inertia_formula():
     gear = BevelGearParams(backlash=0.0)
     sp = StageParams(d_a=0.0, d_b=0.0, scheme="rk4", max_substep=2e-7)
@@ -37,7 +29,7 @@ def test_mesh_eigenfrequency_matches_two_inertia_formula():
     th_p = R * th_w + T / K
     phi_a = th_p + T / sp.k_a
     st = make_stage("analytic", gear, PCMParams(), stage_params=sp, damping_ratio=0.0,
-                    mesh_phase=_single_zone_phase(gear, th_p))
+                    mesh_phase=single_pair_phase(gear, th_p))
     # closed-form 2-DOF eigenproblem (flanges held): [[k_a + K, -R K], [-R K, k_b + R^2 K]] x = w^2 J x
     Kmat = np.array([[sp.k_a + K, -R * K], [-R * K, sp.k_b + R * R * K]])
     Jp, Jw = sp.J_pinion, sp.J_wheel
@@ -74,7 +66,7 @@ def test_static_torque_reaches_equilibrium_deflection():
     phi_a = 0.01
     T = (phi_a - s_b / 2) / (1 / sp.k_a + 1 / K + R * R / sp.k_b)       # series chain, closed form
     th_p = phi_a - T / sp.k_a
-    st = make_stage("analytic", gear, stage_params=sp, mesh_phase=_single_zone_phase(gear, th_p))
+    st = make_stage("analytic", gear, stage_params=sp, mesh_phase=single_pair_phase(gear, th_p))
     st.initialize(0.0, 0.0, 0.0, 0.0, 0.0)
     H = 1e-4
     for i in range(4000):

@@ -160,6 +160,14 @@ def mesh_stiffness(gear: BevelGearParams) -> dict:
                 K_mean=k_mean * rb2, r_b=v["r_b"])
 
 
+def single_pair_phase(gear: BevelGearParams, theta_pinion: float) -> float:
+    """``mesh_phase`` that puts the drive contact at pinion angle ``theta_pinion`` in the middle of a
+    single-pair zone (constant stiffness K_single around it)."""
+    v = virtual_spur_gears(gear)
+    u_mid = 0.5 * ((v["eps_alpha"] - 1.0) * v["p_b"] + v["p_b"])
+    return theta_pinion - (u_mid - v["g_a"]) / v["r_b"]
+
+
 def make_analytic_data(gear: BevelGearParams | None = None, pcm: PCMParams | None = None, *,
                        damping_ratio: float = 0.05, c_mesh: float | None = None,
                        J_pinion: float = 2.69e-4, J_wheel: float = 1.8e-4,

@@ -35,9 +35,6 @@ STATUS_PENETRATION_EXCEEDED = 1
 
 FIDELITIES = ("pcm", "table", "analytic", "ideal")
 
-KINDS = ("mesh", "rigid")
-
-
 @dataclass
 class MeshModel:
     """A mesh model of one fidelity: ``eval(data, theta_p, theta_w, omega_p, omega_w, out)`` (numba)

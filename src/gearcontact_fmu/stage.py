@@ -9,10 +9,14 @@ Inputs per communication step [t_n, t_n + H]: the flange angles and speeds at t_
 flange angles are extrapolated linearly, phi(t) = phi_n + w_n (t - t_n), w(t) = w_n (this raises the
 co-simulation stability limit of the port cut, see docs/FMU.md). Outputs: the torque the stage applies
 to the external body on each flange, tau_a = k_a (theta_p - phi_a) + d_a (omega_p - w_a) (it pulls the
-external body towards the pinion) and tau_b likewise with the wheel, **averaged over the step**
-(tau_mean = (1/H) int tau dt). With the average, the work the stage exchanges through a flange over
-the step is exactly -H tau_mean w_n, so the master's bond power tau*w closes the energy audit; a
-step-end sample would not.
+external body towards the pinion) and tau_b likewise with the wheel, in three forms:
+- ``tau_*_mean``: the exact mean over the step, (1/H) int tau dt. The work the stage exchanges through a
+  flange over the step is exactly -H tau_mean w_n: the energy audit closes with it.
+- the step-end value;
+- the prediction of the mean over the *next* step, tau_end + H/2 k (omega_int - w_ext).
+``output_torque`` selects which one ``tau_a``/``tau_b`` (the coupling torques) carry. A Jacobi master
+applies them over the next step, so the mean of the last step is a full step late: measured, it is the
+least stable coupling; the prediction (default) is the most stable (docs/FMU.md has the limits).
 With fidelity "ideal" (MeshModel.kind == "rigid") pinion and wheel form one rigid body
 J_p + J_w/r^2 (pinion-referred, r = z2/z1); the mesh torques reported are the constraint torques.
 
@@ -24,18 +28,20 @@ omega H / 4 < zeta < 1 / (omega H), i.e. H of about 1 us.
 
 Integrators (sub-step h = H / ceil(H / max_substep))
 ----------------------------------------------------
-``"ros2"`` (default): the 2-stage linearly implicit Rosenbrock method of Verwer et al. (1999),
+``"ros2"``: the 2-stage linearly implicit Rosenbrock method of Verwer et al. (1999),
 gamma = 1 + 1/sqrt(2), L-stable, second order for any Jacobian approximation (a W-method). The
 Jacobian's mesh part comes from forward differences of the mesh torques with respect to the wheel
 angle and speed (the mesh coordinate s and its rate); the spring parts are analytic. Cost: 4 mesh
 evaluations per sub-step. Stable for the over-damped PCM contact at any sub-step.
 ``"rk4"``: classic explicit Runge-Kutta, 4 evaluations per sub-step; stable only for
 omega_mesh h < 2.8 and, with the paper's contact damping, h below about 0.1 us.
+``"auto"`` (default): rk4 where it is stable (ideal mesh; analytic mesh with |lambda| h < 2.5), else ros2.
+A contact closing or opening inside a sub-step halves it, down to h/64.
 Measured trade-off: docs/FMU.md.
 
 The energy audit integrates the port and mesh dissipation with the same scheme as the state:
 energy_stored = kinetic + port springs + mesh elastic energy, energy_dissipated (cumulative) = port
-dampers + mesh damping/friction; over a step, -H (tau_a w_a + tau_b w_b) = delta stored + delta
+dampers + mesh damping/friction; over a step, -H (tau_a_mean w_a + tau_b_mean w_b) = delta stored + delta
 dissipated to integrator accuracy.
 """
 from __future__ import annotations
@@ -524,7 +530,7 @@ class GearStage:
 
     >>> st = GearStage(model, ratio=4.0)
     >>> st.initialize(0.0, phi_a, w_a, phi_b, w_b)
-    >>> st.step(t, H, phi_a, w_a, phi_b, w_b)   # -> (tau_a_mean, tau_b_mean)
+    >>> st.step(t, H, phi_a, w_a, phi_b, w_b)   # -> (tau_a, tau_b) coupling torques
     """
 
     def __init__(self, model: MeshModel, ratio: float, params: StageParams | None = None):
@@ -560,7 +566,6 @@ class GearStage:
         self.u = np.zeros(4)
         self.out = np.zeros(N_OUT)
         self._res = np.zeros(N_RES)
-        self._f0 = np.zeros(N_X)
         self.t = 0.0
         self.tau_a = 0.0
         self.tau_b = 0.0

@@ -28,6 +28,9 @@ if _BUNDLED.is_dir() and (_FORCE_BUNDLED or importlib.util.find_spec("gearcontac
     sys.path.insert(0, str(_BUNDLED))
 
 import gearcontact_fmu  # noqa: E402
+from gearcontact_fmu.fidelity import (OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY,  # noqa: E402
+                                      OUT_MAX_PENETRATION, OUT_N_CONTACT, OUT_NORMAL_FORCE,
+                                      OUT_PEAK_PRESSURE, OUT_TAU_PINION, OUT_TAU_WHEEL)
 from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real, String  # noqa: E402
 from pythonfmu.enums import Fmi2Status  # noqa: E402
 
@@ -189,10 +192,6 @@ class GearContact(Fmi2Slave):
                                  mesh_files=mesh_files or None, stage_params=sp, **kw)
 
     def _publish(self):
-        from gearcontact_fmu.fidelity import (OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY,
-                                              OUT_MAX_PENETRATION, OUT_N_CONTACT, OUT_NORMAL_FORCE,
-                                              OUT_PEAK_PRESSURE, OUT_TAU_PINION, OUT_TAU_WHEEL)
-
         st = self._stage
         out = st.out
         self.flange_a_tau = st.tau_a

@@ -92,8 +92,13 @@ def port_outputs(model: str) -> list[str]:
     return out + list(OUTPUTS[model]) + list(ENERGY)
 
 
-def init_slave(slave, model: str) -> None:
+def init_slave(slave, model: str, slave_kwargs: dict | None = None) -> None:
     """Register the variables of ``model`` on a pythonfmu slave (called from its ``__init__``)."""
+    if slave_kwargs is not None:
+        from gearcontact_fmu.fmuguard import pin_export_library_state
+
+        # pythonfmu 0.7.0 releases its interpreter state twice at process exit: see fmuguard
+        pin_export_library_state(slave_kwargs, model)
     slave.MODEL = model
     cls, pcls = C.COMPONENTS[model]
     slave._pcls = pcls

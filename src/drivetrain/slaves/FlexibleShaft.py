@@ -30,7 +30,7 @@ class FlexibleShaft(Fmi2Slave):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        fmishell.init_slave(self, "FlexibleShaft")
+        fmishell.init_slave(self, "FlexibleShaft", kwargs)
 
     def enter_initialization_mode(self):
         fmishell.enter_init(self)

@@ -30,7 +30,7 @@ class MotorLoad(Fmi2Slave):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        fmishell.init_slave(self, "MotorLoad")
+        fmishell.init_slave(self, "MotorLoad", kwargs)
 
     def enter_initialization_mode(self):
         fmishell.enter_init(self)

@@ -30,7 +30,7 @@ class UpperTransmission(Fmi2Slave):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        fmishell.init_slave(self, "UpperTransmission")
+        fmishell.init_slave(self, "UpperTransmission", kwargs)
 
     def enter_initialization_mode(self):
         fmishell.enter_init(self)

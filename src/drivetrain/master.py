@@ -212,6 +212,7 @@ def sources_hash() -> str:
 
 
 STAMP_FILE = ".sources-hash.json"
+_CHECKED: dict[str, set] = {}     # fmu_dir -> models found fresh (or built) in this process
 
 
 @contextlib.contextmanager
@@ -249,8 +250,14 @@ def ensure_fmus(models: Sequence[str], fmu_dir: Path | str = "fmus", build: bool
     fmu_dir = Path(fmu_dir)
     models = list(dict.fromkeys(models))
     if build:
+        # checked once per process and directory: the package code this process runs (FMUs use the
+        # installed packages in a Python host) does not change under it, so neither should its FMUs
+        key = str(fmu_dir.resolve())
+        fresh = _CHECKED.setdefault(key, set())
+        todo_check = [m for m in models if m not in fresh or not (fmu_dir / f"{m}.fmu").is_file()]
+    if build and todo_check:
         with _file_lock(fmu_dir / ".build.lock"):
-            todo = stale_models(models, fmu_dir)
+            todo = stale_models(todo_check, fmu_dir)
             if todo:
                 current = sources_hash()
                 try:
@@ -272,6 +279,7 @@ def ensure_fmus(models: Sequence[str], fmu_dir: Path | str = "fmus", build: bool
                     tmp = fmu_dir / (STAMP_FILE + f".{os.getpid()}")
                     tmp.write_text(json.dumps(stamp, indent=1, sort_keys=True))
                     os.replace(tmp, fmu_dir / STAMP_FILE)
+            fresh.update(m for m in todo_check if (fmu_dir / f"{m}.fmu").is_file())
     paths = {}
     missing = []
     for m in models:

@@ -4,8 +4,10 @@ One picklable ``simulate(case)`` function runs a case in whatever process it lan
 pickled: each worker process extracts and loads them once (the master's per-process caches) and reuses
 them for every case it runs. The executor is a local ``concurrent.futures.ProcessPoolExecutor`` by
 default, or ``distributed.Client(address).get_executor()`` when a Dask scheduler address is given; the
-same function runs unchanged on both. FMUs are built (if missing or stale) once in the parent before
-any case is dispatched. Never do several processes write one HDF5: each run writes its own directory.
+same function runs unchanged on both. Before any case is dispatched the parent assembles every scene
+(the workers run exactly these SystemSpecs), builds missing or stale FMUs once, and prepares the disk
+caches that component initialisation would build (contact maps of ``table`` gears: Dask workers are
+daemonic processes and cannot start the map builder's process pool). Never do several processes write one HDF5: each run writes its own directory.
 
 Manifest: ``<out>/manifest.json`` (full) and ``<out>/manifest.csv`` (one row per run: name, status,
 paths, wall time, real-time factor, mean torques, energy residual, the swept scene values).
@@ -91,25 +93,58 @@ def _executor(workers: int | None, address: str | None):
     return cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")), None
 
 
-def _models_needed(scenes: list[Scene]) -> list[str]:
+def _specs_of(scenes: list[Scene], specs: dict | None) -> list:
     from drivetrain.run import assemble_scene
 
-    models = []
-    for s in scenes:
-        for c in assemble_scene(s).components:
-            models.append(c.model)
-    return list(dict.fromkeys(models))
+    return [(specs or {}).get(s.name) or assemble_scene(s) for s in scenes]
+
+
+#: component parameter values whose initialisation builds a disk cache worth preparing in the parent
+CACHED_FIDELITIES = ("table",)
+
+
+def prepare_caches(specs: list, fmu_dir: str | Path = "fmus", fmu_paths: dict | None = None,
+                   log=None) -> int:
+    """Initialise once, in this (non-daemonic) process, every distinct component configuration whose
+    initialisation builds a disk cache (GearContact ``fidelity = "table"``: the contact map), so that
+    worker processes only read caches. Dask worker processes are daemonic and cannot start the map
+    builder's process pool. Returns the number of configurations prepared; failures are left to the runs
+    (they report them with the FMU's log)."""
+    from drivetrain.master import simulate
+    from drivetrain.system import SystemSpec
+
+    seen, todo = set(), []
+    for spec in specs:
+        for c in spec.components:
+            if c.parameters.get("fidelity") in CACHED_FIDELITIES:
+                key = json.dumps({"model": c.model, "p": c.parameters}, sort_keys=True, default=str)
+                if key not in seen:
+                    seen.add(key)
+                    todo.append((c, spec.comm_step))
+    for comp, H in todo:
+        if log:
+            log(f"preparing {comp.model} ({comp.name}: fidelity {comp.parameters.get('fidelity')}, "
+                f"health {comp.parameters.get('health', '?')})")
+        one = SystemSpec(components=[comp], connections=[], comm_step=H)
+        try:
+            simulate(one, H, 1.0 / H, backend="inprocess", fmu_dir=fmu_dir, fmu_paths=fmu_paths, build=False,
+                     progress=False)
+        except Exception as exc:  # the run of the case will report it properly
+            if log:
+                log(f"  preparation failed ({type(exc).__name__}); the runs will report it")
+    return len(todo)
 
 
 def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None = None, address: str | None = None,
               backend: str = "fmi", fmu_dir: str | Path = "fmus", skip_existing: bool = False, plots: bool = True,
               progress: bool = True, specs: dict[str, Any] | None = None, fmu_paths: dict | None = None,
-              executor=None) -> dict:
+              executor=None, prepare: bool = True) -> dict:
     """Run every scene; returns the manifest (also written to out_dir/manifest.json and .csv).
 
     ``workers``: local processes (default: CPU count); ``address``: Dask scheduler (then Dask's executor);
     ``executor``: any concurrent.futures-style executor to use instead. ``specs``: {scene name: SystemSpec}
-    to bypass the assembler (tests); ``fmu_paths``: explicit FMUs (no building).
+    to bypass the assembler (tests); ``fmu_paths``: explicit FMUs (no building). ``prepare``: build the
+    components' disk caches (contact maps) in this process first (:func:`prepare_caches`).
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -119,21 +154,24 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
         from drivetrain.master import ConfigurationError
 
         raise ConfigurationError(f"scene names must be unique in a sweep: {', '.join(dup)}")
+    log = (lambda m: print(m, file=sys.stderr)) if progress else None
+    all_specs = _specs_of(scenes, specs)
     if fmu_paths is None:
         from drivetrain.master import ensure_fmus
 
-        needed = _models_needed(scenes) if specs is None else list(
-            dict.fromkeys(c.model for sp in specs.values() for c in sp.components))
-        ensure_fmus(needed, fmu_dir, build=True, log=lambda m: print(m, file=sys.stderr))
+        needed = list(dict.fromkeys(c.model for sp in all_specs for c in sp.components))
+        ensure_fmus(needed, fmu_dir, build=True, log=log or (lambda m: None))
+    if prepare:
+        prepare_caches(all_specs, fmu_dir, fmu_paths, log=log)
     cases, runs = [], []
-    for s in scenes:
+    for s, sp in zip(scenes, all_specs):
         d = out / s.name
         if skip_existing and (d / "summary.json").is_file():
             runs.append({"name": s.name, "status": "ok", "skipped": True, "out_dir": str(d),
                          "signals": str(d / "signals.h5"), "summary": str(d / "summary.json")})
             continue
         cases.append(make_case(s, d, backend=backend, fmu_dir=fmu_dir, plots=plots,
-                               spec=(specs or {}).get(s.name), fmu_paths=fmu_paths))
+                               spec=sp, fmu_paths=fmu_paths))
     t0 = time.perf_counter()
     client = None
     own = executor is None
@@ -189,4 +227,4 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
     return manifest
 
 
-__all__ = ["simulate", "run_sweep", "make_case"]
+__all__ = ["simulate", "run_sweep", "make_case", "prepare_caches"]

@@ -36,7 +36,6 @@ import atexit
 import collections
 import contextlib
 import ctypes
-import dataclasses
 import functools
 import hashlib
 import importlib
@@ -48,13 +47,13 @@ import sys
 import tempfile
 import time
 import traceback
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from drivetrain.system import INERTIA, SPRING, ComponentSpec, Connection, SystemSpec
+from drivetrain.system import INERTIA, SPRING, ComponentSpec, SystemSpec
 
 PORT_VARS = ("phi", "w", "tau")
 PORT_UNITS = {"phi": "rad", "w": "rad/s", "tau": "N.m"}
@@ -1017,7 +1016,6 @@ class Master:
         e1: list[dict] = []
         loop_time = 0.0
         chunk_costs: list[float] = []
-        k_done = 0
         try:
             # instantiate exactly the spec's components
             for comp, info in zip(plan.comps, plan.infos):
@@ -1041,7 +1039,7 @@ class Master:
             for s in slaves:
                 s.enter_init()
 
-            def exchange(t: float, k: int):
+            def exchange(k: int):
                 if ext_table is not None:
                     y[ext_idx] = ext_table[k]
                 np.take(y, plan.gather, out=u[:nu])
@@ -1058,7 +1056,7 @@ class Master:
 
             for _ in range(2):           # propagate initial flange values in initialization mode
                 read_all()
-                exchange(0.0, 0)
+                exchange(0)
                 write_all()
             for s in slaves:
                 s.exit_init()
@@ -1106,7 +1104,6 @@ class Master:
                                 self._status(slaves[i], "fmi2GetReal", st, t + H)
                     rec[kk + 1] = y[:ny]
                 chunk_costs.append((time.perf_counter() - t_chunk) / (k_end - k))
-                k_done = k_end
                 if bar is not None:
                     bar.update(k_end - k)
                 k = k_end

@@ -47,6 +47,7 @@ import sys
 import tempfile
 import time
 import traceback
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -333,6 +334,7 @@ class _Plan:
     energy: list[dict[str, int]]       # per component: energy var -> vr
     warnings: list[str]
     conn_index: list[tuple[int, int, int, int, int]]  # per connection: (ci_spring, ci_inertia, y_tau, y_phi, y_w)
+    ext_work: list = dataclasses.field(default_factory=list)  # (ci, "comp.port", tau const | None, y_tau | None, y_phi)
 
 
 def check_system(spec: SystemSpec, infos: dict[str, FMUInfo], record: Sequence[str] = ()) -> _Plan:
@@ -482,6 +484,16 @@ def check_system(spec: SystemSpec, infos: dict[str, FMUInfo], record: Sequence[s
         want_out(f"{ic}.{ip}_w")
     for ref in record:
         want_out(ref)
+    # torques applied from outside (constant or profile inputs) on unconnected inertia-side flanges:
+    # their work enters the energy audit as external work
+    ext_torques = []
+    for c in spec.components:
+        for iname, value in c.inputs.items():
+            port = iname[:-4] if iname.endswith("_tau") else None
+            v_phi = var[c.name].get(f"{port}_phi") if port else None
+            if v_phi is not None and v_phi.causality == "output" and v_phi.type == "Real":
+                want_out(f"{c.name}.{port}_phi")
+                ext_torques.append((c.name, port, iname, value))
     for tgt in fed:
         comp, vn = _split(tgt)
         in_names[idx[comp]].append(vn)
@@ -507,8 +519,15 @@ def check_system(spec: SystemSpec, infos: dict[str, FMUInfo], record: Sequence[s
         energy.append({e: var[c.name][e].vr for e in ENERGY_VARS if e in var[c.name]})
     conn_index = [(idx[sc], idx[ic], ypos[f"{sc}.{sp}_tau"], ypos[f"{ic}.{ip}_phi"], ypos[f"{ic}.{ip}_w"])
                   for sc, sp, ic, ip in conn_vars]
+    ext_work = []
+    for cname, port, iname, value in ext_torques:
+        if _is_profile(value):
+            ext_work.append((idx[cname], f"{cname}.{port}", None, ypos[f"ext:{cname}.{iname}"],
+                             ypos[f"{cname}.{port}_phi"]))
+        else:
+            ext_work.append((idx[cname], f"{cname}.{port}", float(value), None, ypos[f"{cname}.{port}_phi"]))
     return _Plan(list(spec.components), [infos[c.model] for c in spec.components], in_names, out_names,
-                 gather, ext, y_names, u_names, energy, warnings, conn_index)
+                 gather, ext, y_names, u_names, energy, warnings, conn_index, ext_work)
 
 
 def check_comm_step(comm_step: float, output_rate_Hz: float) -> int:
@@ -867,8 +886,10 @@ def energy_audit(plan: _Plan, rec: np.ndarray, e0: list[dict], e1: list[dict]) -
     Work through connection c (from the spring-side FMU into the inertia-side FMU), with the rule of the
     inertia side under a zero-order-held torque: W_c = Σ_k τ_k (φ_{k+1} − φ_k).
     Per FMU i: r_i = supplied_i + W_in,i − Δstored_i − dissipated_i; global residual
-    R = Σ supplied − Σ Δstored − Σ dissipated = Σ r_i (connection works cancel). Reference energy:
-    the largest of the absolute work through any connection ∫|P|dt and any FMU's |supplied|.
+    R = Σ supplied + W_ext − Σ Δstored − Σ dissipated = Σ r_i (connection works cancel), where W_ext is the
+    work of torques given as constant/profile inputs on unconnected inertia-side flanges (same rule).
+    Reference energy: the largest of the absolute work through any connection or external flange
+    ∫|P|dt and any FMU's |supplied|.
     """
     n = len(plan.comps)
     conns = []
@@ -884,6 +905,17 @@ def energy_audit(plan: _Plan, rec: np.ndarray, e0: list[dict], e1: list[dict]) -
         w_in[cs] -= w
         ref = max(ref, wabs)
         conns.append({"spring": in_spec[0], "inertia": in_spec[1], "work_J": w, "abs_work_J": wabs})
+    external = []
+    w_ext_tot = 0.0
+    for ci, port, tau_c, yt, yp in plan.ext_work:
+        dphi = np.diff(rec[:, yp])
+        tau = tau_c if yt is None else rec[:-1, yt]
+        p = tau * dphi
+        w = float(np.sum(p))
+        w_in[ci] += w
+        w_ext_tot += w
+        ref = max(ref, float(np.abs(p).sum()))
+        external.append({"port": port, "work_J": w, "abs_work_J": float(np.abs(p).sum())})
     per = {}
     tot = {"supplied_J": 0.0, "stored_change_J": 0.0, "dissipated_J": 0.0}
     missing = []
@@ -903,15 +935,15 @@ def energy_audit(plan: _Plan, rec: np.ndarray, e0: list[dict], e1: list[dict]) -
         tot["stored_change_J"] += dst
         tot["dissipated_J"] += dis
         ref = max(ref, abs(sup))
-    resid = tot["supplied_J"] - tot["stored_change_J"] - tot["dissipated_J"]
+    resid = tot["supplied_J"] + w_ext_tot - tot["stored_change_J"] - tot["dissipated_J"]
     return {
         "complete": not missing, "missing": missing,
         "residual_J": resid, "reference_J": ref,
         "relative_residual": (abs(resid) / ref) if ref > 0 else (0.0 if resid == 0 else float("inf")),
-        **tot, "per_fmu": per, "connections": conns,
+        **tot, "external_work_J": w_ext_tot, "per_fmu": per, "connections": conns, "external": external,
         "rule": "W_c = sum_k tau_k*(phi_{k+1}-phi_k) (tau held over each step, inertia-side angle); "
-                "residual = supplied - delta stored - dissipated over all FMUs; reference = max(max_c sum|P_c dt|, "
-                "max_i |supplied_i|)",
+                "residual = supplied + external work - delta stored - dissipated over all FMUs; "
+                "reference = max(max_c sum|P_c dt|, max_i |supplied_i|, external sum|P dt|)",
     }
 
 

@@ -57,6 +57,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
             print(f"  {name}: mean {st['mean']:.4g} N·m, RMS {st['rms']:.4g} N·m")
         print(f"  f_DSH {s['f_DSH']:.4g} Hz, f_MSH {s['f_MSH']:.4g} Hz, f_PSH {s['f_PSH']:.4g} Hz, "
               f"f_GMF {s['f_GMF']:.4g} Hz; energy residual {s['energy_residual']:.3g} (relative)")
+        if s["energy_residual"] > 0.01:
+            w = s["energy"]["worst_fmu"]
+            print(f"  warning: energy residual above 1 %; largest in FMU {w!r} "
+                  f"({s['energy']['per_fmu'][w]['residual_J']:.4g} J of {s['energy']['reference_J']:.4g} J)")
         for w in s["warnings"]:
             print(f"  warning: {w}")
         print(f"  wrote {out}/: " + ", ".join(Path(p).name for p in [res.files['signals'], res.files['summary'],

@@ -940,7 +940,9 @@ def energy_audit(plan: _Plan, rec: np.ndarray, e0: list[dict], e1: list[dict]) -
         "complete": not missing, "missing": missing,
         "residual_J": resid, "reference_J": ref,
         "relative_residual": (abs(resid) / ref) if ref > 0 else (0.0 if resid == 0 else float("inf")),
-        **tot, "external_work_J": w_ext_tot, "per_fmu": per, "connections": conns, "external": external,
+        **tot, "external_work_J": w_ext_tot,
+        "worst_fmu": max(per, key=lambda k: abs(per[k]["residual_J"])) if per else None,
+        "per_fmu": per, "connections": conns, "external": external,
         "rule": "W_c = sum_k tau_k*(phi_{k+1}-phi_k) (tau held over each step, inertia-side angle); "
                 "residual = supplied + external work - delta stored - dissipated over all FMUs; "
                 "reference = max(max_c sum|P_c dt|, max_i |supplied_i|, external sum|P dt|)",

@@ -139,6 +139,13 @@ def _f(default, unit, dimension, doc, minimum=None, min_exclusive=False, maximum
     return Key("float", default, unit, dimension, (), minimum, maximum, min_exclusive, doc, default_doc)
 
 
+try:  # the converged contact-mesh resolution of the gear library is the scene default
+    from gearcontact_fmu.params import MeshResolution as _MeshResolution
+
+    _RES = _MeshResolution()
+except ImportError:  # pragma: no cover
+    _RES = type("_R", (), {"profile": 0.05e-3, "face": 2.0e-3})()
+
 SCHEMA: dict[str, dict[str, Key]] = {
     "scenario": {
         "name": Key("str", None, doc="scene name (used for output files and manifests)",
@@ -188,9 +195,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
                           minimum=0.0, min_exclusive=True, default_doc="1/12000 (8.333e-05)"),
         "max_substep_s": _f(1.0e-6, "s", "time", "largest internal sub-step of the FMUs; <= comm_step_s",
                             minimum=0.0, min_exclusive=True),
-        "profile_element_mm": _f(0.05, "mm", "length", "contact-mesh element size along the tooth profile",
+        "profile_element_mm": _f(_RES.profile * 1e3, "mm", "length",
+                                 "contact-mesh element size along the tooth profile (default: the converged "
+                                 "resolution of gearcontact_fmu.params.MeshResolution)",
                                  minimum=0.0, min_exclusive=True),
-        "face_element_mm": _f(1.0, "mm", "length", "contact-mesh element size along the face width",
+        "face_element_mm": _f(_RES.face * 1e3, "mm", "length",
+                              "contact-mesh element size along the face width (default: MeshResolution)",
                               minimum=0.0, min_exclusive=True),
         "anti_alias": Key("enum", "fir", allowed=ANTI_ALIAS, doc=(
             "anti-alias filter before decimating to sample_rate_Hz: linear-phase Kaiser FIR or "
@@ -277,7 +287,7 @@ class NumericsSpec:
     comm_step_s: float = 1.0 / 12000.0
     max_substep_s: float = 1.0e-6
     profile_element_mm: float = 0.05
-    face_element_mm: float = 1.0
+    face_element_mm: float = 2.0
     anti_alias: str = "fir"
 
     def steps_per_output(self, sample_rate_Hz: float) -> int:

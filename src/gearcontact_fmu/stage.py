@@ -573,6 +573,7 @@ class GearStage:
         self.tau_b_mean = 0.0
         self.energy_stored = 0.0
         self.energy_supplied = 0.0
+        self._e_diss_balance = 0.0
         self.n_sub_last = 0
 
     def _choose_scheme(self, scheme: str, model: MeshModel) -> str:
@@ -614,6 +615,23 @@ class GearStage:
 
     @property
     def energy_dissipated(self) -> float:
+        """Energy the sub-stepping actually removed, cumulative [J]: per communication step the work in
+        through the flanges minus the change of stored energy (stage and rigid modes). It contains the
+        port dampers, mesh damping and friction, and the numerical dissipation of the sub-steps, so the
+        FMU's balance closes by construction and the master's audit measures the coupling.
+
+        In an over-damped impact the linearly implicit sub-step removes the approach speed within a
+        fraction of a sub-step; a quadrature of the dissipated power at the stage points then counts
+        far more than was ever stored (measured: 140 J against 5.3 J of port work on the missing-tooth
+        scene). That quadrature stays available as :attr:`energy_dissipated_quadrature`; its agreement
+        with this balance is the integrator-accuracy check (tests/test_stage.py)."""
+        if self._mode == _M_BARE:
+            return float(self.x[6])
+        return float(self._e_diss_balance)
+
+    @property
+    def energy_dissipated_quadrature(self) -> float:
+        """Quadrature of the port-damper and mesh dissipated power over the sub-steps, cumulative [J]."""
         return float(self.x[6])
 
     def n_substeps(self, H: float) -> int:
@@ -638,6 +656,7 @@ class GearStage:
             tw = phi_b if theta_wheel is None else theta_wheel
             ww = w_b if omega_wheel is None else omega_wheel
         self.x[:] = (tp, tw, wp, ww, 0.0, 0.0, 0.0)
+        self._e_diss_balance = 0.0
         self.u[:] = u
         self.t = float(t0)
         # outputs at t0: instantaneous values
@@ -690,6 +709,9 @@ class GearStage:
         u[2] = phi_b
         u[3] = w_b
         n_sub = self.n_substeps(H)
+        balance = self._mode != _M_BARE
+        if balance:
+            e0 = self.stored_energy_at_inputs(phi_a, w_a, phi_b, w_b)
         code = self._run(self.model.data, self._mode, self._scheme, self.x, self._par, u, float(H), n_sub,
                          self.out, self._res)
         if code != CODE_OK:
@@ -714,6 +736,10 @@ class GearStage:
         else:
             self.tau_a, self.tau_b = self.tau_a_mean, self.tau_b_mean
         self.energy_stored = float(res[_RES])
+        if balance:
+            # work in through the flanges (linearly extrapolated flange angles: constant speeds)
+            w_in = -H * (w_a * self.tau_a_mean + w_b * self.tau_b_mean)
+            self._e_diss_balance += w_in - (self.energy_stored - e0)
         return self.tau_a, self.tau_b
 
 

@@ -23,7 +23,8 @@ class _Gear:
         fid = p.get("fidelity", "ideal")
         kw = {}
         if fid == "analytic":
-            kw = dict(damping_ratio=p.get("mesh_damping_ratio", 0.05), mu=p.get("mu", 0.002))
+            kw = dict(damping_ratio=p.get("mesh_damping_ratio", 0.05) if p.get("contact_damping", True) else 0.0,
+                      mu=p.get("mu", 0.002) if p.get("friction", True) else 0.0)
         self.stage = make_stage(fid, stage_params=sp, **kw)
         self.inputs = dict(flange_a_phi=0.0, flange_a_w=0.0, flange_b_phi=0.0, flange_b_w=0.0)
 

@@ -59,6 +59,21 @@ def test_validate_and_model_description(fmu):
     assert not any("__pycache__" in n or n.endswith((".pyc", ".nbi", ".nbc")) for n in names)
 
 
+_KEEP = []   # instances whose libraries must stay loaded until the process exits
+
+
+def _simulate(fmu, logger=None, debug_logging=False, **kw):
+    """fmpy.simulate_fmu on an instance we own: fmpy frees (dlclose) an instance it created itself,
+    and unloading a pythonfmu 0.7.0 export library while the interpreter keeps objects it made
+    corrupts the process later (seen as a crash in a later test). The master keeps libraries loaded
+    for the same reason (drivetrain/master.py)."""
+    md = fmpy.read_model_description(str(fmu))
+    inst = fmpy.instantiate_fmu(fmpy.extract(str(fmu)), md, fmi_type="CoSimulation", logger=logger,
+                                debug_logging=debug_logging)
+    _KEEP.append(inst)
+    return fmpy.simulate_fmu(str(fmu), fmu_instance=inst, model_description=md, **kw)
+
+
 def test_simulate_steady_mesh_torque(fmu):
     """examples/gearcontact_input.csv ramps flange_a to 0.01 rad (flange_b held): the steady mesh torque
     is the series-chain closed form T = (phi_a - s_b/2) / (1/k_a + 1/K + r^2/k_b)."""
@@ -74,7 +89,7 @@ def test_simulate_steady_mesh_torque(fmu):
     T = (phi_a - s_b / 2) / (1 / k_a + 1 / K + r * r / k_b)
     theta_p = phi_a - T / k_a
     inp = np.genfromtxt(INPUT_CSV, delimiter=",", names=True)
-    res = fmpy.simulate_fmu(str(fmu), stop_time=0.3, output_interval=1e-4, input=inp,
+    res = _simulate(fmu, stop_time=0.3, output_interval=1e-4, input=inp,
                             start_values={"fidelity": "analytic", "mesh_phase": single_pair_phase(g, theta_p)},
                             output=["flange_a_tau", "flange_b_tau", "mesh_torque_pinion", "mesh_torque_wheel",
                                     "n_contact", "pinion_w", "energy_stored"])
@@ -100,7 +115,7 @@ def test_penetration_beyond_u_max_is_an_fmi_error(fmu):
         msgs.append((status, message.decode() if isinstance(message, bytes) else str(message)))
 
     inp = np.genfromtxt(INPUT_CSV, delimiter=",", names=True)
-    res = fmpy.simulate_fmu(str(fmu), stop_time=0.3, output_interval=1e-4, input=inp, logger=logger,
+    res = _simulate(fmu, stop_time=0.3, output_interval=1e-4, input=inp, logger=logger,
                             debug_logging=True, start_values={"u_max": 2e-7},
                             output=["max_penetration"])
     assert res["time"][-1] < 0.1                             # stopped at the failure

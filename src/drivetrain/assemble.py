@@ -57,14 +57,11 @@ def _gear_parameters(scene, part: rig.Partition, max_substep: float) -> dict:
         p["pinion_mesh_file"] = str(scene.gear.pinion_mesh)
     if scene.gear.wheel_mesh is not None:
         p["wheel_mesh_file"] = str(scene.gear.wheel_mesh)
-    if not eff.friction:
-        p["mu"] = 0.0
-    if not eff.contact_damping:
-        p["c_compression"] = 0.0
-        p["c_expansion"] = 0.0
-        p["mesh_damping_ratio"] = 0.0
-    else:
-        p.setdefault("c_compression", pcm.c_compression)
+    # effects switched off are not evaluated (the flags reach the mesh model; the contact map is the
+    # same, so no new map is built for a scene without friction or damping)
+    p["friction"] = bool(eff.friction)
+    p["contact_damping"] = bool(eff.contact_damping)
+    p.setdefault("c_compression", pcm.c_compression)
     return p
 
 

@@ -31,7 +31,7 @@ import gearcontact_fmu  # noqa: E402
 from gearcontact_fmu.fidelity import (OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY,  # noqa: E402
                                       OUT_MAX_PENETRATION, OUT_N_CONTACT, OUT_NORMAL_FORCE,
                                       OUT_PEAK_PRESSURE, OUT_TAU_PINION, OUT_TAU_WHEEL)
-from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real, String  # noqa: E402
+from pythonfmu import Boolean, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real, String  # noqa: E402
 from pythonfmu.enums import Fmi2Status  # noqa: E402
 
 PACKAGE_ORIGIN = str(Path(gearcontact_fmu.__file__).resolve().parent)
@@ -104,6 +104,9 @@ class GearContact(Fmi2Slave):
         self.face_width, self.x_pinion = g.face_width, g.x_pinion
         self.addendum_coefficient, self.dedendum_coefficient = g.addendum_coefficient, g.dedendum_coefficient
         self.backlash, self.tip_radius = g.backlash, g.tip_radius
+        # effects: switched off, they are not evaluated at all (and the contact map is shared)
+        self.friction = True
+        self.contact_damping = True
         # analytic mesh
         self.mesh_damping_ratio = 0.05
         self.mesh_phase = 0.0
@@ -116,6 +119,8 @@ class GearContact(Fmi2Slave):
             self.register_variable(String(name, causality=P, variability=F))
         for name in ("z_pinion", "z_wheel"):
             self.register_variable(Integer(name, causality=P, variability=F))
+        for name in ("friction", "contact_damping"):
+            self.register_variable(Boolean(name, causality=P, variability=F))
         for name in ("E", "nu", "layer_depth", "c_compression", "c_expansion", "transformation_depth", "mu",
                      "v_friction", "u_max", "profile_element_size", "face_element_size",
                      "J_pinion", "J_wheel", "k_a", "d_a", "k_b", "d_b", "max_substep",
@@ -185,9 +190,14 @@ class GearContact(Fmi2Slave):
                          mode=self.mode, output_torque=self.output_torque)
         mesh_files = {k: v for k, v in (("pinion", self.pinion_mesh_file), ("wheel", self.wheel_mesh_file)) if v}
         kw = {}
-        if self.fidelity.strip().lower() == "analytic":
+        fidelity = self.fidelity.strip().lower()
+        friction, damping = bool(self.friction), bool(self.contact_damping)
+        if fidelity == "analytic":
             # the analytic reference takes its friction from mu (the PCM constant) as well
-            kw = dict(damping_ratio=self.mesh_damping_ratio, mesh_phase=self.mesh_phase, mu=self.mu)
+            kw = dict(damping_ratio=self.mesh_damping_ratio if damping else 0.0, mesh_phase=self.mesh_phase,
+                      mu=self.mu if friction else 0.0)
+        elif fidelity in ("pcm", "table"):
+            kw = dict(friction=friction, damping=damping)
         self._stage = make_stage(self.fidelity, gear, pcm, res, health=self.health,
                                  mesh_files=mesh_files or None, stage_params=sp, **kw)
 

@@ -111,3 +111,36 @@ def test_cache_hit_and_key(cache, cmap):
     k1 = cache_key(GEAR, PCM, RES, "healthy", None, GRID)
     k2 = cache_key(BevelGearParams(backlash=0.1e-3), PCM, RES, "healthy", None, GRID)
     assert k1 != k2
+
+
+def test_missing_tooth_window_is_tabulated_as_early_engagement(cache):
+    """In the no-contact window of a missing tooth the pinion runs ahead and the next tooth first
+    touches at its tip, much further on than the nominal onset. The map must hold that onset and the
+    response beyond it, matching the online engine there (a map that only covers the nominal range
+    meets the next tooth by extrapolation: violent, unphysical impacts)."""
+    pitch = 2 * math.pi / GEAR.z_pinion
+    cmap = get_map(GEAR, PCM, RES, health="severe", grid=GRID)
+    pair = build_pcm_pair(GEAR, PCM, RES, health="severe")
+    i_win = int(round((2 * math.pi - 0.25 * pitch) / (cmap.theta[1] - cmap.theta[0])))
+    th = float(cmap.theta[i_win])
+    nominal = cmap.info["onset_drive"]
+    assert cmap.onset[i_win, 0] > nominal + 0.2e-3        # > 3.7 µm further along the line of action
+    data_el = pair.data_with(friction=False, damping=False)
+    tdata = make_table_data(cmap, friction=False, damping=False)
+    from gearcontact_fmu.contact import engine
+
+    out_o = np.zeros(N_OUT)
+    out_t = np.zeros(N_OUT)
+    for frac in (0.2, 0.5):
+        s = cmap.onset[i_win, 0] + frac * cmap.info["span"]
+        thw = (th - s) * GEAR.z_pinion / GEAR.z_wheel
+        engine.fixed_axis_eval(data_el, th, thw, 0.0, 0.0, out_o)
+        table_eval(tdata, th, thw, 0.0, 0.0, out_t)
+        assert out_o[OUT_TAU_PINION] < 0
+        assert out_t[OUT_TAU_PINION] == pytest.approx(out_o[OUT_TAU_PINION], rel=0.02)   # theta on a node row
+    # just before that onset: free flight in the table as in the engine
+    s = cmap.onset[i_win, 0] - 1e-5
+    thw = (th - s) * GEAR.z_pinion / GEAR.z_wheel
+    table_eval(tdata, th, thw, 0.0, 0.0, out_t)
+    engine.fixed_axis_eval(data_el, th, thw, 0.0, 0.0, out_o)
+    assert out_t[OUT_TAU_PINION] == 0.0 and out_o[OUT_TAU_PINION] == 0.0

@@ -5,16 +5,19 @@ function of the pinion angle theta (a full revolution: a fault sits on one tooth
 coordinate s = theta_pinion - (z2/z1) theta_wheel. The map is precomputed with the online PCM
 engine on a grid and interpolated at run time:
 
-* elastic torques on pinion and wheel and the diagnostics, bilinear in (theta, s), periodic in theta;
+* per pinion angle the contact onset of each flank (searched far: after a missing tooth the pinion runs
+  ahead and the next tooth first touches at its tip), and the elastic torques and diagnostics on a
+  grid of the approach a beyond that onset; bilinear in (theta, a), the onset itself linear in theta,
+  periodic in theta;
 * contact damping as a torsional damping coefficient D(theta, s) = sum_k A_k w_k h_k^2 (h_k the
   element's normal moment arm about the pinion axis, w_k = min(u_k/t_d, 1)), multiplied at run time
   by c_compression or c_expansion depending on whether the flank in contact approaches or separates;
 * friction torques tabulated at a reference rotation (full regularisation) and scaled by the
   regularised sign of the pinion speed.
 
-The s grid is dense near the contact onset of each flank and covers the drive flank up to
-``max_torque`` (and the coast flank the same); between the flanks (the backlash) the map is zero. Beyond
-the grid the torque is extrapolated linearly; a penetration beyond u_max sets the error status.
+The approach grid is dense near the onset and covers ``max_torque`` on each flank; between the flanks
+(the backlash) the map is zero. Beyond the grid the torque is extrapolated linearly; a penetration
+beyond u_max there sets the error status.
 
 The map is cached on disk keyed by a hash of geometry, PCM parameters, resolution, health, mesh files
 and grid (``$BEVEL_CACHE_DIR`` or ``~/.cache/bevel-drivetrain``).
@@ -37,19 +40,23 @@ from gearcontact_fmu.fidelity import (N_OUT, OUT_CONTACT_AREA, OUT_DISSIPATED_PO
                                       OUT_PEAK_PRESSURE, OUT_STATUS, OUT_TAU_PINION, OUT_TAU_WHEEL)
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams, params_hash
 
-MAP_VERSION = 1
+MAP_VERSION = 2
 # channels stored per grid node
 CH_TAU_P, CH_TAU_W, CH_N, CH_AREA, CH_PEAK, CH_PEN, CH_FN, CH_EEL, CH_DAMP, CH_FRIC_P, CH_FRIC_W = range(11)
 N_CH = 11
+SIDE_DRIVE, SIDE_COAST = 0, 1
 
 
 @dataclass(frozen=True)
 class MapGrid:
     points_per_pitch: int = 48          # pinion-angle nodes per pinion pitch (full revolution stored)
-    s_points: int = 48                  # nodes per flank along the mesh coordinate
-    max_torque: float = 200.0           # pinion torque [N·m] the drive/coast range must cover
+    s_points: int = 48                  # nodes per flank along the approach beyond the contact onset
+    max_torque: float = 200.0           # pinion torque [N·m] the approach range must cover
     reference_speed: float = 100.0      # pinion speed [rad/s] at which friction is tabulated
     omega_regularisation: float = 1.0   # pinion speed [rad/s] below which friction is ramped out
+    max_approach: float = 0.5e-3        # onset search range along the line of action [m]: a pinion that
+    #                                     runs ahead through a missing-tooth window meets the next tooth
+    #                                     early, at its tip (~0.1 mm further on at 1500 rpm)
 
 
 def cache_dir() -> Path:
@@ -70,9 +77,13 @@ def _file_digest(path) -> str:
 
 @dataclass
 class ContactMap:
+    """Values on the grid (theta_i, side, a_j): side 0 = drive flank at s = onset_drive(theta) + a,
+    side 1 = coast flank at s = onset_coast(theta) - a; a < a[0] is free flight (no contact)."""
+
     theta: np.ndarray            # (n_theta,) uniform over [0, 2 pi)
-    s: np.ndarray                # (n_s,) increasing
-    values: np.ndarray           # (n_theta, n_s, N_CH)
+    a: np.ndarray                # (n_a,) approach beyond the contact onset [rad at the pinion], increasing
+    onset: np.ndarray            # (n_theta, 2) contact onset s of the drive and coast flank [rad]
+    values: np.ndarray           # (n_theta, 2, n_a, N_CH)
     gear: BevelGearParams
     pcm: PCMParams
     grid: MapGrid
@@ -90,51 +101,39 @@ class ContactMap:
         return out
 
 
-def _s_grid(pair, grid: MapGrid) -> tuple[np.ndarray, dict]:
-    """Mesh-coordinate nodes: both flanks, dense near contact onset, plus the backlash gap."""
-    from gearcontact_fmu.gearpair import _base_radius, static_deflection
+def _approach_grid(pair, grid: MapGrid) -> tuple[np.ndarray, dict]:
+    """Approach nodes beyond the contact onset, dense near it (quadratic), covering max_torque."""
+    from gearcontact_fmu.gearpair import _base_radius, contact_onset, static_deflection
 
     s_b = geometry.backlash_angle(pair.gear)
-    # earliest onset over a pitch (the onset varies a little with angle for modified/faulty teeth)
-    th_probe = np.linspace(0, 2 * math.pi, 4 * pair.gear.z_pinion, endpoint=False)
-    from gearcontact_fmu.gearpair import contact_onset
-
-    onsets_d = [contact_onset(pair, th, +1) for th in th_probe]
-    onsets_c = [contact_onset(pair, th, -1) for th in th_probe]
-    onset_d = np.nanmin(onsets_d)
-    onset_c = np.nanmax(onsets_c)
-    # load range: the deflection at max torque (at the stiffest angle this is the least, so take the
-    # largest over a pitch and add 30 %)
     pitch = 2 * math.pi / pair.gear.z_pinion
-    defl = [static_deflection(pair, th, grid.max_torque) - onset_d
-            for th in np.linspace(0, pitch, 6, endpoint=False) + 0.5 * pitch]
+    # deflection at max torque where the healthy teeth carry (half a turn from tooth 0, where faults
+    # sit); the largest over a pitch, plus 30 %
+    defl = []
+    for th in math.pi + np.linspace(0, pitch, 6, endpoint=False):
+        on = contact_onset(pair, th, +1)
+        defl.append(static_deflection(pair, th, grid.max_torque, s_onset=on) - on)
     span = 1.3 * float(np.nanmax(defl))
-    # quadratic spacing: fine near onset
-    q = np.linspace(0.0, 1.0, grid.s_points) ** 2
     lead = 0.02 * span
-    drive = onset_d - lead + (span + lead) * q
-    coast = onset_c + lead - (span + lead) * q
-    s = np.unique(np.concatenate([coast[::-1], [0.5 * (onset_c + onset_d)], drive]))
-    return s, {"onset_drive": float(onset_d), "onset_coast": float(onset_c), "span": float(span),
-               "s_backlash": float(s_b), "base_radius": float(_base_radius(pair.gear))}
+    a = -lead + (span + lead) * np.linspace(0.0, 1.0, grid.s_points) ** 2
+    return a, {"span": float(span), "s_backlash": float(s_b), "base_radius": float(_base_radius(pair.gear))}
 
 
 def compute_map(pair, grid: MapGrid = MapGrid(), progress: bool = False) -> ContactMap:
-    """Tabulate the online PCM engine over (theta, s)."""
-    from gearcontact_fmu.contact import engine
-
-    z1, z2 = pair.gear.z_pinion, pair.gear.z_wheel
-    n_theta = grid.points_per_pitch * z1
+    """Tabulate the online PCM engine over (theta, flank, approach beyond each angle's onset)."""
+    n_theta = grid.points_per_pitch * pair.gear.z_pinion
     theta = np.linspace(0.0, 2 * math.pi, n_theta, endpoint=False)
-    s, sinfo = _s_grid(pair, grid)
+    a, ainfo = _approach_grid(pair, grid)
     t0 = time.perf_counter()
-    vals = _tabulate(pair, theta, s, grid)
-    info = {**sinfo, "build_seconds": time.perf_counter() - t0, "n_theta": n_theta, "n_s": len(s),
-            "evaluations": 3 * n_theta * len(s), **pair.info, "health": pair.health}
-    return ContactMap(theta, s, vals, pair.gear, pair.pcm, grid, info)
+    onset, vals = _tabulate(pair, theta, a, grid)
+    info = {**ainfo, "build_seconds": time.perf_counter() - t0, "n_theta": n_theta, "n_s": len(a),
+            "onset_drive": float(np.min(onset[:, SIDE_DRIVE])), "onset_coast": float(np.max(onset[:, SIDE_COAST])),
+            "onset_drive_max": float(np.max(onset[:, SIDE_DRIVE])),
+            "evaluations": 6 * n_theta * len(a), **pair.info, "health": pair.health}
+    return ContactMap(theta, a, onset, vals, pair.gear, pair.pcm, grid, info)
 
 
-def _tabulate(pair, theta, s, grid: MapGrid, workers: int | None = None) -> np.ndarray:
+def _tabulate(pair, theta, a, grid: MapGrid, workers: int | None = None):
     """Tabulate in parallel over pinion-angle chunks (fork: the workers inherit the built pair)."""
     import multiprocessing as mp
 
@@ -142,68 +141,77 @@ def _tabulate(pair, theta, s, grid: MapGrid, workers: int | None = None) -> np.n
         workers = int(os.environ.get("BEVEL_MAP_WORKERS", os.cpu_count() or 1))
     workers = max(1, min(workers, len(theta)))
     if workers == 1 or "fork" not in mp.get_all_start_methods():
-        return _tabulate_rows(pair, theta, s, grid)
+        return _tabulate_rows(pair, theta, a, grid)
     chunks = np.array_split(np.arange(len(theta)), 4 * workers)
     global _FORK_STATE
-    _FORK_STATE = (pair, theta, s, grid)
+    _FORK_STATE = (pair, theta, a, grid)
     try:
         with mp.get_context("fork").Pool(workers) as pool:
             parts = pool.map(_tabulate_chunk, chunks)
     finally:
         _FORK_STATE = None
-    return np.concatenate(parts, axis=0)
+    return (np.concatenate([p[0] for p in parts], axis=0), np.concatenate([p[1] for p in parts], axis=0))
 
 
 _FORK_STATE = None
 
 
 def _tabulate_chunk(idx):
-    pair, theta, s, grid = _FORK_STATE
-    return _tabulate_rows(pair, theta[idx], s, grid)
+    pair, theta, a, grid = _FORK_STATE
+    return _tabulate_rows(pair, theta[idx], a, grid)
 
 
-def _tabulate_rows(pair, theta, s, grid: MapGrid) -> np.ndarray:
+def _tabulate_rows(pair, theta, a, grid: MapGrid):
     from gearcontact_fmu.contact import engine
+    from gearcontact_fmu.gearpair import _base_radius, contact_onset
 
     z1, z2 = pair.gear.z_pinion, pair.gear.z_wheel
     pcm = pair.pcm
+    s_b = geometry.backlash_angle(pair.gear)
+    s_far = s_b / 2 + grid.max_approach / _base_radius(pair.gear)
     # three engine configurations: elastic only, damping probe, friction at the reference speed
     data_el = pair.data_with(friction=False, damping=False)
     data_fr = pair.data_with(friction=True, damping=False)
     data_dm = pair.data_with(friction=False, damping=True)
-    vals = np.zeros((len(theta), len(s), N_CH))
+    onset = np.zeros((len(theta), 2))
+    vals = np.zeros((len(theta), 2, len(a), N_CH))
     out = np.zeros(N_OUT)
     w_ref = grid.reference_speed
     # a small probe rate of the mesh coordinate gives the damping coefficient (damping is linear in
     # the normal velocity, so D = -dT/d(s_dot) / c_compression exactly on the compressing side)
     sdot = 1e-6
     for i, th in enumerate(theta):
-        for j, sj in enumerate(s):
-            thw = (th - sj) * z1 / z2
-            engine.fixed_axis_eval(data_el, th, thw, 0.0, 0.0, out)
-            vals[i, j, CH_TAU_P] = out[OUT_TAU_PINION]
-            vals[i, j, CH_TAU_W] = out[OUT_TAU_WHEEL]
-            vals[i, j, CH_N] = out[OUT_N_CONTACT]
-            vals[i, j, CH_AREA] = out[OUT_CONTACT_AREA]
-            vals[i, j, CH_PEAK] = out[OUT_PEAK_PRESSURE]
-            vals[i, j, CH_PEN] = out[OUT_MAX_PENETRATION]
-            vals[i, j, CH_FN] = out[OUT_NORMAL_FORCE]
-            vals[i, j, CH_EEL] = out[OUT_ELASTIC_ENERGY]
-            if out[OUT_N_CONTACT] == 0:
-                continue
-            tp_el = out[OUT_TAU_PINION]
-            tw_el = out[OUT_TAU_WHEEL]
-            # damping: the pinion moves ahead at rate sdot, compressing the drive flank (s > 0) or
-            # relieving the coast flank (s < 0); use the sign that compresses the flank in contact
-            rate = sdot if sj > 0 else -sdot
-            engine.fixed_axis_eval(data_dm, th, thw, rate, 0.0, out)
-            d_tp = out[OUT_TAU_PINION] - tp_el
-            vals[i, j, CH_DAMP] = abs(d_tp) / (pcm.c_compression * sdot) if pcm.c_compression > 0 else 0.0
-            # friction at the reference speed with kinematic wheel speed
-            engine.fixed_axis_eval(data_fr, th, thw, w_ref, w_ref * z1 / z2, out)
-            vals[i, j, CH_FRIC_P] = out[OUT_TAU_PINION] - tp_el
-            vals[i, j, CH_FRIC_W] = out[OUT_TAU_WHEEL] - tw_el
-    return vals
+        for side, sign in ((SIDE_DRIVE, 1.0), (SIDE_COAST, -1.0)):
+            on = contact_onset(pair, th, int(sign), max_approach=grid.max_approach)
+            if not math.isfinite(on):
+                on = sign * s_far                        # nothing touches within the range
+            onset[i, side] = on
+            for j, aj in enumerate(a):
+                sj = on + sign * aj
+                thw = (th - sj) * z1 / z2
+                engine.fixed_axis_eval(data_el, th, thw, 0.0, 0.0, out)
+                row = vals[i, side, j]
+                row[CH_TAU_P] = out[OUT_TAU_PINION]
+                row[CH_TAU_W] = out[OUT_TAU_WHEEL]
+                row[CH_N] = out[OUT_N_CONTACT]
+                row[CH_AREA] = out[OUT_CONTACT_AREA]
+                row[CH_PEAK] = out[OUT_PEAK_PRESSURE]
+                row[CH_PEN] = out[OUT_MAX_PENETRATION]
+                row[CH_FN] = out[OUT_NORMAL_FORCE]
+                row[CH_EEL] = out[OUT_ELASTIC_ENERGY]
+                if out[OUT_N_CONTACT] == 0:
+                    continue
+                tp_el = out[OUT_TAU_PINION]
+                tw_el = out[OUT_TAU_WHEEL]
+                # damping: the pinion moves at a rate that compresses the flank in contact
+                engine.fixed_axis_eval(data_dm, th, thw, sign * sdot, 0.0, out)
+                d_tp = out[OUT_TAU_PINION] - tp_el
+                row[CH_DAMP] = abs(d_tp) / (pcm.c_compression * sdot) if pcm.c_compression > 0 else 0.0
+                # friction at the reference speed with kinematic wheel speed
+                engine.fixed_axis_eval(data_fr, th, thw, w_ref, w_ref * z1 / z2, out)
+                row[CH_FRIC_P] = out[OUT_TAU_PINION] - tp_el
+                row[CH_FRIC_W] = out[OUT_TAU_WHEEL] - tw_el
+    return onset, vals
 
 
 def cache_key(gear, pcm, resolution, health, mesh_files, grid, fault_kwargs=None) -> str:
@@ -215,7 +223,7 @@ def cache_key(gear, pcm, resolution, health, mesh_files, grid, fault_kwargs=None
 def save_map(cmap: ContactMap, path: Path) -> None:
     tmp = Path(str(path) + f".tmp{os.getpid()}")
     with open(tmp, "wb") as f:
-        np.savez_compressed(f, theta=cmap.theta, s=cmap.s, values=cmap.values,
+        np.savez_compressed(f, theta=cmap.theta, a=cmap.a, onset=cmap.onset, values=cmap.values,
                             info=np.array(repr(cmap.info)))
     os.replace(tmp, path)
 
@@ -225,7 +233,8 @@ def load_map(path: Path, gear, pcm, grid) -> ContactMap:
 
     with np.load(path, allow_pickle=False) as z:
         info = ast.literal_eval(str(z["info"]))
-        return ContactMap(z["theta"].copy(), z["s"].copy(), z["values"].copy(), gear, pcm, grid, info)
+        return ContactMap(z["theta"].copy(), z["a"].copy(), z["onset"].copy(), z["values"].copy(), gear, pcm,
+                          grid, info)
 
 
 def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
@@ -259,11 +268,10 @@ def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
 
 def make_table_data(cmap: ContactMap, friction: bool = True, damping: bool = True) -> tuple:
     z1, z2 = cmap.gear.z_pinion, cmap.gear.z_wheel
-    return (np.ascontiguousarray(cmap.values), np.ascontiguousarray(cmap.s),
+    return (np.ascontiguousarray(cmap.values), np.ascontiguousarray(cmap.a), np.ascontiguousarray(cmap.onset),
             float(cmap.theta[1] - cmap.theta[0]), float(z2) / float(z1),
             float(cmap.pcm.c_compression if damping else 0.0), float(cmap.pcm.c_expansion if damping else 0.0),
-            float(cmap.pcm.u_max), 1.0 if friction else 0.0, float(cmap.grid.omega_regularisation),
-            float(cmap.pcm.stiffness))
+            float(cmap.pcm.u_max), 1.0 if friction else 0.0, float(cmap.grid.omega_regularisation))
 
 
 def make_table_model(gear_params=None, pcm_params=None, resolution=None, health="healthy",
@@ -300,35 +308,41 @@ def _locate(s_nodes, s):
 
 @njit(cache=True)
 def table_eval(data, theta_pinion, theta_wheel, omega_pinion, omega_wheel, out):
-    values, s_nodes, dtheta, ratio, c_comp, c_exp, u_max, fric_on, w_reg, c_layer = data
+    values, a_nodes, onset, dtheta, ratio, c_comp, c_exp, u_max, fric_on, w_reg = data
     for k in range(out.shape[0]):
         out[k] = 0.0
-    if not (math.isfinite(theta_pinion) and math.isfinite(theta_wheel)):
+    if not (math.isfinite(theta_pinion) and math.isfinite(theta_wheel)
+            and math.isfinite(omega_pinion) and math.isfinite(omega_wheel)):
         out[OUT_STATUS] = 2.0
         return
     n_theta = values.shape[0]
     s = theta_pinion - ratio * theta_wheel
     sdot = omega_pinion - ratio * omega_wheel
-    # periodic bilinear interpolation in theta
+    # periodic linear interpolation in theta, of the onsets and of the values
     two_pi = 2.0 * math.pi
     th = theta_pinion - two_pi * math.floor(theta_pinion / two_pi)
     x = th / dtheta
     i0 = int(math.floor(x))
-    a = x - i0
+    b = x - i0
     i0 = i0 % n_theta
     i1 = (i0 + 1) % n_theta
-    j, w = _locate(s_nodes, s)
-    inside = w >= 0.0 and w <= 1.0
+    on_d = onset[i0, 0] + b * (onset[i1, 0] - onset[i0, 0])
+    on_c = onset[i0, 1] + b * (onset[i1, 1] - onset[i0, 1])
+    if s >= 0.5 * (on_d + on_c):
+        side = 0
+        a = s - on_d
+    else:
+        side = 1
+        a = on_c - s
+    if a <= a_nodes[0]:
+        return                                   # free flight in the backlash
+    j, w = _locate(a_nodes, a)
+    inside = w <= 1.0
     damp = 0.0
-    # positive-definite channels are clamped outside the grid; torques extrapolate linearly
     for ch in range(9):
-        v00 = values[i0, j, ch]
-        v01 = values[i0, j + 1, ch]
-        v10 = values[i1, j, ch]
-        v11 = values[i1, j + 1, ch]
-        v0 = v00 + w * (v01 - v00)
-        v1 = v10 + w * (v11 - v10)
-        val = v0 + a * (v1 - v0)
+        v0 = values[i0, side, j, ch] + w * (values[i0, side, j + 1, ch] - values[i0, side, j, ch])
+        v1 = values[i1, side, j, ch] + w * (values[i1, side, j + 1, ch] - values[i1, side, j, ch])
+        val = v0 + b * (v1 - v0)
         if ch == 0:
             out[OUT_TAU_PINION] = val
         elif ch == 1:
@@ -347,42 +361,37 @@ def table_eval(data, theta_pinion, theta_wheel, omega_pinion, omega_wheel, out):
             out[OUT_ELASTIC_ENERGY] = max(val, 0.0)
         else:
             damp = max(val, 0.0)
-    # no contact: no force of any kind (the elastic torques interpolate to zero in the backlash)
     if out[OUT_TAU_PINION] == 0.0 and out[OUT_TAU_WHEEL] == 0.0:
         return
     # keep the elastic torques from changing sign through interpolation/extrapolation
-    if s > 0.0:
+    if side == 0:
         out[OUT_TAU_PINION] = min(out[OUT_TAU_PINION], 0.0)
         out[OUT_TAU_WHEEL] = max(out[OUT_TAU_WHEEL], 0.0)
     else:
         out[OUT_TAU_PINION] = max(out[OUT_TAU_PINION], 0.0)
         out[OUT_TAU_WHEEL] = min(out[OUT_TAU_WHEEL], 0.0)
-    if not inside:
-        # beyond the tabulated range: the penetration grows with the mesh approach
-        pen = out[OUT_MAX_PENETRATION]
-        if pen > u_max:
-            out[OUT_STATUS] = 1.0
+    if not inside and out[OUT_MAX_PENETRATION] > u_max:
+        out[OUT_STATUS] = 1.0                    # beyond the tabulated range and beyond u_max
     # contact damping: compressing when the flank in contact closes
-    closing = sdot > 0.0 if s > 0.0 else sdot < 0.0
+    closing = sdot > 0.0 if side == 0 else sdot < 0.0
     d = c_comp if closing else c_exp
     tau_d = -d * damp * sdot
-    # the elastic force cannot be pulled below zero by expansion damping
-    if s > 0.0:
+    # expansion damping cannot pull the flanks together (element forces are >= 0)
+    if side == 0:
         tau_d = min(tau_d, -out[OUT_TAU_PINION])
     else:
         tau_d = max(tau_d, -out[OUT_TAU_PINION])
     tau_fp = 0.0
     tau_fw = 0.0
     if fric_on > 0.0:
-        fp0 = values[i0, j, 9] + w * (values[i0, j + 1, 9] - values[i0, j, 9])
-        fp1 = values[i1, j, 9] + w * (values[i1, j + 1, 9] - values[i1, j, 9])
-        fw0 = values[i0, j, 10] + w * (values[i0, j + 1, 10] - values[i0, j, 10])
-        fw1 = values[i1, j, 10] + w * (values[i1, j + 1, 10] - values[i1, j, 10])
+        f0 = values[i0, side, j, 9] + w * (values[i0, side, j + 1, 9] - values[i0, side, j, 9])
+        f1 = values[i1, side, j, 9] + w * (values[i1, side, j + 1, 9] - values[i1, side, j, 9])
+        g0 = values[i0, side, j, 10] + w * (values[i0, side, j + 1, 10] - values[i0, side, j, 10])
+        g1 = values[i1, side, j, 10] + w * (values[i1, side, j + 1, 10] - values[i1, side, j, 10])
         scale = min(max(omega_pinion / w_reg, -1.0), 1.0)
-        tau_fp = scale * (fp0 + a * (fp1 - fp0))
-        tau_fw = scale * (fw0 + a * (fw1 - fw0))
+        tau_fp = scale * (f0 + b * (f1 - f0))
+        tau_fw = scale * (g0 + b * (g1 - g0))
     out[OUT_TAU_PINION] += tau_d + tau_fp
     out[OUT_TAU_WHEEL] += -ratio * tau_d + tau_fw
     p = -tau_d * sdot - (tau_fp * omega_pinion + tau_fw * omega_wheel)
     out[OUT_DISSIPATED_POWER] = max(p, 0.0)
-    out[OUT_NORMAL_FORCE] = max(out[OUT_NORMAL_FORCE], 0.0)

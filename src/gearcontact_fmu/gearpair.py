@@ -114,15 +114,18 @@ def make_pcm_model(gear_params=None, pcm_params=None, resolution=None, health="h
 
 # --- static analyses ---------------------------------------------------------------------------
 
-def contact_onset(pair: PCMGearPair, theta_pinion: float, flank: int = +1, tol: float = 1e-10) -> float:
+def contact_onset(pair: PCMGearPair, theta_pinion: float, flank: int = +1, tol: float = 1e-10,
+                  max_approach: float = 30e-6) -> float:
     """Mesh coordinate s at which the drive (+1) or coast (-1) flanks first touch at this angle.
 
-    Returns nan when the flanks cannot touch within the search range (e.g. a missing tooth)."""
+    The search runs from the backlash centre to ``max_approach`` (line-of-action length beyond the
+    nominal flank position; the default 30 µm is far beyond any static load). With a fault the
+    next tooth may first touch much further on (early engagement at its tip after a missing tooth):
+    give a larger ``max_approach`` to find it. Returns nan when nothing touches within the range."""
     s_b = geometry.backlash_angle(pair.gear)
     # search from deep in the backlash towards contact
     s_free = 0.0
-    # 30 µm of approach along the line of action: far beyond any static load, well within u_max
-    s_far = flank * (s_b / 2 + 30e-6 / _base_radius(pair.gear))
+    s_far = flank * (s_b / 2 + max_approach / _base_radius(pair.gear))
     out = np.zeros(N_OUT)
     f_far = _abs_torque(pair, theta_pinion, s_far, out)
     if f_far == 0.0:

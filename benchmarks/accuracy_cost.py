@@ -154,7 +154,7 @@ def main(argv=None):
             ax.annotate(m["label"], (m["wall_per_sim_s"], 100 * err), fontsize=7, xytext=(4, 2),
                         textcoords="offset points")
         ax.axvline(1.0, color="gray", lw=0.8, ls="--")
-        ax.set_xlabel("cost [wall s per simulated s]  (left of the dashed line: faster than real time)")
+        ax.set_xlabel("cost [loop wall s per simulated s]  (left of the dashed line: faster than real time)")
         ax.set_ylabel("error of the propeller-shaft torque fluctuation [%]")
         ax.set_title("Accuracy against cost (reference: online PCM, fine steps)")
         ax.grid(True, which="both", alpha=0.3)

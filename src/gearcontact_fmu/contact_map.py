@@ -307,6 +307,14 @@ def _locate(s_nodes, s):
 
 
 @njit(cache=True)
+def _bilinear(values, i0, i1, side, j, w, b, ch):
+    """Value of channel ch between pinion-angle rows i0, i1 (weight b) and approach nodes j, j+1 (w)."""
+    v0 = values[i0, side, j, ch] + w * (values[i0, side, j + 1, ch] - values[i0, side, j, ch])
+    v1 = values[i1, side, j, ch] + w * (values[i1, side, j + 1, ch] - values[i1, side, j, ch])
+    return v0 + b * (v1 - v0)
+
+
+@njit(cache=True)
 def table_eval(data, theta_pinion, theta_wheel, omega_pinion, omega_wheel, out):
     values, a_nodes, onset, dtheta, ratio, c_comp, c_exp, u_max, fric_on, w_reg = data
     for k in range(out.shape[0]):
@@ -340,9 +348,7 @@ def table_eval(data, theta_pinion, theta_wheel, omega_pinion, omega_wheel, out):
     inside = w <= 1.0
     damp = 0.0
     for ch in range(9):
-        v0 = values[i0, side, j, ch] + w * (values[i0, side, j + 1, ch] - values[i0, side, j, ch])
-        v1 = values[i1, side, j, ch] + w * (values[i1, side, j + 1, ch] - values[i1, side, j, ch])
-        val = v0 + b * (v1 - v0)
+        val = _bilinear(values, i0, i1, side, j, w, b, ch)
         if ch == 0:
             out[OUT_TAU_PINION] = val
         elif ch == 1:
@@ -384,13 +390,9 @@ def table_eval(data, theta_pinion, theta_wheel, omega_pinion, omega_wheel, out):
     tau_fp = 0.0
     tau_fw = 0.0
     if fric_on > 0.0:
-        f0 = values[i0, side, j, 9] + w * (values[i0, side, j + 1, 9] - values[i0, side, j, 9])
-        f1 = values[i1, side, j, 9] + w * (values[i1, side, j + 1, 9] - values[i1, side, j, 9])
-        g0 = values[i0, side, j, 10] + w * (values[i0, side, j + 1, 10] - values[i0, side, j, 10])
-        g1 = values[i1, side, j, 10] + w * (values[i1, side, j + 1, 10] - values[i1, side, j, 10])
         scale = min(max(omega_pinion / w_reg, -1.0), 1.0)
-        tau_fp = scale * (f0 + b * (f1 - f0))
-        tau_fw = scale * (g0 + b * (g1 - g0))
+        tau_fp = scale * _bilinear(values, i0, i1, side, j, w, b, CH_FRIC_P)
+        tau_fw = scale * _bilinear(values, i0, i1, side, j, w, b, CH_FRIC_W)
     out[OUT_TAU_PINION] += tau_d + tau_fp
     out[OUT_TAU_WHEEL] += -ratio * tau_d + tau_fw
     p = -tau_d * sdot - (tau_fp * omega_pinion + tau_fw * omega_wheel)

@@ -182,54 +182,8 @@ def _obb_overlap(b_obb, i, t_obb, j, r00, r01, r02, r10, r11, r12, r20, r21, r22
     """Separating-axis test of base node i (its oriented box mapped by (R, t) into the target
     frame, half extents grown by ``infl``) and target node j on the 6 face axes of the two boxes
     (conservative: True may be a false overlap, False proves a distance > infl)."""
-    a0x = r00 * b_obb[i, 0] + r01 * b_obb[i, 1] + r02 * b_obb[i, 2]
-    a0y = r10 * b_obb[i, 0] + r11 * b_obb[i, 1] + r12 * b_obb[i, 2]
-    a0z = r20 * b_obb[i, 0] + r21 * b_obb[i, 1] + r22 * b_obb[i, 2]
-    a1x = r00 * b_obb[i, 3] + r01 * b_obb[i, 4] + r02 * b_obb[i, 5]
-    a1y = r10 * b_obb[i, 3] + r11 * b_obb[i, 4] + r12 * b_obb[i, 5]
-    a1z = r20 * b_obb[i, 3] + r21 * b_obb[i, 4] + r22 * b_obb[i, 5]
-    a2x = r00 * b_obb[i, 6] + r01 * b_obb[i, 7] + r02 * b_obb[i, 8]
-    a2y = r10 * b_obb[i, 6] + r11 * b_obb[i, 7] + r12 * b_obb[i, 8]
-    a2z = r20 * b_obb[i, 6] + r21 * b_obb[i, 7] + r22 * b_obb[i, 8]
-    cx = r00 * b_obb[i, 9] + r01 * b_obb[i, 10] + r02 * b_obb[i, 11] + t0 - t_obb[j, 9]
-    cy = r10 * b_obb[i, 9] + r11 * b_obb[i, 10] + r12 * b_obb[i, 11] + t1 - t_obb[j, 10]
-    cz = r20 * b_obb[i, 9] + r21 * b_obb[i, 10] + r22 * b_obb[i, 11] + t2 - t_obb[j, 11]
-    eb0, eb1, eb2 = b_obb[i, 12] + infl, b_obb[i, 13] + infl, b_obb[i, 14] + infl
-    et0, et1, et2 = t_obb[j, 12], t_obb[j, 13], t_obb[j, 14]
-    g0x, g0y, g0z = t_obb[j, 0], t_obb[j, 1], t_obb[j, 2]
-    g1x, g1y, g1z = t_obb[j, 3], t_obb[j, 4], t_obb[j, 5]
-    g2x, g2y, g2z = t_obb[j, 6], t_obb[j, 7], t_obb[j, 8]
-    # C[q][k] = target axis q . base axis k
-    c00 = g0x * a0x + g0y * a0y + g0z * a0z
-    c01 = g0x * a1x + g0y * a1y + g0z * a1z
-    c02 = g0x * a2x + g0y * a2y + g0z * a2z
-    c10 = g1x * a0x + g1y * a0y + g1z * a0z
-    c11 = g1x * a1x + g1y * a1y + g1z * a1z
-    c12 = g1x * a2x + g1y * a2y + g1z * a2z
-    c20 = g2x * a0x + g2y * a0y + g2z * a0z
-    c21 = g2x * a1x + g2y * a1y + g2z * a1z
-    c22 = g2x * a2x + g2y * a2y + g2z * a2z
-    d0 = g0x * cx + g0y * cy + g0z * cz
-    d1 = g1x * cx + g1y * cy + g1z * cz
-    d2 = g2x * cx + g2y * cy + g2z * cz
-    ac00, ac01, ac02 = abs(c00), abs(c01), abs(c02)
-    ac10, ac11, ac12 = abs(c10), abs(c11), abs(c12)
-    ac20, ac21, ac22 = abs(c20), abs(c21), abs(c22)
-    # target axes (normal first: the thin direction of surface patches)
-    if abs(d2) > et2 + ac20 * eb0 + ac21 * eb1 + ac22 * eb2:
-        return False
-    if abs(d0) > et0 + ac00 * eb0 + ac01 * eb1 + ac02 * eb2:
-        return False
-    if abs(d1) > et1 + ac10 * eb0 + ac11 * eb1 + ac12 * eb2:
-        return False
-    # base axes
-    if abs(c02 * d0 + c12 * d1 + c22 * d2) > eb2 + ac02 * et0 + ac12 * et1 + ac22 * et2:
-        return False
-    if abs(c00 * d0 + c10 * d1 + c20 * d2) > eb0 + ac00 * et0 + ac10 * et1 + ac20 * et2:
-        return False
-    if abs(c01 * d0 + c11 * d1 + c21 * d2) > eb1 + ac01 * et0 + ac11 * et1 + ac21 * et2:
-        return False
-    return True
+    return _obb_gap(b_obb, i, t_obb, j, r00, r01, r02, r10, r11, r12, r20, r21, r22, t0, t1, t2,
+                    infl) <= 0.0
 
 
 @njit(cache=True)

@@ -141,6 +141,16 @@ def _mpl():
     return plt
 
 
+def _finish(plt, fig, path, title: str) -> Path:
+    """Title, layout, write the PNG and free the figure."""
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return Path(path)
+
+
 def plot_torques(path: Path, time: np.ndarray, torques: dict[str, np.ndarray], settle_s: float, cf: dict,
                  title: str = "") -> Path:
     """Torque waveforms: whole run (settling shaded) and a zoom on the last two middle-shaft revolutions."""
@@ -169,12 +179,7 @@ def plot_torques(path: Path, time: np.ndarray, torques: dict[str, np.ndarray], s
                      fontsize=9)
         ax.set_xlabel("time [s]")
         ax.grid(alpha=0.3)
-    if title:
-        fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return Path(path)
+    return _finish(plt, fig, path, title)
 
 
 def plot_spectra(path: Path, spectra: dict[str, tuple[np.ndarray, np.ndarray]], cf: dict, title: str = "",
@@ -215,12 +220,7 @@ def plot_spectra(path: Path, spectra: dict[str, tuple[np.ndarray, np.ndarray]], 
             else:
                 ax.set_title("around GMF: sidebands ± k·f_MSH", fontsize=9)
             ax.legend(loc="upper right", fontsize=7)
-    if title:
-        fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return Path(path)
+    return _finish(plt, fig, path, title)
 
 
 def now_iso() -> str:

@@ -346,27 +346,16 @@ def table_eval(data, theta_pinion, theta_wheel, omega_pinion, omega_wheel, out):
         return                                   # free flight in the backlash
     j, w = _locate(a_nodes, a)
     inside = w <= 1.0
-    damp = 0.0
-    for ch in range(9):
-        val = _bilinear(values, i0, i1, side, j, w, b, ch)
-        if ch == 0:
-            out[OUT_TAU_PINION] = val
-        elif ch == 1:
-            out[OUT_TAU_WHEEL] = val
-        elif ch == 2:
-            out[OUT_N_CONTACT] = max(val, 0.0)
-        elif ch == 3:
-            out[OUT_CONTACT_AREA] = max(val, 0.0)
-        elif ch == 4:
-            out[OUT_PEAK_PRESSURE] = max(val, 0.0)
-        elif ch == 5:
-            out[OUT_MAX_PENETRATION] = max(val, 0.0)
-        elif ch == 6:
-            out[OUT_NORMAL_FORCE] = max(val, 0.0)
-        elif ch == 7:
-            out[OUT_ELASTIC_ENERGY] = max(val, 0.0)
-        else:
-            damp = max(val, 0.0)
+    out[OUT_TAU_PINION] = _bilinear(values, i0, i1, side, j, w, b, CH_TAU_P)
+    out[OUT_TAU_WHEEL] = _bilinear(values, i0, i1, side, j, w, b, CH_TAU_W)
+    # positive-definite channels cannot go below zero through extrapolation
+    out[OUT_N_CONTACT] = max(_bilinear(values, i0, i1, side, j, w, b, CH_N), 0.0)
+    out[OUT_CONTACT_AREA] = max(_bilinear(values, i0, i1, side, j, w, b, CH_AREA), 0.0)
+    out[OUT_PEAK_PRESSURE] = max(_bilinear(values, i0, i1, side, j, w, b, CH_PEAK), 0.0)
+    out[OUT_MAX_PENETRATION] = max(_bilinear(values, i0, i1, side, j, w, b, CH_PEN), 0.0)
+    out[OUT_NORMAL_FORCE] = max(_bilinear(values, i0, i1, side, j, w, b, CH_FN), 0.0)
+    out[OUT_ELASTIC_ENERGY] = max(_bilinear(values, i0, i1, side, j, w, b, CH_EEL), 0.0)
+    damp = max(_bilinear(values, i0, i1, side, j, w, b, CH_DAMP), 0.0)
     if out[OUT_TAU_PINION] == 0.0 and out[OUT_TAU_WHEEL] == 0.0:
         return
     # keep the elastic torques from changing sign through interpolation/extrapolation

@@ -565,6 +565,8 @@ class GearStage:
         self.x = np.zeros(N_X)
         self.u = np.zeros(4)
         self.out = np.zeros(N_OUT)
+        self._u_scratch = np.zeros(4)
+        self._out_scratch = np.zeros(N_OUT)
         self._res = np.zeros(N_RES)
         self.t = 0.0
         self.tau_a = 0.0
@@ -688,8 +690,9 @@ class GearStage:
     def stored_energy_at_inputs(self, phi_a: float, w_a: float, phi_b: float, w_b: float) -> float:
         """Stored energy of the current internal state with the given flange angles (the energy at
         the start of a step, after the master set new inputs)."""
-        u = np.array([phi_a, w_a, phi_b, w_b], dtype=np.float64)
-        out = np.zeros(N_OUT)
+        u = self._u_scratch                  # called every step (energy balance): no allocation
+        u[0], u[1], u[2], u[3] = phi_a, w_a, phi_b, w_b
+        out = self._out_scratch
         x = self.x
         if self._mode == _M_BARE:
             self.model.eval(self.model.data, phi_a, phi_b, w_a, w_b, out)

@@ -190,7 +190,7 @@ class PCMBody:
         """Base-role work arrays: ``(stamp, call, best_u, best_j, line, active, stack)``."""
         m = self.n_faces
         return (np.zeros(m, dtype=np.int64), np.zeros(1, dtype=np.int64), np.full(m, np.inf),
-                -np.ones(m, dtype=np.int64), np.zeros((m, 6)), np.zeros(m, dtype=np.int64),
+                -np.ones(m, dtype=np.int64), np.zeros((m, 7)), np.zeros(m, dtype=np.int64),
                 np.zeros((4 * (self.max_depth + 64), 2), dtype=np.int64))
 
     def workspace(self):

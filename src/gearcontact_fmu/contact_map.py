@@ -284,6 +284,31 @@ def make_table_model(gear_params=None, pcm_params=None, resolution=None, health=
                      kind="mesh", info={**cmap.info})
 
 
+def static_penetration(cmap: ContactMap, pinion_torque_Nm: float) -> tuple[float, float]:
+    """Largest element penetration [m] over a pinion revolution when the mesh carries the static pinion
+    torque ``pinion_torque_Nm`` (> 0 loads the drive flank, < 0 the coast flank), and the pinion angle
+    [rad] where it occurs. Per pinion-angle row of the map, the approach at which the elastic torque
+    balances the load is interpolated and the penetration read there; a row whose tabulated range
+    does not reach the load counts as inf (the load is beyond the map). Used to refuse, before a run,
+    a u_max that the static load alone would exceed."""
+    side = SIDE_DRIVE if pinion_torque_Nm >= 0.0 else SIDE_COAST
+    load = abs(float(pinion_torque_Nm))
+    worst, at = 0.0, 0.0
+    for i in range(cmap.values.shape[0]):
+        carried = np.abs(cmap.values[i, side, :, CH_TAU_P])
+        if carried.max() < load:
+            return math.inf, float(cmap.theta[i])
+        j = int(np.argmax(carried >= load))
+        if j == 0:
+            pen = float(cmap.values[i, side, 0, CH_PEN])
+        else:
+            w = (load - carried[j - 1]) / (carried[j] - carried[j - 1])
+            pen = float((1 - w) * cmap.values[i, side, j - 1, CH_PEN] + w * cmap.values[i, side, j, CH_PEN])
+        if pen > worst:
+            worst, at = pen, float(cmap.theta[i])
+    return worst, at
+
+
 @njit(cache=True)
 def _locate(s_nodes, s):
     """Index j and weight w with s = (1-w) s[j] + w s[j+1]; w may leave [0, 1] outside the grid."""

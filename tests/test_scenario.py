@@ -76,7 +76,7 @@ def test_wrong_types():
     ("time", "duration_s", -1.0, "> 0 s"),
     ("time", "duration_s", 0.0, "> 0 s"),
     ("time", "sample_rate_Hz", -3000.0, "> 0 Hz"),
-    ("operating_point", "load_torque_Nm", -0.5, ">= 0 N·m"),
+    ("operating_point", "drive_speed_rpm", -0.5, ">= 0 rpm"),
     ("operating_point", "drive_speed_rpm", float("nan"), "finite"),
     ("effects", "shaft_elements", 0, ">= 1"),
     ("numerics", "max_substep_s", -1e-6, "> 0 s"),
@@ -98,10 +98,23 @@ def test_cross_key_rules():
     assert_problem(e, "numerics.max_substep_s", "0.001", "<= numerics.comm_step_s")
     e = refused({"gear": {"health": "severe"}, "effects": {"mesh_contact": "ideal"}})
     assert_problem(e, "effects.mesh_contact", "'ideal'", "tooth geometry")
+    e = refused({"gear": {"health": "mild"}, "effects": {"mesh_contact": "analytic"}})   # the FMU would fail
+    assert_problem(e, "effects.mesh_contact", "'analytic'", "models the healthy gear only")
     e = refused({"operating_point": {"speed_profile_rpm": [[0.0, 0.0], [1.0, 1500.0], [0.5, 10.0]]}})
     assert_problem(e, "operating_point.speed_profile_rpm", "[[0.0, 0.0]", "strictly increasing")
     e = refused({"operating_point": {"load_profile_Nm": [[1.0, 1.31], [2.0, 0.12]]}})
     assert_problem(e, "operating_point.load_profile_Nm", "[[1.0, 1.31]", "starting at time 0")
+
+
+def test_negative_load_is_a_reversal_speeds_stay_non_negative():
+    s = scene_from_dict({"operating_point": {"load_torque_Nm": -1.31}})
+    assert s.operating_point.load_torque_Nm == -1.31
+    s = scene_from_dict({"operating_point": {"load_profile_Nm": [[0.0, 1.31], [0.5, 1.31], [0.501, -2.62]]}})
+    assert s.operating_point.load_at(1.0) == pytest.approx(-2.62)
+    e = refused({"operating_point": {"speed_profile_rpm": [[0.0, 0.0], [1.0, -10.0]]}})
+    assert_problem(e, "operating_point.speed_profile_rpm", "-10.0", "values >= 0 rpm")
+    e = refused({"operating_point": {"load_profile_Nm": [[0.0, 1.0], [1.0, float("inf")]]}})
+    assert_problem(e, "operating_point.load_profile_Nm", "[[0.0, 1.0]", "finite values")
 
 
 def test_health_and_mesh_files(tmp_path):

@@ -66,8 +66,9 @@ def _gear_parameters(scene, part: rig.Partition, max_substep: float) -> dict:
 
 
 def initial_mesh_deflection(T_msh: float, fidelity: str) -> float:
-    """Pinion-referred mesh coordinate s = theta_p - (z2/z1) theta_w of the loaded drive flank at
-    the steady middle-shaft torque (backlash/2 + T/K_mean); 0 for the ideal gear."""
+    """Pinion-referred mesh coordinate s = theta_p - (z2/z1) theta_w of the loaded flank at the steady
+    middle-shaft torque (drive flank backlash/2 + T/K_mean; a reversed load, T < 0, loads the coast
+    flank: -backlash/2 + T/K_mean); 0 for the ideal gear."""
     if fidelity == "ideal":
         return 0.0
     try:
@@ -75,7 +76,8 @@ def initial_mesh_deflection(T_msh: float, fidelity: str) -> float:
         from gearcontact_fmu.params import BevelGearParams
 
         g = BevelGearParams()
-        return 0.5 * float(backlash_angle(g)) + T_msh / float(mesh_stiffness(g)["K_mean"])
+        half = 0.5 * float(backlash_angle(g))
+        return (half if T_msh >= 0.0 else -half) + T_msh / float(mesh_stiffness(g)["K_mean"])
     except Exception:  # pragma: no cover - the gear package decides; a start-up transient only
         return 0.0
 

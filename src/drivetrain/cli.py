@@ -39,15 +39,27 @@ def _cmd_run(args: argparse.Namespace) -> int:
     except ScenarioError as exc:
         return _scene_errors(exc)
     out = args.out or f"out/{scene.name}"
-    from drivetrain.run import run_scene
+    from drivetrain.run import RunFailedError, run_scene
 
     try:
         res = run_scene(scene, out, backend=args.backend, progress=not args.quiet, fmu_dir=args.fmu_dir,
                         plots=False if args.no_plots else None)
     except ConfigurationError as exc:
         return _scene_errors(exc)
+    except RunFailedError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        r = exc.result
+        f = r.summary["failure"]
+        names = [Path(p).name for p in [r.files.get("signals"), r.files.get("summary"), *r.files.get("plots", []),
+                                         r.files.get("csv")] if p]
+        print(f"  failed at t = {f['time_s']:.9g} s in FMU {f['component']!r} ({f['model']}, {f['function']}): "
+              f"{f['cause']}", file=sys.stderr)
+        print(f"  partial results (up to t = {f['last_sample_time_s']:.9g} s, status \"failed\") written to "
+              f"{r.out_dir}/: {', '.join(names)}", file=sys.stderr)
+        return 3
     except CosimError as exc:
         print(f"error: {exc}", file=sys.stderr)
+        print("  nothing was written (the run failed before its first step)", file=sys.stderr)
         return 3
     s = res.summary
     if not args.quiet:
@@ -57,6 +69,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
             print(f"  {name}: mean {st['mean']:.4g} N·m, RMS {st['rms']:.4g} N·m")
         print(f"  f_DSH {s['f_DSH']:.4g} Hz, f_MSH {s['f_MSH']:.4g} Hz, f_PSH {s['f_PSH']:.4g} Hz, "
               f"f_GMF {s['f_GMF']:.4g} Hz; energy residual {s['energy_residual']:.3g} (relative)")
+        st = s.get("stability") or {}
+        if all(st.get(k) is not None for k in ("max_penetration_rel_umax", "min_substep_s", "n_refinements")):
+            rt = st["rattle"]
+            print(f"  gear stage: max penetration {st['max_penetration_m']:.3g} m "
+                  f"({st['max_penetration_rel_umax']:.3g} of u_max), smallest sub-step {st['min_substep_s']:.3g} s, "
+                  f"{st['n_refinements']} refinements; after settling {rt['n_separations']} tooth separations "
+                  f"({100 * (rt['separated_fraction'] or 0.0):.3g} % of the time out of contact)")
         if s["energy_residual"] > 0.01:
             w = s["energy"]["worst_fmu"]
             print(f"  warning: energy residual above 1 %; largest in FMU {w!r} "
@@ -117,6 +136,63 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     return 0 if not failed else 3
 
 
+def _stress_command(args: argparse.Namespace) -> str:
+    """The command line of a stress campaign (the options that differ from their defaults)."""
+    import shlex
+
+    words = ["drivetrain", "stress"]
+    for flag, attr, default in (("--set-name", "set_name", "all"), ("--n-random", "n_random", 200),
+                                ("--seed", "seed", 0), ("--out", "out", "out/stress"), ("--workers", "workers", None),
+                                ("--scheduler", "scheduler", None), ("--halving-subset", "halving_subset", 10),
+                                ("--duration-random", "duration_random", 1.5), ("--duration-pcm", "duration_pcm", 0.1),
+                                ("--duration-paper", "duration_paper", None), ("--fidelities", "fidelities", None),
+                                ("--paper-grid", "paper_grid", None), ("--backend", "backend", "fmi"),
+                                ("--fmu-dir", "fmu_dir", "fmus")):
+        v = getattr(args, attr)
+        if v != default:
+            words += [flag, str(v)]
+    if args.only:
+        words += ["--only", *args.only]
+    if args.resume:
+        words.append("--resume")
+    return shlex.join(words)
+
+
+def _cmd_stress(args: argparse.Namespace) -> int:
+    from drivetrain.master import ConfigurationError
+    from drivetrain.scenario import ScenarioError
+    from drivetrain.stress import regenerate_report, run_stress
+
+    log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
+    out = Path(args.out)
+    try:
+        if args.report_only:
+            rec = regenerate_report(out)
+        else:
+            fids = [f.strip() for f in args.fidelities.split(",") if f.strip()] if args.fidelities else None
+            rec = run_stress(out, set_name=args.set_name, n_random=args.n_random, seed=args.seed,
+                             workers=args.workers, address=args.scheduler, resume=args.resume,
+                             halving_subset=args.halving_subset, duration_random_s=args.duration_random,
+                             duration_pcm_s=args.duration_pcm, duration_paper_s=args.duration_paper,
+                             fidelities=fids, paper_grid=args.paper_grid, fmu_dir=args.fmu_dir,
+                             backend=args.backend, progress=not args.quiet, only=args.only,
+                             command=_stress_command(args), log=log)
+    except (ScenarioError, ConfigurationError, ValueError, FileNotFoundError) as exc:
+        return _scene_errors(exc)
+    tot = rec["table"][-1]
+    pairs = rec["pairs"]
+    print(f"{tot['runs']} runs: {tot['pass']} pass, {tot['fail']} fail, {tot['refused']} refused before running "
+          f"(predicted unstable); {len(pairs)} halving pairs, {sum(p['outcome'] == 'fail' for p in pairs)} outside "
+          f"the limits; wall time {rec['wall_time_s']:.0f} s; report: {out / 'stress.md'}")
+    for r in rec["runs"]:
+        if r["outcome"] == "fail":
+            print(f"  FAIL {r['name']}: " + "; ".join(r["reasons"]), file=sys.stderr)
+    for p in pairs:
+        if p["outcome"] == "fail":
+            print(f"  FAIL halving {p['base']}: " + "; ".join(p["reasons"]), file=sys.stderr)
+    return 0 if rec["n_fail"] == 0 else 3
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="drivetrain", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -163,6 +239,37 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_sweep)
+
+    p = sub.add_parser("stress", help="stress campaign: the paper's 54 scenes and randomized hard scenes, judged "
+                                      "(completes, finite, stable, energy, step halving); writes stress.md")
+    p.add_argument("--set-name", choices=("paper", "random", "all"), default="all",
+                   help="paper: the 54 paper scenes (20 s); random: the randomized scenes; all (default): both")
+    p.add_argument("--n-random", type=int, default=200, help="number of random scenes (default 200)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the random scenes (scene i depends on (seed, i))")
+    p.add_argument("--out", default="out/stress", help="output directory (default: out/stress)")
+    p.add_argument("--workers", type=int, default=None, help="local worker processes (default: CPU count)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="Dask scheduler address (tcp://host:8786); default: local process pool")
+    p.add_argument("--resume", action="store_true", help="do not rerun runs whose summary.json exists")
+    p.add_argument("--halving-subset", type=int, default=10, metavar="K",
+                   help="also run every K-th random scene with half the communication step (0: none; default 10)")
+    p.add_argument("--duration-random", type=float, default=1.5, metavar="S",
+                   help="simulated time of a random scene [s] (default 1.5)")
+    p.add_argument("--duration-pcm", type=float, default=0.1, metavar="S",
+                   help="simulated time of a random scene with online PCM contact [s] (default 0.1)")
+    p.add_argument("--duration-paper", type=float, default=None, metavar="S",
+                   help="shorten the paper scenes to S seconds (default: as in the grid, 20 s)")
+    p.add_argument("--fidelities", default=None, metavar="LIST",
+                   help="comma-separated mesh_contact fidelities the random scenes may use (default: all)")
+    p.add_argument("--paper-grid", default=None, metavar="TOML", help="the paper grid (default: scenarios/paper/paper.toml)")
+    p.add_argument("--backend", choices=("fmi", "inprocess"), default="fmi")
+    p.add_argument("--fmu-dir", default="fmus")
+    p.add_argument("--only", nargs="*", default=None, metavar="PATTERN",
+                   help="run only the cases whose name matches (e.g. rnd_s0_0042 'paper_severe_*')")
+    p.add_argument("--report-only", action="store_true",
+                   help="re-judge the runs in --out and rewrite stress.json / stress.md without running")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_stress)
 
     return parser
 

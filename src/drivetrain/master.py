@@ -21,9 +21,13 @@ What it does, in order (see ``docs/MASTER.md``):
    ``fmi2SetReal`` (preallocated value-reference array), ``fmi2DoStep``, one batched ``fmi2GetReal``
    (raw ctypes calls, no per-step allocation). Every output is recorded at the internal rate 1/H.
    A status >= discard from any call stops the run with :class:`CosimError` naming the FMU, the FMI
-   function, the time and the FMU's log.
+   function, the time and the FMU's log; what was computed is not lost: the error's ``partial`` is the
+   :class:`CosimResult` of the completed part (``status "failed"``, ``failure``: time, FMU, function,
+   cause, and every FMU's outputs read after the failure, each read guarded).
 5. **Decimate** the recorded channels to the output rate (zero-phase anti-alias low-pass, see
-   :mod:`drivetrain.signals`) and run the **energy audit**.
+   :mod:`drivetrain.signals`; after a failure the whole output samples before it) and run the
+   **energy audit** (marked unavailable for a failed run). Variables asked for with ``final=`` (e.g.
+   cumulative counters) are read once after the last step (and at a failure).
 6. **Tear down** every instance (terminate unless the FMU failed fatally, freeInstance), also on errors.
 
 The ``inprocess`` backend instantiates the same pythonfmu ``Fmi2Slave`` classes (imported from the FMU's
@@ -42,6 +46,7 @@ import importlib
 import json
 import math
 import os
+import re
 import shutil
 import sys
 import tempfile
@@ -92,6 +97,8 @@ class CosimError(RuntimeError):
         self.status = status
         self.time = time_s
         self.log = list(log)
+        #: the CosimResult of the completed part of the run (Master.run), None if nothing was computed
+        self.partial: CosimResult | None = None
         st = FMI_STATUS[status] if 0 <= status < len(FMI_STATUS) else str(status)
         tail = "\n".join("    " + line for line in self.log[-20:]) or "    (empty)"
         super().__init__(f"FMU '{component}' (model {model}) returned {st} from {function} at t = {time_s:.9g} s; "
@@ -878,6 +885,78 @@ class CosimResult:
     warnings: list[str]
     logs: dict[str, list[str]]             # per component: its log lines (last 500)
     raw: dict[str, np.ndarray] | None = None   # internal-rate records if requested ("time" + y names)
+    status: str = "ok"                     # "ok" | "failed" (then: the completed part only)
+    failure: dict | None = None            # time_s, component, model, function, status, cause, log,
+    #                                        steps_completed, last_sample_time_s, outputs {comp: {var: v}}
+    final: dict[str, float] = dataclasses.field(default_factory=dict)   # Master.run(final=...) values
+    snapshots: dict[float, dict[str, float]] = dataclasses.field(default_factory=dict)  # time -> values
+
+
+def failure_cause(exc: CosimError) -> str:
+    """The FMU's own words for a failure: the last error/fatal line of its log (first line of it, without
+    the status prefix), else its last log line, else what the master saw."""
+    lines = [str(x) for x in exc.log]
+    pick = next((x for x in reversed(lines) if x.startswith(("[error]", "[fatal]"))), None)
+    if pick is None and lines:
+        pick = lines[-1]
+    if pick:
+        text = pick.split("\nTraceback", 1)[0]               # the message, not the frames
+        if text.startswith("[") and "] " in text:
+            text = text.split("] ", 1)[1]                    # status prefix
+        text = re.sub(r"^log\w*: ", "", text)                 # pythonfmu's category (logStatusError: ...)
+        text = " ".join(x.strip() for x in text.splitlines() if x.strip())
+        return text[:1000]
+    st = FMI_STATUS[exc.status] if 0 <= exc.status < len(FMI_STATUS) else str(exc.status)
+    return f"{exc.function} returned {st} (the FMU logged nothing)"
+
+
+def _real_outputs(info: FMUInfo) -> list[str]:
+    return [n for n, v in info.variables.items() if v.causality == "output" and v.type == "Real"]
+
+
+def _readable(plan: _Plan, names: Sequence[str]) -> list[str]:
+    """The "component.variable" names (Real) that exist in the plan's FMUs."""
+    infos = {c.name: info for c, info in zip(plan.comps, plan.infos)}
+    out = []
+    for ref in dict.fromkeys(names):
+        comp, vn = _split(ref)
+        v = infos[comp].variables.get(vn) if comp in infos else None
+        if v is not None and v.type == "Real":
+            out.append(ref)
+    return out
+
+
+def _read_guarded(slave: _Slave, names: Sequence[str]) -> dict[str, float] | None:
+    """{name: value} read from one FMU, or None when it cannot answer (failed fatally, refuses, raises)."""
+    if not names or slave.fatal:
+        return None
+    try:
+        return {n: float(v) for n, v in zip(names, slave.get_reals(list(names)))}
+    except Exception:  # noqa: BLE001 - reading after a failure must never mask the failure
+        return None
+
+
+def _read_values(slaves: Sequence[_Slave], plan: _Plan, names: Sequence[str]) -> dict[str, float]:
+    """Values of "component.variable" names, one guarded read per component."""
+    by_comp: dict[str, list[str]] = {}
+    for ref in names:
+        comp, vn = _split(ref)
+        by_comp.setdefault(comp, []).append(vn)
+    out = {}
+    for s in slaves:
+        if s.name in by_comp:
+            got = _read_guarded(s, by_comp[s.name])
+            for vn, v in (got or {}).items():
+                out[f"{s.name}.{vn}"] = v
+    return out
+
+
+def energy_unavailable(reason: str) -> dict:
+    """The energy audit of a run that has none (a failed run): same keys, no numbers."""
+    return {"available": False, "reason": reason, "complete": False, "missing": [], "residual_J": None,
+            "reference_J": None, "relative_residual": None, "supplied_J": None, "stored_change_J": None,
+            "dissipated_J": None, "external_work_J": None, "worst_fmu": None, "per_fmu": {},
+            "connections": [], "external": []}
 
 
 def energy_audit(plan: _Plan, rec: np.ndarray, e0: list[dict], e1: list[dict]) -> dict:
@@ -937,7 +1016,7 @@ def energy_audit(plan: _Plan, rec: np.ndarray, e0: list[dict], e1: list[dict]) -
         ref = max(ref, abs(sup))
     resid = tot["supplied_J"] + w_ext_tot - tot["stored_change_J"] - tot["dissipated_J"]
     return {
-        "complete": not missing, "missing": missing,
+        "available": True, "complete": not missing, "missing": missing,
         "residual_J": resid, "reference_J": ref,
         "relative_residual": (abs(resid) / ref) if ref > 0 else (0.0 if resid == 0 else float("inf")),
         **tot, "external_work_J": w_ext_tot,
@@ -1008,11 +1087,23 @@ class Master:
     # -- run ---------------------------------------------------------------------------------------
     def run(self, duration_s: float, output_rate_Hz: float, record: Sequence[str] = (), *,
             progress: bool | None = None, anti_alias: str = "fir", keep_raw: bool = False,
-            stop_check: Callable[[], bool] | None = None) -> CosimResult:
+            stop_check: Callable[[], bool] | None = None, final: Sequence[str] = (),
+            snapshots: Sequence[float] = ()) -> CosimResult:
         """Simulate ``duration_s`` and return the recorded variables at ``output_rate_Hz``.
 
         ``record``: "component.variable" names (Real) to return. ``progress``: tqdm bar (default: on
         when the run has more than 50 000 steps). ``keep_raw``: also return the internal-rate records.
+        ``final``: "component.variable" names (Real, any causality) read once after the last step (and
+        at a failure) into ``CosimResult.final``, e.g. cumulative counters; names the FMUs do not have
+        are skipped. ``snapshots``: times [s] at which the same names are also read (at the
+        communication point nearest each, chunk boundaries: no cost per step), into
+        ``CosimResult.snapshots`` ({time: {name: value}}).
+
+        An FMU failing during the stepping loop (or a non-finite output) raises :class:`CosimError`
+        whose ``partial`` is the CosimResult of the completed part: ``status == "failed"``, the
+        signals up to the last whole output sample before the failure, ``failure`` (time, FMU,
+        function, cause, log, every FMU's outputs as read after the failure) and an energy audit marked
+        unavailable. A failure before the first step raises with ``partial = None``.
         """
         from drivetrain.signals import decimate
 
@@ -1046,8 +1137,15 @@ class Master:
         slaves: list[_Slave] = []
         callbacks = _FmiCallbacks() if self.backend == "fmi" else None
         error: BaseException | None = None
+        fail: CosimError | None = None     # an FMU failure inside the stepping loop (partial results kept)
+        k_done = -1                        # steps completed: rows rec[:k_done + 1] hold valid samples
         e0: list[dict] = []
         e1: list[dict] = []
+        final = _readable(plan, final)
+        final_values: dict[str, float] = {}
+        snap_steps = sorted({int(round(ts / H)) for ts in snapshots if final and 0 < ts < T}) if final else []
+        snap_values: dict[float, dict[str, float]] = {}
+        fail_outputs: dict[str, dict | None] = {}
         loop_time = 0.0
         chunk_costs: list[float] = []
         try:
@@ -1098,6 +1196,7 @@ class Master:
             rec[0] = y[:ny]
             e0 = [dict(zip(plan.energy[i], s.get_reals(list(plan.energy[i])))) if plan.energy[i] else {}
                   for i, s in enumerate(slaves)]
+            k_done = 0
 
             # ---- the stepping loop ----
             calls = [(s.set_fn, s.step_fn, s.get_fn, i) for i, s in enumerate(slaves)]
@@ -1116,38 +1215,62 @@ class Master:
             t_loop0 = time.perf_counter()
             chunk_costs = []
             k = 0
-            while k < n_steps:
-                t_chunk = time.perf_counter()
-                k_end = min(n_steps, k + chunk)
-                for kk in range(k, k_end):
-                    t = kk * H
-                    if has_ext:
-                        y[ext_idx] = ext_table[kk]
-                    take(y, gather, out=u_in)
-                    for set_fn, step_fn, get_fn, i in calls:
-                        if set_fn is not None:
-                            st = set_fn()
+            kk = 0
+            loop_done = False
+            try:
+                while k < n_steps:
+                    t_chunk = time.perf_counter()
+                    k_end = min(n_steps, k + chunk)
+                    if snap_steps:
+                        if snap_steps[0] <= k:                 # read after step k-1 (at t = k H)
+                            snap_values[k * H] = _read_values(slaves, plan, final)
+                            snap_steps.pop(0)
+                        if snap_steps:
+                            k_end = min(k_end, snap_steps[0])
+                    for kk in range(k, k_end):
+                        t = kk * H
+                        if has_ext:
+                            y[ext_idx] = ext_table[kk]
+                        take(y, gather, out=u_in)
+                        for set_fn, step_fn, get_fn, i in calls:
+                            if set_fn is not None:
+                                st = set_fn()
+                                if st:
+                                    self._status(slaves[i], "fmi2SetReal", st, t)
+                            st = step_fn(t, H, 1)
                             if st:
-                                self._status(slaves[i], "fmi2SetReal", st, t)
-                        st = step_fn(t, H, 1)
-                        if st:
-                            self._status(slaves[i], "fmi2DoStep", st, t)
-                        if get_fn is not None:
-                            st = get_fn()
-                            if st:
-                                self._status(slaves[i], "fmi2GetReal", st, t + H)
-                    rec[kk + 1] = y[:ny]
-                chunk_costs.append((time.perf_counter() - t_chunk) / (k_end - k))
+                                self._status(slaves[i], "fmi2DoStep", st, t)
+                            if get_fn is not None:
+                                st = get_fn()
+                                if st:
+                                    self._status(slaves[i], "fmi2GetReal", st, t + H)
+                        rec[kk + 1] = y[:ny]
+                    chunk_costs.append((time.perf_counter() - t_chunk) / (k_end - k))
+                    if bar is not None:
+                        bar.update(k_end - k)
+                    k = k_end
+                    if stop_check is not None and stop_check():
+                        raise KeyboardInterrupt
+                loop_done = True
+                k_done = n_steps
+                loop_time = time.perf_counter() - t_loop0
                 if bar is not None:
-                    bar.update(k_end - k)
-                k = k_end
-                if stop_check is not None and stop_check():
-                    raise KeyboardInterrupt
-            loop_time = time.perf_counter() - t_loop0
-            if bar is not None:
-                bar.close()
-            e1 = [dict(zip(plan.energy[i], s.get_reals(list(plan.energy[i])))) if plan.energy[i] else {}
-                  for i, s in enumerate(slaves)]
+                    bar.close()
+                e1 = [dict(zip(plan.energy[i], s.get_reals(list(plan.energy[i])))) if plan.energy[i] else {}
+                      for i, s in enumerate(slaves)]
+                final_values = _read_values(slaves, plan, final)
+            except CosimError as exc:
+                # an FMU failed: keep what was computed (rows up to the start of the failed step), read
+                # what the FMUs still expose (each read guarded: a broken FMU must not crash this)
+                fail = error = exc
+                if not loop_done:
+                    k_done = kk
+                    loop_time = time.perf_counter() - t_loop0
+                if bar is not None:
+                    bar.close()
+                final_values = _read_values(slaves, plan, final)
+                fail_outputs = {s.name: _read_guarded(s, _real_outputs(info))
+                                for s, info in zip(slaves, plan.infos)}
         except BaseException as exc:
             error = exc
             raise
@@ -1161,43 +1284,75 @@ class Master:
             if teardown_errors and error is None:
                 self._log("teardown problems: " + "; ".join(teardown_errors))
 
-        # ---- post-processing ----
-        if not np.all(np.isfinite(rec)):
-            bad = np.where(~np.isfinite(rec))
+        # ---- post-processing (of the completed part after a failure) ----
+        valid = rec[:k_done + 1]
+        if not np.all(np.isfinite(valid)):
+            bad = np.where(~np.isfinite(valid))
             kbad, jbad = int(bad[0][0]), int(bad[1][0])
-            raise CosimError(plan.y_names[jbad].split(".")[0], "?", "output check (NaN/Inf)", 3, kbad * H,
-                             [f"{plan.y_names[jbad]} = {rec[kbad, jbad]} at t = {kbad * H:.9g} s"])
+            if fail is None:
+                fail = CosimError(plan.y_names[jbad].split(".")[0], "?", "output check (NaN/Inf)", 3, kbad * H,
+                                  [f"{plan.y_names[jbad]} = {valid[kbad, jbad]} at t = {kbad * H:.9g} s"])
+                comp_names = [c.name for c in plan.comps]
+                if fail.component in comp_names:
+                    fail.model = plan.comps[comp_names.index(fail.component)].model
+            k_done = kbad - 1            # the samples before the first non-finite one
+            valid = rec[:k_done + 1]
+        if fail is not None and k_done < 0:
+            raise fail                   # nothing was computed
         col = {n: j for j, n in enumerate(plan.y_names)}
         fs_in = 1.0 / H
         units = {}
         signals = {}
         if record:
             cols = [col[r] for r in record]
-            dec = decimate(rec[:, cols], fs_in, output_rate_Hz, method=anti_alias)
+            dec = decimate(valid[:, cols], fs_in, output_rate_Hz, method=anti_alias)
             for j, r in enumerate(record):
                 signals[r] = dec[:, j]
                 comp, vn = _split(r)
                 units[r] = plan.infos[[c.name for c in plan.comps].index(comp)].variables[vn].unit
-        n_out = n_steps // d + 1
+        n_out = k_done // d + 1          # whole output samples (up to the failure)
         t_out = np.arange(n_out) / output_rate_Hz
-        audit = energy_audit(plan, rec, e0, e1)
+        if fail is None:
+            audit = energy_audit(plan, rec, e0, e1)
+        else:
+            audit = energy_unavailable(f"the run failed at t = {fail.time:.9g} s: the FMUs' energy counters "
+                                       "are not available at one common time")
         raw = None
         if keep_raw:
-            raw = {"time": np.arange(n_steps + 1) * H}
-            raw.update({n: rec[:, j].copy() for n, j in col.items()})
+            raw = {"time": np.arange(k_done + 1) * H}
+            raw.update({n: valid[:, j].copy() for n, j in col.items()})
         wall = time.perf_counter() - t_wall0
         logs = {}
         for s in slaves:
             logs[s.name] = list(s.log.lines)
         fmus = [{"name": c.name, "model": c.model, "path": str(info.path), "parameters": dict(c.parameters)}
                 for c, info in zip(plan.comps, plan.infos)]
-        return CosimResult(
+        T_done = k_done * H
+        failure = None
+        if fail is not None:
+            st = fail.status
+            failure = {
+                "time_s": float(fail.time), "component": fail.component, "model": fail.model,
+                "function": fail.function,
+                "status": FMI_STATUS[st] if 0 <= st < len(FMI_STATUS) else str(st),
+                "cause": failure_cause(fail), "log": list(fail.log[-20:]),
+                "steps_completed": int(k_done), "last_sample_time_s": float(t_out[-1]),
+                "outputs": fail_outputs,
+            }
+        steady = chunk_costs[1:] if len(chunk_costs) > 1 else chunk_costs
+        result = CosimResult(
             time=t_out, signals=signals, units=units, output_rate_Hz=output_rate_Hz, comm_step_s=H,
-            steps_per_output=d, n_steps=n_steps, sim_time_s=T, wall_time_s=wall, loop_time_s=loop_time,
-            us_per_step=1e6 * loop_time / max(n_steps, 1),
-            us_per_step_steady=1e6 * float(np.median(chunk_costs[1:] if len(chunk_costs) > 1 else chunk_costs)),
-            real_time_factor=T / wall if wall > 0 else float("inf"),
-            backend=self.backend, energy=audit, fmus=fmus, warnings=list(plan.warnings), logs=logs, raw=raw)
+            steps_per_output=d, n_steps=k_done, sim_time_s=T_done, wall_time_s=wall, loop_time_s=loop_time,
+            us_per_step=1e6 * loop_time / max(k_done, 1),
+            us_per_step_steady=1e6 * float(np.median(steady)) if steady else 1e6 * loop_time / max(k_done, 1),
+            real_time_factor=T_done / wall if wall > 0 else float("inf"),
+            backend=self.backend, energy=audit, fmus=fmus, warnings=list(plan.warnings), logs=logs, raw=raw,
+            status="ok" if fail is None else "failed", failure=failure, final=final_values,
+            snapshots=snap_values)
+        if fail is not None:
+            fail.partial = result
+            raise fail
+        return result
 
     def _status(self, slave: _Slave, function: str, status: int, t: float) -> None:
         if status == 1:     # warning: keep going, the message is in the log
@@ -1209,15 +1364,17 @@ class Master:
 
 def simulate(spec: SystemSpec, duration_s: float, output_rate_Hz: float, record: Sequence[str] = (), *,
              backend: str = "fmi", fmu_dir: str | Path = "fmus", fmu_paths=None, build: bool = True,
-             progress: bool | None = None, anti_alias: str = "fir", keep_raw: bool = False) -> CosimResult:
+             progress: bool | None = None, anti_alias: str = "fir", keep_raw: bool = False,
+             final: Sequence[str] = (), snapshots: Sequence[float] = ()) -> CosimResult:
     """One-call form of :class:`Master`."""
     return Master(spec, fmu_dir=fmu_dir, backend=backend, fmu_paths=fmu_paths, build=build).run(
-        duration_s, output_rate_Hz, record, progress=progress, anti_alias=anti_alias, keep_raw=keep_raw)
+        duration_s, output_rate_Hz, record, progress=progress, anti_alias=anti_alias, keep_raw=keep_raw,
+        final=final, snapshots=snapshots)
 
 
 __all__ = ["Master", "simulate", "CosimResult", "ConfigurationError", "CosimError", "check_system",
            "check_comm_step", "ensure_fmus", "stale_models", "sources_hash", "load_fmu_info", "extracted_dir",
-           "energy_audit", "load_slave_class"]
+           "energy_audit", "energy_unavailable", "failure_cause", "load_slave_class"]
 
 
 def record_built(fmu_dir: str | Path, paths: Sequence[str | Path]) -> None:

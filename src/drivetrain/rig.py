@@ -571,6 +571,74 @@ def cut_report(spring: str, inertia: str, k: float, c: float, J_spring: float, J
     return CutReport(spring, inertia, k, c, J_spring, J_inertia, H, w, zeta, rho, output, rho <= 1.0 + tol)
 
 
+class ContactRangeError(ValueError):
+    """A gear contact whose error bound the static load alone would pass (raised before any step)."""
+
+    def __init__(self, problems: list[str]):
+        self.problems = list(problems)
+        super().__init__("\n".join(self.problems))
+
+
+def check_contact_range(spec, raise_on_error: bool = True) -> list[dict]:
+    """Predict, before any step, whether the static load alone drives a GearContact of fidelity
+    ``table`` or ``pcm`` beyond its maximum penetration u_max (an error state of the PCM model that
+    would stop the run at the first loaded step).
+
+    The static pinion torque is the middle-shaft torque of the spec's steady state (metadata
+    ``steady_state.T_msh``, the assembler's torque balance at the scene's operating point); the
+    largest penetration over a pinion revolution at that torque comes from the contact map of the
+    component's geometry, resolution and health (:func:`gearcontact_fmu.contact_map.static_penetration`;
+    for ``table`` the map the run uses, built and cached here if missing; for ``pcm`` only a cached one).
+    Dynamic peaks come on top and
+    are caught at run time. Returns one report per checked gear; raises ContactRangeError naming the
+    component, u_max, the predicted penetration and the torque when u_max is below it."""
+    import dataclasses
+
+    ss = (spec.metadata or {}).get("steady_state") or {}
+    T = ss.get("T_msh")
+    reports, problems = [], []
+    gears = [c for c in spec.components if c.model == "GearContact"
+             and str(c.parameters.get("fidelity", "")).strip().lower() in ("table", "pcm")]
+    if T is None or not gears:
+        return reports
+    # only now: an ideal or analytic gear loads no contact engine
+    from gearcontact_fmu.contact_map import get_map, static_penetration
+    from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
+
+    for comp in gears:
+        p = comp.parameters
+        pick = (lambda cls: cls(**{f.name: p[f.name] for f in dataclasses.fields(cls) if f.name in p}))
+        gear, pcm = pick(BevelGearParams), pick(PCMParams)
+        base = MeshResolution()
+        res = MeshResolution(profile=float(p.get("profile_element_size", base.profile)),
+                             face=float(p.get("face_element_size", base.face)))
+        files = {k: p[f"{k}_mesh_file"] for k in ("pinion", "wheel") if p.get(f"{k}_mesh_file")}
+        # the elastic response does not depend on u_max, but the map's search length (2 u_max) does:
+        # predict with a search long enough to see the penetration (the default map when u_max is smaller)
+        search = dataclasses.replace(pcm, u_max=max(pcm.u_max, PCMParams().u_max))
+        # a table gear builds its map anyway (the run uses it); a pcm gear is predicted only from a
+        # cached map of its geometry, never by building one just for the check
+        fidelity = str(p.get("fidelity")).strip().lower()
+        cmap = get_map(gear, search, res, str(p.get("health", "healthy")), files or None,
+                       build=fidelity == "table")
+        if cmap is None:
+            reports.append({"component": comp.name, "pinion_torque_Nm": float(T), "static_penetration_m": None,
+                            "u_max_m": pcm.u_max, "note": "not predicted: no contact map of this geometry cached"})
+            continue
+        u, theta = static_penetration(cmap, float(T))
+        rep = {"component": comp.name, "pinion_torque_Nm": float(T), "static_penetration_m": u,
+               "at_pinion_angle_deg": math.degrees(theta), "u_max_m": pcm.u_max}
+        reports.append(rep)
+        if math.isfinite(u) and u >= pcm.u_max:
+            problems.append(f"{comp.name}: u_max = {pcm.u_max:.4g} m is below the static penetration "
+                            f"{u:.4g} m at the steady pinion torque {T:.4g} N·m (pinion angle "
+                            f"{math.degrees(theta):.1f} deg): the mesh would enter its error state at the "
+                            f"first loaded step; raise u_max or lower the load")
+    if problems and raise_on_error:
+        raise ContactRangeError(problems)
+    return reports
+
+
 def check_cuts(spec, raise_on_unstable: bool = True, whole_system: bool = True):
     """Check every connection of a SystemSpec at its communication step.
 

@@ -2,6 +2,12 @@
 
 ``run_scene(scene, out_dir, backend="fmi", progress=True) -> RunResult``; the ``drivetrain run`` command
 is a thin shell over it.
+
+Every summary has ``status`` ("ok" | "failed") and a ``stability`` block (:func:`stability_summary`,
+from the gear stage's cumulative counters read once at the end). When an FMU fails during the run,
+nothing computed is lost: the completed part is post-processed and written like a normal run (signals
+up to the last whole output sample before the failure, summary with ``status = "failed"`` and a
+``failure`` block) and :class:`RunFailedError` (a CosimError) is raised carrying that RunResult.
 """
 from __future__ import annotations
 
@@ -16,15 +22,21 @@ from typing import Any
 import numpy as np
 
 from drivetrain import __version__
-from drivetrain.master import ConfigurationError, CosimResult, Master
+from drivetrain.master import ConfigurationError, CosimError, CosimResult, Master
 from drivetrain.scenario import RIG_SENSORS, TORQUE_SENSORS, Scene
 from drivetrain.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies, stats, to_db
 from drivetrain.system import SystemSpec
 
 SUMMARY_KEYS = (
     "name", "wall_time_s", "sim_time_s", "real_time_factor", "torque", "f_DSH", "f_MSH", "f_PSH", "f_GMF",
-    "energy_residual", "fmus",
+    "energy_residual", "fmus", "status", "stability",
 )
+
+#: The gear stage FMU model and what is read from it once at the end of a run (and at a failure) for
+#: ``summary["stability"]``: its cumulative stability counters (docs/FMU.md) and two parameters.
+GEAR_MODEL = "GearContact"
+GEAR_FINAL_VARS = ("peak_penetration", "min_substep", "n_substeps", "n_refinements", "separated_time",
+                   "n_separations", "u_max", "max_substep")
 
 
 @dataclass
@@ -43,6 +55,11 @@ class RunResult:
     files: dict[str, Any] = field(default_factory=dict)   # signals, summary, plots (list), csv
 
     @property
+    def status(self) -> str:
+        """"ok", or "failed" (an FMU failed; the result holds the completed part)."""
+        return self.summary.get("status", "ok")
+
+    @property
     def wall_time_s(self) -> float:
         return self.summary["wall_time_s"]
 
@@ -57,6 +74,103 @@ class RunResult:
     def settled(self, name: str) -> np.ndarray:
         """Samples of a channel after the settling time."""
         return self.signals[name][self.time >= self.scene.time.settle_s]
+
+
+class RunFailedError(CosimError):
+    """An FMU failed during :func:`run_scene`. ``result``: the RunResult of the completed part (its
+    summary has ``status = "failed"`` and the ``failure`` block; ``result.files`` lists what was written
+    when an output directory was given); ``cause``: the master's CosimError."""
+
+    def __init__(self, cause: CosimError, result: "RunResult"):
+        super().__init__(cause.component, cause.model, cause.function, cause.status, cause.time, cause.log)
+        self.cause = cause
+        self.result = result
+        self.partial = cause.partial
+
+
+def stability_summary(res: CosimResult, spec: SystemSpec, time_s: float, energy_residual,
+                      settle_s: float = 0.0) -> dict:
+    """``summary["stability"]`` from the gear stage's counters (``res.final``, and ``res.snapshots`` at
+    ``settle_s``); keys (None where they do not apply: no gear FMU, or it could not be read after a
+    failure):
+
+    - ``gear``: the GearContact component the numbers are from; ``time_s``: the time they cover;
+    - ``max_penetration_m``: largest element penetration over the run (every sub-step point), ``u_max_m``
+      the gear's u_max, ``max_penetration_rel_umax`` their ratio (>= 1 means the mesh error state);
+    - ``min_substep_s``: smallest sub-step the stage took, ``max_substep_s`` its nominal sub-step,
+      ``n_substeps`` accepted sub-steps, ``n_refinements`` sub-step halvings (contact events);
+    - ``energy_residual``: the relative energy residual of the run (None for a failed run);
+    - ``rattle``: tooth separation while running, i.e. after the settling time (the start-up transient
+      from the assembled initial state may bounce the teeth once or twice): ``window_s`` = [settle_s,
+      time_s] (the part of the run it covers), ``separated`` (the teeth lost contact at least once in
+      it), ``separated_time_s`` (time out of contact), ``separated_fraction`` (of the window),
+      ``n_separations`` (contact-loss events); ``whole_run``: the same three numbers from t = 0.
+      (None when the window is empty, e.g. a run that failed before settle_s.)
+    """
+    gears = [c.name for c in spec.components if c.model == GEAR_MODEL]
+    g = gears[0] if gears else None
+
+    def val(name):
+        return res.final.get(f"{g}.{name}") if g is not None else None
+
+    def count(name):
+        v = val(name)
+        return int(round(v)) if v is not None and np.isfinite(v) else None
+
+    def fraction(t_sep, span):
+        return float(min(max(t_sep / span, 0.0), 1.0)) if t_sep is not None and span > 0 else None
+
+    pen, umax = val("peak_penetration"), val("u_max")
+    n_sub = count("n_substeps")
+    tsep, nsep = val("separated_time"), count("n_separations")
+    # the running part: counters at the end minus the counters read at settle_s
+    t0 = max(float(settle_s), 0.0)
+    w_tsep, w_nsep = (tsep, nsep) if t0 == 0.0 else (None, None)      # None: window empty or unread
+    if t0 > 0.0 and g is not None and res.snapshots and tsep is not None and nsep is not None:
+        ts = min(res.snapshots, key=lambda x: abs(x - t0))
+        snap = res.snapshots[ts]
+        a, b = snap.get(f"{g}.separated_time"), snap.get(f"{g}.n_separations")
+        if abs(ts - t0) <= 0.5 * res.comm_step_s + 1e-12 and a is not None and b is not None:
+            w_tsep, w_nsep = tsep - a, nsep - int(round(b))
+    window = max(time_s - t0, 0.0)
+    return {
+        "gear": g,
+        "time_s": float(time_s),
+        "max_penetration_m": pen,
+        "u_max_m": umax,
+        "max_penetration_rel_umax": (pen / umax) if pen is not None and umax else None,
+        "min_substep_s": val("min_substep") if n_sub else None,
+        "max_substep_s": val("max_substep"),
+        "n_substeps": n_sub,
+        "n_refinements": count("n_refinements"),
+        "energy_residual": energy_residual,
+        "rattle": {
+            "window_s": [t0, float(time_s)],
+            "separated": (bool(w_nsep > 0 or w_tsep > 0) if w_nsep is not None and w_tsep is not None else None),
+            "separated_time_s": w_tsep,
+            "separated_fraction": fraction(w_tsep, window),
+            "n_separations": w_nsep,
+            "whole_run": {"separated_time_s": tsep, "separated_fraction": fraction(tsep, time_s),
+                          "n_separations": nsep},
+        },
+    }
+
+
+def failure_summary(res: CosimResult, spec: SystemSpec) -> dict | None:
+    """``summary["failure"]`` of a failed run: the master's failure record (``time_s``, ``component``,
+    ``model``, ``function``, ``status``, ``cause``, ``log``, ``steps_completed``,
+    ``last_sample_time_s``) with ``outputs`` = the failed FMU's Real outputs read after the failure
+    (None if it could not answer) and ``gear_state`` = the gear FMU's outputs (pinion/wheel angle and
+    speed, max_penetration, the stability counters, ...; None without a readable gear FMU)."""
+    if res.failure is None:
+        return None
+    f = dict(res.failure)
+    outs = f.pop("outputs", None) or {}
+    gears = [c.name for c in spec.components if c.model == GEAR_MODEL]
+    f["outputs"] = outs.get(f["component"])
+    f["gear"] = gears[0] if gears else None
+    f["gear_state"] = outs.get(gears[0]) if gears else None
+    return f
 
 
 def _fidelity(c, spec: SystemSpec):
@@ -85,14 +199,22 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
 
     ``spec``: use this system instead of ``assemble(scene)`` (tests, custom systems).
     ``fmu_paths``: explicit {model: path} (no building). ``plots``: override ``scene.outputs.plots``.
-    Raises ConfigurationError before any step if the system cannot run as specified, CosimError if an
-    FMU fails during the run.
+    Raises ConfigurationError before any step if the system cannot run as specified. If an FMU fails
+    during the run, the completed part is post-processed (and written: signals up to the failure,
+    summary with ``status = "failed"`` and ``failure``) and :class:`RunFailedError` is raised with it
+    (a CosimError; a failure before the first step raises the master's CosimError, nothing written).
     """
     t0 = _time.perf_counter()
     log = log or (lambda m: print(m, file=sys.stderr))
     warnings: list[str] = []
     if spec is None:
         spec = assemble_scene(scene)
+    from drivetrain import rig
+
+    try:   # a u_max the static load alone would pass is refused before any step
+        contact_range = rig.check_contact_range(spec)
+    except rig.ContactRangeError as exc:
+        raise ConfigurationError(exc.problems) from None
     H = scene.numerics.comm_step_s
     if abs(spec.comm_step - H) > 1e-12 * H:
         warnings.append(f"the assembled system uses comm_step {spec.comm_step:.10g} s, the scene asks for {H:.10g} s")
@@ -109,10 +231,21 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
         sources[v] = v
     record = list(dict.fromkeys(sources.values()))
 
+    final = [f"{c.name}.{v}" for c in spec.components if c.model == GEAR_MODEL for v in GEAR_FINAL_VARS]
     master = Master(spec, fmu_dir=fmu_dir, backend=backend, fmu_paths=fmu_paths, build=build, log=log)
-    res = master.run(scene.time.duration_s, scene.time.sample_rate_Hz, record,
-                     progress=None if progress else False, anti_alias=scene.numerics.anti_alias)
+    failed: CosimError | None = None
+    try:
+        res = master.run(scene.time.duration_s, scene.time.sample_rate_Hz, record,
+                         progress=None if progress else False, anti_alias=scene.numerics.anti_alias,
+                         final=final, snapshots=(scene.time.settle_s,))
+    except CosimError as exc:
+        if exc.partial is None:
+            raise
+        failed, res = exc, exc.partial
     warnings += res.warnings
+    if failed is not None:
+        warnings.append(f"the run failed at t = {failed.time:.9g} s ({failed.component}: "
+                        f"{res.failure['cause']}); results up to t = {res.time[-1]:.9g} s")
 
     signals = {name: res.signals[src] for name, src in sources.items()}
     units = {}
@@ -132,9 +265,15 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
         if name not in signals:
             continue
         x = signals[name][m]
+        if not len(x):               # a failed run that ended before settle_s
+            continue
         torque_stats[name] = {**stats(x), "unit": units[name]}
         if len(x) > 16 and cf["f_GMF"] > 0:
-            f, A = amplitude_spectrum(x, fs, lowpass_Hz=5.0 * cf["f_GMF"])
+            try:
+                f, A = amplitude_spectrum(x, fs, lowpass_Hz=5.0 * cf["f_GMF"])
+            except ValueError as exc:    # too short for the low-pass (a short or failed run)
+                warnings.append(f"no spectrum of {name}: {exc}")
+                continue
             spectra[name] = (f, A)
             pk = {"bin_Hz": float(f[1] - f[0]),
                   "GMF_harmonics": [{"k": k, "f_Hz": h, "amplitude": amplitude_near(f, A, h)}
@@ -152,16 +291,21 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
     nonfinite = [n for n, x in signals.items() if not np.all(np.isfinite(x))]
 
     energy = res.energy
+    energy_residual = energy.get("relative_residual")
     fmus = [{"name": c.name, "model": c.model, "fidelity": _fidelity(c, spec)} for c in spec.components]
+    covered = res.sim_time_s if failed is None else max(float(failed.time), res.sim_time_s)
     wall = _time.perf_counter() - t0
     summary = {
         "name": scene.name,
+        "status": res.status,
+        "failure": failure_summary(res, spec),
         "description": scene.scenario.description,
         "source": str(scene.source) if scene.source else None,
         "overrides": list(scene.overrides),
         "backend": backend,
         "wall_time_s": wall,
         "sim_time_s": res.sim_time_s,
+        "requested_sim_time_s": scene.time.duration_s,
         "real_time_factor": res.sim_time_s / wall if wall > 0 else None,
         "loop_time_s": res.loop_time_s,
         "us_per_step": res.us_per_step,
@@ -182,8 +326,10 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
         "f_DSH": cf["f_DSH"], "f_MSH": cf["f_MSH"], "f_PSH": cf["f_PSH"], "f_GMF": cf["f_GMF"],
         "characteristic_frequencies": cf,
         "spectrum_peaks": peaks,
-        "energy_residual": energy["relative_residual"],
+        "energy_residual": energy_residual,
         "energy": energy,
+        "stability": {**stability_summary(res, spec, covered, energy_residual, settle),
+                      "static_contact": contact_range},
         "fmus": fmus,
         "nonfinite_channels": nonfinite,
         "warnings": warnings,
@@ -193,6 +339,8 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
                        cosim=res, spec=spec)
     if out_dir is not None:
         write_run(result, out_dir, plots=scene.outputs.plots if plots is None else plots, spectra=spectra)
+    if failed is not None:
+        raise RunFailedError(failed, result) from failed
     return result
 
 
@@ -207,14 +355,23 @@ def write_run(result: RunResult, out_dir: str | Path, plots: bool = True, spectr
     t_w = _time.perf_counter()
     plot_files = []
     cf = result.summary["characteristic_frequencies"]
+    failed = result.status != "ok"
     if plots:
         torques = {n: result.signals[n] for n in TORQUE_SENSORS if n in result.signals}
-        if torques:
-            plot_files.append(str(O.plot_torques(out / "torques.png", result.time, torques, scene.time.settle_s, cf,
-                                                 title=f"{scene.name}: torque waveforms")))
-        if spectra:
-            plot_files.append(str(O.plot_spectra(out / "spectra.png", spectra, cf,
-                                                 title=f"{scene.name}: spectra")))
+        title = f"{scene.name}: torque waveforms"
+        if failed:
+            title += f" (FAILED at t = {result.summary['failure']['time_s']:.6g} s)"
+        try:
+            if torques:
+                plot_files.append(str(O.plot_torques(out / "torques.png", result.time, torques,
+                                                     scene.time.settle_s, cf, title=title)))
+            if spectra:
+                plot_files.append(str(O.plot_spectra(out / "spectra.png", spectra, cf,
+                                                     title=f"{scene.name}: spectra")))
+        except Exception as exc:    # noqa: BLE001 - a failed run's plots are optional: keep the data
+            if not failed:
+                raise
+            result.summary["warnings"].append(f"plots of the failed run skipped: {type(exc).__name__}: {exc}")
     files["plots"] = plot_files
     if scene.outputs.aalto_csv:
         files["csv"] = str(O.write_aalto_csv(out / "sensors.csv", result.time, result.signals))
@@ -233,6 +390,7 @@ def write_run(result: RunResult, out_dir: str | Path, plots: bool = True, spectr
         "backend": result.summary["backend"], "created": O.now_iso(), "drivetrain_version": __version__,
         "sample_rate_Hz": scene.time.sample_rate_Hz, "comm_step_s": result.cosim.comm_step_s,
         "settle_s": scene.time.settle_s, "duration_s": result.cosim.sim_time_s,
+        "status": result.status,
     }
     O.write_hdf5(out / "signals.h5", result.time, result.signals, meta, attrs, dtype=scene.outputs.dtype)
     O.write_summary(out / "summary.json", result.summary)

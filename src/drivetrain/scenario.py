@@ -155,14 +155,15 @@ SCHEMA: dict[str, dict[str, Key]] = {
     "operating_point": {
         "drive_speed_rpm": _f(1500.0, "rpm", "speed", "drive-motor speed reference (drive shaft)", minimum=0.0),
         "load_torque_Nm": _f(1.31, "N·m", "torque",
-                             "load-motor torque setting, before the 1:8 planetary (paper: 0.12, 0.71, 1.31)",
-                             minimum=0.0),
+                             "load-motor torque setting, before the 1:8 planetary (paper: 0.12, 0.71, 1.31); "
+                             "negative = a reversal: the load motor drives the propeller shaft and the coast "
+                             "flanks carry the load"),
         "speed_profile_rpm": Key("profile", None, "rpm", doc=(
             "piecewise-linear speed reference, [[time_s, rpm], ...], times strictly increasing from 0; "
             "held constant after the last point; overrides drive_speed_rpm"), minimum=0.0),
         "load_profile_Nm": Key("profile", None, "N·m", doc=(
             "piecewise-linear load torque, [[time_s, N·m], ...] like speed_profile_rpm; overrides "
-            "load_torque_Nm (a step: two points 1 ms apart)"), minimum=0.0),
+            "load_torque_Nm (a step: two points 1 ms apart); values may be negative (a load reversal)")),
     },
     "gear": {
         "health": Key("enum", "healthy", allowed=HEALTH_STATES, doc=(
@@ -481,8 +482,8 @@ def _check_value(key: str, spec: Key, value: Any, base_dir: Path, problems) -> A
             return None
         return p
     if t == "profile":
-        exp = (f"a list of [time_s, {spec.unit}] pairs with times >= 0 strictly increasing and values "
-               f">= {spec.minimum:g} {spec.unit}")
+        exp = (f"a list of [time_s, {spec.unit}] pairs with times >= 0 strictly increasing and "
+               + (f"values >= {spec.minimum:g} {spec.unit}" if spec.minimum is not None else "finite values"))
         if not isinstance(value, list) or not value:
             problems.append((key, value, exp))
             return None
@@ -631,11 +632,12 @@ def resolve(raw: dict, base_dir: Path | str = ".", source: Path | str | None = N
         if ok("effects", "mesh_contact"):
             if eff["mesh_contact"] == "ideal" and gr["health"] != "healthy":
                 problems.append(("effects.mesh_contact", "ideal",
-                                 f"a fidelity with tooth geometry (pcm, table or analytic) for gear.health = "
+                                 f"a fidelity with tooth geometry (pcm or table) for gear.health = "
                                  f"{gr['health']!r}; the ideal gear has no teeth"))
-            if eff["mesh_contact"] == "analytic" and gr["health"] == "mesh":
+            if eff["mesh_contact"] == "analytic" and gr["health"] != "healthy":
                 problems.append(("effects.mesh_contact", "analytic",
-                                 'pcm or table for gear.health = "mesh" (the analytic pair cannot read a mesh)'))
+                                 f"pcm or table for gear.health = {gr['health']!r} (the analytic ISO 6336 pair "
+                                 "models the healthy gear only: it has no fault and cannot read a mesh)"))
 
     op = values["operating_point"]
     for pk in ("speed_profile_rpm", "load_profile_Nm"):
@@ -863,6 +865,8 @@ def schema_markdown() -> str:
                 if spec.maximum is not None:
                     rng.append(f"<= {spec.maximum:g}")
                 allowed = " and ".join(rng)
+                if not allowed and spec.type in ("float", "profile"):
+                    allowed = "any finite value (negative allowed)"
             typ = {"str_list": "list of str", "var_list": "list of str", "profile": "list of [float, float]",
                    "path": "str (path)", "enum": "str"}.get(spec.type, spec.type)
             out.append(f"| `{key}` | {typ} | {spec.unit or '–'} | {dflt} | {allowed or '–'} | {spec.doc} |")

@@ -10,7 +10,13 @@ caches that component initialisation would build (contact maps of ``table`` gear
 daemonic processes and cannot start the map builder's process pool). Never do several processes write one HDF5: each run writes its own directory.
 
 Manifest: ``<out>/manifest.json`` (full) and ``<out>/manifest.csv`` (one row per run: name, status,
-paths, wall time, real-time factor, mean torques, energy residual, the swept scene values).
+paths, wall time, real-time factor, mean torques, energy residual, the swept scene values, failure time
+and FMU, the main stability numbers). Every record has ``status`` ("ok" | "failed") and, when the run got
+as far as stepping, ``stability`` (= its summary's stability block). A run whose FMU failed mid-run
+wrote its partial files: its record has ``status = "failed"``, ``error``, ``failure_time_s``,
+``failed_fmu``, ``failure_cause``, ``failure`` (time_s, component, model, function, status, cause),
+``partial = true`` and the paths ``signals``/``summary``; the sweep
+goes on with the other runs.
 """
 from __future__ import annotations
 
@@ -52,7 +58,7 @@ def _scene_of(case: dict) -> Scene:
 
 def simulate(case: dict) -> dict:
     """Run one case in this process; never raises (errors are reported in the returned record)."""
-    from drivetrain.run import run_scene
+    from drivetrain.run import RunFailedError, run_scene
 
     t0 = time.perf_counter()
     rec: dict[str, Any] = {"name": case["name"], "out_dir": case["out_dir"], "pid": os.getpid()}
@@ -73,10 +79,32 @@ def simulate(case: dict) -> dict:
             "torque_mean": {k: v["mean"] for k, v in s["torque"].items()},
             "torque_rms": {k: v["rms"] for k, v in s["torque"].items()},
             "warnings": s["warnings"],
+            "stability": s.get("stability"),
+        })
+    except RunFailedError as exc:
+        # an FMU failed mid-run: the completed part was written; record where and why
+        s = exc.result.summary
+        f = s.get("failure") or {}
+        files = exc.result.files or {}
+        rec.update({
+            "status": "failed", "error": f"{type(exc).__name__}: {exc}", "partial": True,
+            "failure_time_s": f.get("time_s"), "failed_fmu": f.get("component"),
+            "failed_model": f.get("model"), "failure_cause": f.get("cause"),
+            "failure": {k: f.get(k) for k in ("time_s", "component", "model", "function", "status", "cause")},
+            "signals": files.get("signals"), "summary": files.get("summary"),
+            "wall_time_s": s["wall_time_s"], "sim_time_s": s["sim_time_s"],
+            "real_time_factor": s["real_time_factor"], "us_per_step": s["us_per_step"],
+            "energy_residual": s["energy_residual"],
+            "torque_mean": {k: v["mean"] for k, v in s["torque"].items()},
+            "torque_rms": {k: v["rms"] for k, v in s["torque"].items()},
+            "warnings": s["warnings"],
+            "stability": s.get("stability"),
         })
     except Exception as exc:
         rec.update({"status": "failed", "error": f"{type(exc).__name__}: {exc}",
                     "traceback": traceback.format_exc(limit=8)})
+        if hasattr(exc, "component") and hasattr(exc, "time"):     # a CosimError before the first step
+            rec.update({"failure_time_s": exc.time, "failed_fmu": exc.component, "partial": False})
     rec["elapsed_s"] = time.perf_counter() - t0
     return rec
 
@@ -167,8 +195,17 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
     for s, sp in zip(scenes, all_specs):
         d = out / s.name
         if skip_existing and (d / "summary.json").is_file():
-            runs.append({"name": s.name, "status": "ok", "skipped": True, "out_dir": str(d),
-                         "signals": str(d / "signals.h5"), "summary": str(d / "summary.json")})
+            try:        # a failed run's partial results are kept as they are, with their status
+                old = json.loads((d / "summary.json").read_text())
+            except (OSError, ValueError):
+                old = {}
+            prev = {"name": s.name, "status": old.get("status", "ok"), "skipped": True, "out_dir": str(d),
+                    "signals": str(d / "signals.h5"), "summary": str(d / "summary.json"),
+                    "stability": old.get("stability")}
+            if old.get("failure"):
+                prev.update(failure_time_s=old["failure"].get("time_s"), failed_fmu=old["failure"].get("component"),
+                            failure_cause=old["failure"].get("cause"), partial=True)
+            runs.append(prev)
             continue
         cases.append(make_case(s, d, backend=backend, fmu_dir=fmu_dir, plots=plots,
                                spec=sp, fmu_paths=fmu_paths))
@@ -214,7 +251,8 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
     (out / "manifest.json").write_text(json.dumps(jsonable(manifest), indent=1))
     cols = ["name", "status", "health", "drive_speed_rpm", "load_torque_Nm", "mesh_contact", "shaft_flexibility",
             "wall_time_s", "real_time_factor", "energy_residual", "mean_drive_shaft_torque",
-            "mean_propeller_shaft_torque", "signals", "summary", "error"]
+            "mean_propeller_shaft_torque", "failure_time_s", "failed_fmu", "max_penetration_rel_umax",
+            "min_substep_s", "n_refinements", "n_separations", "separated_fraction", "signals", "summary", "error"]
     with open(out / "manifest.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=cols, extrasaction="ignore")
         w.writeheader()
@@ -223,6 +261,12 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
             tm = r.get("torque_mean", {})
             row["mean_drive_shaft_torque"] = tm.get("drive_shaft_torque")
             row["mean_propeller_shaft_torque"] = tm.get("propeller_shaft_torque")
+            st = r.get("stability") or {}
+            rattle = st.get("rattle") or {}
+            for k in ("max_penetration_rel_umax", "min_substep_s", "n_refinements"):
+                row[k] = st.get(k)
+            row["n_separations"] = rattle.get("n_separations")
+            row["separated_fraction"] = rattle.get("separated_fraction")
             w.writerow(row)
     return manifest
 

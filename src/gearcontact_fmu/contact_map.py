@@ -240,8 +240,9 @@ def load_map(path: Path, gear, pcm, grid) -> ContactMap:
 def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
             resolution: MeshResolution | None = None, health: str = "healthy", mesh_files=None,
             grid: MapGrid | None = None, mesh_units: str = "mm", use_cache: bool = True,
-            fault_kwargs: dict | None = None) -> ContactMap:
-    """The contact map for this configuration, from the disk cache or computed (and cached)."""
+            fault_kwargs: dict | None = None, build: bool = True) -> ContactMap | None:
+    """The contact map for this configuration, from the disk cache or computed (and cached).
+    ``build=False``: only from the cache (None when it is not there)."""
     from gearcontact_fmu.gearpair import build_pcm_pair
 
     gear = gear or BevelGearParams()
@@ -256,6 +257,8 @@ def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
         cmap.info["cache"] = str(path)
         cmap.info["from_cache"] = True
         return cmap
+    if not build:
+        return None
     pair = build_pcm_pair(gear, pcm, resolution, health, mesh_files.get("pinion"), mesh_files.get("wheel"),
                           mesh_units, friction=True, damping=True, fault_kwargs=fault_kwargs)
     cmap = compute_map(pair, grid)

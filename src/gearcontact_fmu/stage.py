@@ -43,6 +43,14 @@ The energy audit integrates the port and mesh dissipation with the same scheme a
 energy_stored = kinetic + port springs + mesh elastic energy, energy_dissipated (cumulative) = port
 dampers + mesh damping/friction; over a step, -H (tau_a_mean w_a + tau_b_mean w_b) = delta stored + delta
 dissipated to integrator accuracy.
+
+Stability counters (cumulative since ``initialize``, accumulated inside the kernel at no extra mesh
+evaluation, they never change the state): the largest element penetration at any evaluated sub-step
+point (``peak_penetration``), the smallest accepted sub-step (``min_substep``), accepted sub-steps and
+halvings (``n_substeps_total``, ``n_refinements``), the time out of contact (``separated_time``, the
+trapezoidal rule on the contact state at the sub-step ends) and the contact-loss events
+(``n_separations``); ``counters()`` returns them all. Out of contact means the mesh torque and normal
+force are exactly zero (inside the backlash). The ideal mesh never separates (its counters stay 0).
 """
 from __future__ import annotations
 
@@ -88,7 +96,13 @@ N_X = 7
 # mean torques over the step, stored energy at the end, failure time and detail, torques at the step
 # end, torques predicted as the mean over the next step (first-order Taylor at the end)
 _RTA, _RTB, _RES, _RTF, _RDET, _RTAE, _RTBE, _RTAP, _RTBP = range(9)
-N_RES = 9
+# stability counters, cumulative over the steps (the kernel never resets them; GearStage.initialize
+# does): smallest accepted sub-step, sub-step halvings (event refinements), accepted sub-steps, time
+# out of contact, contact-loss events, largest element penetration, contact state at the last point
+# evaluated (1 in contact, 0 not, -1 unknown). The rigid (ideal) mesh has no contact to lose: its
+# separation counters and penetration stay 0.
+_RDTMIN, _RNREF, _RNSUB, _RTSEP, _RNSEP, _RPEN, _RINC = range(9, 16)
+N_RES = 16
 OUTPUT_TORQUES = ("predicted", "mean", "end")
 
 GAMMA = 1.0 + 1.0 / math.sqrt(2.0)
@@ -302,6 +316,39 @@ def _in_contact(out):
 
 
 @njit(cache=True)
+def _tally_start(res, c, pen, track):
+    """Stability counters at the start of a step (state c, penetration pen): a contact lost between
+    the last point of the previous step and this one (bare mode: new inputs) counts as an event."""
+    if track:
+        if res[_RINC] == 1.0 and not c:
+            res[_RNSEP] += 1.0
+        if pen > res[_RPEN]:
+            res[_RPEN] = pen
+        res[_RINC] = 1.0 if c else 0.0
+
+
+@njit(cache=True)
+def _tally(res, dt, c0, c1, pen, track):
+    """Stability counters of one accepted sub-step of length dt from contact state c0 to c1 with the
+    penetration pen at its end; time out of contact by the trapezoidal rule on the two end states."""
+    if dt < res[_RDTMIN]:
+        res[_RDTMIN] = dt
+    res[_RNSUB] += 1.0
+    if track:
+        if pen > res[_RPEN]:
+            res[_RPEN] = pen
+        sep = 0.0
+        if not c0:
+            sep += 0.5
+        if not c1:
+            sep += 0.5
+        res[_RTSEP] += sep * dt
+        if c0 and not c1:
+            res[_RNSEP] += 1.0
+        res[_RINC] = 1.0 if c1 else 0.0
+
+
+@njit(cache=True)
 def _finite(y):
     for i in range(y.shape[0]):
         if not np.isfinite(y[i]):
@@ -314,7 +361,8 @@ def _advance_py(f, data, mode, scheme, x, par, u, H, n_sub, out, res):
 
     x: augmented state (updated in place; x[4], x[5] are reset: per-step torque integrals).
     u: inputs (phi_a, w_a, phi_b, w_b) at the step start. out: mesh outputs at the step end.
-    res: tau_a_mean, tau_b_mean, energy_stored at the step end, failure time, failure detail.
+    res: tau_a_mean, tau_b_mean, energy_stored at the step end, failure time, failure detail; the
+    stability counters (_RDTMIN.._RINC) are accumulated, never reset here.
     Returns a CODE_* value."""
     res[_RTF] = 0.0
     res[_RDET] = 0.0
@@ -329,6 +377,7 @@ def _advance_py(f, data, mode, scheme, x, par, u, H, n_sub, out, res):
         # driven motion: Simpson quadrature of the mesh torques and dissipation per sub-step
         t = 0.0
         f(data, u[0], u[2], u[1], u[3], out)
+        _tally_start(res, _in_contact(out), out[OUT_MAX_PENETRATION], True)
         for i in range(n_sub):
             if out[OUT_STATUS] != 0.0:
                 res[_RTF] = t
@@ -337,13 +386,18 @@ def _advance_py(f, data, mode, scheme, x, par, u, H, n_sub, out, res):
             ta0 = out[OUT_TAU_PINION]
             tb0 = out[OUT_TAU_WHEEL]
             p0 = out[OUT_DISSIPATED_POWER]
+            c0 = _in_contact(out)
             tm = t + 0.5 * h
             f(data, u[0] + u[1] * tm, u[2] + u[3] * tm, u[1], u[3], out)
             ta1 = out[OUT_TAU_PINION]
             tb1 = out[OUT_TAU_WHEEL]
             p1 = out[OUT_DISSIPATED_POWER]
+            pen1 = out[OUT_MAX_PENETRATION]
+            if pen1 > res[_RPEN]:
+                res[_RPEN] = pen1
             t = (i + 1) * h
             f(data, u[0] + u[1] * t, u[2] + u[3] * t, u[1], u[3], out)
+            _tally(res, h, c0, _in_contact(out), out[OUT_MAX_PENETRATION], True)
             x[4] += h / 6.0 * (ta0 + 4.0 * ta1 + out[OUT_TAU_PINION])
             x[5] += h / 6.0 * (tb0 + 4.0 * tb1 + out[OUT_TAU_WHEEL])
             x[6] += h / 6.0 * (p0 + 4.0 * p1 + out[OUT_DISSIPATED_POWER])
@@ -388,6 +442,8 @@ def _advance_py(f, data, mode, scheme, x, par, u, H, n_sub, out, res):
     t = 0.0
     dt = h
     _rhs(f, data, mode, par, u, t, y, f0, out)
+    track = mode != _M_RIGID
+    _tally_start(res, _in_contact(out), out[OUT_MAX_PENETRATION], track)
     have_jac = False
     while True:
         if out[OUT_STATUS] != 0.0:
@@ -442,9 +498,12 @@ def _advance_py(f, data, mode, scheme, x, par, u, H, n_sub, out, res):
         _rhs(f, data, mode, par, u, t + dt, yn, fn, outn)
         # a contact closing or opening inside the sub-step (at a stage or at the end): the Jacobian of
         # the start state does not describe it; retry with halved steps down to h/64 (event refinement)
-        if (changed or _in_contact(outn) != c0) and dt > h_min:
+        c1 = _in_contact(outn)
+        if (changed or c1 != c0) and dt > h_min:
             dt *= 0.5
+            res[_RNREF] += 1.0
             continue
+        _tally(res, dt, c0, c1, outn[OUT_MAX_PENETRATION], track)
         t += dt
         for a in range(n):
             y[a] = yn[a]
@@ -577,6 +636,7 @@ class GearStage:
         self.energy_supplied = 0.0
         self._e_diss_balance = 0.0
         self.n_sub_last = 0
+        self.reset_counters()
 
     def _choose_scheme(self, scheme: str, model: MeshModel) -> str:
         """"auto": rk4 where it is stable at max_substep (ideal mesh; analytic mesh whose mesh-mode
@@ -636,6 +696,58 @@ class GearStage:
         """Quadrature of the port-damper and mesh dissipated power over the sub-steps, cumulative [J]."""
         return float(self.x[6])
 
+    # ---- stability counters (cumulative since initialize; kept by the kernel in self._res) ----------
+    def reset_counters(self) -> None:
+        """Restart the stability counters; the largest penetration starts from the current outputs."""
+        res = self._res
+        res[_RDTMIN] = math.inf
+        res[_RNREF] = 0.0
+        res[_RNSUB] = 0.0
+        res[_RTSEP] = 0.0
+        res[_RNSEP] = 0.0
+        pen = 0.0 if self._mode == _M_RIGID else float(self.out[OUT_MAX_PENETRATION])
+        res[_RPEN] = pen if math.isfinite(pen) else 0.0
+        res[_RINC] = -1.0
+
+    @property
+    def peak_penetration(self) -> float:
+        """Largest element penetration over every evaluated sub-step point [m] (0 for the ideal mesh).
+        After a mesh error it includes the penetration that exceeded u_max."""
+        return float(self._res[_RPEN])
+
+    @property
+    def min_substep(self) -> float:
+        """Smallest accepted sub-step [s]; 0.0 before the first step."""
+        v = float(self._res[_RDTMIN])
+        return v if math.isfinite(v) else 0.0
+
+    @property
+    def n_substeps_total(self) -> int:
+        """Accepted sub-steps."""
+        return int(self._res[_RNSUB])
+
+    @property
+    def n_refinements(self) -> int:
+        """Sub-step halvings: sub-steps rejected because a contact closed or opened inside them."""
+        return int(self._res[_RNREF])
+
+    @property
+    def separated_time(self) -> float:
+        """Time the mesh spent out of contact (teeth separated, inside the backlash) [s]; 0 for the
+        ideal mesh."""
+        return float(self._res[_RTSEP])
+
+    @property
+    def n_separations(self) -> int:
+        """Contact-loss events (in contact at one sub-step point, out of contact at the next)."""
+        return int(self._res[_RNSEP])
+
+    def counters(self) -> dict:
+        """The stability counters as a dict (see the properties)."""
+        return {"peak_penetration": self.peak_penetration, "min_substep": self.min_substep,
+                "n_substeps": self.n_substeps_total, "n_refinements": self.n_refinements,
+                "separated_time": self.separated_time, "n_separations": self.n_separations}
+
     def n_substeps(self, H: float) -> int:
         return max(1, int(math.ceil(H / self.params.max_substep - 1e-9)))
 
@@ -663,6 +775,7 @@ class GearStage:
         self.t = float(t0)
         # outputs at t0: instantaneous values
         self._instantaneous()
+        self.reset_counters()
 
     def _instantaneous(self):
         p = self._par

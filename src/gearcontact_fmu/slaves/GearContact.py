@@ -60,6 +60,8 @@ class GearContact(Fmi2Slave):
         "module": "m", "pressure_angle": "rad", "shaft_angle": "rad", "face_width": "m", "x_pinion": "1",
         "addendum_coefficient": "1", "dedendum_coefficient": "1", "backlash": "m", "tip_radius": "m",
         "mesh_damping_ratio": "1", "mesh_phase": "rad",
+        "peak_penetration": "m", "min_substep": "s", "n_substeps": "1", "n_refinements": "1",
+        "separated_time": "s", "n_separations": "1",
     }
 
     INPUTS = ("flange_a_phi", "flange_a_w", "flange_b_phi", "flange_b_w")
@@ -68,6 +70,11 @@ class GearContact(Fmi2Slave):
                "elastic_energy", "mesh_torque_pinion", "mesh_torque_wheel", "mesh_dissipated_power",
                "pinion_phi", "pinion_w", "wheel_phi", "wheel_w",
                "energy_stored", "energy_dissipated", "energy_supplied")
+    # stability counters of the stage, cumulative since t = 0 (GearStage.counters()): read from the stage
+    # when the host asks (no cost per step); after a failed do_step they include the failing sub-step
+    STABILITY = {"peak_penetration": "peak_penetration", "min_substep": "min_substep",
+                 "n_substeps": "n_substeps_total", "n_refinements": "n_refinements",
+                 "separated_time": "separated_time", "n_separations": "n_separations"}
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
@@ -132,6 +139,9 @@ class GearContact(Fmi2Slave):
             self.register_variable(Real(name, causality=Fmi2Causality.input))
         for name in self.OUTPUTS:
             self.register_variable(Real(name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact))
+        for name, prop in self.STABILITY.items():
+            self.register_variable(Real(name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact,
+                                        getter=(lambda prop=prop: self._counter(prop))))
 
         self._stage = None
         self._failed = None          # message once the instance is in the error state
@@ -167,6 +177,15 @@ class GearContact(Fmi2Slave):
         return True
 
     # ---- helpers ----------------------------------------------------------------------------------
+    def _counter(self, prop):
+        st = self._stage
+        if st is None:
+            return 0.0
+        try:
+            return float(getattr(st, prop))
+        except Exception:  # noqa: BLE001 - a getter must never raise into the host
+            return float("nan")
+
     def _fail(self, msg):
         self._failed = msg
         self.log(msg, Fmi2Status.error)

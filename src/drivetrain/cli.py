@@ -193,6 +193,60 @@ def _cmd_stress(args: argparse.Namespace) -> int:
     return 0 if rec["n_fail"] == 0 else 3
 
 
+def _cmd_check(args: argparse.Namespace) -> int:
+    """Run scenes and check them against their [expect] section and baseline (drivetrain.check)."""
+    import json
+
+    from drivetrain.check import CheckReport, check_scenes, format_table, select
+    from drivetrain.master import ConfigurationError
+    from drivetrain.scenario import ScenarioError, load_scenes
+
+    try:
+        files = [(path, select(load_scenes(path, args.set or ()), args.only)) for path in args.scenes]
+    except ScenarioError as exc:
+        return _scene_errors(exc)
+    log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
+    cases = []
+    try:
+        for path, scenes in files:
+            if scenes:
+                cases += check_scenes(path, scenes, out_dir=args.out, baseline_dir=args.baseline_dir,
+                                      fmu_dir=args.fmu_dir, backend=args.backend, workers=args.workers,
+                                      address=args.scheduler, progress=not args.quiet, log=log).cases
+    except (ConfigurationError, ValueError, OSError) as exc:
+        return _scene_errors(exc)
+    report = CheckReport(cases)
+    print(format_table(report, all_rows=args.all))
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(report.to_dict(), indent=1))
+    return 0 if report.ok else 1
+
+
+def _cmd_baseline(args: argparse.Namespace) -> int:
+    """Run scenes and store their compact references (drivetrain.check.baseline_file)."""
+    from drivetrain.check import baseline_file
+    from drivetrain.master import ConfigurationError
+    from drivetrain.scenario import ScenarioError
+
+    log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
+    bad = 0
+    for path in args.scenes:
+        try:
+            r = baseline_file(path, args.set or (), only=args.only, baseline_dir=args.baseline_dir,
+                              fmu_dir=args.fmu_dir, backend=args.backend, workers=args.workers,
+                              address=args.scheduler, progress=not args.quiet, allow_failed=args.allow_failed,
+                              log=log)
+        except (ScenarioError, ConfigurationError, ValueError, OSError) as exc:
+            return _scene_errors(exc)
+        if r.stored:
+            print(f"{path}: baseline of {len(r.stored)} case{'s' if len(r.stored) != 1 else ''} written to {r.path}")
+        for name, why in r.failed.items():
+            print(f"  {name}: not stored: {why}", file=sys.stderr)
+        bad += len(r.failed)
+    return 0 if not bad else 3
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="drivetrain", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -239,6 +293,31 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_sweep)
+
+    for name, helptext in (("check", "run scenes and check them against their [expect] section and baseline; "
+                                     "prints what moved; exit code 0 only if everything holds"),
+                           ("baseline", "run scenes and store a compact reference of each run (baseline file)")):
+        p = sub.add_parser(name, help=helptext)
+        p.add_argument("scenes", nargs="+", help="scene or grid files (a grid: every case)")
+        p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key of every scene")
+        p.add_argument("--only", nargs="*", default=None, metavar="PATTERN", help="only the cases matching these")
+        p.add_argument("--baseline-dir", default=None, metavar="DIR",
+                       help="baseline files DIR/<scene>.baseline.h5 (default: beside each scene file, "
+                            "or [check] baseline)")
+        p.add_argument("--workers", type=int, default=None, help="local worker processes for several cases")
+        p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler address")
+        p.add_argument("--backend", choices=("fmi", "inprocess"), default="fmi")
+        p.add_argument("--fmu-dir", default="fmus")
+        p.add_argument("--quiet", action="store_true")
+        if name == "check":
+            p.add_argument("--out", default="out/check",
+                           help="run results and failure plots, one directory per case (default: out/check)")
+            p.add_argument("--all", action="store_true", help="list every check, not only the failing ones")
+            p.add_argument("--json", default=None, metavar="FILE", help="also write the report as JSON")
+            p.set_defaults(func=_cmd_check)
+        else:
+            p.add_argument("--allow-failed", action="store_true", help="also store runs whose FMU failed")
+            p.set_defaults(func=_cmd_baseline)
 
     p = sub.add_parser("stress", help="stress campaign: the paper's 54 scenes and randomized hard scenes, judged "
                                       "(completes, finite, stable, energy, step halving); writes stress.md")

@@ -191,6 +191,18 @@ def assemble_scene(scene: Scene) -> SystemSpec:
     return assemble(scene)
 
 
+def _natural_frequencies(spec: SystemSpec, n: int = 6) -> list[float] | None:
+    """The lowest elastic natural frequencies [Hz] of the assembled, linearised drivetrain (free-free,
+    undamped, ISO mean mesh stiffness; as ``drivetrain eigen``): a few ms. None for a system the linear
+    model does not know (custom FMUs)."""
+    try:
+        from drivetrain.eigen import natural_frequencies
+
+        return [float(f) for f in natural_frequencies(spec)[:n]]
+    except Exception:  # noqa: BLE001 - a summary entry, never a reason to lose a run
+        return None
+
+
 def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "fmi", progress: bool = True,
               *, fmu_dir: str | Path = "fmus", spec: SystemSpec | None = None,
               fmu_paths: dict | None = None, plots: bool | None = None, build: bool = True,
@@ -328,6 +340,7 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
         "spectrum_peaks": peaks,
         "energy_residual": energy_residual,
         "energy": energy,
+        "natural_frequencies_Hz": _natural_frequencies(spec),
         "stability": {**stability_summary(res, spec, covered, energy_residual, settle),
                       "static_contact": contact_range},
         "fmus": fmus,

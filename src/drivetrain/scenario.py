@@ -225,6 +225,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
 
 GRID_SECTION = "sweep"
 GRID_KEYS = {"axes", "name"}
+#: Sections validated by drivetrain.expect (expectations and how a scene is checked; docs/SCENARIOS.md).
+CHECK_SECTIONS = ("expect", "check")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -320,6 +322,8 @@ class Scene:
     effects: EffectsSpec
     source: Path | None = None           # the file it came from (None if built in code)
     overrides: tuple[str, ...] = ()      # the --set strings applied
+    # drivetrain.expect.ExpectSpec of [expect]/[check] (None: absent); not part of what is simulated
+    expect: Any = dataclasses.field(default=None, compare=False, repr=False)
 
     @property
     def name(self) -> str:
@@ -357,6 +361,8 @@ class Scene:
     def with_overrides(self, overrides: list[str]) -> "Scene":
         """Re-validate this scene with ``--set`` style overrides applied."""
         raw = self.to_dict()
+        if self.expect is not None:
+            raw.update(self.expect.raw())
         apply_overrides(raw, overrides)
         base = self.source.parent if self.source else Path.cwd()
         return resolve(raw, base_dir=base, source=self.source, overrides=tuple(self.overrides) + tuple(overrides))
@@ -552,9 +558,12 @@ def resolve(raw: dict, base_dir: Path | str = ".", source: Path | str | None = N
         raise ScenarioError([("(scene)", raw, "a table of sections")], src)
     values: dict[str, dict[str, Any]] = {}
     for section, content in raw.items():
+        if section in CHECK_SECTIONS:
+            continue
         if section not in SCHEMA:
+            known = (*SCHEMA, *CHECK_SECTIONS)
             problems.append((section, content if not isinstance(content, dict) else "{...}",
-                             "a known section: " + ", ".join(SCHEMA) + _suggest(section, SCHEMA)))
+                             "a known section: " + ", ".join(known) + _suggest(section, known)))
             continue
         if not isinstance(content, dict):
             problems.append((section, content, f"a table [{section}]"))
@@ -645,13 +654,21 @@ def resolve(raw: dict, base_dir: Path | str = ".", source: Path | str | None = N
         if prof not in (None, _MISSING) and prof[0][0] != 0.0:
             problems.append((f"operating_point.{pk}", [list(p) for p in prof], "a profile starting at time 0"))
 
+    expect = None
+    if any(s in raw for s in CHECK_SECTIONS):
+        from drivetrain.expect import parse_checks
+
+        expect = parse_checks(raw.get("expect"), raw.get("check"), values, base_dir, problems,
+                              strict=not overrides)
+
     if problems:
         raise ScenarioError(problems, src)
 
     sections = {}
     for section, cls in _SECTION_CLASSES.items():
         sections[section] = cls(**values[section])
-    return Scene(**sections, source=Path(source).resolve() if source else None, overrides=tuple(overrides))
+    return Scene(**sections, source=Path(source).resolve() if source else None, overrides=tuple(overrides),
+                 expect=expect)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -742,6 +759,7 @@ def load_scenes(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -
     path = Path(path)
     src = str(path)
     raw = read_toml(path)
+    grid_expect = raw[GRID_SECTION].pop("expect", None) if isinstance(raw.get(GRID_SECTION), dict) else None
     axes, template = _split_grid(raw, src)
     overrides = tuple(overrides or ())
     apply_overrides(raw, overrides)
@@ -775,9 +793,24 @@ def load_scenes(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -
         if nm in names:
             raise ScenarioError([(f"{GRID_SECTION}.name", template, f"a template giving unique names ({nm!r} twice)")], src)
         names.add(nm)
+        if grid_expect is not None:          # [sweep.expect."<case name pattern>"]: more checks per case
+            from drivetrain.expect import case_expectations
+
+            extra = case_expectations(grid_expect, nm, problems)
+            if extra:
+                case["expect"] = {**(case.get("expect") or {}), **extra}
+                try:
+                    sc = resolve(case, base_dir=path.parent, source=path, overrides=overrides)
+                except ScenarioError as exc:
+                    problems.extend(exc.problems)
+                    continue
         scenes.append(dataclasses.replace(sc, scenario=dataclasses.replace(sc.scenario, name=nm)))
+    if grid_expect is not None:
+        from drivetrain.expect import unmatched_case_patterns
+
+        problems.extend(unmatched_case_patterns(grid_expect, names))
     if problems:
-        raise ScenarioError(problems, src)
+        raise ScenarioError(list({(k, repr(v), e): (k, v, e) for k, v, e in problems}.values()), src)
     return scenes
 
 

@@ -952,6 +952,11 @@ def run_stress(out_dir: Path | str = "out/stress", *, set_name: str = "all", n_r
     manifest = None
     if runnable:
         if todo:
+            from drivetrain.master import ensure_fmus
+
+            # the maps are prepared by instantiating GearContact in this process: its FMU must exist
+            models = list(dict.fromkeys(comp.model for c in todo for comp in c.spec.components))
+            ensure_fmus(models, fmu_dir, build=True, log=log or (lambda m: None))
             prepare_maps(todo, fmu_dir, log=log)
         order = sorted(runnable, key=_cost, reverse=True)
         manifest = run_sweep([c.scene for c in order], out, workers=workers, address=address, backend=backend,

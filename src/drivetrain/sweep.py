@@ -56,6 +56,19 @@ def _scene_of(case: dict) -> Scene:
     return sc
 
 
+def _summary_fields(s: dict) -> dict:
+    """The manifest fields a run's summary gives (ok or failed)."""
+    return {
+        "wall_time_s": s["wall_time_s"], "sim_time_s": s["sim_time_s"],
+        "real_time_factor": s["real_time_factor"], "us_per_step": s["us_per_step"],
+        "energy_residual": s["energy_residual"],
+        "torque_mean": {k: v["mean"] for k, v in s["torque"].items()},
+        "torque_rms": {k: v["rms"] for k, v in s["torque"].items()},
+        "warnings": s["warnings"],
+        "stability": s.get("stability"),
+    }
+
+
 def simulate(case: dict) -> dict:
     """Run one case in this process; never raises (errors are reported in the returned record)."""
     from drivetrain.run import RunFailedError, run_scene
@@ -68,18 +81,11 @@ def simulate(case: dict) -> dict:
                         fmu_dir=case.get("fmu_dir", "fmus"), spec=case.get("spec"),
                         fmu_paths=case.get("fmu_paths"), plots=case.get("plots", True),
                         build=False, log=lambda m: None)
-        s = res.summary
         rec.update({
             "status": "ok",
             "signals": str(Path(case["out_dir"]) / "signals.h5"),
             "summary": str(Path(case["out_dir"]) / "summary.json"),
-            "wall_time_s": s["wall_time_s"], "sim_time_s": s["sim_time_s"],
-            "real_time_factor": s["real_time_factor"], "us_per_step": s["us_per_step"],
-            "energy_residual": s["energy_residual"],
-            "torque_mean": {k: v["mean"] for k, v in s["torque"].items()},
-            "torque_rms": {k: v["rms"] for k, v in s["torque"].items()},
-            "warnings": s["warnings"],
-            "stability": s.get("stability"),
+            **_summary_fields(res.summary),
         })
     except RunFailedError as exc:
         # an FMU failed mid-run: the completed part was written; record where and why
@@ -92,13 +98,7 @@ def simulate(case: dict) -> dict:
             "failed_model": f.get("model"), "failure_cause": f.get("cause"),
             "failure": {k: f.get(k) for k in ("time_s", "component", "model", "function", "status", "cause")},
             "signals": files.get("signals"), "summary": files.get("summary"),
-            "wall_time_s": s["wall_time_s"], "sim_time_s": s["sim_time_s"],
-            "real_time_factor": s["real_time_factor"], "us_per_step": s["us_per_step"],
-            "energy_residual": s["energy_residual"],
-            "torque_mean": {k: v["mean"] for k, v in s["torque"].items()},
-            "torque_rms": {k: v["rms"] for k, v in s["torque"].items()},
-            "warnings": s["warnings"],
-            "stability": s.get("stability"),
+            **_summary_fields(s),
         })
     except Exception as exc:
         rec.update({"status": "failed", "error": f"{type(exc).__name__}: {exc}",

@@ -12,6 +12,8 @@ Nothing here prints: progress goes to the ``log`` callback.
 """
 from __future__ import annotations
 
+import contextlib
+
 import json
 import tempfile
 from dataclasses import dataclass, field
@@ -244,25 +246,28 @@ def check_scenes(path: str | Path, scenes: list[Scene], *, out_dir: str | Path |
                  progress: bool = False, log: Callable[[str], None] | None = None) -> CheckReport:
     """Run and check these cases of the scene file ``path`` (e.g. a subset of a grid)."""
     bp, cases = load_baseline_for(path, scenes, baseline_dir)
-    tmp = None
-    if out_dir is None:
-        tmp = tempfile.TemporaryDirectory(prefix="drivetrain-check-")
-        out_dir = tmp.name
-    try:
-        runs = run_cases(scenes, out_dir, fmu_dir=fmu_dir, backend=backend, workers=workers, address=address,
+    with _run_dir(out_dir, "drivetrain-check-") as (out, keep):
+        runs = run_cases(scenes, out, fmu_dir=fmu_dir, backend=backend, workers=workers, address=address,
                          progress=progress, log=log)
         report = []
         for r in runs:
             base = cases.get(r.scene.name)
-            cc = check_run(r, base=base, baseline_file=bp, plots=plots and tmp is None,
-                           plot_dir=Path(out_dir) / r.scene.name)
+            cc = check_run(r, base=base, baseline_file=bp, plots=plots and keep,
+                           plot_dir=Path(out) / r.scene.name)
             if cases and base is None:
                 cc.notes.append(f"no baseline for this case in {bp}")
             report.append(cc)
-    finally:
-        if tmp is not None:
-            tmp.cleanup()
     return CheckReport(report)
+
+
+@contextlib.contextmanager
+def _run_dir(out_dir, prefix: str):
+    """(directory for the runs, whether it is kept): ``out_dir``, or a temporary one removed afterwards."""
+    if out_dir is not None:
+        yield out_dir, True
+        return
+    with tempfile.TemporaryDirectory(prefix=prefix) as tmp:
+        yield tmp, False
 
 
 def check_file(path: str | Path, overrides=(), *, only: list[str] | None = None, **kw) -> CheckReport:
@@ -348,12 +353,8 @@ def baseline_file(path: str | Path, overrides=(), *, only: list[str] | None = No
     scenes = select(load_scenes(path, overrides), only)
     opts = scenes[0].expect.options if scenes and scenes[0].expect is not None else None
     bp = B.baseline_path(path, opts, baseline_dir)
-    tmp = None
-    if out_dir is None:
-        tmp = tempfile.TemporaryDirectory(prefix="drivetrain-baseline-")
-        out_dir = tmp.name
-    try:
-        runs = run_cases(scenes, out_dir, fmu_dir=fmu_dir, backend=backend, workers=workers, address=address,
+    with _run_dir(out_dir, "drivetrain-baseline-") as (out, _):
+        runs = run_cases(scenes, out, fmu_dir=fmu_dir, backend=backend, workers=workers, address=address,
                          progress=progress, log=log)
         entries, failed = [], {}
         for r in runs:
@@ -364,9 +365,6 @@ def baseline_file(path: str | Path, overrides=(), *, only: list[str] | None = No
                 failed[r.scene.name] = f"the run failed at t = {f.get('time_s')} s: {f.get('cause')}"
             else:
                 entries.append(B.make_entry(r.scene, r.summary, r.time, r.signals, r.units))
-    finally:
-        if tmp is not None:
-            tmp.cleanup()
     if entries:
         B.write_baseline(bp, entries, source=Path(path).resolve())
     return BaselineResult(bp, [e.name for e in entries], failed)

@@ -218,7 +218,7 @@ def test_cli_check_exit_codes_and_table(tmp_path, fmu_dir, capsys):
     assert _cli(["check", str(bad)], fmu_dir, tmp_path / "out") == 1
     out = capsys.readouterr().out
     row = [ln for ln in out.splitlines() if ln.startswith("FAIL")][0]
-    assert "torque.propeller_shaft_torque.mean" in row and "15.78" in row and "15.028" in row and "rel 0.01" in row
+    assert "torque.propeller_shaft_torque.mean" in row and "15.78" in row and "15.02" in row and "rel 0.01" in row
     assert (tmp_path / "out" / "bad" / "check_bad.png").is_file()
     refused = tiny(tmp_path, '"torque.nothing.mean" = { max = 1.0 }\n', name="refused")
     assert _cli(["check", str(refused)], fmu_dir, tmp_path / "out") == 2
@@ -295,7 +295,7 @@ def test_pytest_plugin_collects_scenes_and_writes_junit(tmp_path, fmu_dir):
                        cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert r.returncode == 1, r.stdout + r.stderr
     assert "1 failed, 1 passed, 1 deselected" in r.stdout, r.stdout
-    assert "expected 15.78, actual 15.028" in r.stdout
+    assert "expected 15.78, actual 15.02" in r.stdout
     cases = {tc.get("name"): tc for tc in ET.parse(report).getroot().iter("testcase")}
     assert set(cases) == {"holds", "moved"}
     assert cases["moved"].find("failure") is not None and cases["holds"].find("failure") is None

@@ -52,7 +52,8 @@ def _gear_parameters(scene, part: rig.Partition, max_substep: float) -> dict:
     p = dict(part.params["gear"])
     p.update(fidelity=eff.mesh_contact, health=scene.gear.health, max_substep=float(max_substep),
              profile_element_size=scene.numerics.profile_element_mm * 1e-3,
-             face_element_size=scene.numerics.face_element_mm * 1e-3)
+             face_element_size=scene.numerics.face_element_mm * 1e-3,
+             energy_correction=bool(scene.numerics.energy_correction))
     if scene.gear.pinion_mesh is not None:
         p["pinion_mesh_file"] = str(scene.gear.pinion_mesh)
     if scene.gear.wheel_mesh is not None:
@@ -119,7 +120,8 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     comps = []
     if eff.shaft_flexibility == "flexible":
         ds = dict(part.params["drive_shaft"])
-        ds.update(n_elements=int(eff.shaft_elements), max_substep=csub, phi0=th_next, w0=w, tau0=ss.T_dsh)
+        ds.update(n_elements=int(eff.shaft_elements), max_substep=csub, phi0=th_next, w0=w, tau0=ss.T_dsh,
+                  energy_correction=int(bool(num.energy_correction)))
         fs = FlexibleShaft(params_from(FlexibleShaftParams, ds))
         th_ut = th_next - ss.T_dsh * fs.compliance_to_port()
         comps.append(("drive_shaft", "FlexibleShaft", ds))
@@ -129,7 +131,8 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     phi_a = th_ut / up["ratio"]
     s0 = initial_mesh_deflection(ss.T_msh, eff.mesh_contact)
     phi_b = (phi_a - s0) / rig.LOWER_RATIO
-    mo.update(max_substep=csub, phi0_motor=th_motor, w0=w, tau0=ss.T_dsh, phi0_load=phi_b, w0_load=ss.w_prop,
+    mo.update(max_substep=csub, energy_correction=int(bool(num.energy_correction)), phi0_motor=th_motor, w0=w,
+              tau0=ss.T_dsh, phi0_load=phi_b, w0_load=ss.w_prop,
               load_w_nom=ss.w_prop if ss.w_prop > 0 else 1.0)
     gear = _gear_parameters(scene, part, sub)
 

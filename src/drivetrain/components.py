@@ -41,6 +41,8 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 from numba import njit
 
+from gearcontact_fmu.coupling import EnergyCorrection
+
 RPM = 2.0 * math.pi / 60.0
 
 INERTIA_PORT = 0
@@ -335,7 +337,7 @@ class LineModel:
     views into them, so writing e.g. ``model.l_Tc[0] = 2.0`` changes what the next step uses."""
 
     def __init__(self, J, k, c, cext=None, ports=(), laws=(), motor_node=-1, motor_par=(1.0, 1.0, 0.9, 1e9),
-                 max_substep=1e-5, output_torque="mean", Mo=None, node_names=None):
+                 max_substep=1e-5, output_torque="mean", Mo=None, node_names=None, energy_correction=True):
         J = np.asarray(J, dtype=np.float64)
         n = J.shape[0]
         self.n = n
@@ -420,6 +422,8 @@ class LineModel:
         self.wk = np.zeros(7 * n + 2 * L + 2)
         self.last_H = 0.0
         self.n_sub_last = 0
+        self.spring_ports = [q for q, p in enumerate(self.ports) if p.kind == SPRING_PORT]
+        self.correction = EnergyCorrection([self.p_k[q] for q in self.spring_ports], bool(energy_correction))
 
     # ---- state ------------------------------------------------------------------------------------
     def set_state(self, th, om, pi_x=0.0):
@@ -455,7 +459,22 @@ class LineModel:
             raise ComponentError(f"non-finite state at t = {t:.9g} s; check the parameters")
         self.last_H = H
         self.n_sub_last = n_sub
+        sp = self.spring_ports
+        if sp:
+            tau = self.correction.apply([self.p_u0[q] for q in sp], [self.p_u1[q] for q in sp], H,
+                                        [self.tau_mean[q] for q in sp], [self.tau_out[q] for q in sp],
+                                        [self.p_ratio[q] * self.th[self.p_node[q]] for q in sp])
+            for i, q in enumerate(sp):
+                self.tau_out[q] = tau[i]
         return code
+
+    def start_ports(self) -> None:
+        """Before the first step (inputs set): the spring-port outputs are the port springs against the
+        current inputs; they seed the coupling correction (the torque held over step 0)."""
+        for q in self.spring_ports:
+            name = self.ports[q].name
+            self.tau_out[q] = self.tau_mean[q] = self.spring_torque(name, self.p_u0[q], self.p_u1[q])
+        self.correction.reset([self.tau_out[q] for q in self.spring_ports])
 
     @property
     def energy_dissipated(self) -> float:
@@ -582,6 +601,7 @@ class FlexibleShaftParams:
     mass_model: int = 0
     max_substep: float = 1e-5
     output_torque: int = 0
+    energy_correction: int = 1      # 1: energy-conserving correction of the flange_b torque (coupling.py)
     phi0: float = 0.0
     w0: float = 0.0
     tau0: float = 0.0
@@ -647,6 +667,7 @@ class MotorLoadParams:
     load_profile: str = ""
     max_substep: float = 1e-5
     output_torque: int = 0
+    energy_correction: int = 1      # 1: energy-conserving correction of the drive torque (coupling.py)
     phi0_motor: float = 0.0
     w0: float = 0.0
     tau0: float = 0.0
@@ -755,7 +776,8 @@ class FlexibleShaft:
         self.port_c = ce
         ports = [Port("flange_a", 0, INERTIA_PORT), Port("flange_b", len(J) - 1, SPRING_PORT, 1.0, ke, ce)]
         self.line = LineModel(J, k, c, None, ports, (), max_substep=p.max_substep,
-                              output_torque=int(p.output_torque), Mo=Mo, node_names=names)
+                              output_torque=int(p.output_torque), Mo=Mo, node_names=names,
+                              energy_correction=bool(p.energy_correction))
         self.sensor_element = 0 if p.k_t > 0 else -1
         self.initialize()
 
@@ -868,7 +890,8 @@ class MotorLoad:
                 Law("load_motor", 2, 0.0, 0.0, p.load_w_reg if p.load_w_reg > 0 else 1e-3, 0.0, source=True)]
         self.line = LineModel(J, k, c, cext, ports, laws, motor_node=0,
                               motor_par=(p.Kp, p.Ti, p.Ni, p.tau_max), max_substep=p.max_substep,
-                              output_torque=int(p.output_torque), node_names=["motor", "flywheel", "load"])
+                              output_torque=int(p.output_torque), node_names=["motor", "flywheel", "load"],
+                              energy_correction=bool(p.energy_correction))
         self.speed_profile = parse_profile(p.speed_profile)
         self.load_profile = parse_profile(p.load_profile)
         self.speed_ref_rpm = p.w0 / RPM

@@ -160,15 +160,12 @@ def _apply_inputs(slave):
 
 
 def _publish(slave, initial: bool = False):
+    if initial:
+        # spring-side torques before the first step: the port springs against the current inputs
+        slave._comp.line.start_ports()
     out = slave._comp.outputs()
     if initial:
-        # spring-side torques before the first step: the port spring against the current inputs
         ln = slave._comp.line
-        for p in ln.ports:
-            if p.kind == C.SPRING_PORT:
-                q = ln.port_index[p.name]
-                out[f"{p.name}_tau"] = ln.spring_torque(p.name, ln.p_u0[q], ln.p_u1[q])
-                out[f"{p.name}_tau_mean"] = out[f"{p.name}_tau"]
         out["energy_stored"] = ln.stored_energy({p.name: ln.p_u0[ln.port_index[p.name]]
                                                  for p in ln.ports if p.kind == C.SPRING_PORT})
     for name in slave._outputs:

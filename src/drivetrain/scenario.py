@@ -205,6 +205,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "face_element_mm": _f(_RES.face * 1e3, "mm", "length",
                               "contact-mesh element size along the face width (default: MeshResolution)",
                               minimum=0.0, min_exclusive=True),
+        "energy_correction": Key("bool", True, doc=(
+            "energy-conserving correction of the torques the spring-side ports hand over (gear stage, "
+            "drive motor, drive shaft; gearcontact_fmu.coupling): removes the first-order energy error "
+            "of the co-simulation cuts (docs/STABILITY.md)")),
         "anti_alias": Key("enum", "fir", allowed=ANTI_ALIAS, doc=(
             "anti-alias filter before decimating to sample_rate_Hz: linear-phase Kaiser FIR or "
             "zero-phase Butterworth (sosfiltfilt)")),
@@ -293,6 +297,7 @@ class NumericsSpec:
     max_substep_s: float = 5.0e-6
     profile_element_mm: float = 0.05
     face_element_mm: float = 2.0
+    energy_correction: bool = True
     anti_alias: str = "fir"
 
     def steps_per_output(self, sample_rate_Hz: float) -> int:

@@ -61,6 +61,7 @@ import numba as nb
 import numpy as np
 from numba import njit, types
 
+from gearcontact_fmu.coupling import EnergyCorrection
 from gearcontact_fmu.fidelity import (
     N_OUT, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY, OUT_MAX_PENETRATION, OUT_NORMAL_FORCE, OUT_STATUS,
     OUT_TAU_PINION,
@@ -124,6 +125,7 @@ class StageParams:
     scheme: str = "auto"           # "auto" | "ros2" | "rk4" (auto: see GearStage.scheme)
     mode: str = "stage"
     output_torque: str = "predicted"   # flange torque output: "predicted" | "mean" | "end"
+    energy_correction: bool = True     # energy-conserving correction of the flange torques (coupling.py)
     fd_angle: float = 1e-7         # rad, finite-difference step of the mesh Jacobian (wheel angle x z2/z1)
     fd_speed: float = 1e-4         # rad/s
 
@@ -636,6 +638,9 @@ class GearStage:
         self.energy_supplied = 0.0
         self._e_diss_balance = 0.0
         self.n_sub_last = 0
+        # the bare mode's outputs are mesh torques on host-owned bodies, not spring-side ports
+        self.correction = EnergyCorrection((params.k_a, params.k_b),
+                                           bool(params.energy_correction) and self._mode != _M_BARE)
         self.reset_counters()
 
     def _choose_scheme(self, scheme: str, model: MeshModel) -> str:
@@ -775,6 +780,7 @@ class GearStage:
         self.t = float(t0)
         # outputs at t0: instantaneous values
         self._instantaneous()
+        self.correction.reset((self.tau_a, self.tau_b))
         self.reset_counters()
 
     def _instantaneous(self):
@@ -851,6 +857,11 @@ class GearStage:
             self.tau_a, self.tau_b = float(res[_RTAE]), float(res[_RTBE])
         else:
             self.tau_a, self.tau_b = self.tau_a_mean, self.tau_b_mean
+        if balance:
+            x = self.x
+            self.tau_a, self.tau_b = self.correction.apply(
+                (phi_a, phi_b), (w_a, w_b), H, (self.tau_a_mean, self.tau_b_mean), (self.tau_a, self.tau_b),
+                (x[0], x[0] / self.ratio if self._mode == _M_RIGID else x[1]))
         self.energy_stored = float(res[_RES])
         if balance:
             # work in through the flanges (linearly extrapolated flange angles: constant speeds)

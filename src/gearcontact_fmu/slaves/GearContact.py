@@ -114,6 +114,8 @@ class GearContact(Fmi2Slave):
         # effects: switched off, they are not evaluated at all (and the contact map is shared)
         self.friction = True
         self.contact_damping = True
+        # coupling: energy-conserving correction of the flange torques (gearcontact_fmu.coupling)
+        self.energy_correction = s.energy_correction
         # analytic mesh
         self.mesh_damping_ratio = 0.05
         self.mesh_phase = 0.0
@@ -126,7 +128,7 @@ class GearContact(Fmi2Slave):
             self.register_variable(String(name, causality=P, variability=F))
         for name in ("z_pinion", "z_wheel"):
             self.register_variable(Integer(name, causality=P, variability=F))
-        for name in ("friction", "contact_damping"):
+        for name in ("friction", "contact_damping", "energy_correction"):
             self.register_variable(Boolean(name, causality=P, variability=F))
         for name in ("E", "nu", "layer_depth", "c_compression", "c_expansion", "transformation_depth", "mu",
                      "v_friction", "u_max", "profile_element_size", "face_element_size",
@@ -206,7 +208,8 @@ class GearContact(Fmi2Slave):
         res = MeshResolution(profile=self.profile_element_size, face=self.face_element_size)
         sp = StageParams(J_pinion=self.J_pinion, J_wheel=self.J_wheel, k_a=self.k_a, d_a=self.d_a,
                          k_b=self.k_b, d_b=self.d_b, max_substep=self.max_substep, scheme=self.scheme,
-                         mode=self.mode, output_torque=self.output_torque)
+                         mode=self.mode, output_torque=self.output_torque,
+                         energy_correction=bool(self.energy_correction))
         mesh_files = {k: v for k, v in (("pinion", self.pinion_mesh_file), ("wheel", self.wheel_mesh_file)) if v}
         kw = {}
         fidelity = self.fidelity.strip().lower()

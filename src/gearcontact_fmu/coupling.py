@@ -1,0 +1,118 @@
+"""Energy-conserving correction of the torque a spring-side port hands to a co-simulation master.
+
+What
+----
+A spring-side port (the gear stage's flanges, the MotorLoad drive flange, the FlexibleShaft's
+flange_b) takes the neighbour's flange angle and speed (phi_k, w_k) at the start of step k, moves the
+flange along phi_k + w_k t inside the step, and returns a torque that the neighbour holds over the
+*next* step. The work the port accounts for itself over step k is W_k = H tau_mean,k w_k; the work the
+neighbour receives is tau_held,k (phi_k+1 - phi_k). Their difference is the coupling error of the cut:
+first order in H, it is what the master's energy audit sees as a residual (0.5-2 % at H = 1/3000 s on
+the stress campaign, docs/STABILITY.md).
+
+How (nearly energy-preserving coupling, after Sadjina et al., 2017)
+-----------------------------------------------------------------
+One call later the port knows phi_k+1, so it measures the step's mismatch
+m_k = tau_held,k (phi_k+1 - phi_k) - W_k and keeps the cumulative E = sum m. It adds a correction c to
+the torque it returns so that the work of c over the step it will be held for cancels E:
+
+    c_k+1 = -(E_k + c_k d) d / (d^2 + eps^2),   d = w H   (the expected displacement)
+
+where c_k d is the expected work of the correction still in flight (the output of the previous call is
+held during the current step and measured only on the next call). Correcting each step's mismatch on
+its own instead undoes the previous correction and only halves the residual (measured). The division is
+regularised by eps (1e-5 rad) so a port at rest gets no correction, and |c| is capped at a fraction of
+the port torque (the correction is a small perturbation by design; what a cap holds back stays in E
+and is returned later, nothing is lost).
+
+Trade-offs
+----------
+- It assumes a Jacobi master with a fixed step (ours, libcosim's and most fixed-step hosts): the
+  output of call k is what the neighbour holds during step k+1. Under another schedule the measured E is
+  still the true mismatch but the in-flight estimate is off by one step (then switch it off: the
+  ``energy_correction`` parameter of each FMU, scene key ``numerics.energy_correction``).
+- It does not change the port's internal state or its step-mean outputs, only the coupling torque.
+- The linear cut analysis (drivetrain stability checks) does not model it; the stress campaign
+  measured that it does not shrink the stable region (docs/STABILITY.md).
+"""
+from __future__ import annotations
+
+import math
+
+#: regularisation of the division by the expected displacement [rad]
+EPS_RAD = 1e-5
+#: largest correction relative to the larger of |tau_mean| and CAP_FLOOR_NM
+CAP_REL = 0.1
+#: torque floor of the cap [N m]: a port near zero torque may still return a small correction
+CAP_FLOOR_NM = 0.05
+
+
+class EnergyCorrection:
+    """The correction state of spring-side ports with port-spring stiffnesses ``k_ports`` (plain
+    floats: called once per step). ``mismatch_J``: the measured cumulative work mismatch per port
+    (tracked also when the correction is disabled: the cut's share of the energy residual)."""
+
+    __slots__ = ("n", "k", "enabled", "mismatch_J", "_held_before", "_held_last", "_c_last", "_phi",
+                 "_phi_end", "_x", "_work", "_started")
+
+    def __init__(self, k_ports, enabled: bool = True):
+        self.k = [float(v) for v in k_ports]
+        self.n = len(self.k)
+        self.enabled = bool(enabled)
+        self.reset([0.0] * self.n)
+
+    def reset(self, tau_initial) -> None:
+        """Start over; ``tau_initial``: the torques the ports return before the first step (held over
+        step 0)."""
+        n = self.n
+        self.mismatch_J = [0.0] * n           # cumulative measured work mismatch E
+        self._held_before = [0.0] * n         # output held during the step measured next
+        self._held_last = [float(v) for v in tau_initial]
+        self._c_last = [0.0] * n
+        self._phi = [0.0] * n
+        self._phi_end = [0.0] * n
+        self._x = [0.0] * n
+        self._work = [0.0] * n
+        self._started = False
+
+    def apply(self, phi, w, H: float, tau_mean, tau_base, x_end) -> list[float]:
+        """One call per step, after the port's step with the flange inputs ``phi``, ``w`` (sequences,
+        one per port) over ``H``: ``tau_mean`` the step means the port accounted its work with,
+        ``tau_base`` the uncorrected outputs, ``x_end`` the port springs' inner angles at the step end.
+        Returns the outputs to hand to the master.
+
+        The mismatch of the step before, measured now: the work the neighbour received,
+        tau_held (phi - phi_prev), minus the work the port accounted, H tau_mean w, plus the jump of the
+        port-spring energy between the extrapolated flange angle the step ended with and the actual
+        one this step starts from (the port's stored energy is reported at the extrapolated angle)."""
+        n = self.n
+        out = [0.0] * n
+        for q in range(n):
+            phi_q = float(phi[q])
+            if self._started:
+                dphi = phi_q - self._phi[q]
+                a = self._x[q] - phi_q
+                b = self._x[q] - self._phi_end[q]
+                jump = 0.5 * self.k[q] * (a * a - b * b)
+                self.mismatch_J[q] += self._held_before[q] * dphi - self._work[q] + jump
+            c = 0.0
+            if self.enabled:
+                d = float(w[q]) * H
+                c = -(self.mismatch_J[q] + self._c_last[q] * d) * d / (d * d + EPS_RAD * EPS_RAD)
+                cap = CAP_REL * max(abs(float(tau_mean[q])), CAP_FLOOR_NM)
+                if c > cap:
+                    c = cap
+                elif c < -cap:
+                    c = -cap
+                if not math.isfinite(c):
+                    c = 0.0
+            out[q] = float(tau_base[q]) + c
+            self._held_before[q] = self._held_last[q]
+            self._held_last[q] = out[q]
+            self._c_last[q] = c
+            self._phi[q] = phi_q
+            self._phi_end[q] = phi_q + float(w[q]) * H
+            self._x[q] = float(x_end[q])
+            self._work[q] = H * float(tau_mean[q]) * float(w[q])
+        self._started = True
+        return out

@@ -477,6 +477,12 @@ class LineModel:
         self.correction.reset([self.tau_out[q] for q in self.spring_ports])
 
     @property
+    def coupling_energy_error(self) -> float:
+        """Cumulative work mismatch at the spring-side ports [J] (the cuts' share of the energy
+        residual still uncorrected; gearcontact_fmu.coupling)."""
+        return float(sum(self.correction.mismatch_J))
+
+    @property
     def energy_dissipated(self) -> float:
         return float(self.energy[0])
 
@@ -813,6 +819,7 @@ class FlexibleShaft:
                 "flange_b_tau_mean": float(self.line.tau_mean[1]),
                 "torque_sensor": self.torque_sensor, "shaft_torque": self.shaft_torque,
                 "hub_b_phi": float(self.line.th[self.i_hub_b]), "hub_b_w": float(self.line.om[self.i_hub_b]),
+                "coupling_energy_error": self.line.coupling_energy_error,
                 "energy_stored": self.line.stored_energy(), "energy_dissipated": self.line.energy_dissipated,
                 "energy_supplied": self.line.energy_supplied}
 
@@ -961,6 +968,7 @@ class MotorLoad:
                 "motor_torque": self.motor_torque, "load_motor_torque": self.load_motor_torque,
                 "load_motor_w": self.p.ratio_pg * wl,
                 "coupling_torque": float(ln.el_mean[0]),
+                "coupling_energy_error": ln.coupling_energy_error,
                 "energy_stored": ln.stored_energy(), "energy_dissipated": ln.energy_dissipated,
                 "energy_supplied": ln.energy_supplied}
 

@@ -37,10 +37,11 @@ EXTRA_INPUTS = {
     "MotorLoad": ("speed_ref_rpm", "load_torque"),
 }
 OUTPUTS = {
-    "FlexibleShaft": ("flange_b_tau_mean", "torque_sensor", "shaft_torque", "hub_b_phi", "hub_b_w"),
+    "FlexibleShaft": ("flange_b_tau_mean", "torque_sensor", "shaft_torque", "hub_b_phi", "hub_b_w",
+                      "coupling_energy_error"),
     "UpperTransmission": ("torque_sensor", "loss_torque"),
     "MotorLoad": ("drive_tau_mean", "motor_phi", "motor_w", "flywheel_phi", "flywheel_w", "motor_torque",
-                  "load_motor_torque", "load_motor_w", "coupling_torque"),
+                  "load_motor_torque", "load_motor_w", "coupling_torque", "coupling_energy_error"),
 }
 ENERGY = ("energy_stored", "energy_dissipated", "energy_supplied")
 
@@ -60,7 +61,7 @@ UNITS = {
     "load_motor_torque": "N.m", "coupling_torque": "N.m", "flange_b_tau_mean": "N.m", "drive_tau_mean": "N.m",
     "motor_phi": "rad", "flywheel_phi": "rad", "hub_b_phi": "rad", "motor_w": "rad/s", "flywheel_w": "rad/s",
     "hub_b_w": "rad/s", "load_motor_w": "rad/s",
-    "energy_stored": "J", "energy_dissipated": "J", "energy_supplied": "J",
+    "energy_stored": "J", "energy_dissipated": "J", "energy_supplied": "J", "coupling_energy_error": "J",
 }
 for _m, _ports in PORTS.items():
     for _p in _ports:

@@ -51,7 +51,7 @@ class GearContact(Fmi2Slave):
         "normal_force": "N", "elastic_energy": "J", "mesh_torque_pinion": "N.m", "mesh_torque_wheel": "N.m",
         "mesh_dissipated_power": "W",
         "pinion_phi": "rad", "pinion_w": "rad/s", "wheel_phi": "rad", "wheel_w": "rad/s",
-        "energy_stored": "J", "energy_dissipated": "J", "energy_supplied": "J",
+        "energy_stored": "J", "energy_dissipated": "J", "energy_supplied": "J", "coupling_energy_error": "J",
         "E": "Pa", "nu": "1", "layer_depth": "m", "c_compression": "N.s/m3", "c_expansion": "N.s/m3",
         "transformation_depth": "m", "mu": "1", "v_friction": "m/s", "u_max": "m",
         "profile_element_size": "m", "face_element_size": "m",
@@ -69,7 +69,7 @@ class GearContact(Fmi2Slave):
                "n_contact", "contact_area", "peak_pressure", "max_penetration", "normal_force",
                "elastic_energy", "mesh_torque_pinion", "mesh_torque_wheel", "mesh_dissipated_power",
                "pinion_phi", "pinion_w", "wheel_phi", "wheel_w",
-               "energy_stored", "energy_dissipated", "energy_supplied")
+               "energy_stored", "energy_dissipated", "energy_supplied", "coupling_energy_error")
     # stability counters of the stage, cumulative since t = 0 (GearStage.counters()): read from the stage
     # when the host asks (no cost per step); after a failed do_step they include the failing sub-step
     STABILITY = {"peak_penetration": "peak_penetration", "min_substep": "min_substep",
@@ -246,3 +246,4 @@ class GearContact(Fmi2Slave):
         self.energy_stored = st.energy_stored
         self.energy_dissipated = st.energy_dissipated
         self.energy_supplied = st.energy_supplied
+        self.coupling_energy_error = float(sum(st.correction.mismatch_J))

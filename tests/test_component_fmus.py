@@ -110,6 +110,25 @@ def test_fmu_steps_like_the_component_class(fmus):
         inst.close()
 
 
+def test_parameters_set_in_initialization_mode_take_effect(fmus):
+    """FMI 2.0 lets a host set fixed parameters between enter and exit of initialization mode (Ecos
+    does); the drivetrain slaves built their model at enter and kept the old values: the drive motor
+    started from standstill (1.0 rad/s after one step instead of 157)."""
+    inst = Instance(str(fmus["MotorLoad"]), "init_params")
+    try:
+        inst.fmu.enterInitializationMode()
+        inst.set(w0=157.0, w0_load=157.0 / 12.0, tau0=1.0)
+        inst.set(drive_phi=0.0, drive_w=157.0, speed_ref_rpm=157.0 * 60.0 / (2.0 * np.pi))
+        inst.fmu.exitInitializationMode()
+        inst.fmu.doStep(0.0, H)
+        motor_w, = inst.get("motor_w")
+        assert motor_w == pytest.approx(157.0, rel=1e-3)
+        # and the values read back are the values the model uses
+        assert inst.get("w0")[0] == 157.0
+    finally:
+        inst.close()
+
+
 @pytest.mark.parametrize("model", MODELS)
 def test_nan_input_is_an_fmi_error_not_a_crash(fmus, model):
     from fmpy.fmi1 import FMICallException

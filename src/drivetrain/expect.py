@@ -103,7 +103,7 @@ SUMMARY_TREE: dict = {
     "stability": {
         "gear": "str", "time_s": "num", "max_penetration_m": "num", "u_max_m": "num",
         "max_penetration_rel_umax": "num", "min_substep_s": "num", "max_substep_s": "num", "n_substeps": "int",
-        "n_refinements": "int", "energy_residual": "num",
+        "n_refinements": "int", "energy_residual": "num", "coupling_energy_pending_J": "any",
         "rattle": {"window_s": {"<i>": "num"}, "separated": "bool", **_RATTLE3, "whole_run": dict(_RATTLE3)},
         "static_contact": "any"},
     "fmus": "any", "nonfinite_channels": "any", "warnings": "any", "drivetrain_version": "str",

@@ -11,7 +11,8 @@ parameter, variability fixed), inputs (the flange inputs of its ports and extra 
 Life cycle: the component is built in
 ``enter_initialization_mode`` (after the parameters are set: the parameter-dependent setup never runs
 at instantiation), so the inertia-side flange outputs are valid while the master exchanges initial
-values; ``exit_initialization_mode`` takes the final inputs and publishes the
+values; ``exit_initialization_mode`` builds it again if the host changed a parameter in
+initialization mode (FMI 2.0 allows it; Ecos does it), takes the final inputs and publishes the
 spring-side torques. ``do_step`` checks the inputs (NaN/inf -> logged error and status error, the
 instance refuses further steps; the host never crashes), advances the component and publishes.
 """
@@ -24,6 +25,7 @@ from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, In
 from pythonfmu.enums import Fmi2Status
 
 from drivetrain import components as C
+from gearcontact_fmu.fmuguard import fmi_text
 
 #: per model: ports (name -> "spring" | "inertia"), extra inputs, outputs, parameter units
 PORTS = {
@@ -131,6 +133,7 @@ def init_slave(slave, model: str, slave_kwargs: dict | None = None) -> None:
         setattr(slave, name, 0.0)
         slave.register_variable(Real(name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact))
     slave._comp = None
+    slave._built_with = None
     slave._failed = None
 
 
@@ -140,7 +143,7 @@ def _params(slave):
 
 def _fail(slave, msg: str):
     slave._failed = msg
-    slave.log(f"{slave.MODEL}: {msg}", Fmi2Status.error)
+    slave.log(fmi_text(f"{slave.MODEL}: {msg}"), Fmi2Status.error)
 
 
 def _check_inputs(slave, t: float):
@@ -177,7 +180,8 @@ def enter_init(slave):
     """Build the component (parameters are set by now); publish the state-only outputs."""
     try:
         cls, _ = C.COMPONENTS[slave.MODEL]
-        slave._comp = cls(_params(slave))
+        slave._built_with = _params(slave)
+        slave._comp = cls(slave._built_with)
         out = slave._comp.outputs()
         for name in slave._outputs:
             if name in out and not name.endswith("_tau") and not name.endswith("_tau_mean"):
@@ -190,9 +194,13 @@ def exit_init(slave):
     if slave._failed is not None:
         return
     try:
-        if slave._comp is None:
+        params = _params(slave)
+        if slave._comp is None or params != slave._built_with:
+            # FMI 2.0 lets a host set parameters in initialization mode, after the build at its start
+            # (Ecos does): build again with the values the host set
             cls, _ = C.COMPONENTS[slave.MODEL]
-            slave._comp = cls(_params(slave))
+            slave._built_with = params
+            slave._comp = cls(params)
         _check_inputs(slave, 0.0)
         _apply_inputs(slave)
         if slave.MODEL == "MotorLoad":
@@ -206,7 +214,7 @@ def exit_init(slave):
 def do_step(slave, current_time, step_size) -> bool:
     """Advance one communication step; False (logged error, pythonfmu: fmi2Discard) on any failure."""
     if slave._failed is not None:
-        slave.log(f"{slave.MODEL} is in the error state: {slave._failed}", Fmi2Status.error)
+        slave.log(fmi_text(f"{slave.MODEL} is in the error state: {slave._failed}"), Fmi2Status.error)
         return False
     try:
         _check_inputs(slave, current_time)

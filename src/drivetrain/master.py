@@ -769,7 +769,9 @@ class _InprocSlave(_Slave):
         q = getattr(self.obj, "log_queue", None) if hasattr(self, "obj") else None
         if q:
             for m in q:
-                self.log.add(int(getattr(m.status, "value", m.status)), m.category or "", m.msg)
+                # the slaves double every "%" for the FMI logger's printf format (fmuguard.fmi_text)
+                self.log.add(int(getattr(m.status, "value", m.status)), m.category or "",
+                             str(m.msg).replace("%%", "%"))
             q.clear()
 
     def _guard(self, what, fn, status_on_false: int | None = None, t: float = 0.0):

@@ -35,6 +35,9 @@ SUMMARY_KEYS = (
 #: The gear stage FMU model and what is read from it once at the end of a run (and at a failure) for
 #: ``summary["stability"]``: its cumulative stability counters (docs/FMU.md) and two parameters.
 GEAR_MODEL = "GearContact"
+#: read from every FMU that has it (ours with spring-side ports): the work mismatch of its cuts still
+#: pending at the end of the run (gearcontact_fmu.coupling)
+COUPLING_VAR = "coupling_energy_error"
 GEAR_FINAL_VARS = ("peak_penetration", "min_substep", "n_substeps", "n_refinements", "separated_time",
                    "n_separations", "u_max", "max_substep")
 
@@ -100,6 +103,9 @@ def stability_summary(res: CosimResult, spec: SystemSpec, time_s: float, energy_
     - ``min_substep_s``: smallest sub-step the stage took, ``max_substep_s`` its nominal sub-step,
       ``n_substeps`` accepted sub-steps, ``n_refinements`` sub-step halvings (contact events);
     - ``energy_residual``: the relative energy residual of the run (None for a failed run);
+    - ``coupling_energy_pending_J``: per FMU with spring-side ports, the work mismatch of its cuts not
+      yet returned by the energy correction at the end (with ``numerics.energy_correction = false``: the
+      whole mismatch, i.e. that FMU's share of the audit's residual);
     - ``rattle``: tooth separation while running, i.e. after the settling time (the start-up transient
       from the assembled initial state may bounce the teeth once or twice): ``window_s`` = [settle_s,
       time_s] (the part of the run it covers), ``separated`` (the teeth lost contact at least once in
@@ -144,6 +150,8 @@ def stability_summary(res: CosimResult, spec: SystemSpec, time_s: float, energy_
         "n_substeps": n_sub,
         "n_refinements": count("n_refinements"),
         "energy_residual": energy_residual,
+        "coupling_energy_pending_J": {c.name: res.final[f"{c.name}.{COUPLING_VAR}"] for c in spec.components
+                                      if f"{c.name}.{COUPLING_VAR}" in res.final},
         "rattle": {
             "window_s": [t0, float(time_s)],
             "separated": (bool(w_nsep > 0 or w_tsep > 0) if w_nsep is not None and w_tsep is not None else None),
@@ -244,6 +252,7 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
     record = list(dict.fromkeys(sources.values()))
 
     final = [f"{c.name}.{v}" for c in spec.components if c.model == GEAR_MODEL for v in GEAR_FINAL_VARS]
+    final += [f"{c.name}.{COUPLING_VAR}" for c in spec.components]
     master = Master(spec, fmu_dir=fmu_dir, backend=backend, fmu_paths=fmu_paths, build=build, log=log)
     failed: CosimError | None = None
     try:

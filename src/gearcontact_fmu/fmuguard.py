@@ -77,3 +77,11 @@ def pin_export_library_state(slave_kwargs: dict, model_identifier: str) -> bool:
         return False
     _GUARDED[key] = True
     return True
+
+
+def fmi_text(text: str) -> str:
+    """A log message as FMI 2.0 hands it to the host: ``fmi2CallbackLogger`` takes the message as a
+    printf-style format, so every ``%`` of user text (a path, a name, a value) is doubled; a ``%n`` or
+    ``%s`` left as it is makes a formatting host read arguments that do not exist (measured: fmpy's
+    process died with a segmentation fault on a mesh path containing ``%n``)."""
+    return str(text).replace("%", "%%")

@@ -17,6 +17,9 @@ external body towards the pinion) and tau_b likewise with the wheel, in three fo
 ``output_torque`` selects which one ``tau_a``/``tau_b`` (the coupling torques) carry. A Jacobi master
 applies them over the next step, so the mean of the last step is a full step late: measured, it is the
 least stable coupling; the prediction (default) is the most stable (docs/FMU.md has the limits).
+``energy_correction`` (default on) adds to the coupling torques a small correction that returns the
+work mismatch of each cut measured one step later (gearcontact_fmu.coupling); the step means and the
+state are not touched, ``correction.mismatch_J`` holds what is still pending.
 With fidelity "ideal" (MeshModel.kind == "rigid") pinion and wheel form one rigid body
 J_p + J_w/r^2 (pinion-referred, r = z2/z1); the mesh torques reported are the constraint torques.
 

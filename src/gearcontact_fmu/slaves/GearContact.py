@@ -34,6 +34,8 @@ from gearcontact_fmu.fidelity import (OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OU
 from pythonfmu import Boolean, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real, String  # noqa: E402
 from pythonfmu.enums import Fmi2Status  # noqa: E402
 
+from gearcontact_fmu.fmuguard import fmi_text  # noqa: E402
+
 PACKAGE_ORIGIN = str(Path(gearcontact_fmu.__file__).resolve().parent)
 
 
@@ -159,14 +161,14 @@ class GearContact(Fmi2Slave):
             self._stage.initialize(self._t0, self.flange_a_phi, self.flange_a_w, self.flange_b_phi,
                                    self.flange_b_w)
             self._publish()
-            self.log(f"GearContact: fidelity {self.fidelity}, mode {self.mode}, scheme "
-                     f"{self._stage.scheme}, package {PACKAGE_ORIGIN}", Fmi2Status.ok)
+            self.log(fmi_text(f"GearContact: fidelity {self.fidelity}, mode {self.mode}, scheme "
+                              f"{self._stage.scheme}, package {PACKAGE_ORIGIN}"), Fmi2Status.ok)
         except Exception as exc:  # noqa: BLE001 - an exception here would be fmi2Fatal
             self._fail(f"initialization failed: {type(exc).__name__}: {exc}")
 
     def do_step(self, current_time, step_size):
         if self._failed is not None:
-            self.log(f"GearContact is in the error state: {self._failed}", Fmi2Status.error)
+            self.log(fmi_text(f"GearContact is in the error state: {self._failed}"), Fmi2Status.error)
             return False
         try:
             self._stage.step(current_time, step_size, self.flange_a_phi, self.flange_a_w,
@@ -190,7 +192,7 @@ class GearContact(Fmi2Slave):
 
     def _fail(self, msg):
         self._failed = msg
-        self.log(msg, Fmi2Status.error)
+        self.log(fmi_text(msg), Fmi2Status.error)
 
     def _build(self):
         from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams

@@ -1,0 +1,60 @@
+"""User text in an FMU's log message never crashes the host (issue 11).
+
+FMI 2.0's fmi2CallbackLogger takes the message as a printf-style format. A ``%n`` or ``%s`` in a mesh
+path or a profile string used to reach fmpy's formatting logger as it was: the host process died with a
+segmentation fault (rc 139). Each case runs in a subprocess, so a crash fails the test instead of
+killing the test run."""
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from drivetrain.master import ensure_fmus
+
+HOSTILE = "%n%s%n%s%x%%"
+
+SCRIPT = textwrap.dedent("""
+    import sys
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+    path, name, value = sys.argv[1:4]
+    md = read_model_description(path)
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    f = FMU2Slave(guid=md.guid, unzipDirectory=extract(path), modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName="hostile")
+    f.instantiate(loggingOn=True)
+    f.setupExperiment(startTime=0.0)
+    for assignment in sys.argv[4:]:
+        k, v = assignment.split("=", 1)
+        f.setString([vr[k]], [v])
+    f.setString([vr[name]], [value])
+    f.enterInitializationMode()
+    try:
+        f.exitInitializationMode()
+    except Exception as exc:
+        print("refused:", exc)
+    print("host alive")
+""")
+
+
+@pytest.fixture(scope="module")
+def fmu_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("fmus_log")
+    ensure_fmus(["GearContact", "MotorLoad"], d)
+    return d
+
+
+@pytest.mark.parametrize("model, name, value, extra", [
+    ("GearContact", "pinion_mesh_file", f"/nonexistent/{HOSTILE}.obj", ["fidelity=table", "health=mesh"]),
+    ("MotorLoad", "speed_profile", f"0:0; {HOSTILE}", []),
+])
+def test_percent_sequences_in_user_text_do_not_crash_the_host(fmu_dir, model, name, value, extra):
+    r = subprocess.run([sys.executable, "-c", SCRIPT, str(fmu_dir / f"{model}.fmu"), name, value, *extra],
+                       capture_output=True, text=True, timeout=300)
+    out = r.stdout + r.stderr
+    assert r.returncode == 0, out[-2000:]
+    assert "host alive" in out
+    assert HOSTILE in out          # the logged message carries the text as given, not formatted

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -111,6 +112,39 @@ def test_cache_hit_and_key(cache, cmap):
     k1 = cache_key(GEAR, PCM, RES, "healthy", None, GRID)
     k2 = cache_key(BevelGearParams(backlash=0.1e-3), PCM, RES, "healthy", None, GRID)
     assert k1 != k2
+
+
+def test_a_damaged_cache_file_is_named_and_rebuilt(cache):
+    """A truncated cache file crashed without naming it; one with an altered array shape ran with exit
+    code 0 and wrong torques. Now: load_map names the file and the problem, get_map moves the file
+    aside and rebuilds the same map."""
+    from gearcontact_fmu.contact_map import ContactMapFileError, load_map
+
+    from gearcontact_fmu.contact_map import cache_dir, cache_key
+
+    grid, res = MapGrid(points_per_pitch=2, s_points=8, max_torque=120.0), MeshResolution(profile=0.3e-3, face=3e-3)
+    cmap = get_map(GEAR, PCM, res, grid=grid)                           # a coarse map: cheap to rebuild
+    path = cache_dir() / f"contactmap-{cache_key(GEAR, PCM, res, 'healthy', None, grid)}.npz"
+    good = path.read_bytes()
+    try:
+        path.write_bytes(good[: len(good) // 2])                       # truncated
+        with pytest.raises(ContactMapFileError, match=path.name):
+            load_map(path, GEAR, PCM, grid)
+        again = get_map(GEAR, PCM, res, grid=grid)
+        assert "unreadable" in again.info["cache_problem"] and path.name in again.info["cache_problem"]
+        np.testing.assert_array_equal(again.values, cmap.values)
+        assert Path(str(path) + ".damaged").exists()
+
+        v = cmap.values.reshape(cmap.values.shape[0] * 2, 1, *cmap.values.shape[2:])   # same size, other shape
+        np.savez_compressed(path, theta=cmap.theta, a=cmap.a, onset=cmap.onset, values=v,
+                            info=np.array(repr(cmap.info)))
+        with pytest.raises(ContactMapFileError, match="values has shape"):
+            load_map(path, GEAR, PCM, grid)
+        again = get_map(GEAR, PCM, res, grid=grid)
+        assert "values has shape" in again.info["cache_problem"]
+        np.testing.assert_array_equal(again.values, cmap.values)
+    finally:
+        path.write_bytes(good)
 
 
 def test_missing_tooth_window_is_tabulated_as_early_engagement(cache):

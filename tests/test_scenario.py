@@ -239,3 +239,40 @@ def test_round_trip_and_docs_cover_every_key():
         for key in keys:
             assert f"`{key}`" in doc, f"{section}.{key} undocumented"
     assert len(all_keys()) == sum(len(k) for k in SCHEMA.values())
+
+
+@pytest.mark.parametrize("name", ["..", ".", ".hidden", "-rf", "a/b", "a\\b", "x" * 201, ""])
+def test_scene_names_that_would_escape_or_hide_are_refused(name):
+    with pytest.raises(ScenarioError) as e:
+        resolve({"scenario": {"name": name}})
+    assert "scenario.name" in str(e.value)
+
+
+@pytest.mark.parametrize("template, why", [
+    ("{gear.__class__.__init__.__globals__}", "scene keys"),       # attribute walking
+    ("{base:>300000000}", "short format spec"),                    # a 300 MB name
+    ("{gear.health!r}", "conversions"),
+    ("{operating_point}", "scene keys"),
+    ("..", "valid scene names"),
+])
+def test_grid_name_templates_evaluate_only_scene_keys(tmp_path, template, why):
+    grid = tmp_path / "g.toml"
+    grid.write_text(f'[sweep]\nname = "{template}"\n[sweep.axes]\n"gear.health" = ["healthy", "mild"]\n',
+                    encoding="utf-8")
+    with pytest.raises(ScenarioError) as e:
+        load_scenes(grid)
+    assert why in str(e.value)
+
+
+def test_grid_name_template_with_format_specs(tmp_path):
+    grid = tmp_path / "g.toml"
+    grid.write_text('[sweep]\nname = "{base}_{gear.health}_{operating_point.drive_speed_rpm:g}rpm"\n'
+                    '[sweep.axes]\n"operating_point.drive_speed_rpm" = [250.0, 1500.0]\n', encoding="utf-8")
+    assert [s.scenario.name for s in load_scenes(grid)] == ["g_healthy_250rpm", "g_healthy_1500rpm"]
+
+
+def test_a_sample_rate_that_would_stretch_the_run_is_refused():
+    """sample_rate_Hz = 0.001 made a 1 s scene run for 1000 s (whole output samples) without a word."""
+    with pytest.raises(ScenarioError) as e:
+        resolve({"time": {"duration_s": 1.0, "sample_rate_Hz": 0.001}, "numerics": {"comm_step_s": 1.0}})
+    assert "time.sample_rate_Hz" in str(e.value) and "16 output samples" in str(e.value)

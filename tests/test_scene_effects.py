@@ -87,3 +87,38 @@ def test_switched_off_effects_reach_the_gear_as_flags():
     # the PCM constants are untouched, so both scenes share one contact map
     for k in ("mu", "c_compression", "c_expansion"):
         assert g_on.get(k) == g_off.get(k)
+
+
+def test_mesh_units_reach_the_contact_model(tmp_path):
+    """gear.mesh_units was accepted and ignored (the FMU read every file in mm). The same pinion saved in
+    m and in mm gives the same contact torques when each is read in its own unit, and the scene's unit
+    reaches the GearContact FMU as a parameter."""
+    from gearcontact_fmu import geometry
+    from gearcontact_fmu.fidelity import N_OUT, OUT_TAU_PINION
+    from gearcontact_fmu.gearpair import make_pcm_model
+    from gearcontact_fmu.meshes import save_mesh
+    from gearcontact_fmu.params import BevelGearParams, MeshResolution
+
+    P, res = BevelGearParams(), MeshResolution(profile=0.3e-3, face=3e-3)
+    pinion = geometry.build_gear_mesh(P, "pinion", resolution=res)
+    save_mesh(pinion, tmp_path / "p_mm.obj", units="mm")
+    save_mesh(pinion, tmp_path / "p_m.obj", units="m")
+    torques = []
+    for f, u in (("p_mm.obj", "mm"), ("p_m.obj", "m")):
+        m = make_pcm_model(P, None, res, "mesh", {"pinion": str(tmp_path / f)}, mesh_units=u)
+        if not torques:     # a loaded drive flank: 20 µrad beyond the contact onset at this angle
+            from gearcontact_fmu.gearpair import build_pcm_pair, contact_onset
+
+            s0 = contact_onset(build_pcm_pair(P, None, res, "mesh", str(tmp_path / f), None, u), 0.3, +1) + 2e-5
+        out = np.zeros(N_OUT)
+        m.eval(m.data, 0.3, (0.3 - s0) / 4.0, 0.0, 0.0, out)
+        torques.append(out[OUT_TAU_PINION])
+    assert torques[0] != 0.0
+    assert torques[1] == pytest.approx(torques[0], rel=1e-6)
+    with pytest.raises(Exception, match="(?i)unit|size|scale|mm"):   # the m file read in mm is refused
+        make_pcm_model(P, None, res, "mesh", {"pinion": str(tmp_path / "p_m.obj")}, mesh_units="mm")
+
+    scene = load_scene(EXAMPLE, ["gear.health=mesh", f"gear.pinion_mesh={tmp_path / 'p_m.obj'}",
+                                 "gear.mesh_units=m", "effects.mesh_contact=pcm"])
+    gear = [c for c in assemble(scene, check=False).components if c.model == "GearContact"][0]
+    assert gear.parameters["mesh_units"] == "m"

@@ -58,6 +58,8 @@ def _gear_parameters(scene, part: rig.Partition, max_substep: float) -> dict:
         p["pinion_mesh_file"] = str(scene.gear.pinion_mesh)
     if scene.gear.wheel_mesh is not None:
         p["wheel_mesh_file"] = str(scene.gear.wheel_mesh)
+    if scene.gear.pinion_mesh is not None or scene.gear.wheel_mesh is not None:
+        p["mesh_units"] = scene.gear.mesh_units
     # effects switched off are not evaluated (the flags reach the mesh model; the contact map is the
     # same, so no new map is built for a scene without friction or damping)
     p["friction"] = bool(eff.friction)
@@ -163,9 +165,6 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
         "substeps": {"gear": sub, "components": csub},
         "warnings": [],
     }
-    if scene.gear.mesh_units != "mm" and (scene.gear.pinion_mesh or scene.gear.wheel_mesh):
-        meta["warnings"].append(f"gear.mesh_units = {scene.gear.mesh_units!r}: the GearContact FMU has no "
-                                "mesh-unit parameter and reads mesh files in mm")
     spec = SystemSpec(components, connections, H, meta)
     if check:
         try:

@@ -620,7 +620,7 @@ def check_contact_range(spec, raise_on_error: bool = True) -> list[dict]:
         # cached map of its geometry, never by building one just for the check
         fidelity = str(p.get("fidelity")).strip().lower()
         cmap = get_map(gear, search, res, str(p.get("health", "healthy")), files or None,
-                       build=fidelity == "table")
+                       mesh_units=str(p.get("mesh_units", "mm")), build=fidelity == "table")
         if cmap is None:
             reports.append({"component": comp.name, "pinion_torque_Nm": float(T), "static_penetration_m": None,
                             "u_max_m": pcm.u_max, "note": "not predicted: no contact map of this geometry cached"})

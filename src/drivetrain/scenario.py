@@ -20,6 +20,7 @@ import itertools
 import json
 import math
 import re
+import string
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -58,6 +59,12 @@ Z_PINION = 15
 Z_WHEEL = 60
 UPPER_RATIO = 3.0
 
+#: a scene name names a directory and files: no path separators, no ".", "..", hidden or option-like names
+NAME_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+\-]{0,199}")
+NAME_RULE = ("1-200 letters, digits and _ . + -, starting with a letter, digit or _ "
+             "(it names the output directory and files)")
+#: format spec allowed in a grid name template field (width and precision at most 2 digits)
+_SPEC_RE = re.compile(r"[<>^=]?[+\- ]?#?0?\d{0,2}[,_]?(\.\d{1,2})?[bdeEfFgGnosxX%]?")
 _VAR_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*\.[A-Za-z_][A-Za-z0-9_.\[\]]*$")
 
 # --------------------------------------------------------------------------------------------------
@@ -605,8 +612,8 @@ def resolve(raw: dict, base_dir: Path | str = ".", source: Path | str | None = N
     if values["scenario"].get("name") is None:
         values["scenario"]["name"] = Path(source).stem if source else "scene"
     name = values["scenario"]["name"]
-    if name is not _MISSING and not re.fullmatch(r"[A-Za-z0-9_.+\-]+", str(name)):
-        problems.append(("scenario.name", name, "letters, digits and _ . + - only (it names output files)"))
+    if name is not _MISSING and not NAME_RE.fullmatch(str(name)):
+        problems.append(("scenario.name", name, NAME_RULE))
 
     tm = values["time"]
     if ok("time", "duration_s", "settle_s"):
@@ -616,6 +623,11 @@ def resolve(raw: dict, base_dir: Path | str = ".", source: Path | str | None = N
             problems.append(("time.settle_s", tm["settle_s"],
                              f"a settling time shorter than time.duration_s = {tm['duration_s']:g} s"))
 
+    if ok("time", "duration_s", "sample_rate_Hz") and tm["duration_s"] * tm["sample_rate_Hz"] < 16.0 * (1 - 1e-9):
+        # the run is a whole number of output samples: a longer period would stretch it silently
+        problems.append(("time.sample_rate_Hz", tm["sample_rate_Hz"],
+                         f"at least 16 output samples in time.duration_s = {tm['duration_s']:g} s, i.e. "
+                         f">= {16.0 / tm['duration_s']:.6g} Hz (the run is a whole number of sample periods)"))
     nm = values["numerics"]
     if ok("numerics", "comm_step_s") and ok("time", "sample_rate_Hz"):
         H = nm["comm_step_s"]
@@ -758,6 +770,47 @@ def _split_grid(raw: dict, src: str):
     return axes, template
 
 
+def case_name(template: str, base: str, scene: "Scene", src: str = "") -> str:
+    """The name of a grid case from the ``[sweep] name`` template: literal text and fields ``{base}`` or
+    ``{section.key}`` (a scene key), each with an optional short format spec (``{operating_point.
+    drive_speed_rpm:g}``, width and precision at most 2 digits). Nothing else is evaluated (no
+    attribute or index walking, no conversions); characters other than letters, digits and ``_ . + -``
+    become ``_``, and the result must be a valid scene name."""
+    key = f"{GRID_SECTION}.name"
+
+    def bad(why):
+        return ScenarioError([(key, template, why)], src)
+
+    out = []
+    try:
+        parts = list(string.Formatter().parse(template))
+    except ValueError as exc:
+        raise bad(f"a valid name template ({exc})") from None
+    for literal, field, spec, conv in parts:
+        out.append(literal)
+        if field is None:
+            continue
+        if conv is not None:
+            raise bad(f"fields without conversions (!{conv} in {{{field}}})")
+        if not _SPEC_RE.fullmatch(spec or ""):
+            raise bad(f"a short format spec such as :g or :.1f, not {spec!r} in {{{field}}}")
+        if field == "base":
+            value = base
+        else:
+            sec, _, k = field.partition(".")
+            if sec not in SCHEMA or k not in SCHEMA[sec]:
+                raise bad(f"fields {{base}} or {{section.key}} of scene keys, not {{{field}}}")
+            value = getattr(getattr(scene, sec), k)
+        try:
+            out.append(format(value, spec or ""))
+        except (TypeError, ValueError) as exc:
+            raise bad(f"a format spec that suits {field} = {value!r} ({exc})") from None
+    nm = re.sub(r"[^A-Za-z0-9_.+\-]", "_", "".join(out))
+    if not NAME_RE.fullmatch(nm):
+        raise bad(f"names that are valid scene names ({NAME_RULE}), not {nm[:80]!r}")
+    return nm
+
+
 def load_scenes(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -> list[Scene]:
     """Load a scene file (one scene) or a grid file (its expansion). ``overrides`` change the base scene;
     overriding a swept key is refused. All cases are validated before any is returned."""
@@ -788,13 +841,8 @@ def load_scenes(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -
         except ScenarioError as exc:
             problems.extend(exc.problems)
             continue
-        fmt = {s: getattr(sc, s) for s in SCHEMA}
         base_name = raw.get("scenario", {}).get("name", path.stem)
-        try:
-            nm = (template or "{base}_" + "_".join("{" + k + "}" for k in keys)).format(base=base_name, **fmt)
-        except (KeyError, AttributeError, ValueError, IndexError) as exc:
-            raise ScenarioError([(f"{GRID_SECTION}.name", template, f"a valid name template ({exc})")], src)
-        nm = re.sub(r"[^A-Za-z0-9_.+\-]", "_", nm)
+        nm = case_name(template or "{base}_" + "_".join("{" + k + "}" for k in keys), base_name, sc, src)
         if nm in names:
             raise ScenarioError([(f"{GRID_SECTION}.name", template, f"a template giving unique names ({nm!r} twice)")], src)
         names.add(nm)

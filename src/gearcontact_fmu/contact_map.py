@@ -214,10 +214,12 @@ def _tabulate_rows(pair, theta, a, grid: MapGrid):
     return onset, vals
 
 
-def cache_key(gear, pcm, resolution, health, mesh_files, grid, fault_kwargs=None) -> str:
+def cache_key(gear, pcm, resolution, health, mesh_files, grid, fault_kwargs=None, mesh_units: str = "mm") -> str:
     mf = mesh_files or {}
-    return params_hash(gear, pcm, resolution, health, {k: _file_digest(v) for k, v in mf.items()},
-                       grid, fault_kwargs or {}, MAP_VERSION)
+    files = {k: _file_digest(v) for k, v in mf.items()}
+    if files and mesh_units != "mm":         # the same file read in other units is another geometry
+        files["units"] = mesh_units
+    return params_hash(gear, pcm, resolution, health, files, grid, fault_kwargs or {}, MAP_VERSION)
 
 
 def save_map(cmap: ContactMap, path: Path) -> None:
@@ -228,13 +230,35 @@ def save_map(cmap: ContactMap, path: Path) -> None:
     os.replace(tmp, path)
 
 
-def load_map(path: Path, gear, pcm, grid) -> ContactMap:
-    import ast
+class ContactMapFileError(ValueError):
+    """A contact-map file that cannot be read or does not hold a map of the expected layout."""
 
-    with np.load(path, allow_pickle=False) as z:
-        info = ast.literal_eval(str(z["info"]))
-        return ContactMap(z["theta"].copy(), z["a"].copy(), z["onset"].copy(), z["values"].copy(), gear, pcm,
-                          grid, info)
+
+def load_map(path: Path, gear, pcm, grid) -> ContactMap:
+    """Read a cached map and check its layout against the gear and grid it was asked for (a truncated
+    or altered file raises ContactMapFileError naming the file and the problem, never a wrong map)."""
+    import ast
+    import zipfile
+
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            info = ast.literal_eval(str(z["info"]))
+            theta, a, onset, values = (z[k].copy() for k in ("theta", "a", "onset", "values"))
+    except (OSError, EOFError, ValueError, KeyError, SyntaxError, zipfile.BadZipFile) as exc:
+        raise ContactMapFileError(f"contact map {path}: unreadable ({type(exc).__name__}: {exc})") from None
+    n_theta = grid.points_per_pitch * gear.z_pinion
+    want = {"theta": (theta, (n_theta,)), "a": (a, (grid.s_points,)), "onset": (onset, (n_theta, 2)),
+            "values": (values, (n_theta, 2, grid.s_points, N_CH))}
+    problems = [f"{k} has shape {arr.shape}, expected {shape}" for k, (arr, shape) in want.items()
+                if arr.shape != shape]
+    problems += [f"{k} holds {int(np.size(arr) - np.isfinite(arr).sum())} non-finite values"
+                 for k, (arr, _) in want.items() if arr.shape == want[k][1]
+                 and not np.all(np.isfinite(arr))]
+    if not problems and not (np.all(np.diff(theta) > 0) and np.all(np.diff(a) > 0)):
+        problems.append("its angle or approach nodes are not increasing")
+    if problems:
+        raise ContactMapFileError(f"contact map {path}: " + "; ".join(problems))
+    return ContactMap(theta, a, onset, values, gear, pcm, grid, info)
 
 
 def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
@@ -250,13 +274,22 @@ def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
     resolution = resolution or MeshResolution()
     grid = grid or MapGrid()
     mesh_files = {k: v for k, v in (mesh_files or {}).items() if v}
-    key = cache_key(gear, pcm, resolution, health, mesh_files, grid, fault_kwargs)
+    key = cache_key(gear, pcm, resolution, health, mesh_files, grid, fault_kwargs, mesh_units)
     path = cache_dir() / f"contactmap-{key}.npz"
+    problem = None
     if use_cache and path.exists():
-        cmap = load_map(path, gear, pcm, grid)
-        cmap.info["cache"] = str(path)
-        cmap.info["from_cache"] = True
-        return cmap
+        try:
+            cmap = load_map(path, gear, pcm, grid)
+        except ContactMapFileError as exc:
+            # a cache, not data: a damaged file is moved aside (kept for inspection) and rebuilt
+            problem = f"{exc}; moved to {path.name}.damaged and rebuilt"
+            if not build:
+                return None
+            os.replace(path, Path(str(path) + ".damaged"))
+        else:
+            cmap.info["cache"] = str(path)
+            cmap.info["from_cache"] = True
+            return cmap
     if not build:
         return None
     pair = build_pcm_pair(gear, pcm, resolution, health, mesh_files.get("pinion"), mesh_files.get("wheel"),
@@ -266,6 +299,8 @@ def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
         save_map(cmap, path)
     cmap.info["cache"] = str(path)
     cmap.info["from_cache"] = False
+    if problem:
+        cmap.info["cache_problem"] = problem
     return cmap
 
 

@@ -94,6 +94,7 @@ class GearContact(Fmi2Slave):
         self.health = "healthy"
         self.pinion_mesh_file = ""
         self.wheel_mesh_file = ""
+        self.mesh_units = "mm"
         self.scheme = s.scheme
         self.output_torque = s.output_torque
         # PCM constants (RIG.md)
@@ -125,7 +126,7 @@ class GearContact(Fmi2Slave):
             setattr(self, name, 0.0)
 
         P, F = Fmi2Causality.parameter, Fmi2Variability.fixed
-        for name in ("fidelity", "mode", "health", "pinion_mesh_file", "wheel_mesh_file", "scheme",
+        for name in ("fidelity", "mode", "health", "pinion_mesh_file", "wheel_mesh_file", "mesh_units", "scheme",
                      "output_torque"):
             self.register_variable(String(name, causality=P, variability=F))
         for name in ("z_pinion", "z_wheel"):
@@ -221,7 +222,7 @@ class GearContact(Fmi2Slave):
             kw = dict(damping_ratio=self.mesh_damping_ratio if damping else 0.0, mesh_phase=self.mesh_phase,
                       mu=self.mu if friction else 0.0)
         elif fidelity in ("pcm", "table"):
-            kw = dict(friction=friction, damping=damping)
+            kw = dict(friction=friction, damping=damping, mesh_units=str(self.mesh_units).strip())
         self._stage = make_stage(self.fidelity, gear, pcm, res, health=self.health,
                                  mesh_files=mesh_files or None, stage_params=sp, **kw)
 

@@ -37,7 +37,11 @@ TARGET_LOWEST_HZ = 24.0
 def read_measured(path: str | Path | None = None) -> dict:
     """The measured table as arrays: T_load, T_DSH, T_PSH, n_DSH (rpm), n_PSH (rpm)."""
     p = Path(path) if path else rig.MEASURED_CSV
-    rows = [r for r in csv.reader(open(p, newline="")) if r and not r[0].lstrip().startswith("#")]
+    try:
+        with open(p, newline="", encoding="utf-8") as fh:
+            rows = [r for r in csv.reader(fh) if r and not r[0].lstrip().startswith("#")]
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{p}: not a readable CSV text file ({exc})") from None
     if not rows:
         raise ValueError(f"{p}: no data")
     hdr = [h.strip() for h in rows[0]]
@@ -46,7 +50,26 @@ def read_measured(path: str | Path | None = None) -> dict:
     if missing:
         raise ValueError(f"{p}: missing columns {sorted(missing)} (have {hdr})")
     col = {h: i for i, h in enumerate(hdr)}
-    data = {k: np.array([float(r[col[k]]) for r in rows[1:]]) for k in hdr if k in col}
+    problems = []
+    for n, r in enumerate(rows[1:], start=2):
+        if len(r) != len(hdr):
+            problems.append(f"data row {n - 1} has {len(r)} fields, the header {len(hdr)}: {','.join(r)}")
+            continue
+        for k in need:
+            try:
+                float(r[col[k]])
+            except ValueError:
+                problems.append(f"data row {n - 1}: {k} = {r[col[k]]!r} is not a number")
+    if problems:
+        raise ValueError(f"{p}: " + "; ".join(problems))
+    data = {}
+    for k in hdr:                 # every numeric column (expectations read others than the fit's)
+        try:
+            data[k] = np.array([float(r[col[k]]) for r in rows[1:]])
+        except ValueError:
+            if k in need:
+                raise
+    data = {k: data[k] for k in hdr if k in data}
     if len(data["T_load_Nm"]) < 8:
         raise ValueError(f"{p}: at least 8 operating points are needed to fit 8 parameters")
     return data

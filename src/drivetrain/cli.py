@@ -247,6 +247,17 @@ def _cmd_baseline(args: argparse.Namespace) -> int:
     return 0 if not bad else 3
 
 
+def _positive_int(text: str) -> int:
+    """argparse type of a count that must be >= 1 (``--workers -1`` was a traceback from the pool)."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {v}")
+    return v
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="drivetrain", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -284,7 +295,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key of every scene")
     p.add_argument("--out", default="out/sweep", help="output directory (default: out/sweep)")
     p.add_argument("--only", nargs="*", default=None, help="run only cases whose name matches these patterns")
-    p.add_argument("--workers", type=int, default=None, help="local worker processes (default: CPU count)")
+    p.add_argument("--workers", type=_positive_int, default=None, help="local worker processes (default: CPU count)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="Dask scheduler address (tcp://host:8786); default: local process pool")
     p.add_argument("--backend", choices=("fmi", "inprocess"), default="fmi")
@@ -304,7 +315,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--baseline-dir", default=None, metavar="DIR",
                        help="baseline files DIR/<scene>.baseline.h5 (default: beside each scene file, "
                             "or [check] baseline)")
-        p.add_argument("--workers", type=int, default=None, help="local worker processes for several cases")
+        p.add_argument("--workers", type=_positive_int, default=None, help="local worker processes for several cases")
         p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler address")
         p.add_argument("--backend", choices=("fmi", "inprocess"), default="fmi")
         p.add_argument("--fmu-dir", default="fmus")
@@ -326,7 +337,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--n-random", type=int, default=200, help="number of random scenes (default 200)")
     p.add_argument("--seed", type=int, default=0, help="seed of the random scenes (scene i depends on (seed, i))")
     p.add_argument("--out", default="out/stress", help="output directory (default: out/stress)")
-    p.add_argument("--workers", type=int, default=None, help="local worker processes (default: CPU count)")
+    p.add_argument("--workers", type=_positive_int, default=None, help="local worker processes (default: CPU count)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="Dask scheduler address (tcp://host:8786); default: local process pool")
     p.add_argument("--resume", action="store_true", help="do not rerun runs whose summary.json exists")

@@ -736,6 +736,11 @@ def read_toml(path: Path | str) -> dict:
             return tomllib.load(fh)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError([("(file)", str(path), f"valid TOML ({exc})")], str(path)) from None
+    except UnicodeDecodeError as exc:
+        raise ScenarioError([("(file)", str(path), f"a UTF-8 text file (TOML); byte {exc.start} is not UTF-8 "
+                             "(a binary file?)")], str(path)) from None
+    except OSError as exc:
+        raise ScenarioError([("(file)", str(path), f"a readable file ({exc.strerror or exc})")], str(path)) from None
 
 
 def is_grid(path: Path | str) -> bool:

@@ -1,0 +1,52 @@
+"""Bad input to the command line gets a message naming the problem and an exit code, never a traceback
+(issue 11). Cheap cases only: nothing here runs a simulation."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from drivetrain.cli import main
+from drivetrain.rig import MEASURED_CSV as MEASURED
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _rc(argv, capsys):
+    try:
+        rc = main(argv)
+    except SystemExit as exc:          # argparse refuses with exit code 2
+        rc = exc.code
+    out = capsys.readouterr()
+    return rc, out.out + out.err
+
+
+def test_a_binary_file_as_scene(tmp_path, capsys):
+    f = tmp_path / "scene.toml"
+    f.write_bytes(bytes(range(256)) * 4)
+    rc, text = _rc(["run", str(f), "--out", str(tmp_path / "o")], capsys)
+    assert rc not in (0, None) and "UTF-8" in text and "Traceback" not in text
+
+
+@pytest.mark.parametrize("value", ["-1", "0", "two"])
+def test_workers_must_be_a_positive_count(tmp_path, capsys, value):
+    rc, text = _rc(["sweep", str(ROOT / "scenarios" / "example.toml"), "--workers", value,
+                    "--out", str(tmp_path / "o")], capsys)
+    assert rc == 2 and "--workers" in text and ">= 1" in text
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("row, why", [("500,0.71", "has 2 fields"), (None, "is not a number")])
+def test_calibrate_names_the_bad_row(tmp_path, capsys, row, why):
+    lines = MEASURED.read_text().splitlines()
+    data = [i for i, ln in enumerate(lines) if ln and not ln.startswith("#")]
+    if row is None:                   # a non-numeric value in the first data row
+        fields = lines[data[1]].split(",")
+        fields[0] = "abc"
+        lines[data[1]] = ",".join(fields)
+    else:
+        lines.append(row)
+    bad = tmp_path / "m.csv"
+    bad.write_text("\n".join(lines) + "\n")
+    rc, text = _rc(["calibrate", str(bad), "--out", str(tmp_path / "c.json")], capsys)
+    assert rc == 2 and why in text and "Traceback" not in text

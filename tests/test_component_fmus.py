@@ -80,6 +80,9 @@ def test_fmu_validates_with_units_and_causalities(fmus, model):
             var = v[f"{port}_{q}"]
             assert var.unit == unit
             assert var.causality == ("input" if q in ins else "output")
+    from gearcontact_fmu.params import DEFAULT_COMM_STEP_S
+
+    assert float(md.defaultExperiment.stepSize) == pytest.approx(DEFAULT_COMM_STEP_S)   # fmpy's step otherwise: 2e-3 s
     for e in ("energy_stored", "energy_dissipated", "energy_supplied"):
         assert v[e].causality == "output" and v[e].unit == "J" and v[e].initial == "exact"
     for x in md.modelVariables:

@@ -21,11 +21,15 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real, String
+from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real, String
 from pythonfmu.enums import Fmi2Status
 
 from drivetrain import components as C
 from gearcontact_fmu.fmuguard import fmi_text
+from gearcontact_fmu.params import DEFAULT_COMM_STEP_S
+
+#: the modelDescription's DefaultExperiment of every drivetrain FMU: the step they are validated at
+DEFAULT_EXPERIMENT = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=DEFAULT_COMM_STEP_S)
 
 #: per model: ports (name -> "spring" | "inertia"), extra inputs, outputs, parameter units
 PORTS = {

@@ -39,7 +39,6 @@ ELASTOMER_ELEMENTS = (3, 4, 5, 6, 7)      # the elastomer coupling elements (k ~
 THIN_SHAFTS = {11: "drive shaft", 14: "middle shaft", 16: "pinion shaft", 21: "propeller shaft"}
 GEAR_ELEMENT_UPPER = 12
 GEAR_ELEMENT_LOWER = 17
-DEFAULT_H = 1.0 / 12000.0
 
 #: Fallback calibration (used only if data/calibration.json is missing): see calibrate.py.
 FALLBACK_CALIBRATION = {

@@ -31,6 +31,8 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
+from gearcontact_fmu.params import DEFAULT_COMM_STEP_S, MeshResolution
+
 # --------------------------------------------------------------------------------------------------
 # Fixed vocabularies
 # --------------------------------------------------------------------------------------------------
@@ -146,12 +148,7 @@ def _f(default, unit, dimension, doc, minimum=None, min_exclusive=False, maximum
     return Key("float", default, unit, dimension, (), minimum, maximum, min_exclusive, doc, default_doc)
 
 
-try:  # the converged contact-mesh resolution of the gear library is the scene default
-    from gearcontact_fmu.params import MeshResolution as _MeshResolution
-
-    _RES = _MeshResolution()
-except ImportError:  # pragma: no cover
-    _RES = type("_R", (), {"profile": 0.05e-3, "face": 2.0e-3})()
+_RES = MeshResolution()       # the converged contact-mesh resolution of the gear library is the scene default
 
 SCHEMA: dict[str, dict[str, Key]] = {
     "scenario": {
@@ -198,7 +195,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "dtype": Key("enum", "float64", allowed=SAMPLE_DTYPES, doc="sample type of the HDF5 signals"),
     },
     "numerics": {
-        "comm_step_s": _f(1.0 / 12000.0, "s", "time",
+        "comm_step_s": _f(DEFAULT_COMM_STEP_S, "s", "time",
                           "communication step H of the master; must divide 1/sample_rate_Hz",
                           minimum=0.0, min_exclusive=True, default_doc="1/12000 (8.333e-05)"),
         "max_substep_s": _f(5.0e-6, "s", "time",
@@ -300,7 +297,7 @@ class OutputSpec:
 
 @dataclass(frozen=True)
 class NumericsSpec:
-    comm_step_s: float = 1.0 / 12000.0
+    comm_step_s: float = DEFAULT_COMM_STEP_S
     max_substep_s: float = 5.0e-6
     profile_element_mm: float = 0.05
     face_element_mm: float = 2.0

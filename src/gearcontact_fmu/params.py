@@ -11,6 +11,10 @@ import json
 import math
 from dataclasses import dataclass, field
 
+#: the default communication step of a co-simulation [s] (scene key numerics.comm_step_s, the FMUs'
+#: DefaultExperiment step size): 4 steps per output sample at the rig's ~3 kHz
+DEFAULT_COMM_STEP_S = 1.0 / 12000.0
+
 
 @dataclass(frozen=True)
 class BevelGearParams:

@@ -27,6 +27,7 @@ class UpperTransmission(Fmi2Slave):
     author = "bevel-drivetrain"
     version = "0.1.0"
     units = fmishell.UNITS          # read by drivetrain.fmubuild (modelDescription units)
+    default_experiment = fmishell.DEFAULT_EXPERIMENT
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)

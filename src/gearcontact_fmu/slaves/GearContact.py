@@ -31,10 +31,11 @@ import gearcontact_fmu  # noqa: E402
 from gearcontact_fmu.fidelity import (OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY,  # noqa: E402
                                       OUT_MAX_PENETRATION, OUT_N_CONTACT, OUT_NORMAL_FORCE,
                                       OUT_PEAK_PRESSURE, OUT_TAU_PINION, OUT_TAU_WHEEL)
-from pythonfmu import Boolean, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real, String  # noqa: E402
+from pythonfmu import Boolean, DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real, String  # noqa: E402
 from pythonfmu.enums import Fmi2Status  # noqa: E402
 
 from gearcontact_fmu.fmuguard import fmi_text  # noqa: E402
+from gearcontact_fmu.params import DEFAULT_COMM_STEP_S  # noqa: E402
 
 PACKAGE_ORIGIN = str(Path(gearcontact_fmu.__file__).resolve().parent)
 
@@ -44,6 +45,7 @@ class GearContact(Fmi2Slave):
                    "inertias, port spring-dampers and the mesh (pcm/table/analytic/ideal), sub-stepped.")
     author = "bevel-drivetrain"
     version = gearcontact_fmu.__version__
+    default_experiment = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=DEFAULT_COMM_STEP_S)
 
     # units of the variables (read by drivetrain.fmubuild to post-process modelDescription.xml)
     units = {

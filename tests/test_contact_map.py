@@ -178,3 +178,24 @@ def test_missing_tooth_window_is_tabulated_as_early_engagement(cache):
     table_eval(tdata, th, thw, 0.0, 0.0, out_t)
     engine.fixed_axis_eval(data_el, th, thw, 0.0, 0.0, out_o)
     assert out_t[OUT_TAU_PINION] == 0.0 and out_o[OUT_TAU_PINION] == 0.0
+
+
+def _tiny_map_built_here(cache_dir: str) -> bool:
+    import os
+
+    os.environ["BEVEL_CACHE_DIR"] = cache_dir
+    cm = get_map(GEAR, PCM, MeshResolution(profile=0.3e-3, face=3e-3),
+                 grid=MapGrid(points_per_pitch=2, s_points=8, max_torque=120.0))
+    return not cm.info["from_cache"]
+
+
+def test_two_processes_build_one_map_once(tmp_path):
+    """Issue 11: two processes asking for the same new map both built it. Now the second waits for the
+    first's build (a lock beside the cache file) and reads it."""
+    import concurrent.futures as cf
+    import multiprocessing as mp
+
+    with cf.ProcessPoolExecutor(2, mp_context=mp.get_context("spawn")) as ex:
+        built = list(ex.map(_tiny_map_built_here, [str(tmp_path)] * 2))
+    assert sorted(built) == [False, True], built
+    assert len(list(tmp_path.glob("contactmap-*.npz"))) == 1

@@ -109,6 +109,69 @@ def test_sweep_local_processes(tmp_path, fmus):
     np.testing.assert_array_equal(h["signals"]["drive_shaft_torque"], ref.signals["drive_shaft_torque"])
 
 
+class _OneThenKill:
+    """An executor that runs the first case in this process and then dies (as a killed sweep would)."""
+
+    def __init__(self):
+        self.n = 0
+
+    def submit(self, fn, case):
+        import concurrent.futures as cf
+
+        fut = cf.Future()
+        self.n += 1
+        if self.n == 1:
+            fut.set_result(fn(case))
+        else:                        # dies a moment later, after the first run was recorded
+            import threading
+
+            threading.Timer(1.0, fut.set_exception, (KeyboardInterrupt(),)).start()
+        return fut
+
+
+def test_sweep_loses_no_work(tmp_path, fmus):
+    """Issue 11: the manifest was written only at the end (a kill left none), --skip-existing reused runs
+    made with other settings and dropped their metrics, --only overwrote the whole sweep's manifest,
+    plots were written for scenes that said outputs.plots = false."""
+    from drivetrain.sweep import run_sweep
+
+    def scenes(load=1.31):
+        return [load_scene(EXAMPLE, ["time.duration_s=0.2", f"scenario.name=toy{i}", "outputs.plots=false",
+                                     f"operating_point.load_torque_Nm={v}"])
+                for i, v in enumerate((0.12, load))]
+
+    out = tmp_path / "sw"
+    kw = dict(specs={f"toy{i}": toy_spec() for i in range(2)}, fmu_paths=fmus, progress=False)
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(scenes(), out, executor=_OneThenKill(), **kw)
+    m = json.loads((out / "manifest.json").read_text())
+    assert m["complete"] is False and [r["name"] for r in m["runs"]] == ["toy0"]      # kept what finished
+    assert m["runs"][0]["torque_mean"]["drive_shaft_torque"] > 0
+
+    man = run_sweep(scenes(), out, workers=2, skip_existing=True, **kw)
+    assert man["complete"] and [r.get("skipped", False) for r in man["runs"]] == [True, False]
+    assert man["runs"][0]["torque_mean"] == m["runs"][0]["torque_mean"]         # the reused run keeps its metrics
+    assert not list(out.rglob("*.png"))                                         # outputs.plots = false holds
+
+    man = run_sweep(scenes(load=0.71), out, workers=2, skip_existing=True, **kw)   # toy1 changed
+    assert [r.get("skipped", False) for r in man["runs"]] == [True, False]
+    assert "changed" in man["runs"][1]["rerun_reason"]
+
+    man = run_sweep(scenes(load=0.71)[1:], out, workers=1, grid_names=["toy0", "toy1"], **kw)  # like --only toy1
+    assert [r["name"] for r in man["runs"]] == ["toy0", "toy1"]
+
+
+def test_sweep_refuses_an_unwritable_out_before_running(tmp_path, fmus):
+    from drivetrain.master import ConfigurationError
+    from drivetrain.sweep import run_sweep
+
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    sc = [load_scene(EXAMPLE, ["time.duration_s=0.2", "scenario.name=toy0"])]
+    with pytest.raises(ConfigurationError, match="not writable"):
+        run_sweep(sc, blocker / "out", specs={"toy0": toy_spec()}, fmu_paths=fmus, progress=False)
+
+
 def _run_cli(args, tmp_path):
     """`drivetrain run ...` in a subprocess, FMUs built on demand into a private directory."""
     return subprocess.run([sys.executable, "-m", "drivetrain.cli", "run", *args, "--fmu-dir", str(tmp_path / "fmus"),

@@ -117,6 +117,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         scenes = [s for path in args.scenes for s in load_scenes(path, args.set or ())]
     except ScenarioError as exc:
         return _scene_errors(exc)
+    grid_names = [s.name for s in scenes]
     if args.only:
         import fnmatch
 
@@ -126,7 +127,8 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     try:
         manifest = run_sweep(scenes, args.out, workers=args.workers, address=args.scheduler,
                              backend=args.backend, fmu_dir=args.fmu_dir, skip_existing=args.skip_existing,
-                             plots=not args.no_plots, progress=not args.quiet)
+                             plots=False if args.no_plots else None, progress=not args.quiet,
+                             grid_names=grid_names)
     except ConfigurationError as exc:
         return _scene_errors(exc)
     failed = [r for r in manifest["runs"] if r["status"] != "ok"]
@@ -300,7 +302,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="Dask scheduler address (tcp://host:8786); default: local process pool")
     p.add_argument("--backend", choices=("fmi", "inprocess"), default="fmi")
     p.add_argument("--fmu-dir", default="fmus")
-    p.add_argument("--skip-existing", action="store_true", help="skip runs whose summary.json exists")
+    p.add_argument("--skip-existing", action="store_true",
+                   help="reuse finished runs of the same scene and model sources (fingerprint in case.json)")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_sweep)

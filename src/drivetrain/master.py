@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import atexit
 import collections
-import contextlib
 import ctypes
 import functools
 import hashlib
@@ -60,6 +59,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from drivetrain.system import INERTIA, SPRING, ComponentSpec, SystemSpec
+from gearcontact_fmu.locks import file_lock
 
 PORT_VARS = ("phi", "w", "tau")
 PORT_UNITS = {"phi": "rad", "w": "rad/s", "tau": "N.m"}
@@ -225,19 +225,6 @@ STAMP_FILE = ".sources-hash.json"
 _CHECKED: dict[str, set] = {}     # fmu_dir -> models found fresh (or built) in this process
 
 
-@contextlib.contextmanager
-def _file_lock(path: Path):
-    import fcntl
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "a+") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)
-        try:
-            yield
-        finally:
-            fcntl.flock(fh, fcntl.LOCK_UN)
-
-
 def _read_stamp(fmu_dir: Path) -> dict:
     try:
         return json.loads((fmu_dir / STAMP_FILE).read_text())
@@ -266,7 +253,7 @@ def ensure_fmus(models: Sequence[str], fmu_dir: Path | str = "fmus", build: bool
         fresh = _CHECKED.setdefault(key, set())
         todo_check = [m for m in models if m not in fresh or not (fmu_dir / f"{m}.fmu").is_file()]
     if build and todo_check:
-        with _file_lock(fmu_dir / ".build.lock"):
+        with file_lock(fmu_dir / ".build.lock"):
             todo = stale_models(todo_check, fmu_dir)
             if todo:
                 current = sources_hash()
@@ -1387,7 +1374,7 @@ def record_built(fmu_dir: str | Path, paths: Sequence[str | Path]) -> None:
     """Record that these FMUs were just built from the current sources (staleness stamp)."""
     fmu_dir = Path(fmu_dir)
     current = sources_hash()
-    with _file_lock(fmu_dir / ".build.lock"):
+    with file_lock(fmu_dir / ".build.lock"):
         stamp = _read_stamp(fmu_dir)
         for p in paths:
             p = Path(p)

@@ -915,7 +915,8 @@ def run_stress(out_dir: Path | str = "out/stress", *, set_name: str = "all", n_r
                fmu_dir: Path | str = "fmus", backend: str = "fmi", progress: bool = False, only=None,
                command: str | None = None, log: Callable[[str], None] | None = None) -> dict:
     """Run the campaign into ``out_dir`` and return the record written to stress.json (see the module
-    docstring). ``resume``: runs whose summary.json exists are not rerun (the sweep's skip_existing).
+    docstring). ``resume``: finished runs of the same scene and model sources are not rerun (the sweep's
+    skip_existing, by fingerprint).
     ``only``: fnmatch patterns; run (and report) only the cases whose name matches one (a half-step
     run ``<name>_halfH`` is kept with its base run)."""
     from drivetrain.outputs import now_iso

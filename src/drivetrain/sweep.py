@@ -17,6 +17,14 @@ wrote its partial files: its record has ``status = "failed"``, ``error``, ``fail
 ``failed_fmu``, ``failure_cause``, ``failure`` (time_s, component, model, function, status, cause),
 ``partial = true`` and the paths ``signals``/``summary``; the sweep
 goes on with the other runs.
+
+Nothing is lost to a kill: the manifest is rewritten (atomically) after every finished run, with
+``complete = false`` until the last. Each run directory holds ``case.json`` (the resolved scene and the
+fingerprint of scene + model sources); ``skip_existing`` reuses a finished run only when that fingerprint
+matches (otherwise it runs again and says why), and a reused run keeps its metrics in the manifest.
+``grid_names`` (all cases of the sweep, of which ``scenes`` may be a selection, e.g. ``--only``): records
+of other cases already in the manifest are kept, not dropped. A run directory is cleared of earlier
+outputs before its run writes.
 """
 from __future__ import annotations
 
@@ -34,8 +42,9 @@ from drivetrain.scenario import Scene, resolve
 
 
 def make_case(scene: Scene, out_dir: Path, *, backend: str = "fmi", fmu_dir: str | Path = "fmus",
-              plots: bool = True, spec=None, fmu_paths: dict | None = None) -> dict:
-    """A picklable description of one run (the scene as plain data, not the Scene object)."""
+              plots: bool | None = None, spec=None, fmu_paths: dict | None = None) -> dict:
+    """A picklable description of one run (the scene as plain data, not the Scene object). ``plots``:
+    None = as the scene says (``outputs.plots``), False = never."""
     return {
         "name": scene.name,
         "scene": scene.to_dict(),
@@ -45,9 +54,32 @@ def make_case(scene: Scene, out_dir: Path, *, backend: str = "fmi", fmu_dir: str
         "backend": backend,
         "fmu_dir": str(Path(fmu_dir).resolve()),
         "plots": plots,
+        "fingerprint": fingerprint(scene),
         "spec": spec,
         "fmu_paths": {k: str(v) for k, v in (fmu_paths or {}).items()} or None,
     }
+
+
+#: files a run writes into its directory (cleared before the run, so nothing stale stays beside it)
+RUN_OUTPUTS = ("signals.h5", "summary.json", "sensors.csv", "case.json")
+
+
+def fingerprint(scene: Scene) -> str:
+    """Identity of what a run computes: the resolved scene and the sources of the models and FMUs."""
+    import hashlib
+
+    from drivetrain.master import sources_hash
+    from drivetrain.outputs import jsonable
+
+    text = json.dumps(jsonable(scene.to_dict()), sort_keys=True, default=str)
+    return hashlib.sha256((text + "|" + sources_hash()).encode()).hexdigest()[:24]
+
+
+def _clear_run_dir(d: Path) -> None:
+    for name in RUN_OUTPUTS:
+        (d / name).unlink(missing_ok=True)
+    for png in d.glob("*.png"):
+        png.unlink()
 
 
 def _scene_of(case: dict) -> Scene:
@@ -77,9 +109,16 @@ def simulate(case: dict) -> dict:
     rec: dict[str, Any] = {"name": case["name"], "out_dir": case["out_dir"], "pid": os.getpid()}
     try:
         scene = _scene_of(case)
+        d = Path(case["out_dir"])
+        d.mkdir(parents=True, exist_ok=True)
+        _clear_run_dir(d)
+        (d / "case.json").write_text(json.dumps({"name": case["name"], "fingerprint": case.get("fingerprint"),
+                                                 "scene": case["scene"], "source": case.get("source"),
+                                                 "overrides": case.get("overrides", [])}, indent=1, default=str))
+        plots = case.get("plots")
         res = run_scene(scene, case["out_dir"], backend=case.get("backend", "fmi"), progress=False,
                         fmu_dir=case.get("fmu_dir", "fmus"), spec=case.get("spec"),
-                        fmu_paths=case.get("fmu_paths"), plots=case.get("plots", True),
+                        fmu_paths=case.get("fmu_paths"), plots=None if plots is None else bool(plots),
                         build=False, log=lambda m: None)
         rec.update({
             "status": "ok",
@@ -163,102 +202,66 @@ def prepare_caches(specs: list, fmu_dir: str | Path = "fmus", fmu_paths: dict | 
     return len(todo)
 
 
-def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None = None, address: str | None = None,
-              backend: str = "fmi", fmu_dir: str | Path = "fmus", skip_existing: bool = False, plots: bool = True,
-              progress: bool = True, specs: dict[str, Any] | None = None, fmu_paths: dict | None = None,
-              executor=None, prepare: bool = True) -> dict:
-    """Run every scene; returns the manifest (also written to out_dir/manifest.json and .csv).
+MANIFEST_COLUMNS = ["name", "status", "health", "drive_speed_rpm", "load_torque_Nm", "mesh_contact",
+                    "shaft_flexibility", "wall_time_s", "real_time_factor", "energy_residual",
+                    "mean_drive_shaft_torque", "mean_propeller_shaft_torque", "failure_time_s", "failed_fmu",
+                    "max_penetration_rel_umax", "min_substep_s", "n_refinements", "n_separations",
+                    "separated_fraction", "signals", "summary", "error"]
 
-    ``workers``: local processes (default: CPU count); ``address``: Dask scheduler (then Dask's executor);
-    ``executor``: any concurrent.futures-style executor to use instead. ``specs``: {scene name: SystemSpec}
-    to bypass the assembler (tests); ``fmu_paths``: explicit FMUs (no building). ``prepare``: build the
-    components' disk caches (contact maps) in this process first (:func:`prepare_caches`).
-    """
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    names = [s.name for s in scenes]
-    dup = sorted({n for n in names if names.count(n) > 1})
-    if dup:
-        from drivetrain.master import ConfigurationError
 
-        raise ConfigurationError(f"scene names must be unique in a sweep: {', '.join(dup)}")
-    log = (lambda m: print(m, file=sys.stderr)) if progress else None
-    all_specs = _specs_of(scenes, specs)
-    if fmu_paths is None:
-        from drivetrain.master import ensure_fmus
+def _check_writable(out: Path) -> None:
+    """Refuse an output directory that cannot be written before any run (not after all of them)."""
+    from drivetrain.master import ConfigurationError
 
-        needed = list(dict.fromkeys(c.model for sp in all_specs for c in sp.components))
-        ensure_fmus(needed, fmu_dir, build=True, log=log or (lambda m: None))
-    if prepare:
-        prepare_caches(all_specs, fmu_dir, fmu_paths, log=log)
-    cases, runs = [], []
-    for s, sp in zip(scenes, all_specs):
-        d = out / s.name
-        if skip_existing and (d / "summary.json").is_file():
-            try:        # a failed run's partial results are kept as they are, with their status
-                old = json.loads((d / "summary.json").read_text())
-            except (OSError, ValueError):
-                old = {}
-            prev = {"name": s.name, "status": old.get("status", "ok"), "skipped": True, "out_dir": str(d),
-                    "signals": str(d / "signals.h5"), "summary": str(d / "summary.json"),
-                    "stability": old.get("stability")}
-            if old.get("failure"):
-                prev.update(failure_time_s=old["failure"].get("time_s"), failed_fmu=old["failure"].get("component"),
-                            failure_cause=old["failure"].get("cause"), partial=True)
-            runs.append(prev)
-            continue
-        cases.append(make_case(s, d, backend=backend, fmu_dir=fmu_dir, plots=plots,
-                               spec=sp, fmu_paths=fmu_paths))
-    t0 = time.perf_counter()
-    client = None
-    own = executor is None
-    if cases:
-        if own:
-            executor, client = _executor(workers, address)
-        try:
-            futures = [executor.submit(simulate, c) for c in cases]
-            bar = None
-            if progress:
-                from tqdm import tqdm
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / f".write-test-{os.getpid()}"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as exc:
+        raise ConfigurationError(f"output directory {out}: not writable ({exc.strerror or exc})") from None
 
-                bar = tqdm(total=len(futures), unit="run", desc="sweep")
-            for fut in cf.as_completed(futures):
-                runs.append(fut.result())
-                if bar is not None:
-                    bar.update(1)
-            if bar is not None:
-                bar.close()
-        finally:
-            if own:
-                executor.shutdown(wait=True)
-            if client is not None:
-                client.close()
-    order = {n: i for i, n in enumerate(names)}
-    runs.sort(key=lambda r: order.get(r["name"], 0))
-    by_name = {s.name: s for s in scenes}
-    for r in runs:
-        s = by_name[r["name"]]
-        r["drive_speed_rpm"] = s.operating_point.final_speed_rpm
-        r["load_torque_Nm"] = s.operating_point.load_torque_Nm
-        r["health"] = s.gear.health
-        r["mesh_contact"] = s.effects.mesh_contact
-        r["shaft_flexibility"] = s.effects.shaft_flexibility
-    manifest = {"path": str(out / "manifest.json"), "n_runs": len(runs), "wall_time_s": time.perf_counter() - t0,
-                "executor": "dask" if address else ("custom" if not own else "local processes"),
-                "backend": backend, "runs": runs}
+
+def _reuse(scene: Scene, d: Path, fp: str) -> tuple[dict | None, str]:
+    """The manifest record of a finished run in ``d`` when it computed the same thing (fingerprint), else
+    (None, why it runs again)."""
+    try:
+        case = json.loads((d / "case.json").read_text())
+        old = json.loads((d / "summary.json").read_text())
+    except (OSError, ValueError):
+        return None, "no finished run with a case.json there"
+    if case.get("fingerprint") != fp:
+        return None, "the scene or the model sources changed since that run"
+    rec = {"name": scene.name, "status": old.get("status", "ok"), "skipped": True, "out_dir": str(d),
+           "signals": str(d / "signals.h5"), "summary": str(d / "summary.json")}
+    try:
+        rec.update(_summary_fields(old))
+    except (KeyError, TypeError):
+        return None, "its summary.json is incomplete"
+    if old.get("failure"):
+        f = old["failure"]
+        rec.update(failure_time_s=f.get("time_s"), failed_fmu=f.get("component"), failure_cause=f.get("cause"),
+                   partial=True)
+    return rec, ""
+
+
+def _write_manifest(out: Path, runs: list[dict], meta: dict, complete: bool) -> dict:
+    """manifest.json and manifest.csv, each written to a temporary file and renamed (a kill never
+    leaves a half-written manifest)."""
     from drivetrain.outputs import jsonable
 
-    (out / "manifest.json").write_text(json.dumps(jsonable(manifest), indent=1))
-    cols = ["name", "status", "health", "drive_speed_rpm", "load_torque_Nm", "mesh_contact", "shaft_flexibility",
-            "wall_time_s", "real_time_factor", "energy_residual", "mean_drive_shaft_torque",
-            "mean_propeller_shaft_torque", "failure_time_s", "failed_fmu", "max_penetration_rel_umax",
-            "min_substep_s", "n_refinements", "n_separations", "separated_fraction", "signals", "summary", "error"]
-    with open(out / "manifest.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=cols, extrasaction="ignore")
+    manifest = {"path": str(out / "manifest.json"), "n_runs": len(runs), "complete": complete, **meta,
+                "runs": runs}
+    tmp = out / f".manifest.json.{os.getpid()}"
+    tmp.write_text(json.dumps(jsonable(manifest), indent=1))
+    os.replace(tmp, out / "manifest.json")
+    tmp = out / f".manifest.csv.{os.getpid()}"
+    with open(tmp, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=MANIFEST_COLUMNS, extrasaction="ignore")
         w.writeheader()
         for r in runs:
             row = dict(r)
-            tm = r.get("torque_mean", {})
+            tm = r.get("torque_mean") or {}
             row["mean_drive_shaft_torque"] = tm.get("drive_shaft_torque")
             row["mean_propeller_shaft_torque"] = tm.get("propeller_shaft_torque")
             st = r.get("stability") or {}
@@ -268,7 +271,110 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
             row["n_separations"] = rattle.get("n_separations")
             row["separated_fraction"] = rattle.get("separated_fraction")
             w.writerow(row)
+    os.replace(tmp, out / "manifest.csv")
     return manifest
+
+
+def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None = None, address: str | None = None,
+              backend: str = "fmi", fmu_dir: str | Path = "fmus", skip_existing: bool = False,
+              plots: bool | None = None, progress: bool = True, specs: dict[str, Any] | None = None,
+              fmu_paths: dict | None = None, executor=None, prepare: bool = True,
+              grid_names: list[str] | None = None) -> dict:
+    """Run every scene; returns the manifest (written to out_dir/manifest.json and .csv after every
+    finished run, ``complete`` once all are done).
+
+    ``workers``: local processes (default: CPU count); ``address``: Dask scheduler (then Dask's executor);
+    ``executor``: any concurrent.futures-style executor to use instead. ``specs``: {scene name: SystemSpec}
+    to bypass the assembler (tests); ``fmu_paths``: explicit FMUs (no building). ``prepare``: build the
+    components' disk caches (contact maps) in this process first (:func:`prepare_caches`). ``plots``:
+    None = as each scene says, False = none. ``skip_existing``: reuse finished runs of the same
+    fingerprint. ``grid_names``: every case name of the sweep when ``scenes`` is a selection of it; the
+    manifest keeps the earlier records of the others.
+    """
+    out = Path(out_dir)
+    names = [s.name for s in scenes]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        from drivetrain.master import ConfigurationError
+
+        raise ConfigurationError(f"scene names must be unique in a sweep: {', '.join(dup)}")
+    _check_writable(out)
+    log = (lambda m: print(m, file=sys.stderr)) if progress else None
+    all_specs = _specs_of(scenes, specs)
+    if fmu_paths is None:
+        from drivetrain.master import ensure_fmus
+
+        needed = list(dict.fromkeys(c.model for sp in all_specs for c in sp.components))
+        ensure_fmus(needed, fmu_dir, build=True, log=log or (lambda m: None))
+    if prepare:
+        prepare_caches(all_specs, fmu_dir, fmu_paths, log=log)
+    # records of the other cases of the same sweep from an earlier invocation (--only)
+    kept: list[dict] = []
+    if grid_names:
+        others = set(grid_names) - set(names)
+        try:
+            old = json.loads((out / "manifest.json").read_text()).get("runs", [])
+        except (OSError, ValueError):
+            old = []
+        kept = [r for r in old if isinstance(r, dict) and r.get("name") in others]
+    order = {n: i for i, n in enumerate(grid_names or names)}
+    by_name = {s.name: s for s in scenes}
+    cases, runs = [], []
+    for s, sp in zip(scenes, all_specs):
+        d = out / s.name
+        case = make_case(s, d, backend=backend, fmu_dir=fmu_dir, plots=plots, spec=sp, fmu_paths=fmu_paths)
+        if skip_existing:
+            prev, why = _reuse(s, d, case["fingerprint"])
+            if prev is not None:
+                runs.append(prev)
+                continue
+            case["rerun_reason"] = why
+        cases.append(case)
+    t0 = time.perf_counter()
+    meta = {"executor": "dask" if address else ("custom" if executor is not None else "local processes"),
+            "backend": backend}
+
+    def annotate(r):
+        s = by_name.get(r["name"])
+        if s is not None:
+            r.update(drive_speed_rpm=s.operating_point.final_speed_rpm, load_torque_Nm=s.operating_point.load_torque_Nm,
+                     health=s.gear.health, mesh_contact=s.effects.mesh_contact,
+                     shaft_flexibility=s.effects.shaft_flexibility)
+        return r
+
+    def write(complete):
+        allr = sorted(kept + [annotate(r) for r in runs], key=lambda r: order.get(r["name"], len(order)))
+        return _write_manifest(out, allr, {**meta, "wall_time_s": time.perf_counter() - t0}, complete)
+
+    write(not cases)
+    client = None
+    own = executor is None
+    if cases:
+        if own:
+            executor, client = _executor(workers, address)
+        try:
+            futures = {executor.submit(simulate, c): c for c in cases}
+            bar = None
+            if progress:
+                from tqdm import tqdm
+
+                bar = tqdm(total=len(futures), unit="run", desc="sweep")
+            for fut in cf.as_completed(futures):
+                rec = fut.result()
+                if futures[fut].get("rerun_reason"):
+                    rec["rerun_reason"] = futures[fut]["rerun_reason"]
+                runs.append(rec)
+                write(False)
+                if bar is not None:
+                    bar.update(1)
+            if bar is not None:
+                bar.close()
+        finally:
+            if own:
+                executor.shutdown(wait=True)
+            if client is not None:
+                client.close()
+    return write(True)
 
 
 __all__ = ["simulate", "run_sweep", "make_case", "prepare_caches"]

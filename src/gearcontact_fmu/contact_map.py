@@ -261,14 +261,20 @@ def load_map(path: Path, gear, pcm, grid) -> ContactMap:
     return ContactMap(theta, a, onset, values, gear, pcm, grid, info)
 
 
+def _build_map(gear, pcm, resolution, health, mesh_files, mesh_units, grid, fault_kwargs) -> ContactMap:
+    from gearcontact_fmu.gearpair import build_pcm_pair
+
+    pair = build_pcm_pair(gear, pcm, resolution, health, mesh_files.get("pinion"), mesh_files.get("wheel"),
+                          mesh_units, friction=True, damping=True, fault_kwargs=fault_kwargs)
+    return compute_map(pair, grid)
+
+
 def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
             resolution: MeshResolution | None = None, health: str = "healthy", mesh_files=None,
             grid: MapGrid | None = None, mesh_units: str = "mm", use_cache: bool = True,
             fault_kwargs: dict | None = None, build: bool = True) -> ContactMap | None:
     """The contact map for this configuration, from the disk cache or computed (and cached).
     ``build=False``: only from the cache (None when it is not there)."""
-    from gearcontact_fmu.gearpair import build_pcm_pair
-
     gear = gear or BevelGearParams()
     pcm = pcm or PCMParams()
     resolution = resolution or MeshResolution()
@@ -292,11 +298,24 @@ def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
             return cmap
     if not build:
         return None
-    pair = build_pcm_pair(gear, pcm, resolution, health, mesh_files.get("pinion"), mesh_files.get("wheel"),
-                          mesh_units, friction=True, damping=True, fault_kwargs=fault_kwargs)
-    cmap = compute_map(pair, grid)
     if use_cache:
-        save_map(cmap, path)
+        # one build per map: a second process asking for the same map waits and reads the first's
+        from gearcontact_fmu.locks import file_lock
+
+        with file_lock(path.with_suffix(".lock")):
+            if path.exists():
+                try:
+                    cmap = load_map(path, gear, pcm, grid)
+                except ContactMapFileError:
+                    pass
+                else:
+                    cmap.info["cache"] = str(path)
+                    cmap.info["from_cache"] = True
+                    return cmap
+            cmap = _build_map(gear, pcm, resolution, health, mesh_files, mesh_units, grid, fault_kwargs)
+            save_map(cmap, path)
+    else:
+        cmap = _build_map(gear, pcm, resolution, health, mesh_files, mesh_units, grid, fault_kwargs)
     cmap.info["cache"] = str(path)
     cmap.info["from_cache"] = False
     if problem:

@@ -50,3 +50,30 @@ def test_calibrate_names_the_bad_row(tmp_path, capsys, row, why):
     bad.write_text("\n".join(lines) + "\n")
     rc, text = _rc(["calibrate", str(bad), "--out", str(tmp_path / "c.json")], capsys)
     assert rc == 2 and why in text and "Traceback" not in text
+
+
+def test_a_costly_scene_is_announced_before_it_runs():
+    from drivetrain.run import cost_warning
+    from drivetrain.scenario import load_scene
+
+    example = ROOT / "scenarios" / "example.toml"
+    assert cost_warning(load_scene(example)) is None
+    w = cost_warning(load_scene(example, ["numerics.max_substep_s=1e-9"]))
+    assert w and "max_substep_s" in w and "x the default" in w
+
+
+def test_a_huge_communication_step_is_refused_not_computed():
+    """One step of 1000 s blocked an FMU for 27 s; now it is refused at once with the reason."""
+    import time
+
+    from drivetrain.components import ComponentError, make_component
+    from gearcontact_fmu.stage import StageError, make_stage
+
+    t0 = time.perf_counter()
+    with pytest.raises(ComponentError, match="sub-steps"):
+        make_component("UpperTransmission", {"w0": 10.0}).step(0.0, 1000.0)
+    st = make_stage("analytic")
+    st.initialize(0.0, 0.0, 0.0, 0.0, 0.0)
+    with pytest.raises(StageError, match="sub-steps"):
+        st.step(0.0, 1000.0, 0.0, 0.0, 0.0, 0.0)
+    assert time.perf_counter() - t0 < 5.0

@@ -42,6 +42,7 @@ import numpy as np
 from numba import njit
 
 from gearcontact_fmu.coupling import EnergyCorrection
+from gearcontact_fmu.params import MAX_SUBSTEPS_PER_STEP
 
 RPM = 2.0 * math.pi / 60.0
 
@@ -448,6 +449,10 @@ class LineModel:
         if wref1 is None:
             wref1 = wref0
         n_sub = self.n_substeps(H)
+        if n_sub > MAX_SUBSTEPS_PER_STEP:
+            raise ComponentError(f"communication step {H:.6g} s at t = {t:.9g} s needs {n_sub} sub-steps of "
+                                 f"max_substep = {self.max_substep:.3g} s (at most {MAX_SUBSTEPS_PER_STEP}); "
+                                 f"take smaller communication steps")
         self.wref[0] = wref0
         self.wref[1] = wref1
         code = line_step(float(H), n_sub, self.fp, self.ip, self.st, self.out, self.wk)

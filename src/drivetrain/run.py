@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import sys
 import time as _time
 from dataclasses import dataclass, field
@@ -211,6 +212,24 @@ def _natural_frequencies(spec: SystemSpec, n: int = 6) -> list[float] | None:
         return None
 
 
+#: gear-stage sub-steps of the default 20 s scene (1/12000 s steps of 17 sub-steps of 5 µs) and the
+#: multiple of it beyond which a run is announced as expensive before it starts
+DEFAULT_RUN_SUBSTEPS = 4.08e6
+COSTLY_FACTOR = 100.0
+
+
+def cost_warning(scene: Scene) -> str | None:
+    """A warning, said before the run starts, when the scene asks for far more gear-stage sub-steps than
+    the default 20 s scene (a tiny max_substep_s or a long duration): the user learns the price first."""
+    H = scene.numerics.comm_step_s
+    n = (scene.time.duration_s / H) * max(1, math.ceil(H / scene.numerics.max_substep_s - 1e-9))
+    if n > COSTLY_FACTOR * DEFAULT_RUN_SUBSTEPS:
+        return (f"this scene needs about {n:.3g} gear-stage sub-steps ({n / DEFAULT_RUN_SUBSTEPS:.0f}x the "
+                f"default 20 s scene; numerics.max_substep_s = {scene.numerics.max_substep_s:.3g} s, "
+                f"time.duration_s = {scene.time.duration_s:g} s): expect a long run")
+    return None
+
+
 def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "fmi", progress: bool = True,
               *, fmu_dir: str | Path = "fmus", spec: SystemSpec | None = None,
               fmu_paths: dict | None = None, plots: bool | None = None, build: bool = True,
@@ -229,6 +248,10 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
     warnings: list[str] = []
     if spec is None:
         spec = assemble_scene(scene)
+    cost = cost_warning(scene)
+    if cost:
+        warnings.append(cost)
+        log(f"warning: {cost}")
     from drivetrain import rig
 
     try:   # a u_max the static load alone would pass is refused before any step

@@ -14,6 +14,9 @@ from dataclasses import dataclass, field
 #: the default communication step of a co-simulation [s] (scene key numerics.comm_step_s, the FMUs'
 #: DefaultExperiment step size): 4 steps per output sample at the rig's ~3 kHz
 DEFAULT_COMM_STEP_S = 1.0 / 12000.0
+#: most internal sub-steps one communication step may take (a step that needs more is refused with a
+#: message instead of blocking the host: 1e6 sub-steps are seconds of work; H = 1000 s blocked for 27 s)
+MAX_SUBSTEPS_PER_STEP = 1_000_000
 
 
 @dataclass(frozen=True)

@@ -65,6 +65,7 @@ import numpy as np
 from numba import njit, types
 
 from gearcontact_fmu.coupling import EnergyCorrection
+from gearcontact_fmu.params import MAX_SUBSTEPS_PER_STEP
 from gearcontact_fmu.fidelity import (
     N_OUT, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY, OUT_MAX_PENETRATION, OUT_NORMAL_FORCE, OUT_STATUS,
     OUT_TAU_PINION,
@@ -834,6 +835,10 @@ class GearStage:
         u[2] = phi_b
         u[3] = w_b
         n_sub = self.n_substeps(H)
+        if n_sub > MAX_SUBSTEPS_PER_STEP:
+            raise StageError(f"communication step {H:.6g} s at t = {t:.9g} s needs {n_sub} sub-steps of "
+                             f"max_substep = {self.params.max_substep:.3g} s (at most {MAX_SUBSTEPS_PER_STEP}); "
+                             f"take smaller communication steps")
         balance = self._mode != _M_BARE
         if balance:
             e0 = self.stored_energy_at_inputs(phi_a, w_a, phi_b, w_b)

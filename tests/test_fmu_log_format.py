@@ -1,4 +1,5 @@
-"""User text in an FMU's log message never crashes the host (issue 11).
+"""User text in an FMU's log message never crashes the host, and a bad value reference is named
+(issue 11).
 
 FMI 2.0's fmi2CallbackLogger takes the message as a printf-style format. A ``%n`` or ``%s`` in a mesh
 path or a profile string used to reach fmpy's formatting logger as it was: the host process died with a
@@ -58,3 +59,36 @@ def test_percent_sequences_in_user_text_do_not_crash_the_host(fmu_dir, model, na
     assert r.returncode == 0, out[-2000:]
     assert "host alive" in out
     assert HOSTILE in out          # the logged message carries the text as given, not formatted
+
+
+VR_SCRIPT = textwrap.dedent("""
+    import sys
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+    path = sys.argv[1]
+    md = read_model_description(path)
+    f = FMU2Slave(guid=md.guid, unzipDirectory=extract(path), modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName="vr")
+    f.instantiate(loggingOn=True)
+    f.setupExperiment(startTime=0.0)
+    f.enterInitializationMode()
+    f.exitInitializationMode()
+    for call in (lambda: f.getReal([987654]), lambda: f.doStep(0.0, 1e-4)):
+        try:
+            call()
+            print("accepted")
+        except Exception as exc:
+            print("refused:", exc)
+""")
+
+
+@pytest.mark.parametrize("model", ["GearContact", "MotorLoad"])
+def test_an_unknown_value_reference_is_named_and_stops_the_instance(fmu_dir, model):
+    """pythonfmu answered fmi2Fatal with only "PyObject_CallMethod" in its log and then accepted the next
+    doStep as if nothing had happened."""
+    r = subprocess.run([sys.executable, "-c", VR_SCRIPT, str(fmu_dir / f"{model}.fmu")],
+                       capture_output=True, text=True, timeout=300)
+    out = r.stdout + r.stderr
+    assert r.returncode == 0, out[-2000:]
+    assert "accepted" not in out                       # neither the bad read nor the next step
+    assert "987654 (no such variable)" in out

@@ -25,7 +25,7 @@ from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, 
 from pythonfmu.enums import Fmi2Status
 
 from drivetrain import components as C
-from gearcontact_fmu.fmuguard import fmi_text
+from gearcontact_fmu.fmuguard import fmi_text, guard_value_references
 from gearcontact_fmu.params import DEFAULT_COMM_STEP_S
 
 #: the modelDescription's DefaultExperiment of every drivetrain FMU: the step they are validated at
@@ -139,6 +139,7 @@ def init_slave(slave, model: str, slave_kwargs: dict | None = None) -> None:
     slave._comp = None
     slave._built_with = None
     slave._failed = None
+    guard_value_references(slave, model)
 
 
 def _params(slave):

@@ -85,3 +85,35 @@ def fmi_text(text: str) -> str:
     ``%s`` left as it is makes a formatting host read arguments that do not exist (measured: fmpy's
     process died with a segmentation fault on a mesh path containing ``%n``)."""
     return str(text).replace("%", "%%")
+
+
+_ACCESSORS = {"get_real": "Real", "set_real": "Real", "get_integer": "Integer", "set_integer": "Integer",
+              "get_boolean": "Boolean", "set_boolean": "Boolean", "get_string": "String", "set_string": "String"}
+
+
+def guard_value_references(slave, model: str) -> None:
+    """Check every value reference a host passes to ``fmi2Get*``/``fmi2Set*`` before pythonfmu looks it
+    up. An unknown reference (or one of another type) is logged with the references and what exists, the
+    instance enters its error state (``slave._failed``: every later ``doStep`` is refused) and the call
+    fails. Without this, pythonfmu answered fmi2Fatal with only "PyObject_CallMethod" in the log and
+    then accepted the next doStep as if nothing had happened."""
+    from pythonfmu.enums import Fmi2Status
+
+    for name, vtype in _ACCESSORS.items():
+        original = getattr(slave, name)
+        # the variables are all registered by now (the guard is installed at the end of __init__)
+        valid = frozenset(vr for vr, v in slave.vars.items() if type(v).__name__ == vtype)
+
+        def checked(vrs, *args, _original=original, _name=name, _vtype=vtype, _valid=valid):
+            if not _valid.issuperset(vrs):          # one set operation per call: no cost per variable
+                bad = [vr for vr in vrs if vr not in _valid]
+                detail = ", ".join(f"{vr} ({type(slave.vars[vr]).__name__} {slave.vars[vr].name})"
+                                   if vr in slave.vars else f"{vr} (no such variable)" for vr in bad)
+                msg = (f"{model}: fmi2{_name.split('_')[0].capitalize()}{_vtype} with value references that "
+                       f"are not {_vtype} variables of this FMU: {detail}; the instance is now in its error state")
+                slave._failed = msg
+                slave.log(fmi_text(msg), Fmi2Status.error)
+                raise ValueError(msg)
+            return _original(vrs, *args)
+
+        setattr(slave, name, checked)

@@ -34,7 +34,7 @@ from gearcontact_fmu.fidelity import (OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OU
 from pythonfmu import Boolean, DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real, String  # noqa: E402
 from pythonfmu.enums import Fmi2Status  # noqa: E402
 
-from gearcontact_fmu.fmuguard import fmi_text  # noqa: E402
+from gearcontact_fmu.fmuguard import fmi_text, guard_value_references  # noqa: E402
 from gearcontact_fmu.params import DEFAULT_COMM_STEP_S  # noqa: E402
 
 PACKAGE_ORIGIN = str(Path(gearcontact_fmu.__file__).resolve().parent)
@@ -152,6 +152,7 @@ class GearContact(Fmi2Slave):
 
         self._stage = None
         self._failed = None          # message once the instance is in the error state
+        guard_value_references(self, "GearContact")
         self._t0 = 0.0
 
     # ---- FMI callbacks --------------------------------------------------------------------------

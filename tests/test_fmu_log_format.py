@@ -92,3 +92,25 @@ def test_an_unknown_value_reference_is_named_and_stops_the_instance(fmu_dir, mod
     assert r.returncode == 0, out[-2000:]
     assert "accepted" not in out                       # neither the bad read nor the next step
     assert "987654 (no such variable)" in out
+
+
+def test_a_percent_in_the_temporary_directory_does_not_crash_the_master(fmu_dir, tmp_path):
+    """pythonfmu 0.7.0 crashes fmi2Instantiate (segmentation fault) when the FMU's resource path holds a
+    '%'; the master extracts FMUs only into directories without one."""
+    tmp = tmp_path / "t%n%s"
+    tmp.mkdir()
+    code = textwrap.dedent(f"""
+        from drivetrain.master import extracted_dir
+        from drivetrain.system import ComponentSpec, SystemSpec
+        from drivetrain.master import simulate
+        d = extracted_dir({str(fmu_dir / "MotorLoad.fmu")!r})
+        assert "%" not in str(d), d
+        spec = SystemSpec([ComponentSpec("motors", "MotorLoad", {{"w0": 10.0}})], [], 1e-4)
+        res = simulate(spec, 0.01, 1000.0, ["motors.motor_w"], fmu_paths={{"MotorLoad": {str(fmu_dir / "MotorLoad.fmu")!r}}},
+                       progress=False)
+        print("host alive", res.status)
+    """)
+    env = {**__import__("os").environ, "TMPDIR": str(tmp)}
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, env=env)
+    assert r.returncode == 0, (r.stdout + r.stderr)[-2000:]
+    assert "host alive ok" in r.stdout

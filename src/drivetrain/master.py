@@ -171,6 +171,27 @@ def _cleanup_extracted() -> None:
         shutil.rmtree(d, ignore_errors=True)
 
 
+def _extract_root() -> str:
+    """A private directory for extracted FMUs whose path has no ``%``: pythonfmu 0.7.0's export library
+    crashes the process in fmi2Instantiate when the resource path contains one (it is used as a printf
+    format; measured: segmentation fault with TMPDIR=/tmp/a%n). The system temporary directory is used
+    unless its path has a ``%``; then the user cache directory, then /tmp."""
+    candidates = [None, os.path.join(os.path.expanduser("~"), ".cache", "drivetrain"), "/tmp"]
+    for base in candidates:
+        root = base if base is not None else tempfile.gettempdir()
+        if "%" in os.path.abspath(root):
+            continue
+        try:
+            os.makedirs(root, exist_ok=True)
+            d = tempfile.mkdtemp(prefix="drivetrain_fmus_", dir=root)
+        except OSError:
+            continue
+        if "%" not in d:
+            return d
+    raise ConfigurationError("no directory without '%' in its path to extract the FMUs into (pythonfmu "
+                             "crashes on such resource paths); set TMPDIR to one")
+
+
 def extracted_dir(path: Path | str) -> str:
     """``fmpy.extract`` once per FMU file (and modification time) per process."""
     import fmpy
@@ -180,7 +201,7 @@ def extracted_dir(path: Path | str) -> str:
     d = _EXTRACT_CACHE.get(key)
     if d is None or not os.path.isdir(d):
         if not _EXTRACT_ROOT:
-            _EXTRACT_ROOT.append(tempfile.mkdtemp(prefix="drivetrain_fmus_"))
+            _EXTRACT_ROOT.append(_extract_root())
             atexit.register(_cleanup_extracted)
         target = os.path.join(_EXTRACT_ROOT[0], f"{path.stem}_{len(_EXTRACT_CACHE)}")
         d = fmpy.extract(str(path), unzipdir=target)

@@ -302,8 +302,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="Dask scheduler address (tcp://host:8786); default: local process pool")
     p.add_argument("--backend", choices=("fmi", "inprocess"), default="fmi")
     p.add_argument("--fmu-dir", default="fmus")
-    p.add_argument("--skip-existing", action="store_true",
-                   help="reuse finished runs of the same scene and model sources (fingerprint in case.json)")
+    p.add_argument("--resume", "--skip-existing", dest="skip_existing", action="store_true",
+                   help="continue a sweep: reuse finished runs of the same scene and model sources "
+                        "(fingerprint in case.json), run the rest")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_sweep)

@@ -138,6 +138,18 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     return 0 if not failed else 3
 
 
+def _cmd_dataset(args: argparse.Namespace) -> int:
+    from drivetrain.dataset import DatasetError, export
+
+    try:
+        path = export(args.sweep_dir, args.format, args.out)
+    except DatasetError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {path}")
+    return 0
+
+
 def _stress_command(args: argparse.Namespace) -> str:
     """The command line of a stress campaign (the options that differ from their defaults)."""
     import shlex
@@ -308,6 +320,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_sweep)
+
+    p = sub.add_parser("dataset", help="one labelled dataset (signals + labels of every run) from a sweep directory")
+    p.add_argument("sweep_dir", help="the --out directory of a sweep (with manifest.json)")
+    p.add_argument("--format", choices=("parquet", "hdf5", "aalto"), default="parquet")
+    p.add_argument("--out", default=None, help="output file (directory for aalto); default: inside SWEEP_DIR")
+    p.set_defaults(func=_cmd_dataset)
 
     for name, helptext in (("check", "run scenes and check them against their [expect] section and baseline; "
                                      "prints what moved; exit code 0 only if everything holds"),

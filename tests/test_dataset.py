@@ -1,0 +1,83 @@
+"""`drivetrain dataset`: a sweep directory as one labelled file set; labels and signals read back equal
+what the runs wrote (issue 11)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from _cosim_test_fmus import build_test_fmus
+from drivetrain.cli import main
+from drivetrain.outputs import read_hdf5
+from drivetrain.scenario import load_scene
+from test_run import EXAMPLE, toy_spec
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory):
+    from drivetrain.sweep import run_sweep
+
+    fmus = build_test_fmus(tmp_path_factory.mktemp("mtfmus_ds"))
+    out = tmp_path_factory.mktemp("ds") / "sw"
+    scenes = [load_scene(EXAMPLE, ["time.duration_s=0.2", f"scenario.name=toy{i}", "outputs.plots=false",
+                                   f"gear.health={h}", f"operating_point.load_torque_Nm={v}"])
+              for i, (h, v) in enumerate((("healthy", 0.12), ("severe", 1.31)))]
+    run_sweep(scenes, out, workers=1, specs={s.name: toy_spec() for s in scenes}, fmu_paths=fmus, progress=False)
+    return out
+
+
+def _written(sweep):
+    runs = json.loads((sweep / "manifest.json").read_text())["runs"]
+    return {r["name"]: read_hdf5(sweep / r["name"] / "signals.h5") for r in runs}
+
+
+def test_parquet_round_trip(sweep, tmp_path, capsys):
+    import pandas as pd
+
+    assert main(["dataset", str(sweep), "--format", "parquet", "--out", str(tmp_path / "d.parquet")]) == 0
+    df = pd.read_parquet(tmp_path / "d.parquet")                      # the one line of the docs
+    for name, h in _written(sweep).items():
+        part = df[df["run"] == name]
+        np.testing.assert_array_equal(part["time_s"].to_numpy(), h["time"])
+        for c, x in h["signals"].items():
+            np.testing.assert_array_equal(part[c].to_numpy(), x)
+        assert set(part["gear.health"]) == {h["scene"]["scene"]["gear"]["health"]}
+        assert set(part["operating_point.load_torque_Nm"]) == {h["scene"]["scene"]["operating_point"]["load_torque_Nm"]}
+        assert set(part["status"]) == {"ok"}
+
+
+def test_hdf5_round_trip(sweep, tmp_path):
+    import h5py
+
+    assert main(["dataset", str(sweep), "--format", "hdf5", "--out", str(tmp_path / "d.h5")]) == 0
+    written = _written(sweep)
+    with h5py.File(tmp_path / "d.h5") as f:
+        names = json.loads(f.attrs["runs"])
+        assert names == list(written)
+        health = [v.decode() for v in f["labels/gear.health"][()]]
+        load = f["labels/operating_point.load_torque_Nm"][()]
+        for i, name in enumerate(names):
+            h = written[name]
+            assert health[i] == h["scene"]["scene"]["gear"]["health"]
+            assert load[i] == h["scene"]["scene"]["operating_point"]["load_torque_Nm"]
+            np.testing.assert_array_equal(f[f"runs/{name}/time"][()], h["time"])
+            for c, x in h["signals"].items():
+                np.testing.assert_array_equal(f[f"runs/{name}/{c}"][()], x)
+                assert f[f"runs/{name}/{c}"].attrs["unit"] == h["units"][c]
+
+
+def test_aalto_layout_and_labels(sweep, tmp_path):
+    import pandas as pd
+
+    assert main(["dataset", str(sweep), "--format", "aalto", "--out", str(tmp_path / "aalto")]) == 0
+    labels = pd.read_csv(tmp_path / "aalto" / "labels.csv")
+    assert list(labels["run"]) == ["toy0", "toy1"] and list(labels["gear.health"]) == ["healthy", "severe"]
+    csv0 = pd.read_csv(tmp_path / "aalto" / "toy0.csv")
+    assert list(csv0.columns[:2]) == ["time", "enc1"]
+
+
+def test_not_a_sweep_directory(tmp_path, capsys):
+    assert main(["dataset", str(tmp_path)]) == 2
+    assert "manifest.json" in capsys.readouterr().err

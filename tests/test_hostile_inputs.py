@@ -77,3 +77,62 @@ def test_a_huge_communication_step_is_refused_not_computed():
     with pytest.raises(StageError, match="sub-steps"):
         st.step(0.0, 1000.0, 0.0, 0.0, 0.0, 0.0)
     assert time.perf_counter() - t0 < 5.0
+
+
+# ---- every scene key with values of the wrong kind: refused naming the key, or (where the value is a
+# legitimate setting) accepted as given. Fast: validation only, nothing runs.
+_BAD_VALUES = {
+    "float": ["-1", "nan", "inf", '"fast"', "[1.0, 2.0]", "true", '"3 parsecs"', "0"],
+    "int": ["-1", "1.5", '"x"', "0", "100000000"],
+    "enum": ['"nonsense"', "1", '"../x"'],
+    "bool": ['"yes"', "2", '"true"'],
+    "str": ["1", '"a/b"', '".."', '"x\\u0000y"'],
+    "str_list": ['"enc1"', '["nope"]', "[1]"],
+    "var_list": ['["no_dot"]', '["gear.%n"]', '"x"'],
+    "profile": ["[[0.0]]", "[[1.0, 0.0], [0.0, 1.0]]", '"x"', '[[0.0, "a"]]'],
+    "path": ['"/nonexistent/x.obj"', "1", '"%n%s.obj"'],
+}
+# legitimate settings among them: free text, a drive held at standstill, a reversed or zero load, no
+# settling time
+_LEGITIMATE = {("scenario.description", '"a/b"'), ("scenario.description", '".."'),
+               ("scenario.description", '"x\\u0000y"'), ("operating_point.drive_speed_rpm", "0"),
+               ("operating_point.load_torque_Nm", "-1"), ("operating_point.load_torque_Nm", "0"),
+               ("time.settle_s", "0")}
+
+
+def _scene_key_cases():
+    from drivetrain.scenario import SCHEMA
+
+    for sec, keys in SCHEMA.items():
+        if sec in ("expect", "check"):
+            continue
+        for k, spec in keys.items():
+            for v in _BAD_VALUES.get(spec.type, []):
+                yield pytest.param(f"{sec}.{k}", v, id=f"{sec}.{k}={v}")
+
+
+@pytest.mark.parametrize("key, value", list(_scene_key_cases()))
+def test_scene_key_with_a_hostile_value(tmp_path, monkeypatch, key, value):
+    from drivetrain.scenario import ScenarioError, load_scene
+
+    monkeypatch.chdir(tmp_path)
+    example = ROOT / "scenarios" / "example.toml"
+    if (key, value) in _LEGITIMATE:
+        sc = load_scene(example, [f"{key}={value}"])
+        sec, k = key.split(".")
+        got = getattr(getattr(sc, sec), k)
+        assert str(got) == value.strip('"').replace("\\u0000", "\x00") or float(got) == float(value)
+    else:
+        with pytest.raises(ScenarioError) as e:
+            load_scene(example, [f"{key}={value}"])
+        assert key in str(e.value)
+    assert list(tmp_path.iterdir()) == []             # nothing written anywhere
+
+
+@pytest.mark.parametrize("key, value", [("scenario.name", '".."'), ("operating_point.drive_speed_rpm", "nan"),
+                                        ("gear.pinion_mesh", '"%n%s.obj"'), ("time.sample_rate_Hz", "0.001")])
+def test_cli_refuses_before_writing(tmp_path, capsys, key, value):
+    rc, text = _rc(["run", str(ROOT / "scenarios" / "example.toml"), "--set", f"{key}={value}",
+                    "--out", str(tmp_path / "out")], capsys)
+    assert rc == 2 and key in text and "Traceback" not in text
+    assert not (tmp_path / "out").exists() and list(tmp_path.iterdir()) == []

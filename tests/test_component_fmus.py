@@ -83,6 +83,12 @@ def test_fmu_validates_with_units_and_causalities(fmus, model):
     from gearcontact_fmu.params import DEFAULT_COMM_STEP_S
 
     assert float(md.defaultExperiment.stepSize) == pytest.approx(DEFAULT_COMM_STEP_S)   # fmpy's step otherwise: 2e-3 s
+    import zipfile
+
+    with zipfile.ZipFile(fmus[model]) as z:        # the Python runtime it needs, said inside the FMU
+        req = z.read("resources/requirements.txt").decode()
+        assert all(f"{p}==" in req for p in ("numpy", "numba", "pythonfmu"))
+        assert "requirements.txt" in z.read("documentation/index.html").decode()
     for e in ("energy_stored", "energy_dissipated", "energy_supplied"):
         assert v[e].causality == "output" and v[e].unit == "J" and v[e].initial == "exact"
     for x in md.modelVariables:

@@ -128,9 +128,47 @@ def _slave_class(script: Path):
     return classes[0]
 
 
+#: what the bundled packages import in the host's Python (numba's JIT, scipy's filters, trimesh's mesh IO)
+RUNTIME_PACKAGES = ("pythonfmu", "numpy", "numba", "scipy", "trimesh")
+
+
+def runtime_requirements() -> str:
+    """``resources/requirements.txt`` of every FMU: the Python packages its code imports in the host
+    process, pinned to the versions it was built and tested with."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    lines = ["# Python packages this FMU imports in the host's Python process (a CPython with the",
+             f"# pythonfmu export runtime, Python {sys.version_info.major}.{sys.version_info.minor} here).",
+             "# Install them with: python -m pip install -r requirements.txt"]
+    for pkg in RUNTIME_PACKAGES:
+        try:
+            lines.append(f"{pkg}=={version(pkg)}")
+        except PackageNotFoundError:
+            lines.append(pkg)
+    return "\n".join(lines) + "\n"
+
+
+def documentation_html(model: str, description: str) -> str:
+    """``documentation/index.html``: what the FMU is and what a host needs to run it."""
+    import html
+
+    req = html.escape(runtime_requirements())
+    return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(model)}</title></head><body>"
+            f"<h1>{html.escape(model)}</h1><p>{html.escape(description or '')}</p>"
+            "<h2>What a host needs</h2><p>This FMU is built with pythonfmu 0.7.0: its binary embeds the "
+            "host's CPython and imports the model's Python packages there (they are bundled in "
+            "<code>resources/_bundled</code>; their own dependencies are not). The host process must be "
+            "able to load libpython and import the packages below (<code>resources/requirements.txt</code>); "
+            "a tool without a Python runtime cannot run it. The first instantiation in a process compiles "
+            "the numba kernels (seconds). Log messages need logging on (debug logging in fmpy).</p>"
+            f"<pre>{req}</pre></body></html>\n")
+
+
 def postprocess_model_description(fmu: Path, units: dict | None = None,
-                                  output_dependencies: dict | None = None) -> None:
-    """Add units, UnitDefinitions, output dependencies and needsExecutionTool=false in place."""
+                                  output_dependencies: dict | None = None, model: str = "",
+                                  description: str = "") -> None:
+    """Add units, UnitDefinitions, output dependencies and needsExecutionTool=false in place, and the
+    runtime requirements and documentation (resources/requirements.txt, documentation/index.html)."""
     fmu = Path(fmu)
     tmp = fmu.with_name(fmu.name + ".tmp")
     with zipfile.ZipFile(fmu) as zin, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zout:
@@ -138,7 +176,11 @@ def postprocess_model_description(fmu: Path, units: dict | None = None,
             data = zin.read(item.filename)
             if item.filename == "modelDescription.xml":
                 data = _edit_xml(data, units or {}, output_dependencies or {})
+            if item.filename in ("resources/requirements.txt", "documentation/index.html"):
+                continue
             zout.writestr(item, data)
+        zout.writestr("resources/requirements.txt", runtime_requirements())
+        zout.writestr("documentation/index.html", documentation_html(model or fmu.stem, description))
     tmp.replace(fmu)
 
 
@@ -206,7 +248,8 @@ def build_fmu(script: Path, out_dir: Path) -> Path:
         bundled = _copy_packages(Path(tmp))
         fmu = FmuBuilder.build_FMU(script, dest=out_dir, project_files=[bundled], needsExecutionTool=False)
     fmu = Path(fmu)
-    postprocess_model_description(fmu, getattr(cls, "units", None), getattr(cls, "output_dependencies", None))
+    postprocess_model_description(fmu, getattr(cls, "units", None), getattr(cls, "output_dependencies", None),
+                                  model=cls.__name__, description=getattr(cls, "description", ""))
     return fmu
 
 

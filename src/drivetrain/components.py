@@ -42,7 +42,7 @@ import numpy as np
 from numba import njit
 
 from gearcontact_fmu.coupling import EnergyCorrection
-from gearcontact_fmu.params import MAX_SUBSTEPS_PER_STEP
+from gearcontact_fmu.params import substep_limit_problem, substeps
 
 RPM = 2.0 * math.pi / 60.0
 
@@ -440,7 +440,7 @@ class LineModel:
         self.p_u1[q] = u1
 
     def n_substeps(self, H):
-        return max(1, int(math.ceil(H / self.max_substep - 1e-9)))
+        return substeps(H, self.max_substep)
 
     def step(self, t, H, wref0=0.0, wref1=None):
         """Advance from t to t + H (inputs already set with set_input). Raises ComponentError."""
@@ -448,11 +448,10 @@ class LineModel:
             raise ComponentError(f"communication step must be > 0, got {H!r} at t = {t:.9g} s")
         if wref1 is None:
             wref1 = wref0
+        problem = substep_limit_problem(H, t, self.max_substep)
+        if problem:
+            raise ComponentError(problem)
         n_sub = self.n_substeps(H)
-        if n_sub > MAX_SUBSTEPS_PER_STEP:
-            raise ComponentError(f"communication step {H:.6g} s at t = {t:.9g} s needs {n_sub} sub-steps of "
-                                 f"max_substep = {self.max_substep:.3g} s (at most {MAX_SUBSTEPS_PER_STEP}); "
-                                 f"take smaller communication steps")
         self.wref[0] = wref0
         self.wref[1] = wref1
         code = line_step(float(H), n_sub, self.fp, self.ip, self.st, self.out, self.wk)

@@ -148,11 +148,11 @@ def runtime_requirements() -> str:
     return "\n".join(lines) + "\n"
 
 
-def documentation_html(model: str, description: str) -> str:
+def documentation_html(model: str, description: str, requirements: str) -> str:
     """``documentation/index.html``: what the FMU is and what a host needs to run it."""
     import html
 
-    req = html.escape(runtime_requirements())
+    req = html.escape(requirements)
     return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(model)}</title></head><body>"
             f"<h1>{html.escape(model)}</h1><p>{html.escape(description or '')}</p>"
             "<h2>What a host needs</h2><p>This FMU is built with pythonfmu 0.7.0: its binary embeds the "
@@ -179,8 +179,9 @@ def postprocess_model_description(fmu: Path, units: dict | None = None,
             if item.filename in ("resources/requirements.txt", "documentation/index.html"):
                 continue
             zout.writestr(item, data)
-        zout.writestr("resources/requirements.txt", runtime_requirements())
-        zout.writestr("documentation/index.html", documentation_html(model or fmu.stem, description))
+        req = runtime_requirements()
+        zout.writestr("resources/requirements.txt", req)
+        zout.writestr("documentation/index.html", documentation_html(model or fmu.stem, description, req))
     tmp.replace(fmu)
 
 

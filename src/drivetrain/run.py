@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import sys
 import time as _time
 from dataclasses import dataclass, field
@@ -221,8 +220,10 @@ COSTLY_FACTOR = 100.0
 def cost_warning(scene: Scene) -> str | None:
     """A warning, said before the run starts, when the scene asks for far more gear-stage sub-steps than
     the default 20 s scene (a tiny max_substep_s or a long duration): the user learns the price first."""
+    from gearcontact_fmu.params import substeps
+
     H = scene.numerics.comm_step_s
-    n = (scene.time.duration_s / H) * max(1, math.ceil(H / scene.numerics.max_substep_s - 1e-9))
+    n = (scene.time.duration_s / H) * substeps(H, scene.numerics.max_substep_s)
     if n > COSTLY_FACTOR * DEFAULT_RUN_SUBSTEPS:
         return (f"this scene needs about {n:.3g} gear-stage sub-steps ({n / DEFAULT_RUN_SUBSTEPS:.0f}x the "
                 f"default 20 s scene; numerics.max_substep_s = {scene.numerics.max_substep_s:.3g} s, "

@@ -282,20 +282,22 @@ def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
     mesh_files = {k: v for k, v in (mesh_files or {}).items() if v}
     key = cache_key(gear, pcm, resolution, health, mesh_files, grid, fault_kwargs, mesh_units)
     path = cache_dir() / f"contactmap-{key}.npz"
+    def cached() -> ContactMap:
+        cm = load_map(path, gear, pcm, grid)
+        cm.info["cache"] = str(path)
+        cm.info["from_cache"] = True
+        return cm
+
     problem = None
     if use_cache and path.exists():
         try:
-            cmap = load_map(path, gear, pcm, grid)
+            return cached()
         except ContactMapFileError as exc:
             # a cache, not data: a damaged file is moved aside (kept for inspection) and rebuilt
             problem = f"{exc}; moved to {path.name}.damaged and rebuilt"
             if not build:
                 return None
             os.replace(path, Path(str(path) + ".damaged"))
-        else:
-            cmap.info["cache"] = str(path)
-            cmap.info["from_cache"] = True
-            return cmap
     if not build:
         return None
     if use_cache:
@@ -305,13 +307,9 @@ def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
         with file_lock(path.with_suffix(".lock")):
             if path.exists():
                 try:
-                    cmap = load_map(path, gear, pcm, grid)
+                    return cached()
                 except ContactMapFileError:
-                    pass
-                else:
-                    cmap.info["cache"] = str(path)
-                    cmap.info["from_cache"] = True
-                    return cmap
+                    pass            # damaged meanwhile: built again below
             cmap = _build_map(gear, pcm, resolution, health, mesh_files, mesh_units, grid, fault_kwargs)
             save_map(cmap, path)
     else:

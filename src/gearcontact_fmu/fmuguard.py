@@ -97,14 +97,21 @@ def guard_value_references(slave, model: str) -> None:
     instance enters its error state (``slave._failed``: every later ``doStep`` is refused) and the call
     fails. Without this, pythonfmu answered fmi2Fatal with only "PyObject_CallMethod" in the log and
     then accepted the next doStep as if nothing had happened."""
+    import weakref
+
     from pythonfmu.enums import Fmi2Status
 
+    # the wrappers live on the instance: they hold it weakly and call the class's function, so that the
+    # instance is not kept alive by a reference cycle (freed by the garbage collector at some later time,
+    # possibly after pythonfmu's export library has released the interpreter state)
+    ref = weakref.ref(slave)
     for name, vtype in _ACCESSORS.items():
-        original = getattr(slave, name)
+        original = getattr(type(slave), name)
         # the variables are all registered by now (the guard is installed at the end of __init__)
         valid = frozenset(vr for vr, v in slave.vars.items() if type(v).__name__ == vtype)
 
         def checked(vrs, *args, _original=original, _name=name, _vtype=vtype, _valid=valid):
+            slave = ref()
             if not _valid.issuperset(vrs):          # one set operation per call: no cost per variable
                 bad = [vr for vr in vrs if vr not in _valid]
                 detail = ", ".join(f"{vr} ({type(slave.vars[vr]).__name__} {slave.vars[vr].name})"
@@ -114,6 +121,6 @@ def guard_value_references(slave, model: str) -> None:
                 slave._failed = msg
                 slave.log(fmi_text(msg), Fmi2Status.error)
                 raise ValueError(msg)
-            return _original(vrs, *args)
+            return _original(slave, vrs, *args)
 
         setattr(slave, name, checked)

@@ -19,6 +19,20 @@ DEFAULT_COMM_STEP_S = 1.0 / 12000.0
 MAX_SUBSTEPS_PER_STEP = 1_000_000
 
 
+def substeps(H: float, max_substep: float) -> int:
+    """Internal sub-steps of one communication step H: ceil(H / max_substep), at least 1."""
+    return max(1, int(math.ceil(H / max_substep - 1e-9)))
+
+
+def substep_limit_problem(H: float, t: float, max_substep: float) -> str | None:
+    """Why a communication step is refused (more than MAX_SUBSTEPS_PER_STEP sub-steps), or None."""
+    n = substeps(H, max_substep)
+    if n <= MAX_SUBSTEPS_PER_STEP:
+        return None
+    return (f"communication step {H:.6g} s at t = {t:.9g} s needs {n} sub-steps of max_substep = "
+            f"{max_substep:.3g} s (at most {MAX_SUBSTEPS_PER_STEP}); take smaller communication steps")
+
+
 @dataclass(frozen=True)
 class BevelGearParams:
     """Straight bevel pair, spherical-involute flanks, common apex, all cones through the apex."""

@@ -65,7 +65,7 @@ import numpy as np
 from numba import njit, types
 
 from gearcontact_fmu.coupling import EnergyCorrection
-from gearcontact_fmu.params import MAX_SUBSTEPS_PER_STEP
+from gearcontact_fmu.params import substep_limit_problem, substeps
 from gearcontact_fmu.fidelity import (
     N_OUT, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY, OUT_MAX_PENETRATION, OUT_NORMAL_FORCE, OUT_STATUS,
     OUT_TAU_PINION,
@@ -725,6 +725,11 @@ class GearStage:
         return float(self._res[_RPEN])
 
     @property
+    def coupling_energy_error(self) -> float:
+        """Work mismatch of the two flange cuts still uncorrected [J] (gearcontact_fmu.coupling)."""
+        return float(sum(self.correction.mismatch_J))
+
+    @property
     def min_substep(self) -> float:
         """Smallest accepted sub-step [s]; 0.0 before the first step."""
         v = float(self._res[_RDTMIN])
@@ -758,7 +763,7 @@ class GearStage:
                 "separated_time": self.separated_time, "n_separations": self.n_separations}
 
     def n_substeps(self, H: float) -> int:
-        return max(1, int(math.ceil(H / self.params.max_substep - 1e-9)))
+        return substeps(H, self.params.max_substep)
 
     def initialize(self, t0: float, phi_a: float, w_a: float, phi_b: float, w_b: float,
                    theta_pinion: float | None = None, theta_wheel: float | None = None,
@@ -834,11 +839,10 @@ class GearStage:
         u[1] = w_a
         u[2] = phi_b
         u[3] = w_b
+        problem = substep_limit_problem(H, t, self.params.max_substep)
+        if problem:
+            raise StageError(problem)
         n_sub = self.n_substeps(H)
-        if n_sub > MAX_SUBSTEPS_PER_STEP:
-            raise StageError(f"communication step {H:.6g} s at t = {t:.9g} s needs {n_sub} sub-steps of "
-                             f"max_substep = {self.params.max_substep:.3g} s (at most {MAX_SUBSTEPS_PER_STEP}); "
-                             f"take smaller communication steps")
         balance = self._mode != _M_BARE
         if balance:
             e0 = self.stored_energy_at_inputs(phi_a, w_a, phi_b, w_b)

@@ -73,12 +73,13 @@ class GearContact(Fmi2Slave):
                "n_contact", "contact_area", "peak_pressure", "max_penetration", "normal_force",
                "elastic_energy", "mesh_torque_pinion", "mesh_torque_wheel", "mesh_dissipated_power",
                "pinion_phi", "pinion_w", "wheel_phi", "wheel_w",
-               "energy_stored", "energy_dissipated", "energy_supplied", "coupling_energy_error")
-    # stability counters of the stage, cumulative since t = 0 (GearStage.counters()): read from the stage
-    # when the host asks (no cost per step); after a failed do_step they include the failing sub-step
+               "energy_stored", "energy_dissipated", "energy_supplied")
+    # stability counters of the stage and the pending coupling mismatch, cumulative since t = 0: read from
+    # the stage when the host asks (no cost per step); after a failed do_step they include the failing sub-step
     STABILITY = {"peak_penetration": "peak_penetration", "min_substep": "min_substep",
                  "n_substeps": "n_substeps_total", "n_refinements": "n_refinements",
-                 "separated_time": "separated_time", "n_separations": "n_separations"}
+                 "separated_time": "separated_time", "n_separations": "n_separations",
+                 "coupling_energy_error": "coupling_energy_error"}
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
@@ -252,4 +253,3 @@ class GearContact(Fmi2Slave):
         self.energy_stored = st.energy_stored
         self.energy_dissipated = st.energy_dissipated
         self.energy_supplied = st.energy_supplied
-        self.coupling_energy_error = float(sum(st.correction.mismatch_J))

@@ -1,0 +1,112 @@
+"""Bit-identity of results across a code change: hash the signals of short runs.
+
+    python benchmarks/bit_identity.py                    # hashes of this tree's runs
+    python benchmarks/bit_identity.py --against REV      # and of git revision REV, side by side
+
+Each case is a short run of a scene (several fidelities, faults, both backends); its hash is the
+SHA-256 of the time vector and every signal array (name, dtype, bytes) in signals.h5. Timestamps
+and wall times are not hashed. With --against, REV is checked out in a temporary git worktree and
+the same cases run there in a fresh process; the script prints both hashes and exits 1 if any differ.
+The in-process hashes are also stored in tests/data/bit_identity.json for the default test suite
+(``--store``).
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+STORE = ROOT / "tests" / "data" / "bit_identity.json"
+
+# name: (scene file relative to the root, --set overrides, backend)
+CASES = {
+    "table_healthy_inproc": ("scenarios/example.toml", ["time.duration_s=0.12"], "inprocess"),
+    "table_severe_fmi": ("scenarios/example.toml", ["time.duration_s=0.12", "gear.health=\"severe\""], "fmi"),
+    "pcm_mild_inproc": ("scenarios/example.toml", ["time.duration_s=0.02", "gear.health=\"mild\"",
+                                                   "effects.mesh_contact=\"pcm\""], "inprocess"),
+    "analytic_rigid_inproc": ("scenarios/example.toml", ["time.duration_s=0.12", "effects.mesh_contact=\"analytic\"",
+                                                         "effects.shaft_flexibility=\"rigid\""], "inprocess"),
+}
+
+_RUNNER = r"""
+import hashlib, json, sys, tempfile
+from pathlib import Path
+import numpy as np
+from drivetrain.scenario import load_scene
+from drivetrain.run import run_scene
+from drivetrain.outputs import read_hdf5
+cases = json.loads(sys.argv[1]); root = Path(sys.argv[2]); fmu_dir = sys.argv[3]
+out = {}
+for name, (scene_file, sets, backend) in cases.items():
+    sets = list(sets) + ["outputs.plots=false", "outputs.aalto_csv=false"]
+    scene = load_scene(root / scene_file, sets)
+    with tempfile.TemporaryDirectory() as d:
+        run_scene(scene, d, backend=backend, progress=False, fmu_dir=fmu_dir, log=lambda m: None)
+        data = read_hdf5(Path(d) / "signals.h5")
+    h = hashlib.sha256()
+    for key, arr in [("time", data["time"])] + sorted(data["signals"].items()):
+        arr = np.ascontiguousarray(arr)
+        h.update(key.encode()); h.update(str(arr.dtype).encode()); h.update(arr.tobytes())
+    out[name] = {"sha256": h.hexdigest(), "samples": int(len(data["time"])), "signals": len(data["signals"])}
+print("RESULT " + json.dumps(out))
+"""
+
+
+def platform_key() -> dict:
+    import numba
+    import numpy as np
+    import platform
+    return {"machine": platform.machine(), "python": platform.python_version(), "numpy": np.__version__,
+            "numba": numba.__version__}
+
+
+def hashes(src_root: Path, cases: dict, fmu_dir: str) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(src_root / "src"))
+    proc = subprocess.run([sys.executable, "-c", _RUNNER, json.dumps(cases), str(src_root), fmu_dir],
+                          env=env, capture_output=True, text=True, cwd=src_root)
+    for line in proc.stdout.splitlines():
+        if line.startswith("RESULT "):
+            return json.loads(line[7:])
+    raise SystemExit(f"runs in {src_root} failed (rc {proc.returncode}):\n{proc.stderr[-3000:]}")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--against", help="git revision to compare with")
+    ap.add_argument("--store", action="store_true", help="write the in-process hashes to " + str(STORE.relative_to(ROOT)))
+    args = ap.parse_args(argv)
+    with tempfile.TemporaryDirectory() as tmp:
+        here = hashes(ROOT, CASES, str(Path(tmp) / "fmus_here"))
+        rows = {name: [h["sha256"]] for name, h in here.items()}
+        if args.against:
+            wt = Path(tmp) / "against"
+            subprocess.run(["git", "worktree", "add", "-q", "--detach", str(wt), args.against], cwd=ROOT, check=True)
+            try:
+                there = hashes(wt, CASES, str(Path(tmp) / "fmus_there"))
+            finally:
+                subprocess.run(["git", "worktree", "remove", "--force", str(wt)], cwd=ROOT, check=False)
+            for name in rows:
+                rows[name].append(there[name]["sha256"])
+    print(f"{'case':26s} {'this tree':18s}" + (f" {args.against[:16]:18s} same" if args.against else ""))
+    differ = 0
+    for name, hs in rows.items():
+        same = len(set(hs)) == 1
+        differ += not same
+        print(f"{name:26s} {hs[0][:16]:18s}" + (f" {hs[1][:16]:18s} {'yes' if same else 'NO'}" if len(hs) > 1 else ""))
+    if args.store:
+        STORE.parent.mkdir(parents=True, exist_ok=True)
+        stored = {"platform": platform_key(), "cases": {n: dict(zip(("scene", "set", "backend"), CASES[n]), **here[n])
+                                                        for n in CASES if CASES[n][2] == "inprocess"}}
+        STORE.write_text(json.dumps(stored, indent=1) + "\n")
+        print(f"stored {STORE.relative_to(ROOT)}")
+    return 1 if differ else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

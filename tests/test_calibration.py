@@ -72,14 +72,16 @@ def test_calibrate_recovers_known_parameters(tmp_path):
 
 def test_calibrate_command_writes_a_file_the_assembler_takes(tmp_path, capsys):
     out = tmp_path / "cal.json"
-    assert CAL.run_calibrate_command(str(rig.MEASURED_CSV), str(out)) == 0
+    from drivetrain.cli import main
+
+    assert main(["calibrate", str(rig.MEASURED_CSV), "--out", str(out)]) == 0
     text = capsys.readouterr().out
     assert "max |error|" in text and "wrote" in text
     cal = json.loads(out.read_text())
     assert set(cal) >= {"coupling_scale", "upper", "planetary"}
     spec = assemble(default_scene(), calibration=str(out), check=False)
     assert spec.components[2].parameters["loss_Tc"] == pytest.approx(cal["upper"]["T_c"])
-    assert CAL.run_calibrate_command(str(tmp_path / "missing.csv"), str(out)) == 2
+    assert main(["calibrate", str(tmp_path / "missing.csv"), "--out", str(out)]) == 2
 
 
 def _time_domain_means(speed, load, duration=1.0, settle=0.6):

@@ -6,8 +6,8 @@ import pytest
 
 from gearcontact_fmu import faults
 from gearcontact_fmu import geometry as G
-from gearcontact_fmu.meshes import (FLANK_COAST, FLANK_DRIVE, KIND_VOID_FLOOR, KIND_VOID_WALL, MeshError,
-                                    load_gear_mesh, save_mesh, validate_gear_mesh)
+from gearcontact_fmu.mesh_check import load_gear_mesh, validate_gear_mesh
+from gearcontact_fmu.meshes import (FLANK_COAST, FLANK_DRIVE, KIND_VOID_FLOOR, KIND_VOID_WALL, MeshError, save_mesh)
 from gearcontact_fmu.params import BevelGearParams, MeshResolution
 
 P = BevelGearParams()

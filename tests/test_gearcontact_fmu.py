@@ -166,7 +166,7 @@ def test_nan_input_is_an_fmi_error_and_the_host_survives(fmu):
 
 def test_fmpy_cli_runs_and_exits_cleanly(fmu, tmp_path):
     """The docs/FMU.md command in fresh processes: results written and exit status 0 (pythonfmu 0.7.0
-    alone aborts about half of such processes at exit; gearcontact_fmu.fmuguard prevents it)."""
+    alone aborts about half of such processes at exit; fmu_runtime.guard prevents it)."""
     out = tmp_path / "out.csv"
     cmd = [sys.executable, "-m", "fmpy", "simulate", str(fmu), "--input-file", str(INPUT_CSV),
            "--stop-time", "0.05", "--output-interval", "1e-4", "--output-variables", "flange_a_tau",

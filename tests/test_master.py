@@ -230,13 +230,8 @@ def test_instantiates_exactly_the_spec(fmus, monkeypatch):
     assert made == [(c.name, c.model) for c in spec.components]
 
 
-DT_SLAVES = Path(__file__).resolve().parents[1] / "src" / "drivetrain" / "slaves"
-
-
 @pytest.fixture(scope="module")
 def drivetrain_fmus(tmp_path_factory):
-    if not all((DT_SLAVES / f"{m}.py").is_file() for m in ("FlexibleShaft", "UpperTransmission")):
-        pytest.skip("drivetrain component slaves not available yet")
     d = tmp_path_factory.mktemp("dtfmus")
     return M.ensure_fmus(["FlexibleShaft", "UpperTransmission"], d)
 

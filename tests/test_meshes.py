@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from gearcontact_fmu import geometry as G
-from gearcontact_fmu.meshes import (FLANK_COAST, FLANK_DRIVE, KIND_FLANK, KIND_ROOT_RADIAL, MeshError, SurfaceMesh,
-                                    concatenate, load_gear_mesh, load_mesh, save_mesh, validate_gear_mesh)
+from gearcontact_fmu.mesh_check import load_gear_mesh, validate_gear_mesh
+from gearcontact_fmu.meshes import (FLANK_COAST, FLANK_DRIVE, KIND_FLANK, KIND_ROOT_RADIAL, MeshError, SurfaceMesh, concatenate, load_mesh, save_mesh)
 from gearcontact_fmu.params import BevelGearParams, MeshResolution
 
 P = BevelGearParams()

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivetrain import rig
+from drivetrain import rig, stability
 from drivetrain.assemble import assemble
 from drivetrain.scenario import default_scene
 
@@ -84,8 +84,8 @@ def test_stiff_cut_is_refused_with_the_numbers():
     for c in spec.components:
         if c.name == "gear":
             c.parameters["k_a"] = 5e6
-    with pytest.raises(rig.UnstableCutError) as ei:
-        rig.check_cuts(spec)
+    with pytest.raises(stability.UnstableCutError) as ei:
+        stability.check_cuts(spec)
     msg = str(ei.value)
     assert "gear.flange_a -> upper.flange_b" in msg
     assert "omega_if*H" in msg and "spectral radius" in msg and "UNSTABLE" in msg
@@ -111,7 +111,7 @@ def test_two_body_limits_match_the_notes():
         w = wH / H
         k = w * w / (1 / J + 1 / Jb)
         d = 2 * zeta * math.sqrt(k / (1 / J + 1 / Jb))
-        return rig.two_body_radius(J, Jb, k, d, H, "mean")
+        return stability.two_body_radius(J, Jb, k, d, H, "mean")
 
     assert radius(0.15, 1.0) < 1.0
     assert radius(0.3, 1.0) > 1.0
@@ -127,7 +127,7 @@ def test_whole_system_check_predicts_divergence():
         sc = default_scene(effects__shaft_flexibility="rigid", effects__mesh_contact="ideal",
                            time__sample_rate_Hz=float(inv), numerics__comm_step_s=1.0 / inv)
         spec = assemble(sc, check=False)
-        _, rho = rig.check_cuts(spec, raise_on_unstable=False)
+        _, rho = stability.check_cuts(spec, raise_on_unstable=False)
         assert (rho < 1.0) == stable
         loop = Loop(spec)
         try:

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from drivetrain import stability
 from drivetrain.cli import main
 from drivetrain.master import ConfigurationError
 from drivetrain.run import assemble_scene, run_scene
@@ -42,7 +43,7 @@ def test_static_contact_is_reported_with_the_default_u_max():
     from drivetrain import rig
 
     spec = assemble_scene(load_scene(EXAMPLE, ["time.duration_s=0.1"]))
-    (rep,) = rig.check_contact_range(spec)
+    (rep,) = stability.check_contact_range(spec)
     assert rep["component"] == "gear" and rep["u_max_m"] == pytest.approx(1e-3)
     # the loaded pair at ~3.8 N·m pinion torque: a fraction of a micrometre, far below u_max
     assert 1e-8 < rep["static_penetration_m"] < 2e-6

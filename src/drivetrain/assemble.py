@@ -9,7 +9,7 @@ Only what the scene needs is instantiated:
 | mesh_contact = "ideal" | gear with fidelity "ideal": a rigid ratio, no contact engine |
 
 The parameters come from :func:`drivetrain.rig.partition` (the lumped public model, the calibrated
-coupling stiffness and losses); every cut is checked by :func:`drivetrain.rig.check_cuts` before the
+coupling stiffness and losses); every cut is checked by :func:`drivetrain.stability.check_cuts` before the
 spec is returned (an unstable cut is refused with the numbers). The initial state is the steady state
 at the initial speed and load (every spring of my components pre-twisted, the PI integrator
 pre-loaded), so a constant-speed scene starts close to its operating point.
@@ -21,11 +21,12 @@ the final drive speed), ``fidelity`` (component -> fidelity), ``partition`` (bod
 from __future__ import annotations
 
 import dataclasses
-import math
 
-from drivetrain import rig
-from drivetrain.components import RPM, FlexibleShaft, params_from, FlexibleShaftParams
+from drivetrain import rig, stability
+from drivetrain.components import FlexibleShaft, FlexibleShaftParams, params_from
+from drivetrain.signals import characteristic_frequencies
 from drivetrain.system import ComponentSpec, Connection, SystemSpec
+from gearcontact_fmu.params import PCMParams
 
 #: Sensor variables per configuration (docs/DRIVETRAIN.md, "Sensors").
 SENSORS_COMMON = {
@@ -45,7 +46,6 @@ def sensor_map(shafts: str) -> dict:
 
 
 def _gear_parameters(scene, part: rig.Partition, max_substep: float) -> dict:
-    from gearcontact_fmu.params import PCMParams
 
     eff = scene.effects
     pcm = PCMParams()
@@ -150,7 +150,6 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     components.append(ComponentSpec("gear", "GearContact", gear))
     connections = [Connection(s, i) for s, i in part.connections]
 
-    from drivetrain.signals import characteristic_frequencies
 
     meta = {
         "sensors": sensor_map(eff.shaft_flexibility),
@@ -168,8 +167,8 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     spec = SystemSpec(components, connections, H, meta)
     if check:
         try:
-            reports, rho = rig.check_cuts(spec)
-        except rig.UnstableCutError as exc:
+            reports, rho = stability.check_cuts(spec)
+        except stability.UnstableCutError as exc:
             from drivetrain.master import ConfigurationError
 
             err = ConfigurationError(exc.problems)

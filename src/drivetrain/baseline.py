@@ -36,7 +36,11 @@ from typing import Any
 
 import numpy as np
 
-from drivetrain.expect import CheckOptions, Outcome, _fmt, freqs_of, spectrum_levels
+from drivetrain import __version__
+from drivetrain.expect import CheckOptions, Outcome, _fmt, freqs_of, frequency_value, spectrum_levels
+from drivetrain.outputs import _finish, _mpl, jsonable, now_iso
+from drivetrain.scenario import TORQUE_SENSORS
+from drivetrain.signals import decimate
 
 FORMAT = "drivetrain-baseline/1"
 SUFFIX = ".baseline.h5"
@@ -55,7 +59,6 @@ def spectrum_frequencies(freqs: dict, fs: float, n_harmonics: int = 5, n_sideban
     for k in range(1, n_sidebands + 1):
         km = "" if k == 1 else f"{k}*"
         ex += [f"f_GMF-{km}f_MSH", f"f_GMF+{km}f_MSH"]
-    from drivetrain.expect import frequency_value
 
     return [e for e in ex if 0.0 < frequency_value(e, freqs) < 0.5 * fs]
 
@@ -76,7 +79,6 @@ def versions() -> dict:
     """Versions of what produced a run: this package, Python, the numerical libraries, the FMU sources."""
     import importlib.metadata as md
 
-    from drivetrain import __version__
 
     out: dict[str, Any] = {"drivetrain": __version__, "python": platform.python_version(),
                            "platform": platform.platform()}
@@ -145,7 +147,6 @@ def default_channels(scene, signals: dict) -> list[str]:
     opt = scene.expect.options if scene.expect is not None else CheckOptions()
     if opt.baseline_signals is not None:
         return [c for c in opt.baseline_signals if c in signals]
-    from drivetrain.scenario import TORQUE_SENSORS
 
     return [c for c in signals if c in TORQUE_SENSORS or c in scene.outputs.variables]
 
@@ -154,7 +155,6 @@ def make_entry(scene, summary: dict, time: np.ndarray, signals: dict, units: dic
                decimation: int | None = None, channels: list[str] | None = None) -> Entry:
     """The compact reference of a run. ``decimation``: keep every D-th sample after the anti-alias
     filter (default: the smallest D giving <= MAX_SAMPLES samples)."""
-    from drivetrain.signals import decimate
 
     time = np.asarray(time, dtype=float)
     n = len(time)
@@ -197,7 +197,6 @@ def write_baseline(path: str | Path, entries: list[Entry], source: str | Path | 
     ``replace``: start a new file."""
     import h5py
 
-    from drivetrain.outputs import jsonable, now_iso
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -381,7 +380,6 @@ def plot_against_baseline(path: str | Path, cur: Entry, base: Entry | None, chan
     """Each channel of this run against its baseline (top) and their difference (bottom); without a
     baseline, the channel alone with the expected values/ranges of its failed expectations
     (``expectations``: channel -> [(label, lo, hi)]) drawn as lines/bands."""
-    from drivetrain.outputs import _finish, _mpl
 
     plt = _mpl()
     channels = [c for c in channels if c in cur.signals] or list(cur.signals)[:2]

@@ -20,57 +20,19 @@ is brought to the measured 24 Hz by one factor on the five elastomer coupling el
 """
 from __future__ import annotations
 
-import csv
 import json
-import math
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from drivetrain import rig
+from drivetrain.assemble import assemble
+from drivetrain.eigen import natural_frequencies
+from drivetrain.rig import read_measured  # noqa: F401  (re-exported)
+from drivetrain.scenario import default_scene
 
 LAW_KEYS = ("c_v", "T_c", "w_c", "a")
 TARGET_LOWEST_HZ = 24.0
-
-
-def read_measured(path: str | Path | None = None) -> dict:
-    """The measured table as arrays: T_load, T_DSH, T_PSH, n_DSH (rpm), n_PSH (rpm)."""
-    p = Path(path) if path else rig.MEASURED_CSV
-    try:
-        with open(p, newline="", encoding="utf-8") as fh:
-            rows = [r for r in csv.reader(fh) if r and not r[0].lstrip().startswith("#")]
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{p}: not a readable CSV text file ({exc})") from None
-    if not rows:
-        raise ValueError(f"{p}: no data")
-    hdr = [h.strip() for h in rows[0]]
-    need = {"T_load_Nm", "T_DSH_Nm", "T_PSH_Nm", "n_DSH_rpm"}
-    missing = need - set(hdr)
-    if missing:
-        raise ValueError(f"{p}: missing columns {sorted(missing)} (have {hdr})")
-    col = {h: i for i, h in enumerate(hdr)}
-    problems = []
-    for n, r in enumerate(rows[1:], start=2):
-        if len(r) != len(hdr):
-            problems.append(f"data row {n - 1} has {len(r)} fields, the header {len(hdr)}: {','.join(r)}")
-            continue
-        for k in need:
-            try:
-                float(r[col[k]])
-            except ValueError:
-                problems.append(f"data row {n - 1}: {k} = {r[col[k]]!r} is not a number")
-    if problems:
-        raise ValueError(f"{p}: " + "; ".join(problems))
-    data = {}
-    for k in hdr:                 # every numeric column (the fit's were checked above; expectations read others)
-        try:
-            data[k] = np.array([float(r[col[k]]) for r in rows[1:]])
-        except ValueError:
-            pass
-    if len(data["T_load_Nm"]) < 8:
-        raise ValueError(f"{p}: at least 8 operating points are needed to fit 8 parameters")
-    return data
 
 
 def _laws_from_vector(x) -> tuple[dict, dict]:
@@ -133,9 +95,6 @@ def calibrate(measured_csv: str | Path | None = None, x0: dict | None = None) ->
 
 def lowest_mode(coupling_scale: float, calibration: dict | None = None) -> float:
     """Lowest torsional mode [Hz] of the default assembled drivetrain (flexible shafts, table gear)."""
-    from drivetrain.assemble import assemble
-    from drivetrain.eigen import natural_frequencies
-    from drivetrain.scenario import default_scene
 
     cal = dict(calibration or rig.load_calibration())
     cal["coupling_scale"] = float(coupling_scale)
@@ -163,39 +122,7 @@ def write_calibration(path: str | Path, losses: dict, coupling_scale: float, ext
     return p
 
 
-def run_calibrate_command(csv_path, out_path=None, file=None) -> int:
-    """``drivetrain calibrate MEASURED.csv [--out FILE]``: refit the losses, print the fit at every
-    operating point, write the calibration JSON (default ./calibration.json; use it with
-    ``drivetrain.assemble.assemble(scene, calibration=FILE)`` or the environment variable
-    DRIVETRAIN_CALIBRATION). The coupling-stiffness factor is kept from the current calibration."""
-    file = file or sys.stdout
-    try:
-        res = calibrate(csv_path)
-    except (OSError, ValueError, KeyError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    cur = rig.load_calibration()
-    print(f"loss law T = c_v w + (T_c + a |T_trans|) tanh(w / w_c), fitted to {csv_path}", file=file)
-    for key, frame in (("upper", "drive frame, T_trans = T_PSH/12"), ("planetary", "propeller frame, T_trans = 8 T_set")):
-        v = res[key]
-        print(f"  {key:9s} ({frame}): c_v = {v['c_v']:.6g} N m s/rad, T_c = {v['T_c']:.6g} N m, "
-              f"w_c = {v['w_c']:.6g} rad/s, a = {v['a']:.6g}", file=file)
-    print(f"{'T_load':>7} {'n_DSH':>8} {'T_DSH meas':>10} {'model':>8} {'err %':>7} {'T_PSH meas':>10} "
-          f"{'model':>8} {'err %':>7}", file=file)
-    for pt in res["errors"]["points"]:
-        print(f"{pt['T_load_Nm']:>7.2f} {pt['n_DSH_rpm']:>8.2f} {pt['T_DSH_meas']:>10.3f} {pt['T_DSH_model']:>8.3f} "
-              f"{100 * pt['err_DSH']:>7.2f} {pt['T_PSH_meas']:>10.3f} {pt['T_PSH_model']:>8.3f} "
-              f"{100 * pt['err_PSH']:>7.2f}", file=file)
-    print(f"max |error|: drive shaft {100 * res['errors']['max_abs_DSH']:.2f} %, propeller shaft "
-          f"{100 * res['errors']['max_abs_PSH']:.2f} %", file=file)
-    out = Path(out_path) if out_path else Path("calibration.json")
-    write_calibration(out, res, cur["coupling_scale"],
-                      {k: v for k, v in cur.items() if k not in ("coupling_scale", "upper", "planetary", "law", "fit")})
-    print(f"wrote {out} (coupling_scale {cur['coupling_scale']:.6g} kept)", file=file)
-    return 0
-
-
-def main_regenerate(path: str | Path | None = None) -> dict:
+def regenerate_shipped(path: str | Path | None = None) -> dict:
     """Regenerate the shipped data/calibration.json: losses from the shipped table, then the coupling
     factor for 24 Hz (the lowest mode hardly depends on the losses)."""
     res = calibrate()
@@ -210,9 +137,3 @@ def main_regenerate(path: str | Path | None = None) -> dict:
                                  "what": "factor on the stiffness of the elastomer coupling elements 3-7 of "
                                          "the public model"}})
     return {"coupling_scale": s, "lowest_Hz": f1, "lowest_Hz_unscaled": f1_public, **res}
-
-
-if __name__ == "__main__":  # pragma: no cover
-    r = main_regenerate()
-    print(json.dumps({k: v for k, v in r.items() if k != "errors"}, indent=1))
-    print("max errors", r["errors"]["max_abs_DSH"], r["errors"]["max_abs_PSH"])

@@ -13,7 +13,6 @@ Nothing here prints: progress goes to the ``log`` callback.
 from __future__ import annotations
 
 import contextlib
-
 import json
 import tempfile
 from dataclasses import dataclass, field
@@ -24,7 +23,11 @@ import numpy as np
 
 from drivetrain import baseline as B
 from drivetrain.expect import Outcome, _fmt, evaluate
+from drivetrain.master import ConfigurationError, CosimError
+from drivetrain.outputs import jsonable, read_hdf5
+from drivetrain.run import RunFailedError, run_scene
 from drivetrain.scenario import Scene, load_scenes
+from drivetrain.sweep import run_sweep
 
 
 @dataclass
@@ -96,7 +99,6 @@ class CheckReport:
         return [c for c in self.cases if not c.ok]
 
     def to_dict(self) -> dict:
-        from drivetrain.outputs import jsonable
 
         return jsonable({"ok": self.ok, "cases": [
             {"name": c.name, "ok": c.ok, "status": c.status, "baseline": c.baseline, "error": c.error,
@@ -115,8 +117,6 @@ class CheckReport:
 def run_case(scene: Scene, out_dir: str | Path | None = None, *, fmu_dir: str | Path = "fmus",
              backend: str = "fmi", plots: bool = False) -> CaseRun:
     """Run one scene in this process; an FMU failure gives the completed part (status "failed")."""
-    from drivetrain.master import ConfigurationError, CosimError
-    from drivetrain.run import RunFailedError, run_scene
 
     try:
         res = run_scene(scene, out_dir, backend=backend, progress=False, fmu_dir=fmu_dir, plots=plots,
@@ -129,7 +129,6 @@ def run_case(scene: Scene, out_dir: str | Path | None = None, *, fmu_dir: str | 
 
 
 def _read_run(scene: Scene, rec: dict) -> CaseRun:
-    from drivetrain.outputs import read_hdf5
 
     summ = rec.get("summary")
     if not summ or not Path(summ).is_file():
@@ -151,7 +150,6 @@ def run_cases(scenes: list[Scene], out_dir: str | Path, *, fmu_dir: str | Path =
         if log:
             log(f"running {scenes[0].name}")
         return [run_case(scenes[0], out / scenes[0].name, fmu_dir=fmu_dir, backend=backend)]
-    from drivetrain.sweep import run_sweep
 
     man = run_sweep(scenes, out, workers=workers, address=address, backend=backend, fmu_dir=fmu_dir,
                     plots=False, progress=progress)

@@ -89,24 +89,79 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_eigen(args: argparse.Namespace) -> int:
-    import inspect
+    """``drivetrain eigen SCENE``: the natural frequencies of the scene's assembled drivetrain and the
+    stability of every cut."""
+    from drivetrain.assemble import assemble
+    from drivetrain.eigen import describe_modes
+    from drivetrain.scenario import ScenarioError, load_scene
+    from drivetrain.stability import check_cuts
 
-    from drivetrain.eigen import run_eigen_command
-
-    kw = {}
-    params = inspect.signature(run_eigen_command).parameters
-    if args.set:
-        if "overrides" not in params:
-            print("error: --set is not supported by this eigen command", file=sys.stderr)
-            return 2
-        kw["overrides"] = args.set
-    return int(run_eigen_command(args.scene, **kw) or 0)
+    try:
+        scene = load_scene(args.scene, overrides=list(args.set or ()))
+    except ScenarioError as exc:
+        return _scene_errors(exc)
+    spec = assemble(scene, check=False)
+    rows = describe_modes(spec, args.modes)
+    eff = scene.effects
+    print(f"natural frequencies of {scene.name}: shafts {eff.shaft_flexibility}"
+          f"{f' ({eff.shaft_elements} elements)' if eff.shaft_flexibility == 'flexible' else ''}, gear "
+          f"{eff.mesh_contact} ({'rigid mesh' if eff.mesh_contact == 'ideal' else 'ISO 6336 mean mesh stiffness'}); "
+          "free-free mechanical system (PI controller and losses excluded), undamped")
+    print(f"{'mode':>4} {'f [Hz]':>10} {'zeta':>7}  dominant strain / kinetic energy")
+    for r in rows:
+        print(f"{r['mode']:>4} {r['f_Hz']:>10.2f} {r['zeta']:>7.3f}  {r['strain']} ({100 * r['strain_share']:.0f} %)"
+              f" / {r['kinetic']} ({100 * r['kinetic_share']:.0f} %)")
+    reps, rho = check_cuts(spec, raise_on_unstable=False)
+    print(f"cuts at H = {spec.comm_step:.6g} s (stable if the spectral radius is <= 1):")
+    for rep in reps:
+        print("  " + rep.line())
+    print(f"  whole co-simulated system: spectral radius {rho:.6f} "
+          f"({'stable' if rho <= 1 + 1e-9 else 'UNSTABLE'})")
+    return 0
 
 
 def _cmd_calibrate(args: argparse.Namespace) -> int:
-    from drivetrain.calibrate import run_calibrate_command
+    """``drivetrain calibrate MEASURED.csv [--out FILE]``: refit the losses, print the fit at every
+    operating point, write the calibration JSON (default ./calibration.json; use it with
+    ``assemble(scene, calibration=FILE)`` or the environment variable DRIVETRAIN_CALIBRATION). The
+    coupling-stiffness factor is kept from the current calibration. ``--regenerate``: rewrite the shipped
+    data/calibration.json (losses from the shipped table, then the coupling factor for 24 Hz)."""
+    from drivetrain import calibrate as C
+    from drivetrain import rig
 
-    return int(run_calibrate_command(args.measured, args.out) or 0)
+    if args.regenerate:
+        r = C.regenerate_shipped()
+        print(f"wrote {rig.CALIBRATION_JSON}: coupling_scale {r['coupling_scale']:.6g}, lowest mode "
+              f"{r['lowest_Hz']:.3f} Hz ({r['lowest_Hz_unscaled']:.3f} Hz unscaled); max errors "
+              f"{100 * r['errors']['max_abs_DSH']:.2f} % / {100 * r['errors']['max_abs_PSH']:.2f} %")
+        return 0
+    if not args.measured:
+        print("error: give the measured table (MEASURED.csv) or --regenerate", file=sys.stderr)
+        return 2
+    try:
+        res = C.calibrate(args.measured)
+    except (OSError, ValueError, KeyError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    cur = rig.load_calibration()
+    print(f"loss law T = c_v w + (T_c + a |T_trans|) tanh(w / w_c), fitted to {args.measured}")
+    for key, frame in (("upper", "drive frame, T_trans = T_PSH/12"), ("planetary", "propeller frame, T_trans = 8 T_set")):
+        v = res[key]
+        print(f"  {key:9s} ({frame}): c_v = {v['c_v']:.6g} N m s/rad, T_c = {v['T_c']:.6g} N m, "
+              f"w_c = {v['w_c']:.6g} rad/s, a = {v['a']:.6g}")
+    print(f"{'T_load':>7} {'n_DSH':>8} {'T_DSH meas':>10} {'model':>8} {'err %':>7} {'T_PSH meas':>10} "
+          f"{'model':>8} {'err %':>7}")
+    for pt in res["errors"]["points"]:
+        print(f"{pt['T_load_Nm']:>7.2f} {pt['n_DSH_rpm']:>8.2f} {pt['T_DSH_meas']:>10.3f} {pt['T_DSH_model']:>8.3f} "
+              f"{100 * pt['err_DSH']:>7.2f} {pt['T_PSH_meas']:>10.3f} {pt['T_PSH_model']:>8.3f} "
+              f"{100 * pt['err_PSH']:>7.2f}")
+    print(f"max |error|: drive shaft {100 * res['errors']['max_abs_DSH']:.2f} %, propeller shaft "
+          f"{100 * res['errors']['max_abs_PSH']:.2f} %")
+    out = Path(args.out) if args.out else Path("calibration.json")
+    C.write_calibration(out, res, cur["coupling_scale"],
+                        {k: v for k, v in cur.items() if k not in ("coupling_scale", "upper", "planetary", "law", "fit")})
+    print(f"wrote {out} (coupling_scale {cur['coupling_scale']:.6g} kept)")
+    return 0
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
@@ -297,11 +352,14 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("eigen", help="natural frequencies of the assembled, linearised drivetrain")
     p.add_argument("scene")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a scene key")
+    p.add_argument("--modes", type=_positive_int, default=12, help="how many modes to list (default 12)")
     p.set_defaults(func=_cmd_eigen)
 
     p = sub.add_parser("calibrate", help="refit the loss parameters from a measured mean-torque table")
-    p.add_argument("measured", help="CSV like measured_mean_torques.csv")
+    p.add_argument("measured", nargs="?", help="CSV like measured_mean_torques.csv")
     p.add_argument("--out", default=None, help="where to write the fitted parameters")
+    p.add_argument("--regenerate", action="store_true",
+                   help="rewrite the shipped data/calibration.json (losses, then the coupling factor for 24 Hz)")
     p.set_defaults(func=_cmd_calibrate)
 
     p = sub.add_parser("sweep", help="run many scenes (grid files expand) in parallel; one HDF5 per run + manifest")

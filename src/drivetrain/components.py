@@ -41,6 +41,8 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 from numba import njit
 
+from drivetrain import rig
+from drivetrain.errors import ComponentError  # noqa: F401  (re-exported)
 from gearcontact_fmu.coupling import EnergyCorrection
 from gearcontact_fmu.params import substep_limit_problem, substeps
 
@@ -60,10 +62,6 @@ A_SUPP = 1          # supplied energy [J] (motor work + work of source laws)
 A_MOTOR = 2         # int motor torque dt
 A_SRC = 3           # int source-law torque dt (load motor, on its node, as applied: resisting > 0)
 N_ACC = 4
-
-
-class ComponentError(RuntimeError):
-    """A component cannot continue (non-finite input or state)."""
 
 
 # ------------------------------------------------------------------------------------------------
@@ -577,7 +575,6 @@ def loss_slope(w, T_trans, c_v, T_c, w_c, a):
 # ------------------------------------------------------------------------------------------------
 
 def _rig_default(model: str, name: str):
-    from drivetrain import rig
 
     return rig.default_parameters(model)[name]
 

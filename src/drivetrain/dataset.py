@@ -26,12 +26,11 @@ from typing import Any
 
 import numpy as np
 
+from drivetrain.errors import DatasetError  # noqa: F401  (re-exported)
+from drivetrain.outputs import read_hdf5, write_aalto_csv
+
 FORMATS = ("parquet", "hdf5", "aalto")
 DEFAULT_NAMES = {"parquet": "dataset.parquet", "hdf5": "dataset.h5", "aalto": "dataset_aalto"}
-
-
-class DatasetError(ValueError):
-    """The sweep directory cannot be exported (no manifest, no finished run, a run's file unreadable)."""
 
 
 def _label_value(v: Any):
@@ -55,7 +54,6 @@ def run_labels(name: str, record: dict, scene: dict, summary: dict | None) -> di
 
 def collect(sweep_dir: Path | str) -> list[dict]:
     """[{"name", "labels", "time", "signals", "units"}] of every run of the sweep that wrote signals."""
-    from drivetrain.outputs import read_hdf5
 
     d = Path(sweep_dir)
     try:
@@ -153,7 +151,6 @@ def write_hdf5(runs: list[dict], path: Path) -> Path:
 def write_aalto(runs: list[dict], path: Path) -> Path:
     import csv
 
-    from drivetrain.outputs import write_aalto_csv
 
     path.mkdir(parents=True, exist_ok=True)
     label_cols = _label_columns(runs)

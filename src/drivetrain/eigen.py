@@ -16,13 +16,15 @@ at that H.
 from __future__ import annotations
 
 import math
-import sys
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
+from drivetrain.components import COMPONENTS, SPRING_PORT, loss_slope, make_component
+from drivetrain.rig import default_parameters
 from drivetrain.system import SystemSpec
+from gearcontact_fmu.analytic import mesh_stiffness
+from gearcontact_fmu.params import BevelGearParams
 
 INERTIA = 0
 SPRING = 1
@@ -71,8 +73,6 @@ class LinearBlock:
 
 def _gear_mesh_stiffness(params: dict) -> float:
     """ISO 6336 mean mesh stiffness of the default pair, pinion frame [N m/rad]."""
-    from gearcontact_fmu.analytic import mesh_stiffness
-    from gearcontact_fmu.params import BevelGearParams
 
     g = BevelGearParams()
     kw = {}
@@ -89,7 +89,6 @@ def _gear_mesh_stiffness(params: dict) -> float:
 def gear_block(name: str, params: dict, gear: str = "auto") -> LinearBlock:
     """Linear model of the GearContact stage: pinion and wheel (or one rigid body for the ideal gear),
     port springs k_a, k_b, the mesh as a spring of the mean mesh stiffness."""
-    from drivetrain.rig import default_parameters
 
     p = dict(default_parameters("GearContact"))
     p.update({k: v for k, v in params.items()})
@@ -124,7 +123,6 @@ def gear_block(name: str, params: dict, gear: str = "auto") -> LinearBlock:
 
 def component_block(name: str, model: str, params: dict, operating: bool = True) -> LinearBlock:
     """Linear model of one of the drivetrain components (drivetrain.components)."""
-    from drivetrain.components import (OUTPUT_TORQUES, SPRING_PORT, loss_slope, make_component)
 
     comp = make_component(model, params)
     ln = comp.line
@@ -148,7 +146,6 @@ def component_block(name: str, model: str, params: dict, operating: bool = True)
 
 
 def blocks_from_spec(spec: SystemSpec, gear: str = "auto", operating: bool = True) -> dict:
-    from drivetrain.components import COMPONENTS
 
     out = {}
     for c in spec.components:
@@ -241,14 +238,14 @@ def assemble_linear(spec: SystemSpec, gear: str = "auto", blocks: dict | None = 
     return LinearSystem(M, K, C, labels, R, Kg, Cg)
 
 
-def modes(spec_or_scene, gear: str = "auto", controller: bool = False, damped: bool = False):
+def modes(spec, gear: str = "auto", controller: bool = False, damped: bool = False):
     """Natural frequencies [Hz] (ascending, rigid-body mode removed) and mode shapes of the assembled
     drivetrain. ``controller``: include the linearised PI speed controller and the small-signal losses
     at the operating speed (then there is no rigid-body mode). ``damped``: also return damping ratios
     from the state-space eigenvalues. Returns (f, shapes[, zeta]) with shapes in the nodes' own frames."""
     from scipy.linalg import eigh
 
-    spec = _as_spec(spec_or_scene)
+    spec = _as_spec(spec)
     ls = assemble_linear(spec, gear, operating=controller)
     K = ls.K + (ls.K_ground if controller else 0.0)
     w2, V = eigh(K, ls.M)
@@ -269,11 +266,11 @@ def modes(spec_or_scene, gear: str = "auto", controller: bool = False, damped: b
     return f, V, ls, wn / (2 * math.pi), zeta
 
 
-def damped_modes(spec_or_scene, gear: str = "auto", controller: bool = False):
+def damped_modes(spec, gear: str = "auto", controller: bool = False):
     """Complex modes of the damped linearised drivetrain: (lam, psi, ls) with the eigenvalues lam
     (Im > 0, ascending damped frequency Im(lam)/2pi) and the state-space eigenvectors psi = [x; v] (the
     real part of psi is an initial state that excites that mode alone), rigid-body modes removed."""
-    spec = _as_spec(spec_or_scene)
+    spec = _as_spec(spec)
     ls = assemble_linear(spec, gear, operating=controller)
     K = ls.K + (ls.K_ground if controller else 0.0)
     C = ls.C + (ls.C_ground if controller else 0.0)
@@ -287,18 +284,17 @@ def damped_modes(spec_or_scene, gear: str = "auto", controller: bool = False):
     return lam[o], psi[:, o], ls
 
 
-def natural_frequencies(spec_or_scene, gear: str = "auto", controller: bool = False) -> np.ndarray:
+def natural_frequencies(spec, gear: str = "auto", controller: bool = False) -> np.ndarray:
     """Undamped natural frequencies [Hz] of the assembled, linearised drivetrain (rigid-body mode
-    removed). Accepts a Scene (assembled first) or a SystemSpec."""
-    return modes(spec_or_scene, gear, controller)[0]
+    removed) of a SystemSpec."""
+    return modes(spec, gear, controller)[0]
 
 
 def _as_spec(obj) -> SystemSpec:
     if isinstance(obj, SystemSpec):
         return obj
-    from drivetrain.assemble import assemble
-
-    return assemble(obj, check=False)
+    raise TypeError(f"expected a SystemSpec, not {type(obj).__name__}; assemble a scene first "
+                    "(drivetrain.assemble.assemble(scene, check=False))")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -456,36 +452,3 @@ def describe_modes(spec: SystemSpec, n_modes: int = 10, gear: str = "auto") -> l
                     "strain": springs[si][0], "strain_share": float(se[si] / se.sum()),
                     "kinetic": ls.labels[ki], "kinetic_share": float(ke[ki] / ke.sum())})
     return out
-
-
-def run_eigen_command(scene_path, overrides=(), n_modes: int = 12, file=None) -> int:
-    """``drivetrain eigen SCENE``: print the natural frequencies of the scene's assembled drivetrain."""
-    from drivetrain.assemble import assemble
-    from drivetrain.scenario import ScenarioError, load_scene
-
-    file = file or sys.stdout
-    try:
-        scene = load_scene(scene_path, overrides=list(overrides or ()))
-    except ScenarioError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    spec = assemble(scene, check=False)
-    rows = describe_modes(spec, n_modes)
-    eff = scene.effects
-    print(f"natural frequencies of {scene.name}: shafts {eff.shaft_flexibility}"
-          f"{f' ({eff.shaft_elements} elements)' if eff.shaft_flexibility == 'flexible' else ''}, gear "
-          f"{eff.mesh_contact} ({'rigid mesh' if eff.mesh_contact == 'ideal' else 'ISO 6336 mean mesh stiffness'}); "
-          "free-free mechanical system (PI controller and losses excluded), undamped", file=file)
-    print(f"{'mode':>4} {'f [Hz]':>10} {'zeta':>7}  dominant strain / kinetic energy", file=file)
-    for r in rows:
-        print(f"{r['mode']:>4} {r['f_Hz']:>10.2f} {r['zeta']:>7.3f}  {r['strain']} ({100 * r['strain_share']:.0f} %)"
-              f" / {r['kinetic']} ({100 * r['kinetic_share']:.0f} %)", file=file)
-    from drivetrain import rig
-
-    reps, rho = rig.check_cuts(spec, raise_on_unstable=False)
-    print(f"cuts at H = {spec.comm_step:.6g} s (stable if the spectral radius is <= 1):", file=file)
-    for rep in reps:
-        print("  " + rep.line(), file=file)
-    print(f"  whole co-simulated system: spectral radius {rho:.6f} "
-          f"({'stable' if rho <= 1 + 1e-9 else 'UNSTABLE'})", file=file)
-    return 0

@@ -52,6 +52,9 @@ from typing import Any
 
 import numpy as np
 
+from drivetrain.rig import RIG_SENSORS, TORQUE_SENSORS, read_measured
+from drivetrain.signals import amplitude_near, amplitude_spectrum
+
 #: Statistics of ``signal.<channel>.<stat>``.
 SIGNAL_STATS = ("mean", "rms", "std", "p2p", "min", "max")
 #: Levels of ``spectrum.<channel>@<f>.<level>``.
@@ -381,7 +384,6 @@ def parse_key(key: str, *, variables=()) -> dict:
     """Parse a metric key into the fields of :class:`Expectation` (kind, path, channel, stat, freq,
     level, window) and its leaf type. ValueError(expected) when the key is not a known metric. Channels:
     the rig's sensors and the scene's ``outputs.variables``."""
-    from drivetrain.scenario import RIG_SENSORS, TORQUE_SENSORS
 
     sensors = tuple(RIG_SENSORS)
     channels = sensors + tuple(v for v in variables if v not in sensors)
@@ -433,7 +435,6 @@ def _number(v) -> bool:
 
 def _measured_value(column: str, op: dict) -> tuple[float, str]:
     """The measured table's ``column`` at the operating point (constant load setting, final speed)."""
-    from drivetrain.calibrate import read_measured
 
     data = read_measured()
     if column not in data:
@@ -616,7 +617,6 @@ def parse_checks(raw_expect, raw_check, values: dict, base_dir: Path | str, prob
     override never makes a scene unrunnable because of its expectations."""
     base_dir = Path(base_dir)
     outputs = values.get("outputs", {})
-    from drivetrain.scenario import RIG_SENSORS
 
     variables = outputs.get("variables") if isinstance(outputs.get("variables"), (tuple, list)) else ()
     channels = tuple(RIG_SENSORS) + tuple(v for v in variables if v not in RIG_SENSORS)
@@ -767,7 +767,6 @@ def signal_stat(x: np.ndarray, stat: str) -> float:
 def spectrum_levels(x: np.ndarray, fs: float, freqs: dict, exprs, bins: int = SPECTRUM_BINS) -> dict:
     """{expr: amplitude} at frequency expressions, from the Hann-window amplitude spectrum after the
     low-pass at 5 × f_GMF (drivetrain.signals.amplitude_spectrum), largest within ±bins bins."""
-    from drivetrain.signals import amplitude_near, amplitude_spectrum
 
     f, A = amplitude_spectrum(np.asarray(x, dtype=float), fs,
                               lowpass_Hz=5.0 * freqs["f_GMF"] if freqs.get("f_GMF", 0) > 0 else None)

@@ -1,6 +1,6 @@
 """The common FMI 2.0 co-simulation shell (pythonfmu) of the drivetrain components.
 
-A slave script in ``drivetrain/slaves/`` defines ``class <Model>(Fmi2Slave):`` (literally: pythonfmu
+A slave script (rendered by ``drivetrain.fmubuild`` from ``fmu_runtime.slave_template``) defines ``class <Model>(Fmi2Slave):`` (literally: pythonfmu
 0.7.0's loader finds the slave class by that pattern in the script's source, a class deriving from an
 intermediate base is not found on a second instantiation and corrupted the host process) and
 delegates to the functions here; everything else is here:
@@ -25,7 +25,7 @@ from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, 
 from pythonfmu.enums import Fmi2Status
 
 from drivetrain import components as C
-from gearcontact_fmu.fmuguard import fmi_text, guard_value_references
+from fmu_runtime.guard import fmi_text, guard_value_references
 from gearcontact_fmu.params import DEFAULT_COMM_STEP_S
 
 #: the modelDescription's DefaultExperiment of every drivetrain FMU: the step they are validated at
@@ -102,9 +102,9 @@ def port_outputs(model: str) -> list[str]:
 def init_slave(slave, model: str, slave_kwargs: dict | None = None) -> None:
     """Register the variables of ``model`` on a pythonfmu slave (called from its ``__init__``)."""
     if slave_kwargs is not None:
-        from gearcontact_fmu.fmuguard import pin_export_library_state
+        from fmu_runtime.guard import pin_export_library_state
 
-        # pythonfmu 0.7.0 releases its interpreter state twice at process exit: see fmuguard
+        # pythonfmu 0.7.0 releases its interpreter state twice at process exit: see fmu_runtime.guard
         pin_export_library_state(slave_kwargs, model)
     slave.MODEL = model
     cls, pcls = C.COMPONENTS[model]

@@ -1,9 +1,10 @@
 """Build every FMU of the project (``drivetrain build-fmus [--out DIR] [--only NAME ...]``).
 
-For each slave script in ``gearcontact_fmu/slaves/*.py`` and ``drivetrain/slaves/*.py``:
+For each slave script (``gearcontact_fmu/slaves/GearContact.py``, and the drivetrain component slaves
+rendered from ``fmu_runtime.slave_template`` into a temporary directory, one per model):
 
 1. pythonfmu ``FmuBuilder.build_FMU(script, dest, project_files=[_bundled], needsExecutionTool=False)``
-   where ``_bundled`` holds copies of the packages ``gearcontact_fmu`` and ``drivetrain`` (Python
+   where ``_bundled`` holds copies of the packages ``gearcontact_fmu``, ``drivetrain`` and ``fmu_runtime`` (Python
    sources and package data only: no ``__pycache__``, no numba caches). They land in
    ``resources/_bundled/``; the slave script imports the installed packages when importable and falls
    back to the bundled copy (``BEVEL_FMU_USE_BUNDLED=1`` forces it).
@@ -34,8 +35,10 @@ from pathlib import Path
 from xml.etree import ElementTree as ET
 
 SRC_ROOT = Path(__file__).resolve().parents[1]          # src/
-PACKAGES = ("gearcontact_fmu", "drivetrain")
-SLAVE_DIRS = (SRC_ROOT / "gearcontact_fmu" / "slaves", SRC_ROOT / "drivetrain" / "slaves")
+PACKAGES = ("gearcontact_fmu", "drivetrain", "fmu_runtime")
+#: hand-written slave scripts (the GearContact shell); the drivetrain component slaves are rendered
+#: from fmu_runtime.slave_template, one per model of drivetrain.fmishell.DESCRIPTIONS
+SLAVE_DIRS = (SRC_ROOT / "gearcontact_fmu" / "slaves",)
 _IGNORE = shutil.ignore_patterns("__pycache__", "*.pyc", "*.pyo", "*.nbi", "*.nbc", "*.egg-info", ".*")
 
 # SI base-unit exponents (kg, m, s, A, K, mol, cd, rad) of the units used in the project
@@ -88,11 +91,23 @@ def unit_for(name: str, overrides: dict | None = None) -> str | None:
     return None
 
 
-def find_slave_scripts() -> list[Path]:
+def find_slave_scripts(render_dir: str | Path | None = None) -> list[Path]:
+    """Every slave script: the hand-written ones in SLAVE_DIRS and, when ``render_dir`` is given, the
+    drivetrain component slaves rendered there from ``fmu_runtime.slave_template``."""
+    from drivetrain.fmishell import DESCRIPTIONS
+    from fmu_runtime.slave_template import render
+
     scripts = []
     for d in SLAVE_DIRS:
         if d.is_dir():
             scripts += sorted(p for p in d.glob("*.py") if not p.name.startswith("_"))
+    if render_dir is not None:
+        render_dir = Path(render_dir)
+        render_dir.mkdir(parents=True, exist_ok=True)
+        for model in DESCRIPTIONS:
+            path = render_dir / f"{model}.py"
+            path.write_text(render(model))
+            scripts.append(path)
     names = [p.stem for p in scripts]
     dup = {n for n in names if names.count(n) > 1}
     if dup:
@@ -256,11 +271,12 @@ def build_fmu(script: Path, out_dir: Path) -> Path:
 
 def build_all(out_dir: str | Path = "fmus", only=None) -> list[Path]:
     """Build every slave script into ``out_dir``; ``only``: model names (script stems) to build."""
-    scripts = find_slave_scripts()
-    if only:
-        wanted = set(only)
-        unknown = wanted - {s.stem for s in scripts}
-        if unknown:
-            raise ValueError(f"no slave script for {sorted(unknown)}; available: {[s.stem for s in scripts]}")
-        scripts = [s for s in scripts if s.stem in wanted]
-    return [build_fmu(s, Path(out_dir)) for s in scripts]
+    with tempfile.TemporaryDirectory(prefix="fmuslaves_") as tmp:
+        scripts = find_slave_scripts(Path(tmp) / "slaves")
+        if only:
+            wanted = set(only)
+            unknown = wanted - {s.stem for s in scripts}
+            if unknown:
+                raise ValueError(f"no slave script for {sorted(unknown)}; available: {[s.stem for s in scripts]}")
+            scripts = [s for s in scripts if s.stem in wanted]
+        return [build_fmu(s, Path(out_dir)) for s in scripts]

@@ -36,6 +36,7 @@ same exchange buffers: the same results without the FMI layer (benchmark ratio, 
 """
 from __future__ import annotations
 
+import logging
 import atexit
 import collections
 import ctypes
@@ -58,8 +59,17 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from drivetrain.errors import FMI_STATUS, ConfigurationError, CosimError  # noqa: F401  (re-exported)
 from drivetrain.system import INERTIA, SPRING, ComponentSpec, SystemSpec
 from gearcontact_fmu.locks import file_lock
+import drivetrain
+import fmu_runtime
+import gearcontact_fmu
+from drivetrain.signals import decimate
+
+#: messages for the user (progress, warnings); the CLI passes its own ``log``, a library caller sees them
+#: through Python logging (on stderr when logging is not configured)
+_LOG = logging.getLogger(__name__)
 
 PORT_VARS = ("phi", "w", "tau")
 PORT_UNITS = {"phi": "rad", "w": "rad/s", "tau": "N.m"}
@@ -76,36 +86,6 @@ HOST_ONLY_MODULES = {
     "gearcontact_fmu": set(),
 }
 
-FMI_STATUS = ("ok", "warning", "discard", "error", "fatal", "pending")
-
-
-class ConfigurationError(ValueError):
-    """The system cannot be run as specified (found before any step). ``problems``: list of strings."""
-
-    def __init__(self, problems: Sequence[str] | str):
-        if isinstance(problems, str):
-            problems = [problems]
-        self.problems = list(problems)
-        msg = "system refused before any step:\n" + "\n".join(f"  - {p}" for p in self.problems)
-        super().__init__(msg)
-
-
-class CosimError(RuntimeError):
-    """An FMU returned discard/error/fatal (or raised, in-process). Names the FMU, the time and its log."""
-
-    def __init__(self, component: str, model: str, function: str, status: int, time_s: float, log: list[str]):
-        self.component = component
-        self.model = model
-        self.function = function
-        self.status = status
-        self.time = time_s
-        self.log = list(log)
-        #: the CosimResult of the completed part of the run (Master.run), None if nothing was computed
-        self.partial: CosimResult | None = None
-        st = FMI_STATUS[status] if 0 <= status < len(FMI_STATUS) else str(status)
-        tail = "\n".join("    " + line for line in self.log[-20:]) or "    (empty)"
-        super().__init__(f"FMU '{component}' (model {model}) returned {st} from {function} at t = {time_s:.9g} s; "
-                         f"its log:\n{tail}")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -210,10 +190,9 @@ def extracted_dir(path: Path | str) -> str:
 
 
 def _package_dirs() -> dict[str, Path]:
-    import drivetrain
-    import gearcontact_fmu
 
-    return {"drivetrain": Path(drivetrain.__file__).parent, "gearcontact_fmu": Path(gearcontact_fmu.__file__).parent}
+    return {"drivetrain": Path(drivetrain.__file__).parent, "gearcontact_fmu": Path(gearcontact_fmu.__file__).parent,
+            "fmu_runtime": Path(fmu_runtime.__file__).parent}
 
 
 @functools.lru_cache(maxsize=1)
@@ -777,7 +756,7 @@ class _InprocSlave(_Slave):
         q = getattr(self.obj, "log_queue", None) if hasattr(self, "obj") else None
         if q:
             for m in q:
-                # the slaves double every "%" for the FMI logger's printf format (fmuguard.fmi_text)
+                # the slaves double every "%" for the FMI logger's printf format (fmu_runtime.guard.fmi_text)
                 self.log.add(int(getattr(m.status, "value", m.status)), m.category or "",
                              str(m.msg).replace("%%", "%"))
             q.clear()
@@ -1076,7 +1055,7 @@ class Master:
         self.fmu_dir = Path(fmu_dir)
         self.fmu_paths = {k: Path(v) for k, v in (fmu_paths or {}).items()}
         self.build = build
-        self._log = log or (lambda msg: print(msg, file=sys.stderr))
+        self._log = log or (_LOG.warning)
 
     # -- preparation -------------------------------------------------------------------------------
     def resolve_fmus(self) -> dict[str, Path]:
@@ -1119,7 +1098,6 @@ class Master:
         function, cause, log, every FMU's outputs as read after the failure) and an energy audit marked
         unavailable. A failure before the first step raises with ``partial = None``.
         """
-        from drivetrain.signals import decimate
 
         t_wall0 = time.perf_counter()
         record = list(dict.fromkeys(record))

@@ -1,5 +1,5 @@
 """The rig's parameters: the public 22-inertia lumped model, its lumping and partition into FMUs, the
-calibrated losses and coupling stiffness, the steady state, and the stability check of every cut.
+calibrated losses and coupling stiffness, and the steady state (the cut checks: ``drivetrain.stability``).
 
 Sources: ``data/testbench_lumped_parameters.csv`` (Manngard et al. 2022, public model of the same
 bench), ``data/calibration.json`` (written by ``drivetrain calibrate``; losses fitted to
@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from gearcontact_fmu.params import BevelGearParams
+
 DATA = Path(__file__).resolve().parent / "data"
 PUBLIC_CSV = DATA / "testbench_lumped_parameters.csv"
 MEASURED_CSV = DATA / "measured_mean_torques.csv"
@@ -32,8 +34,10 @@ CALIBRATION_JSON = DATA / "calibration.json"
 G_STEEL = 79.3e9          # Pa
 RHO_STEEL = 7850.0        # kg/m^3
 TINY_J = 1e-5             # kg m^2: hub inertias below this are condensed into their neighbours
+Z_PINION = BevelGearParams.z_pinion     # the lower bevel pair's tooth counts (declared in gearcontact_fmu.params)
+Z_WHEEL = BevelGearParams.z_wheel
 UPPER_RATIO = 3.0
-LOWER_RATIO = 4.0         # z2/z1 = 60/15
+LOWER_RATIO = Z_WHEEL / Z_PINION        # 4
 PG_RATIO = 8.0
 ELASTOMER_ELEMENTS = (3, 4, 5, 6, 7)      # the elastomer coupling elements (k ~ 90 N m/rad)
 THIN_SHAFTS = {11: "drive shaft", 14: "middle shaft", 16: "pinion shaft", 21: "propeller shaft"}
@@ -41,6 +45,18 @@ GEAR_ELEMENT_UPPER = 12
 GEAR_ELEMENT_LOWER = 17
 
 #: Fallback calibration (used only if data/calibration.json is missing): see calibrate.py.
+#: the rig's instruments: name -> (unit, description); the torque transducers among them
+RIG_SENSORS: dict[str, tuple[str, str]] = {
+    "drive_shaft_torque": ("N.m", "drive-shaft torque transducer (before the upper gearbox), 'Torq1'"),
+    "propeller_shaft_torque": ("N.m", "propeller-shaft torque transducer (after the lower gearbox), 'Torq2'"),
+    "enc1": ("rad", "encoder 1, drive shaft (motor end): shaft angle"),
+    "enc2": ("rad", "encoder 2, drive shaft (gearbox end): shaft angle"),
+    "enc3": ("rad", "encoder 3, middle shaft (upper end): shaft angle"),
+    "enc4": ("rad", "encoder 4, middle shaft (pinion end): shaft angle"),
+    "enc5": ("rad", "encoder 5, propeller shaft: shaft angle"),
+}
+TORQUE_SENSORS = ("drive_shaft_torque", "propeller_shaft_torque")
+
 FALLBACK_CALIBRATION = {
     "coupling_scale": 0.70,
     "upper": {"c_v": 1.5e-3, "T_c": 0.34, "w_c": 16.9, "a": 0.058},
@@ -461,220 +477,43 @@ def steady_state(speed_rpm: float, load_Nm: float, upper: dict, motors: dict, lo
 
 
 # ------------------------------------------------------------------------------------------------
-# Cut checks
+# Measured mean torques (the calibration target)
 # ------------------------------------------------------------------------------------------------
 
-class UnstableCutError(ValueError):
-    """A cut of the partition is unstable at the communication step (raised before any step)."""
-
-    def __init__(self, problems: list[str], reports: list | None = None):
-        self.problems = list(problems)
-        self.reports = reports or []
-        super().__init__("unstable co-simulation cut(s):\n" + "\n".join(f"  - {p}" for p in self.problems))
-
-
-def two_body_map(Ja: float, Jb: float, k: float, d: float, H: float, output: str = "predicted") -> np.ndarray:
-    """Exact one-step map of the isolated cut: the spring-side body Ja with the port spring (k, d),
-    the flange angle extrapolated linearly with the received speed; the inertia-side body Jb under the
-    held torque (Jacobi, zero-order hold). State [q = th_a - th_b, w_a, w_b, tau]. ``output``: the
-    spring side's torque output (predicted | mean | end, as in components/stage)."""
-    from scipy.linalg import expm
-
-    A = np.zeros((5, 5))
-    A[0, 1] = 1.0
-    A[1, 0] = -k / Ja
-    A[1, 1] = -d / Ja
-    A[1, 2] = k / Ja
-    A[1, 3] = d / Ja
-    A[2, 3] = 1.0
-    A[4, 0] = k
-    A[4, 1] = d
-    A[4, 2] = -k
-    A[4, 3] = -d
-    E = expm(A * H)
-    Z0 = np.zeros((5, 4))
-    Z0[0, 0] = 1.0
-    Z0[1, 1] = 1.0
-    Z0[3, 2] = 1.0
-    Z1 = E @ Z0
-    T = np.zeros((4, 4))
-    thb1 = np.array([0.0, 0.0, H, H * H / (2.0 * Jb)])
-    wb1 = np.array([0.0, 0.0, 1.0, H / Jb])
-    T[0] = Z1[0] - thb1
-    T[1] = Z1[1]
-    T[2] = wb1
-    defl = Z1[0] - Z1[2]
-    rel = Z1[1] - Z1[3]
-    if output == "mean":
-        T[3] = Z1[4] / H
-    else:
-        tend = k * defl + d * rel
-        if output == "end":
-            T[3] = tend
-        else:
-            T[3] = tend + 0.5 * H * (k * rel + d * (-k * defl - d * rel) / Ja)
-    return T
-
-
-def two_body_radius(Ja, Jb, k, d, H, output="predicted") -> float:
-    """Spectral radius of the cut's one-step map, the uniform-rotation eigenvalue (exactly 1) excluded."""
-    ev = np.linalg.eigvals(two_body_map(Ja, Jb, k, d, H, output))
-    mag = np.abs(ev)
-    i1 = int(np.argmin(np.abs(ev - 1.0)))
-    if abs(ev[i1] - 1.0) < 1e-9:
-        mag = np.delete(mag, i1)
-    return float(mag.max())
-
-
-@dataclass
-class CutReport:
-    spring: str
-    inertia: str
-    k: float                  # port spring in the flange frame
-    c: float
-    J_spring: float           # spring-side inertia at the port, flange frame
-    J_inertia: float          # inertia-side inertia at the port, flange frame
-    H: float
-    omega_if: float           # sqrt(k (1/J_spring + 1/J_inertia)) [rad/s]
-    zeta: float
-    radius: float             # spectral radius of the exact two-body cut map
-    output: str
-    stable: bool
-
-    @property
-    def f_if(self) -> float:
-        return self.omega_if / (2.0 * math.pi)
-
-    @property
-    def wH(self) -> float:
-        return self.omega_if * self.H
-
-    def line(self) -> str:
-        return (f"{self.spring} -> {self.inertia}: k = {self.k:.6g} N m/rad, c = {self.c:.3g} N m s/rad, "
-                f"J_spring = {self.J_spring:.4g}, J_inertia = {self.J_inertia:.4g} kg m^2 "
-                f"(ratio {self.J_inertia / self.J_spring:.3g}), f_if = {self.f_if:.1f} Hz, "
-                f"omega_if*H = {self.wH:.3f}, zeta = {self.zeta:.3f}, spectral radius = {self.radius:.6f} "
-                f"({'stable' if self.stable else 'UNSTABLE'})")
-
-    def as_dict(self) -> dict:
-        return {"spring": self.spring, "inertia": self.inertia, "k": self.k, "c": self.c,
-                "J_spring": self.J_spring, "J_inertia": self.J_inertia, "f_if_Hz": self.f_if,
-                "omega_if_H": self.wH, "zeta": self.zeta, "radius": self.radius, "stable": self.stable}
-
-
-def cut_report(spring: str, inertia: str, k: float, c: float, J_spring: float, J_inertia: float, H: float,
-               output: str = "predicted", tol: float = 1e-9) -> CutReport:
-    w = math.sqrt(k * (1.0 / J_spring + 1.0 / J_inertia))
-    zeta = c * w / (2.0 * k) if k > 0 else 0.0
-    rho = two_body_radius(J_spring, J_inertia, k, c, H, output)
-    return CutReport(spring, inertia, k, c, J_spring, J_inertia, H, w, zeta, rho, output, rho <= 1.0 + tol)
-
-
-class ContactRangeError(ValueError):
-    """A gear contact whose error bound the static load alone would pass (raised before any step)."""
-
-    def __init__(self, problems: list[str]):
-        self.problems = list(problems)
-        super().__init__("\n".join(self.problems))
-
-
-def check_contact_range(spec, raise_on_error: bool = True) -> list[dict]:
-    """Predict, before any step, whether the static load alone drives a GearContact of fidelity
-    ``table`` or ``pcm`` beyond its maximum penetration u_max (an error state of the PCM model that
-    would stop the run at the first loaded step).
-
-    The static pinion torque is the middle-shaft torque of the spec's steady state (metadata
-    ``steady_state.T_msh``, the assembler's torque balance at the scene's operating point); the
-    largest penetration over a pinion revolution at that torque comes from the contact map of the
-    component's geometry, resolution and health (:func:`gearcontact_fmu.contact_map.static_penetration`;
-    for ``table`` the map the run uses, built and cached here if missing; for ``pcm`` only a cached one).
-    Dynamic peaks come on top and
-    are caught at run time. Returns one report per checked gear; raises ContactRangeError naming the
-    component, u_max, the predicted penetration and the torque when u_max is below it."""
-    import dataclasses
-
-    ss = (spec.metadata or {}).get("steady_state") or {}
-    T = ss.get("T_msh")
-    reports, problems = [], []
-    gears = [c for c in spec.components if c.model == "GearContact"
-             and str(c.parameters.get("fidelity", "")).strip().lower() in ("table", "pcm")]
-    if T is None or not gears:
-        return reports
-    # only now: an ideal or analytic gear loads no contact engine
-    from gearcontact_fmu.contact_map import get_map, static_penetration
-    from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
-
-    for comp in gears:
-        p = comp.parameters
-        pick = (lambda cls: cls(**{f.name: p[f.name] for f in dataclasses.fields(cls) if f.name in p}))
-        gear, pcm = pick(BevelGearParams), pick(PCMParams)
-        base = MeshResolution()
-        res = MeshResolution(profile=float(p.get("profile_element_size", base.profile)),
-                             face=float(p.get("face_element_size", base.face)))
-        files = {k: p[f"{k}_mesh_file"] for k in ("pinion", "wheel") if p.get(f"{k}_mesh_file")}
-        # the elastic response does not depend on u_max, but the map's search length (2 u_max) does:
-        # predict with a search long enough to see the penetration (the default map when u_max is smaller)
-        search = dataclasses.replace(pcm, u_max=max(pcm.u_max, PCMParams().u_max))
-        # a table gear builds its map anyway (the run uses it); a pcm gear is predicted only from a
-        # cached map of its geometry, never by building one just for the check
-        fidelity = str(p.get("fidelity")).strip().lower()
-        cmap = get_map(gear, search, res, str(p.get("health", "healthy")), files or None,
-                       mesh_units=str(p.get("mesh_units", "mm")), build=fidelity == "table")
-        if cmap is None:
-            reports.append({"component": comp.name, "pinion_torque_Nm": float(T), "static_penetration_m": None,
-                            "u_max_m": pcm.u_max, "note": "not predicted: no contact map of this geometry cached"})
-            continue
-        u, theta = static_penetration(cmap, float(T))
-        rep = {"component": comp.name, "pinion_torque_Nm": float(T), "static_penetration_m": u,
-               "at_pinion_angle_deg": math.degrees(theta), "u_max_m": pcm.u_max}
-        reports.append(rep)
-        if math.isfinite(u) and u >= pcm.u_max:
-            problems.append(f"{comp.name}: u_max = {pcm.u_max:.4g} m is below the static penetration "
-                            f"{u:.4g} m at the steady pinion torque {T:.4g} N·m (pinion angle "
-                            f"{math.degrees(theta):.1f} deg): the mesh would enter its error state at the "
-                            f"first loaded step; raise u_max or lower the load")
-    if problems and raise_on_error:
-        raise ContactRangeError(problems)
-    return reports
-
-
-def check_cuts(spec, raise_on_unstable: bool = True, whole_system: bool = True):
-    """Check every connection of a SystemSpec at its communication step.
-
-    Per cut: the port spring (k, c) in the flange frame, the spring-side inertia at the port (for the
-    gear stage the pinion and the wheel referred to that flange: the mesh is far stiffer than the
-    port) and the inertia-side inertia, omega_if = sqrt(k (1/J_s + 1/J_i)) (notes section 1; the ratio
-    enters through the flange-frame referral), omega_if H, the damping ratio, and the spectral radius
-    of the exact one-step map of the isolated cut under the coupling actually used (Jacobi, held
-    torque, spring side extrapolating the received angle with the received speed, its torque output
-    as configured). With ``whole_system`` also the spectral radius of the one-step map of the whole
-    linearised co-simulation (drivetrain.eigen.cosim_radius). Raises UnstableCutError (naming the cut
-    and the numbers) unless every radius is <= 1. Returns (reports, whole_system_radius or None)."""
-    from drivetrain import eigen
-
-    blocks = eigen.blocks_from_spec(spec)
-    reports = []
+def read_measured(path: str | Path | None = None) -> dict:
+    """The measured table as arrays: T_load, T_DSH, T_PSH, n_DSH (rpm), n_PSH (rpm)."""
+    p = Path(path) if path else MEASURED_CSV
+    try:
+        with open(p, newline="", encoding="utf-8") as fh:
+            rows = [r for r in csv.reader(fh) if r and not r[0].lstrip().startswith("#")]
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{p}: not a readable CSV text file ({exc})") from None
+    if not rows:
+        raise ValueError(f"{p}: no data")
+    hdr = [h.strip() for h in rows[0]]
+    need = {"T_load_Nm", "T_DSH_Nm", "T_PSH_Nm", "n_DSH_rpm"}
+    missing = need - set(hdr)
+    if missing:
+        raise ValueError(f"{p}: missing columns {sorted(missing)} (have {hdr})")
+    col = {h: i for i, h in enumerate(hdr)}
     problems = []
-    H = float(spec.comm_step)
-    for conn in spec.connections:
-        sc, sp = conn.spring.split(".", 1)
-        ic, ip = conn.inertia.split(".", 1)
-        bs, bi = blocks[sc], blocks[ic]
-        ps, pi = bs.port(sp), bi.port(ip)
-        Js = bs.port_inertia(sp)
-        Ji = bi.port_inertia(ip)
-        out = bs.output_torque
-        rep = cut_report(conn.spring, conn.inertia, ps.k, ps.c, Js, Ji, H, out)
-        reports.append(rep)
-        if not rep.stable:
-            problems.append(f"cut {rep.line()}; choose a softer cut element, put the heavier body on the "
-                            f"inertia side, or reduce the communication step")
-    rho = None
-    if whole_system:
-        rho = eigen.cosim_radius(spec, blocks=blocks)
-        if rho > 1.0 + 1e-9:
-            problems.append(f"the whole co-simulated system is unstable at H = {H:.6g} s: spectral radius "
-                            f"of the one-step map {rho:.6f} > 1")
-    if problems and raise_on_unstable:
-        raise UnstableCutError(problems, reports)
-    return reports, rho
+    for n, r in enumerate(rows[1:], start=2):
+        if len(r) != len(hdr):
+            problems.append(f"data row {n - 1} has {len(r)} fields, the header {len(hdr)}: {','.join(r)}")
+            continue
+        for k in need:
+            try:
+                float(r[col[k]])
+            except ValueError:
+                problems.append(f"data row {n - 1}: {k} = {r[col[k]]!r} is not a number")
+    if problems:
+        raise ValueError(f"{p}: " + "; ".join(problems))
+    data = {}
+    for k in hdr:                 # every numeric column (the fit's were checked above; expectations read others)
+        try:
+            data[k] = np.array([float(r[col[k]]) for r in rows[1:]])
+        except ValueError:
+            pass
+    if len(data["T_load_Nm"]) < 8:
+        raise ValueError(f"{p}: at least 8 operating points are needed to fit 8 parameters")
+    return data

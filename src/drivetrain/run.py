@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import sys
+import logging
 import time as _time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,10 +22,18 @@ from typing import Any
 import numpy as np
 
 from drivetrain import __version__
-from drivetrain.master import ConfigurationError, CosimError, CosimResult, Master
+from drivetrain import outputs as O
+from drivetrain import stability
+from drivetrain.errors import ConfigurationError, CosimError, RunFailedError  # noqa: F401  (re-exported)
+from drivetrain.master import CosimResult, Master
 from drivetrain.scenario import RIG_SENSORS, TORQUE_SENSORS, Scene
 from drivetrain.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies, stats, to_db
 from drivetrain.system import SystemSpec
+from gearcontact_fmu.params import substeps
+
+#: messages for the user (progress, warnings); the CLI passes its own ``log``, a library caller sees them
+#: through Python logging (on stderr when logging is not configured)
+_LOG = logging.getLogger(__name__)
 
 SUMMARY_KEYS = (
     "name", "wall_time_s", "sim_time_s", "real_time_factor", "torque", "f_DSH", "f_MSH", "f_PSH", "f_GMF",
@@ -77,18 +85,6 @@ class RunResult:
     def settled(self, name: str) -> np.ndarray:
         """Samples of a channel after the settling time."""
         return self.signals[name][self.time >= self.scene.time.settle_s]
-
-
-class RunFailedError(CosimError):
-    """An FMU failed during :func:`run_scene`. ``result``: the RunResult of the completed part (its
-    summary has ``status = "failed"`` and the ``failure`` block; ``result.files`` lists what was written
-    when an output directory was given); ``cause``: the master's CosimError."""
-
-    def __init__(self, cause: CosimError, result: "RunResult"):
-        super().__init__(cause.component, cause.model, cause.function, cause.status, cause.time, cause.log)
-        self.cause = cause
-        self.result = result
-        self.partial = cause.partial
 
 
 def stability_summary(res: CosimResult, spec: SystemSpec, time_s: float, energy_residual,
@@ -220,7 +216,6 @@ COSTLY_FACTOR = 100.0
 def cost_warning(scene: Scene) -> str | None:
     """A warning, said before the run starts, when the scene asks for far more gear-stage sub-steps than
     the default 20 s scene (a tiny max_substep_s or a long duration): the user learns the price first."""
-    from gearcontact_fmu.params import substeps
 
     H = scene.numerics.comm_step_s
     n = (scene.time.duration_s / H) * substeps(H, scene.numerics.max_substep_s)
@@ -245,7 +240,7 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
     (a CosimError; a failure before the first step raises the master's CosimError, nothing written).
     """
     t0 = _time.perf_counter()
-    log = log or (lambda m: print(m, file=sys.stderr))
+    log = log or _LOG.warning
     warnings: list[str] = []
     if spec is None:
         spec = assemble_scene(scene)
@@ -253,11 +248,10 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
     if cost:
         warnings.append(cost)
         log(f"warning: {cost}")
-    from drivetrain import rig
 
     try:   # a u_max the static load alone would pass is refused before any step
-        contact_range = rig.check_contact_range(spec)
-    except rig.ContactRangeError as exc:
+        contact_range = stability.check_contact_range(spec)
+    except stability.ContactRangeError as exc:
         raise ConfigurationError(exc.problems) from None
     H = scene.numerics.comm_step_s
     if abs(spec.comm_step - H) > 1e-12 * H:
@@ -392,7 +386,6 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
 
 def write_run(result: RunResult, out_dir: str | Path, plots: bool = True, spectra: dict | None = None) -> dict:
     """Write signals.h5, summary.json, plots and (if asked) sensors.csv into out_dir."""
-    from drivetrain import outputs as O
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

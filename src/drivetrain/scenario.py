@@ -31,35 +31,23 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
+from drivetrain.errors import MISSING as _MISSING
+from drivetrain.errors import ScenarioError
+from drivetrain.rig import RIG_SENSORS, TORQUE_SENSORS, UPPER_RATIO, Z_PINION, Z_WHEEL  # noqa: F401  (re-exported)
+from gearcontact_fmu.mesh_model import FIDELITIES, HEALTH_STATES
 from gearcontact_fmu.params import DEFAULT_COMM_STEP_S, MeshResolution
 
 # --------------------------------------------------------------------------------------------------
 # Fixed vocabularies
 # --------------------------------------------------------------------------------------------------
 
-HEALTH_STATES = ("healthy", "mild", "severe", "mesh")
-FIDELITIES = ("pcm", "table", "analytic", "ideal")
 SHAFT_MODELS = ("flexible", "rigid")
 MESH_UNITS = ("mm", "m")
 ANTI_ALIAS = ("fir", "butter")
 SAMPLE_DTYPES = ("float64", "float32")
 
 #: The rig's sensors: name -> (unit, meaning). The assembler maps each to a "component.variable".
-RIG_SENSORS: dict[str, tuple[str, str]] = {
-    "drive_shaft_torque": ("N.m", "drive-shaft torque transducer (before the upper gearbox), 'Torq1'"),
-    "propeller_shaft_torque": ("N.m", "propeller-shaft torque transducer (after the lower gearbox), 'Torq2'"),
-    "enc1": ("rad", "encoder 1, drive shaft (motor end): shaft angle"),
-    "enc2": ("rad", "encoder 2, drive shaft (gearbox end): shaft angle"),
-    "enc3": ("rad", "encoder 3, middle shaft (upper end): shaft angle"),
-    "enc4": ("rad", "encoder 4, middle shaft (pinion end): shaft angle"),
-    "enc5": ("rad", "encoder 5, propeller shaft: shaft angle"),
-}
-TORQUE_SENSORS = ("drive_shaft_torque", "propeller_shaft_torque")
 
-#: Gear data used for the characteristic frequencies (RIG.md).
-Z_PINION = 15
-Z_WHEEL = 60
-UPPER_RATIO = 3.0
 
 #: a scene name names a directory and files: no path separators, no ".", "..", hidden or option-like names
 NAME_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+\-]{0,199}")
@@ -95,33 +83,6 @@ _UNITS: dict[str, tuple[str, float]] = {
 }
 _BASE_UNIT = {"time": "s", "speed": "rpm", "torque": "N·m", "frequency": "Hz", "length": "mm"}
 
-
-class ScenarioError(ValueError):
-    """A scene is malformed. ``problems`` lists (key, value, expected) triples."""
-
-    def __init__(self, problems: list[tuple[str, Any, str]], source: str | None = None):
-        self.problems = list(problems)
-        self.source = source
-        where = f"{source}: " if source else ""
-        lines = [f"{where}invalid scene ({len(self.problems)} problem{'s' if len(self.problems) != 1 else ''}):"]
-        for key, value, expected in self.problems:
-            lines.append(f"  {key} = {_show(value)}: expected {expected}")
-        super().__init__("\n".join(lines))
-
-
-def _show(value: Any) -> str:
-    if value is _MISSING:
-        return "(missing)"
-    s = json.dumps(value, default=str) if not isinstance(value, str) else repr(value)
-    return s if len(s) <= 120 else s[:117] + "..."
-
-
-class _Missing:
-    def __repr__(self) -> str:
-        return "(missing)"
-
-
-_MISSING = _Missing()
 
 # --------------------------------------------------------------------------------------------------
 # Schema

@@ -19,9 +19,7 @@ from functools import lru_cache
 import numpy as np
 from scipy import signal as _sig
 
-Z_PINION = 15
-Z_WHEEL = 60
-UPPER_RATIO = 3.0
+from drivetrain.rig import UPPER_RATIO, Z_PINION, Z_WHEEL
 
 FIR_PASS_FRACTION = 0.7      # pass-band edge as a fraction of the output Nyquist frequency
 FIR_ATTENUATION_DB = 70.0

@@ -51,7 +51,15 @@ from typing import Any, Callable
 
 import numpy as np
 
+from drivetrain.master import ConfigurationError
+from drivetrain.outputs import jsonable, now_iso
+from drivetrain.run import assemble_scene
 from drivetrain.scenario import FIDELITIES, TORQUE_SENSORS, Scene, load_scenes, scene_from_dict
+from drivetrain.sweep import CACHED_FIDELITIES, prepare_caches, run_sweep
+from drivetrain.system import SystemSpec
+from gearcontact_fmu import faults, geometry
+from gearcontact_fmu.meshes import save_mesh
+from gearcontact_fmu.params import BevelGearParams
 
 # --------------------------------------------------------------------------------------------------
 # The distribution
@@ -264,8 +272,6 @@ def fault_mesh_params(seed: int, j: int) -> dict:
     flank-fracture void of random tooth, width 0.5..2 mm, depth 0.1..0.5 mm and position -0.8..1.5 mm
     from the pitch cone (:func:`gearcontact_fmu.faults.mild_flank_fracture`); mesh 3 (mod 4): a random
     missing tooth plus a void on another tooth."""
-    from gearcontact_fmu import faults, geometry
-    from gearcontact_fmu.params import BevelGearParams
 
     P = BevelGearParams()
     g = geometry.gear_geometry(P, "pinion")
@@ -286,8 +292,6 @@ def fault_mesh_params(seed: int, j: int) -> dict:
 
 def build_fault_mesh(params: dict):
     """The pinion SurfaceMesh (body frame, m) of :func:`fault_mesh_params`."""
-    from gearcontact_fmu import faults, geometry
-    from gearcontact_fmu.params import BevelGearParams
 
     P = BevelGearParams()
     mesh = geometry.build_gear_mesh(P, "pinion")
@@ -304,7 +308,6 @@ def fault_mesh_path(mesh_dir: Path | str, seed: int, j: int) -> Path:
 def write_fault_meshes(mesh_dir: Path | str, seed: int, indices, log=None) -> dict[int, Path]:
     """Write the fault meshes ``indices`` as OBJ (mm) into ``mesh_dir`` (kept when the file and its
     parameter sidecar exist with the same parameters: the contact-map cache is keyed by the content)."""
-    from gearcontact_fmu.meshes import save_mesh
 
     mesh_dir = Path(mesh_dir)
     mesh_dir.mkdir(parents=True, exist_ok=True)
@@ -798,7 +801,6 @@ def _finish(rec: dict, entries: list[dict], out: Path, records: dict | None) -> 
     rec["runs_wall_time_s"] = float(sum(r["figures"].get("wall_time_s") or 0.0 for r in runs))
     rec["n_fail"] = sum(1 for r in runs if r["outcome"] == "fail") + sum(1 for p in pairs if p["outcome"] == "fail")
     rec["limits"] = dict(LIMITS, suspicious_penetration=SUSPICIOUS_PENETRATION, zero_torque_Nm=ZERO_TORQUE_NM)
-    from drivetrain.outputs import jsonable
 
     (out / "stress.json").write_text(json.dumps(jsonable(rec), indent=1))
     (out / "stress.md").write_text(report_markdown(rec))
@@ -845,8 +847,6 @@ def _map_key(comp) -> str:
 def prepare_maps(cases: list[StressCase], fmu_dir, fmu_paths=None, log=None) -> int:
     """Build (once, in this process) the contact maps the ``table`` runs need; one preparation per
     distinct map (friction, damping and the sub-step do not change the map)."""
-    from drivetrain.sweep import CACHED_FIDELITIES, prepare_caches
-    from drivetrain.system import SystemSpec
 
     seen, specs = set(), []
     for c in cases:
@@ -891,8 +891,6 @@ def build_cases(*, set_name: str = "all", n_random: int = 200, seed: int = 0, ou
 def assemble_cases(cases: list[StressCase], log=None) -> None:
     """Assemble every scene (the runs use exactly these specs); a scene the cut check refuses before
     running is marked ``refused`` (predicted unstable); another refusal is left to the run to report."""
-    from drivetrain.master import ConfigurationError
-    from drivetrain.run import assemble_scene
 
     for c in cases:
         try:
@@ -919,8 +917,6 @@ def run_stress(out_dir: Path | str = "out/stress", *, set_name: str = "all", n_r
     skip_existing, by fingerprint).
     ``only``: fnmatch patterns; run (and report) only the cases whose name matches one (a half-step
     run ``<name>_halfH`` is kept with its base run)."""
-    from drivetrain.outputs import now_iso
-    from drivetrain.sweep import run_sweep
 
     t0 = time.perf_counter()
     out = Path(out_dir)

@@ -31,14 +31,24 @@ from __future__ import annotations
 import concurrent.futures as cf
 import csv
 import json
+import logging
 import os
-import sys
 import time
 import traceback
 from pathlib import Path
 from typing import Any
 
+from drivetrain.master import ConfigurationError
+from drivetrain.master import simulate as simulate_system
+from drivetrain.master import sources_hash
+from drivetrain.outputs import jsonable
+from drivetrain.run import RunFailedError, assemble_scene, run_scene
 from drivetrain.scenario import Scene, resolve
+from drivetrain.system import SystemSpec
+
+#: messages for the user (progress, warnings); the CLI passes its own ``log``, a library caller sees them
+#: through Python logging (on stderr when logging is not configured)
+_LOG = logging.getLogger(__name__)
 
 
 def make_case(scene: Scene, out_dir: Path, *, backend: str = "fmi", fmu_dir: str | Path = "fmus",
@@ -68,8 +78,6 @@ def fingerprint(scene: Scene) -> str:
     """Identity of what a run computes: the resolved scene and the sources of the models and FMUs."""
     import hashlib
 
-    from drivetrain.master import sources_hash
-    from drivetrain.outputs import jsonable
 
     text = json.dumps(jsonable(scene.to_dict()), sort_keys=True, default=str)
     return hashlib.sha256((text + "|" + sources_hash()).encode()).hexdigest()[:24]
@@ -103,7 +111,6 @@ def _summary_fields(s: dict) -> dict:
 
 def simulate(case: dict) -> dict:
     """Run one case in this process; never raises (errors are reported in the returned record)."""
-    from drivetrain.run import RunFailedError, run_scene
 
     t0 = time.perf_counter()
     rec: dict[str, Any] = {"name": case["name"], "out_dir": case["out_dir"], "pid": os.getpid()}
@@ -161,7 +168,6 @@ def _executor(workers: int | None, address: str | None):
 
 
 def _specs_of(scenes: list[Scene], specs: dict | None) -> list:
-    from drivetrain.run import assemble_scene
 
     return [(specs or {}).get(s.name) or assemble_scene(s) for s in scenes]
 
@@ -177,8 +183,6 @@ def prepare_caches(specs: list, fmu_dir: str | Path = "fmus", fmu_paths: dict | 
     worker processes only read caches. Dask worker processes are daemonic and cannot start the map
     builder's process pool. Returns the number of configurations prepared; failures are left to the runs
     (they report them with the FMU's log)."""
-    from drivetrain.master import simulate
-    from drivetrain.system import SystemSpec
 
     seen, todo = set(), []
     for spec in specs:
@@ -194,8 +198,8 @@ def prepare_caches(specs: list, fmu_dir: str | Path = "fmus", fmu_paths: dict | 
                 f"health {comp.parameters.get('health', '?')})")
         one = SystemSpec(components=[comp], connections=[], comm_step=H)
         try:
-            simulate(one, H, 1.0 / H, backend="inprocess", fmu_dir=fmu_dir, fmu_paths=fmu_paths, build=False,
-                     progress=False)
+            simulate_system(one, H, 1.0 / H, backend="inprocess", fmu_dir=fmu_dir, fmu_paths=fmu_paths, build=False,
+                            progress=False)
         except Exception as exc:  # the run of the case will report it properly
             if log:
                 log(f"  preparation failed ({type(exc).__name__}); the runs will report it")
@@ -211,7 +215,6 @@ MANIFEST_COLUMNS = ["name", "status", "health", "drive_speed_rpm", "load_torque_
 
 def _check_writable(out: Path) -> None:
     """Refuse an output directory that cannot be written before any run (not after all of them)."""
-    from drivetrain.master import ConfigurationError
 
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -248,7 +251,6 @@ def _reuse(scene: Scene, d: Path, fp: str) -> tuple[dict | None, str]:
 def _write_manifest(out: Path, runs: list[dict], meta: dict, complete: bool) -> dict:
     """manifest.json and manifest.csv, each written to a temporary file and renamed (a kill never
     leaves a half-written manifest)."""
-    from drivetrain.outputs import jsonable
 
     manifest = {"path": str(out / "manifest.json"), "n_runs": len(runs), "complete": complete, **meta,
                 "runs": runs}
@@ -299,7 +301,7 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
 
         raise ConfigurationError(f"scene names must be unique in a sweep: {', '.join(dup)}")
     _check_writable(out)
-    log = (lambda m: print(m, file=sys.stderr)) if progress else None
+    log = _LOG.warning if progress else None
     all_specs = _specs_of(scenes, specs)
     if fmu_paths is None:
         from drivetrain.master import ensure_fmus

@@ -56,10 +56,21 @@ import math
 import numpy as np
 from numba import njit
 
-from gearcontact_fmu.fidelity import (
-    N_OUT, OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY, OUT_MAX_PENETRATION,
-    OUT_N_CONTACT, OUT_NORMAL_FORCE, OUT_PEAK_PRESSURE, OUT_STATUS, OUT_TAU_PINION, OUT_TAU_WHEEL,
-    STATUS_OK, STATUS_PENETRATION_EXCEEDED,
+from gearcontact_fmu.mesh_model import (
+    N_OUT,
+    OUT_CONTACT_AREA,
+    OUT_DISSIPATED_POWER,
+    OUT_ELASTIC_ENERGY,
+    OUT_MAX_PENETRATION,
+    OUT_N_CONTACT,
+    OUT_NORMAL_FORCE,
+    OUT_PEAK_PRESSURE,
+    OUT_STATUS,
+    OUT_TAU_PINION,
+    OUT_TAU_WHEEL,
+    STATUS_OK,
+    STATUS_PENETRATION_EXCEEDED,
+    MeshModel,
 )
 from gearcontact_fmu.params import BevelGearParams, PCMParams
 
@@ -222,8 +233,6 @@ def make_analytic_model(gear_params: BevelGearParams | None = None, pcm_params: 
                         **kw):
     """MeshModel of the analytic reference pair (fidelity "analytic"). Keywords: see
     :func:`make_analytic_data`; unknown keywords are ignored (the factory passes stage options)."""
-    from gearcontact_fmu.fidelity import MeshModel
-
     gear = gear_params or BevelGearParams()
     names = ("damping_ratio", "c_mesh", "J_pinion", "J_wheel", "mu", "v_friction", "mesh_phase",
              "transition", "u_max")

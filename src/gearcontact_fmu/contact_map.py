@@ -28,16 +28,29 @@ import hashlib
 import math
 import os
 import time
-from dataclasses import dataclass, asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 from numba import njit
 
 from gearcontact_fmu import geometry
-from gearcontact_fmu.fidelity import (N_OUT, OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY,
-                                      OUT_MAX_PENETRATION, OUT_N_CONTACT, OUT_NORMAL_FORCE,
-                                      OUT_PEAK_PRESSURE, OUT_STATUS, OUT_TAU_PINION, OUT_TAU_WHEEL)
+from gearcontact_fmu.contact import engine
+from gearcontact_fmu.gearpair import _base_radius, build_pcm_pair, contact_onset, static_deflection
+from gearcontact_fmu.mesh_model import (
+    N_OUT,
+    OUT_CONTACT_AREA,
+    OUT_DISSIPATED_POWER,
+    OUT_ELASTIC_ENERGY,
+    OUT_MAX_PENETRATION,
+    OUT_N_CONTACT,
+    OUT_NORMAL_FORCE,
+    OUT_PEAK_PRESSURE,
+    OUT_STATUS,
+    OUT_TAU_PINION,
+    OUT_TAU_WHEEL,
+    MeshModel,
+)
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams, params_hash
 
 MAP_VERSION = 3
@@ -103,7 +116,6 @@ class ContactMap:
 
 def _approach_grid(pair, grid: MapGrid) -> tuple[np.ndarray, dict]:
     """Approach nodes beyond the contact onset, dense near it (quadratic), covering max_torque."""
-    from gearcontact_fmu.gearpair import _base_radius, contact_onset, static_deflection
 
     s_b = geometry.backlash_angle(pair.gear)
     pitch = 2 * math.pi / pair.gear.z_pinion
@@ -162,8 +174,6 @@ def _tabulate_chunk(idx):
 
 
 def _tabulate_rows(pair, theta, a, grid: MapGrid):
-    from gearcontact_fmu.contact import engine
-    from gearcontact_fmu.gearpair import _base_radius, contact_onset
 
     z1, z2 = pair.gear.z_pinion, pair.gear.z_wheel
     pcm = pair.pcm
@@ -262,7 +272,6 @@ def load_map(path: Path, gear, pcm, grid) -> ContactMap:
 
 
 def _build_map(gear, pcm, resolution, health, mesh_files, mesh_units, grid, fault_kwargs) -> ContactMap:
-    from gearcontact_fmu.gearpair import build_pcm_pair
 
     pair = build_pcm_pair(gear, pcm, resolution, health, mesh_files.get("pinion"), mesh_files.get("wheel"),
                           mesh_units, friction=True, damping=True, fault_kwargs=fault_kwargs)
@@ -332,8 +341,6 @@ def make_table_data(cmap: ContactMap, friction: bool = True, damping: bool = Tru
 def make_table_model(gear_params=None, pcm_params=None, resolution=None, health="healthy",
                      mesh_files=None, mesh_units="mm", friction=True, damping=True, grid=None, **kw):
     """MeshModel of the precomputed contact map (fidelity "table")."""
-    from gearcontact_fmu.fidelity import MeshModel
-
     cmap = get_map(gear_params, pcm_params, resolution, health, mesh_files, grid, mesh_units)
     return MeshModel(eval=table_eval, data=make_table_data(cmap, friction, damping), fidelity="table",
                      kind="mesh", info={**cmap.info})

@@ -16,22 +16,19 @@
 * :func:`missing_tooth` - severe fault: all surfaces of one tooth removed.
 * :func:`apply_health` - ``"healthy" | "mild" | "severe"``.
 * A user mesh (a faulty gear from CAD etc.) for pinion or wheel goes through
-  :func:`gearcontact_fmu.meshes.load_gear_mesh` (also available here as :func:`user_mesh`).
+  :func:`gearcontact_fmu.mesh_check.load_gear_mesh` (also available here as :func:`user_mesh`).
 """
 from __future__ import annotations
 
-import math
-
-import numpy as np
-
 from . import geometry
-from .meshes import SurfaceMesh, concatenate, load_gear_mesh
+from .mesh_check import load_gear_mesh
+from .mesh_model import GENERATED_HEALTH
+from .meshes import SurfaceMesh, concatenate
 from .params import BevelGearParams, MeshResolution
 
-__all__ = ["mild_flank_fracture", "missing_tooth", "apply_health", "user_mesh", "HEALTH_STATES",
+__all__ = ["mild_flank_fracture", "missing_tooth", "apply_health", "user_mesh", "GENERATED_HEALTH",
            "void_strip"]
 
-HEALTH_STATES = ("healthy", "mild", "severe")
 
 DEFAULT_WIDTH = 1.0e-3
 DEFAULT_DEPTH = 0.3e-3
@@ -41,7 +38,7 @@ DEFAULT_POSITION = 0.0
 def _analytic_role(mesh: SurfaceMesh) -> str:
     if mesh.meta.get("source") != "analytic" or "role" not in mesh.meta:
         raise ValueError("mild_flank_fracture needs a mesh from geometry.build_gear_mesh (a user mesh carries "
-                         "its own faults: load it with meshes.load_gear_mesh)")
+                         "its own faults: load it with mesh_check.load_gear_mesh)")
     return mesh.meta["role"]
 
 
@@ -115,10 +112,10 @@ def apply_health(mesh: SurfaceMesh, params: BevelGearParams | None = None, healt
         return mild_flank_fracture(mesh, params, **kw)
     if health == "severe":
         return missing_tooth(mesh, tooth=kw.get("tooth", 0))
-    raise ValueError(f"health must be one of {HEALTH_STATES}, not {health!r}")
+    raise ValueError(f"health must be one of {GENERATED_HEALTH}, not {health!r}")
 
 
 def user_mesh(path, params: BevelGearParams | None = None, role: str = "pinion", units: str = "mm",
               **kw) -> SurfaceMesh:
-    """A user's (possibly faulty) gear mesh file, loaded and validated (see meshes.load_gear_mesh)."""
+    """A user's (possibly faulty) gear mesh file, loaded and validated (see mesh_check.load_gear_mesh)."""
     return load_gear_mesh(path, params, role, units=units, **kw)

@@ -16,10 +16,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from gearcontact_fmu import geometry, faults
+from gearcontact_fmu import faults, geometry
 from gearcontact_fmu.contact import engine
-from gearcontact_fmu.fidelity import N_OUT, OUT_STATUS, OUT_TAU_PINION, OUT_TAU_WHEEL
-from gearcontact_fmu.meshes import SurfaceMesh, load_gear_mesh
+from gearcontact_fmu.mesh_check import load_gear_mesh
+from gearcontact_fmu.mesh_model import N_OUT, OUT_STATUS, OUT_TAU_PINION, OUT_TAU_WHEEL, MeshModel
+from gearcontact_fmu.meshes import SurfaceMesh
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
 
 
@@ -102,8 +103,6 @@ def build_pcm_pair(gear: BevelGearParams | None = None, pcm: PCMParams | None = 
 def make_pcm_model(gear_params=None, pcm_params=None, resolution=None, health="healthy",
                    mesh_files=None, mesh_units="mm", friction=True, damping=True, **kw):
     """MeshModel of the online PCM engine (fidelity "pcm")."""
-    from gearcontact_fmu.fidelity import MeshModel
-
     mesh_files = mesh_files or {}
     pair = build_pcm_pair(gear_params, pcm_params, resolution, health,
                           mesh_files.get("pinion") or None, mesh_files.get("wheel") or None,

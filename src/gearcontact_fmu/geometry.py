@@ -73,8 +73,18 @@ from functools import lru_cache
 
 import numpy as np
 
-from .meshes import (FLANK_COAST, FLANK_DRIVE, FLANK_OTHER, KIND_FLANK, KIND_ROOT_RADIAL, KIND_TIP_ROUND,
-                     KIND_TOP_LAND, KIND_VOID_FLOOR, KIND_VOID_WALL, SurfaceMesh)
+from .meshes import (
+    FLANK_COAST,
+    FLANK_DRIVE,
+    FLANK_OTHER,
+    KIND_FLANK,
+    KIND_ROOT_RADIAL,
+    KIND_TIP_ROUND,
+    KIND_TOP_LAND,
+    KIND_VOID_FLOOR,
+    KIND_VOID_WALL,
+    SurfaceMesh,
+)
 from .params import BevelGearParams, MeshResolution
 
 __all__ = [

@@ -65,12 +65,19 @@ import numpy as np
 from numba import njit, types
 
 from gearcontact_fmu.coupling import EnergyCorrection
-from gearcontact_fmu.params import substep_limit_problem, substeps
-from gearcontact_fmu.fidelity import (
-    N_OUT, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY, OUT_MAX_PENETRATION, OUT_NORMAL_FORCE, OUT_STATUS,
+from gearcontact_fmu.fidelity import make_mesh_model
+from gearcontact_fmu.mesh_model import (
+    N_OUT,
+    OUT_DISSIPATED_POWER,
+    OUT_ELASTIC_ENERGY,
+    OUT_MAX_PENETRATION,
+    OUT_NORMAL_FORCE,
+    OUT_STATUS,
     OUT_TAU_PINION,
-    OUT_TAU_WHEEL, MeshModel,
+    OUT_TAU_WHEEL,
+    MeshModel,
 )
+from gearcontact_fmu.params import BevelGearParams, substep_limit_problem, substeps
 
 
 class StageError(RuntimeError):
@@ -888,9 +895,6 @@ def make_stage(fidelity: str = "analytic", gear_params=None, pcm_params=None, re
     """Build the mesh model of ``fidelity`` (fidelity.make_mesh_model) and a GearStage around it.
     The stage inertias are passed to the mesh builder (the analytic model uses them for its damping
     ratio)."""
-    from gearcontact_fmu.fidelity import make_mesh_model
-    from gearcontact_fmu.params import BevelGearParams
-
     gear_params = gear_params or BevelGearParams()
     sp = stage_params or StageParams()
     kw.setdefault("J_pinion", sp.J_pinion)

@@ -10,7 +10,7 @@ Errors (non-finite input, penetration beyond u_max, any exception) never propaga
 fmi2Discard; the instance then refuses further steps. (A raised exception would become fmi2Fatal.)
 
 pythonfmu 0.7.0's export library corrupts the heap at process exit (double release of its interpreter
-state; glibc then aborts the host after its work is done): ``gearcontact_fmu.fmuguard`` fixes the
+state; glibc then aborts the host after its work is done): ``fmu_runtime.guard`` fixes the
 reference count on instantiation.
 
 Package import: the installed ``gearcontact_fmu`` when importable, else the copy bundled in
@@ -28,13 +28,13 @@ if _BUNDLED.is_dir() and (_FORCE_BUNDLED or importlib.util.find_spec("gearcontac
     sys.path.insert(0, str(_BUNDLED))
 
 import gearcontact_fmu  # noqa: E402
-from gearcontact_fmu.fidelity import (OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY,  # noqa: E402
+from gearcontact_fmu.mesh_model import (OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY,  # noqa: E402
                                       OUT_MAX_PENETRATION, OUT_N_CONTACT, OUT_NORMAL_FORCE,
                                       OUT_PEAK_PRESSURE, OUT_TAU_PINION, OUT_TAU_WHEEL)
 from pythonfmu import Boolean, DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real, String  # noqa: E402
 from pythonfmu.enums import Fmi2Status  # noqa: E402
 
-from gearcontact_fmu.fmuguard import fmi_text, guard_value_references  # noqa: E402
+from fmu_runtime.guard import fmi_text, guard_value_references  # noqa: E402
 from gearcontact_fmu.params import DEFAULT_COMM_STEP_S  # noqa: E402
 
 PACKAGE_ORIGIN = str(Path(gearcontact_fmu.__file__).resolve().parent)
@@ -83,9 +83,9 @@ class GearContact(Fmi2Slave):
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        from gearcontact_fmu.fmuguard import pin_export_library_state
+        from fmu_runtime.guard import pin_export_library_state
 
-        # pythonfmu 0.7.0 releases its interpreter state twice at process exit: see fmuguard
+        # pythonfmu 0.7.0 releases its interpreter state twice at process exit: see fmu_runtime.guard
         pin_export_library_state(kwargs, type(self).__name__)
         from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
         from gearcontact_fmu.stage import StageParams

@@ -1,0 +1,64 @@
+"""The mesh-model interface and the pair's vocabularies (see docs/ARCHITECTURE.md, "Mesh model interface").
+
+Every fidelity (``fidelity.BUILDERS``) returns a :class:`MeshModel`: a numba function
+``mesh_eval(data, theta_pinion, theta_wheel, omega_pinion, omega_wheel, out)`` and its parameter tuple.
+``out`` has ``N_OUT`` entries laid out as the ``OUT_*`` indices below. This module imports nothing of the
+package, so every fidelity module, the stage and the FMU shell can depend on it without a cycle.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+OUT_TAU_PINION = 0
+OUT_TAU_WHEEL = 1
+OUT_N_CONTACT = 2
+OUT_CONTACT_AREA = 3
+OUT_PEAK_PRESSURE = 4
+OUT_MAX_PENETRATION = 5
+OUT_NORMAL_FORCE = 6
+OUT_ELASTIC_ENERGY = 7
+OUT_DISSIPATED_POWER = 8
+OUT_STATUS = 9
+N_OUT = 10
+
+OUT_NAMES = (
+    "tau_pinion", "tau_wheel", "n_contact", "contact_area", "peak_pressure",
+    "max_penetration", "normal_force", "elastic_energy", "dissipated_power", "status",
+)
+OUT_UNITS = ("N.m", "N.m", "1", "m2", "Pa", "m", "N", "J", "W", "1")
+
+STATUS_OK = 0
+STATUS_PENETRATION_EXCEEDED = 1
+
+FIDELITIES = ("pcm", "table", "analytic", "ideal")
+"""Mesh-contact fidelities, finest first (``fidelity.BUILDERS`` maps each to its builder)."""
+GENERATED_HEALTH = ("healthy", "mild", "severe")
+"""Health states generated from the healthy geometry (``faults.apply_health``)."""
+HEALTH_STATES = GENERATED_HEALTH + ("mesh",)
+"""Every health state a scene or the GearContact FMU accepts (``"mesh"``: user mesh files)."""
+
+@dataclass
+class MeshModel:
+    """A mesh model of one fidelity: ``eval(data, theta_p, theta_w, omega_p, omega_w, out)`` (numba)
+    with its parameter tuple ``data``.
+
+    ``kind`` is ``"mesh"`` for a compliant mesh (the stage integrates pinion and wheel separately) or
+    ``"rigid"`` for the ideal mesh (exact ratio, no compliance or backlash: the stage treats pinion and
+    wheel as one rigid body and never calls ``eval``)."""
+
+    eval: Callable
+    data: tuple
+    fidelity: str
+    kind: str = "mesh"
+    info: dict = field(default_factory=dict)
+
+    def evaluate(self, theta_pinion, theta_wheel, omega_pinion=0.0, omega_wheel=0.0, out=None):
+        """Convenience call from Python; returns the ``out`` array."""
+        if out is None:
+            out = np.zeros(N_OUT)
+        self.eval(self.data, float(theta_pinion), float(theta_wheel), float(omega_pinion),
+                  float(omega_wheel), out)
+        return out

@@ -63,8 +63,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
         return 3
     s = res.summary
     if not args.quiet:
-        print(f"{scene.name}: {s['sim_time_s']:g} s simulated in {s['wall_time_s']:.3g} s "
-              f"(real-time factor {s['real_time_factor']:.3g}, {s['us_per_step']:.1f} us/step, {s['n_fmus']} FMUs)")
+        tb = s["time_breakdown_s"]
+        print(f"{scene.name}: {s['sim_time_s']:g} s simulated in {s['wall_time_s']:.3g} s: co-simulation loop "
+              f"{tb['loop']:.3g} s (real-time factor {s['real_time_factor']:.3g}, {s['us_per_step']:.1f} us/step, "
+              f"{s['n_fmus']} FMUs), FMU setup {tb['fmu_setup']:.3g} s (builds, maps, initialisation), "
+              f"assembly {tb['assemble_and_check']:.3g} s, post-processing {tb['postprocess']:.3g} s")
         for name, st in s["torque"].items():
             print(f"  {name}: mean {st['mean']:.4g} N·m, RMS {st['rms']:.4g} N·m")
         print(f"  f_DSH {s['f_DSH']:.4g} Hz, f_MSH {s['f_MSH']:.4g} Hz, f_PSH {s['f_PSH']:.4g} Hz, "

@@ -81,7 +81,9 @@ _RATTLE3 = {"separated_time_s": "num", "separated_fraction": "num", "n_separatio
 SUMMARY_TREE: dict = {
     "name": "str", "status": "str", "failure": "any", "description": "str", "source": "str",
     "overrides": "any", "backend": "str", "wall_time_s": "num", "sim_time_s": "num",
-    "requested_sim_time_s": "num", "real_time_factor": "num", "loop_time_s": "num", "us_per_step": "num",
+    "requested_sim_time_s": "num", "real_time_factor": "num", "real_time_factor_wall": "num",
+    "time_breakdown_s": {"assemble_and_check": "num", "fmu_setup": "num", "loop": "num", "postprocess": "num"},
+    "loop_time_s": "num", "us_per_step": "num",
     "us_per_step_steady": "num", "n_steps": "int", "comm_step_s": "num", "sample_rate_Hz": "num",
     "settle_s": "num", "n_fmus": "int",
     "operating_point": {"drive_speed_rpm": "num", "load_torque_Nm": "num", "profiles": "bool"},

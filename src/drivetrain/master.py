@@ -866,11 +866,11 @@ class CosimResult:
     steps_per_output: int
     n_steps: int
     sim_time_s: float
-    wall_time_s: float                     # instantiate + initialise + loop + post-processing
+    wall_time_s: float                     # setup + loop + post-processing
     loop_time_s: float                     # the stepping loop only
     us_per_step: float                     # loop_time_s / n_steps
     us_per_step_steady: float              # median over chunks of 4096 steps, first chunk (JIT warm-up) excluded
-    real_time_factor: float                # sim_time_s / wall_time_s
+    real_time_factor: float                # sim_time_s / loop_time_s: the co-simulation loop (setup apart)
     backend: str
     energy: dict                           # the energy audit (see energy_audit)
     fmus: list[dict]                       # [{name, model, path, parameters}]
@@ -878,6 +878,7 @@ class CosimResult:
     logs: dict[str, list[str]]             # per component: its log lines (last 500)
     raw: dict[str, np.ndarray] | None = None   # internal-rate records if requested ("time" + y names)
     status: str = "ok"                     # "ok" | "failed" (then: the completed part only)
+    setup_time_s: float = 0.0              # checks + FMU loading + instantiation + initialisation (map builds)
     failure: dict | None = None            # time_s, component, model, function, status, cause, log,
     #                                        steps_completed, last_sample_time_s, outputs {comp: {var: v}}
     final: dict[str, float] = dataclasses.field(default_factory=dict)   # Master.run(final=...) values
@@ -1139,6 +1140,7 @@ class Master:
         snap_values: dict[float, dict[str, float]] = {}
         fail_outputs: dict[str, dict | None] = {}
         loop_time = 0.0
+        setup_time = 0.0                   # checks, FMU loading, instantiation, initialisation (map builds)
         chunk_costs: list[float] = []
         try:
             # instantiate exactly the spec's components
@@ -1205,6 +1207,7 @@ class Master:
                            mininterval=0.5, leave=False)
             chunk = 4096
             t_loop0 = time.perf_counter()
+            setup_time = t_loop0 - t_wall0
             chunk_costs = []
             k = 0
             kk = 0
@@ -1337,7 +1340,8 @@ class Master:
             steps_per_output=d, n_steps=k_done, sim_time_s=T_done, wall_time_s=wall, loop_time_s=loop_time,
             us_per_step=1e6 * loop_time / max(k_done, 1),
             us_per_step_steady=1e6 * float(np.median(steady)) if steady else 1e6 * loop_time / max(k_done, 1),
-            real_time_factor=T_done / wall if wall > 0 else float("inf"),
+            real_time_factor=T_done / loop_time if loop_time > 0 else float("inf"),
+            setup_time_s=setup_time,
             backend=self.backend, energy=audit, fmus=fmus, warnings=list(plan.warnings), logs=logs, raw=raw,
             status="ok" if fail is None else "failed", failure=failure, final=final_values,
             snapshots=snap_values)

@@ -271,6 +271,7 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
 
     final = [f"{c.name}.{v}" for c in spec.components if c.model == GEAR_MODEL for v in GEAR_FINAL_VARS]
     final += [f"{c.name}.{COUPLING_VAR}" for c in spec.components]
+    t_master = _time.perf_counter()
     master = Master(spec, fmu_dir=fmu_dir, backend=backend, fmu_paths=fmu_paths, build=build, log=log)
     failed: CosimError | None = None
     try:
@@ -345,8 +346,12 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
         "wall_time_s": wall,
         "sim_time_s": res.sim_time_s,
         "requested_sim_time_s": scene.time.duration_s,
-        "real_time_factor": res.sim_time_s / wall if wall > 0 else None,
+        "real_time_factor": res.real_time_factor if res.loop_time_s > 0 else None,
+        "real_time_factor_wall": res.sim_time_s / wall if wall > 0 else None,
         "loop_time_s": res.loop_time_s,
+        "time_breakdown_s": {"assemble_and_check": t_master - t0, "fmu_setup": res.setup_time_s,
+                             "loop": res.loop_time_s,
+                             "postprocess": max(0.0, wall - (t_master - t0) - res.setup_time_s - res.loop_time_s)},
         "us_per_step": res.us_per_step,
         "us_per_step_steady": res.us_per_step_steady,
         "n_steps": res.n_steps,

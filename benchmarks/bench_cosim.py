@@ -58,7 +58,7 @@ def overhead_benchmark(sizes=(3, 6, 9, 12), duration: float = 1.0) -> None:
     sys.path.insert(0, str(ROOT / "tests"))
     from _cosim_test_fmus import build_test_fmus
 
-    from drivetrain.master import simulate
+    from drivetrain.cosim import simulate
     from drivetrain.system import ComponentSpec, Connection, SystemSpec
 
     d = Path(tempfile.mkdtemp(prefix="bench_cosim_"))

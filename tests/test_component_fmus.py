@@ -162,7 +162,7 @@ def test_master_runs_the_rigid_ideal_scene_through_fmi(fmus, tmp_path):
     """End to end with the master (fmi backend): only motors, upper and an ideal gear are loaded;
     the mean torques settle on the steady state and the energy audit closes. (Slow-marked: the master
     frees its instances, which with pythonfmu 0.7.0 can crash the process at exit; see Instance.close.)"""
-    master = pytest.importorskip("drivetrain.master")
+    master = pytest.importorskip("drivetrain.cosim")
     from drivetrain.assemble import assemble
     from drivetrain.fmubuild import build_all
     from drivetrain.scenario import default_scene

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivetrain.master import load_fmu_info, simulate
+from drivetrain.cosim import load_fmu_info, simulate
 from drivetrain.run import assemble_scene
 from drivetrain.scenario import load_scene
 

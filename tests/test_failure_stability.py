@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from _cosim_test_fmus import build_test_fmus
-from drivetrain import master as M
+import drivetrain.cosim as M
 from drivetrain.cli import main
-from drivetrain.master import CosimError, simulate
+from drivetrain.cosim import CosimError, simulate
 from drivetrain.outputs import read_hdf5
 from drivetrain.run import RunFailedError, run_scene
 from drivetrain.scenario import load_scene

@@ -13,7 +13,7 @@ import textwrap
 
 import pytest
 
-from drivetrain.master import ensure_fmus
+from drivetrain.cosim import ensure_fmus
 
 HOSTILE = "%n%s%n%s%x%%"
 
@@ -100,9 +100,9 @@ def test_a_percent_in_the_temporary_directory_does_not_crash_the_master(fmu_dir,
     tmp = tmp_path / "t%n%s"
     tmp.mkdir()
     code = textwrap.dedent(f"""
-        from drivetrain.master import extracted_dir
+        from drivetrain.cosim import extracted_dir
         from drivetrain.system import ComponentSpec, SystemSpec
-        from drivetrain.master import simulate
+        from drivetrain.cosim import simulate
         d = extracted_dir({str(fmu_dir / "MotorLoad.fmu")!r})
         assert "%" not in str(d), d
         spec = SystemSpec([ComponentSpec("motors", "MotorLoad", {{"w0": 10.0}})], [], 1e-4)

@@ -66,7 +66,7 @@ def _simulate(fmu, logger=None, debug_logging=False, **kw):
     """fmpy.simulate_fmu on an instance we own: fmpy frees (dlclose) an instance it created itself,
     and unloading a pythonfmu 0.7.0 export library while the interpreter keeps objects it made
     corrupts the process later (seen as a crash in a later test). The master keeps libraries loaded
-    for the same reason (drivetrain/master.py)."""
+    for the same reason (drivetrain/cosim/master.py)."""
     md = fmpy.read_model_description(str(fmu))
     inst = fmpy.instantiate_fmu(fmpy.extract(str(fmu)), md, fmi_type="CoSimulation", logger=logger,
                                 debug_logging=debug_logging)

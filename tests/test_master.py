@@ -1,4 +1,4 @@
-"""The co-simulation master (drivetrain.master) on small test FMUs built here with pythonfmu.
+"""The co-simulation master (drivetrain.cosim) on small test FMUs built here with pythonfmu.
 
 Real component FMUs are exercised in test_run.py once the assembler and the components exist.
 """
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from _cosim_test_fmus import build_test_fmus
-from drivetrain import master as M
-from drivetrain.master import ConfigurationError, CosimError, Master, simulate
+import drivetrain.cosim as M
+from drivetrain.cosim import ConfigurationError, CosimError, Master, simulate
 from drivetrain.system import ComponentSpec, Connection, SystemSpec
 
 H12 = 1.0 / 12000.0
@@ -36,8 +36,10 @@ def no_instantiation(monkeypatch):
     """Fail loudly if the master instantiates anything (checks must come first)."""
     def boom(*a, **k):
         raise AssertionError("an FMU was instantiated")
-    monkeypatch.setattr(M, "_FmiSlave", boom)
-    monkeypatch.setattr(M, "_InprocSlave", boom)
+    import drivetrain.cosim.master as loop
+
+    monkeypatch.setattr(loop, "FmiSlave", boom)
+    monkeypatch.setattr(loop, "InprocSlave", boom)
 
 
 def test_wrong_causality_refused_naming_both_ports(fmus, no_instantiation):
@@ -217,14 +219,16 @@ def test_energy_audit_and_backends_with_real_gear_fmu(gear_fmus):
 
 def test_instantiates_exactly_the_spec(fmus, monkeypatch):
     made = []
-    orig = M._FmiSlave
+    import drivetrain.cosim.master as loop
+
+    orig = loop.FmiSlave
 
     class Counting(orig):
         def __init__(self, comp, info, cb):
             made.append((comp.name, comp.model))
             super().__init__(comp, info, cb)
 
-    monkeypatch.setattr(M, "_FmiSlave", Counting)
+    monkeypatch.setattr(loop, "FmiSlave", Counting)
     spec = two_mass()
     simulate(spec, 0.01, 3000.0, fmu_paths=fmus)
     assert made == [(c.name, c.model) for c in spec.components]

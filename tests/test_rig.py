@@ -92,7 +92,7 @@ def test_stiff_cut_is_refused_with_the_numbers():
 
 
 def test_assembler_refuses_a_too_large_step():
-    from drivetrain.master import ConfigurationError
+    from drivetrain.cosim import ConfigurationError
 
     sc = default_scene(effects__shaft_flexibility="rigid", time__sample_rate_Hz=1000.0,
                        numerics__comm_step_s=1e-3)

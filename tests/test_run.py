@@ -162,7 +162,7 @@ def test_sweep_loses_no_work(tmp_path, fmus):
 
 
 def test_sweep_refuses_an_unwritable_out_before_running(tmp_path, fmus):
-    from drivetrain.master import ConfigurationError
+    from drivetrain.cosim import ConfigurationError
     from drivetrain.sweep import run_sweep
 
     blocker = tmp_path / "file"

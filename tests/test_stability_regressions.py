@@ -50,7 +50,7 @@ def test_standstill_run_has_a_meaningful_energy_residual(fmu_dir):
     """Stress draw rnd_s0_0106 (drivetrain held at standstill; the load setting is regularised to zero
     at rest, so nothing moves): the audit's reference energy was ~1e-12 J and the relative residual of
     round-off came out as 102 %. A run that moves no energy has a residual relative to ENERGY_FLOOR_J."""
-    from drivetrain.master import ENERGY_FLOOR_J
+    from drivetrain.cosim import ENERGY_FLOOR_J
 
     scene = load_scene(ROOT / "scenarios" / "example.toml",
                        ["time.duration_s=0.3", "operating_point.drive_speed_rpm=0.0", "operating_point.load_torque_Nm=0.388",

@@ -9,7 +9,7 @@ import pytest
 
 from drivetrain import stability
 from drivetrain.cli import main
-from drivetrain.master import ConfigurationError
+from drivetrain.cosim import ConfigurationError
 from drivetrain.run import assemble_scene, run_scene
 from drivetrain.scenario import load_scene
 

@@ -97,7 +97,7 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
 
     ``calibration``: a calibration dict or a JSON file written by ``drivetrain calibrate`` (default:
     $DRIVETRAIN_CALIBRATION, else the shipped ``drivetrain/data/calibration.json``). ``check``: refuse
-    unstable cuts (before any step) with :class:`drivetrain.master.ConfigurationError`.
+    unstable cuts (before any step) with :class:`drivetrain.errors.ConfigurationError`.
     ``component_substep``: internal sub-step of MotorLoad, FlexibleShaft and UpperTransmission
     (default min(COMPONENT_SUBSTEP, H); the gear stage uses ``numerics.max_substep_s``)."""
     eff = scene.effects
@@ -169,7 +169,7 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
         try:
             reports, rho = stability.check_cuts(spec)
         except stability.UnstableCutError as exc:
-            from drivetrain.master import ConfigurationError
+            from drivetrain.cosim import ConfigurationError
 
             err = ConfigurationError(exc.problems)
             err.reports = exc.reports

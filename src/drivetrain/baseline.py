@@ -88,7 +88,7 @@ def versions() -> dict:
         except md.PackageNotFoundError:
             out[pkg] = None
     try:
-        from drivetrain.master import sources_hash
+        from drivetrain.cosim import sources_hash
 
         out["fmu_sources_sha256"] = sources_hash()
     except Exception:  # noqa: BLE001 - informational only

@@ -23,7 +23,7 @@ import numpy as np
 
 from drivetrain import baseline as B
 from drivetrain.expect import Outcome, _fmt, evaluate
-from drivetrain.master import ConfigurationError, CosimError
+from drivetrain.cosim import ConfigurationError, CosimError
 from drivetrain.outputs import jsonable, read_hdf5
 from drivetrain.run import RunFailedError, run_scene
 from drivetrain.scenario import Scene, load_scenes

@@ -17,7 +17,7 @@ def _cmd_build_fmus(args: argparse.Namespace) -> int:
     for p in paths:
         print(p)
     try:  # record the sources the FMUs were built from, so that `drivetrain run` sees them as fresh
-        from drivetrain.master import record_built
+        from drivetrain.cosim import record_built
 
         record_built(args.out, [p for p in paths])
     except Exception:  # pragma: no cover - stamping is an optimisation only
@@ -31,7 +31,7 @@ def _scene_errors(exc: BaseException) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from drivetrain.master import ConfigurationError, CosimError
+    from drivetrain.cosim import ConfigurationError, CosimError
     from drivetrain.scenario import ScenarioError, load_scene
 
     try:
@@ -168,7 +168,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
-    from drivetrain.master import ConfigurationError
+    from drivetrain.cosim import ConfigurationError
     from drivetrain.scenario import ScenarioError, load_scenes
 
     try:
@@ -231,7 +231,7 @@ def _stress_command(args: argparse.Namespace) -> str:
 
 
 def _cmd_stress(args: argparse.Namespace) -> int:
-    from drivetrain.master import ConfigurationError
+    from drivetrain.cosim import ConfigurationError
     from drivetrain.scenario import ScenarioError
     from drivetrain.stress import regenerate_report, run_stress
 
@@ -270,7 +270,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
     import json
 
     from drivetrain.check import CheckReport, check_scenes, format_table, select
-    from drivetrain.master import ConfigurationError
+    from drivetrain.cosim import ConfigurationError
     from drivetrain.scenario import ScenarioError, load_scenes
 
     try:
@@ -298,7 +298,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
 def _cmd_baseline(args: argparse.Namespace) -> int:
     """Run scenes and store their compact references (drivetrain.check.baseline_file)."""
     from drivetrain.check import baseline_file
-    from drivetrain.master import ConfigurationError
+    from drivetrain.cosim import ConfigurationError
     from drivetrain.scenario import ScenarioError
 
     log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))

@@ -25,7 +25,7 @@ from drivetrain import __version__
 from drivetrain import outputs as O
 from drivetrain import stability
 from drivetrain.errors import ConfigurationError, CosimError, RunFailedError  # noqa: F401  (re-exported)
-from drivetrain.master import CosimResult, Master
+from drivetrain.cosim import CosimResult, Master
 from drivetrain.scenario import RIG_SENSORS, TORQUE_SENSORS, Scene
 from drivetrain.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies, stats, to_db
 from drivetrain.system import SystemSpec

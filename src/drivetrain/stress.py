@@ -51,7 +51,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from drivetrain.master import ConfigurationError
+from drivetrain.cosim import ConfigurationError
 from drivetrain.outputs import jsonable, now_iso
 from drivetrain.run import assemble_scene
 from drivetrain.scenario import FIDELITIES, TORQUE_SENSORS, Scene, load_scenes, scene_from_dict
@@ -949,7 +949,7 @@ def run_stress(out_dir: Path | str = "out/stress", *, set_name: str = "all", n_r
     manifest = None
     if runnable:
         if todo:
-            from drivetrain.master import ensure_fmus
+            from drivetrain.cosim import ensure_fmus
 
             # the maps are prepared by instantiating GearContact in this process: its FMU must exist
             models = list(dict.fromkeys(comp.model for c in todo for comp in c.spec.components))

@@ -38,9 +38,9 @@ import traceback
 from pathlib import Path
 from typing import Any
 
-from drivetrain.master import ConfigurationError
-from drivetrain.master import simulate as simulate_system
-from drivetrain.master import sources_hash
+from drivetrain.cosim import ConfigurationError
+from drivetrain.cosim import simulate as simulate_system
+from drivetrain.cosim import sources_hash
 from drivetrain.outputs import jsonable
 from drivetrain.run import RunFailedError, assemble_scene, run_scene
 from drivetrain.scenario import Scene, resolve
@@ -297,14 +297,14 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
     names = [s.name for s in scenes]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
-        from drivetrain.master import ConfigurationError
+        from drivetrain.cosim import ConfigurationError
 
         raise ConfigurationError(f"scene names must be unique in a sweep: {', '.join(dup)}")
     _check_writable(out)
     log = _LOG.warning if progress else None
     all_specs = _specs_of(scenes, specs)
     if fmu_paths is None:
-        from drivetrain.master import ensure_fmus
+        from drivetrain.cosim import ensure_fmus
 
         needed = list(dict.fromkeys(c.model for sp in all_specs for c in sp.components))
         ensure_fmus(needed, fmu_dir, build=True, log=log or (lambda m: None))

@@ -1,0 +1,253 @@
+"""FMUs on disk: build when missing or stale, the staleness stamp, extraction, model descriptions.
+
+- ``ensure_fmus(models, fmu_dir)``: the paths of the models' FMUs; a missing FMU, or one built from other
+  package sources than the current ones (``sources_hash``: SHA-256 of the sources that run inside FMUs,
+  recorded per model in ``<fmu_dir>/.sources-hash.json``), is (re)built with ``drivetrain.fmubuild``
+  under a file lock, and the stamp is written (``record_built``, the one writer of the stamp).
+- ``extracted_dir(path)``: ``fmpy.extract`` once per FMU file and process, under a private root.
+- ``load_fmu_info(path)``: the model description as plain data (``FMUInfo``, ``VarInfo``).
+"""
+from __future__ import annotations
+
+import atexit
+import functools
+import hashlib
+import json
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import drivetrain
+import fmu_runtime
+import gearcontact_fmu
+from drivetrain.errors import ConfigurationError
+from gearcontact_fmu.locks import file_lock
+
+PORT_VARS = ("phi", "w", "tau")
+PORT_UNITS = {"phi": "rad", "w": "rad/s", "tau": "N.m"}
+#: the energy counters every FMU of the project reports (the audit's inputs)
+ENERGY_VARS = ("energy_supplied", "energy_stored", "energy_dissipated")
+_UNIT_SYNONYMS = {"N·m": "N.m", "Nm": "N.m", "N*m": "N.m", "N m": "N.m", "rad.s-1": "rad/s", "1/s": "1/s"}
+
+#: Modules and sub-packages of the packages that never run inside an FMU (excluded from the staleness hash).
+HOST_ONLY_MODULES = {
+    "drivetrain": {"cli.py", "master.py", "run.py", "sweep.py", "outputs.py", "signals.py", "scenario.py",
+                   "assemble.py", "eigen.py", "calibrate.py", "fmubuild.py", "stress.py", "expect.py",
+                   "baseline.py", "check.py", "pytest_plugin.py", "dataset.py", "stability.py", "cosim"},
+    "gearcontact_fmu": set(),
+}
+
+
+@dataclass(frozen=True)
+class VarInfo:
+    name: str
+    vr: int
+    type: str                 # Real | Integer | Boolean | String | Enumeration
+    causality: str
+    variability: str
+    unit: str | None
+    initial: str | None
+
+
+@dataclass
+class FMUInfo:
+    model: str
+    path: Path
+    guid: str
+    model_identifier: str
+    variables: dict[str, VarInfo]
+    description: Any = None
+
+
+_INFO_CACHE: dict[tuple[str, float], FMUInfo] = {}
+_EXTRACT_CACHE: dict[tuple[str, float], str] = {}
+_EXTRACT_ROOT: list[str] = []
+
+
+def _norm_unit(u: str | None) -> str | None:
+    return _UNIT_SYNONYMS.get(u, u) if u else u
+
+
+def load_fmu_info(path: Path | str) -> FMUInfo:
+    """Model description of an FMU (cached per file and modification time)."""
+    import fmpy
+
+    path = Path(path).resolve()
+    key = (str(path), path.stat().st_mtime)
+    info = _INFO_CACHE.get(key)
+    if info is None:
+        md = fmpy.read_model_description(str(path), validate=False)
+        if md.coSimulation is None:
+            raise ConfigurationError(f"{path.name}: not a co-simulation FMU")
+        variables = {}
+        for v in md.modelVariables:
+            unit = v.unit
+            if unit is None and v.declaredType is not None:
+                unit = getattr(v.declaredType, "unit", None)
+            variables[v.name] = VarInfo(v.name, v.valueReference, v.type, v.causality, v.variability,
+                                        _norm_unit(unit), v.initial)
+        info = FMUInfo(md.modelName, path, md.guid, md.coSimulation.modelIdentifier, variables, md)
+        _INFO_CACHE[key] = info
+    return info
+
+
+def _cleanup_extracted() -> None:
+    for d in _EXTRACT_ROOT:
+        shutil.rmtree(d, ignore_errors=True)
+
+
+def _extract_root() -> str:
+    """A private directory for extracted FMUs whose path has no ``%``: pythonfmu 0.7.0's export library
+    crashes the process in fmi2Instantiate when the resource path contains one (it is used as a printf
+    format; measured: segmentation fault with TMPDIR=/tmp/a%n). The system temporary directory is used
+    unless its path has a ``%``; then the user cache directory, then /tmp."""
+    candidates = [None, os.path.join(os.path.expanduser("~"), ".cache", "drivetrain"), "/tmp"]
+    for base in candidates:
+        root = base if base is not None else tempfile.gettempdir()
+        if "%" in os.path.abspath(root):
+            continue
+        try:
+            os.makedirs(root, exist_ok=True)
+            d = tempfile.mkdtemp(prefix="drivetrain_fmus_", dir=root)
+        except OSError:
+            continue
+        if "%" not in d:
+            return d
+    raise ConfigurationError("no directory without '%' in its path to extract the FMUs into (pythonfmu "
+                             "crashes on such resource paths); set TMPDIR to one")
+
+
+def extracted_dir(path: Path | str) -> str:
+    """``fmpy.extract`` once per FMU file (and modification time) per process."""
+    import fmpy
+
+    path = Path(path).resolve()
+    key = (str(path), path.stat().st_mtime)
+    d = _EXTRACT_CACHE.get(key)
+    if d is None or not os.path.isdir(d):
+        if not _EXTRACT_ROOT:
+            _EXTRACT_ROOT.append(_extract_root())
+            atexit.register(_cleanup_extracted)
+        target = os.path.join(_EXTRACT_ROOT[0], f"{path.stem}_{len(_EXTRACT_CACHE)}")
+        d = fmpy.extract(str(path), unzipdir=target)
+        _EXTRACT_CACHE[key] = d
+    return d
+
+
+def _package_dirs() -> dict[str, Path]:
+
+    return {"drivetrain": Path(drivetrain.__file__).parent, "gearcontact_fmu": Path(gearcontact_fmu.__file__).parent,
+            "fmu_runtime": Path(fmu_runtime.__file__).parent}
+
+
+@functools.lru_cache(maxsize=1)
+def _sources_hash_cached(stamp: tuple) -> str:
+    h = hashlib.sha256()
+    for pkg, d in sorted(_package_dirs().items()):
+        for f in sorted(d.rglob("*.py")):
+            rel = f.relative_to(d)
+            if len(rel.parts) == 1 and rel.name in HOST_ONLY_MODULES.get(pkg, ()):
+                continue
+            if "__pycache__" in rel.parts:
+                continue
+            h.update(f"{pkg}/{rel.as_posix()}\0".encode())
+            h.update(f.read_bytes())
+            h.update(b"\0")
+    return h.hexdigest()
+
+
+def sources_hash() -> str:
+    """SHA-256 of the package sources that end up in (and run inside) the FMUs."""
+    stamp = []
+    for pkg, d in sorted(_package_dirs().items()):
+        for f in sorted(d.rglob("*.py")):
+            st = f.stat()
+            stamp.append((str(f), st.st_mtime_ns, st.st_size))
+    return _sources_hash_cached(tuple(stamp))
+
+
+STAMP_FILE = ".sources-hash.json"
+_CHECKED: dict[str, set] = {}     # fmu_dir -> models found fresh (or built) in this process
+
+
+def _read_stamp(fmu_dir: Path) -> dict:
+    try:
+        return json.loads((fmu_dir / STAMP_FILE).read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def stale_models(models: Sequence[str], fmu_dir: Path | str) -> list[str]:
+    """Models whose FMU is missing in fmu_dir or was built from other package sources."""
+    fmu_dir = Path(fmu_dir)
+    current = sources_hash()
+    stamp = _read_stamp(fmu_dir)
+    return [m for m in dict.fromkeys(models)
+            if not (fmu_dir / f"{m}.fmu").is_file() or stamp.get(m) != current]
+
+
+def ensure_fmus(models: Sequence[str], fmu_dir: Path | str = "fmus", build: bool = True,
+                log: Callable[[str], None] | None = None) -> dict[str, Path]:
+    """Paths of the FMUs of ``models``, building missing or stale ones with ``build_all``."""
+    fmu_dir = Path(fmu_dir)
+    models = list(dict.fromkeys(models))
+    if build:
+        # checked once per process and directory: the package code this process runs (FMUs use the
+        # installed packages in a Python host) does not change under it, so neither should its FMUs
+        key = str(fmu_dir.resolve())
+        fresh = _CHECKED.setdefault(key, set())
+        todo_check = [m for m in models if m not in fresh or not (fmu_dir / f"{m}.fmu").is_file()]
+    if build and todo_check:
+        with file_lock(fmu_dir / ".build.lock"):
+            todo = stale_models(todo_check, fmu_dir)
+            if todo:
+                current = sources_hash()
+                try:
+                    from drivetrain.fmubuild import build_all
+                except ImportError as exc:
+                    missing = [m for m in todo if not (fmu_dir / f"{m}.fmu").is_file()]
+                    if missing:
+                        raise ConfigurationError(
+                            [f"FMU {fmu_dir / (m + '.fmu')} is missing and cannot be built "
+                             f"(drivetrain.fmubuild unavailable: {exc})" for m in missing]) from None
+                    if log:
+                        log(f"FMUs {todo} may be stale; cannot rebuild ({exc}); using them as they are")
+                else:
+                    if log:
+                        log(f"building FMUs {todo} into {fmu_dir} (missing or built from other sources)")
+                    build_all(str(fmu_dir), only=todo)
+                    stamp = _read_stamp(fmu_dir)
+                    stamp.update({m: current for m in todo if (fmu_dir / f"{m}.fmu").is_file()})
+                    tmp = fmu_dir / (STAMP_FILE + f".{os.getpid()}")
+                    tmp.write_text(json.dumps(stamp, indent=1, sort_keys=True))
+                    os.replace(tmp, fmu_dir / STAMP_FILE)
+            fresh.update(m for m in todo_check if (fmu_dir / f"{m}.fmu").is_file())
+    paths = {}
+    missing = []
+    for m in models:
+        p = fmu_dir / f"{m}.fmu"
+        if p.is_file():
+            paths[m] = p.resolve()
+        else:
+            missing.append(f"FMU for model {m!r} not found: {p}")
+    if missing:
+        raise ConfigurationError(missing)
+    return paths
+
+
+def record_built(fmu_dir: str | Path, paths: Sequence[str | Path]) -> None:
+    """Record that these FMUs were just built from the current sources (staleness stamp)."""
+    fmu_dir = Path(fmu_dir)
+    current = sources_hash()
+    with file_lock(fmu_dir / ".build.lock"):
+        stamp = _read_stamp(fmu_dir)
+        for p in paths:
+            p = Path(p)
+            if p.suffix == ".fmu" and p.is_file() and p.parent.resolve() == fmu_dir.resolve():
+                stamp[p.stem] = current
+        tmp = fmu_dir / (STAMP_FILE + f".{os.getpid()}")
+        tmp.write_text(json.dumps(stamp, indent=1, sort_keys=True))
+        os.replace(tmp, fmu_dir / STAMP_FILE)

@@ -421,6 +421,8 @@ class LineModel:
         self.wk = np.zeros(7 * n + 2 * L + 2)
         self.last_H = 0.0
         self.n_sub_last = 0
+        self._sub_key = (None, None)
+        self._sub_n = 0
         self.spring_ports = [q for q, p in enumerate(self.ports) if p.kind == SPRING_PORT]
         self.correction = EnergyCorrection([self.p_k[q] for q in self.spring_ports], bool(energy_correction))
 
@@ -446,10 +448,13 @@ class LineModel:
             raise ComponentError(f"communication step must be > 0, got {H!r} at t = {t:.9g} s")
         if wref1 is None:
             wref1 = wref0
-        problem = substep_limit_problem(H, t, self.max_substep)
-        if problem:
-            raise ComponentError(problem)
-        n_sub = self.n_substeps(H)
+        if H != self._sub_key[0] or self.max_substep != self._sub_key[1]:
+            problem = substep_limit_problem(H, t, self.max_substep)
+            if problem:
+                raise ComponentError(problem)
+            self._sub_n = self.n_substeps(H)
+            self._sub_key = (H, self.max_substep)      # sub-steps per communication step, per H
+        n_sub = self._sub_n
         self.wref[0] = wref0
         self.wref[1] = wref1
         code = line_step(float(H), n_sub, self.fp, self.ip, self.st, self.out, self.wk)
@@ -814,14 +819,18 @@ class FlexibleShaft:
             self.line.tau_mean[1])
         self.shaft_torque = float(self.line.tau_mean[1])
 
-    def outputs(self) -> dict:
+    def outputs(self, energy: bool = True) -> dict:
+        """Output values by FMU variable name. ``energy=False``: the outputs of ``LAZY_OUTPUTS``
+        (``energy_stored``, ``coupling_energy_error``, ``loss_torque``) are left out (the FMU shell
+        computes them when a host reads them, drivetrain.fmishell)."""
         phi, w = self.line.flange("flange_a")
         return {"flange_a_phi": phi, "flange_a_w": w, "flange_b_tau": float(self.line.tau_out[1]),
                 "flange_b_tau_mean": float(self.line.tau_mean[1]),
                 "torque_sensor": self.torque_sensor, "shaft_torque": self.shaft_torque,
                 "hub_b_phi": float(self.line.th[self.i_hub_b]), "hub_b_w": float(self.line.om[self.i_hub_b]),
-                "coupling_energy_error": self.line.coupling_energy_error,
-                "energy_stored": self.line.stored_energy(), "energy_dissipated": self.line.energy_dissipated,
+                **({"coupling_energy_error": self.line.coupling_energy_error,
+                    "energy_stored": self.line.stored_energy()} if energy else {}),
+                "energy_dissipated": self.line.energy_dissipated,
                 "energy_supplied": self.line.energy_supplied}
 
 
@@ -846,7 +855,7 @@ class UpperTransmission:
     def initialize(self):
         self.line.set_state([self.p.phi0], [self.p.w0])
         self.torque_sensor = 0.0
-        self.loss_torque = 0.0
+        self._loss_at = None           # (w, loss level) at the end of the last step: loss_torque when read
         self._tau_a = 0.0
 
     def set_inputs(self, flange_a_tau, flange_b_tau):
@@ -863,15 +872,26 @@ class UpperTransmission:
         alpha = (float(self.line.om[0]) - w0) / H
         self.torque_sensor = self._tau_a - self.p.J_sensor * alpha
         # mean loss torque from the dissipated energy is not separable; report the law at the end speed
-        self.loss_torque = float(loss_torque(self.line.om[0], 0.0, self.p.loss_c, self.line.l_Tc[0],
-                                             self.line.l_wc[0], 0.0))
+        # (evaluated when read: the master does not read it every step)
+        self._loss_at = (self.line.om[0], self.line.l_Tc[0], self.line.l_wc[0])
 
-    def outputs(self) -> dict:
+    @property
+    def loss_torque(self) -> float:
+        if self._loss_at is None:
+            return 0.0
+        w, T_c, w_c = self._loss_at
+        return float(loss_torque(w, 0.0, self.p.loss_c, T_c, w_c, 0.0))
+
+    def outputs(self, energy: bool = True) -> dict:
+        """Output values by FMU variable name. ``energy=False``: the outputs of ``LAZY_OUTPUTS``
+        (``energy_stored``, ``coupling_energy_error``, ``loss_torque``) are left out (the FMU shell
+        computes them when a host reads them, drivetrain.fmishell)."""
         pa, wa = self.line.flange("flange_a")
         pb, wb = self.line.flange("flange_b")
         return {"flange_a_phi": pa, "flange_a_w": wa, "flange_b_phi": pb, "flange_b_w": wb,
-                "torque_sensor": self.torque_sensor, "loss_torque": self.loss_torque,
-                "energy_stored": self.line.stored_energy(), "energy_dissipated": self.line.energy_dissipated,
+                "torque_sensor": self.torque_sensor,
+                **({"loss_torque": self.loss_torque, "energy_stored": self.line.stored_energy()} if energy else {}),
+                "energy_dissipated": self.line.energy_dissipated,
                 "energy_supplied": self.line.energy_supplied}
 
 
@@ -959,7 +979,10 @@ class MotorLoad:
         self.motor_torque = self.line.motor_torque
         self.load_motor_torque = self.line.source_torque / self.p.ratio_pg
 
-    def outputs(self) -> dict:
+    def outputs(self, energy: bool = True) -> dict:
+        """Output values by FMU variable name. ``energy=False``: the outputs of ``LAZY_OUTPUTS``
+        (``energy_stored``, ``coupling_energy_error``, ``loss_torque``) are left out (the FMU shell
+        computes them when a host reads them, drivetrain.fmishell)."""
         ln = self.line
         pl, wl = ln.flange("load")
         return {"load_phi": pl, "load_w": wl, "drive_tau": float(ln.tau_out[0]),
@@ -969,8 +992,9 @@ class MotorLoad:
                 "motor_torque": self.motor_torque, "load_motor_torque": self.load_motor_torque,
                 "load_motor_w": self.p.ratio_pg * wl,
                 "coupling_torque": float(ln.el_mean[0]),
-                "coupling_energy_error": ln.coupling_energy_error,
-                "energy_stored": ln.stored_energy(), "energy_dissipated": ln.energy_dissipated,
+                **({"coupling_energy_error": ln.coupling_energy_error,
+                    "energy_stored": ln.stored_energy()} if energy else {}),
+                "energy_dissipated": ln.energy_dissipated,
                 "energy_supplied": ln.energy_supplied}
 
 

@@ -19,7 +19,10 @@ instance refuses further steps; the host never crashes), advances the component 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
+import operator
+import weakref
 
 from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real, String
 from pythonfmu.enums import Fmi2Status
@@ -133,13 +136,36 @@ def init_slave(slave, model: str, slave_kwargs: dict | None = None) -> None:
         slave.register_variable(Real(name, causality=Fmi2Causality.input))
     if model == "MotorLoad":
         slave.speed_ref_rpm = float(defaults.w0) / C.RPM
+    ref = weakref.ref(slave)
     for name in slave._outputs:
         setattr(slave, name, 0.0)
-        slave.register_variable(Real(name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact))
+        getter = functools.partial(_lazy_output, ref, name) if name in LAZY_OUTPUTS else None
+        slave.register_variable(Real(name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact,
+                                     getter=getter))
+    slave._lazy_pending = False
+    # all input values in one call (a tuple), for the per-step finiteness check
+    slave._in_values = (operator.attrgetter(*slave._inputs) if len(slave._inputs) > 1
+                        else lambda s, _n=tuple(slave._inputs): tuple(getattr(s, n) for n in _n))
     slave._comp = None
     slave._built_with = None
     slave._failed = None
     guard_value_references(slave, model)
+
+
+#: outputs computed when a host reads them, not at every step (the master reads them at the start and
+#: the end of a run): the component state they depend on does not change between two do_step calls
+LAZY_OUTPUTS = ("energy_stored", "coupling_energy_error", "loss_torque")
+
+
+def _lazy_output(ref, name):
+    slave = ref()
+    if slave._lazy_pending:
+        slave._lazy_pending = False
+        out = slave._comp.outputs()
+        for n in LAZY_OUTPUTS:
+            if n in out:
+                setattr(slave, n, float(out[n]))
+    return getattr(slave, name)
 
 
 def _params(slave):
@@ -152,6 +178,8 @@ def _fail(slave, msg: str):
 
 
 def _check_inputs(slave, t: float):
+    if all(map(math.isfinite, slave._in_values(slave))):     # the usual case: one pass, no dict
+        return
     bad = {n: getattr(slave, n) for n in slave._inputs if not math.isfinite(float(getattr(slave, n)))}
     if bad:
         raise C.ComponentError(f"non-finite input at t = {t:.9g} s: {bad}")
@@ -172,13 +200,17 @@ def _publish(slave, initial: bool = False):
     if initial:
         # spring-side torques before the first step: the port springs against the current inputs
         slave._comp.line.start_ports()
-    out = slave._comp.outputs()
+    out = slave._comp.outputs(energy=initial)
     if initial:
         ln = slave._comp.line
         out["energy_stored"] = ln.stored_energy({p.name: ln.p_u0[ln.port_index[p.name]]
                                                  for p in ln.ports if p.kind == C.SPRING_PORT})
+        slave._lazy_pending = False
+    else:
+        slave._lazy_pending = True       # LAZY_OUTPUTS: computed when read
     for name in slave._outputs:
-        setattr(slave, name, float(out[name]))
+        if name in out:
+            setattr(slave, name, float(out[name]))
 
 
 def enter_init(slave):

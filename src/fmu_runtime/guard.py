@@ -27,6 +27,7 @@ import hashlib
 import os
 import sys
 from pathlib import Path
+from typing import Any
 
 # pythonfmu 0.7.0, resources/binaries/linux64/libpythonfmu-export.so
 KNOWN_EXPORT_LIBS = {
@@ -124,3 +125,82 @@ def guard_value_references(slave, model: str) -> None:
             return _original(slave, vrs, *args)
 
         setattr(slave, name, checked)
+    _install_fast_real_access(slave, ref)
+
+
+def _default_accessor(fn) -> bool:
+    """True for pythonfmu's own getter/setter lambda (``Fmi2Slave.register_variable``)."""
+    return (getattr(fn, "__name__", None) == "<lambda>"
+            and getattr(fn, "__qualname__", "").startswith("Fmi2Slave.register_variable."))
+
+
+def _install_fast_real_access(slave, ref) -> None:
+    """``get_real``/``set_real`` for the value-reference lists a host repeats every step (an FMI master
+    passes the same references at every communication point): the first call with a list is checked
+    and served by the guarded pythonfmu path above; it also prepares a plan for that list (attribute
+    names for pythonfmu's default accessors, the getter itself for a custom one), used by every later
+    call with the same references. Values, conversions (``float`` of each getter result) and errors
+    are those of pythonfmu's path; the per-call type checks are done once per list."""
+    import operator
+
+    checked_get, checked_set = slave.get_real, slave.set_real
+    get_plans: dict[tuple, Any] = {}
+    set_plans: dict[tuple, Any] = {}
+
+    def plan_get(key):
+        s = ref()
+        variables = [s.vars[vr] for vr in key]
+        if all(v.getter is not None and _default_accessor(v.getter) and "." not in v.name
+               for v in variables):
+            names = [v.local_name for v in variables]
+            if not names:
+                return lambda s: []
+            ag = operator.attrgetter(*names)
+            if len(names) == 1:
+                return lambda s: [float(ag(s))]
+            return lambda s: list(map(float, ag(s)))
+        getters = [v.getter for v in variables]
+        return lambda s: [float(g()) for g in getters]
+
+    def plan_set(key):
+        s = ref()
+        variables = [s.vars[vr] for vr in key]
+        cls = type(s)
+        if cls.__setattr__ is object.__setattr__ and all(
+                v.setter is not None and _default_accessor(v.setter) and "." not in v.name
+                and v.local_name in s.__dict__ and not hasattr(cls, v.local_name) for v in variables):
+            names = tuple(v.local_name for v in variables)
+            return lambda s, values: s.__dict__.update(zip(names, values))
+        setters = [v.setter for v in variables]
+
+        def run(s, values):
+            for f, v in zip(setters, values):
+                f(v)
+        return run
+
+    def get_real(vrs):
+        key = tuple(vrs)
+        plan = get_plans.get(key)
+        if plan is None:
+            result = checked_get(vrs)          # validates (and raises) exactly as before
+            try:
+                get_plans[key] = plan_get(key)
+            except Exception:  # noqa: BLE001 - no plan: this list keeps the guarded path
+                get_plans[key] = lambda s: checked_get(vrs)
+            return result
+        return plan(ref())
+
+    def set_real(vrs, values):
+        key = tuple(vrs)
+        plan = set_plans.get(key)
+        if plan is None:
+            result = checked_set(vrs, values)
+            try:
+                set_plans[key] = plan_set(key)
+            except Exception:  # noqa: BLE001
+                set_plans[key] = lambda s, values: checked_set(vrs, values)
+            return result
+        return plan(ref(), values)
+
+    slave.get_real = get_real
+    slave.set_real = set_real

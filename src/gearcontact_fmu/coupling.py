@@ -98,33 +98,41 @@ class EnergyCorrection:
         one this step starts from (the port's stored energy is reported at the extrapolated angle)."""
         n = self.n
         out = [0.0] * n
+        # the per-port lists as locals (one attribute lookup per call, not per use); same arithmetic
+        k, mismatch, held_before, held_last = self.k, self.mismatch_J, self._held_before, self._held_last
+        c_last, phi_prev, phi_end, x_prev, work = self._c_last, self._phi, self._phi_end, self._x, self._work
+        started, enabled = self._started, self.enabled
+        g = H / TIME_CONSTANT_S if H < TIME_CONSTANT_S else 1.0
+        eps2 = EPS_RAD * EPS_RAD
         for q in range(n):
             phi_q = float(phi[q])
-            if self._started:
-                dphi = phi_q - self._phi[q]
-                a = self._x[q] - phi_q
-                b = self._x[q] - self._phi_end[q]
-                jump = 0.5 * self.k[q] * (a * a - b * b)
-                self.mismatch_J[q] += self._held_before[q] * dphi - self._work[q] + jump
+            w_q = float(w[q])
+            tm_q = float(tau_mean[q])
+            if started:
+                dphi = phi_q - phi_prev[q]
+                a = x_prev[q] - phi_q
+                b = x_prev[q] - phi_end[q]
+                jump = 0.5 * k[q] * (a * a - b * b)
+                mismatch[q] += held_before[q] * dphi - work[q] + jump
             c = 0.0
-            if self.enabled:
-                d = float(w[q]) * H
-                g = H / TIME_CONSTANT_S if H < TIME_CONSTANT_S else 1.0
-                c = -g * (self.mismatch_J[q] + self._c_last[q] * d) * d / (d * d + EPS_RAD * EPS_RAD)
-                cap = CAP_REL * max(abs(float(tau_mean[q])), CAP_FLOOR_NM)
+            if enabled:
+                d = w_q * H
+                c = -g * (mismatch[q] + c_last[q] * d) * d / (d * d + eps2)
+                cap = CAP_REL * max(abs(tm_q), CAP_FLOOR_NM)
                 if c > cap:
                     c = cap
                 elif c < -cap:
                     c = -cap
                 if not math.isfinite(c):
                     c = 0.0
-            out[q] = float(tau_base[q]) + c
-            self._held_before[q] = self._held_last[q]
-            self._held_last[q] = out[q]
-            self._c_last[q] = c
-            self._phi[q] = phi_q
-            self._phi_end[q] = phi_q + float(w[q]) * H
-            self._x[q] = float(x_end[q])
-            self._work[q] = H * float(tau_mean[q]) * float(w[q])
+            o = float(tau_base[q]) + c
+            out[q] = o
+            held_before[q] = held_last[q]
+            held_last[q] = o
+            c_last[q] = c
+            phi_prev[q] = phi_q
+            phi_end[q] = phi_q + w_q * H
+            x_prev[q] = float(x_end[q])
+            work[q] = H * tm_q * w_q
         self._started = True
         return out

@@ -649,6 +649,8 @@ class GearStage:
         self.energy_supplied = 0.0
         self._e_diss_balance = 0.0
         self.n_sub_last = 0
+        self._sub_key = (None, None)
+        self._sub_n = 0
         # the bare mode's outputs are mesh torques on host-owned bodies, not spring-side ports
         self.correction = EnergyCorrection((params.k_a, params.k_b),
                                            bool(params.energy_correction) and self._mode != _M_BARE)
@@ -846,10 +848,13 @@ class GearStage:
         u[1] = w_a
         u[2] = phi_b
         u[3] = w_b
-        problem = substep_limit_problem(H, t, self.params.max_substep)
-        if problem:
-            raise StageError(problem)
-        n_sub = self.n_substeps(H)
+        if H != self._sub_key[0] or self.params.max_substep != self._sub_key[1]:
+            problem = substep_limit_problem(H, t, self.params.max_substep)
+            if problem:
+                raise StageError(problem)
+            self._sub_n = self.n_substeps(H)
+            self._sub_key = (H, self.params.max_substep)   # sub-steps per communication step, per H
+        n_sub = self._sub_n
         balance = self._mode != _M_BARE
         if balance:
             e0 = self.stored_energy_at_inputs(phi_a, w_a, phi_b, w_b)

@@ -317,6 +317,7 @@ class Master:
             calls = [(s.set_fn, s.step_fn, s.get_fn, i) for i, s in enumerate(slaves)]
             gather = plan.gather
             u_in = u[:nu]
+            y_rec = y[:ny]
             take = np.take
             has_ext = ext_table is not None
             show = (n_steps > 50_000) if progress is None else bool(progress)
@@ -360,7 +361,7 @@ class Master:
                                 st = get_fn()
                                 if st:
                                     self._status(slaves[i], "fmi2GetReal", st, t + H)
-                        rec[kk + 1] = y[:ny]
+                        rec[kk + 1] = y_rec
                     chunk_costs.append((time.perf_counter() - t_chunk) / (k_end - k))
                     if bar is not None:
                         bar.update(k_end - k)

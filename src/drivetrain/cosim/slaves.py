@@ -158,9 +158,17 @@ class FmiSlave(Slave):
         self._vout = (ctypes.c_uint * max(n_out, 1))(*[self.info.variables[n].vr for n in out_names])
         uptr = ctypes.cast(u.ctypes.data + 8 * u_off, dp)
         yptr = ctypes.cast(y.ctypes.data + 8 * y_off, dp)
-        self.set_fn = functools.partial(self._sr, self.c, self._vin, n_in, uptr) if n_in else None
-        self.step_fn = functools.partial(self._ds, self.c)
-        self.get_fn = functools.partial(self._gr, self.c, self._vout, n_out, yptr) if n_out else None
+        # private function objects for the same entry points: get/set without argtypes (every argument is
+        # a ready ctypes object: no per-call conversion), doStep with its argument types (two doubles)
+        addr = lambda f: ctypes.cast(f, ctypes.c_void_p).value  # noqa: E731
+        raw = ctypes.CFUNCTYPE(ctypes.c_int)
+        sr, gr = raw(addr(self._sr)), raw(addr(self._gr))
+        ds = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_double, ctypes.c_double,
+                              ctypes.c_int)(addr(self._ds))
+        c = ctypes.c_void_p(self.c)
+        self.set_fn = functools.partial(sr, c, self._vin, ctypes.c_size_t(n_in), uptr) if n_in else None
+        self.step_fn = functools.partial(ds, c)
+        self.get_fn = functools.partial(gr, c, self._vout, ctypes.c_size_t(n_out), yptr) if n_out else None
 
     def teardown(self):
         errors = []

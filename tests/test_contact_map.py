@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from gearcontact_fmu.contact_map import MapGrid, get_map, make_table_data, table_eval
-from gearcontact_fmu.fidelity import N_OUT, OUT_TAU_PINION, OUT_TAU_WHEEL, OUT_STATUS
+from gearcontact_fmu.mesh_model import N_OUT, OUT_TAU_PINION, OUT_TAU_WHEEL, OUT_STATUS
 from gearcontact_fmu.gearpair import build_pcm_pair
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
 

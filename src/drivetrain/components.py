@@ -44,7 +44,7 @@ from numba import njit
 from drivetrain import rig
 from drivetrain.errors import ComponentError  # noqa: F401  (re-exported)
 from gearcontact_fmu.coupling import EnergyCorrection
-from gearcontact_fmu.params import substep_limit_problem, substeps
+from gearcontact_fmu.params import CODE_NONFINITE_INPUT, CODE_NONFINITE_STATE, CODE_OK, substep_limit_problem, substeps
 
 RPM = 2.0 * math.pi / 60.0
 
@@ -52,9 +52,6 @@ INERTIA_PORT = 0
 SPRING_PORT = 1
 OUTPUT_TORQUES = ("mean", "end")
 
-CODE_OK = 0
-CODE_NONFINITE_INPUT = 1
-CODE_NONFINITE_STATE = 2
 
 # accumulator layout (per step, reset by the kernel)
 A_DISS = 0          # dissipated energy [J]

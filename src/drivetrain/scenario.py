@@ -33,6 +33,7 @@ else:  # pragma: no cover
 
 from drivetrain.errors import MISSING as _MISSING
 from drivetrain.errors import ScenarioError
+from drivetrain.system import steps_per_output
 from drivetrain.rig import RIG_SENSORS, TORQUE_SENSORS, UPPER_RATIO, Z_PINION, Z_WHEEL  # noqa: F401  (re-exported)
 from gearcontact_fmu.mesh_model import FIDELITIES, HEALTH_STATES
 from gearcontact_fmu.params import DEFAULT_COMM_STEP_S, MeshResolution
@@ -588,15 +589,9 @@ def resolve(raw: dict, base_dir: Path | str = ".", source: Path | str | None = N
                          f">= {16.0 / tm['duration_s']:.6g} Hz (the run is a whole number of sample periods)"))
     nm = values["numerics"]
     if ok("numerics", "comm_step_s") and ok("time", "sample_rate_Hz"):
-        H = nm["comm_step_s"]
-        period = 1.0 / tm["sample_rate_Hz"]
-        ratio = period / H
-        n = round(ratio)
-        if n < 1 or abs(ratio - n) > 1e-6 * max(ratio, 1.0):
-            m = max(1, math.ceil(ratio - 1e-9))
-            problems.append(("numerics.comm_step_s", H,
-                             f"a step that divides the output period 1/{tm['sample_rate_Hz']:g} Hz = {period:.10g} s "
-                             f"(period/H = {ratio:.6g} is not an integer); e.g. {period / m:.16g} = period/{m}"))
+        _, expected = steps_per_output(nm["comm_step_s"], tm["sample_rate_Hz"])
+        if expected:
+            problems.append(("numerics.comm_step_s", nm["comm_step_s"], expected))
     if ok("numerics", "comm_step_s", "max_substep_s") and nm["max_substep_s"] > nm["comm_step_s"] * (1 + 1e-12):
         problems.append(("numerics.max_substep_s", nm["max_substep_s"],
                          f"a sub-step <= numerics.comm_step_s = {nm['comm_step_s']:.6g} s"))

@@ -12,10 +12,24 @@ FMU, e.g. motors), so that the master can close the balance with the power throu
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 SPRING = "spring"
 INERTIA = "inertia"
+
+
+def steps_per_output(comm_step: float, output_rate_Hz: float) -> tuple[int, str | None]:
+    """The one rule tying the communication step to the output rate: H divides the output period.
+    Returns (steps per output sample, None), or (0, what H should be, with the nearest divisor)."""
+    period = 1.0 / output_rate_Hz
+    r = period / comm_step
+    n = round(r)
+    if n >= 1 and abs(r - n) <= 1e-6 * max(r, 1.0):
+        return int(n), None
+    m = max(1, math.ceil(r - 1e-9))
+    return 0, (f"a step that divides the output period 1/{output_rate_Hz:g} Hz = {period:.10g} s "
+               f"(period/H = {r:.8g} is not an integer); e.g. H = {period / m:.16g} = period/{m}")
 
 
 @dataclass

@@ -7,32 +7,12 @@ entry point (the shape of scipy.integrate's ``solve_ivp`` method table).
 """
 from __future__ import annotations
 
+import importlib
+
 import numpy as np
 from numba import njit
 
-import importlib
-
-from gearcontact_fmu.mesh_model import (  # noqa: F401  (re-exported: the interface of this module's models)
-    FIDELITIES,
-    GENERATED_HEALTH,
-    HEALTH_STATES,
-    N_OUT,
-    OUT_CONTACT_AREA,
-    OUT_DISSIPATED_POWER,
-    OUT_ELASTIC_ENERGY,
-    OUT_MAX_PENETRATION,
-    OUT_N_CONTACT,
-    OUT_NAMES,
-    OUT_NORMAL_FORCE,
-    OUT_PEAK_PRESSURE,
-    OUT_STATUS,
-    OUT_TAU_PINION,
-    OUT_TAU_WHEEL,
-    OUT_UNITS,
-    STATUS_OK,
-    STATUS_PENETRATION_EXCEEDED,
-    MeshModel,
-)
+from gearcontact_fmu.mesh_model import FIDELITIES, MeshModel
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
 
 

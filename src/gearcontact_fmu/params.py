@@ -19,6 +19,13 @@ DEFAULT_COMM_STEP_S = 1.0 / 12000.0
 MAX_SUBSTEPS_PER_STEP = 1_000_000
 
 
+#: result codes of the sub-stepping kernels (gear stage and drivetrain line models), one numbering for both
+CODE_OK = 0
+CODE_MESH_STATUS = 1          # the mesh model reported an error state (penetration beyond u_max)
+CODE_NONFINITE_STATE = 2
+CODE_NONFINITE_INPUT = 3
+
+
 def substeps(H: float, max_substep: float) -> int:
     """Internal sub-steps of one communication step H: ceil(H / max_substep), at least 1."""
     return max(1, int(math.ceil(H / max_substep - 1e-9)))

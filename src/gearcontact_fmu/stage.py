@@ -77,7 +77,8 @@ from gearcontact_fmu.mesh_model import (
     OUT_TAU_WHEEL,
     MeshModel,
 )
-from gearcontact_fmu.params import BevelGearParams, substep_limit_problem, substeps
+from gearcontact_fmu.params import (CODE_MESH_STATUS, CODE_NONFINITE_INPUT, CODE_NONFINITE_STATE, CODE_OK,
+                                    BevelGearParams, substep_limit_problem, substeps)
 
 
 class StageError(RuntimeError):
@@ -94,10 +95,6 @@ _M_BARE = 2
 _S_ROS2 = 0
 _S_RK4 = 1
 # return codes
-CODE_OK = 0
-CODE_MESH_STATUS = 1
-CODE_NONFINITE_STATE = 2
-CODE_NONFINITE_INPUT = 3
 
 # par layout
 _PJP, _PJW, _PKA, _PDA, _PKB, _PDB, _PR, _PHTH, _PHW = range(9)

@@ -19,6 +19,7 @@ import numpy as np
 
 from drivetrain.cosim.fmus import ENERGY_VARS, PORT_UNITS, PORT_VARS, FMUInfo
 from drivetrain.errors import ConfigurationError
+from drivetrain.system import steps_per_output
 from drivetrain.system import INERTIA, SPRING, ComponentSpec, SystemSpec
 
 
@@ -258,12 +259,8 @@ def check_comm_step(comm_step: float, output_rate_Hz: float) -> int:
     """Steps per output sample; ConfigurationError unless H divides the output period."""
     if not (comm_step > 0 and math.isfinite(comm_step)):
         raise ConfigurationError(f"communication step H = {comm_step!r} s: expected a positive finite step")
-    period = 1.0 / output_rate_Hz
-    r = period / comm_step
-    n = round(r)
-    if n < 1 or abs(r - n) > 1e-6 * r:
-        m = max(1, math.ceil(r - 1e-9))
-        raise ConfigurationError(
-            f"communication step H = {comm_step:.10g} s does not divide the output period 1/{output_rate_Hz:g} Hz "
-            f"= {period:.10g} s (period/H = {r:.8g}); use e.g. H = {period / m:.16g} (period/{m})")
-    return int(n)
+    n, expected = steps_per_output(comm_step, output_rate_Hz)
+    if expected:
+        raise ConfigurationError(f"communication step H = {comm_step:.10g} s does not divide the output period: "
+                                 f"expected {expected}")
+    return n

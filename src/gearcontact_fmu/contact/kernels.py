@@ -53,7 +53,7 @@ P_FAR = 13         # cache: far margin [m] (base leaves within it bound the near
 P_PHI = 14         # cache: largest relative rotation before a rebuild [rad]
 N_PARAMS = 15
 
-# diagnostics layout of the generic force kernel (matches fidelity.OUT_* minus the torques)
+# diagnostics layout of the generic force kernel (matches mesh_model.OUT_* minus the torques)
 D_N = 0
 D_AREA = 1
 D_PEAK_P = 2
@@ -880,7 +880,7 @@ def fixed_axis_eval(data, theta_base, theta_target, omega_base, omega_target, ou
     """Fixed-axis pair: pose = R0 @ Rz(theta), both axes through the world origin.
 
     ``data`` from :func:`gearcontact_fmu.contact.engine.make_fixed_axis_data`. Writes ``out``
-    (fidelity.OUT_* layout): out[0] torque on the base about its axis, out[1] torque on the target
+    (mesh_model.OUT_* layout): out[0] torque on the base about its axis, out[1] torque on the target
     about its axis, out[2..8] diagnostics, out[9] status (1 = penetration beyond u_max).
     """
     (b_int, b_seg, b_obb, belem, b_order, t_int, t_box, t_obb, ttri, t_order, M, ab0, params,

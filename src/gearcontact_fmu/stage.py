@@ -835,6 +835,22 @@ class GearStage:
             self.model.eval(self.model.data, x[0], x[1], x[2], x[3], out)
         return float(_stored(self._mode, self._par, u, 0.0, x, out))
 
+    def _stored_at_step_start(self, phi_a: float, phi_b: float) -> float:
+        """``stored_energy_at_inputs`` without evaluating the mesh again: ``self.out`` holds the mesh
+        at the current state (evaluated by ``initialize`` and at the end of every step), so only the
+        kinetic and port-spring terms are new. The same arithmetic as ``_stored`` at t = 0, in the same
+        order (bit-identical); it saves two numba dispatches per step."""
+        x, par = self.x, self._par
+        da = x[0] - phi_a
+        if self._mode == _M_RIGID:
+            r = par[_PR]
+            jeq = par[_PJP] + par[_PJW] / (r * r)
+            db = x[0] / r - phi_b
+            return float(0.5 * jeq * (x[2] * x[2]) + 0.5 * par[_PKA] * (da * da) + 0.5 * par[_PKB] * (db * db))
+        db = x[1] - phi_b
+        return float(0.5 * par[_PJP] * (x[2] * x[2]) + 0.5 * par[_PJW] * (x[3] * x[3])
+                     + 0.5 * par[_PKA] * (da * da) + 0.5 * par[_PKB] * (db * db) + self.out[OUT_ELASTIC_ENERGY])
+
     def step(self, t: float, H: float, phi_a: float, w_a: float, phi_b: float, w_b: float):
         """Advance from t to t + H with the flange inputs at t. Returns the output torques
         (tau_a, tau_b) as selected by ``output_torque``; the step means are in tau_a_mean, tau_b_mean."""
@@ -854,7 +870,7 @@ class GearStage:
         n_sub = self._sub_n
         balance = self._mode != _M_BARE
         if balance:
-            e0 = self.stored_energy_at_inputs(phi_a, w_a, phi_b, w_b)
+            e0 = self._stored_at_step_start(phi_a, phi_b)
         code = self._run(self.model.data, self._mode, self._scheme, self.x, self._par, u, float(H), n_sub,
                          self.out, self._res)
         if code != CODE_OK:

@@ -232,20 +232,20 @@ class GearContact(Fmi2Slave):
 
     def _publish(self):
         st = self._stage
-        out = st.out
+        out = st.out.tolist()        # Python floats, one conversion for all (every step: keep it lean)
         self.flange_a_tau = st.tau_a
         self.flange_b_tau = st.tau_b
         self.flange_a_tau_mean = st.tau_a_mean
         self.flange_b_tau_mean = st.tau_b_mean
-        self.n_contact = float(out[OUT_N_CONTACT])
-        self.contact_area = float(out[OUT_CONTACT_AREA])
-        self.peak_pressure = float(out[OUT_PEAK_PRESSURE])
-        self.max_penetration = float(out[OUT_MAX_PENETRATION])
-        self.normal_force = float(out[OUT_NORMAL_FORCE])
-        self.elastic_energy = float(out[OUT_ELASTIC_ENERGY])
-        self.mesh_torque_pinion = float(out[OUT_TAU_PINION])
-        self.mesh_torque_wheel = float(out[OUT_TAU_WHEEL])
-        self.mesh_dissipated_power = float(out[OUT_DISSIPATED_POWER])
+        self.n_contact = out[OUT_N_CONTACT]
+        self.contact_area = out[OUT_CONTACT_AREA]
+        self.peak_pressure = out[OUT_PEAK_PRESSURE]
+        self.max_penetration = out[OUT_MAX_PENETRATION]
+        self.normal_force = out[OUT_NORMAL_FORCE]
+        self.elastic_energy = out[OUT_ELASTIC_ENERGY]
+        self.mesh_torque_pinion = out[OUT_TAU_PINION]
+        self.mesh_torque_wheel = out[OUT_TAU_WHEEL]
+        self.mesh_dissipated_power = out[OUT_DISSIPATED_POWER]
         self.pinion_phi = st.theta_pinion
         self.pinion_w = st.omega_pinion
         self.wheel_phi = st.theta_wheel

@@ -37,20 +37,9 @@ from numba import njit
 from gearcontact_fmu import geometry
 from gearcontact_fmu.contact import engine
 from gearcontact_fmu.gearpair import _base_radius, build_pcm_pair, contact_onset, static_deflection
-from gearcontact_fmu.mesh_model import (
-    N_OUT,
-    OUT_CONTACT_AREA,
-    OUT_DISSIPATED_POWER,
-    OUT_ELASTIC_ENERGY,
-    OUT_MAX_PENETRATION,
-    OUT_N_CONTACT,
-    OUT_NORMAL_FORCE,
-    OUT_PEAK_PRESSURE,
-    OUT_STATUS,
-    OUT_TAU_PINION,
-    OUT_TAU_WHEEL,
-    MeshModel,
-)
+from gearcontact_fmu.mesh_model import (N_OUT, OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY,
+                                        OUT_MAX_PENETRATION, OUT_N_CONTACT, OUT_NORMAL_FORCE, OUT_PEAK_PRESSURE,
+                                        OUT_STATUS, OUT_TAU_PINION, OUT_TAU_WHEEL, MeshModel)
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams, params_hash
 
 MAP_VERSION = 3

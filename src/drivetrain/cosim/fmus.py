@@ -218,12 +218,8 @@ def ensure_fmus(models: Sequence[str], fmu_dir: Path | str = "fmus", build: bool
                 else:
                     if log:
                         log(f"building FMUs {todo} into {fmu_dir} (missing or built from other sources)")
-                    build_all(str(fmu_dir), only=todo)
-                    stamp = _read_stamp(fmu_dir)
-                    stamp.update({m: current for m in todo if (fmu_dir / f"{m}.fmu").is_file()})
-                    tmp = fmu_dir / (STAMP_FILE + f".{os.getpid()}")
-                    tmp.write_text(json.dumps(stamp, indent=1, sort_keys=True))
-                    os.replace(tmp, fmu_dir / STAMP_FILE)
+                    built = build_all(str(fmu_dir), only=todo)
+                    _write_stamp(fmu_dir, built, current)
             fresh.update(m for m in todo_check if (fmu_dir / f"{m}.fmu").is_file())
     paths = {}
     missing = []
@@ -238,16 +234,21 @@ def ensure_fmus(models: Sequence[str], fmu_dir: Path | str = "fmus", build: bool
     return paths
 
 
+def _write_stamp(fmu_dir: Path, paths: Sequence[str | Path], current: str) -> None:
+    """Record ``current`` as the sources hash of these FMU files (the caller holds the build lock)."""
+    stamp = _read_stamp(fmu_dir)
+    for p in paths:
+        p = Path(p)
+        if p.suffix == ".fmu" and p.is_file() and p.parent.resolve() == fmu_dir.resolve():
+            stamp[p.stem] = current
+    tmp = fmu_dir / (STAMP_FILE + f".{os.getpid()}")
+    tmp.write_text(json.dumps(stamp, indent=1, sort_keys=True))
+    os.replace(tmp, fmu_dir / STAMP_FILE)
+
+
 def record_built(fmu_dir: str | Path, paths: Sequence[str | Path]) -> None:
     """Record that these FMUs were just built from the current sources (staleness stamp)."""
     fmu_dir = Path(fmu_dir)
     current = sources_hash()
     with file_lock(fmu_dir / ".build.lock"):
-        stamp = _read_stamp(fmu_dir)
-        for p in paths:
-            p = Path(p)
-            if p.suffix == ".fmu" and p.is_file() and p.parent.resolve() == fmu_dir.resolve():
-                stamp[p.stem] = current
-        tmp = fmu_dir / (STAMP_FILE + f".{os.getpid()}")
-        tmp.write_text(json.dumps(stamp, indent=1, sort_keys=True))
-        os.replace(tmp, fmu_dir / STAMP_FILE)
+        _write_stamp(fmu_dir, paths, current)

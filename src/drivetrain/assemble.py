@@ -46,7 +46,6 @@ def sensor_map(shafts: str) -> dict:
 
 
 def _gear_parameters(scene, part: rig.Partition, max_substep: float) -> dict:
-
     eff = scene.effects
     pcm = PCMParams()
     p = dict(part.params["gear"])

@@ -99,7 +99,6 @@ class CheckReport:
         return [c for c in self.cases if not c.ok]
 
     def to_dict(self) -> dict:
-
         return jsonable({"ok": self.ok, "cases": [
             {"name": c.name, "ok": c.ok, "status": c.status, "baseline": c.baseline, "error": c.error,
              "scene_changes": c.scene_changes, "version_changes": c.version_changes, "plots": c.plots,
@@ -129,7 +128,6 @@ def run_case(scene: Scene, out_dir: str | Path | None = None, *, fmu_dir: str | 
 
 
 def _read_run(scene: Scene, rec: dict) -> CaseRun:
-
     summ = rec.get("summary")
     if not summ or not Path(summ).is_file():
         return CaseRun(scene, None, error=rec.get("error") or "the run wrote no summary")

@@ -577,7 +577,6 @@ def loss_slope(w, T_trans, c_v, T_c, w_c, a):
 # ------------------------------------------------------------------------------------------------
 
 def _rig_default(model: str, name: str):
-
     return rig.default_parameters(model)[name]
 
 

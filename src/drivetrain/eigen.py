@@ -146,7 +146,6 @@ def component_block(name: str, model: str, params: dict, operating: bool = True)
 
 
 def blocks_from_spec(spec: SystemSpec, gear: str = "auto", operating: bool = True) -> dict:
-
     out = {}
     for c in spec.components:
         if c.model == "GearContact":

@@ -168,7 +168,6 @@ def _executor(workers: int | None, address: str | None):
 
 
 def _specs_of(scenes: list[Scene], specs: dict | None) -> list:
-
     return [(specs or {}).get(s.name) or assemble_scene(s) for s in scenes]
 
 

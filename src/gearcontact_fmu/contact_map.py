@@ -163,7 +163,6 @@ def _tabulate_chunk(idx):
 
 
 def _tabulate_rows(pair, theta, a, grid: MapGrid):
-
     z1, z2 = pair.gear.z_pinion, pair.gear.z_wheel
     pcm = pair.pcm
     s_b = geometry.backlash_angle(pair.gear)
@@ -261,7 +260,6 @@ def load_map(path: Path, gear, pcm, grid) -> ContactMap:
 
 
 def _build_map(gear, pcm, resolution, health, mesh_files, mesh_units, grid, fault_kwargs) -> ContactMap:
-
     pair = build_pcm_pair(gear, pcm, resolution, health, mesh_files.get("pinion"), mesh_files.get("wheel"),
                           mesh_units, friction=True, damping=True, fault_kwargs=fault_kwargs)
     return compute_map(pair, grid)

@@ -138,7 +138,6 @@ def extracted_dir(path: Path | str) -> str:
 
 
 def _package_dirs() -> dict[str, Path]:
-
     return {"drivetrain": Path(drivetrain.__file__).parent, "gearcontact_fmu": Path(gearcontact_fmu.__file__).parent,
             "fmu_runtime": Path(fmu_runtime.__file__).parent}
 

@@ -44,7 +44,7 @@ from numba import njit
 from drivetrain import rig
 from drivetrain.errors import ComponentError  # noqa: F401  (re-exported)
 from gearcontact_fmu.coupling import EnergyCorrection
-from gearcontact_fmu.params import CODE_NONFINITE_INPUT, CODE_NONFINITE_STATE, CODE_OK, substep_limit_problem, substeps
+from gearcontact_fmu.params import CODE_NONFINITE_INPUT, CODE_NONFINITE_STATE, CODE_OK, checked_substeps, substeps
 
 RPM = 2.0 * math.pi / 60.0
 
@@ -418,8 +418,6 @@ class LineModel:
         self.wk = np.zeros(7 * n + 2 * L + 2)
         self.last_H = 0.0
         self.n_sub_last = 0
-        self._sub_key = (None, None)
-        self._sub_n = 0
         self.spring_ports = [q for q, p in enumerate(self.ports) if p.kind == SPRING_PORT]
         self.correction = EnergyCorrection([self.p_k[q] for q in self.spring_ports], bool(energy_correction))
 
@@ -445,13 +443,9 @@ class LineModel:
             raise ComponentError(f"communication step must be > 0, got {H!r} at t = {t:.9g} s")
         if wref1 is None:
             wref1 = wref0
-        if H != self._sub_key[0] or self.max_substep != self._sub_key[1]:
-            problem = substep_limit_problem(H, t, self.max_substep)
-            if problem:
-                raise ComponentError(problem)
-            self._sub_n = self.n_substeps(H)
-            self._sub_key = (H, self.max_substep)      # sub-steps per communication step, per H
-        n_sub = self._sub_n
+        n_sub, problem = checked_substeps(H, t, self.max_substep)
+        if problem:
+            raise ComponentError(problem)
         self.wref[0] = wref0
         self.wref[1] = wref1
         code = line_step(float(H), n_sub, self.fp, self.ip, self.st, self.out, self.wk)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -31,13 +32,19 @@ def substeps(H: float, max_substep: float) -> int:
     return max(1, int(math.ceil(H / max_substep - 1e-9)))
 
 
-def substep_limit_problem(H: float, t: float, max_substep: float) -> str | None:
-    """Why a communication step is refused (more than MAX_SUBSTEPS_PER_STEP sub-steps), or None."""
-    n = substeps(H, max_substep)
+@functools.lru_cache(maxsize=64)
+def _substeps_cached(H: float, max_substep: float) -> int:
+    return substeps(H, max_substep)
+
+
+def checked_substeps(H: float, t: float, max_substep: float) -> tuple[int, str | None]:
+    """Sub-steps of a communication step and why it is refused (None if it is not): called at every
+    step by the stage and the line models, so the count is cached per (H, max_substep)."""
+    n = _substeps_cached(H, max_substep)
     if n <= MAX_SUBSTEPS_PER_STEP:
-        return None
-    return (f"communication step {H:.6g} s at t = {t:.9g} s needs {n} sub-steps of max_substep = "
-            f"{max_substep:.3g} s (at most {MAX_SUBSTEPS_PER_STEP}); take smaller communication steps")
+        return n, None
+    return n, (f"communication step {H:.6g} s at t = {t:.9g} s needs {n} sub-steps of max_substep = "
+               f"{max_substep:.3g} s (at most {MAX_SUBSTEPS_PER_STEP}); take smaller communication steps")
 
 
 @dataclass(frozen=True)

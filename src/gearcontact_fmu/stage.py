@@ -78,7 +78,7 @@ from gearcontact_fmu.mesh_model import (
     MeshModel,
 )
 from gearcontact_fmu.params import (CODE_MESH_STATUS, CODE_NONFINITE_INPUT, CODE_NONFINITE_STATE, CODE_OK,
-                                    BevelGearParams, substep_limit_problem, substeps)
+                                    BevelGearParams, checked_substeps, substeps)
 
 
 class StageError(RuntimeError):
@@ -646,8 +646,6 @@ class GearStage:
         self.energy_supplied = 0.0
         self._e_diss_balance = 0.0
         self.n_sub_last = 0
-        self._sub_key = (None, None)
-        self._sub_n = 0
         # the bare mode's outputs are mesh torques on host-owned bodies, not spring-side ports
         self.correction = EnergyCorrection((params.k_a, params.k_b),
                                            bool(params.energy_correction) and self._mode != _M_BARE)
@@ -861,13 +859,9 @@ class GearStage:
         u[1] = w_a
         u[2] = phi_b
         u[3] = w_b
-        if H != self._sub_key[0] or self.params.max_substep != self._sub_key[1]:
-            problem = substep_limit_problem(H, t, self.params.max_substep)
-            if problem:
-                raise StageError(problem)
-            self._sub_n = self.n_substeps(H)
-            self._sub_key = (H, self.params.max_substep)   # sub-steps per communication step, per H
-        n_sub = self._sub_n
+        n_sub, problem = checked_substeps(H, t, self.params.max_substep)
+        if problem:
+            raise StageError(problem)
         balance = self._mode != _M_BARE
         if balance:
             e0 = self._stored_at_step_start(phi_a, phi_b)

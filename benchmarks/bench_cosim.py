@@ -81,31 +81,21 @@ print("RESULT " + json.dumps(out))
 def against_benchmark(scene_path: Path, duration: float | None, overrides: list[str], backends: list[str],
                       rev: str, rounds: int) -> None:
     import json
-    import os
     import statistics
-    import subprocess
+
+    from _trees import run_in_tree, worktree
 
     sets = list(overrides) + ([f"time.duration_s={duration}"] if duration is not None else [])
-    with tempfile.TemporaryDirectory(prefix="bench_against_") as tmp:
-        wt = Path(tmp) / "before"
-        subprocess.run(["git", "worktree", "add", "-q", "--detach", str(wt), rev], cwd=ROOT, check=True)
+    runs: dict[str, list[dict]] = {"this tree": [], rev: []}
+    with tempfile.TemporaryDirectory(prefix="bench_against_") as tmp, worktree(rev) as wt:
         trees = {"this tree": ROOT, rev: wt}
-        runs: dict[str, list[dict]] = {k: [] for k in trees}
-        try:
-            for r in range(rounds):
-                for label, tree in trees.items():
-                    env = dict(os.environ, PYTHONPATH=str(tree / "src"))
-                    p = subprocess.run([sys.executable, "-c", _MEASURE, str(scene_path), json.dumps(sets),
-                                        json.dumps(backends), str(Path(tmp) / f"fmus_{'a' if tree == ROOT else 'b'}")],
-                                       env=env, capture_output=True, text=True, cwd=tree)
-                    line = [x for x in p.stdout.splitlines() if x.startswith("RESULT ")]
-                    if not line:
-                        raise SystemExit(f"{label} failed (rc {p.returncode}):\n{p.stderr[-3000:]}")
-                    runs[label].append(json.loads(line[0][7:]))
-                    print(f"  round {r + 1}, {label}: " + ", ".join(
-                        f"{b} {v['us_per_step']:.1f} us/step" for b, v in runs[label][-1].items()), flush=True)
-        finally:
-            subprocess.run(["git", "worktree", "remove", "--force", str(wt)], cwd=ROOT, check=False)
+        for r in range(rounds):
+            for label, tree in trees.items():
+                fmu_dir = str(Path(tmp) / f"fmus_{'a' if tree == ROOT else 'b'}")
+                runs[label].append(run_in_tree(tree, _MEASURE, [str(scene_path), json.dumps(sets),
+                                                                json.dumps(backends), fmu_dir]))
+                print(f"  round {r + 1}, {label}: " + ", ".join(
+                    f"{b} {v['us_per_step']:.1f} us/step" for b, v in runs[label][-1].items()), flush=True)
     best = {label: {b: min(x[b]["loop_s"] for x in rs) for b in backends} for label, rs in runs.items()}
     sim = runs["this tree"][0][backends[0]]["sim_s"]
     print(f"best of {rounds} rounds, {sim:g} s simulated (loop real-time factor = simulated / loop time):")

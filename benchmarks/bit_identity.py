@@ -13,15 +13,14 @@ The in-process hashes are also stored in tests/data/bit_identity.json for the de
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
-import os
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _trees import ROOT, run_in_tree, worktree  # noqa: E402
+
 STORE = ROOT / "tests" / "data" / "bit_identity.json"
 
 # name: (scene file relative to the root, --set overrides, backend)
@@ -67,13 +66,7 @@ def platform_key() -> dict:
 
 
 def hashes(src_root: Path, cases: dict, fmu_dir: str) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(src_root / "src"))
-    proc = subprocess.run([sys.executable, "-c", _RUNNER, json.dumps(cases), str(src_root), fmu_dir],
-                          env=env, capture_output=True, text=True, cwd=src_root)
-    for line in proc.stdout.splitlines():
-        if line.startswith("RESULT "):
-            return json.loads(line[7:])
-    raise SystemExit(f"runs in {src_root} failed (rc {proc.returncode}):\n{proc.stderr[-3000:]}")
+    return run_in_tree(src_root, _RUNNER, [json.dumps(cases), str(src_root), fmu_dir])
 
 
 def main(argv=None) -> int:
@@ -85,12 +78,8 @@ def main(argv=None) -> int:
         here = hashes(ROOT, CASES, str(Path(tmp) / "fmus_here"))
         rows = {name: [h["sha256"]] for name, h in here.items()}
         if args.against:
-            wt = Path(tmp) / "against"
-            subprocess.run(["git", "worktree", "add", "-q", "--detach", str(wt), args.against], cwd=ROOT, check=True)
-            try:
+            with worktree(args.against) as wt:
                 there = hashes(wt, CASES, str(Path(tmp) / "fmus_there"))
-            finally:
-                subprocess.run(["git", "worktree", "remove", "--force", str(wt)], cwd=ROOT, check=False)
             for name in rows:
                 rows[name].append(there[name]["sha256"])
     print(f"{'case':26s} {'this tree':18s}" + (f" {args.against[:16]:18s} same" if args.against else ""))

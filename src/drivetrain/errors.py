@@ -22,9 +22,10 @@ FMI_STATUS = ("ok", "warning", "discard", "error", "fatal", "pending")
 
 
 class Refused(ValueError):
-    """Base of every refusal: ``problems`` (a list), ``headline`` (what was refused)."""
+    """Base of every refusal: ``problems`` (a list), ``headline`` (what was refused; None: the problems
+    alone, one per line)."""
 
-    headline = "refused"
+    headline: str | None = "refused"
 
     def __init__(self, problems: Sequence[Any] | str):
         if isinstance(problems, str):
@@ -36,6 +37,8 @@ class Refused(ValueError):
         return [str(p) for p in self.problems]
 
     def _message(self) -> str:
+        if self.headline is None:
+            return "\n".join(self.problem_lines())
         return f"{self.headline}:\n" + "\n".join(f"  - {p}" for p in self.problem_lines())
 
 
@@ -59,8 +62,7 @@ class UnstableCutError(Refused):
 class ContactRangeError(Refused):
     """A gear contact whose error bound the static load alone would pass (raised before any step)."""
 
-    def _message(self) -> str:
-        return "\n".join(self.problem_lines())
+    headline = None
 
 
 class MissingValue:
@@ -101,8 +103,7 @@ class ScenarioError(Refused):
 class DatasetError(Refused):
     """The sweep directory cannot be exported (no manifest, no finished run, a run's file unreadable)."""
 
-    def _message(self) -> str:
-        return "\n".join(self.problem_lines())
+    headline = None
 
 
 class ComponentError(RuntimeError):

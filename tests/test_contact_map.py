@@ -199,3 +199,40 @@ def test_two_processes_build_one_map_once(tmp_path):
         built = list(ex.map(_tiny_map_built_here, [str(tmp_path)] * 2))
     assert sorted(built) == [False, True], built
     assert len(list(tmp_path.glob("contactmap-*.npz"))) == 1
+
+
+@pytest.mark.parametrize("health, tooth", [("severe", 3), ("mild", 11)])
+def test_map_computed_by_pitch_equals_every_row_computed(health, tooth):
+    """The map computes one healthy pitch block and only the blocks where a faulty tooth is in mesh,
+    tiling the rest. Oracle: every row tabulated by the engine. The fault sits on another tooth than
+    the default, so a wrong engagement window would show."""
+    from gearcontact_fmu import contact_map as cm
+
+    res = MeshResolution(profile=0.3e-3, face=3e-3)
+    grid = MapGrid(points_per_pitch=4, s_points=10, max_torque=120.0)
+    pair = build_pcm_pair(GEAR, PCM, res, health=health, fault_kwargs={"tooth": tooth})
+    fast = cm.compute_map(pair, grid)
+    assert fast.info["fault_blocks"] == [tooth - 1, tooth]
+    assert fast.info["blocks_computed"] < GEAR.z_pinion // 2
+    onset, vals = cm._tabulate(pair, fast.theta, fast.a, grid)
+    scale = np.abs(vals).reshape(-1, vals.shape[-1]).max(axis=0)
+    assert np.all(np.abs(fast.values - vals) <= 1e-6 * scale)
+    np.testing.assert_allclose(fast.onset, onset, rtol=0, atol=1e-9)
+    # the faulty blocks are really different from the tiled healthy ones (the check can fail)
+    per = grid.points_per_pitch
+    fault_rows = vals[tooth * per:(tooth + 1) * per, :, :, cm.CH_TAU_P]
+    assert np.abs(fault_rows - vals[0:per, :, :, cm.CH_TAU_P]).max() > 1e-3 * scale[cm.CH_TAU_P]
+
+
+def test_healthy_map_computes_one_pitch():
+    from gearcontact_fmu import contact_map as cm
+
+    res = MeshResolution(profile=0.3e-3, face=3e-3)
+    grid = MapGrid(points_per_pitch=4, s_points=10, max_torque=120.0)
+    pair = build_pcm_pair(GEAR, PCM, res)
+    fast = cm.compute_map(pair, grid)
+    assert fast.info["blocks_computed"] == 1 and fast.info["rows_computed"] == grid.points_per_pitch
+    onset, vals = cm._tabulate(pair, fast.theta, fast.a, grid)
+    scale = np.abs(vals).reshape(-1, vals.shape[-1]).max(axis=0)
+    assert np.all(np.abs(fast.values - vals) <= 1e-6 * scale)
+    np.testing.assert_allclose(fast.onset, onset, rtol=0, atol=1e-9)

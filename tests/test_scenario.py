@@ -119,7 +119,7 @@ def test_negative_load_is_a_reversal_speeds_stay_non_negative():
 
 def test_health_and_mesh_files(tmp_path):
     e = refused({"gear": {"health": "broken"}})
-    assert_problem(e, "gear.health", "'broken'", "one of 'healthy', 'mild', 'severe', 'mesh'")
+    assert_problem(e, "gear.health", "'broken'", "one of 'healthy', 'mild', 'severe', 'faults', 'mesh'")
     e = refused({"gear": {"health": "mesh", "pinion_mesh": "faults/nope.obj"}}, base_dir=tmp_path)
     assert_problem(e, "gear.pinion_mesh", "'faults/nope.obj'", "an existing mesh file")
     e = refused({"gear": {"health": "mesh"}})
@@ -135,6 +135,39 @@ def test_health_and_mesh_files(tmp_path):
     f.write_text('[gear]\nhealth = "mesh"\npinion_mesh = "faults/p.obj"\n')
     s = load_scene(f)
     assert s.gear.pinion_mesh == (tmp_path / "faults" / "p.obj").resolve()
+
+
+def test_fault_lists_are_checked_whole_and_normalised():
+    e = refused({"gear": {"health": "faults", "faults": [
+        {"kind": "pit", "member": "wheel"},
+        {"kind": "void", "member": "wheel", "tooth": 60, "flank": "left", "depth_mm": -0.1, "colour": 3},
+        {"kind": "missing_tooth", "member": "axle", "tooth": 2, "flank": "drive"},
+        "void"]}})
+    assert_problem(e, "gear.faults[0].kind", "'pit'", "one of ('void', 'missing_tooth')")
+    assert_problem(e, "gear.faults[1].tooth", "60", "tooth index 0..59 of the wheel")
+    assert_problem(e, "gear.faults[1].flank", "'left'", "one of ('drive', 'coast')")
+    assert_problem(e, "gear.faults[1].depth_mm", "-0.1", "a size > 0 mm")
+    assert_problem(e, "gear.faults[1].colour", "3", "a key of a void fault")
+    assert_problem(e, "gear.faults[2].member", "'axle'", "one of ('pinion', 'wheel')")
+    assert_problem(e, "gear.faults[2].flank", "'drive'", "no flank for a missing tooth")
+    assert_problem(e, "gear.faults[3]", "'void'", "a table of fault keys")
+    e = refused({"gear": {"health": "faults"}})
+    assert_problem(e, "gear.faults", "(missing)", 'at least one [[gear.faults]]')
+    e = refused({"gear": {"health": "mild", "faults": [{"kind": "missing_tooth"}]}})
+    assert_problem(e, "gear.faults", "1 fault(s)", 'unless gear.health = "faults"')
+    e = refused({"gear": {"health": "faults", "faults": [{"kind": "missing_tooth"}]},
+                 "effects": {"mesh_contact": "analytic"}})
+    assert_problem(e, "effects.mesh_contact", "'analytic'", "pcm or table")
+    s = resolve({"gear": {"health": "faults", "faults": [{"kind": "void", "member": "wheel", "tooth": 38},
+                                                         {"kind": "missing_tooth", "tooth": 7}]}})
+    assert s.gear.faults == (
+        {"kind": "void", "member": "wheel", "tooth": 38, "flank": "drive", "width_mm": 1.0, "depth_mm": 0.3,
+         "position_mm": 0.0},
+        {"kind": "missing_tooth", "member": "pinion", "tooth": 7})
+    import tomllib
+
+    assert tomllib.loads(s.to_toml()) == s.to_dict()
+    assert resolve(s.to_dict()).gear.faults == s.gear.faults
 
 
 def test_all_problems_reported_together_from_file(tmp_path):

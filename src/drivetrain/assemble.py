@@ -21,6 +21,7 @@ the final drive speed), ``fidelity`` (component -> fidelity), ``partition`` (bod
 from __future__ import annotations
 
 import dataclasses
+import json
 
 from drivetrain import rig, stability
 from drivetrain.components import FlexibleShaft, FlexibleShaftParams, params_from
@@ -53,6 +54,8 @@ def _gear_parameters(scene, part: rig.Partition, max_substep: float) -> dict:
              profile_element_size=scene.numerics.profile_element_mm * 1e-3,
              face_element_size=scene.numerics.face_element_mm * 1e-3,
              energy_correction=bool(scene.numerics.energy_correction))
+    if scene.gear.faults:
+        p["faults"] = json.dumps([dict(f) for f in scene.gear.faults])
     if scene.gear.pinion_mesh is not None:
         p["pinion_mesh_file"] = str(scene.gear.pinion_mesh)
     if scene.gear.wheel_mesh is not None:

@@ -35,8 +35,9 @@ from drivetrain.errors import MISSING as _MISSING
 from drivetrain.errors import ScenarioError
 from drivetrain.system import steps_per_output
 from drivetrain.rig import RIG_SENSORS, TORQUE_SENSORS, UPPER_RATIO, Z_PINION, Z_WHEEL  # noqa: F401  (re-exported)
+from gearcontact_fmu.faults import FAULT_KINDS, fault_spec_problems, normalised_spec
 from gearcontact_fmu.mesh_model import FIDELITIES, HEALTH_STATES
-from gearcontact_fmu.params import DEFAULT_COMM_STEP_S, MeshResolution
+from gearcontact_fmu.params import DEFAULT_COMM_STEP_S, BevelGearParams, MeshResolution
 
 # --------------------------------------------------------------------------------------------------
 # Fixed vocabularies
@@ -134,7 +135,14 @@ SCHEMA: dict[str, dict[str, Key]] = {
     "gear": {
         "health": Key("enum", "healthy", allowed=HEALTH_STATES, doc=(
             "healthy; mild = tooth-flank-fracture void on one pinion tooth; severe = one pinion tooth "
-            "missing; mesh = user surface mesh(es) from pinion_mesh / wheel_mesh")),
+            "missing; faults = the faults listed in [[gear.faults]], on either gear; mesh = user surface "
+            "mesh(es) from pinion_mesh / wheel_mesh")),
+        "faults": Key("faults", (), doc=(
+            "with health = \"faults\": an array of tables [[gear.faults]], each with kind ("
+            + " | ".join(FAULT_KINDS) + "), member (pinion | wheel, default pinion), tooth (0..z-1, "
+            "default 0), flank (drive | coast, default drive) and the sizes of its kind [mm]: "
+            + "; ".join(f"{k}: " + (", ".join(f"{n} (default {v:g})" for n, v in sz.items()) or "none")
+                        for k, sz in FAULT_KINDS.items()))),
         "pinion_mesh": Key("path", None, doc="OBJ/STL of the pinion (health = \"mesh\"); relative to the scene file"),
         "wheel_mesh": Key("path", None, doc="OBJ/STL of the wheel (health = \"mesh\"; optional, healthy wheel if absent)"),
         "mesh_units": Key("enum", "mm", allowed=MESH_UNITS, doc="length unit of the mesh files"),
@@ -232,6 +240,7 @@ class OperatingPoint:
 @dataclass(frozen=True)
 class GearSpec:
     health: str = "healthy"
+    faults: tuple = ()                   # normalised fault specifications (dicts), health = "faults"
     pinion_mesh: Path | None = None      # absolute
     wheel_mesh: Path | None = None       # absolute
     mesh_units: str = "mm"
@@ -458,6 +467,16 @@ def _check_value(key: str, spec: Key, value: Any, base_dir: Path, problems) -> A
             problems.append((key, value, f"an existing mesh file (not found: {p})"))
             return None
         return p
+    if t == "faults":
+        if not isinstance(value, list):
+            problems.append((key, value, "an array of tables [[gear.faults]]"))
+            return None
+        bad = len(problems)
+        gp = BevelGearParams()
+        for i, spec in enumerate(value):
+            for k, v, e in fault_spec_problems(spec, gp.z_pinion, gp.z_wheel):
+                problems.append((f"{key}[{i}]" + (f".{k}" if k else ""), v, e))
+        return tuple(normalised_spec(f) for f in value) if len(problems) == bad else None
     if t == "profile":
         exp = (f"a list of [time_s, {spec.unit}] pairs with times >= 0 strictly increasing and "
                + (f"values >= {spec.minimum:g} {spec.unit}" if spec.minimum is not None else "finite values"))
@@ -598,6 +617,12 @@ def resolve(raw: dict, base_dir: Path | str = ".", source: Path | str | None = N
 
     gr = values["gear"]
     eff = values["effects"]
+    if ok("gear", "health", "faults"):
+        if gr["health"] == "faults" and not gr["faults"]:
+            problems.append(("gear.faults", _MISSING, 'at least one [[gear.faults]] table when gear.health = "faults"'))
+        elif gr["faults"] and gr["health"] != "faults":
+            problems.append(("gear.faults", f"{len(gr['faults'])} fault(s)",
+                             f'no [[gear.faults]] unless gear.health = "faults" (health is {gr["health"]!r})'))
     if ok("gear", "health", "pinion_mesh", "wheel_mesh"):
         if gr["health"] == "mesh":
             if gr["pinion_mesh"] is None and gr["wheel_mesh"] is None:
@@ -871,6 +896,8 @@ def _toml_value(v) -> str:
         return json.dumps(v, ensure_ascii=False)
     if isinstance(v, (list, tuple)):
         return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + " }"
     return json.dumps(str(v))
 
 
@@ -911,7 +938,7 @@ def schema_markdown() -> str:
                 allowed = " and ".join(rng)
                 if not allowed and spec.type in ("float", "profile"):
                     allowed = "any finite value (negative allowed)"
-            typ = {"str_list": "list of str", "var_list": "list of str", "profile": "list of [float, float]",
+            typ = {"faults": "array of tables", "str_list": "list of str", "var_list": "list of str", "profile": "list of [float, float]",
                    "path": "str (path)", "enum": "str"}.get(spec.type, spec.type)
             out.append(f"| `{key}` | {typ} | {spec.unit or '–'} | {dflt} | {allowed or '–'} | {spec.doc} |")
         out.append("")

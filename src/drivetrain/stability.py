@@ -11,6 +11,7 @@ Why (the coupling analysis and its measured limits): docs/STABILITY.md and docs/
 """
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass
 
@@ -144,6 +145,7 @@ def check_contact_range(spec, raise_on_error: bool = True) -> list[dict]:
         return reports
     # only now: an ideal or analytic gear loads no contact engine
     from gearcontact_fmu.contact_map import get_map, static_penetration
+    from gearcontact_fmu.gearpair import fault_kwargs_of
 
     for comp in gears:
         p = comp.parameters
@@ -159,8 +161,10 @@ def check_contact_range(spec, raise_on_error: bool = True) -> list[dict]:
         # a table gear builds its map anyway (the run uses it); a pcm gear is predicted only from a
         # cached map of its geometry, never by building one just for the check
         fidelity = str(p.get("fidelity")).strip().lower()
-        cmap = get_map(gear, search, res, str(p.get("health", "healthy")), files or None,
-                       mesh_units=str(p.get("mesh_units", "mm")), build=fidelity == "table")
+        health = str(p.get("health", "healthy"))
+        cmap = get_map(gear, search, res, health, files or None, mesh_units=str(p.get("mesh_units", "mm")),
+                       build=fidelity == "table",
+                       fault_kwargs=fault_kwargs_of(health, json.loads(p.get("faults") or "[]")))
         if cmap is None:
             reports.append({"component": comp.name, "pinion_torque_Nm": float(T), "static_penetration_m": None,
                             "u_max_m": pcm.u_max, "note": "not predicted: no contact map of this geometry cached"})

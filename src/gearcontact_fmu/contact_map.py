@@ -38,7 +38,7 @@ from numba import njit
 
 from gearcontact_fmu import geometry
 from gearcontact_fmu.contact import engine
-from gearcontact_fmu.gearpair import _base_radius, build_pcm_pair, contact_onset, static_deflection
+from gearcontact_fmu.gearpair import _base_radius, build_pcm_pair, contact_onset, fault_kwargs_of, static_deflection
 from gearcontact_fmu.mesh_model import (N_OUT, OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY,
                                         OUT_MAX_PENETRATION, OUT_N_CONTACT, OUT_NORMAL_FORCE, OUT_PEAK_PRESSURE,
                                         OUT_STATUS, OUT_TAU_PINION, OUT_TAU_WHEEL, MeshModel)
@@ -127,12 +127,14 @@ def compute_map(pair, grid: MapGrid = MapGrid(), progress: bool = False) -> Cont
 
     Rows are computed one pinion pitch (a "block" of ``points_per_pitch`` rows) at a time, and only
     where the pair differs from its neighbour a pitch away (see :func:`_tabulate_by_pitch`)."""
-    n_theta = grid.points_per_pitch * pair.gear.z_pinion
-    theta = np.linspace(0.0, 2 * math.pi, n_theta, endpoint=False)
+    n_rev = pairing_revolutions(pair.gear, wheel_periodic=_faulty_teeth(pair, "wheel") == [])
+    n_theta = grid.points_per_pitch * pair.gear.z_pinion * n_rev
+    theta = np.linspace(0.0, 2 * math.pi * n_rev, n_theta, endpoint=False)
     a, ainfo = _approach_grid(pair, grid)
     t0 = time.perf_counter()
-    onset, vals, pinfo = _tabulate_by_pitch(pair, theta, a, grid)
+    onset, vals, pinfo = _tabulate_by_pitch(pair, theta, a, grid, n_rev)
     info = {**ainfo, "build_seconds": time.perf_counter() - t0, "n_theta": n_theta, "n_s": len(a),
+            "pinion_revolutions": n_rev,
             "onset_drive": float(np.min(onset[:, SIDE_DRIVE])), "onset_coast": float(np.max(onset[:, SIDE_COAST])),
             "onset_drive_max": float(np.max(onset[:, SIDE_DRIVE])),
             "evaluations": 6 * pinfo["rows_computed"] * len(a), **pinfo, **pair.info, "health": pair.health}
@@ -148,16 +150,32 @@ BLOCK_REL_TOL = 1e-6
 BLOCK_ONSET_TOL = 1e-9
 
 
-def _faulty_teeth(pair) -> list[int] | None:
-    """Pinion teeth whose geometry differs from the healthy tooth, or None when the pair is not built
-    from rotated copies of one tooth (a user mesh on either gear): then every block is computed."""
-    pin, whl = pair.pinion.meta, pair.wheel.meta
-    if pin.get("source") != "analytic" or whl.get("source") != "analytic":
+def pairing_revolutions(gear: BevelGearParams, wheel_periodic: bool) -> int:
+    """Pinion revolutions the map spans: 1 when every wheel tooth is a rotated copy of one tooth (the
+    pinion angle alone then fixes the response), else the tooth-pairing period z2 / gcd(z1, z2)
+    (4 for 15/60: the same pair of teeth meets again after one wheel revolution)."""
+    return 1 if wheel_periodic else gear.z_wheel // math.gcd(gear.z_pinion, gear.z_wheel)
+
+
+def _faulty_teeth(pair, member: str) -> list[int] | None:
+    """Teeth of ``member`` ("pinion" | "wheel") whose geometry differs from the healthy tooth, or None
+    when that gear is not built from rotated copies of one tooth (a user mesh): then its teeth cannot
+    be told apart without comparing them, and every block is computed."""
+    mesh = pair.pinion if member == "pinion" else pair.wheel
+    if mesh.meta.get("source") != "analytic":
         return None
-    z1, z2 = pair.gear.z_pinion, pair.gear.z_wheel
-    if len(np.unique(pair.wheel.face_tooth)) != z2:
-        return None
-    return sorted({int(f["tooth"]) % z1 for f in pin.get("faults", [])})
+    z = pair.gear.z_pinion if member == "pinion" else pair.gear.z_wheel
+    present = set(np.unique(mesh.face_tooth).tolist())
+    listed = {int(f["tooth"]) % z for f in mesh.meta.get("faults", [])}
+    if present | listed != set(range(z)):
+        return None                      # a subset of the teeth (a test mesh): no periodicity to use
+    return sorted(listed)
+
+
+def _wheel_block(pair, tooth: int, n_blocks: int) -> int:
+    """Pitch block in which wheel ``tooth`` meets the pinion at the centre of the mesh (block b
+    spans pinion angles [b, b + 1) pitches; the wheel turns one wheel pitch per block)."""
+    return int(tooth) % n_blocks
 
 
 def _blocks_equal(ref_on, ref_v, on, v, scale) -> bool:
@@ -165,19 +183,21 @@ def _blocks_equal(ref_on, ref_v, on, v, scale) -> bool:
                 and np.all(np.abs(v - ref_v) <= BLOCK_REL_TOL * scale))
 
 
-def _tabulate_by_pitch(pair, theta, a, grid: MapGrid):
+def _tabulate_by_pitch(pair, theta, a, grid: MapGrid, n_rev: int = 1):
     """Onsets and values of every row, computing as few pitch blocks as the geometry allows.
 
     Turning the pinion by one pitch and the wheel by one wheel pitch leaves the mesh coordinate s
     unchanged, so a pair of healthy gears has the same map rows a pitch apart: one block is computed
-    and tiled. A fault on pinion tooth k is in mesh near theta = k pitches (blocks k-1 and k); those
+    and tiled. A fault on pinion tooth k is in mesh near theta = k pitches (blocks k-1 and k, in every
+    pinion revolution of the map), one on wheel tooth j near block j of the pairing period; those
     blocks are computed, then their neighbours outward until a neighbour equals the healthy block
     (the block farthest from every fault). A fault block that equals the healthy block means the
     window was guessed wrong, and everything is computed, as for user meshes."""
     z1 = pair.gear.z_pinion
+    n_blocks = z1 * n_rev
     per = grid.points_per_pitch
     rows = lambda blocks: np.concatenate([np.arange(b * per, (b + 1) * per) for b in blocks])  # noqa: E731
-    faulty = _faulty_teeth(pair)
+    f_pin, f_whl = _faulty_teeth(pair, "pinion"), _faulty_teeth(pair, "wheel")
 
     def compute(blocks):
         idx = rows(blocks)
@@ -185,18 +205,19 @@ def _tabulate_by_pitch(pair, theta, a, grid: MapGrid):
 
     def everything():
         onset, vals = _tabulate(pair, theta, a, grid)
-        return onset, vals, {"rows_computed": len(theta), "blocks_computed": z1, "tiled_from_block": None}
+        return onset, vals, {"rows_computed": len(theta), "blocks_computed": n_blocks, "tiled_from_block": None}
 
-    if faulty is None:
+    if f_pin is None or f_whl is None:
         return everything()
-    window = sorted({b % z1 for k in faulty for b in (k - 1, k)})
-    dist = lambda b: min(min((b - w) % z1, (w - b) % z1) for w in window) if window else 0  # noqa: E731
-    healthy = max(range(z1), key=lambda b: (dist(b), -b)) if window else 0
+    centres = [k + m * z1 for k in f_pin for m in range(n_rev)] + [_wheel_block(pair, j, n_blocks) for j in f_whl]
+    window = sorted({b % n_blocks for c in centres for b in (c - 1, c)})
+    dist = lambda b: min(min((b - w) % n_blocks, (w - b) % n_blocks) for w in window) if window else 0  # noqa: E731
+    healthy = max(range(n_blocks), key=lambda b: (dist(b), -b)) if window else 0
     if window and dist(healthy) < 2:
         return everything()              # faults all round: no healthy block to tile from
     (on_h, v_h), _ = compute([healthy])
-    onset = np.tile(on_h, (z1, 1))
-    vals = np.tile(v_h, (z1, 1, 1, 1))
+    onset = np.tile(on_h, (n_blocks, 1))
+    vals = np.tile(v_h, (n_blocks, 1, 1, 1))
     done = {healthy}
     scale = np.abs(v_h).reshape(-1, v_h.shape[-1]).max(axis=0)
     differs = set()
@@ -209,9 +230,9 @@ def _tabulate_by_pitch(pair, theta, a, grid: MapGrid):
             done.add(b)
             if not _blocks_equal(on_h, v_h, on_b[sl], v_b[sl], scale):
                 differs.add(b)
-        if window and not differs & set(window):
-            return everything()          # the faults are not where their teeth say
-        todo = sorted({n % z1 for b in differs for n in (b - 1, b + 1)} - done)
+        if window and not all(differs & {(c - 1) % n_blocks, c % n_blocks} for c in centres):
+            return everything()          # a fault is not where its tooth says
+        todo = sorted({n % n_blocks for b in differs for n in (b - 1, b + 1)} - done)
     return onset, vals, {"rows_computed": len(done) * per, "blocks_computed": len(done),
                          "tiled_from_block": healthy, "fault_blocks": sorted(differs)}
 
@@ -314,9 +335,10 @@ class ContactMapFileError(ValueError):
     """A contact-map file that cannot be read or does not hold a map of the expected layout."""
 
 
-def load_map(path: Path, gear, pcm, grid) -> ContactMap:
-    """Read a cached map and check its layout against the gear and grid it was asked for (a truncated
-    or altered file raises ContactMapFileError naming the file and the problem, never a wrong map)."""
+def load_map(path: Path, gear, pcm, grid, n_rev: int = 1) -> ContactMap:
+    """Read a cached map and check its layout against the gear, grid and pinion revolutions it was
+    asked for (a truncated or altered file raises ContactMapFileError naming the file and the problem,
+    never a wrong map)."""
     import ast
     import zipfile
 
@@ -326,7 +348,7 @@ def load_map(path: Path, gear, pcm, grid) -> ContactMap:
             theta, a, onset, values = (z[k].copy() for k in ("theta", "a", "onset", "values"))
     except (OSError, EOFError, ValueError, KeyError, SyntaxError, zipfile.BadZipFile) as exc:
         raise ContactMapFileError(f"contact map {path}: unreadable ({type(exc).__name__}: {exc})") from None
-    n_theta = grid.points_per_pitch * gear.z_pinion
+    n_theta = grid.points_per_pitch * gear.z_pinion * n_rev
     want = {"theta": (theta, (n_theta,)), "a": (a, (grid.s_points,)), "onset": (onset, (n_theta, 2)),
             "values": (values, (n_theta, 2, grid.s_points, N_CH))}
     problems = [f"{k} has shape {arr.shape}, expected {shape}" for k, (arr, shape) in want.items()
@@ -339,6 +361,13 @@ def load_map(path: Path, gear, pcm, grid) -> ContactMap:
     if problems:
         raise ContactMapFileError(f"contact map {path}: " + "; ".join(problems))
     return ContactMap(theta, a, onset, values, gear, pcm, grid, info)
+
+
+def wheel_faults(health: str, fault_kwargs: dict | None) -> list:
+    """The generated faults of a configuration that sit on the wheel."""
+    if health != "faults":
+        return []
+    return [f for f in (fault_kwargs or {}).get("faults", []) if f.get("member", "pinion") == "wheel"]
 
 
 def _build_map(gear, pcm, resolution, health, mesh_files, mesh_units, grid, fault_kwargs) -> ContactMap:
@@ -360,8 +389,10 @@ def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
     mesh_files = {k: v for k, v in (mesh_files or {}).items() if v}
     key = cache_key(gear, pcm, resolution, health, mesh_files, grid, fault_kwargs, mesh_units)
     path = cache_dir() / f"contactmap-{key}.npz"
+    n_rev = pairing_revolutions(gear, wheel_periodic=not (mesh_files.get("wheel") or wheel_faults(health, fault_kwargs)))
+
     def cached() -> ContactMap:
-        cm = load_map(path, gear, pcm, grid)
+        cm = load_map(path, gear, pcm, grid, n_rev)
         cm.info["cache"] = str(path)
         cm.info["from_cache"] = True
         return cm
@@ -401,16 +432,18 @@ def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
 
 def make_table_data(cmap: ContactMap, friction: bool = True, damping: bool = True) -> tuple:
     z1, z2 = cmap.gear.z_pinion, cmap.gear.z_wheel
+    n_rev = cmap.values.shape[0] // (cmap.grid.points_per_pitch * z1)
     return (np.ascontiguousarray(cmap.values), np.ascontiguousarray(cmap.a), np.ascontiguousarray(cmap.onset),
             float(cmap.theta[1] - cmap.theta[0]), float(z2) / float(z1),
             float(cmap.pcm.c_compression if damping else 0.0), float(cmap.pcm.c_expansion if damping else 0.0),
-            float(cmap.pcm.u_max), 1.0 if friction else 0.0, float(cmap.grid.omega_regularisation))
+            float(cmap.pcm.u_max), 1.0 if friction else 0.0, float(cmap.grid.omega_regularisation), n_rev)
 
 
 def make_table_model(gear_params=None, pcm_params=None, resolution=None, health="healthy",
-                     mesh_files=None, mesh_units="mm", friction=True, damping=True, grid=None, **kw):
+                     mesh_files=None, mesh_units="mm", friction=True, damping=True, grid=None, faults=(), **kw):
     """MeshModel of the precomputed contact map (fidelity "table")."""
-    cmap = get_map(gear_params, pcm_params, resolution, health, mesh_files, grid, mesh_units)
+    cmap = get_map(gear_params, pcm_params, resolution, health, mesh_files, grid, mesh_units,
+                   fault_kwargs=fault_kwargs_of(health, faults))
     return MeshModel(eval=table_eval, data=make_table_data(cmap, friction, damping), fidelity="table",
                      kind="mesh", info={**cmap.info})
 
@@ -472,7 +505,7 @@ def _bilinear(values, i0, i1, side, j, w, b, ch):
 
 @njit(cache=True)
 def table_eval(data, theta_pinion, theta_wheel, omega_pinion, omega_wheel, out):
-    values, a_nodes, onset, dtheta, ratio, c_comp, c_exp, u_max, fric_on, w_reg = data
+    values, a_nodes, onset, dtheta, ratio, c_comp, c_exp, u_max, fric_on, w_reg, n_rev = data
     for k in range(out.shape[0]):
         out[k] = 0.0
     if not (math.isfinite(theta_pinion) and math.isfinite(theta_wheel)
@@ -482,9 +515,17 @@ def table_eval(data, theta_pinion, theta_wheel, omega_pinion, omega_wheel, out):
     n_theta = values.shape[0]
     s = theta_pinion - ratio * theta_wheel
     sdot = omega_pinion - ratio * omega_wheel
-    # periodic linear interpolation in theta, of the onsets and of the values
+    # periodic linear interpolation in theta, of the onsets and of the values. Over one pinion
+    # revolution the row is the pinion angle; over the tooth-pairing period (n_rev revolutions) it is
+    # the pinion angle unwrapped along the wheel's, ratio * theta_wheel (mod the period) + s
     two_pi = 2.0 * math.pi
-    th = theta_pinion - two_pi * math.floor(theta_pinion / two_pi)
+    if n_rev == 1:
+        th = theta_pinion - two_pi * math.floor(theta_pinion / two_pi)
+    else:
+        period = two_pi * n_rev
+        th = ratio * theta_wheel
+        th = th - period * math.floor(th / period) + s
+        th = th - period * math.floor(th / period)
     x = th / dtheta
     i0 = int(math.floor(x))
     b = x - i0

@@ -14,7 +14,9 @@
   ``face_kind = KIND_VOID_FLOOR / KIND_VOID_WALL``; all outward, consistently wound, sharing the
   strip-edge vertices with the flank.
 * :func:`missing_tooth` - severe fault: all surfaces of one tooth removed.
-* :func:`apply_health` - ``"healthy" | "mild" | "severe"``.
+* :func:`apply_health` - ``"healthy" | "mild" | "severe" | "faults"`` for one member (pinion or wheel);
+  ``"faults"`` applies a list of fault specifications (:data:`FAULT_KINDS`, :func:`apply_faults`), each
+  on either gear, any tooth and flank, several at once.
 * A user mesh (a faulty gear from CAD etc.) for pinion or wheel goes through
   :func:`gearcontact_fmu.mesh_check.load_gear_mesh` (also available here as :func:`user_mesh`).
 """
@@ -26,8 +28,8 @@ from .mesh_model import GENERATED_HEALTH
 from .meshes import SurfaceMesh, concatenate
 from .params import BevelGearParams, MeshResolution
 
-__all__ = ["mild_flank_fracture", "missing_tooth", "apply_health", "user_mesh", "GENERATED_HEALTH",
-           "void_strip"]
+__all__ = ["mild_flank_fracture", "missing_tooth", "apply_health", "apply_faults", "user_mesh",
+           "GENERATED_HEALTH", "FAULT_KINDS", "void_strip"]
 
 
 DEFAULT_WIDTH = 1.0e-3
@@ -53,8 +55,9 @@ def void_strip(params: BevelGearParams | None, role: str = "pinion", width: floa
 
 def mild_flank_fracture(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth: int = 0,
                         width: float = DEFAULT_WIDTH, depth: float = DEFAULT_DEPTH,
-                        position: float = DEFAULT_POSITION) -> SurfaceMesh:
-    """Mesh with a flank-fracture void on the drive flank of ``tooth`` (see module docstring).
+                        position: float = DEFAULT_POSITION, flank: str = "drive") -> SurfaceMesh:
+    """Mesh with a flank-fracture void on the ``flank`` ("drive" | "coast") of ``tooth`` (see module
+    docstring).
 
     ``mesh`` must come from :func:`geometry.build_gear_mesh` (any role, any tooth subset containing
     ``tooth``); the tooth is re-meshed at the same resolution with the void."""
@@ -79,14 +82,16 @@ def mild_flank_fracture(mesh: SurfaceMesh, params: BevelGearParams | None = None
         raise ValueError("the void must not straddle the base cone (radial root part / involute)")
     if depth > 0.5 * g.s_pitch:
         raise ValueError("void deeper than half the tooth thickness")
+    if flank not in FLANKS:
+        raise ValueError(f"flank must be one of {tuple(FLANKS)}, not {flank!r}")
     res = MeshResolution(profile=mesh.meta["profile"], face=mesh.meta["face"])
     faulty = geometry.build_gear_mesh(params, role, res, teeth=[tooth], top_land=mesh.meta.get("top_land", False),
-                                      notch={tooth: (1, s_a, s_b, depth / g.Rm)})
+                                      notch={tooth: (geometry._side_of_flank(FLANKS[flank]), s_a, s_b, depth / g.Rm)})
     out = concatenate([mesh.subset(~sel), faulty])
     out.meta = dict(mesh.meta)
     out.meta["faults"] = list(mesh.meta.get("faults", [])) + [
         {"type": "flank_fracture", "tooth": tooth, "width": width, "depth": depth, "position": position,
-         "flank": "drive"}]
+         "flank": flank}]
     return out
 
 
@@ -102,17 +107,98 @@ def missing_tooth(mesh: SurfaceMesh, tooth: int = 0) -> SurfaceMesh:
     return out
 
 
+FLANKS = {"drive": +1, "coast": -1}
+"""Physical flanks: drive = the flank loaded when the pinion drives the wheel (on either gear)."""
+MEMBERS = ("pinion", "wheel")
+
+FAULT_KINDS = {
+    "void": {"width_mm": DEFAULT_WIDTH * 1e3, "depth_mm": DEFAULT_DEPTH * 1e3, "position_mm": DEFAULT_POSITION * 1e3},
+    "missing_tooth": {},
+}
+"""Fault families of ``health = "faults"``: kind -> its size keys with defaults (scene units, mm). Every
+specification also has ``member`` (pinion | wheel, default pinion), ``tooth`` (default 0) and ``flank``
+(drive | coast, default drive; a missing tooth has no flank). ``void``: the flank-fracture void of
+:func:`mild_flank_fracture` (width along the profile, depth along the normal, position of its centre
+from the pitch cone towards the tip, all at the mean cone distance), across the full face width.
+``missing_tooth``: every surface of the tooth removed."""
+SPEC_KEYS = ("kind", "member", "tooth", "flank")
+
+
+def fault_spec_problems(spec, z_pinion: int, z_wheel: int) -> list[tuple[str, object, str]]:
+    """Problems of one fault specification as (key, value, expectation) triples, all of them."""
+    if not isinstance(spec, dict):
+        return [("", spec, "a table of fault keys (kind, member, tooth, ...)")]
+    problems = []
+    kind = spec.get("kind")
+    if kind not in FAULT_KINDS:
+        problems.append(("kind", kind, f"one of {tuple(FAULT_KINDS)}"))
+        return problems
+    member = spec.get("member", "pinion")
+    if member not in MEMBERS:
+        problems.append(("member", member, f"one of {MEMBERS}"))
+    z = z_wheel if member == "wheel" else z_pinion
+    tooth = spec.get("tooth", 0)
+    if isinstance(tooth, bool) or not isinstance(tooth, int) or not 0 <= tooth < z:
+        problems.append(("tooth", tooth, f"an integer tooth index 0..{z - 1} of the {member}"))
+    if "flank" in spec and (kind == "missing_tooth" or spec["flank"] not in FLANKS):
+        problems.append(("flank", spec["flank"], "no flank for a missing tooth" if kind == "missing_tooth"
+                         else f"one of {tuple(FLANKS)}"))
+    sizes = FAULT_KINDS[kind]
+    for key, value in spec.items():
+        if key in SPEC_KEYS:
+            continue
+        if key not in sizes:
+            problems.append((key, value, f"a key of a {kind} fault: {SPEC_KEYS + tuple(sizes)}"))
+        elif isinstance(value, bool) or not isinstance(value, (int, float)) or not value == value:
+            problems.append((key, value, "a number [mm]"))
+        elif key != "position_mm" and not value > 0:
+            problems.append((key, value, "a size > 0 mm"))
+    return problems
+
+
+def normalised_spec(spec: dict) -> dict:
+    """A specification with every default filled in (what a run records as its label)."""
+    kind = spec["kind"]
+    out = {"kind": kind, "member": spec.get("member", "pinion"), "tooth": int(spec.get("tooth", 0))}
+    if kind != "missing_tooth":
+        out["flank"] = spec.get("flank", "drive")
+    out.update({k: float(spec.get(k, v)) for k, v in FAULT_KINDS[kind].items()})
+    return out
+
+
+def apply_faults(mesh: SurfaceMesh, params: BevelGearParams | None, specs, member: str) -> SurfaceMesh:
+    """The mesh of ``member`` with every specification of that member applied, in order."""
+    for spec in specs:
+        spec = normalised_spec(spec)
+        if spec["member"] != member:
+            continue
+        if spec["kind"] == "missing_tooth":
+            mesh = missing_tooth(mesh, spec["tooth"])
+        else:
+            mesh = mild_flank_fracture(mesh, params, tooth=spec["tooth"], width=spec["width_mm"] * 1e-3,
+                                       depth=spec["depth_mm"] * 1e-3, position=spec["position_mm"] * 1e-3,
+                                       flank=spec["flank"])
+    return mesh
+
+
 def apply_health(mesh: SurfaceMesh, params: BevelGearParams | None = None, health: str = "healthy",
-                 **kw) -> SurfaceMesh:
-    """``healthy``: unchanged; ``mild``: :func:`mild_flank_fracture` (kw: tooth, width, depth,
-    position); ``severe``: :func:`missing_tooth` (kw: tooth; other keys ignored)."""
-    if health == "healthy":
+                 member: str = "pinion", **kw) -> SurfaceMesh:
+    """The generated mesh of ``member`` in a health state. ``healthy`` and ``mesh`` (a user mesh file
+    replaces the other gear, or this one before it gets here): unchanged; ``mild``:
+    :func:`mild_flank_fracture` (kw: tooth, width, depth, position); ``severe``: :func:`missing_tooth`
+    (kw: tooth; other keys ignored) - both on the pinion only, as in the paper; ``faults``:
+    :func:`apply_faults` with ``kw["faults"]``."""
+    if health in ("healthy", "mesh"):
+        return mesh
+    if health == "faults":
+        return apply_faults(mesh, params, kw.get("faults", []), member)
+    if health not in GENERATED_HEALTH:
+        raise ValueError(f"health must be one of {GENERATED_HEALTH + ('mesh',)}, not {health!r}")
+    if member != "pinion":
         return mesh
     if health == "mild":
         return mild_flank_fracture(mesh, params, **kw)
-    if health == "severe":
-        return missing_tooth(mesh, tooth=kw.get("tooth", 0))
-    raise ValueError(f"health must be one of {GENERATED_HEALTH}, not {health!r}")
+    return missing_tooth(mesh, tooth=kw.get("tooth", 0))
 
 
 def user_mesh(path, params: BevelGearParams | None = None, role: str = "pinion", units: str = "mm",

@@ -74,11 +74,12 @@ def resolve_meshes(gear: BevelGearParams, resolution: MeshResolution, health: st
         pinion = load_gear_mesh(pinion_mesh_file, gear, "pinion", units=mesh_units)
     else:
         pinion = geometry.build_gear_mesh(gear, "pinion", resolution, teeth=pinion_teeth)
-        pinion = faults.apply_health(pinion, gear, health, **(fault_kwargs or {}))
+        pinion = faults.apply_health(pinion, gear, health, "pinion", **(fault_kwargs or {}))
     if wheel_mesh_file:
         wheel = load_gear_mesh(wheel_mesh_file, gear, "wheel", units=mesh_units)
     else:
         wheel = geometry.build_gear_mesh(gear, "wheel", resolution, teeth=wheel_teeth)
+        wheel = faults.apply_health(wheel, gear, health, "wheel", **(fault_kwargs or {}))
     return pinion, wheel
 
 
@@ -100,13 +101,20 @@ def build_pcm_pair(gear: BevelGearParams | None = None, pcm: PCMParams | None = 
     return PCMGearPair(gear, pcm, resolution, health, pinion, wheel, data, (base, target, r0p, r0w), info)
 
 
+def fault_kwargs_of(health: str, faults=()) -> dict | None:
+    """The fault keywords of a health state: the specification list for ``"faults"``, else none (the
+    paper's faults use their defaults)."""
+    return {"faults": [dict(f) for f in faults]} if health == "faults" else None
+
+
 def make_pcm_model(gear_params=None, pcm_params=None, resolution=None, health="healthy",
-                   mesh_files=None, mesh_units="mm", friction=True, damping=True, **kw):
-    """MeshModel of the online PCM engine (fidelity "pcm")."""
+                   mesh_files=None, mesh_units="mm", friction=True, damping=True, faults=(), **kw):
+    """MeshModel of the online PCM engine (fidelity "pcm"). ``faults``: the fault specifications of
+    ``health = "faults"`` (faults.FAULT_KINDS)."""
     mesh_files = mesh_files or {}
     pair = build_pcm_pair(gear_params, pcm_params, resolution, health,
                           mesh_files.get("pinion") or None, mesh_files.get("wheel") or None,
-                          mesh_units, friction, damping)
+                          mesh_units, friction, damping, fault_kwargs=fault_kwargs_of(health, faults))
     return MeshModel(eval=engine.fixed_axis_eval, data=pair.data, fidelity="pcm", kind="mesh",
                      info={**pair.info, "health": health})
 

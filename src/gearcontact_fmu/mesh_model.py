@@ -35,8 +35,9 @@ STATUS_PENETRATION_EXCEEDED = 1
 
 FIDELITIES = ("pcm", "table", "analytic", "ideal")
 """Mesh-contact fidelities, finest first (``fidelity.BUILDERS`` maps each to its builder)."""
-GENERATED_HEALTH = ("healthy", "mild", "severe")
-"""Health states generated from the healthy geometry (``faults.apply_health``)."""
+GENERATED_HEALTH = ("healthy", "mild", "severe", "faults")
+"""Health states generated from the healthy geometry (``faults.apply_health``; ``"faults"``: a list of
+fault specifications on either gear, ``faults.FAULT_KINDS``)."""
 HEALTH_STATES = GENERATED_HEALTH + ("mesh",)
 """Every health state a scene or the GearContact FMU accepts (``"mesh"``: user mesh files)."""
 

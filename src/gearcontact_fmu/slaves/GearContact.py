@@ -95,6 +95,7 @@ class GearContact(Fmi2Slave):
         self.fidelity = "analytic"
         self.mode = s.mode
         self.health = "healthy"
+        self.faults = "[]"          # health "faults": JSON list of fault specifications (faults.FAULT_KINDS)
         self.pinion_mesh_file = ""
         self.wheel_mesh_file = ""
         self.mesh_units = "mm"
@@ -129,8 +130,8 @@ class GearContact(Fmi2Slave):
             setattr(self, name, 0.0)
 
         P, F = Fmi2Causality.parameter, Fmi2Variability.fixed
-        for name in ("fidelity", "mode", "health", "pinion_mesh_file", "wheel_mesh_file", "mesh_units", "scheme",
-                     "output_torque"):
+        for name in ("fidelity", "mode", "health", "faults", "pinion_mesh_file", "wheel_mesh_file", "mesh_units",
+                     "scheme", "output_torque"):
             self.register_variable(String(name, causality=P, variability=F))
         for name in ("z_pinion", "z_wheel"):
             self.register_variable(Integer(name, causality=P, variability=F))
@@ -226,9 +227,30 @@ class GearContact(Fmi2Slave):
             kw = dict(damping_ratio=self.mesh_damping_ratio if damping else 0.0, mesh_phase=self.mesh_phase,
                       mu=self.mu if friction else 0.0)
         elif fidelity in ("pcm", "table"):
-            kw = dict(friction=friction, damping=damping, mesh_units=str(self.mesh_units).strip())
+            kw = dict(friction=friction, damping=damping, mesh_units=str(self.mesh_units).strip(),
+                      faults=self._fault_specs())
         self._stage = make_stage(self.fidelity, gear, pcm, res, health=self.health,
                                  mesh_files=mesh_files or None, stage_params=sp, **kw)
+
+    def _fault_specs(self) -> list:
+        """The ``faults`` parameter (JSON), checked: every problem named at once."""
+        import json
+
+        from gearcontact_fmu.faults import fault_spec_problems
+
+        try:
+            specs = json.loads(str(self.faults) or "[]")
+        except ValueError as exc:
+            raise ValueError(f"parameter faults is not JSON ({exc})") from None
+        if not isinstance(specs, list):
+            raise ValueError("parameter faults must be a JSON list of fault specifications")
+        problems = [f"faults[{i}].{k} = {v!r}: expected {e}" for i, spec in enumerate(specs)
+                    for k, v, e in fault_spec_problems(spec, int(self.z_pinion), int(self.z_wheel))]
+        if problems:
+            raise ValueError("; ".join(problems))
+        if str(self.health).strip() == "faults" and not specs:
+            raise ValueError('health = "faults" needs at least one fault in the faults parameter')
+        return specs
 
     def _publish(self):
         st = self._stage

@@ -35,7 +35,7 @@ from drivetrain.errors import MISSING as _MISSING
 from drivetrain.errors import ScenarioError
 from drivetrain.system import steps_per_output
 from drivetrain.rig import RIG_SENSORS, TORQUE_SENSORS, UPPER_RATIO, Z_PINION, Z_WHEEL  # noqa: F401  (re-exported)
-from gearcontact_fmu.faults import FAULT_KINDS, fault_spec_problems, normalised_spec
+from gearcontact_fmu.fault_specs import FAULT_KINDS, fault_spec_problems, normalised_spec
 from gearcontact_fmu.mesh_model import FIDELITIES, HEALTH_STATES
 from gearcontact_fmu.params import DEFAULT_COMM_STEP_S, BevelGearParams, MeshResolution
 

@@ -236,7 +236,7 @@ class GearContact(Fmi2Slave):
         """The ``faults`` parameter (JSON), checked: every problem named at once."""
         import json
 
-        from gearcontact_fmu.faults import fault_spec_problems
+        from gearcontact_fmu.fault_specs import fault_spec_problems
 
         try:
             specs = json.loads(str(self.faults) or "[]")

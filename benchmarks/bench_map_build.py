@@ -12,6 +12,7 @@ from gearcontact_fmu import contact_map as cm
 cases = [("healthy", "healthy", None),
          ("pinion void (tooth 0)", "faults", [{"kind": "void", "member": "pinion", "tooth": 0}]),
          ("wheel void (tooth 38)", "faults", [{"kind": "void", "member": "wheel", "tooth": 38}]),
+         ("wheel pit (tooth 38, R 1.5 mm)", "faults", [{"kind": "pit", "member": "wheel", "tooth": 38}]),
          ("pinion + wheel void", "faults", [{"kind": "void", "member": "pinion", "tooth": 0},
                                             {"kind": "void", "member": "wheel", "tooth": 38}])]
 print("| faults | pinion revolutions | blocks computed | rows | build [s] | file [MB] |")

@@ -81,3 +81,16 @@ def test_aalto_layout_and_labels(sweep, tmp_path):
 def test_not_a_sweep_directory(tmp_path, capsys):
     assert main(["dataset", str(tmp_path)]) == 2
     assert "manifest.json" in capsys.readouterr().err
+
+
+def test_faults_become_label_columns():
+    from drivetrain.dataset import run_labels
+    from drivetrain.scenario import resolve
+
+    scene = resolve({"gear": {"health": "faults", "faults": [{"kind": "pit", "member": "wheel", "tooth": 38},
+                                                            {"kind": "missing_tooth", "tooth": 3}]}}).to_dict()
+    lab = run_labels("r", {"status": "ok"}, scene, None)
+    assert lab["gear.health"] == "faults"
+    assert (lab["fault0.kind"], lab["fault0.member"], lab["fault0.tooth"], lab["fault0.radius_mm"]) == (
+        "pit", "wheel", 38, 1.5)
+    assert (lab["fault1.kind"], lab["fault1.member"], lab["fault1.tooth"]) == ("missing_tooth", "pinion", 3)

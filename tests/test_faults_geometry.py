@@ -121,3 +121,157 @@ def test_faulty_user_mesh_round_trip(tmp_path, mild):
     assert m.area() == pytest.approx(mild.area(), rel=1e-9)
     with pytest.raises(MeshError):
         load_gear_mesh(path, P, "pinion", units="m")
+
+
+@pytest.mark.parametrize("role, tooth, radius, depth, face_position, position", [
+    ("pinion", 3, 1.5e-3, 0.25e-3, 0.5, 0.0), ("pinion", 0, 0.5e-3, 0.1e-3, 0.1, 0.5e-3),
+    ("wheel", 38, 1.5e-3, 0.25e-3, 0.5, 0.0), ("wheel", 7, 0.5e-3, 0.2e-3, 0.95, -1.0e-3)])
+def test_pit_removes_the_spherical_cap_volume(role, tooth, radius, depth, face_position, position):
+    """Oracle: the cap volume pi h (3 R^2 + h^2) / 6; the removed volume is the change of the tooth
+    surface's enclosed-volume integral (1/6) sum a . (b - a) x (c - a) (the re-meshed tooth keeps
+    its boundary), within 5 %. The deepest point is the cap depth, at the requested place."""
+    coarse = MeshResolution(profile=0.1e-3, face=2e-3)
+    m = G.build_gear_mesh(P, role, coarse)
+    p = faults.pit(m, P, tooth=tooth, radius=radius, depth=depth, face_position=face_position, position=position)
+    validate_gear_mesh(p, P, role)
+
+    def enclosed(mesh):
+        tri = mesh.vertices[mesh.faces[mesh.face_tooth == tooth]]
+        return np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])).sum() / 6
+
+    removed = enclosed(m) - enclosed(p)
+    assert removed == pytest.approx(faults.pit_volume(radius, depth), rel=0.05)
+    assert p.meta["faults"][-1]["type"] == "pit" and p.meta["faults"][-1]["tooth"] == tooth
+    # other teeth untouched
+    others = p.face_tooth != tooth
+    assert p.tooth_areas()[(tooth + 1) % G.gear_geometry(P, role).z] == pytest.approx(
+        m.tooth_areas()[(tooth + 1) % G.gear_geometry(P, role).z], rel=1e-12)
+    assert np.count_nonzero(others) == np.count_nonzero(m.face_tooth != tooth)
+    g = G.gear_geometry(P, role)
+    pc, nc = G.flank_point_normal(g, +1, g.s_pitch_param + position / g.Rm, g.Ri + face_position * g.b, tooth=tooth)
+    v = p.vertices[np.unique(p.faces[p.face_tooth == tooth])]
+    v = v[np.linalg.norm(v - pc, axis=1) < radius]                 # the pit's own vertices
+    depth_v = -(v - pc) @ nc
+    assert depth_v.max() == pytest.approx(depth, rel=0.05)
+    assert np.linalg.norm(v[np.argmax(depth_v)] - (pc - depth * nc)) < 0.2 * radius
+
+
+def test_pit_errors():
+    m = G.build_gear_mesh(P, "pinion", MeshResolution(profile=0.2e-3, face=2e-3), teeth=[0, 1])
+    with pytest.raises(ValueError, match="leaves the drive flank"):
+        faults.pit(m, P, tooth=0, radius=1.5e-3, face_position=0.0)
+    with pytest.raises(ValueError, match="0 < depth < radius"):
+        faults.pit(m, P, tooth=0, radius=0.5e-3, depth=0.6e-3)
+    with pytest.raises(ValueError, match="not in the mesh"):
+        faults.pit(m, P, tooth=5)
+    with pytest.raises(ValueError, match="flank must be one of"):
+        faults.pit(m, P, tooth=0, flank="left")
+
+
+def test_a_wheel_pit_refines_every_pinion_tooth_at_its_cone_distance():
+    """The pinion's elements probe the wheel: a wheel pit narrower than the pinion's face rows would
+    fall between them. The pinion gets rows every radius/4 across the pit's cone distance, on every
+    tooth (they stay rotated copies of one tooth)."""
+    from gearcontact_fmu.gearpair import resolve_meshes
+
+    res = MeshResolution(profile=0.3e-3, face=2e-3)
+    spec = {"kind": "pit", "member": "wheel", "tooth": 38, "radius_mm": 0.5, "depth_mm": 0.1, "face_position": 0.46}
+    pin, whl = resolve_meshes(P, res, "faults", fault_kwargs={"faults": [spec]})
+    g = G.gear_geometry(P, "pinion")
+    rho_c = g.Ri + 0.46 * g.b
+    rho = np.linalg.norm(pin.face_points, axis=1)
+    near = np.abs(rho - rho_c) < 0.5e-3
+    per_tooth = [np.count_nonzero(near & (pin.face_tooth == k)) for k in range(15)]
+    healthy = G.build_gear_mesh(P, "pinion", res)
+    before = np.count_nonzero((np.abs(np.linalg.norm(healthy.face_points, axis=1) - rho_c) < 0.5e-3)
+                              & (healthy.face_tooth == 0))
+    assert len(set(per_tooth)) == 1 and per_tooth[0] >= 4 * before
+    assert whl.meta["faults"][-1]["type"] == "pit"
+
+
+def _depth_below_flank(g, tooth, side, V, n=20000):
+    """Depth of points below the exact healthy flank (root part and involute) along its normal, and that
+    normal: the nearest point of the flank's curve on the unit sphere (the teeth are cones through the
+    apex). Independent of the fault code: analytic geometry only."""
+    s = np.linspace(0.0, g.L_radial + g.L_inv, n)
+    U, N = G.flank_point_normal(g, side, s, 1.0, tooth=tooth)
+    rho = np.linalg.norm(V, axis=1)
+    u = V / rho[:, None]
+    d = np.empty(len(V))
+    nrm = np.empty((len(V), 3))
+    for i0 in range(0, len(V), 500):
+        uu = u[i0:i0 + 500]
+        j = np.argmin(((uu[:, None, :] - U[None]) ** 2).sum(-1), axis=1)
+        d[i0:i0 + 500] = -np.einsum("ij,ij->i", uu - U[j], N[j]) * rho[i0:i0 + 500]
+        nrm[i0:i0 + 500] = N[j]
+    return d, nrm
+
+
+def _removed_volume(p, g, tooth, side):
+    """Sum over the flank's elements of (area projected on the healthy flank) x (mean depth of its
+    vertices below the healthy flank)."""
+    sel = (p.face_tooth == tooth) & (p.face_flank == side)
+    tri_idx = p.faces[sel]
+    vids = np.unique(tri_idx)
+    d = np.zeros(len(p.vertices))
+    nv = np.zeros((len(p.vertices), 3))
+    d[vids], nv[vids] = _depth_below_flank(g, tooth, side, p.vertices[vids])
+    tri = p.vertices[tri_idx]
+    cr = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n_avg = nv[tri_idx].mean(axis=1)
+    a_proj = 0.5 * np.abs(np.einsum("ij,ij->i", cr, n_avg / np.linalg.norm(n_avg, axis=1)[:, None]))
+    return float((a_proj * np.maximum(d[tri_idx], 0.0).mean(axis=1)).sum())
+
+
+def _closed_form(kind, g, **kw):
+    """Removed volume from the fault's parameters alone (lengths at the mean cone distance; the teeth
+    taper, so a size at cone distance rho scales with rho / R_m)."""
+    Rm, Ri, Re = g.Rm, g.Ri, g.Re
+    rc = Ri + kw.get("face_position", 0.5) * (Re - Ri)
+    if kind == "pit":
+        R, h = kw["radius"], kw["depth"]
+        return np.pi * h * (3 * R * R + h * h) / 6
+    if kind == "spall":
+        return kw["length"] * kw["width"] * kw["depth"] * (rc / Rm) ** 2
+    if kind == "chipped_tip":
+        L = kw.get("length")
+        h = kw["height"]
+        if L is None:                      # the whole face: int (rho/Rm)^2 drho
+            return 0.5 * h * h * (Re ** 3 - Ri ** 3) / (3 * Rm * Rm)
+        return 0.5 * h * h * L * (rc / Rm) ** 2
+    if kind == "wear":                      # uniform: depth (rho/Rm) over the involute
+        return kw["depth"] / Rm * (Re ** 3 - Ri ** 3) / 3 * g.L_inv
+    raise ValueError(kind)
+
+
+@pytest.mark.parametrize("role, tooth", [("pinion", 3), ("wheel", 38)])
+@pytest.mark.parametrize("kind, kw", [
+    ("pit", {"radius": 1.5e-3, "depth": 0.25e-3}),
+    ("spall", {"length": 2e-3, "width": 4e-3, "depth": 0.1e-3, "face_position": 0.35}),
+    ("chipped_tip", {"height": 0.5e-3}),
+    ("chipped_tip", {"height": 0.4e-3, "length": 5e-3, "face_position": 0.3}),
+    ("wear", {"depth": 20e-6})])
+def test_fault_family_removes_its_closed_form_volume(role, tooth, kind, kw):
+    """Every fault family, either gear: the volume removed below the exact healthy flank (measured on
+    the mesh vertices against the analytic flank) matches the closed form of its parameters within 5 %
+    (measured: 0.97-1.005), the mesh stays a valid gear mesh and the other teeth are untouched."""
+    g = G.gear_geometry(P, role)
+    m = G.build_gear_mesh(P, role, MeshResolution(profile=0.1e-3, face=2e-3))
+    p = getattr(faults, kind)(m, P, tooth, **kw)
+    validate_gear_mesh(p, P, role)
+    assert _removed_volume(p, g, tooth, +1) == pytest.approx(_closed_form(kind, g, **kw), rel=0.05)
+    other = (tooth + 1) % g.z
+    assert p.tooth_areas()[other] == pytest.approx(m.tooth_areas()[other], rel=1e-12)
+    assert p.meta["faults"][-1]["type"] == kind and p.meta["faults"][-1]["tooth"] == tooth
+
+
+def test_sliding_wear_is_zero_at_the_pitch_cone():
+    g = G.gear_geometry(P, "pinion")
+    m = G.build_gear_mesh(P, "pinion", MeshResolution(profile=0.1e-3, face=2e-3))
+    p = faults.wear(m, P, 2, depth=20e-6, profile="sliding")
+    sel = (p.face_tooth == 2) & (p.face_flank == 1)
+    d, _ = _depth_below_flank(g, 2, +1, p.face_points[sel])
+    s = p.face_profile[sel]
+    near = np.abs(s - g.s_pitch_param) < 0.02 * g.L_inv
+    far = np.abs(s - g.s_pitch_param) > 0.9 * max(g.s_pitch_param - g.L_radial, g.L_radial + g.L_inv - g.s_pitch_param)
+    assert np.all(d[near] < 2e-6) and d[far].max() > 15e-6

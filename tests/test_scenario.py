@@ -139,11 +139,11 @@ def test_health_and_mesh_files(tmp_path):
 
 def test_fault_lists_are_checked_whole_and_normalised():
     e = refused({"gear": {"health": "faults", "faults": [
-        {"kind": "pit", "member": "wheel"},
+        {"kind": "dent", "member": "wheel"},
         {"kind": "void", "member": "wheel", "tooth": 60, "flank": "left", "depth_mm": -0.1, "colour": 3},
         {"kind": "missing_tooth", "member": "axle", "tooth": 2, "flank": "drive"},
         "void"]}})
-    assert_problem(e, "gear.faults[0].kind", "'pit'", "one of ('void', 'missing_tooth')")
+    assert_problem(e, "gear.faults[0].kind", "'dent'", "one of ('void', 'missing_tooth', 'pit', 'spall', 'chipped_tip', 'wear')")
     assert_problem(e, "gear.faults[1].tooth", "60", "tooth index 0..59 of the wheel")
     assert_problem(e, "gear.faults[1].flank", "'left'", "one of ('drive', 'coast')")
     assert_problem(e, "gear.faults[1].depth_mm", "-0.1", "a size > 0 mm")
@@ -151,6 +151,9 @@ def test_fault_lists_are_checked_whole_and_normalised():
     assert_problem(e, "gear.faults[2].member", "'axle'", "one of ('pinion', 'wheel')")
     assert_problem(e, "gear.faults[2].flank", "'drive'", "no flank for a missing tooth")
     assert_problem(e, "gear.faults[3]", "'void'", "a table of fault keys")
+    e = refused({"gear": {"health": "faults", "faults": [{"kind": "pit", "face_position": 1.5, "radius_mm": 0}]}})
+    assert_problem(e, "gear.faults[0].face_position", "1.5", "0 (toe) .. 1 (heel)")
+    assert_problem(e, "gear.faults[0].radius_mm", "0", "a size > 0 mm")
     e = refused({"gear": {"health": "faults"}})
     assert_problem(e, "gear.faults", "(missing)", 'at least one [[gear.faults]]')
     e = refused({"gear": {"health": "mild", "faults": [{"kind": "missing_tooth"}]}})
@@ -309,3 +312,53 @@ def test_a_sample_rate_that_would_stretch_the_run_is_refused():
     with pytest.raises(ScenarioError) as e:
         resolve({"time": {"duration_s": 1.0, "sample_rate_Hz": 0.001}, "numerics": {"comm_step_s": 1.0}})
     assert "time.sample_rate_Hz" in str(e.value) and "16 output samples" in str(e.value)
+
+
+def test_grid_draws_random_faults_reproducibly(tmp_path):
+    """[sweep.draw]: n cases per axes combination, each with faults drawn from the templates with the
+    seed; the draws are in the resolved scenes (the run's labels) and the same on every load."""
+    from drivetrain.sweep import labels
+
+    text = """
+[scenario]
+name = "rand"
+[effects]
+mesh_contact = "table"
+[sweep.axes]
+"operating_point.drive_speed_rpm" = [500.0, 1500.0]
+[sweep.draw]
+n = 4
+seed = SEED
+[[sweep.draw.faults]]
+kind = ["pit", "void", "missing_tooth"]
+member = ["pinion", "wheel"]
+tooth = "any"
+radius_mm = { uniform = [0.5, 2.0] }
+depth_mm = { uniform = [0.05, 0.2] }
+face_position = { uniform = [0.2, 0.8] }
+"""
+    f = tmp_path / "grid.toml"
+    f.write_text(text.replace("SEED", "7"))
+    a, b = load_scenes(f), load_scenes(f)
+    assert [s.name for s in a] == [f"rand_{v}_draw{d:03d}" for v in ("500.0", "1500.0") for d in range(4)]
+    assert [s.gear.faults for s in a] == [s.gear.faults for s in b]
+    assert all(s.gear.health == "faults" and len(s.gear.faults) == 1 for s in a)
+    for s in a:
+        flt = s.gear.faults[0]
+        assert 0 <= flt["tooth"] < (60 if flt["member"] == "wheel" else 15)
+        if flt["kind"] == "pit":
+            assert 0.5 <= flt["radius_mm"] <= 2.0 and 0.2 <= flt["face_position"] <= 0.8
+        if flt["kind"] == "void":
+            assert "radius_mm" not in flt and flt["width_mm"] == 1.0
+    assert len({repr(s.gear.faults) for s in a}) > 4                 # the draws differ
+    assert labels(a[0].to_dict()) == {"health": "faults", "faults": [dict(a[0].gear.faults[0])]}
+    f.write_text(text.replace("SEED", "8"))
+    assert [s.gear.faults for s in load_scenes(f)] != [s.gear.faults for s in a]
+    bad = text.replace("SEED", "-1").replace('tooth = "any"', 'tooth = "some"\nsize_mm = 3').replace(
+        "[0.5, 2.0]", "[2.0, 0.5]")
+    f.write_text(bad)
+    with pytest.raises(ScenarioError) as ei:
+        load_scenes(f)
+    msg = str(ei.value)
+    for part in ("sweep.draw.seed", "sweep.draw.faults[0].size_mm", "sweep.draw.faults[0].radius_mm"):
+        assert part in msg, msg

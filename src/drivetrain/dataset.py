@@ -49,6 +49,10 @@ def run_labels(name: str, record: dict, scene: dict, summary: dict | None) -> di
             continue
         for key, value in sorted(keys.items()):
             labels[f"{section}.{key}"] = _label_value(value)
+    # each fault of health = "faults" also as columns of its own: fault0.kind, fault0.member, fault0.tooth, ...
+    for i, fault in enumerate((scene.get("gear") or {}).get("faults") or []):
+        for key, value in fault.items():
+            labels[f"fault{i}.{key}"] = _label_value(value)
     return labels
 
 

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover
@@ -35,7 +37,8 @@ from drivetrain.errors import MISSING as _MISSING
 from drivetrain.errors import ScenarioError
 from drivetrain.system import steps_per_output
 from drivetrain.rig import RIG_SENSORS, TORQUE_SENSORS, UPPER_RATIO, Z_PINION, Z_WHEEL  # noqa: F401  (re-exported)
-from gearcontact_fmu.fault_specs import FAULT_KINDS, fault_spec_problems, normalised_spec
+from gearcontact_fmu.fault_specs import (FAULT_KINDS, draw_faults, draw_rule_problems, fault_spec_problems,
+                                         normalised_spec)
 from gearcontact_fmu.mesh_model import FIDELITIES, HEALTH_STATES
 from gearcontact_fmu.params import DEFAULT_COMM_STEP_S, BevelGearParams, MeshResolution
 
@@ -141,7 +144,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "with health = \"faults\": an array of tables [[gear.faults]], each with kind ("
             + " | ".join(FAULT_KINDS) + "), member (pinion | wheel, default pinion), tooth (0..z-1, "
             "default 0), flank (drive | coast, default drive) and the sizes of its kind [mm]: "
-            + "; ".join(f"{k}: " + (", ".join(f"{n} (default {v:g})" for n, v in sz.items()) or "none")
+            + "; ".join(f"{k}: " + (", ".join(f"{n} (default {v if isinstance(v, str) else format(v, 'g')})"
+                                              for n, v in sz.items()) or "none")
                         for k, sz in FAULT_KINDS.items()))),
         "pinion_mesh": Key("path", None, doc="OBJ/STL of the pinion (health = \"mesh\"); relative to the scene file"),
         "wheel_mesh": Key("path", None, doc="OBJ/STL of the wheel (health = \"mesh\"; optional, healthy wheel if absent)"),
@@ -202,7 +206,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
 }
 
 GRID_SECTION = "sweep"
-GRID_KEYS = {"axes", "name"}
+GRID_KEYS = {"axes", "name", "draw"}
 #: Sections validated by drivetrain.expect (expectations and how a scene is checked; docs/SCENARIOS.md).
 CHECK_SECTIONS = ("expect", "check")
 
@@ -728,15 +732,18 @@ def is_grid(path: Path | str) -> bool:
 def _split_grid(raw: dict, src: str):
     grid = raw.pop(GRID_SECTION, None)
     if grid is None:
-        return None, None
+        return None, None, None
     problems = []
     if not isinstance(grid, dict):
         raise ScenarioError([(GRID_SECTION, grid, "a table [sweep] with axes = {\"section.key\" = [values]}")], src)
     for k in grid:
         if k not in GRID_KEYS:
-            problems.append((f"{GRID_SECTION}.{k}", grid[k], "a known key of [sweep]: axes, name"))
-    axes = grid.get("axes")
-    if not isinstance(axes, dict) or not axes:
+            problems.append((f"{GRID_SECTION}.{k}", grid[k], "a known key of [sweep]: axes, name, draw"))
+    draw = grid.get("draw")
+    if draw is not None:
+        problems.extend(_draw_problems(draw))
+    axes = grid.get("axes", {} if draw is not None else None)
+    if not isinstance(axes, dict) or not (axes or draw is not None):
         problems.append((f"{GRID_SECTION}.axes", axes, 'a table {"section.key" = [value, ...]} with at least one axis'))
         axes = {}
     for k, vals in axes.items():
@@ -750,7 +757,31 @@ def _split_grid(raw: dict, src: str):
         problems.append((f"{GRID_SECTION}.name", template, "a name template string, e.g. \"run_{gear.health}\""))
     if problems:
         raise ScenarioError(problems, src)
-    return axes, template
+    return axes, template, draw
+
+
+DRAW_KEYS = {"n", "seed", "faults"}
+
+
+def _draw_problems(draw) -> list:
+    """Problems of ``[sweep.draw]``: ``n`` drawn cases per axes combination, ``seed``, and
+    ``[[sweep.draw.faults]]`` templates (gearcontact_fmu.fault_specs.draw_rule_problems)."""
+    key = f"{GRID_SECTION}.draw"
+    if not isinstance(draw, dict):
+        return [(key, draw, "a table [sweep.draw] with n, seed and [[sweep.draw.faults]]")]
+    problems = [(f"{key}.{k}", v, "a key of [sweep.draw]: n, seed, faults") for k, v in draw.items()
+                if k not in DRAW_KEYS]
+    for k in ("n", "seed"):
+        v = draw.get(k)
+        if isinstance(v, bool) or not isinstance(v, int) or v < (1 if k == "n" else 0):
+            problems.append((f"{key}.{k}", v, "an integer >= 1" if k == "n" else "an integer seed >= 0"))
+    tpls = draw.get("faults")
+    if not isinstance(tpls, list) or not tpls:
+        problems.append((f"{key}.faults", tpls, "at least one [[sweep.draw.faults]] table"))
+        return problems
+    for i, tpl in enumerate(tpls):
+        problems += [(f"{key}.faults[{i}]" + (f".{k}" if k else ""), v, e) for k, v, e in draw_rule_problems(tpl)]
+    return problems
 
 
 def case_name(template: str, base: str, scene: "Scene", src: str = "") -> str:
@@ -801,7 +832,7 @@ def load_scenes(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -
     src = str(path)
     raw = read_toml(path)
     grid_expect = raw[GRID_SECTION].pop("expect", None) if isinstance(raw.get(GRID_SECTION), dict) else None
-    axes, template = _split_grid(raw, src)
+    axes, template, draw = _split_grid(raw, src)
     overrides = tuple(overrides or ())
     apply_overrides(raw, overrides)
     if axes is None:
@@ -813,11 +844,18 @@ def load_scenes(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -
                                   f"(axes: {', '.join(axes)})")], src)
     scenes, problems, names = [], [], set()
     keys = list(axes)
-    for combo in itertools.product(*(axes[k] for k in keys)):
+    # random faults: n drawn cases per axes combination, one Generator for the whole grid (reproducible)
+    rng = np.random.default_rng(draw["seed"]) if draw else None
+    draws = range(draw["n"]) if draw else [None]
+    for combo, d in itertools.product(itertools.product(*(axes[k] for k in keys)), draws):
         case = copy.deepcopy(raw)
         for k, v in zip(keys, combo):
             sec, key = k.split(".")
             case.setdefault(sec, {})[key] = v
+        if d is not None:
+            gp = BevelGearParams()
+            case.setdefault("gear", {}).update(
+                health="faults", faults=draw_faults(draw["faults"], rng, gp.z_pinion, gp.z_wheel))
         case.setdefault("scenario", {}).pop("name", None)
         try:
             sc = resolve(case, base_dir=path.parent, source=path, overrides=overrides)
@@ -825,7 +863,9 @@ def load_scenes(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -
             problems.extend(exc.problems)
             continue
         base_name = raw.get("scenario", {}).get("name", path.stem)
-        nm = case_name(template or "{base}_" + "_".join("{" + k + "}" for k in keys), base_name, sc, src)
+        nm = case_name(template or "_".join(["{base}"] + ["{" + k + "}" for k in keys]), base_name, sc, src)
+        if d is not None:
+            nm += f"_draw{d:03d}"
         if nm in names:
             raise ScenarioError([(f"{GRID_SECTION}.name", template, f"a template giving unique names ({nm!r} twice)")], src)
         names.add(nm)

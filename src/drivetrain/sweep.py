@@ -70,6 +70,13 @@ def make_case(scene: Scene, out_dir: Path, *, backend: str = "fmi", fmu_dir: str
     }
 
 
+def labels(scene: dict) -> dict:
+    """The labels of a run for dataset users: the gear's health and its faults (each with every default
+    filled in, random draws included), from the resolved scene."""
+    gear = scene.get("gear", {})
+    return {"health": gear.get("health"), "faults": list(gear.get("faults") or [])}
+
+
 #: files a run writes into its directory (cleared before the run, so nothing stale stays beside it)
 RUN_OUTPUTS = ("signals.h5", "summary.json", "sensors.csv", "case.json")
 
@@ -113,7 +120,8 @@ def simulate(case: dict) -> dict:
     """Run one case in this process; never raises (errors are reported in the returned record)."""
 
     t0 = time.perf_counter()
-    rec: dict[str, Any] = {"name": case["name"], "out_dir": case["out_dir"], "pid": os.getpid()}
+    rec: dict[str, Any] = {"name": case["name"], "out_dir": case["out_dir"], "pid": os.getpid(),
+                           "labels": labels(case["scene"])}
     try:
         scene = _scene_of(case)
         d = Path(case["out_dir"])
@@ -234,7 +242,8 @@ def _reuse(scene: Scene, d: Path, fp: str) -> tuple[dict | None, str]:
         return None, "no finished run with a case.json there"
     if case.get("fingerprint") != fp:
         return None, "the scene or the model sources changed since that run"
-    rec = {"name": scene.name, "status": old.get("status", "ok"), "skipped": True, "out_dir": str(d),
+    rec = {"name": scene.name, "labels": labels(scene.to_dict()), "status": old.get("status", "ok"),
+           "skipped": True, "out_dir": str(d),
            "signals": str(d / "signals.h5"), "summary": str(d / "summary.json")}
     try:
         rec.update(_summary_fields(old))

@@ -44,7 +44,7 @@ from gearcontact_fmu.mesh_model import (N_OUT, OUT_CONTACT_AREA, OUT_DISSIPATED_
                                         OUT_STATUS, OUT_TAU_PINION, OUT_TAU_WHEEL, MeshModel)
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams, params_hash
 
-MAP_VERSION = 4
+MAP_VERSION = 5
 # channels stored per grid node
 CH_TAU_P, CH_TAU_W, CH_N, CH_AREA, CH_PEAK, CH_PEN, CH_FN, CH_EEL, CH_DAMP, CH_FRIC_P, CH_FRIC_W = range(11)
 N_CH = 11

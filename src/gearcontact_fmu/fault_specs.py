@@ -16,14 +16,26 @@ MEMBERS = ("pinion", "wheel")
 FAULT_KINDS = {
     "void": {"width_mm": DEFAULT_WIDTH * 1e3, "depth_mm": DEFAULT_DEPTH * 1e3, "position_mm": DEFAULT_POSITION * 1e3},
     "missing_tooth": {},
+    "pit": {"radius_mm": 1.5, "depth_mm": 0.25, "face_position": 0.5, "position_mm": 0.0},
+    "spall": {"length_mm": 2.0, "width_mm": 4.0, "depth_mm": 0.1, "face_position": 0.5, "position_mm": 0.0},
+    "chipped_tip": {"height_mm": 0.5, "length_mm": 0.0, "face_position": 0.5},
+    "wear": {"depth_um": 20.0, "profile": "uniform"},
 }
 """Fault families of ``health = "faults"``: kind -> its size keys with defaults (scene units, mm). Every
 specification also has ``member`` (pinion | wheel, default pinion), ``tooth`` (default 0) and ``flank``
 (drive | coast, default drive; a missing tooth has no flank). ``void``: the flank-fracture void of
 :func:`gearcontact_fmu.faults.mild_flank_fracture` (width along the profile, depth along the normal, position of its centre
 from the pitch cone towards the tip, all at the mean cone distance), across the full face width.
-``missing_tooth``: every surface of the tooth removed."""
+``missing_tooth``: every surface of the tooth removed. ``pit``: a spherical cap of base radius
+radius_mm and depth depth_mm pressed into the flank, its centre position_mm from the pitch cone towards
+the tip and at face_position of the face width (0 = toe/inner end, 1 = heel/outer end). ``spall``: a
+flat-bottomed patch length_mm along the profile by width_mm along the face, depth_mm deep. ``chipped_tip``:
+the tip corner of the flank cut at 45°, height_mm along the profile, over length_mm of the face (0 = the
+whole face). ``wear``: depth_um removed over the whole flank, profile "uniform" or "sliding" (growing with
+the distance from the pitch cone). Lengths along the profile are at the mean cone distance (the teeth
+taper)."""
 SPEC_KEYS = ("kind", "member", "tooth", "flank")
+WEAR_PROFILES = ("uniform", "sliding")
 
 
 def fault_spec_problems(spec, z_pinion: int, z_wheel: int) -> list[tuple[str, object, str]]:
@@ -51,10 +63,17 @@ def fault_spec_problems(spec, z_pinion: int, z_wheel: int) -> list[tuple[str, ob
             continue
         if key not in sizes:
             problems.append((key, value, f"a key of a {kind} fault: {SPEC_KEYS + tuple(sizes)}"))
+        elif key == "profile":
+            if value not in WEAR_PROFILES:
+                problems.append((key, value, f"one of {WEAR_PROFILES}"))
         elif isinstance(value, bool) or not isinstance(value, (int, float)) or not value == value:
-            problems.append((key, value, "a number [mm]"))
-        elif key != "position_mm" and not value > 0:
-            problems.append((key, value, "a size > 0 mm"))
+            problems.append((key, value, "a number" + ("" if key == "face_position" else
+                                                       " [µm]" if key.endswith("_um") else " [mm]")))
+        elif key == "face_position" and not 0.0 <= value <= 1.0:
+            problems.append((key, value, "a fraction of the face width, 0 (toe) .. 1 (heel)"))
+        elif key not in ("position_mm", "face_position") and not (value > 0 or (kind, key) == ("chipped_tip", "length_mm")
+                                                                 and value == 0):
+            problems.append((key, value, "a size > 0" + (" µm" if key.endswith("_um") else " mm")))
     return problems
 
 
@@ -64,5 +83,59 @@ def normalised_spec(spec: dict) -> dict:
     out = {"kind": kind, "member": spec.get("member", "pinion"), "tooth": int(spec.get("tooth", 0))}
     if kind != "missing_tooth":
         out["flank"] = spec.get("flank", "drive")
-    out.update({k: float(spec.get(k, v)) for k, v in FAULT_KINDS[kind].items()})
+    out.update({k: spec.get(k, v) if isinstance(v, str) else float(spec.get(k, v)) for k, v in FAULT_KINDS[kind].items()})
+    return out
+
+
+def _draw_value(key, rule, rng, z):
+    if isinstance(rule, dict):
+        lo, hi = rule["uniform"]
+        return float(rng.uniform(lo, hi))
+    if isinstance(rule, list):
+        return rule[int(rng.integers(len(rule)))]
+    if key == "tooth" and rule == "any":
+        return int(rng.integers(z))
+    return rule
+
+
+def draw_rule_problems(template) -> list[tuple[str, object, str]]:
+    """Problems of one random fault template (the grammar, not the drawn values: those are checked as
+    any fault). A key is a fixed value, a list (one of them, uniformly), ``{uniform = [a, b]}`` (a
+    number uniformly in [a, b]) or, for ``tooth``, ``"any"`` (uniformly over the member's teeth)."""
+    if not isinstance(template, dict):
+        return [("", template, "a table of fault keys, each a value, a list to choose from or {uniform = [a, b]}")]
+    known = set(SPEC_KEYS).union(*FAULT_KINDS.values())
+    problems = []
+    if "kind" not in template:
+        problems.append(("kind", None, f"a kind or a list of kinds from {tuple(FAULT_KINDS)}"))
+    for key, rule in template.items():
+        if key not in known:
+            problems.append((key, rule, f"a fault key: {tuple(sorted(known))}"))
+        elif isinstance(rule, dict):
+            u = rule.get("uniform")
+            if (set(rule) != {"uniform"} or not isinstance(u, list) or len(u) != 2
+                    or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in u) or not u[0] <= u[1]):
+                problems.append((key, rule, "{uniform = [a, b]} with numbers a <= b"))
+        elif isinstance(rule, list) and not rule:
+            problems.append((key, rule, "a non-empty list to choose from"))
+    return problems
+
+
+def draw_faults(templates, rng, z_pinion: int, z_wheel: int) -> list[dict]:
+    """One fault per template, drawn with the numpy Generator ``rng`` (keys not of the drawn kind are
+    left out, so one template can mix kinds)."""
+    out = []
+    for tpl in templates:
+        kind = _draw_value("kind", tpl["kind"], rng, 0)
+        member = _draw_value("member", tpl.get("member", "pinion"), rng, 0)
+        z = z_wheel if member == "wheel" else z_pinion
+        spec = {"kind": kind, "member": member}
+        for key, rule in tpl.items():
+            if key in ("kind", "member"):
+                continue
+            if key in SPEC_KEYS or key in FAULT_KINDS.get(kind, {}):
+                if key == "flank" and kind == "missing_tooth":
+                    continue
+                spec[key] = _draw_value(key, rule, rng, z)
+        out.append(spec)
     return out

@@ -14,6 +14,9 @@
   ``face_kind = KIND_VOID_FLOOR / KIND_VOID_WALL``; all outward, consistently wound, sharing the
   strip-edge vertices with the flank.
 * :func:`missing_tooth` - severe fault: all surfaces of one tooth removed.
+* :func:`pit`, :func:`spall`, :func:`chipped_tip`, :func:`wear` - material removed from a flank along
+  its normal by a depth field (a spherical cap; a flat-bottomed patch; a 45° chamfer at the tip; a
+  uniform or sliding-weighted layer), the tooth re-meshed finely where the fault is (:func:`_dent`).
 * :func:`apply_health` - ``"healthy" | "mild" | "severe" | "faults"`` for one member (pinion or wheel);
   ``"faults"`` applies a list of fault specifications (:data:`FAULT_KINDS`, :func:`apply_faults`), each
   on either gear, any tooth and flank, several at once.
@@ -22,14 +25,19 @@
 """
 from __future__ import annotations
 
+import math
+
+import numpy as np
+
 from . import geometry
 from .mesh_check import load_gear_mesh
-from .fault_specs import DEFAULT_DEPTH, DEFAULT_POSITION, DEFAULT_WIDTH, FAULT_KINDS, FLANKS, normalised_spec
+from .fault_specs import (DEFAULT_DEPTH, DEFAULT_POSITION, DEFAULT_WIDTH, FAULT_KINDS, FLANKS, WEAR_PROFILES,
+                          normalised_spec)
 from .mesh_model import GENERATED_HEALTH
-from .meshes import SurfaceMesh, concatenate
+from .meshes import KIND_TIP_ROUND, SurfaceMesh, concatenate
 from .params import BevelGearParams, MeshResolution
 
-__all__ = ["mild_flank_fracture", "missing_tooth", "apply_health", "apply_faults", "user_mesh",
+__all__ = ["mild_flank_fracture", "missing_tooth", "pit", "spall", "chipped_tip", "wear", "apply_health", "apply_faults", "user_mesh",
            "GENERATED_HEALTH", "FAULT_KINDS", "void_strip"]
 
 
@@ -84,7 +92,8 @@ def mild_flank_fracture(mesh: SurfaceMesh, params: BevelGearParams | None = None
         raise ValueError(f"flank must be one of {tuple(FLANKS)}, not {flank!r}")
     res = MeshResolution(profile=mesh.meta["profile"], face=mesh.meta["face"])
     faulty = geometry.build_gear_mesh(params, role, res, teeth=[tooth], top_land=mesh.meta.get("top_land", False),
-                                      notch={tooth: (geometry._side_of_flank(FLANKS[flank]), s_a, s_b, depth / g.Rm)})
+                                      notch={tooth: (geometry._side_of_flank(FLANKS[flank]), s_a, s_b, depth / g.Rm)},
+                                      face_bands=mesh.meta.get("face_bands", ()))
     out = concatenate([mesh.subset(~sel), faulty])
     out.meta = dict(mesh.meta)
     out.meta["faults"] = list(mesh.meta.get("faults", [])) + [
@@ -105,6 +114,234 @@ def missing_tooth(mesh: SurfaceMesh, tooth: int = 0) -> SurfaceMesh:
     return out
 
 
+def pit_depth(r, radius: float, depth: float):
+    """Depth [m] of a spherical-cap pit (base radius ``radius``, depth ``depth`` at its centre) at the
+    distance r from its centre; 0 outside."""
+    rs = (radius * radius + depth * depth) / (2.0 * depth)          # radius of the sphere
+    r = np.minimum(np.asarray(r, dtype=float), radius)
+    # sqrt(rs^2 - r^2) - (rs - depth), written without cancellation (a shallow pit has a huge sphere)
+    return np.where(r < radius, depth - r * r / (rs + np.sqrt(rs * rs - r * r)), 0.0)
+
+
+def pit_volume(radius: float, depth: float) -> float:
+    """Volume [m^3] of the spherical cap (the closed form the geometry test checks against)."""
+    return math.pi * depth * (3.0 * radius * radius + depth * depth) / 6.0
+
+
+def pit_band(rho_c: float, radius: float) -> tuple:
+    """Face band ``(rho_lo, rho_hi, fine)`` resolving a pit of ``radius`` at cone distance ``rho_c``."""
+    return (rho_c - 1.25 * radius, rho_c + 1.25 * radius, radius / 4.0)
+
+
+def partner_face_bands(params: BevelGearParams | None, specs, member: str) -> list:
+    """Face bands the ``member`` needs because the other gear has local faults (pits): the pinion's
+    elements probe the wheel's surface, so a wheel pit narrower than the pinion's face rows would fall
+    between them (a blind spot). Both cones share the apex, so the pit's cone distance is where the
+    pinion meets it; every pinion tooth gets the band (the teeth stay rotated copies of one tooth and
+    the contact map keeps computing one healthy pitch). The wheel, as the target, needs none."""
+    if member != "pinion":
+        return []
+    params = params or BevelGearParams()
+    g = geometry.gear_geometry(params, "wheel")
+    out = []
+    for spec in specs:
+        spec = normalised_spec(spec)
+        if spec["member"] == "wheel" and spec["kind"] == "pit":
+            out.append(pit_band(g.Ri + spec["face_position"] * (g.Re - g.Ri), spec["radius_mm"] * 1e-3))
+    return out
+
+
+def _check_tooth(mesh, params, tooth, flank):
+    params = params or BevelGearParams()
+    role = _analytic_role(mesh)
+    g = geometry.gear_geometry(params, role)
+    tooth = int(tooth) % g.z
+    if not np.any(mesh.face_tooth == tooth):
+        raise ValueError(f"tooth {tooth} is not in the mesh")
+    if flank not in FLANKS:
+        raise ValueError(f"flank must be one of {tuple(FLANKS)}, not {flank!r}")
+    return params, role, g, tooth
+
+
+def _dent(mesh: SurfaceMesh, params, role, g, tooth: int, flank: str, depth_field, bands, profile_step: float,
+          record: dict, what: str) -> SurfaceMesh:
+    """``mesh`` with ``tooth`` re-meshed (face rows refined in ``bands``, profile spacing at most
+    ``profile_step``) and the vertices of its ``flank`` (with the tip rounding next to it) moved inward
+    along their exact normals by ``depth_field(vertices, profile_param, rho)`` [m] (0 = untouched).
+    Elements with a moved vertex become flat facets (point = centroid, normal = facet normal), as in a
+    mesh file: the exact flank no longer describes them. (The exact point of a rim element, whose
+    centroid parameter lies just outside a pit while two of its vertices moved in, stands proud of its
+    facet by tens of µm: measured, it made the pair touch 0.6 mrad early.)"""
+    res = MeshResolution(profile=min(mesh.meta["profile"], profile_step), face=mesh.meta["face"])
+    nodes = geometry.graded_face_nodes(g, res.face, list(mesh.meta.get("face_bands", [])) + list(bands))
+    t = geometry.build_gear_mesh(params, role, res, teeth=[tooth], top_land=mesh.meta.get("top_land", False),
+                                 rho_nodes={tooth: nodes})
+    # this flank and the tip rounding on its side (the outward normals of a side point the same way
+    # round the gear axis, body z)
+    side = t.face_flank == FLANKS[flank]
+    az = np.einsum("ij,ij->i", t.face_normals, np.stack([-t.face_points[:, 1], t.face_points[:, 0],
+                                                          np.zeros(len(t.faces))], axis=1))
+    sign = np.sign(np.mean(az[side]))
+    on_flank = side | ((t.face_kind == KIND_TIP_ROUND) & (az * sign > 0.0))
+    nv = len(t.vertices)
+    # per vertex: the profile parameter and exact normal averaged over its faces on this flank
+    cnt = np.zeros(nv)
+    s_v = np.zeros(nv)
+    n_v = np.zeros((nv, 3))
+    n_side = np.zeros((nv, 3))              # the normal of the flank itself where a vertex has one
+    for c in range(3):
+        idx = t.faces[on_flank, c]
+        np.add.at(cnt, idx, 1.0)
+        np.add.at(s_v, idx, t.face_profile[on_flank])
+        np.add.at(n_v, idx, t.face_normals[on_flank])
+        np.add.at(n_side, t.faces[side, c], t.face_normals[side])
+    flank_vertices = cnt > 0
+    s_v[flank_vertices] /= cnt[flank_vertices]
+    has_side = np.linalg.norm(n_side, axis=1) > 0.0
+    n_v[has_side] = n_side[has_side]
+    n_v[flank_vertices] /= np.linalg.norm(n_v[flank_vertices], axis=1)[:, None]
+    rho_v = np.linalg.norm(t.vertices, axis=1)
+    d_v = np.where(flank_vertices, depth_field(t.vertices, s_v, rho_v), 0.0)
+    moved = d_v > 0.0
+    other_vertices = np.zeros(nv, dtype=bool)
+    other_vertices[t.faces[~on_flank].ravel()] = True
+    if np.any(moved & other_vertices) or not np.any(moved):
+        raise ValueError(f"the {what} leaves the {flank} flank of tooth {tooth}")
+    V = t.vertices - d_v[:, None] * n_v
+    touched = np.any(moved[t.faces], axis=1)
+    fp = t.face_points.copy()
+    fn = t.face_normals.copy()
+    tri = V[t.faces[touched]]
+    geo = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    fp[touched] = tri.mean(axis=1)
+    fn[touched] = geo / np.linalg.norm(geo, axis=1)[:, None]
+    faulty = SurfaceMesh(vertices=V, faces=t.faces, face_points=fp, face_normals=fn, face_tooth=t.face_tooth,
+                         face_flank=t.face_flank, face_kind=t.face_kind, face_profile=t.face_profile, meta=t.meta)
+    out = concatenate([mesh.subset(mesh.face_tooth != tooth), faulty])
+    out.meta = dict(mesh.meta)
+    out.meta["faults"] = list(mesh.meta.get("faults", [])) + [{"tooth": tooth, "flank": flank, **record}]
+    return out
+
+
+def _face_rho(g, face_position: float, half: float, what: str, flank: str, tooth: int) -> float:
+    if not 0.0 <= face_position <= 1.0:
+        raise ValueError("face_position must be within 0 (toe) .. 1 (heel)")
+    rho_c = g.Ri + face_position * (g.Re - g.Ri)
+    if rho_c - half < g.Ri - 1e-12 or rho_c + half > g.Re + 1e-12:
+        raise ValueError(f"the {what} at face position {face_position:g} leaves the {flank} flank of tooth {tooth} "
+                         f"across the face ends: keep face_position within {half / g.b:.3g} .. {1 - half / g.b:.3g}")
+    return rho_c
+
+
+def pit(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth: int = 0, flank: str = "drive",
+        radius: float = 1.5e-3, depth: float = 0.25e-3, face_position: float = 0.5,
+        position: float = DEFAULT_POSITION) -> SurfaceMesh:
+    """Mesh with a pit on ``flank`` of ``tooth``: a spherical cap of base radius ``radius`` and depth
+    ``depth`` pressed into the flank, centred ``position`` from the pitch cone towards the tip and at
+    ``face_position`` of the face width (0 toe, 1 heel). The tooth is re-meshed with face rows every
+    radius/4 across the pit (a pit between two of the default 2 mm rows would otherwise be invisible)
+    and the profile spacing at most radius/8."""
+    params, role, g, tooth = _check_tooth(mesh, params, tooth, flank)
+    if not (radius > 0 and 0 < depth < radius):
+        raise ValueError("a pit needs radius > 0 and 0 < depth < radius")
+    what = f"pit (radius {radius * 1e3:g} mm, {position * 1e3:g} mm from the pitch cone)"
+    rho_c = _face_rho(g, face_position, radius, what, flank, tooth)
+    pc, _ = geometry.flank_point_normal(g, FLANKS[flank], g.s_pitch_param + position / g.Rm, rho_c, tooth=tooth)
+    record = {"type": "pit", "radius": radius, "depth": depth, "face_position": face_position,
+              "position": position, "volume": pit_volume(radius, depth)}
+    return _dent(mesh, params, role, g, tooth, flank,
+                 lambda V, s, rho: pit_depth(np.linalg.norm(V - pc, axis=1), radius, depth),
+                 [pit_band(rho_c, radius)], radius / 8.0, record, what)
+
+
+def spall(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth: int = 0, flank: str = "drive",
+          length: float = 2.0e-3, width: float = 4.0e-3, depth: float = 0.1e-3, face_position: float = 0.5,
+          position: float = DEFAULT_POSITION) -> SurfaceMesh:
+    """Mesh with a spall on ``flank`` of ``tooth``: a flat-bottomed patch ``length`` along the profile
+    (at the mean cone distance, tapered with the teeth like the void) by ``width`` along the face, the
+    flank moved ``depth`` inward inside it, centred ``position`` from the pitch cone and at
+    ``face_position`` of the face width. Face rows land on its two face edges (every width/8 between),
+    the profile spacing is at most length/32: the walls are one element wide."""
+    params, role, g, tooth = _check_tooth(mesh, params, tooth, flank)
+    if not (length > 0 and width > 0 and depth > 0):
+        raise ValueError("a spall needs length, width and depth > 0")
+    what = f"spall ({length * 1e3:g} x {width * 1e3:g} mm, {position * 1e3:g} mm from the pitch cone)"
+    rho_c = _face_rho(g, face_position, 0.5 * width, what, flank, tooth)
+    s_c = g.s_pitch_param + position / g.Rm
+    half_s = 0.5 * length / g.Rm
+    lo, hi = rho_c - 0.5 * width, rho_c + 0.5 * width
+    record = {"type": "spall", "length": length, "width": width, "depth": depth, "face_position": face_position,
+              "position": position, "volume": length * width * depth * (rho_c / g.Rm) ** 2}
+
+    el_s = min(mesh.meta["profile"], length / 32.0) / g.Rm       # the profile spacing [rad]
+    el_f = width / 8.0                                            # the face rows inside the spall
+
+    def field(V, s, rho):
+        # the walls are linear ramps one element wide, centred on the edges (the volume is the patch's)
+        ramp_s = np.clip((half_s - np.abs(s - s_c)) / el_s + 0.5, 0.0, 1.0)
+        ramp_f = np.clip((0.5 * width - np.abs(rho - rho_c)) / el_f + 0.5, 0.0, 1.0)
+        return depth * ramp_s * ramp_f * rho / g.Rm
+
+    return _dent(mesh, params, role, g, tooth, flank, field, [(lo - el_f, hi + el_f, el_f)], length / 32.0,
+                 record, what)
+
+
+def chipped_tip(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth: int = 0, flank: str = "drive",
+                height: float = 0.5e-3, length: float | None = None, face_position: float = 0.5) -> SurfaceMesh:
+    """Mesh with the tip corner of ``flank`` chipped off: a 45° chamfer ``height`` deep along the profile
+    from the end of the flank (its tip rounding included) at the mean cone distance (tapered with the
+    teeth), over ``length`` of the face width (default the whole face) centred at ``face_position``."""
+    params, role, g, tooth = _check_tooth(mesh, params, tooth, flank)
+    length = g.b if length is None else length
+    if not (height > 0 and length > 0):
+        raise ValueError("a chipped tip needs height and length > 0")
+    what = f"chipped tip ({height * 1e3:g} mm high, {length * 1e3:g} mm long)"
+    rho_c = _face_rho(g, face_position, 0.5 * length, what, flank, tooth)
+    lo, hi = rho_c - 0.5 * length, rho_c + 0.5 * length
+    s_end = g.L_radial + g.L_inv                    # end of the involute: the tip rounding starts
+    if height / g.Rm >= g.L_inv:
+        raise ValueError(f"the {what} is higher than the involute flank")
+    record = {"type": "chipped_tip", "height": height, "length": length, "face_position": face_position,
+              "volume": 0.5 * height * height * length * ((rho_c / g.Rm) ** 2 if length < g.b else
+                                                            (g.Re ** 3 - g.Ri ** 3) / (3.0 * g.Rm ** 2 * g.b))}
+
+    el_f = min(length / 8.0, mesh.meta["face"])
+
+    def field(V, s, rho):
+        over = (s - (s_end - height / g.Rm)) * rho         # arc length beyond the chamfer start [m]
+        ramp_f = np.clip((0.5 * length - np.abs(rho - rho_c)) / el_f + 0.5, 0.0, 1.0) if length < g.b else 1.0
+        return np.where(over > 0.0, over, 0.0) * ramp_f
+
+    bands = [] if length >= g.b else [(lo - el_f, hi + el_f, el_f)]
+    return _dent(mesh, params, role, g, tooth, flank, field, bands, height / 16.0, record, what)
+
+
+def wear(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth: int = 0, flank: str = "drive",
+         depth: float = 20e-6, profile: str = "uniform") -> SurfaceMesh:
+    """Mesh with worn ``flank`` of ``tooth``: material ``depth`` removed along the normal over the whole
+    involute flank and face width, ``profile`` = "uniform" (everywhere) or "sliding" (growing linearly
+    with the distance from the pitch cone, where sliding vanishes, to ``depth`` at the farther end of
+    the flank, zero at the pitch cone: the usual wear pattern)."""
+    params, role, g, tooth = _check_tooth(mesh, params, tooth, flank)
+    if not depth > 0:
+        raise ValueError("wear needs depth > 0")
+    if profile not in WEAR_PROFILES:
+        raise ValueError(f"wear profile must be one of {WEAR_PROFILES}, not {profile!r}")
+    s0, s1 = g.L_radial, g.L_radial + g.L_inv         # the involute
+    far = max(g.s_pitch_param - s0, s1 - g.s_pitch_param)
+    record = {"type": "wear", "depth": depth, "profile": profile,
+              # depth scales with rho (tapered): V = depth/Rm int rho^2 drho int w(s) ds
+              "volume": depth / g.Rm * (g.Re ** 3 - g.Ri ** 3) / 3.0 * ((s1 - s0) if profile == "uniform" else
+                        ((g.s_pitch_param - s0) ** 2 + (s1 - g.s_pitch_param) ** 2) / (2.0 * far))}
+
+    def field(V, s, rho):
+        on = (s >= s0) & (s <= s1)
+        d = depth if profile == "uniform" else depth * np.abs(s - g.s_pitch_param) / far
+        return np.where(on, d * rho / g.Rm, 0.0)
+
+    return _dent(mesh, params, role, g, tooth, flank, field, [], mesh.meta["profile"], record, f"{profile} wear")
+
+
 def apply_faults(mesh: SurfaceMesh, params: BevelGearParams | None, specs, member: str) -> SurfaceMesh:
     """The mesh of ``member`` with every specification of that member applied, in order."""
     for spec in specs:
@@ -113,6 +350,21 @@ def apply_faults(mesh: SurfaceMesh, params: BevelGearParams | None, specs, membe
             continue
         if spec["kind"] == "missing_tooth":
             mesh = missing_tooth(mesh, spec["tooth"])
+        elif spec["kind"] == "pit":
+            mesh = pit(mesh, params, tooth=spec["tooth"], flank=spec["flank"], radius=spec["radius_mm"] * 1e-3,
+                       depth=spec["depth_mm"] * 1e-3, face_position=spec["face_position"],
+                       position=spec["position_mm"] * 1e-3)
+        elif spec["kind"] == "spall":
+            mesh = spall(mesh, params, tooth=spec["tooth"], flank=spec["flank"], length=spec["length_mm"] * 1e-3,
+                         width=spec["width_mm"] * 1e-3, depth=spec["depth_mm"] * 1e-3,
+                         face_position=spec["face_position"], position=spec["position_mm"] * 1e-3)
+        elif spec["kind"] == "chipped_tip":
+            mesh = chipped_tip(mesh, params, tooth=spec["tooth"], flank=spec["flank"],
+                               height=spec["height_mm"] * 1e-3, length=spec["length_mm"] * 1e-3 or None,
+                               face_position=spec["face_position"])
+        elif spec["kind"] == "wear":
+            mesh = wear(mesh, params, tooth=spec["tooth"], flank=spec["flank"], depth=spec["depth_um"] * 1e-6,
+                        profile=spec["profile"])
         else:
             mesh = mild_flank_fracture(mesh, params, tooth=spec["tooth"], width=spec["width_mm"] * 1e-3,
                                        depth=spec["depth_mm"] * 1e-3, position=spec["position_mm"] * 1e-3,

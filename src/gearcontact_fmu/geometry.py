@@ -599,11 +599,32 @@ def _split_for_notch(g, side, s_from, s_to, kind, notch, down):
     return out
 
 
-def _tooth_template(g: GearGeometry, resolution: MeshResolution, top_land=False, notch=None):
-    """Mesh of tooth 0 in the gear frame: vertices, faces and per-face data (strips of the polyline)."""
+def graded_face_nodes(g: GearGeometry, face: float, bands) -> tuple:
+    """Cone distances of the face rows: spacing ``face`` (the uniform rows), and within each band
+    ``(rho_lo, rho_hi, fine)`` rows every ``fine`` (a local fault, or its partner's), the uniform rows
+    kept where they do not fall inside a band."""
+    nf = max(1, int(math.ceil(g.b / face - 1e-9)))
+    rows = np.linspace(g.Ri, g.Re, nf + 1)
+    for rho_lo, rho_hi, fine in bands:
+        lo, hi = max(g.Ri, rho_lo), min(g.Re, rho_hi)
+        if hi <= lo:
+            continue
+        n = max(1, int(math.ceil((hi - lo) / fine - 1e-9)))
+        keep = rows[(rows < lo - 0.5 * fine) | (rows > hi + 0.5 * fine)]
+        rows = np.unique(np.concatenate([keep, np.linspace(lo, hi, n + 1)]))
+    return tuple(float(r) for r in rows)
+
+
+def _tooth_template(g: GearGeometry, resolution: MeshResolution, top_land=False, notch=None, rho_nodes=None):
+    """Mesh of tooth 0 in the gear frame: vertices, faces and per-face data (strips of the polyline).
+    ``rho_nodes``: the cone distances of the face rows (default uniform at ``resolution.face``)."""
     ds = resolution.profile / g.Rm
-    nf = max(1, int(math.ceil(g.b / resolution.face - 1e-9)))
-    rho = np.linspace(g.Ri, g.Re, nf + 1)
+    if rho_nodes is None:
+        nf = max(1, int(math.ceil(g.b / resolution.face - 1e-9)))
+        rho = np.linspace(g.Ri, g.Re, nf + 1)
+    else:
+        rho = np.asarray(rho_nodes, dtype=float)
+        nf = len(rho) - 1
     pieces = _tooth_pieces(g, top_land, notch)
     # split into strips at None markers
     strips, cur = [], []
@@ -691,7 +712,8 @@ def _teeth_list(g: GearGeometry, teeth):
 
 
 def build_gear_mesh(params: BevelGearParams | None, role: str, resolution: MeshResolution | None = None,
-                    teeth=None, *, top_land: bool = False, notch: dict | None = None) -> SurfaceMesh:
+                    teeth=None, *, top_land: bool = False, notch: dict | None = None,
+                    rho_nodes: dict | None = None, face_bands=()) -> SurfaceMesh:
     """Surface mesh (body frame, m) of both flanks of the teeth incl. tip rounding (top land optional).
 
     Element size: ``resolution.profile`` along the profile and ``resolution.face`` along the face
@@ -700,7 +722,9 @@ def build_gear_mesh(params: BevelGearParams | None, role: str, resolution: MeshR
     structured strip (shared vertices, consistent winding, geometric normals outward). Exact face
     data: ``face_points`` on the analytic surface at the element centroid's profile parameter,
     ``face_normals`` the analytic outward normal. ``notch`` (used by :mod:`faults`):
-    ``{tooth: (side, s_a, s_b, depth_angle)}``."""
+    ``{tooth: (side, s_a, s_b, depth_angle)}``; ``rho_nodes`` (used by :mod:`faults`): ``{tooth: cone
+    distances of its face rows}``; ``face_bands``: ``[(rho_lo, rho_hi, fine), ...]`` finer face rows for
+    every tooth (see :func:`graded_face_nodes`; used where the partner gear has a local fault)."""
     _check_role(role)
     params = params or BevelGearParams()
     resolution = resolution or MeshResolution()
@@ -713,8 +737,11 @@ def build_gear_mesh(params: BevelGearParams | None, role: str, resolution: MeshR
     for k in ks:
         key = notch.get(k)
         if key not in cache:
-            cache[key] = _tooth_template(g, resolution, top_land, key)
+            rows = graded_face_nodes(g, resolution.face, face_bands) if face_bands else None
+            cache[key] = _tooth_template(g, resolution, top_land, key, rows)
         V, F, FP, FN, FK, FF, FS = cache[key]
+        if rho_nodes and k in rho_nodes:     # a tooth with its own face rows (a local fault on it)
+            V, F, FP, FN, FK, FF, FS = _tooth_template(g, resolution, top_land, key, rho_nodes[k])
         R = _tooth_rotation(g, k)
         Vs.append(V @ R.T)
         Fs.append(F + nv)
@@ -733,7 +760,7 @@ def build_gear_mesh(params: BevelGearParams | None, role: str, resolution: MeshR
         face_tooth=np.concatenate(FTs), face_flank=np.concatenate(FFs), face_kind=np.concatenate(FKs),
         face_profile=np.concatenate(FSs),
         meta={"source": "analytic", "role": role, "profile": resolution.profile, "face": resolution.face,
-              "top_land": top_land, "params": params})
+              "top_land": top_land, "params": params, "face_bands": [tuple(b) for b in face_bands]})
 
 
 def analytic_area(params: BevelGearParams | None, role: str, top_land: bool = False, n_teeth: int | None = None) -> float:

@@ -275,3 +275,18 @@ def test_sliding_wear_is_zero_at_the_pitch_cone():
     near = np.abs(s - g.s_pitch_param) < 0.02 * g.L_inv
     far = np.abs(s - g.s_pitch_param) > 0.9 * max(g.s_pitch_param - g.L_radial, g.L_radial + g.L_inv - g.s_pitch_param)
     assert np.all(d[near] < 2e-6) and d[far].max() > 15e-6
+
+
+@pytest.mark.parametrize("role, tooth", [("pinion", 3), ("wheel", 38)])
+def test_crack_removes_the_flank_over_its_length(role, tooth):
+    """A root crack grown through: the drive flank of the tooth missing over 5 mm of the face. Oracle:
+    the flank area over that face length, (rho_2^2 - rho_1^2)/2 x the flank's profile angle."""
+    g = G.gear_geometry(P, role)
+    m = G.build_gear_mesh(P, role, MeshResolution(profile=0.1e-3, face=2e-3))
+    p = faults.crack(m, P, tooth, length=5e-3, face_position=0.4)
+    validate_gear_mesh(p, P, role)
+    rc = g.Ri + 0.4 * g.b
+    closed = 0.5 * ((rc + 2.5e-3) ** 2 - (rc - 2.5e-3) ** 2) * (g.L_radial + g.L_inv)
+    removed = m.tooth_areas(FLANK_DRIVE)[tooth] - p.tooth_areas(FLANK_DRIVE)[tooth]
+    assert removed == pytest.approx(closed, rel=0.01)
+    assert p.tooth_areas(FLANK_COAST)[tooth] == pytest.approx(m.tooth_areas(FLANK_COAST)[tooth], rel=1e-9)

@@ -143,7 +143,7 @@ def test_fault_lists_are_checked_whole_and_normalised():
         {"kind": "void", "member": "wheel", "tooth": 60, "flank": "left", "depth_mm": -0.1, "colour": 3},
         {"kind": "missing_tooth", "member": "axle", "tooth": 2, "flank": "drive"},
         "void"]}})
-    assert_problem(e, "gear.faults[0].kind", "'dent'", "one of ('void', 'missing_tooth', 'pit', 'spall', 'chipped_tip', 'wear')")
+    assert_problem(e, "gear.faults[0].kind", "'dent'", "one of ('void', 'missing_tooth', 'pit', 'spall', 'chipped_tip', 'crack', 'wear')")
     assert_problem(e, "gear.faults[1].tooth", "60", "tooth index 0..59 of the wheel")
     assert_problem(e, "gear.faults[1].flank", "'left'", "one of ('drive', 'coast')")
     assert_problem(e, "gear.faults[1].depth_mm", "-0.1", "a size > 0 mm")

@@ -62,12 +62,12 @@ def test_a_wheel_fault_runs_through_the_fmus_and_is_labelled(tmp_path, fmu_dir):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("kind", ["void", "pit", "spall", "chipped_tip", "wear"])
+@pytest.mark.parametrize("kind", ["void", "pit", "spall", "chipped_tip", "crack", "wear", "missing_tooth"])
 def test_wheel_fault_sidebands_at_propeller_shaft_orders_pinion_fault_not(tmp_path, fmu_dir, kind):
     """The same fault on wheel tooth 38 and on pinion tooth 0, 1500 rpm, 1.31 N·m, 4 s (3 s analysed,
     0.33 Hz bins; f_PSH = 2.08 Hz), every fault family at its default size: the 1 mm x 0.3 mm flank
     void, a pit of radius 1.5 mm and depth 0.25 mm at mid face, a 2 x 4 x 0.1 mm spall, a 0.5 mm
-    chipped tip, 20 µm of uniform wear. The wheel fault's sidebands at f_GMF ± k·f_PSH, k = 1..3, stand >= 10 dB above
+    chipped tip, a 5 mm root crack grown through, 20 µm of uniform wear, a missing tooth. The wheel fault's sidebands at f_GMF ± k·f_PSH, k = 1..3, stand >= 10 dB above
     the pinion fault's at the same frequencies; the pinion fault's are at k = 4 (f_MSH). Measured, dB re
     GMF at k = 1, 2, 3, 4: void wheel -11, -12, -11, -10, pinion -63, -87, -67, -3; pit wheel -49, -50,
     -49, -48, pinion -63, -88, -99, -37 (every run, healthy too, shows -63 dB at k = 1)."""

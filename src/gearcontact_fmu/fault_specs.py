@@ -19,6 +19,7 @@ FAULT_KINDS = {
     "pit": {"radius_mm": 1.5, "depth_mm": 0.25, "face_position": 0.5, "position_mm": 0.0},
     "spall": {"length_mm": 2.0, "width_mm": 4.0, "depth_mm": 0.1, "face_position": 0.5, "position_mm": 0.0},
     "chipped_tip": {"height_mm": 0.5, "length_mm": 0.0, "face_position": 0.5},
+    "crack": {"length_mm": 5.0, "face_position": 0.5},
     "wear": {"depth_um": 20.0, "profile": "uniform"},
 }
 """Fault families of ``health = "faults"``: kind -> its size keys with defaults (scene units, mm). Every
@@ -31,7 +32,8 @@ radius_mm and depth depth_mm pressed into the flank, its centre position_mm from
 the tip and at face_position of the face width (0 = toe/inner end, 1 = heel/outer end). ``spall``: a
 flat-bottomed patch length_mm along the profile by width_mm along the face, depth_mm deep. ``chipped_tip``:
 the tip corner of the flank cut at 45°, height_mm along the profile, over length_mm of the face (0 = the
-whole face). ``wear``: depth_um removed over the whole flank, profile "uniform" or "sliding" (growing with
+whole face). ``crack``: a tooth-root crack grown through, the flank missing over length_mm of the face
+at face_position. ``wear``: depth_um removed over the whole flank, profile "uniform" or "sliding" (growing with
 the distance from the pitch cone). Lengths along the profile are at the mean cone distance (the teeth
 taper)."""
 SPEC_KEYS = ("kind", "member", "tooth", "flank")

@@ -17,6 +17,7 @@
 * :func:`pit`, :func:`spall`, :func:`chipped_tip`, :func:`wear` - material removed from a flank along
   its normal by a depth field (a spherical cap; a flat-bottomed patch; a 45° chamfer at the tip; a
   uniform or sliding-weighted layer), the tooth re-meshed finely where the fault is (:func:`_dent`).
+* :func:`crack` - a tooth-root crack grown through: the flank missing over part of the face width.
 * :func:`apply_health` - ``"healthy" | "mild" | "severe" | "faults"`` for one member (pinion or wheel);
   ``"faults"`` applies a list of fault specifications (:data:`FAULT_KINDS`, :func:`apply_faults`), each
   on either gear, any tooth and flank, several at once.
@@ -37,7 +38,7 @@ from .mesh_model import GENERATED_HEALTH
 from .meshes import KIND_TIP_ROUND, SurfaceMesh, concatenate
 from .params import BevelGearParams, MeshResolution
 
-__all__ = ["mild_flank_fracture", "missing_tooth", "pit", "spall", "chipped_tip", "wear", "apply_health", "apply_faults", "user_mesh",
+__all__ = ["mild_flank_fracture", "missing_tooth", "pit", "spall", "chipped_tip", "crack", "wear", "apply_health", "apply_faults", "user_mesh",
            "GENERATED_HEALTH", "FAULT_KINDS", "void_strip"]
 
 
@@ -316,6 +317,34 @@ def chipped_tip(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth:
     return _dent(mesh, params, role, g, tooth, flank, field, bands, height / 16.0, record, what)
 
 
+def crack(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth: int = 0, flank: str = "drive",
+          length: float = 5.0e-3, face_position: float = 0.5) -> SurfaceMesh:
+    """Mesh with a tooth-root crack grown through: the ``flank`` of ``tooth`` missing over ``length`` of
+    the face width centred at ``face_position`` (root part and involute; the segment beyond the crack
+    no longer carries load). Face rows land on the segment's two edges. The alternative model, a
+    reduced tooth stiffness, needs a tooth-bending compliance the PCM layer does not have yet."""
+    params, role, g, tooth = _check_tooth(mesh, params, tooth, flank)
+    if not length > 0:
+        raise ValueError("a crack needs length > 0")
+    what = f"crack ({length * 1e3:g} mm of the face)"
+    rho_c = _face_rho(g, face_position, 0.5 * length, what, flank, tooth)
+    lo, hi = rho_c - 0.5 * length, rho_c + 0.5 * length
+    res = MeshResolution(profile=mesh.meta["profile"], face=mesh.meta["face"])
+    nodes = geometry.graded_face_nodes(g, res.face, list(mesh.meta.get("face_bands", []))
+                                      + [(lo, hi, min(length / 4.0, res.face))])
+    t = geometry.build_gear_mesh(params, role, res, teeth=[tooth], top_land=mesh.meta.get("top_land", False),
+                                 rho_nodes={tooth: nodes})
+    rho_f = np.linalg.norm(t.vertices[t.faces], axis=2).mean(axis=1)
+    gone = (t.face_flank == FLANKS[flank]) & (rho_f > lo) & (rho_f < hi)
+    t = t.subset(~gone)
+    out = concatenate([mesh.subset(mesh.face_tooth != tooth), t])
+    out.meta = dict(mesh.meta)
+    out.meta["faults"] = list(mesh.meta.get("faults", [])) + [
+        {"type": "crack", "tooth": tooth, "flank": flank, "length": length, "face_position": face_position,
+         "area": 0.5 * (hi * hi - lo * lo) * (g.L_radial + g.L_inv)}]
+    return out
+
+
 def wear(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth: int = 0, flank: str = "drive",
          depth: float = 20e-6, profile: str = "uniform") -> SurfaceMesh:
     """Mesh with worn ``flank`` of ``tooth``: material ``depth`` removed along the normal over the whole
@@ -362,6 +391,9 @@ def apply_faults(mesh: SurfaceMesh, params: BevelGearParams | None, specs, membe
             mesh = chipped_tip(mesh, params, tooth=spec["tooth"], flank=spec["flank"],
                                height=spec["height_mm"] * 1e-3, length=spec["length_mm"] * 1e-3 or None,
                                face_position=spec["face_position"])
+        elif spec["kind"] == "crack":
+            mesh = crack(mesh, params, tooth=spec["tooth"], flank=spec["flank"], length=spec["length_mm"] * 1e-3,
+                         face_position=spec["face_position"])
         elif spec["kind"] == "wear":
             mesh = wear(mesh, params, tooth=spec["tooth"], flank=spec["flank"], depth=spec["depth_um"] * 1e-6,
                         profile=spec["profile"])

@@ -289,3 +289,21 @@ def test_sliding_pit_has_no_blind_spot():
     assert len(devs) == 9
     assert devs.min() > 0.5 * np.median(devs) and devs.min() > 1e-3
     assert np.max(np.abs(np.diff(devs))) < 0.2 * np.median(devs)
+
+
+def test_a_wheel_mesh_file_alone_spans_the_pairing_period(tmp_path):
+    """health = "mesh" with only a wheel mesh (it used to fail at start with "health must be one of
+    ..."): the pinion is generated healthy, the map spans 4 pinion revolutions and, the file's teeth not
+    being known copies of one tooth, every pitch block is computed."""
+    from gearcontact_fmu import contact_map as cm
+    from gearcontact_fmu import faults
+    from gearcontact_fmu import geometry as G
+    from gearcontact_fmu.meshes import save_mesh
+
+    res = MeshResolution(profile=0.3e-3, face=3e-3)
+    f = tmp_path / "wheel.obj"
+    save_mesh(faults.missing_tooth(G.build_gear_mesh(GEAR, "wheel", res), 21), f)
+    pair = build_pcm_pair(GEAR, PCM, res, health="mesh", wheel_mesh_file=str(f))
+    m = cm.compute_map(pair, MapGrid(points_per_pitch=2, s_points=6, max_torque=120.0))
+    assert m.info["pinion_revolutions"] == 4 and m.info["blocks_computed"] == 60
+    assert m.info["tiled_from_block"] is None

@@ -40,7 +40,7 @@ from drivetrain.rig import RIG_SENSORS, TORQUE_SENSORS, UPPER_RATIO, Z_PINION, Z
 from gearcontact_fmu.fault_specs import (FAULT_KINDS, draw_faults, draw_rule_problems, fault_spec_problems,
                                          normalised_spec)
 from gearcontact_fmu.mesh_model import FIDELITIES, HEALTH_STATES
-from gearcontact_fmu.params import DEFAULT_COMM_STEP_S, BevelGearParams, MeshResolution
+from gearcontact_fmu.params import DEFAULT_COMM_STEP_S, MeshResolution
 
 # --------------------------------------------------------------------------------------------------
 # Fixed vocabularies
@@ -476,9 +476,8 @@ def _check_value(key: str, spec: Key, value: Any, base_dir: Path, problems) -> A
             problems.append((key, value, "an array of tables [[gear.faults]]"))
             return None
         bad = len(problems)
-        gp = BevelGearParams()
         for i, spec in enumerate(value):
-            for k, v, e in fault_spec_problems(spec, gp.z_pinion, gp.z_wheel):
+            for k, v, e in fault_spec_problems(spec, Z_PINION, Z_WHEEL):
                 problems.append((f"{key}[{i}]" + (f".{k}" if k else ""), v, e))
         return tuple(normalised_spec(f) for f in value) if len(problems) == bad else None
     if t == "profile":
@@ -853,9 +852,8 @@ def load_scenes(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -
             sec, key = k.split(".")
             case.setdefault(sec, {})[key] = v
         if d is not None:
-            gp = BevelGearParams()
             case.setdefault("gear", {}).update(
-                health="faults", faults=draw_faults(draw["faults"], rng, gp.z_pinion, gp.z_wheel))
+                health="faults", faults=draw_faults(draw["faults"], rng, Z_PINION, Z_WHEEL))
         case.setdefault("scenario", {}).pop("name", None)
         try:
             sc = resolve(case, base_dir=path.parent, source=path, overrides=overrides)

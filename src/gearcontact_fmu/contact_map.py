@@ -30,7 +30,7 @@ import hashlib
 import math
 import os
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +38,7 @@ from numba import njit
 
 from gearcontact_fmu import geometry
 from gearcontact_fmu.contact import engine
+from gearcontact_fmu.fault_specs import normalised_spec
 from gearcontact_fmu.gearpair import _base_radius, build_pcm_pair, contact_onset, fault_kwargs_of, static_deflection
 from gearcontact_fmu.mesh_model import (N_OUT, OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY,
                                         OUT_MAX_PENETRATION, OUT_N_CONTACT, OUT_NORMAL_FORCE, OUT_PEAK_PRESSURE,
@@ -172,7 +173,7 @@ def _faulty_teeth(pair, member: str) -> list[int] | None:
     return sorted(listed)
 
 
-def _wheel_block(pair, tooth: int, n_blocks: int) -> int:
+def _wheel_block(tooth: int, n_blocks: int) -> int:
     """Pitch block in which wheel ``tooth`` meets the pinion at the centre of the mesh (block b
     spans pinion angles [b, b + 1) pitches; the wheel turns one wheel pitch per block)."""
     return int(tooth) % n_blocks
@@ -209,7 +210,7 @@ def _tabulate_by_pitch(pair, theta, a, grid: MapGrid, n_rev: int = 1):
 
     if f_pin is None or f_whl is None:
         return everything()
-    centres = [k + m * z1 for k in f_pin for m in range(n_rev)] + [_wheel_block(pair, j, n_blocks) for j in f_whl]
+    centres = [k + m * z1 for k in f_pin for m in range(n_rev)] + [_wheel_block(j, n_blocks) for j in f_whl]
     window = sorted({b % n_blocks for c in centres for b in (c - 1, c)})
     dist = lambda b: min(min((b - w) % n_blocks, (w - b) % n_blocks) for w in window) if window else 0  # noqa: E731
     healthy = max(range(n_blocks), key=lambda b: (dist(b), -b)) if window else 0
@@ -367,7 +368,7 @@ def wheel_faults(health: str, fault_kwargs: dict | None) -> list:
     """The generated faults of a configuration that sit on the wheel."""
     if health != "faults":
         return []
-    return [f for f in (fault_kwargs or {}).get("faults", []) if f.get("member", "pinion") == "wheel"]
+    return [f for f in (fault_kwargs or {}).get("faults", []) if normalised_spec(f)["member"] == "wheel"]
 
 
 def _build_map(gear, pcm, resolution, health, mesh_files, mesh_units, grid, fault_kwargs) -> ContactMap:

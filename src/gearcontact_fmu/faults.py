@@ -31,22 +31,20 @@ import math
 import numpy as np
 
 from . import geometry
-from .mesh_check import load_gear_mesh
 from .fault_specs import (DEFAULT_DEPTH, DEFAULT_POSITION, DEFAULT_WIDTH, FAULT_KINDS, FLANKS, WEAR_PROFILES,
                           normalised_spec)
+from .mesh_check import load_gear_mesh
 from .mesh_model import GENERATED_HEALTH
 from .meshes import KIND_TIP_ROUND, SurfaceMesh, concatenate
 from .params import BevelGearParams, MeshResolution
 
 __all__ = ["mild_flank_fracture", "missing_tooth", "pit", "spall", "chipped_tip", "crack", "wear", "apply_health", "apply_faults", "user_mesh",
-           "GENERATED_HEALTH", "FAULT_KINDS", "void_strip"]
-
-
+           "GENERATED_HEALTH", "FAULT_KINDS", "FAMILIES", "void_strip"]
 
 
 def _analytic_role(mesh: SurfaceMesh) -> str:
     if mesh.meta.get("source") != "analytic" or "role" not in mesh.meta:
-        raise ValueError("mild_flank_fracture needs a mesh from geometry.build_gear_mesh (a user mesh carries "
+        raise ValueError("a generated fault needs a mesh from geometry.build_gear_mesh (a user mesh carries "
                          "its own faults: load it with mesh_check.load_gear_mesh)")
     return mesh.meta["role"]
 
@@ -68,16 +66,7 @@ def mild_flank_fracture(mesh: SurfaceMesh, params: BevelGearParams | None = None
 
     ``mesh`` must come from :func:`geometry.build_gear_mesh` (any role, any tooth subset containing
     ``tooth``); the tooth is re-meshed at the same resolution with the void."""
-    params = params or BevelGearParams()
-    role = _analytic_role(mesh)
-    g = geometry.gear_geometry(params, role)
-    mp = mesh.meta.get("params")
-    if mp is not None and mp != params:
-        raise ValueError("mesh was built with other gear parameters than the ones given")
-    tooth = int(tooth) % g.z
-    sel = mesh.face_tooth == tooth
-    if not sel.any():
-        raise ValueError(f"tooth {tooth} is not in the mesh")
+    params, role, g, tooth = _check_tooth(mesh, params, tooth, flank)
     if not (width > 0 and depth > 0):
         raise ValueError("width and depth must be > 0")
     s_a, s_b = void_strip(params, role, width, position)
@@ -89,30 +78,20 @@ def mild_flank_fracture(mesh: SurfaceMesh, params: BevelGearParams | None = None
         raise ValueError("the void must not straddle the base cone (radial root part / involute)")
     if depth > 0.5 * g.s_pitch:
         raise ValueError("void deeper than half the tooth thickness")
-    if flank not in FLANKS:
-        raise ValueError(f"flank must be one of {tuple(FLANKS)}, not {flank!r}")
     res = MeshResolution(profile=mesh.meta["profile"], face=mesh.meta["face"])
     faulty = geometry.build_gear_mesh(params, role, res, teeth=[tooth], top_land=mesh.meta.get("top_land", False),
                                       notch={tooth: (geometry._side_of_flank(FLANKS[flank]), s_a, s_b, depth / g.Rm)},
                                       face_bands=mesh.meta.get("face_bands", ()))
-    out = concatenate([mesh.subset(~sel), faulty])
-    out.meta = dict(mesh.meta)
-    out.meta["faults"] = list(mesh.meta.get("faults", [])) + [
-        {"type": "flank_fracture", "tooth": tooth, "width": width, "depth": depth, "position": position,
-         "flank": flank}]
-    return out
+    return _with_tooth(mesh, tooth, faulty, {"type": "flank_fracture", "tooth": tooth, "width": width,
+                                             "depth": depth, "position": position, "flank": flank})
 
 
 def missing_tooth(mesh: SurfaceMesh, tooth: int = 0) -> SurfaceMesh:
     """Mesh without any surface of ``tooth`` (severe fault)."""
-    sel = mesh.face_tooth == int(tooth)
-    if not sel.any():
-        z = mesh.meta.get("params")
-        raise ValueError(f"tooth {tooth} is not in the mesh (face_tooth has no such index)"
-                         + ("" if z is None else ""))
-    out = mesh.subset(~sel)
-    out.meta["faults"] = list(mesh.meta.get("faults", [])) + [{"type": "missing_tooth", "tooth": int(tooth)}]
-    return out
+    tooth = int(tooth)
+    if not np.any(mesh.face_tooth == tooth):
+        raise ValueError(f"tooth {tooth} is not in the mesh (face_tooth has no such index)")
+    return _with_tooth(mesh, tooth, None, {"type": "missing_tooth", "tooth": tooth})
 
 
 def pit_depth(r, radius: float, depth: float):
@@ -153,15 +132,37 @@ def partner_face_bands(params: BevelGearParams | None, specs, member: str) -> li
 
 
 def _check_tooth(mesh, params, tooth, flank):
+    """The checks every fault on a generated gear shares: (params, role, geometry, tooth mod z)."""
     params = params or BevelGearParams()
     role = _analytic_role(mesh)
     g = geometry.gear_geometry(params, role)
+    mp = mesh.meta.get("params")
+    if mp is not None and mp != params:
+        raise ValueError("mesh was built with other gear parameters than the ones given")
     tooth = int(tooth) % g.z
     if not np.any(mesh.face_tooth == tooth):
         raise ValueError(f"tooth {tooth} is not in the mesh")
     if flank not in FLANKS:
         raise ValueError(f"flank must be one of {tuple(FLANKS)}, not {flank!r}")
     return params, role, g, tooth
+
+
+def _with_tooth(mesh: SurfaceMesh, tooth: int, new_tooth: SurfaceMesh | None, record: dict) -> SurfaceMesh:
+    """``mesh`` with ``tooth`` replaced by ``new_tooth`` (None: removed) and ``record`` added to its faults."""
+    kept = mesh.subset(mesh.face_tooth != tooth)
+    out = kept if new_tooth is None else concatenate([kept, new_tooth])
+    out.meta = dict(mesh.meta)
+    out.meta["faults"] = list(mesh.meta.get("faults", [])) + [record]
+    return out
+
+
+def _remesh_tooth(mesh: SurfaceMesh, params, role, g, tooth: int, bands, profile_step: float) -> SurfaceMesh:
+    """``tooth`` of ``mesh`` built again at its resolution, the profile spacing at most ``profile_step``
+    and the face rows refined in ``bands`` as well as in the mesh's own face bands."""
+    res = MeshResolution(profile=min(mesh.meta["profile"], profile_step), face=mesh.meta["face"])
+    nodes = geometry.graded_face_nodes(g, res.face, list(mesh.meta.get("face_bands", [])) + list(bands))
+    return geometry.build_gear_mesh(params, role, res, teeth=[tooth], top_land=mesh.meta.get("top_land", False),
+                                    rho_nodes={tooth: nodes})
 
 
 def _dent(mesh: SurfaceMesh, params, role, g, tooth: int, flank: str, depth_field, bands, profile_step: float,
@@ -173,10 +174,7 @@ def _dent(mesh: SurfaceMesh, params, role, g, tooth: int, flank: str, depth_fiel
     mesh file: the exact flank no longer describes them. (The exact point of a rim element, whose
     centroid parameter lies just outside a pit while two of its vertices moved in, stands proud of its
     facet by tens of µm: measured, it made the pair touch 0.6 mrad early.)"""
-    res = MeshResolution(profile=min(mesh.meta["profile"], profile_step), face=mesh.meta["face"])
-    nodes = geometry.graded_face_nodes(g, res.face, list(mesh.meta.get("face_bands", [])) + list(bands))
-    t = geometry.build_gear_mesh(params, role, res, teeth=[tooth], top_land=mesh.meta.get("top_land", False),
-                                 rho_nodes={tooth: nodes})
+    t = _remesh_tooth(mesh, params, role, g, tooth, bands, profile_step)
     # this flank and the tip rounding on its side (the outward normals of a side point the same way
     # round the gear axis, body z)
     side = t.face_flank == FLANKS[flank]
@@ -218,10 +216,7 @@ def _dent(mesh: SurfaceMesh, params, role, g, tooth: int, flank: str, depth_fiel
     fn[touched] = geo / np.linalg.norm(geo, axis=1)[:, None]
     faulty = SurfaceMesh(vertices=V, faces=t.faces, face_points=fp, face_normals=fn, face_tooth=t.face_tooth,
                          face_flank=t.face_flank, face_kind=t.face_kind, face_profile=t.face_profile, meta=t.meta)
-    out = concatenate([mesh.subset(mesh.face_tooth != tooth), faulty])
-    out.meta = dict(mesh.meta)
-    out.meta["faults"] = list(mesh.meta.get("faults", [])) + [{"tooth": tooth, "flank": flank, **record}]
-    return out
+    return _with_tooth(mesh, tooth, faulty, {"tooth": tooth, "flank": flank, **record})
 
 
 def _face_rho(g, face_position: float, half: float, what: str, flank: str, tooth: int) -> float:
@@ -291,9 +286,9 @@ def chipped_tip(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth:
                 height: float = 0.5e-3, length: float | None = None, face_position: float = 0.5) -> SurfaceMesh:
     """Mesh with the tip corner of ``flank`` chipped off: a 45° chamfer ``height`` deep along the profile
     from the end of the flank (its tip rounding included) at the mean cone distance (tapered with the
-    teeth), over ``length`` of the face width (default the whole face) centred at ``face_position``."""
+    teeth), over ``length`` of the face width (None or 0: the whole face) centred at ``face_position``."""
     params, role, g, tooth = _check_tooth(mesh, params, tooth, flank)
-    length = g.b if length is None else length
+    length = length or g.b
     if not (height > 0 and length > 0):
         raise ValueError("a chipped tip needs height and length > 0")
     what = f"chipped tip ({height * 1e3:g} mm high, {length * 1e3:g} mm long)"
@@ -329,20 +324,13 @@ def crack(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth: int =
     what = f"crack ({length * 1e3:g} mm of the face)"
     rho_c = _face_rho(g, face_position, 0.5 * length, what, flank, tooth)
     lo, hi = rho_c - 0.5 * length, rho_c + 0.5 * length
-    res = MeshResolution(profile=mesh.meta["profile"], face=mesh.meta["face"])
-    nodes = geometry.graded_face_nodes(g, res.face, list(mesh.meta.get("face_bands", []))
-                                      + [(lo, hi, min(length / 4.0, res.face))])
-    t = geometry.build_gear_mesh(params, role, res, teeth=[tooth], top_land=mesh.meta.get("top_land", False),
-                                 rho_nodes={tooth: nodes})
+    t = _remesh_tooth(mesh, params, role, g, tooth, [(lo, hi, min(length / 4.0, mesh.meta["face"]))],
+                      mesh.meta["profile"])
     rho_f = np.linalg.norm(t.vertices[t.faces], axis=2).mean(axis=1)
     gone = (t.face_flank == FLANKS[flank]) & (rho_f > lo) & (rho_f < hi)
-    t = t.subset(~gone)
-    out = concatenate([mesh.subset(mesh.face_tooth != tooth), t])
-    out.meta = dict(mesh.meta)
-    out.meta["faults"] = list(mesh.meta.get("faults", [])) + [
-        {"type": "crack", "tooth": tooth, "flank": flank, "length": length, "face_position": face_position,
-         "area": 0.5 * (hi * hi - lo * lo) * (g.L_radial + g.L_inv)}]
-    return out
+    return _with_tooth(mesh, tooth, t.subset(~gone),
+                       {"type": "crack", "tooth": tooth, "flank": flank, "length": length,
+                        "face_position": face_position, "area": 0.5 * (hi * hi - lo * lo) * (g.L_radial + g.L_inv)})
 
 
 def wear(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth: int = 0, flank: str = "drive",
@@ -371,36 +359,37 @@ def wear(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth: int = 
     return _dent(mesh, params, role, g, tooth, flank, field, [], mesh.meta["profile"], record, f"{profile} wear")
 
 
+FAMILIES = {"void": mild_flank_fracture, "missing_tooth": missing_tooth, "pit": pit, "spall": spall,
+            "chipped_tip": chipped_tip, "crack": crack, "wear": wear}
+"""fault kind -> the function that builds it (``FAULT_KINDS`` holds its scene keys and defaults)."""
+assert set(FAMILIES) == set(FAULT_KINDS)
+_SCENE_UNITS = {"_mm": 1e-3, "_um": 1e-6}
+
+
+def _si_keywords(spec: dict) -> dict:
+    """The size keys of a normalised specification as the keywords of its function, in SI: a key with a
+    unit suffix loses it and is scaled (``radius_mm`` 1.5 -> ``radius`` 1.5e-3), the others pass."""
+    kw = {}
+    for key in FAULT_KINDS[spec["kind"]]:
+        name, value = key, spec[key]
+        for suffix, scale in _SCENE_UNITS.items():
+            if key.endswith(suffix):
+                name, value = key[:-len(suffix)], value * scale
+        kw[name] = value
+    return kw
+
+
 def apply_faults(mesh: SurfaceMesh, params: BevelGearParams | None, specs, member: str) -> SurfaceMesh:
     """The mesh of ``member`` with every specification of that member applied, in order."""
     for spec in specs:
         spec = normalised_spec(spec)
         if spec["member"] != member:
             continue
-        if spec["kind"] == "missing_tooth":
+        if spec["kind"] == "missing_tooth":             # a whole tooth: no flank, no sizes
             mesh = missing_tooth(mesh, spec["tooth"])
-        elif spec["kind"] == "pit":
-            mesh = pit(mesh, params, tooth=spec["tooth"], flank=spec["flank"], radius=spec["radius_mm"] * 1e-3,
-                       depth=spec["depth_mm"] * 1e-3, face_position=spec["face_position"],
-                       position=spec["position_mm"] * 1e-3)
-        elif spec["kind"] == "spall":
-            mesh = spall(mesh, params, tooth=spec["tooth"], flank=spec["flank"], length=spec["length_mm"] * 1e-3,
-                         width=spec["width_mm"] * 1e-3, depth=spec["depth_mm"] * 1e-3,
-                         face_position=spec["face_position"], position=spec["position_mm"] * 1e-3)
-        elif spec["kind"] == "chipped_tip":
-            mesh = chipped_tip(mesh, params, tooth=spec["tooth"], flank=spec["flank"],
-                               height=spec["height_mm"] * 1e-3, length=spec["length_mm"] * 1e-3 or None,
-                               face_position=spec["face_position"])
-        elif spec["kind"] == "crack":
-            mesh = crack(mesh, params, tooth=spec["tooth"], flank=spec["flank"], length=spec["length_mm"] * 1e-3,
-                         face_position=spec["face_position"])
-        elif spec["kind"] == "wear":
-            mesh = wear(mesh, params, tooth=spec["tooth"], flank=spec["flank"], depth=spec["depth_um"] * 1e-6,
-                        profile=spec["profile"])
         else:
-            mesh = mild_flank_fracture(mesh, params, tooth=spec["tooth"], width=spec["width_mm"] * 1e-3,
-                                       depth=spec["depth_mm"] * 1e-3, position=spec["position_mm"] * 1e-3,
-                                       flank=spec["flank"])
+            mesh = FAMILIES[spec["kind"]](mesh, params, tooth=spec["tooth"], flank=spec["flank"],
+                                          **_si_keywords(spec))
     return mesh
 
 

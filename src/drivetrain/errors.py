@@ -65,6 +65,12 @@ class ContactRangeError(Refused):
     headline = None
 
 
+class ContactCostError(Refused):
+    """A gear contact whose estimated cost exceeds the scene's budget (raised before any step)."""
+
+    headline = None
+
+
 class MissingValue:
     """The marker of a scene key that is required but absent, or given with an unusable value."""
 

@@ -249,10 +249,16 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
         warnings.append(cost)
         log(f"warning: {cost}")
 
-    try:   # a u_max the static load alone would pass is refused before any step
+    try:   # a contact model too costly for the scene's budget, or a u_max the static load alone would
+        #    pass, is refused before any step
+        contact_cost = stability.check_contact_cost(spec, scene.time.duration_s, scene.numerics.max_contact_hours)
         contact_range = stability.check_contact_range(spec)
-    except stability.ContactRangeError as exc:
+    except (stability.ContactCostError, stability.ContactRangeError) as exc:
         raise ConfigurationError(exc.problems) from None
+    for rep in contact_cost:
+        if rep.get("warning"):
+            warnings.append(rep["warning"])
+            log(f"warning: {rep['warning']}")
     H = scene.numerics.comm_step_s
     if abs(spec.comm_step - H) > 1e-12 * H:
         warnings.append(f"the assembled system uses comm_step {spec.comm_step:.10g} s, the scene asks for {H:.10g} s")
@@ -374,7 +380,7 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
         "energy": energy,
         "natural_frequencies_Hz": _natural_frequencies(spec),
         "stability": {**stability_summary(res, spec, covered, energy_residual, settle),
-                      "static_contact": contact_range},
+                      "static_contact": contact_range, "contact_cost": contact_cost},
         "fmus": fmus,
         "nonfinite_channels": nonfinite,
         "warnings": warnings,

@@ -190,6 +190,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "anti_alias": Key("enum", "fir", allowed=ANTI_ALIAS, doc=(
             "anti-alias filter before decimating to sample_rate_Hz: linear-phase Kaiser FIR or "
             "zero-phase Butterworth (sosfiltfilt)")),
+        "max_contact_hours": _f(4.0, "h", "", (
+            "refuse, before it starts, a run whose contact model (map build and online PCM) is estimated "
+            "to take longer: mesh files or element sizes finer than the default are timed on this machine "
+            "first, and the refusal says how far to coarsen"), minimum=0.0, min_exclusive=True),
     },
     "effects": {
         "mesh_contact": Key("enum", "table", allowed=FIDELITIES, doc=(
@@ -278,6 +282,7 @@ class NumericsSpec:
     face_element_mm: float = 2.0
     energy_correction: bool = True
     anti_alias: str = "fir"
+    max_contact_hours: float = 4.0
 
     def steps_per_output(self, sample_rate_Hz: float) -> int:
         return int(round(1.0 / (sample_rate_Hz * self.comm_step_s)))

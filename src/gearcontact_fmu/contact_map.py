@@ -238,12 +238,17 @@ def _tabulate_by_pitch(pair, theta, a, grid: MapGrid, n_rev: int = 1):
                          "tiled_from_block": healthy, "fault_blocks": sorted(differs)}
 
 
+def map_workers() -> int:
+    """Processes that tabulate a map: $BEVEL_MAP_WORKERS, else every CPU."""
+    return max(1, int(os.environ.get("BEVEL_MAP_WORKERS", os.cpu_count() or 1)))
+
+
 def _tabulate(pair, theta, a, grid: MapGrid, workers: int | None = None):
     """Tabulate in parallel over pinion-angle chunks (fork: the workers inherit the built pair)."""
     import multiprocessing as mp
 
     if workers is None:
-        workers = int(os.environ.get("BEVEL_MAP_WORKERS", os.cpu_count() or 1))
+        workers = map_workers()
     workers = max(1, min(workers, len(theta)))
     if workers == 1 or "fork" not in mp.get_all_start_methods():
         return _tabulate_rows(pair, theta, a, grid)

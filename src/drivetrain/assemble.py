@@ -27,7 +27,8 @@ from drivetrain import rig, stability
 from drivetrain.components import FlexibleShaft, FlexibleShaftParams, params_from
 from drivetrain.signals import characteristic_frequencies
 from drivetrain.system import ComponentSpec, Connection, SystemSpec
-from gearcontact_fmu.params import PCMParams
+from gearcontact_fmu.manufacturing_specs import draw_errors
+from gearcontact_fmu.params import BevelGearParams, PCMParams
 
 #: Sensor variables per configuration (docs/DRIVETRAIN.md, "Sensors").
 SENSORS_COMMON = {
@@ -46,6 +47,16 @@ def sensor_map(shafts: str) -> dict:
     return m
 
 
+def manufacturing_errors(scene, gear: BevelGearParams | None = None):
+    """The scene's drawn manufacturing errors (manufacturing_specs.ManufacturingErrors), or None when
+    ``effects.manufacturing_errors`` is off. Deterministic in ``manufacturing.seed``."""
+    if not scene.effects.manufacturing_errors:
+        return None
+    m = scene.manufacturing
+    return draw_errors(gear or BevelGearParams(), grade=m.grade, seed=m.seed, single_pitch_um=m.single_pitch_um,
+                       runout_um=m.runout_um, members=tuple(m.members))
+
+
 def _gear_parameters(scene, part: rig.Partition, max_substep: float) -> dict:
     eff = scene.effects
     pcm = PCMParams()
@@ -56,6 +67,10 @@ def _gear_parameters(scene, part: rig.Partition, max_substep: float) -> dict:
              energy_correction=bool(scene.numerics.energy_correction))
     if scene.gear.faults:
         p["faults"] = json.dumps([dict(f) for f in scene.gear.faults])
+    errors = manufacturing_errors(scene, BevelGearParams(**{f.name: p[f.name] for f in
+                                                             dataclasses.fields(BevelGearParams) if f.name in p}))
+    if errors is not None:
+        p["manufacturing_errors"] = json.dumps(errors.to_dict())
     if scene.gear.pinion_mesh is not None:
         p["pinion_mesh_file"] = str(scene.gear.pinion_mesh)
     if scene.gear.wheel_mesh is not None:
@@ -139,6 +154,12 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
               tau0=ss.T_dsh, phi0_load=phi_b, w0_load=ss.w_prop,
               load_w_nom=ss.w_prop if ss.w_prop > 0 else 1.0)
     gear = _gear_parameters(scene, part, sub)
+    if "manufacturing_errors" in gear:
+        # the errors offset the mesh coordinate by Delta(phi_a, phi_b): start where the offset mesh sits at s0
+        from gearcontact_fmu.manufacturing import mesh_offset
+
+        phi_b += mesh_offset(gear["manufacturing_errors"], phi_a, phi_b) / rig.LOWER_RATIO
+        mo.update(phi0_load=phi_b)
 
     inputs = {}
     inputs["speed_ref_rpm"] = ([list(p) for p in op.speed_profile_rpm] if op.speed_profile_rpm
@@ -161,6 +182,7 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
                       "bodies": part.bodies,
                       "cuts": [{k: v for k, v in c.items()} for c in part.cuts]},
         "steady_state": dataclasses.asdict(ss),
+        "manufacturing_errors": json.loads(gear["manufacturing_errors"]) if "manufacturing_errors" in gear else None,
         "calibration": part.calibration,
         "fmus": [c.model for c in components],
         "substeps": {"gear": sub, "components": csub},

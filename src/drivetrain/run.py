@@ -371,6 +371,8 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
                                              or scene.operating_point.load_profile_Nm)},
         "health": scene.gear.health,
         "effects": dataclasses.asdict(scene.effects),
+        # the drawn errors (per tooth, eccentricities, phases) and how they were drawn: the labels of the run
+        "manufacturing_errors": spec.metadata.get("manufacturing_errors"),
         "torque": torque_stats,
         "channels": channel_stats,
         "f_DSH": cf["f_DSH"], "f_MSH": cf["f_MSH"], "f_PSH": cf["f_PSH"], "f_GMF": cf["f_GMF"],

@@ -39,6 +39,8 @@ from drivetrain.system import steps_per_output
 from drivetrain.rig import RIG_SENSORS, TORQUE_SENSORS, UPPER_RATIO, Z_PINION, Z_WHEEL  # noqa: F401  (re-exported)
 from gearcontact_fmu.fault_specs import (FAULT_KINDS, draw_faults, draw_rule_problems, fault_spec_problems,
                                          normalised_spec)
+from gearcontact_fmu.manufacturing_specs import DEFAULT_GRADE as MANUFACTURING_GRADE
+from gearcontact_fmu.manufacturing_specs import GRADES
 from gearcontact_fmu.mesh_model import FIDELITIES, HEALTH_STATES
 from gearcontact_fmu.params import DEFAULT_COMM_STEP_S, MeshResolution
 
@@ -69,7 +71,7 @@ _VAR_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*\.[A-Za-z_][A-Za-z0-9_.\[\]]*$")
 _UNITS: dict[str, tuple[str, float]] = {
     # time, base s
     "s": ("time", 1.0), "ms": ("time", 1e-3), "us": ("time", 1e-6), "µs": ("time", 1e-6),
-    "min": ("time", 60.0),
+    "min": ("time", 60.0), "h": ("time", 3600.0),
     # rotational speed, base rpm
     "rpm": ("speed", 1.0), "1/min": ("speed", 1.0), "rad/s": ("speed", 60.0 / (2.0 * math.pi)),
     "rps": ("speed", 60.0), "rev/s": ("speed", 60.0),
@@ -190,7 +192,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "anti_alias": Key("enum", "fir", allowed=ANTI_ALIAS, doc=(
             "anti-alias filter before decimating to sample_rate_Hz: linear-phase Kaiser FIR or "
             "zero-phase Butterworth (sosfiltfilt)")),
-        "max_contact_hours": _f(4.0, "h", "", (
+        "max_contact_hours": _f(4.0, "h", "time", (
             "refuse, before it starts, a run whose contact model (map build and online PCM) is estimated "
             "to take longer: mesh files or element sizes finer than the default are timed on this machine "
             "first, and the refusal says how far to coarsen"), minimum=0.0, min_exclusive=True),
@@ -206,6 +208,21 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "friction": Key("bool", True, doc="tooth friction in the mesh (pcm/table)"),
         "contact_damping": Key("bool", True, doc="contact damping in the mesh"),
         "losses": Key("bool", True, doc="viscous losses of the gearboxes and bearings"),
+        "manufacturing_errors": Key("bool", False, doc=(
+            "tooth position (pitch) errors and runout of pinion and wheel, drawn from [manufacturing] "
+            "(pcm, table, analytic; the paper's simulation had none)")),
+    },
+    "manufacturing": {
+        "grade": Key("int", MANUFACTURING_GRADE, minimum=min(GRADES), maximum=max(GRADES), doc=(
+            "ISO 1328 accuracy grade that sets the single pitch tolerance f_pt and the radial runout F_r "
+            "of each gear (lower = finer; 6 = ground industrial gear)")),
+        "seed": Key("int", 0, minimum=0, doc="seed of the draw (one seed, one set of errors; recorded in the summary)"),
+        "single_pitch_um": _f(None, "um", "length", "single pitch tolerance f_pt of both gears, instead of the grade's",
+                              minimum=0.0, default_doc="from grade"),
+        "runout_um": _f(None, "um", "length", "radial runout F_r (= 2 x eccentricity) of both gears, instead of the "
+                        "grade's", minimum=0.0, default_doc="from grade"),
+        "members": Key("str_list", ["pinion", "wheel"], allowed=("pinion", "wheel"),
+                       doc="the gears that have errors"),
     },
 }
 
@@ -296,6 +313,16 @@ class EffectsSpec:
     friction: bool = True
     contact_damping: bool = True
     losses: bool = True
+    manufacturing_errors: bool = False
+
+
+@dataclass(frozen=True)
+class ManufacturingSpec:
+    grade: int = MANUFACTURING_GRADE
+    seed: int = 0
+    single_pitch_um: float | None = None
+    runout_um: float | None = None
+    members: tuple[str, ...] = ("pinion", "wheel")
 
 
 @dataclass(frozen=True)
@@ -309,6 +336,7 @@ class Scene:
     outputs: OutputSpec
     numerics: NumericsSpec
     effects: EffectsSpec
+    manufacturing: ManufacturingSpec = dataclasses.field(default_factory=ManufacturingSpec)
     source: Path | None = None           # the file it came from (None if built in code)
     overrides: tuple[str, ...] = ()      # the --set strings applied
     # drivetrain.expect.ExpectSpec of [expect]/[check] (None: absent); not part of what is simulated
@@ -359,7 +387,7 @@ class Scene:
 
 _SECTION_CLASSES = {
     "scenario": ScenarioInfo, "operating_point": OperatingPoint, "gear": GearSpec, "time": TimeSpec,
-    "outputs": OutputSpec, "numerics": NumericsSpec, "effects": EffectsSpec,
+    "outputs": OutputSpec, "numerics": NumericsSpec, "effects": EffectsSpec, "manufacturing": ManufacturingSpec,
 }
 
 
@@ -406,8 +434,9 @@ def _parse_quantity(key: str, spec: Key, value: str, problems) -> float | None:
         problems.append((key, value, f"a {spec.dimension} in {spec.unit} (got a {dim} unit {unit!r}; "
                                      f"e.g. {_BASE_UNIT.get(spec.dimension, spec.unit)})"))
         return None
-    # base units of the dimension equal the key units by construction (s, rpm, N·m, Hz, mm)
-    return number * factor
+    # to the key's own unit (a key in um takes "0.01 mm" as 10)
+    key_factor = _UNITS[spec.unit][1] if spec.unit in _UNITS and _UNITS[spec.unit][0] == dim else 1.0
+    return number * factor / key_factor
 
 
 def _check_range(key: str, spec: Key, value: float, problems, what: str = "") -> bool:
@@ -650,6 +679,12 @@ def resolve(raw: dict, base_dir: Path | str = ".", source: Path | str | None = N
                 problems.append(("effects.mesh_contact", "analytic",
                                  f"pcm or table for gear.health = {gr['health']!r} (the analytic ISO 6336 pair "
                                  "models the healthy gear only: it has no fault and cannot read a mesh)"))
+
+    if ok("effects", "mesh_contact", "manufacturing_errors") and eff["manufacturing_errors"] \
+            and eff["mesh_contact"] == "ideal":
+        problems.append(("effects.manufacturing_errors", True,
+                         "false with effects.mesh_contact = \"ideal\" (a rigid mesh has no mesh coordinate for the "
+                         "errors to offset; use pcm, table or analytic)"))
 
     op = values["operating_point"]
     for pk in ("speed_profile_rpm", "load_profile_Nm"):

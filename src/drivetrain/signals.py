@@ -173,6 +173,19 @@ def amplitude_near(f: np.ndarray, A: np.ndarray, f0: float, bins: int = 2) -> fl
     return float(A[lo:hi].max()) if hi > lo else float("nan")
 
 
+def local_floor(f: np.ndarray, A: np.ndarray, f0: float, half_width_Hz: float, lines_Hz: float,
+                guard_bins: float = 2.5) -> float:
+    """The spectrum's floor around f0: the median amplitude within ±half_width_Hz of f0 over the bins
+    farther than ``guard_bins`` from every multiple of ``lines_Hz`` (the family of lines the drivetrain
+    can have there: every characteristic frequency of the rig is a multiple of f_PSH)."""
+    df = f[1] - f[0]
+    m = np.abs(f - f0) <= half_width_Hz
+    fm = f[m]
+    k = np.round(fm / lines_Hz)
+    off_line = np.abs(fm - k * lines_Hz) > guard_bins * df
+    return float(np.median(A[m][off_line])) if np.any(off_line) else float("nan")
+
+
 def peak_frequency(f: np.ndarray, A: np.ndarray, f_lo: float, f_hi: float) -> float:
     m = (f >= f_lo) & (f <= f_hi)
     return float(f[m][np.argmax(A[m])])
@@ -189,4 +202,4 @@ def stats(x: np.ndarray) -> dict:
 
 
 __all__ = ["characteristic_frequencies", "decimate", "decimation_factor", "fir_antialias", "butter_antialias",
-           "lowpass", "amplitude_spectrum", "amplitude_near", "peak_frequency", "to_db", "stats"]
+           "lowpass", "amplitude_spectrum", "amplitude_near", "local_floor", "peak_frequency", "to_db", "stats"]

@@ -56,10 +56,21 @@ import math
 import numpy as np
 from numba import njit
 
-from gearcontact_fmu.mesh_model import (N_OUT, OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY,
-                                        OUT_MAX_PENETRATION, OUT_N_CONTACT, OUT_NORMAL_FORCE, OUT_PEAK_PRESSURE,
-                                        OUT_STATUS, OUT_TAU_PINION, OUT_TAU_WHEEL, STATUS_OK,
-                                        STATUS_PENETRATION_EXCEEDED, MeshModel)
+from gearcontact_fmu.mesh_model import (
+    OUT_CONTACT_AREA,
+    OUT_DISSIPATED_POWER,
+    OUT_ELASTIC_ENERGY,
+    OUT_MAX_PENETRATION,
+    OUT_N_CONTACT,
+    OUT_NORMAL_FORCE,
+    OUT_PEAK_PRESSURE,
+    OUT_STATUS,
+    OUT_TAU_PINION,
+    OUT_TAU_WHEEL,
+    STATUS_OK,
+    STATUS_PENETRATION_EXCEEDED,
+    MeshModel,
+)
 from gearcontact_fmu.params import BevelGearParams, PCMParams
 
 # ISO 6336-1:2006 method B, coefficients of q' (mm um / N)

@@ -39,7 +39,7 @@ from numba import njit
 from gearcontact_fmu import geometry
 from gearcontact_fmu.contact import engine
 from gearcontact_fmu.fault_specs import normalised_spec
-from gearcontact_fmu.gearpair import _base_radius, build_pcm_pair, contact_onset, fault_kwargs_of, static_deflection
+from gearcontact_fmu.gearpair import build_pcm_pair, contact_onset, fault_kwargs_of, static_deflection
 from gearcontact_fmu.mesh_model import (N_OUT, OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY,
                                         OUT_MAX_PENETRATION, OUT_N_CONTACT, OUT_NORMAL_FORCE, OUT_PEAK_PRESSURE,
                                         OUT_STATUS, OUT_TAU_PINION, OUT_TAU_WHEEL, MeshModel)
@@ -120,7 +120,7 @@ def _approach_grid(pair, grid: MapGrid) -> tuple[np.ndarray, dict]:
     span = 1.3 * float(np.nanmax(defl))
     lead = 0.02 * span
     a = -lead + (span + lead) * np.linspace(0.0, 1.0, grid.s_points) ** 2
-    return a, {"span": float(span), "s_backlash": float(s_b), "base_radius": float(_base_radius(pair.gear))}
+    return a, {"span": float(span), "s_backlash": float(s_b), "base_radius": float(geometry.mean_base_radius(pair.gear))}
 
 
 def compute_map(pair, grid: MapGrid = MapGrid(), progress: bool = False) -> ContactMap:
@@ -275,7 +275,7 @@ def _tabulate_rows(pair, theta, a, grid: MapGrid):
     z1, z2 = pair.gear.z_pinion, pair.gear.z_wheel
     pcm = pair.pcm
     s_b = geometry.backlash_angle(pair.gear)
-    s_far = s_b / 2 + grid.max_approach / _base_radius(pair.gear)
+    s_far = s_b / 2 + grid.max_approach / geometry.mean_base_radius(pair.gear)
     # three engine configurations: elastic only, damping probe, friction at the reference speed
     data_el = pair.data_with(friction=False, damping=False)
     data_fr = pair.data_with(friction=True, damping=False)

@@ -70,9 +70,18 @@ def make_mesh_model(fidelity: str, gear_params=None, pcm_params=None, resolution
     - ``"ideal"``: rigid mesh, exact ratio, no backlash (``kind == "rigid"``)
 
     ``mesh_files``: dict with optional ``"pinion"``/``"wheel"`` paths (empty = generated).
+    ``manufacturing_errors``: pitch errors and runout (``manufacturing_specs.ManufacturingErrors``, its dict
+    or JSON) applied to the built model as a transmission-error offset (``manufacturing.with_errors``).
     Extra keywords go to the builder (e.g. ``damping_ratio``, ``J_pinion`` for "analytic")."""
     fidelity = str(fidelity).strip().lower()
     if fidelity not in BUILDERS:
         raise ValueError(f"unknown fidelity {fidelity!r}; expected one of {FIDELITIES}")
-    return builder(fidelity)(gear_params or BevelGearParams(), pcm_params or PCMParams(),
-                              resolution or MeshResolution(), health=health, mesh_files=mesh_files, **kw)
+    errors = kw.pop("manufacturing_errors", None)
+    gear_params = gear_params or BevelGearParams()
+    model = builder(fidelity)(gear_params, pcm_params or PCMParams(), resolution or MeshResolution(),
+                              health=health, mesh_files=mesh_files, **kw)
+    if errors:
+        from gearcontact_fmu.manufacturing import with_errors
+
+        model = with_errors(model, errors, gear_params)
+    return model

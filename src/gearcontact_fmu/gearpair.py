@@ -19,7 +19,7 @@ import numpy as np
 from gearcontact_fmu import faults, geometry
 from gearcontact_fmu.contact import engine
 from gearcontact_fmu.mesh_check import load_gear_mesh
-from gearcontact_fmu.mesh_model import N_OUT, OUT_STATUS, OUT_TAU_PINION, OUT_TAU_WHEEL, MeshModel
+from gearcontact_fmu.mesh_model import N_OUT, OUT_STATUS, OUT_TAU_PINION, MeshModel
 from gearcontact_fmu.meshes import SurfaceMesh
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
 
@@ -134,7 +134,7 @@ def contact_onset(pair: PCMGearPair, theta_pinion: float, flank: int = +1, tol: 
     s_b = geometry.backlash_angle(pair.gear)
     # search from deep in the backlash towards contact
     s_free = 0.0
-    s_far = flank * (s_b / 2 + max_approach / _base_radius(pair.gear))
+    s_far = flank * (s_b / 2 + max_approach / geometry.mean_base_radius(pair.gear))
     out = np.zeros(N_OUT)
     f_far = _abs_torque(pair, theta_pinion, s_far, out)
     if f_far == 0.0:
@@ -155,12 +155,6 @@ def contact_onset(pair: PCMGearPair, theta_pinion: float, flank: int = +1, tol: 
 def _abs_torque(pair, theta_pinion, s, out):
     pair.evaluate(theta_pinion, pair.wheel_angle(theta_pinion, s), 0.0, 0.0, out)
     return abs(out[OUT_TAU_PINION])
-
-
-def _base_radius(gear: BevelGearParams) -> float:
-    """Mean base radius of the pinion (virtual-spur sense), for converting s into a length."""
-    rm = (gear.outer_cone_distance - 0.5 * gear.face_width) * math.sin(gear.delta_pinion)
-    return rm * math.cos(gear.pressure_angle)
 
 
 def static_deflection(pair: PCMGearPair, theta_pinion: float, torque: float, s_onset: float | None = None,
@@ -194,7 +188,7 @@ def static_transmission_error(pair: PCMGearPair, thetas, torque: float, ds: floa
     measured from the unloaded contact position with the backlash taken up), k_torsional
     [N·m/rad at the pinion], k_mesh [N/m along the line of action]."""
     s_b = geometry.backlash_angle(pair.gear)
-    rb = _base_radius(pair.gear)
+    rb = geometry.mean_base_radius(pair.gear)
     thetas = np.asarray(thetas, dtype=float)
     s = np.empty_like(thetas)
     k = np.empty_like(thetas)

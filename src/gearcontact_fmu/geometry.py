@@ -117,6 +117,13 @@ def wheel_axis(params: BevelGearParams | None = None) -> np.ndarray:
     return np.array([1.0, 0.0, 0.0])
 
 
+def mean_base_radius(gear: BevelGearParams) -> float:
+    """Mean base radius of the pinion (virtual-spur sense, at the mean cone distance): the length that
+    turns the pinion-referred mesh coordinate s into a distance along the line of action."""
+    rm = (gear.outer_cone_distance - 0.5 * gear.face_width) * math.sin(gear.delta_pinion)
+    return rm * math.cos(gear.pressure_angle)
+
+
 def pinion_R0(params: BevelGearParams | None = None) -> np.ndarray:
     """Body -> world rotation of the pinion at theta = 0: body (x, y, z) -> world (-X, +Z, +Y)."""
     return np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])

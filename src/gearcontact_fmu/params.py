@@ -10,7 +10,7 @@ import hashlib
 import json
 import functools
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 #: the default communication step of a co-simulation [s] (scene key numerics.comm_step_s, the FMUs'
 #: DefaultExperiment step size): 4 steps per output sample at the rig's ~3 kHz

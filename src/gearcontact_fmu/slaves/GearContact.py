@@ -96,6 +96,7 @@ class GearContact(Fmi2Slave):
         self.mode = s.mode
         self.health = "healthy"
         self.faults = "[]"          # health "faults": JSON list of fault specifications (faults.FAULT_KINDS)
+        self.manufacturing_errors = ""   # JSON of manufacturing_specs.ManufacturingErrors ("" = none)
         self.pinion_mesh_file = ""
         self.wheel_mesh_file = ""
         self.mesh_units = "mm"
@@ -130,8 +131,8 @@ class GearContact(Fmi2Slave):
             setattr(self, name, 0.0)
 
         P, F = Fmi2Causality.parameter, Fmi2Variability.fixed
-        for name in ("fidelity", "mode", "health", "faults", "pinion_mesh_file", "wheel_mesh_file", "mesh_units",
-                     "scheme", "output_torque"):
+        for name in ("fidelity", "mode", "health", "faults", "manufacturing_errors", "pinion_mesh_file",
+                     "wheel_mesh_file", "mesh_units", "scheme", "output_torque"):
             self.register_variable(String(name, causality=P, variability=F))
         for name in ("z_pinion", "z_wheel"):
             self.register_variable(Integer(name, causality=P, variability=F))
@@ -229,6 +230,8 @@ class GearContact(Fmi2Slave):
         elif fidelity in ("pcm", "table"):
             kw = dict(friction=friction, damping=damping, mesh_units=str(self.mesh_units).strip(),
                       faults=self._fault_specs())
+        if str(self.manufacturing_errors).strip():      # the ideal mesh refuses them (no mesh coordinate)
+            kw["manufacturing_errors"] = str(self.manufacturing_errors)
         self._stage = make_stage(self.fidelity, gear, pcm, res, health=self.health,
                                  mesh_files=mesh_files or None, stage_params=sp, **kw)
 

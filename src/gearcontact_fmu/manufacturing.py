@@ -1,0 +1,204 @@
+"""Manufacturing errors of the bevel pair: tooth position (pitch) errors and runout, carried by every
+compliant mesh fidelity as a transmission-error offset of the mesh coordinate.
+
+What: each tooth of pinion and wheel sits a little off its nominal angular position (single pitch
+deviations f_p accumulate to a tooth position error), and each gear runs a little eccentric on its
+shaft (radial runout F_r = 2 e). Both delay or advance the flank in contact along the line of action.
+Measured gears show them as shaft-order content: a peak at the rotation frequency of each gear and
+sidebands of the mesh frequency at its orders, which the paper's healthy spectra show and a perfect
+model does not have.
+
+How: a mesh model evaluates its torques at the mesh coordinate s = theta_p - r theta_w (r = z2/z1).
+The errors shift it, s' = s + Delta(theta_p, theta_w), with Delta in pinion-referred radians (a
+length along the line of action divided by the pinion's mean base radius r_bp; the wheel's errors,
+divided by its own base radius and referred through r, come out over r_bp as well):
+
+* runout: Delta = (kappa_p e_p / r_bp) sin(theta_p + phi_p) - (kappa_w e_w / r_bp) sin(theta_w + phi_w):
+  the gear's centre, displaced by e in its body frame, moves the flank along the contact normal by
+  d . n. On a straight bevel the normal has cos(alpha) along the tangent and sin(alpha) normal to the
+  pitch cone, whose in-plane part is sin(alpha) cos(delta); so the once-per-revolution transmission
+  error has the amplitude kappa e, kappa = sqrt(cos^2 alpha + sin^2 alpha cos^2 delta) (0.997 for the
+  pinion, 0.943 for the wheel), and a phase offset that a drawn phase absorbs. Checked against the
+  online PCM with an eccentric mesh (tests/test_manufacturing.py: within 2 %);
+* pitch: the position error of the tooth pair in mesh, e_n = P_p[k] - P_w[j] (over r_bp), where pair n
+  (pinion tooth n mod z1, wheel tooth n mod z2 when both angles start together) is engaged over
+  epsilon_alpha pitches centred at theta_p = n + CENTRE pitches (contact_map finds tooth n in blocks n-1, n),
+  entering and leaving with C1 ramps of RAMP pitches. In the double-contact zone the pair that leads
+  carries the load, as the online PCM shows when one tooth is advanced by more than the load
+  deflection (5 um at 20 N·m: that tooth carries 90-100 % of its error over its whole engagement):
+  the larger error on the drive flank, the smaller on the coast flank, blended C1 with the engagement
+  weights. Within 10 % of the PCM with a displaced tooth (tests/test_manufacturing.py); what it
+  leaves out is the load sharing between two pairs whose errors differ by less than the deflection.
+
+The offset is applied by evaluating the wrapped model at the wheel angle theta_w - Delta / r. Its
+torques are then the gradient of the shifted potential (chain rule: tau_p = tau_p0 - tau_w0 dDelta/dtheta_p / r,
+tau_w = tau_w0 (1 - dDelta/dtheta_w / r)), so the excitation does the work it should and the stage's
+energy audit still closes. Works for pcm, table and analytic (the rigid ideal mesh has no coordinate
+to shift and refuses them).
+
+Magnitudes come from an accuracy grade with the ISO 1328-1:1995 / ISO 1328-2:1997 formulas (the step
+between grades is sqrt(2)): single pitch tolerance f_pt = (0.3 (m + 0.4 sqrt(d)) + 4) sqrt(2)^(Q-5) um,
+total cumulative pitch F_p = (0.3 m + 1.25 sqrt(d) + 7) sqrt(2)^(Q-5) um and radial runout
+F_r = 0.8 F_p (m in mm, d the pitch diameter in mm), or from explicit values. Draws, seeded: single pitch
+deviations normal with sigma = f_pt / 2 (95 % within the tolerance) clipped to +-f_pt, summed to tooth
+positions that close the circle; eccentricity e = F_r / 2 at a uniform phase.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from gearcontact_fmu import geometry
+from gearcontact_fmu.manufacturing_specs import ManufacturingErrors, errors_of
+from gearcontact_fmu.mesh_model import OUT_TAU_PINION, OUT_TAU_WHEEL, MeshModel
+from gearcontact_fmu.params import BevelGearParams
+
+# layout of the parameter array of the offset kernel
+P_PITCH_P, P_PITCH_W, P_RATIO, P_ECC_P, P_PHASE_P, P_ECC_W, P_PHASE_W, P_EPS, P_RAMP, N_P = range(10)
+
+#: where pair n's engagement is centred [pitches from theta_p = n pitches] and the length of the C1
+#: ramps at its ends [pitches]: measured on the online PCM with one advanced tooth at 20 N·m (entry at
+#: 4.16, exit at 5.72 pitches for tooth 5, each within ~0.05 pitch; tests/test_manufacturing.py)
+CENTRE = -0.06
+RAMP = 0.05
+
+
+def runout_factor(gear: BevelGearParams, member: str) -> float:
+    """kappa: the part of an eccentricity that moves the flank along the contact normal (module docstring)."""
+    a = gear.pressure_angle
+    d = gear.delta_pinion if member == "pinion" else gear.delta_wheel
+    return math.sqrt(math.cos(a) ** 2 + (math.sin(a) * math.cos(d)) ** 2)
+
+
+def offset_data(errors: ManufacturingErrors, gear: BevelGearParams | None = None) -> tuple:
+    """Parameter tuple of :func:`te_offset`: (p, pinion errors [rad of s], wheel errors [rad of s])."""
+    from gearcontact_fmu.analytic import virtual_spur_gears
+
+    gear = gear or BevelGearParams()
+    errors.check(gear)
+    rb = geometry.mean_base_radius(gear)
+    p = np.zeros(N_P)
+    p[P_PITCH_P] = 2.0 * math.pi / gear.z_pinion
+    p[P_PITCH_W] = 2.0 * math.pi / gear.z_wheel
+    p[P_RATIO] = gear.z_wheel / gear.z_pinion
+    p[P_ECC_P] = errors.pinion_eccentricity_um * 1e-6 * runout_factor(gear, "pinion") / rb
+    p[P_PHASE_P] = errors.pinion_phase_rad
+    p[P_ECC_W] = errors.wheel_eccentricity_um * 1e-6 * runout_factor(gear, "wheel") / rb
+    p[P_PHASE_W] = errors.wheel_phase_rad
+    p[P_EPS] = virtual_spur_gears(gear)["eps_alpha"]
+    p[P_RAMP] = RAMP
+    pin = np.array(errors.pinion_position_um or [0.0] * gear.z_pinion, dtype=np.float64) * 1e-6 / rb
+    whl = np.array(errors.wheel_position_um or [0.0] * gear.z_wheel, dtype=np.float64) * 1e-6 / rb
+    return (p, pin, whl)
+
+
+@njit(cache=True, inline="always")
+def _step(x):
+    """C1 step 0 -> 1 on [0, 1] and its derivative."""
+    if x <= 0.0:
+        return 0.0, 0.0
+    if x >= 1.0:
+        return 1.0, 0.0
+    return x * x * (3.0 - 2.0 * x), 6.0 * x * (1.0 - x)
+
+
+@njit(cache=True)
+def te_offset(te, theta_pinion, theta_wheel):
+    """Offset Delta of the mesh coordinate [rad] and its partial derivatives by the two angles."""
+    p, pin, whl = te
+    d = p[P_ECC_P] * math.sin(theta_pinion + p[P_PHASE_P]) - p[P_ECC_W] * math.sin(theta_wheel + p[P_PHASE_W])
+    dp = p[P_ECC_P] * math.cos(theta_pinion + p[P_PHASE_P])
+    dw = -p[P_ECC_W] * math.cos(theta_wheel + p[P_PHASE_W])
+    u = theta_pinion / p[P_PITCH_P]                      # engagement coordinate [pitches]
+    v = theta_wheel * p[P_RATIO] / p[P_PITCH_P]          # the same, from the wheel (u - v = s / pitch)
+    shift = math.floor(v - u + 0.5)                      # wheel tooth offset (0 unless s is a pitch off)
+    half, ramp = 0.5 * p[P_EPS], p[P_RAMP]
+    drive = theta_pinion - p[P_RATIO] * theta_wheel >= 0.0
+    zp, zw = pin.shape[0], whl.shape[0]
+    # the engaged pairs (at most two while epsilon_alpha + ramp < 2): weight, its u-derivative, error
+    ws = np.zeros(3)
+    dws = np.zeros(3)
+    es = np.zeros(3)
+    m = 0
+    n0 = math.floor(u)
+    for n in range(n0 - 1, n0 + 3):
+        c = n + CENTRE
+        a, da = _step((u - (c - half)) / ramp + 0.5)      # pair n engages ...
+        b, db = _step((u - (c + half)) / ramp + 0.5)      # ... and leaves
+        w = a - b
+        if w <= 0.0 or m == 3:
+            continue
+        ws[m] = w
+        dws[m] = (da - db) / ramp
+        es[m] = pin[n % zp] - whl[(n + shift) % zw]
+        m += 1
+    if m == 1:
+        d += es[0]
+    elif m == 2:
+        # states {only a, only b, both}; with both engaged the leading pair carries: on the drive flank
+        # the more advanced one (max), on the coast flank the less advanced one (min)
+        wa, wb, ea, eb = ws[0], ws[1], es[0], es[1]
+        lead = max(ea, eb) if drive else min(ea, eb)
+        num = wa * wb * lead + wa * (1.0 - wb) * ea + wb * (1.0 - wa) * eb
+        den = wa + wb - wa * wb
+        dnum = (dws[0] * wb + wa * dws[1]) * lead + (dws[0] * (1.0 - wb) - wa * dws[1]) * ea \
+            + (dws[1] * (1.0 - wa) - wb * dws[0]) * eb
+        dden = dws[0] + dws[1] - dws[0] * wb - wa * dws[1]
+        d += num / den
+        dp += (dnum * den - num * dden) / (den * den) / p[P_PITCH_P]
+    elif m == 3:                                         # a contact ratio near 2: the weighted mean
+        sw = ws[0] + ws[1] + ws[2]
+        swe = ws[0] * es[0] + ws[1] * es[1] + ws[2] * es[2]
+        dsw = dws[0] + dws[1] + dws[2]
+        dswe = dws[0] * es[0] + dws[1] * es[1] + dws[2] * es[2]
+        d += swe / sw
+        dp += (dswe * sw - swe * dsw) / (sw * sw) / p[P_PITCH_P]
+    return d, dp, dw
+
+
+def mesh_offset(errors, theta_pinion: float, theta_wheel: float, gear: BevelGearParams | None = None) -> float:
+    """Delta [rad of s] of ``errors`` (any form errors_of takes) at one pair of angles; 0 without errors."""
+    errors = errors_of(errors)
+    if errors is None:
+        return 0.0
+    return float(te_offset(offset_data(errors, gear), float(theta_pinion), float(theta_wheel))[0])
+
+
+_WRAPPERS: dict = {}
+
+
+def _wrapped(inner_eval):
+    """The eval of ``inner_eval`` at the offset mesh coordinate (one compiled wrapper per inner kernel)."""
+    f = _WRAPPERS.get(inner_eval)
+    if f is None:
+        @njit
+        def f(data, theta_pinion, theta_wheel, omega_pinion, omega_wheel, out):
+            inner, te = data
+            r = te[0][P_RATIO]
+            d, dp, dw = te_offset(te, theta_pinion, theta_wheel)
+            inner_eval(inner, theta_pinion, theta_wheel - d / r, omega_pinion,
+                       omega_wheel - (dp * omega_pinion + dw * omega_wheel) / r, out)
+            tp = out[OUT_TAU_PINION]
+            tw = out[OUT_TAU_WHEEL]
+            out[OUT_TAU_PINION] = tp - tw * dp / r
+            out[OUT_TAU_WHEEL] = tw * (1.0 - dw / r)
+
+        _WRAPPERS[inner_eval] = f
+    return f
+
+
+def with_errors(model: MeshModel, errors, gear: BevelGearParams | None = None) -> MeshModel:
+    """``model`` with the manufacturing errors applied: ``errors`` a ManufacturingErrors, its dict or JSON
+    (:func:`manufacturing_specs.errors_of`); unchanged if None or empty."""
+    errors = errors_of(errors)
+    if errors is None:
+        return model
+    if model.kind == "rigid":
+        raise ValueError("the ideal (rigid) mesh cannot carry manufacturing errors: it has no mesh "
+                         "coordinate to offset; use fidelity pcm, table or analytic")
+    te = offset_data(errors, gear)
+    info = {**model.info, "manufacturing_errors": errors.to_dict()}
+    return MeshModel(eval=_wrapped(model.eval), data=(model.data, te), fidelity=model.fidelity, kind=model.kind,
+                     info=info)

@@ -1,0 +1,122 @@
+"""Vocabulary of manufacturing errors, light to import (no numba): the accuracy grades, the ISO 1328
+tolerances, the drawn errors and the draw. The kernel that applies them is :mod:`gearcontact_fmu.manufacturing`.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from gearcontact_fmu.params import BevelGearParams
+
+#: accuracy grades of ISO 1328 (0 best .. 12 coarsest)
+GRADES = tuple(range(0, 13))
+#: the default grade: a ground industrial gear (the rig's pair is a catalogue gear)
+DEFAULT_GRADE = 6
+
+
+def iso1328_tolerances(grade: int, module_mm: float, pitch_diameter_mm: float) -> dict:
+    """Single pitch f_pt, total cumulative pitch F_p and radial runout F_r tolerances [um] of an
+    accuracy grade (ISO 1328-1:1995, ISO 1328-2:1997 Annex B; unrounded)."""
+    if int(grade) != grade or grade not in GRADES:
+        raise ValueError(f"accuracy grade must be an integer in 0..12, not {grade!r}")
+    q = math.sqrt(2.0) ** (grade - 5)
+    m, d = float(module_mm), float(pitch_diameter_mm)
+    f_pt = (0.3 * (m + 0.4 * math.sqrt(d)) + 4.0) * q
+    F_p = (0.3 * m + 1.25 * math.sqrt(d) + 7.0) * q
+    return {"f_pt_um": f_pt, "F_p_um": F_p, "F_r_um": 0.8 * F_p}
+
+
+@dataclass(frozen=True)
+class ManufacturingErrors:
+    """Drawn (or given) errors of one pair: tooth position errors along the line of action [um] per
+    tooth (positive = ahead in the direction of rotation), eccentricities [um] and their phases [rad]
+    in each gear's body frame. ``source``: how they were obtained (grade, tolerances, seed)."""
+
+    pinion_position_um: tuple = ()
+    wheel_position_um: tuple = ()
+    pinion_eccentricity_um: float = 0.0
+    pinion_phase_rad: float = 0.0
+    wheel_eccentricity_um: float = 0.0
+    wheel_phase_rad: float = 0.0
+    source: dict = field(default_factory=dict, compare=False)
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["pinion_position_um"] = list(self.pinion_position_um)
+        d["wheel_position_um"] = list(self.wheel_position_um)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ManufacturingErrors":
+        known = {f for f in cls.__dataclass_fields__}
+        bad = sorted(set(d) - known)
+        if bad:
+            raise ValueError(f"unknown manufacturing-error keys {bad}; known: {sorted(known)}")
+        kw = dict(d)
+        for k in ("pinion_position_um", "wheel_position_um"):
+            kw[k] = tuple(float(v) for v in kw.get(k, ()))
+        for k in ("pinion_eccentricity_um", "pinion_phase_rad", "wheel_eccentricity_um", "wheel_phase_rad"):
+            if k in kw:
+                kw[k] = float(kw[k])
+        e = cls(**kw)
+        vals = list(e.pinion_position_um) + list(e.wheel_position_um) + [
+            e.pinion_eccentricity_um, e.pinion_phase_rad, e.wheel_eccentricity_um, e.wheel_phase_rad]
+        if not all(math.isfinite(v) for v in vals):
+            raise ValueError("manufacturing errors must be finite numbers")
+        return e
+
+    def check(self, gear: BevelGearParams) -> None:
+        for name, vals, z in (("pinion", self.pinion_position_um, gear.z_pinion),
+                              ("wheel", self.wheel_position_um, gear.z_wheel)):
+            if vals and len(vals) != z:
+                raise ValueError(f"{name}_position_um needs one value per tooth ({z}), got {len(vals)}")
+
+
+def draw_errors(gear: BevelGearParams | None = None, grade: int = DEFAULT_GRADE, seed: int = 0,
+                single_pitch_um: float | None = None, runout_um: float | None = None,
+                members: tuple = ("pinion", "wheel")) -> ManufacturingErrors:
+    """Errors of both gears drawn with ``seed`` from the tolerances of ``grade`` (or the explicit single
+    pitch tolerance f_pt and radial runout F_r [um], the same for both gears); ``members`` limits them
+    to one gear. Deterministic: one seed, one set of errors."""
+    gear = gear or BevelGearParams()
+    rng = np.random.default_rng(int(seed))
+    out, source = {}, {"grade": int(grade), "seed": int(seed)}
+    for member, z in (("pinion", gear.z_pinion), ("wheel", gear.z_wheel)):
+        d_mm = gear.module * z * 1e3
+        tol = iso1328_tolerances(grade, gear.module * 1e3, d_mm)
+        f_pt = tol["f_pt_um"] if single_pitch_um is None else float(single_pitch_um)
+        F_r = tol["F_r_um"] if runout_um is None else float(runout_um)
+        if not (f_pt >= 0 and F_r >= 0 and math.isfinite(f_pt) and math.isfinite(F_r)):
+            raise ValueError("single pitch and runout tolerances must be finite and >= 0")
+        # draw every member so that the wheel's errors do not depend on whether the pinion has any
+        dev = np.clip(rng.normal(0.0, 0.5 * f_pt, z), -f_pt, f_pt)
+        dev -= dev.mean()                                 # the deviations close the circle
+        pos = np.cumsum(dev)
+        pos -= pos.mean()
+        phase = float(rng.uniform(0.0, 2.0 * math.pi))
+        on = member in members
+        out[f"{member}_position_um"] = tuple(float(v) for v in pos) if on else ()
+        out[f"{member}_eccentricity_um"] = 0.5 * F_r if on else 0.0
+        out[f"{member}_phase_rad"] = phase if on else 0.0
+        source[member] = {"f_pt_um": f_pt, "F_r_um": F_r, "pitch_diameter_mm": d_mm}
+    return ManufacturingErrors(**out, source=source)
+
+
+def errors_of(value) -> ManufacturingErrors | None:
+    """A ManufacturingErrors from itself, its dict or its JSON text; None for None, "" or {}."""
+    import json
+
+    if value is None or isinstance(value, ManufacturingErrors):
+        return value
+    if isinstance(value, str):
+        if not value.strip():
+            return None
+        try:
+            value = json.loads(value)
+        except ValueError as exc:
+            raise ValueError(f"manufacturing errors are not JSON ({exc})") from None
+    if not isinstance(value, dict):
+        raise ValueError("manufacturing errors must be a JSON object (ManufacturingErrors.to_dict())")
+    return ManufacturingErrors.from_dict(value) if value else None

@@ -109,10 +109,11 @@ def test_void_passage_has_no_wrong_signed_torque(mild_pair):
     elastic mesh torque on the pinion opposes the approach (<= 0) and the penetration stays elastic
     (micrometres) from the contact onset to the approach of 200 N·m; before the first-crossing rule
     the void walls gave u = 0.75-0.95 mm and up to +700 N·m there."""
-    from gearcontact_fmu.gearpair import _base_radius, contact_onset
+    from gearcontact_fmu.gearpair import contact_onset
+    from gearcontact_fmu.geometry import mean_base_radius
 
     pair = mild_pair
-    rb = _base_radius(pair.gear)
+    rb = mean_base_radius(pair.gear)
     out = np.zeros(N_OUT)
     for deg in np.arange(339.0, 346.01, 0.5):
         th = math.radians(deg)

@@ -97,7 +97,12 @@ _BAD_VALUES = {
 _LEGITIMATE = {("scenario.description", '"a/b"'), ("scenario.description", '".."'),
                ("scenario.description", '"x\\u0000y"'), ("operating_point.drive_speed_rpm", "0"),
                ("operating_point.load_torque_Nm", "-1"), ("operating_point.load_torque_Nm", "0"),
-               ("time.settle_s", "0")}
+               ("time.settle_s", "0"),
+               # no manufacturing errors of one kind, the finest grade, any seed, no measurement noise
+               ("manufacturing.grade", "0"), ("manufacturing.seed", "0"), ("manufacturing.seed", "100000000"),
+               ("manufacturing.single_pitch_um", "0"), ("manufacturing.runout_um", "0"),
+               ("instruments.seed", "0"), ("instruments.seed", "100000000"), ("instruments.encoder_lines", "100000000"),
+               ("instruments.drive_torque_noise_Nm", "0"), ("instruments.propeller_torque_noise_Nm", "0")}
 
 
 def _scene_key_cases():

@@ -89,7 +89,8 @@ SUMMARY_TREE: dict = {
     "operating_point": {"drive_speed_rpm": "num", "load_torque_Nm": "num", "profiles": "bool"},
     "health": "str",
     "effects": {"mesh_contact": "str", "shaft_flexibility": "str", "shaft_elements": "int", "friction": "bool",
-                "contact_damping": "bool", "losses": "bool"},
+                "contact_damping": "bool", "losses": "bool", "sensors": "str", "manufacturing_errors": "bool"},
+    "manufacturing_errors": "any", "instruments": "any",
     "torque": {"<torque>": _STATS_TREE},
     "channels": {"<channel>": _STATS_TREE},
     "f_DSH": "num", "f_MSH": "num", "f_PSH": "num", "f_GMF": "num",
@@ -110,7 +111,7 @@ SUMMARY_TREE: dict = {
         "max_penetration_rel_umax": "num", "min_substep_s": "num", "max_substep_s": "num", "n_substeps": "int",
         "n_refinements": "int", "energy_residual": "num", "coupling_energy_pending_J": "any",
         "rattle": {"window_s": {"<i>": "num"}, "separated": "bool", **_RATTLE3, "whole_run": dict(_RATTLE3)},
-        "static_contact": "any"},
+        "static_contact": "any", "contact_cost": "any"},
     "fmus": "any", "nonfinite_channels": "any", "warnings": "any", "drivetrain_version": "str",
     "files": "any", "write_time_s": "num",
 }

@@ -23,7 +23,7 @@ import numpy as np
 
 from drivetrain import __version__
 from drivetrain import outputs as O
-from drivetrain import stability
+from drivetrain import instruments, stability
 from drivetrain.errors import ConfigurationError, CosimError, RunFailedError  # noqa: F401  (re-exported)
 from drivetrain.cosim import CosimResult, Master
 from drivetrain.scenario import RIG_SENSORS, TORQUE_SENSORS, Scene
@@ -294,6 +294,12 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
                         f"{res.failure['cause']}); results up to t = {res.time[-1]:.9g} s")
 
     signals = {name: res.signals[src] for name, src in sources.items()}
+    if scene.effects.sensors == "rig":      # what the rig's instruments would have reported
+        signals = instruments.measure(signals, scene.time.sample_rate_Hz, scene.instruments)
+        if abs(scene.time.sample_rate_Hz - instruments.RIG_SAMPLE_RATE_HZ) > 1e-9:
+            warnings.append(f"rig sensors sampled at time.sample_rate_Hz = {scene.time.sample_rate_Hz:g} Hz; the "
+                            f"rig's clock is {instruments.RIG_SAMPLE_RATE_HZ:g} Hz (with numerics.comm_step_s = "
+                            f"1/12048 s)")
     units = {}
     for name, src in sources.items():
         u = res.units.get(src)
@@ -373,6 +379,7 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
         "effects": dataclasses.asdict(scene.effects),
         # the drawn errors (per tooth, eccentricities, phases) and how they were drawn: the labels of the run
         "manufacturing_errors": spec.metadata.get("manufacturing_errors"),
+        "instruments": dataclasses.asdict(scene.instruments) if scene.effects.sensors == "rig" else None,
         "torque": torque_stats,
         "channels": channel_stats,
         "f_DSH": cf["f_DSH"], "f_MSH": cf["f_MSH"], "f_PSH": cf["f_PSH"], "f_GMF": cf["f_GMF"],

@@ -35,6 +35,7 @@ else:  # pragma: no cover
 
 from drivetrain.errors import MISSING as _MISSING
 from drivetrain.errors import ScenarioError
+from drivetrain.instruments import Instruments
 from drivetrain.system import steps_per_output
 from drivetrain.rig import RIG_SENSORS, TORQUE_SENSORS, UPPER_RATIO, Z_PINION, Z_WHEEL  # noqa: F401  (re-exported)
 from gearcontact_fmu.fault_specs import (FAULT_KINDS, draw_faults, draw_rule_problems, fault_spec_problems,
@@ -117,6 +118,8 @@ def _f(default, unit, dimension, doc, minimum=None, min_exclusive=False, maximum
 
 
 _RES = MeshResolution()       # the converged contact-mesh resolution of the gear library is the scene default
+_INST = Instruments()         # the instrument constants are declared in drivetrain.instruments
+SENSOR_MODELS = ("ideal", "rig")
 
 SCHEMA: dict[str, dict[str, Key]] = {
     "scenario": {
@@ -208,9 +211,26 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "friction": Key("bool", True, doc="tooth friction in the mesh (pcm/table)"),
         "contact_damping": Key("bool", True, doc="contact damping in the mesh"),
         "losses": Key("bool", True, doc="viscous losses of the gearboxes and bearings"),
+        "sensors": Key("enum", "ideal", allowed=SENSOR_MODELS, doc=(
+            "ideal: the sensor signals as simulated; rig: as the rig's instruments report them (encoder "
+            "quantisation, transducer bandwidth and noise, from [instruments], seeded)")),
         "manufacturing_errors": Key("bool", False, doc=(
             "tooth position (pitch) errors and runout of pinion and wheel, drawn from [manufacturing] "
             "(pcm, table, analytic; the paper's simulation had none)")),
+    },
+    "instruments": {
+        "seed": Key("int", _INST.seed, minimum=0, doc="seed of the measurement noise (recorded in the summary)"),
+        "encoder_lines": Key("int", _INST.encoder_lines, minimum=1, doc=(
+            "lines per revolution of the incremental encoders (read in quadrature: 4 counts per line); "
+            "assumed, not from a data sheet")),
+        "torque_bandwidth_Hz": _f(_INST.torque_bandwidth_Hz, "Hz", "frequency", (
+            "-3 dB bandwidth of the torque transducers (2nd-order Butterworth, causal); assumed"),
+            minimum=0.0, min_exclusive=True),
+        "drive_torque_noise_Nm": _f(_INST.drive_torque_noise_Nm, "N·m", "torque",
+                                    "RMS white noise of the drive-shaft torque transducer; assumed", minimum=0.0),
+        "propeller_torque_noise_Nm": _f(_INST.propeller_torque_noise_Nm, "N·m", "torque",
+                                        "RMS white noise of the propeller-shaft torque transducer; assumed",
+                                        minimum=0.0),
     },
     "manufacturing": {
         "grade": Key("int", MANUFACTURING_GRADE, minimum=min(GRADES), maximum=max(GRADES), doc=(
@@ -313,6 +333,7 @@ class EffectsSpec:
     friction: bool = True
     contact_damping: bool = True
     losses: bool = True
+    sensors: str = "ideal"
     manufacturing_errors: bool = False
 
 
@@ -336,6 +357,7 @@ class Scene:
     outputs: OutputSpec
     numerics: NumericsSpec
     effects: EffectsSpec
+    instruments: Instruments = dataclasses.field(default_factory=Instruments)
     manufacturing: ManufacturingSpec = dataclasses.field(default_factory=ManufacturingSpec)
     source: Path | None = None           # the file it came from (None if built in code)
     overrides: tuple[str, ...] = ()      # the --set strings applied
@@ -387,7 +409,8 @@ class Scene:
 
 _SECTION_CLASSES = {
     "scenario": ScenarioInfo, "operating_point": OperatingPoint, "gear": GearSpec, "time": TimeSpec,
-    "outputs": OutputSpec, "numerics": NumericsSpec, "effects": EffectsSpec, "manufacturing": ManufacturingSpec,
+    "outputs": OutputSpec, "numerics": NumericsSpec, "effects": EffectsSpec, "instruments": Instruments,
+    "manufacturing": ManufacturingSpec,
 }
 
 

@@ -77,9 +77,9 @@ def test_a_run_with_rig_sensors(tmp_path):
     runs = {}
     for s in ("ideal", "rig"):
         scene = load_scene(EXAMPLE, overrides=SHORT + ["effects.mesh_contact=analytic", f"effects.sensors={s}"])
-        runs[s] = run_scene(scene, out_dir=None, progress=False, backend="inprocess", build=False)
+        runs[s] = run_scene(scene, out_dir=None, progress=False, backend="inprocess", fmu_dir=tmp_path / "fmus")
     base = run_scene(load_scene(EXAMPLE, overrides=SHORT + ["effects.mesh_contact=analytic"]), out_dir=None,
-                     progress=False, backend="inprocess", build=False)
+                     progress=False, backend="inprocess", fmu_dir=tmp_path / "fmus")
     for k, v in base.signals.items():
         assert np.array_equal(v, runs["ideal"].signals[k])
     rig, ideal = runs["rig"], runs["ideal"]

@@ -6,6 +6,7 @@ and a missing optional piece does not break the others.
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -183,7 +184,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     from drivetrain.sweep import run_sweep
 
     try:
-        manifest = run_sweep(scenes, args.out, workers=args.workers, address=args.scheduler,
+        manifest = run_sweep(scenes, Path(args.out) / "grid", workers=args.workers, address=args.scheduler,
                              backend=args.backend, fmu_dir=args.fmu_dir, skip_existing=args.skip_existing,
                              plots=False if args.no_plots else None, progress=not args.quiet,
                              grid_names=grid_names)
@@ -194,6 +195,50 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     for r in failed:
         print(f"  {r['name']}: {r['status']}: {r.get('error', '')}".rstrip(), file=sys.stderr)
     return 0 if not failed else 3
+
+
+def _cmd_validate(args: argparse.Namespace) -> int:
+    import shlex
+    import time
+
+    from drivetrain import validation as V
+    from drivetrain.cosim import ConfigurationError
+    from drivetrain.scenario import ScenarioError
+    from drivetrain.sweep import run_sweep
+
+    t0 = time.perf_counter()
+    base = Path(args.scene) if args.scene else Path(__file__).resolve().parents[2] / "scenarios" / "example.toml"
+    try:
+        scenes = V.scenes(base, args.duration, args.settle if args.settle is not None else min(2.0, 0.2 * args.duration),
+                          tuple(args.set or ()))
+    except ScenarioError as exc:
+        return _scene_errors(exc)
+    try:
+        manifest = run_sweep(scenes, Path(args.out) / "grid", workers=args.workers, address=args.scheduler, backend=args.backend,
+                             fmu_dir=args.fmu_dir, skip_existing=args.resume, plots=False, progress=not args.quiet)
+        repeat = run_sweep([s for s in scenes if s.name == V.REPEAT], Path(args.out) / "repeat", workers=1,
+                           backend=args.backend, fmu_dir=args.fmu_dir, skip_existing=args.resume, plots=False,
+                           progress=False)
+    except ConfigurationError as exc:
+        return _scene_errors(exc)
+    results = V.evaluate(manifest, [s.name for s in scenes], repeat)
+    report = Path(args.report)
+    report.parent.mkdir(parents=True, exist_ok=True)
+    fig_path = report.parent / "figures" / "validation_spectra.png"
+    fig_path.parent.mkdir(parents=True, exist_ok=True)
+    fig = V.plot_spectra(manifest, fig_path)
+    argv = sys.argv[1:]
+    command = "drivetrain " + " ".join(shlex.quote(a) for a in argv[argv.index("validate"):]) \
+        if "validate" in argv else "drivetrain validate"
+    meta = {"command": command, "n_scenes": len(scenes), "duration_s": args.duration,
+            "settle_s": scenes[0].time.settle_s, "wall_time_s": time.perf_counter() - t0,
+            "workers": args.workers or os.cpu_count()}
+    fig_rel = os.path.relpath(fig, report.parent) if fig else None
+    report.write_text(V.report_markdown(results, meta, fig_rel))
+    for r in results:
+        print(f"{r.number:2d} {r.status:8s} {r.title}: {r.figure}")
+    print(f"wrote {report} ({meta['wall_time_s'] / 60:.1f} min)")
+    return 0 if all(r.status != "fail" for r in results) else 3
 
 
 def _cmd_dataset(args: argparse.Namespace) -> int:
@@ -381,6 +426,21 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_sweep)
+
+    p = sub.add_parser("validate", help="run the checks against the paper's findings and write docs/VALIDATION.md")
+    p.add_argument("scene", nargs="?", default=None, help="base scene (default: scenarios/example.toml)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key of every scene")
+    p.add_argument("--out", default="out/validate", help="run directory (default: out/validate)")
+    p.add_argument("--report", default="docs/VALIDATION.md", help="the report (default: docs/VALIDATION.md)")
+    p.add_argument("--duration", type=float, default=20.0, help="simulated seconds per run (default: 20, the paper's)")
+    p.add_argument("--settle", type=float, default=None, help="settling time excluded (default: min(2 s, 20 %%))")
+    p.add_argument("--workers", type=_positive_int, default=None, help="local worker processes (default: CPU count)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler address")
+    p.add_argument("--backend", choices=("fmi", "inprocess"), default="fmi")
+    p.add_argument("--fmu-dir", default="fmus")
+    p.add_argument("--resume", action="store_true", help="reuse finished runs of the same scenes")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_validate)
 
     p = sub.add_parser("dataset", help="one labelled dataset (signals + labels of every run) from a sweep directory")
     p.add_argument("sweep_dir", help="the --out directory of a sweep (with manifest.json)")

@@ -11,9 +11,9 @@ co-simulation and before statistics, spectra and files (so everything a user rea
   the phase lag a real measurement has), then white measurement noise of RMS ``*_torque_noise_Nm``
   (the broadband floor of the measured spectra; one-sided density sigma^2 / (fs / 2)).
 
-Everything is drawn from ``instruments.seed`` (numpy's PCG64): one seed, one noise record; the
-channels draw from independent streams (the seed and the channel name), so adding a channel does not
-change the others. The sample clock is the run's ``time.sample_rate_Hz``; the rig's is 3012 Hz
+Everything is drawn from ``instruments.seed`` (numpy's PCG64): one seed, one noise record; each
+channel of each run draws from its own stream (the seed, the channel name and the run's name), so
+adding a channel does not change the others and the cases of a grid are not measured with one record. The sample clock is the run's ``time.sample_rate_Hz``; the rig's is 3012 Hz
 (with 1/12048 s steps), and a run with rig sensors at another rate is told so.
 
 The instrument constants are not from a data sheet (RIG.md does not give them): the defaults are
@@ -74,18 +74,19 @@ def torque_transducer(x: np.ndarray, fs: float, bandwidth_Hz: float, noise_Nm: f
     return y
 
 
-def _rng(seed: int, channel: str) -> np.random.Generator:
-    return np.random.default_rng([int(seed), zlib.crc32(channel.encode())])
+def _rng(seed: int, channel: str, stream: str) -> np.random.Generator:
+    return np.random.default_rng([int(seed), zlib.crc32(channel.encode()), zlib.crc32(stream.encode())])
 
 
-def measure(signals: dict, fs: float, inst: Instruments) -> dict:
+def measure(signals: dict, fs: float, inst: Instruments, stream: str = "") -> dict:
     """The rig's readings of ``signals`` (name -> samples at ``fs``): encoders and torque transducers
-    replaced, other channels (extra FMU variables) untouched. Returns a new dict."""
+    replaced, other channels (extra FMU variables) untouched. ``stream`` (the run's name) separates the
+    noise of the cases of a grid that share one seed. Returns a new dict."""
     out = dict(signals)
     for name, x in signals.items():
         if name in ENCODERS:
             out[name] = encoder(x, inst.encoder_lines)
         elif name in TORQUES:
             noise = getattr(inst, f"{TORQUES[name]}_torque_noise_Nm")
-            out[name] = torque_transducer(x, fs, inst.torque_bandwidth_Hz, noise, _rng(inst.seed, name))
+            out[name] = torque_transducer(x, fs, inst.torque_bandwidth_Hz, noise, _rng(inst.seed, name, stream))
     return out

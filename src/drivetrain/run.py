@@ -295,7 +295,7 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
 
     signals = {name: res.signals[src] for name, src in sources.items()}
     if scene.effects.sensors == "rig":      # what the rig's instruments would have reported
-        signals = instruments.measure(signals, scene.time.sample_rate_Hz, scene.instruments)
+        signals = instruments.measure(signals, scene.time.sample_rate_Hz, scene.instruments, scene.name)
         if abs(scene.time.sample_rate_Hz - instruments.RIG_SAMPLE_RATE_HZ) > 1e-9:
             warnings.append(f"rig sensors sampled at time.sample_rate_Hz = {scene.time.sample_rate_Hz:g} Hz; the "
                             f"rig's clock is {instruments.RIG_SAMPLE_RATE_HZ:g} Hz (with numerics.comm_step_s = "

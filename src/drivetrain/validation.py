@@ -1,0 +1,391 @@
+"""`drivetrain validate`: our signals against the paper's findings, as checks that can fail.
+
+Each check names the paper's statement (or the reference value), the scenes it needs and how it is
+judged; :data:`CHECKS` maps its number to its function (the numbering of issue 9). The scenes are the
+realistic grid (the paper's 54 operating points with ``effects.manufacturing_errors`` and
+``effects.sensors = "rig"``), the 18 healthy points with every realism effect off, and two runs for
+reproducibility; they run through the sweep machinery (local processes or Dask, ``--resume`` reuses
+finished runs of the same fingerprint). :func:`report_markdown` writes docs/VALIDATION.md: per check
+the statement, our figure and pass/fail, and the spectra of healthy/mild/severe at 500 and 1500 rpm
+laid out like the paper's figures.
+
+Checks not yet possible say so (``status = "not run"`` with the reason) instead of passing.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+SPEEDS_RPM = (250.0, 500.0, 750.0, 1000.0, 1250.0, 1500.0)
+LOADS_NM = (0.12, 0.71, 1.31)
+HEALTHS = ("healthy", "mild", "severe")
+#: the realism effects the checks run with, unless a check says otherwise
+REALISM = ("effects.manufacturing_errors=true", "effects.sensors=rig")
+#: the rig's first torsional mode [Hz] (RIG.md: measured)
+MODE_HZ = 24.0
+
+
+@dataclass
+class CheckResult:
+    number: int
+    title: str
+    statement: str          # the paper's words or the reference value
+    figure: str = ""        # ours
+    status: str = "not run"   # pass | fail | not run
+    details: list = field(default_factory=list)
+
+
+def case_name(health: str, speed: float, load: float, realistic: bool = True) -> str:
+    return f"{'realistic' if realistic else 'ideal'}_{health}_{speed:g}rpm_{load:g}Nm"
+
+
+def scenes(base: Path, duration_s: float, settle_s: float, overrides: tuple = ()) -> list:
+    """Every scene the checks need (names from :func:`case_name`, plus the reproducibility pair)."""
+    from drivetrain.scenario import load_scene
+
+    common = [f"time.duration_s={duration_s}", f"time.settle_s={settle_s}", "outputs.plots=false",
+              "outputs.aalto_csv=false", *overrides]
+    out = []
+
+    def add(name, extra):
+        out.append(load_scene(base, overrides=common + list(extra) + [f'scenario.name="{name}"']))
+
+    for h in HEALTHS:
+        for n in SPEEDS_RPM:
+            for t in LOADS_NM:
+                op = [f"operating_point.drive_speed_rpm={n}", f"operating_point.load_torque_Nm={t}",
+                      f"gear.health={h}"]
+                add(case_name(h, n, t), op + list(REALISM))
+                if h == "healthy":
+                    add(case_name(h, n, t, realistic=False), op)
+    op = ["operating_point.drive_speed_rpm=1500", "operating_point.load_torque_Nm=1.31", "gear.health=healthy"]
+    add("seed1_healthy_1500rpm_1.31Nm", op + list(REALISM) + ["manufacturing.seed=1", "instruments.seed=1"])
+    return out
+
+
+#: the case run a second time (in a directory of its own, same name and seeds) for check 10
+REPEAT = case_name("healthy", 1500.0, 1.31)
+
+
+# --------------------------------------------------------------------------------------------------
+# reading the runs
+# --------------------------------------------------------------------------------------------------
+
+
+class Runs:
+    """The finished runs of a validation directory: summaries and signals by case name (lazy)."""
+
+    def __init__(self, manifest: dict):
+        self.records = {r["name"]: r for r in manifest.get("runs", [])}
+        self._sig: dict = {}
+        self._sum: dict = {}
+
+    def ok(self, name: str) -> bool:
+        return self.records.get(name, {}).get("status") == "ok"
+
+    def summary(self, name: str) -> dict:
+        import json
+
+        if name not in self._sum:
+            self._sum[name] = json.loads(Path(self.records[name]["summary"]).read_text())
+        return self._sum[name]
+
+    def signals(self, name: str) -> dict:
+        from drivetrain.outputs import read_hdf5
+
+        if name not in self._sig:
+            self._sig[name] = read_hdf5(self.records[name]["signals"])
+        return self._sig[name]
+
+    def settled(self, name: str, sensor: str) -> tuple[np.ndarray, float]:
+        d = self.signals(name)
+        s = self.summary(name)
+        m = d["time"] >= s["settle_s"]
+        return d["signals"][sensor][m], s["sample_rate_Hz"]
+
+
+def _missing(runs: Runs, names) -> list:
+    return [n for n in names if not runs.ok(n)]
+
+
+def _spectrum(runs: Runs, name: str, sensor: str):
+    from drivetrain.signals import amplitude_spectrum
+
+    x, fs = runs.settled(name, sensor)
+    return amplitude_spectrum(x, fs)
+
+
+# --------------------------------------------------------------------------------------------------
+# the checks
+# --------------------------------------------------------------------------------------------------
+
+
+def check_mean_torques(runs: Runs) -> CheckResult:
+    from drivetrain.expect import _measured_value
+
+    r = CheckResult(1, "healthy mean torques", "within 3 % of the rig's mean torques at the 18 measured points, "
+                    "realism effects on and off")
+    worst = 0.0
+    names = [case_name("healthy", n, t, real) for n in SPEEDS_RPM for t in LOADS_NM for real in (True, False)]
+    if _missing(runs, names):
+        r.details.append(f"missing runs: {', '.join(_missing(runs, names))}")
+        r.status = "fail"
+        return r
+    for name in names:
+        s = runs.summary(name)
+        op = {"drive_speed_rpm": s["operating_point"]["drive_speed_rpm"],
+              "load_torque_Nm": s["operating_point"]["load_torque_Nm"]}
+        for sensor, col in (("drive_shaft_torque", "T_DSH_Nm"), ("propeller_shaft_torque", "T_PSH_Nm")):
+            meas, _ = _measured_value(col, op)
+            err = s["torque"][sensor]["mean"] / meas - 1.0
+            worst = max(worst, abs(err))
+            if abs(err) > 0.03:
+                r.details.append(f"{name} {sensor}: {100 * err:+.2f} %")
+    r.figure = f"largest deviation {100 * worst:.2f} % over {len(names)} runs x 2 transducers"
+    r.status = "pass" if worst <= 0.03 else "fail"
+    return r
+
+
+def check_mode(runs: Runs) -> CheckResult:
+    r = CheckResult(2, "lowest torsional mode", f"{MODE_HZ:g} Hz ± 3 % (the rig's measured first mode)")
+    name = case_name("healthy", 1500.0, 1.31)
+    if not runs.ok(name):
+        r.status, r.details = "fail", [f"missing run {name}"]
+        return r
+    f0 = runs.summary(name)["natural_frequencies_Hz"][0]
+    r.figure = f"{f0:.2f} Hz ({100 * (f0 / MODE_HZ - 1):+.1f} %)"
+    r.status = "pass" if abs(f0 / MODE_HZ - 1) <= 0.03 else "fail"
+    return r
+
+
+def check_frequencies(runs: Runs) -> CheckResult:
+    """The GMF line of each healthy realistic run sits where the gear data put it (z1 f_MSH)."""
+    from drivetrain.rig import UPPER_RATIO, Z_PINION, Z_WHEEL
+    from drivetrain.signals import peak_frequency
+
+    r = CheckResult(3, "characteristic frequencies", "f_DSH = n/60, f_MSH = f_DSH/3, f_PSH = f_MSH/4, "
+                    "f_GMF = 15 f_MSH from the gear data; the simulated GMF line at f_GMF at all six speeds")
+    worst = 0.0
+    for n in SPEEDS_RPM:
+        name = case_name("healthy", n, 1.31)
+        if not runs.ok(name):
+            r.details.append(f"missing run {name}")
+            continue
+        s = runs.summary(name)
+        f_dsh = n / 60.0
+        want = {"f_DSH": f_dsh, "f_MSH": f_dsh / UPPER_RATIO, "f_PSH": f_dsh / UPPER_RATIO / (Z_WHEEL / Z_PINION),
+                "f_GMF": Z_PINION * f_dsh / UPPER_RATIO}
+        for k, v in want.items():
+            if abs(s[k] - v) > 1e-9 * v:
+                r.details.append(f"{name}: summary {k} = {s[k]:.6g} Hz, gear data {v:.6g} Hz")
+        f, A = _spectrum(runs, name, "propeller_shaft_torque")
+        df = f[1] - f[0]
+        got = peak_frequency(f, A, 0.9 * want["f_GMF"], 1.1 * want["f_GMF"])
+        worst = max(worst, abs(got - want["f_GMF"]) / df)
+        if abs(got - want["f_GMF"]) > 1.01 * df:
+            r.details.append(f"{name}: GMF line at {got:.3f} Hz, expected {want['f_GMF']:.3f} Hz")
+    r.figure = f"GMF line within {worst:.2f} bins of z1 f_MSH at 6 speeds"
+    r.status = "pass" if not r.details else "fail"
+    return r
+
+
+def check_shaft_peaks(runs: Runs) -> CheckResult:
+    from drivetrain.signals import amplitude_near, local_floor
+
+    r = CheckResult(4, "healthy shaft-order peaks", "clear peaks at f_PSH (propeller-shaft spectrum) and f_DSH "
+                    "(drive-shaft spectrum): >= 20 dB over the local floor with manufacturing errors on; "
+                    "absent with them off")
+    on, off = case_name("healthy", 1500.0, 1.31), case_name("healthy", 1500.0, 1.31, realistic=False)
+    if _missing(runs, [on, off]):
+        r.status, r.details = "fail", [f"missing runs {_missing(runs, [on, off])}"]
+        return r
+    figs, ok = [], True
+    for sensor, order in (("propeller_shaft_torque", "f_PSH"), ("drive_shaft_torque", "f_DSH")):
+        levels = {}
+        for name in (on, off):
+            s = runs.summary(name)
+            f, A = _spectrum(runs, name, sensor)
+            f0, lines = s[order], s["f_PSH"]
+            levels[name] = 20 * math.log10(amplitude_near(f, A, f0, 1) / local_floor(f, A, f0, 3 * lines, lines))
+        figs.append(f"{order} {levels[on]:.1f} dB on, {levels[off]:.1f} dB off")
+        ok &= levels[on] >= 20.0 and levels[off] < 6.0
+    r.figure = "; ".join(figs) + " (over the local floor, 1500 rpm, 1.31 N·m)"
+    r.status = "pass" if ok else "fail"
+    return r
+
+
+def _ptp(runs, name, sensor):
+    x, _ = runs.settled(name, sensor)
+    return float(np.ptp(x))
+
+
+def check_mild(runs: Runs) -> CheckResult:
+    from drivetrain.signals import amplitude_near
+
+    r = CheckResult(5, "mild fault: barely visible in time, noticeable in the spectrum",
+                    "peak-to-peak <= 1.5x healthy; first sidebands f_GMF ± f_MSH >= 6 dB over healthy "
+                    "(propeller shaft, 1500 rpm, 1.31 N·m)")
+    h, m = case_name("healthy", 1500.0, 1.31), case_name("mild", 1500.0, 1.31)
+    if _missing(runs, [h, m]):
+        r.status, r.details = "fail", [f"missing runs {_missing(runs, [h, m])}"]
+        return r
+    sensor = "propeller_shaft_torque"
+    ratio = _ptp(runs, m, sensor) / _ptp(runs, h, sensor)
+    s = runs.summary(h)
+    sb = []
+    for sign in (-1, 1):
+        f0 = s["f_GMF"] + sign * s["f_MSH"]
+        a = {n: amplitude_near(*_spectrum(runs, n, sensor), f0) for n in (h, m)}
+        sb.append(20 * math.log10(a[m] / a[h]))
+    r.figure = f"peak-to-peak {ratio:.2f}x healthy; sidebands {sb[0]:+.1f} / {sb[1]:+.1f} dB over healthy"
+    r.status = "pass" if ratio <= 1.5 and max(sb) >= 6.0 else "fail"
+    return r
+
+
+def check_order(runs: Runs) -> CheckResult:
+    from drivetrain.signals import amplitude_near
+
+    r = CheckResult(6, "sidebands ordered by severity", "f_GMF ± f_MSH sideband level healthy < mild < severe "
+                    "in all 54 cells (propeller shaft, the larger of the two sidebands)")
+    bad, n_ok = [], 0
+    for n in SPEEDS_RPM:
+        for t in LOADS_NM:
+            names = [case_name(h, n, t) for h in HEALTHS]
+            if _missing(runs, names):
+                bad.append(f"{n:g} rpm {t:g} N·m: missing runs")
+                continue
+            s = runs.summary(names[0])
+            lv = []
+            for name in names:
+                f, A = _spectrum(runs, name, "propeller_shaft_torque")
+                lv.append(max(amplitude_near(f, A, s["f_GMF"] + k * s["f_MSH"]) for k in (-1, 1)))
+            if lv[0] < lv[1] < lv[2]:
+                n_ok += 1
+            else:
+                bad.append(f"{n:g} rpm {t:g} N·m: " + " / ".join(f"{v:.2e}" for v in lv))
+    r.figure = f"ordered in {n_ok} of 18 operating points (x 3 health states = 54 cells)"
+    r.details = bad
+    r.status = "pass" if n_ok == 18 else "fail"
+    return r
+
+
+def check_speed(runs: Runs) -> CheckResult:
+    r = CheckResult(7, "torque variation grows with speed", "drive-shaft torque std larger at 1500 than at 250 rpm, "
+                    "at each load (healthy)")
+    figs, ok = [], True
+    for t in LOADS_NM:
+        lo, hi = case_name("healthy", 250.0, t), case_name("healthy", 1500.0, t)
+        if _missing(runs, [lo, hi]):
+            ok = False
+            r.details.append(f"{t:g} N·m: missing runs")
+            continue
+        a, b = (runs.summary(n)["torque"]["drive_shaft_torque"]["std"] for n in (lo, hi))
+        figs.append(f"{t:g} N·m: {a:.2e} -> {b:.2e} N·m")
+        ok &= b > a
+    r.figure = "; ".join(figs)
+    r.status = "pass" if ok else "fail"
+    return r
+
+
+def check_stiffness(runs: Runs) -> CheckResult:
+    return CheckResult(8, "loaded mesh stiffness vs ISO 6336", "within 10 % of c_gamma with tooth compliance on",
+                       "", "not run", ["effects.tooth_compliance does not exist yet"])
+
+
+def check_peaks_compliance(runs: Runs) -> CheckResult:
+    return CheckResult(9, "severe-fault peaks with and without tooth compliance",
+                       "report (the paper: its stiff model overestimated these peaks)", "", "not run",
+                       ["effects.tooth_compliance does not exist yet"])
+
+
+def check_complete(runs: Runs, names: list, repeat: Runs | None) -> CheckResult:
+    r = CheckResult(10, "every run completes and is reproducible from its seeds",
+                    "no failure; one scene run twice: bit-identical signals; other seeds: different signals")
+    failed = [n for n in names if not runs.ok(n)]
+    a, c = REPEAT, "seed1_healthy_1500rpm_1.31Nm"
+    same = diff = False
+    if not _missing(runs, [a, c]) and repeat is not None and repeat.ok(a):
+        sa, sb, sc = (x.signals(n)["signals"] for x, n in ((runs, a), (repeat, a), (runs, c)))
+        same = all(np.array_equal(sa[k], sb[k]) for k in sa)
+        diff = any(not np.array_equal(sa[k], sc[k]) for k in sa if k in sc)
+    r.figure = (f"{len(names) - len(failed)} of {len(names)} runs ok; same seed "
+                f"{'bit-identical' if same else 'DIFFERS'}; other seed {'differs' if diff else 'IDENTICAL'}")
+    r.details = [f"failed: {n}: {runs.records.get(n, {}).get('error', 'missing')}" for n in failed]
+    r.status = "pass" if not failed and same and diff else "fail"
+    return r
+
+
+CHECKS = {1: check_mean_torques, 2: check_mode, 3: check_frequencies, 4: check_shaft_peaks, 5: check_mild,
+          6: check_order, 7: check_speed, 8: check_stiffness, 9: check_peaks_compliance}
+
+
+def evaluate(manifest: dict, names: list, repeat_manifest: dict | None = None) -> list[CheckResult]:
+    runs = Runs(manifest)
+    out = [fn(runs) for fn in CHECKS.values()]
+    out.append(check_complete(runs, names, Runs(repeat_manifest) if repeat_manifest else None))
+    return out
+
+
+# --------------------------------------------------------------------------------------------------
+# the report
+# --------------------------------------------------------------------------------------------------
+
+
+def plot_spectra(manifest: dict, path: Path) -> Path | None:
+    """Drive- and propeller-shaft spectra of healthy/mild/severe at 500 and 1500 rpm (1.31 N·m), with the
+    characteristic frequencies marked: the layout of the paper's spectra figures."""
+    from drivetrain.outputs import _finish, _mpl
+
+    runs = Runs(manifest)
+    plt = _mpl()
+    fig, axes = plt.subplots(3, 4, figsize=(16, 9), sharex="col")
+    for j, (n, sensor) in enumerate([(500.0, "drive_shaft_torque"), (500.0, "propeller_shaft_torque"),
+                                     (1500.0, "drive_shaft_torque"), (1500.0, "propeller_shaft_torque")]):
+        for i, h in enumerate(HEALTHS):
+            ax = axes[i, j]
+            name = case_name(h, n, 1.31)
+            if not runs.ok(name):
+                ax.set_title(f"{name}: missing")
+                continue
+            s = runs.summary(name)
+            f, A = _spectrum(runs, name, sensor)
+            m = (f > 0) & (f <= 2.5 * s["f_GMF"])
+            ax.semilogy(f[m], A[m], lw=0.6, color="k")
+            for k, c in (("f_PSH", "tab:purple"), ("f_MSH", "tab:orange"), ("f_DSH", "tab:blue"),
+                         ("f_GMF", "tab:red")):
+                ax.axvline(s[k], color=c, ls="--", lw=0.7, label=k)
+            ax.set_title(f"{h}, {n:g} rpm: {sensor.replace('_', ' ')}", fontsize=9)
+            if i == 2:
+                ax.set_xlabel("frequency [Hz]")
+            if j == 0:
+                ax.set_ylabel("amplitude [N·m]")
+    axes[0, 0].legend(fontsize=7)
+    return _finish(plt, fig, path, "realistic grid, 1.31 N·m: spectra (Hann window)")
+
+
+def report_markdown(results: list[CheckResult], meta: dict, figure: str | None) -> str:
+    lines = ["# Validation against the paper's findings", "",
+             "Generated by `drivetrain validate` (src/drivetrain/validation.py); do not edit by hand.", "",
+             f"- command: `{meta.get('command', '')}`",
+             f"- scenes: {meta.get('n_scenes')} runs of {meta.get('duration_s'):g} s "
+             f"(settle {meta.get('settle_s'):g} s), realism effects: {', '.join(REALISM)} unless a check says",
+             f"- wall time: {meta.get('wall_time_s', float('nan')) / 60:.1f} min on {meta.get('workers')} worker(s)",
+             f"- passed {sum(r.status == 'pass' for r in results)}, failed "
+             f"{sum(r.status == 'fail' for r in results)}, not run {sum(r.status == 'not run' for r in results)}", "",
+             "| # | check | the paper / reference | ours | status |", "|---|---|---|---|---|"]
+    for r in results:
+        lines.append(f"| {r.number} | {r.title} | {r.statement} | {r.figure or '–'} | **{r.status}** |")
+    lines.append("")
+    for r in results:
+        if r.details:
+            lines.append(f"**{r.number}. {r.title}**")
+            lines.extend(f"- {d}" for d in r.details[:20])
+            if len(r.details) > 20:
+                lines.append(f"- ... {len(r.details) - 20} more")
+            lines.append("")
+    if figure:
+        lines += ["## Spectra", "", f"![spectra]({figure})", ""]
+    return "\n".join(lines)

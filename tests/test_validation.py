@@ -1,0 +1,91 @@
+"""`drivetrain validate`: its judges on synthetic runs whose lines are known (each can fail), and the
+command itself on short runs (slow)."""
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivetrain import validation as V
+from drivetrain.outputs import write_hdf5
+
+FS = 3000.0
+F = {"f_DSH": 25.0, "f_MSH": 25.0 / 3, "f_PSH": 25.0 / 12, "f_GMF": 125.0}
+
+
+def _run(tmp: Path, name: str, signals: dict, **summary) -> dict:
+    t = np.arange(len(next(iter(signals.values())))) / FS
+    d = tmp / name
+    write_hdf5(d / "signals.h5", t, signals, {k: {"unit": "N.m"} for k in signals}, {})
+    s = {"settle_s": 1.0, "sample_rate_Hz": FS, **F, **summary}
+    (d / "summary.json").write_text(json.dumps(s))
+    return {"name": name, "status": "ok", "signals": str(d / "signals.h5"), "summary": str(d / "summary.json")}
+
+
+def _sine(f, a, n, phase=0.3):
+    return a * np.sin(2 * math.pi * f * np.arange(n) / FS + phase)
+
+
+def test_shaft_peak_judge(tmp_path):
+    """Lines at f_PSH and f_DSH 1e-3 N·m over a 1e-5 N·m noise floor pass; a run without them is judged
+    absent; and a run with them in both states fails the "absent when off" half."""
+    n = int(9 * FS)
+    rng = np.random.default_rng(0)
+    noise = lambda: 1e-5 * rng.standard_normal(n)  # noqa: E731
+    lines = {"propeller_shaft_torque": 15 + _sine(F["f_PSH"], 1e-3, n) + noise(),
+             "drive_shaft_torque": 1.9 + _sine(F["f_DSH"], 1e-3, n) + noise()}
+    flat = {"propeller_shaft_torque": 15 + noise(), "drive_shaft_torque": 1.9 + noise()}
+    on, off = V.case_name("healthy", 1500.0, 1.31), V.case_name("healthy", 1500.0, 1.31, realistic=False)
+    good = V.Runs({"runs": [_run(tmp_path / "a", on, lines), _run(tmp_path / "a", off, flat)]})
+    r = V.check_shaft_peaks(good)
+    assert r.status == "pass", r.figure
+    bad = V.Runs({"runs": [_run(tmp_path / "b", on, lines), _run(tmp_path / "b", off, lines)]})
+    assert V.check_shaft_peaks(bad).status == "fail"
+    assert V.check_shaft_peaks(V.Runs({"runs": []})).status == "fail"      # missing runs never pass
+
+
+def test_mild_judge(tmp_path):
+    """Sidebands 4x healthy's (+12 dB) at equal peak-to-peak pass; twice the peak-to-peak fails; equal
+    sidebands fail."""
+    n = int(9 * FS)
+    gmf = _sine(F["f_GMF"], 0.1, n)
+    sb = lambda a: _sine(F["f_GMF"] - F["f_MSH"], a, n) + _sine(F["f_GMF"] + F["f_MSH"], a, n)  # noqa: E731
+    h, m = V.case_name("healthy", 1500.0, 1.31), V.case_name("mild", 1500.0, 1.31)
+
+    def judge(mild_signal, sub):
+        runs = V.Runs({"runs": [_run(tmp_path / sub, h, {"propeller_shaft_torque": 15 + gmf + sb(0.002)}),
+                                _run(tmp_path / sub, m, {"propeller_shaft_torque": mild_signal})]})
+        return V.check_mild(runs)
+
+    assert judge(15 + gmf + sb(0.008), "a").status == "pass"
+    assert judge(15 + 2.2 * gmf + sb(0.008), "b").status == "fail"        # visible in the time domain
+    assert judge(15 + gmf + sb(0.002), "c").status == "fail"              # no sideband rise
+
+
+def test_not_yet_possible_checks_say_so():
+    for fn in (V.check_stiffness, V.check_peaks_compliance):
+        r = fn(V.Runs({"runs": []}))
+        assert r.status == "not run" and r.details
+
+
+@pytest.mark.slow
+def test_validate_command_on_short_runs(tmp_path):
+    """The whole command at 4 s per run (76 runs, in-process): the checks that do not need 20 s pass, the
+    report is written with every check and the figure."""
+    report = tmp_path / "docs" / "VALIDATION.md"
+    p = subprocess.run([sys.executable, "-m", "drivetrain", "validate", "--duration", "4", "--settle", "1",
+                        "--backend", "inprocess", "--out", str(tmp_path / "out"), "--report", str(report), "--quiet"],
+                       capture_output=True, text=True, timeout=3000)
+    print(p.stdout[-3000:], p.stderr[-3000:])
+    text = report.read_text()
+    for k in range(1, 11):
+        assert f"| {k} |" in text
+    status = {int(line.split()[0]): line.split()[1] for line in p.stdout.splitlines() if line[:2].strip().isdigit()}
+    for k in (1, 2, 3, 7, 10):
+        assert status[k] == "pass", p.stdout
+    assert (report.parent / "figures" / "validation_spectra.png").exists()

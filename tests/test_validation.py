@@ -67,15 +67,17 @@ def test_mild_judge(tmp_path):
     assert judge(15 + gmf + sb(0.002), "c").status == "fail"              # no sideband rise
 
 
-def test_not_yet_possible_checks_say_so():
-    for fn in (V.check_stiffness, V.check_peaks_compliance):
-        r = fn(V.Runs({"runs": []}))
-        assert r.status == "not run" and r.details
+def test_stiffness_check_is_static_and_passes():
+    """Check 8 needs no run: the table model with the default compliance against ISO 6336 at the pinion
+    torques of the measured table (1500 rpm); check 9 without its runs fails rather than reports."""
+    r = V.check_stiffness(V.Runs({"runs": []}))
+    assert r.status == "pass" and len(r.details) == 3
+    assert V.check_peaks_compliance(V.Runs({"runs": []})).status == "fail"
 
 
 @pytest.mark.slow
 def test_validate_command_on_short_runs(tmp_path):
-    """The whole command at 4 s per run (76 runs, in-process): the checks that do not need 20 s pass, the
+    """The whole command at 4 s per run (74 runs, in-process): the checks that do not need 20 s pass, the
     report is written with every check and the figure."""
     report = tmp_path / "docs" / "VALIDATION.md"
     p = subprocess.run([sys.executable, "-m", "drivetrain", "validate", "--duration", "4", "--settle", "1",
@@ -86,6 +88,6 @@ def test_validate_command_on_short_runs(tmp_path):
     for k in range(1, 11):
         assert f"| {k} |" in text
     status = {int(line.split()[0]): line.split()[1] for line in p.stdout.splitlines() if line[:2].strip().isdigit()}
-    for k in (1, 2, 3, 7, 10):
+    for k in (1, 2, 3, 7, 8, 10):
         assert status[k] == "pass", p.stdout
     assert (report.parent / "figures" / "validation_spectra.png").exists()

@@ -67,6 +67,8 @@ def _gear_parameters(scene, part: rig.Partition, max_substep: float) -> dict:
              energy_correction=bool(scene.numerics.energy_correction))
     if scene.gear.faults:
         p["faults"] = json.dumps([dict(f) for f in scene.gear.faults])
+    if eff.tooth_compliance and eff.mesh_contact == "table":      # the analytic pair has it already
+        p["tooth_compliance"] = float(scene.tooth_compliance.factor)
     errors = manufacturing_errors(scene, BevelGearParams(**{f.name: p[f.name] for f in
                                                              dataclasses.fields(BevelGearParams) if f.name in p}))
     if errors is not None:

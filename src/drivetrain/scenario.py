@@ -43,7 +43,7 @@ from gearcontact_fmu.fault_specs import (FAULT_KINDS, draw_faults, draw_rule_pro
 from gearcontact_fmu.manufacturing_specs import DEFAULT_GRADE as MANUFACTURING_GRADE
 from gearcontact_fmu.manufacturing_specs import GRADES
 from gearcontact_fmu.mesh_model import FIDELITIES, HEALTH_STATES
-from gearcontact_fmu.params import DEFAULT_COMM_STEP_S, MeshResolution
+from gearcontact_fmu.params import DEFAULT_COMM_STEP_S, TOOTH_COMPLIANCE_FACTOR, MeshResolution
 
 # --------------------------------------------------------------------------------------------------
 # Fixed vocabularies
@@ -214,6 +214,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "sensors": Key("enum", "ideal", allowed=SENSOR_MODELS, doc=(
             "ideal: the sensor signals as simulated; rig: as the rig's instruments report them (encoder "
             "quantisation, transducer bandwidth and noise, from [instruments], seeded)")),
+        "tooth_compliance": Key("bool", False, doc=(
+            "tooth bending and foundation compliance in series with the PCM layers, so that the loaded mesh "
+            "stiffness is ISO 6336's ([tooth_compliance]; table; the analytic pair has it already; the "
+            "paper's simulation had none)")),
         "manufacturing_errors": Key("bool", False, doc=(
             "tooth position (pitch) errors and runout of pinion and wheel, drawn from [manufacturing] "
             "(pcm, table, analytic; the paper's simulation had none)")),
@@ -231,6 +235,11 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "propeller_torque_noise_Nm": _f(_INST.propeller_torque_noise_Nm, "N·m", "torque",
                                         "RMS white noise of the propeller-shaft torque transducer; assumed",
                                         minimum=0.0),
+    },
+    "tooth_compliance": {
+        "factor": _f(TOOTH_COMPLIANCE_FACTOR, "", "", (
+            "total mesh approach per unit of PCM layer approach (1 = the layers alone); the default makes the "
+            "loaded mesh stiffness ISO 6336's c_gamma within 7 % at the paper's loads"), minimum=1.0),
     },
     "manufacturing": {
         "grade": Key("int", MANUFACTURING_GRADE, minimum=min(GRADES), maximum=max(GRADES), doc=(
@@ -334,7 +343,13 @@ class EffectsSpec:
     contact_damping: bool = True
     losses: bool = True
     sensors: str = "ideal"
+    tooth_compliance: bool = False
     manufacturing_errors: bool = False
+
+
+@dataclass(frozen=True)
+class ToothComplianceSpec:
+    factor: float = TOOTH_COMPLIANCE_FACTOR
 
 
 @dataclass(frozen=True)
@@ -358,6 +373,7 @@ class Scene:
     numerics: NumericsSpec
     effects: EffectsSpec
     instruments: Instruments = dataclasses.field(default_factory=Instruments)
+    tooth_compliance: ToothComplianceSpec = dataclasses.field(default_factory=ToothComplianceSpec)
     manufacturing: ManufacturingSpec = dataclasses.field(default_factory=ManufacturingSpec)
     source: Path | None = None           # the file it came from (None if built in code)
     overrides: tuple[str, ...] = ()      # the --set strings applied
@@ -409,7 +425,7 @@ class Scene:
 
 _SECTION_CLASSES = {
     "scenario": ScenarioInfo, "operating_point": OperatingPoint, "gear": GearSpec, "time": TimeSpec,
-    "outputs": OutputSpec, "numerics": NumericsSpec, "effects": EffectsSpec, "instruments": Instruments,
+    "outputs": OutputSpec, "numerics": NumericsSpec, "effects": EffectsSpec, "instruments": Instruments, "tooth_compliance": ToothComplianceSpec,
     "manufacturing": ManufacturingSpec,
 }
 
@@ -703,6 +719,11 @@ def resolve(raw: dict, base_dir: Path | str = ".", source: Path | str | None = N
                                  f"pcm or table for gear.health = {gr['health']!r} (the analytic ISO 6336 pair "
                                  "models the healthy gear only: it has no fault and cannot read a mesh)"))
 
+    if ok("effects", "mesh_contact", "tooth_compliance") and eff["tooth_compliance"] \
+            and eff["mesh_contact"] in ("pcm", "ideal"):
+        problems.append(("effects.tooth_compliance", True,
+                         f"false with effects.mesh_contact = \"{eff['mesh_contact']}\" (the series compliance is "
+                         "applied to the contact map: use table; the analytic ISO 6336 pair has it already)"))
     if ok("effects", "mesh_contact", "manufacturing_errors") and eff["manufacturing_errors"] \
             and eff["mesh_contact"] == "ideal":
         problems.append(("effects.manufacturing_errors", True,

@@ -140,6 +140,15 @@ def virtual_spur_gears(gear: BevelGearParams) -> dict:
     )
 
 
+def iso6336_low_load_factor(gear: BevelGearParams, pinion_torque_Nm: float) -> float:
+    """ISO 6336-1 method B below a line load of 100 N/mm: c' and c_gamma scale with
+    ((F_t K_A / b) / (100 N/mm))^0.25 (K_A = 1; F_t the tangential force at the virtual pinion's mean
+    pitch radius). 1 at and above 100 N/mm."""
+    v = virtual_spur_gears(gear)
+    line_load = abs(pinion_torque_Nm) / v["r_m1"] / (gear.face_width * 1e3)       # N/mm
+    return min(1.0, (line_load / 100.0) ** 0.25) if line_load > 0 else 0.0
+
+
 def iso6336_stiffness(gear: BevelGearParams) -> dict:
     """Single-pair stiffness c' and mesh stiffness c_gamma per unit face width [N/(mm um)] after
     ISO 6336-1 method B, for the virtual spur gears of the pair."""

@@ -436,22 +436,36 @@ def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
     return cmap
 
 
-def make_table_data(cmap: ContactMap, friction: bool = True, damping: bool = True) -> tuple:
+def make_table_data(cmap: ContactMap, friction: bool = True, damping: bool = True, compliance: float = 1.0) -> tuple:
+    """Kernel data of a map. ``compliance`` > 1 puts a series compliance (compliance - 1) times the layers'
+    own behind them: the approach axis stretches by that factor at every angle and load (the contact
+    pattern at a load is the layers', the deflection grows), the elastic energy with it, and the contact
+    damping, which acts on the layers' rate, is referred through it (divided by the factor)."""
     z1, z2 = cmap.gear.z_pinion, cmap.gear.z_wheel
     n_rev = cmap.values.shape[0] // (cmap.grid.points_per_pitch * z1)
-    return (np.ascontiguousarray(cmap.values), np.ascontiguousarray(cmap.a), np.ascontiguousarray(cmap.onset),
+    if not (math.isfinite(compliance) and compliance >= 1.0):
+        raise ValueError(f"tooth compliance factor must be >= 1 (1 = none), not {compliance!r}")
+    values, a = cmap.values, cmap.a
+    if compliance != 1.0:
+        values = values.copy()
+        values[..., CH_EEL] *= compliance
+        values[..., CH_DAMP] /= compliance
+        a = a * compliance
+    return (np.ascontiguousarray(values), np.ascontiguousarray(a), np.ascontiguousarray(cmap.onset),
             float(cmap.theta[1] - cmap.theta[0]), float(z2) / float(z1),
             float(cmap.pcm.c_compression if damping else 0.0), float(cmap.pcm.c_expansion if damping else 0.0),
             float(cmap.pcm.u_max), 1.0 if friction else 0.0, float(cmap.grid.omega_regularisation), n_rev)
 
 
 def make_table_model(gear_params=None, pcm_params=None, resolution=None, health="healthy",
-                     mesh_files=None, mesh_units="mm", friction=True, damping=True, grid=None, faults=(), **kw):
-    """MeshModel of the precomputed contact map (fidelity "table")."""
+                     mesh_files=None, mesh_units="mm", friction=True, damping=True, grid=None, faults=(),
+                     tooth_compliance: float = 1.0, **kw):
+    """MeshModel of the precomputed contact map (fidelity "table"); ``tooth_compliance``: the series
+    factor of :func:`make_table_data` (1 = the layers alone, the paper's model)."""
     cmap = get_map(gear_params, pcm_params, resolution, health, mesh_files, grid, mesh_units,
                    fault_kwargs=fault_kwargs_of(health, faults))
-    return MeshModel(eval=table_eval, data=make_table_data(cmap, friction, damping), fidelity="table",
-                     kind="mesh", info={**cmap.info})
+    return MeshModel(eval=table_eval, data=make_table_data(cmap, friction, damping, float(tooth_compliance)),
+                     fidelity="table", kind="mesh", info={**cmap.info, "tooth_compliance": float(tooth_compliance)})
 
 
 def static_penetration(cmap: ContactMap, pinion_torque_Nm: float) -> tuple[float, float]:

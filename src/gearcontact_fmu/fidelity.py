@@ -77,6 +77,13 @@ def make_mesh_model(fidelity: str, gear_params=None, pcm_params=None, resolution
     if fidelity not in BUILDERS:
         raise ValueError(f"unknown fidelity {fidelity!r}; expected one of {FIDELITIES}")
     errors = kw.pop("manufacturing_errors", None)
+    compliance = float(kw.pop("tooth_compliance", 1.0) or 1.0)
+    if compliance != 1.0:
+        if fidelity in ("pcm", "ideal"):
+            raise ValueError(f"tooth compliance is carried by the table fidelity (a series compliance on its map's "
+                             f"approach axis) and already part of the analytic ISO 6336 pair; not by {fidelity!r}")
+        if fidelity == "table":
+            kw["tooth_compliance"] = compliance
     gear_params = gear_params or BevelGearParams()
     model = builder(fidelity)(gear_params, pcm_params or PCMParams(), resolution or MeshResolution(),
                               health=health, mesh_files=mesh_files, **kw)
@@ -85,3 +92,34 @@ def make_mesh_model(fidelity: str, gear_params=None, pcm_params=None, resolution
 
         model = with_errors(model, errors, gear_params)
     return model
+
+
+def static_mesh_stiffness(model: MeshModel, gear: BevelGearParams, torque_Nm: float, n: int = 12,
+                          phase: float = 0.013) -> dict:
+    """Loaded mesh stiffness of a compliant mesh model at a static pinion torque, over one pitch (``n``
+    angles): per angle the mesh coordinates carrying 0.95 and 1.05 times the torque (root searches) and
+    the secant stiffness between them (independent of how finely a table resolves its approach axis);
+    returned per unit face width along the line of action [N/(mm um)] (``k``, array), with its mean and
+    the double/single ratio (max/min)."""
+    import math
+
+    from scipy.optimize import brentq
+
+    from gearcontact_fmu.geometry import mean_base_radius
+    from gearcontact_fmu.mesh_model import N_OUT, OUT_TAU_PINION
+
+    r = gear.z_wheel / gear.z_pinion
+    out = np.zeros(N_OUT)
+    rb = mean_base_radius(gear)
+
+    def tau(th, s):
+        model.eval(model.data, th, (th - s) / r, 0.0, 0.0, out)
+        return -out[OUT_TAU_PINION]
+
+    ks = []
+    for th in np.linspace(0.0, 2 * math.pi / gear.z_pinion, n, endpoint=False) + phase:
+        lo, hi = (brentq(lambda x: tau(th, x) - f * torque_Nm, 0.0, 0.05, xtol=1e-16) for f in (0.95, 1.05))
+        k_rot = 0.1 * torque_Nm / (hi - lo)                             # N m / rad
+        ks.append(k_rot / rb ** 2 * 1e-6 / (gear.face_width * 1e3))     # N/(mm um)
+    k = np.array(ks)
+    return {"k": k, "mean": float(k.mean()), "double_single": float(k.max() / k.min())}

@@ -97,6 +97,7 @@ class GearContact(Fmi2Slave):
         self.health = "healthy"
         self.faults = "[]"          # health "faults": JSON list of fault specifications (faults.FAULT_KINDS)
         self.manufacturing_errors = ""   # JSON of manufacturing_specs.ManufacturingErrors ("" = none)
+        self.tooth_compliance = 1.0      # series factor of the table map's approach (1 = the PCM layers alone)
         self.pinion_mesh_file = ""
         self.wheel_mesh_file = ""
         self.mesh_units = "mm"
@@ -142,7 +143,7 @@ class GearContact(Fmi2Slave):
                      "v_friction", "u_max", "profile_element_size", "face_element_size",
                      "J_pinion", "J_wheel", "k_a", "d_a", "k_b", "d_b", "max_substep",
                      "module", "pressure_angle", "shaft_angle", "face_width", "x_pinion",
-                     "addendum_coefficient", "dedendum_coefficient", "backlash", "tip_radius",
+                     "addendum_coefficient", "dedendum_coefficient", "backlash", "tip_radius", "tooth_compliance",
                      "mesh_damping_ratio", "mesh_phase"):
             self.register_variable(Real(name, causality=P, variability=F))
         for name in self.INPUTS:
@@ -230,6 +231,8 @@ class GearContact(Fmi2Slave):
         elif fidelity in ("pcm", "table"):
             kw = dict(friction=friction, damping=damping, mesh_units=str(self.mesh_units).strip(),
                       faults=self._fault_specs())
+        if float(self.tooth_compliance) != 1.0:          # table only: pcm and ideal refuse it
+            kw["tooth_compliance"] = float(self.tooth_compliance)
         if str(self.manufacturing_errors).strip():      # the ideal mesh refuses them (no mesh coordinate)
             kw["manufacturing_errors"] = str(self.manufacturing_errors)
         self._stage = make_stage(self.fidelity, gear, pcm, res, health=self.health,

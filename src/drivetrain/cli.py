@@ -184,7 +184,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     from drivetrain.sweep import run_sweep
 
     try:
-        manifest = run_sweep(scenes, Path(args.out) / "grid", workers=args.workers, address=args.scheduler,
+        manifest = run_sweep(scenes, args.out, workers=args.workers, address=args.scheduler,
                              backend=args.backend, fmu_dir=args.fmu_dir, skip_existing=args.skip_existing,
                              plots=False if args.no_plots else None, progress=not args.quiet,
                              grid_names=grid_names)

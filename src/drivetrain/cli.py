@@ -213,14 +213,26 @@ def _cmd_validate(args: argparse.Namespace) -> int:
                           tuple(args.set or ()))
     except ScenarioError as exc:
         return _scene_errors(exc)
-    try:
-        manifest = run_sweep(scenes, Path(args.out) / "grid", workers=args.workers, address=args.scheduler, backend=args.backend,
-                             fmu_dir=args.fmu_dir, skip_existing=args.resume, plots=False, progress=not args.quiet)
-        repeat = run_sweep([s for s in scenes if s.name == V.REPEAT], Path(args.out) / "repeat", workers=1,
-                           backend=args.backend, fmu_dir=args.fmu_dir, skip_existing=args.resume, plots=False,
-                           progress=False)
-    except ConfigurationError as exc:
-        return _scene_errors(exc)
+    if args.judge_only:                 # the runs exist: judge them again (e.g. after a judge changed)
+        import json
+
+        try:
+            manifest, repeat = (json.loads((Path(args.out) / d / "manifest.json").read_text())
+                                for d in ("grid", "repeat"))
+        except (OSError, ValueError) as exc:
+            print(f"error: --judge-only needs the runs of an earlier `drivetrain validate --out {args.out}` "
+                  f"({exc})", file=sys.stderr)
+            return 2
+    else:
+        try:
+            manifest = run_sweep(scenes, Path(args.out) / "grid", workers=args.workers, address=args.scheduler,
+                                 backend=args.backend, fmu_dir=args.fmu_dir, skip_existing=args.resume, plots=False,
+                                 progress=not args.quiet)
+            repeat = run_sweep([s for s in scenes if s.name == V.REPEAT], Path(args.out) / "repeat", workers=1,
+                               backend=args.backend, fmu_dir=args.fmu_dir, skip_existing=args.resume, plots=False,
+                               progress=False)
+        except ConfigurationError as exc:
+            return _scene_errors(exc)
     results = V.evaluate(manifest, [s.name for s in scenes], repeat)
     report = Path(args.report)
     report.parent.mkdir(parents=True, exist_ok=True)
@@ -232,7 +244,8 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         if "validate" in argv else "drivetrain validate"
     meta = {"command": command, "n_scenes": len(scenes), "duration_s": args.duration,
             "settle_s": scenes[0].time.settle_s, "wall_time_s": time.perf_counter() - t0,
-            "workers": args.workers or os.cpu_count()}
+            "workers": args.workers or os.cpu_count(), "judge_only": args.judge_only,
+            "runs_cpu_s": sum(r.get("elapsed_s") or 0.0 for r in manifest.get("runs", []) + repeat.get("runs", []))}
     fig_rel = os.path.relpath(fig, report.parent) if fig else None
     report.write_text(V.report_markdown(results, meta, fig_rel))
     for r in results:
@@ -439,6 +452,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--backend", choices=("fmi", "inprocess"), default="fmi")
     p.add_argument("--fmu-dir", default="fmus")
     p.add_argument("--resume", action="store_true", help="reuse finished runs of the same scenes")
+    p.add_argument("--judge-only", action="store_true",
+                   help="run nothing: judge the runs already in --out again and rewrite the report")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_validate)
 

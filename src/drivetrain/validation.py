@@ -211,15 +211,18 @@ def check_shaft_peaks(runs: Runs) -> CheckResult:
         return r
     figs, ok = [], True
     for sensor, order in (("propeller_shaft_torque", "f_PSH"), ("drive_shaft_torque", "f_DSH")):
-        levels = {}
+        peak, floor = {}, {}
         for name in (on, off):
             s = runs.summary(name)
             f, A = _spectrum(runs, name, sensor)
             f0, lines = s[order], s["f_PSH"]
-            levels[name] = 20 * math.log10(amplitude_near(f, A, f0, 1) / local_floor(f, A, f0, 3 * lines, lines))
-        figs.append(f"{order} {levels[on]:.1f} dB on, {levels[off]:.1f} dB off")
-        ok &= levels[on] >= 20.0 and levels[off] < 6.0
-    r.figure = "; ".join(figs) + " (over the local floor, 1500 rpm, 1.31 N·m)"
+            peak[name], floor[name] = amplitude_near(f, A, f0, 1), local_floor(f, A, f0, 3 * lines, lines)
+        level = 20 * math.log10(peak[on] / floor[on])
+        # absent: what the ideal machine has there would not show above the floor of the measured signal
+        below = 20 * math.log10(peak[off] / floor[on])
+        figs.append(f"{order} {level:.1f} dB over the floor with errors, without them {below:.1f} dB")
+        ok &= level >= 20.0 and below < 0.0
+    r.figure = "; ".join(figs) + " (1500 rpm, 1.31 N·m)"
     r.status = "pass" if ok else "fail"
     return r
 
@@ -417,7 +420,9 @@ def report_markdown(results: list[CheckResult], meta: dict, figure: str | None) 
              f"- command: `{meta.get('command', '')}`",
              f"- scenes: {meta.get('n_scenes')} runs of {meta.get('duration_s'):g} s "
              f"(settle {meta.get('settle_s'):g} s), realism effects: {', '.join(REALISM)} unless a check says",
-             f"- wall time: {meta.get('wall_time_s', float('nan')) / 60:.1f} min on {meta.get('workers')} worker(s)",
+             f"- wall time: {meta.get('wall_time_s', float('nan')) / 60:.1f} min on {meta.get('workers')} worker(s)"
+             + (f" (judged again from runs simulated earlier; their run times add up to "
+                f"{meta['runs_cpu_s'] / 60:.0f} min)" if meta.get("judge_only") else ""),
              f"- passed {sum(r.status == 'pass' for r in results)}, failed "
              f"{sum(r.status == 'fail' for r in results)}, reported {sum(r.status == 'report' for r in results)}", "",
              "| # | check | the paper / reference | ours | status |", "|---|---|---|---|---|"]

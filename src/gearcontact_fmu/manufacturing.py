@@ -118,9 +118,8 @@ def te_offset(te, theta_pinion, theta_wheel):
     drive = theta_pinion - p[P_RATIO] * theta_wheel >= 0.0
     zp, zw = pin.shape[0], whl.shape[0]
     # the engaged pairs (at most two while epsilon_alpha + ramp < 2): weight, its u-derivative, error
-    ws = np.zeros(3)
-    dws = np.zeros(3)
-    es = np.zeros(3)
+    # (scalars, not arrays: this runs 4 times per sub-step)
+    w0 = dw0 = e0 = w1 = dw1 = e1 = w2 = dw2 = e2 = 0.0
     m = 0
     n0 = math.floor(u)
     for n in range(n0 - 1, n0 + 3):
@@ -130,29 +129,32 @@ def te_offset(te, theta_pinion, theta_wheel):
         w = a - b
         if w <= 0.0 or m == 3:
             continue
-        ws[m] = w
-        dws[m] = (da - db) / ramp
-        es[m] = pin[n % zp] - whl[(n + shift) % zw]
+        e = pin[n % zp] - whl[(n + shift) % zw]
+        if m == 0:
+            w0, dw0, e0 = w, (da - db) / ramp, e
+        elif m == 1:
+            w1, dw1, e1 = w, (da - db) / ramp, e
+        else:
+            w2, dw2, e2 = w, (da - db) / ramp, e
         m += 1
     if m == 1:
-        d += es[0]
+        d += e0
     elif m == 2:
         # states {only a, only b, both}; with both engaged the leading pair carries: on the drive flank
         # the more advanced one (max), on the coast flank the less advanced one (min)
-        wa, wb, ea, eb = ws[0], ws[1], es[0], es[1]
-        lead = max(ea, eb) if drive else min(ea, eb)
-        num = wa * wb * lead + wa * (1.0 - wb) * ea + wb * (1.0 - wa) * eb
-        den = wa + wb - wa * wb
-        dnum = (dws[0] * wb + wa * dws[1]) * lead + (dws[0] * (1.0 - wb) - wa * dws[1]) * ea \
-            + (dws[1] * (1.0 - wa) - wb * dws[0]) * eb
-        dden = dws[0] + dws[1] - dws[0] * wb - wa * dws[1]
+        lead = max(e0, e1) if drive else min(e0, e1)
+        num = w0 * w1 * lead + w0 * (1.0 - w1) * e0 + w1 * (1.0 - w0) * e1
+        den = w0 + w1 - w0 * w1
+        dnum = (dw0 * w1 + w0 * dw1) * lead + (dw0 * (1.0 - w1) - w0 * dw1) * e0 \
+            + (dw1 * (1.0 - w0) - w1 * dw0) * e1
+        dden = dw0 + dw1 - dw0 * w1 - w0 * dw1
         d += num / den
         dp += (dnum * den - num * dden) / (den * den) / p[P_PITCH_P]
     elif m == 3:                                         # a contact ratio near 2: the weighted mean
-        sw = ws[0] + ws[1] + ws[2]
-        swe = ws[0] * es[0] + ws[1] * es[1] + ws[2] * es[2]
-        dsw = dws[0] + dws[1] + dws[2]
-        dswe = dws[0] * es[0] + dws[1] * es[1] + dws[2] * es[2]
+        sw = w0 + w1 + w2
+        swe = w0 * e0 + w1 * e1 + w2 * e2
+        dsw = dw0 + dw1 + dw2
+        dswe = dw0 * e0 + dw1 * e1 + dw2 * e2
         d += swe / sw
         dp += (dswe * sw - swe * dsw) / (sw * sw) / p[P_PITCH_P]
     return d, dp, dw

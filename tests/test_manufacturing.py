@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 from scipy.optimize import brentq
-from test_stage import _drive
+from test_stage import _audit
 
 from gearcontact_fmu import geometry
 from gearcontact_fmu.contact import engine
@@ -143,24 +143,13 @@ def test_errors_keep_the_energy_balance_of_the_stage():
     same drive converges at second order: 1.1e-4, 1.8e-5, 3.3e-6 of the energy flow; with grade-6 errors
     the engagement ramps of the pitch errors lower the order to about 1.5)."""
     errors = draw_errors(G, 6, seed=1)
-    H, n = 1e-4, 800
-    t, pa, wa, pb, wb = _drive("loaded", n, H)
     s_touch = 0.5 * 0.075e-3 / 0.0225
     residuals = []
     for ms in (2e-5, 1e-5, 5e-6):
         st = make_stage("analytic", G, stage_params=StageParams(max_substep=ms, scheme="ros2"),
                         manufacturing_errors=errors, damping_ratio=0.1)
         # touching: the offset mesh coordinate s + Delta at the flank
-        st.initialize(0.0, pa[0], wa[0], pb[0], wb[0], theta_pinion=s_touch - mesh_offset(errors, s_touch, 0.0),
-                      theta_wheel=0.0)
-        res, flow = np.empty(n), np.empty(n)
-        for i in range(n):
-            e0 = st.stored_energy_at_inputs(pa[i], wa[i], pb[i], wb[i])
-            d0 = st.energy_dissipated_quadrature
-            st.step(t[i], H, pa[i], wa[i], pb[i], wb[i])
-            work = -H * (st.tau_a_mean * wa[i] + st.tau_b_mean * wb[i])
-            res[i] = st.energy_stored - e0 + st.energy_dissipated_quadrature - d0 - work
-            flow[i] = abs(work) + abs(st.energy_dissipated_quadrature - d0)
+        res, flow = _audit(st, 1e-4, 800, "loaded", theta_pinion=s_touch - mesh_offset(errors, s_touch, 0.0))
         residuals.append(np.sum(np.abs(res)) / np.sum(flow))
     assert residuals[0] <= 3e-4
     assert residuals[1] <= residuals[0] / 2.0 and residuals[2] <= residuals[1] / 2.0

@@ -95,10 +95,12 @@ def _drive(case, n, H):
     return t, phi_a, w, w_a / R * t, np.full(n, w_a / R)
 
 
-def _audit(st, H, n, case):
+def _audit(st, H, n, case, theta_pinion=None):
+    """Per-step energy residual and flow; the pinion starts touching the drive flank (or at theta_pinion)."""
     t, pa, wa, pb, wb = _drive(case, n, H)
     s_b2 = 0.5 * 0.075e-3 / 0.0225
-    st.initialize(0.0, pa[0], wa[0], pb[0], wb[0], theta_pinion=s_b2, theta_wheel=0.0)   # touching
+    st.initialize(0.0, pa[0], wa[0], pb[0], wb[0], theta_pinion=s_b2 if theta_pinion is None else theta_pinion,
+                  theta_wheel=0.0)
     res = np.empty(n)
     flow = np.empty(n)
     for i in range(n):

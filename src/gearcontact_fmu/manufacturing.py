@@ -51,6 +51,7 @@ import numpy as np
 from numba import njit
 
 from gearcontact_fmu import geometry
+from gearcontact_fmu.analytic import _smoothstep
 from gearcontact_fmu.manufacturing_specs import ManufacturingErrors, errors_of
 from gearcontact_fmu.mesh_model import OUT_TAU_PINION, OUT_TAU_WHEEL, MeshModel
 from gearcontact_fmu.params import BevelGearParams
@@ -94,16 +95,6 @@ def offset_data(errors: ManufacturingErrors, gear: BevelGearParams | None = None
     return (p, pin, whl)
 
 
-@njit(cache=True, inline="always")
-def _step(x):
-    """C1 step 0 -> 1 on [0, 1] and its derivative."""
-    if x <= 0.0:
-        return 0.0, 0.0
-    if x >= 1.0:
-        return 1.0, 0.0
-    return x * x * (3.0 - 2.0 * x), 6.0 * x * (1.0 - x)
-
-
 @njit(cache=True)
 def te_offset(te, theta_pinion, theta_wheel):
     """Offset Delta of the mesh coordinate [rad] and its partial derivatives by the two angles."""
@@ -124,8 +115,8 @@ def te_offset(te, theta_pinion, theta_wheel):
     n0 = math.floor(u)
     for n in range(n0 - 1, n0 + 3):
         c = n + CENTRE
-        a, da = _step((u - (c - half)) / ramp + 0.5)      # pair n engages ...
-        b, db = _step((u - (c + half)) / ramp + 0.5)      # ... and leaves
+        a, da = _smoothstep((u - (c - half)) / ramp + 0.5)      # pair n engages ...
+        b, db = _smoothstep((u - (c + half)) / ramp + 0.5)      # ... and leaves
         w = a - b
         if w <= 0.0 or m == 3:
             continue

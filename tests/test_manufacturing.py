@@ -58,6 +58,10 @@ def test_draws_are_seeded_within_tolerance_and_recorded():
         errors_of("{oops")
     with pytest.raises(ValueError, match="unknown"):
         errors_of('{"pinion_runout": 3}')
+    with pytest.raises(ValueError, match="pinion_position_um.*list of numbers"):   # not read char by char
+        errors_of('{"pinion_position_um": "12"}')
+    with pytest.raises(ValueError, match="wheel_eccentricity_um.*a number"):
+        errors_of('{"wheel_eccentricity_um": [3]}')
     with pytest.raises(ValueError, match="ideal"):
         make_mesh_model("ideal", G, manufacturing_errors=a)
 

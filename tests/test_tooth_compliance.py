@@ -84,5 +84,9 @@ def test_scene_and_fmu_plumbing():
             load_scene(EXAMPLE, overrides=on + [f"effects.mesh_contact={fid}"])
     with pytest.raises(ValueError, match="table"):
         make_mesh_model("pcm", G, tooth_compliance=2.0)
+    for bad in (0.0, 0.5, float("nan")):          # never silently the layers alone, in any fidelity
+        for fid in ("table", "analytic"):
+            with pytest.raises(ValueError, match=">= 1"):
+                make_mesh_model(fid, G, tooth_compliance=bad)
     with pytest.raises(ScenarioError, match="factor"):
         load_scene(EXAMPLE, overrides=on + ["tooth_compliance.factor=0.5"])

@@ -425,8 +425,8 @@ class Scene:
 
 _SECTION_CLASSES = {
     "scenario": ScenarioInfo, "operating_point": OperatingPoint, "gear": GearSpec, "time": TimeSpec,
-    "outputs": OutputSpec, "numerics": NumericsSpec, "effects": EffectsSpec, "instruments": Instruments, "tooth_compliance": ToothComplianceSpec,
-    "manufacturing": ManufacturingSpec,
+    "outputs": OutputSpec, "numerics": NumericsSpec, "effects": EffectsSpec, "instruments": Instruments,
+    "tooth_compliance": ToothComplianceSpec, "manufacturing": ManufacturingSpec,
 }
 
 

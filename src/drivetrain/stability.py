@@ -132,6 +132,7 @@ def _contact_gears(spec) -> list:
 def _contact_inputs(comp) -> dict:
     """What a GearContact component's contact model is built from, read from its parameters once."""
     from gearcontact_fmu.gearpair import fault_kwargs_of
+    from gearcontact_fmu.stage import StageParams
 
     p = comp.parameters
     pick = (lambda cls: cls(**{f.name: p[f.name] for f in dataclasses.fields(cls) if f.name in p}))
@@ -144,7 +145,7 @@ def _contact_inputs(comp) -> dict:
             "fidelity": str(p.get("fidelity")).strip().lower(), "health": health,
             "mesh_units": str(p.get("mesh_units", "mm")),
             "fault_kwargs": fault_kwargs_of(health, json.loads(p.get("faults") or "[]")),
-            "max_substep": float(p.get("max_substep", 5e-6))}
+            "max_substep": float(p.get("max_substep", StageParams().max_substep))}
 
 
 #: a contact model estimated to take longer than this is announced before the run [s]
@@ -157,7 +158,7 @@ def check_contact_cost(spec, duration_s: float, max_hours: float) -> list[dict]:
     the estimate and how to coarsen).
 
     Only geometry whose cost is not known beforehand is probed: mesh files, or element sizes finer
-    than the default resolution. A generated mesh is first counted from its flank area
+    than the default resolution. A generated mesh is first counted without being built
     (:func:`gearcontact_fmu.cost.predicted_triangles`); past the budget at the measured growth law
     of the default pair it is refused without being built. Otherwise the pair is built and timed on
     this machine (:func:`gearcontact_fmu.cost.probe`): a table gear pays the rows of its map not yet
@@ -202,7 +203,7 @@ def check_contact_cost(spec, duration_s: float, max_hours: float) -> list[dict]:
             build_s = time.perf_counter() - t0
             ref_cost = cost.estimate(sum(ref.info.values()), build_s=build_s, map_rows=rows,
                                      map_workers=map_workers(), n_substeps=n_sub,
-                                     **_probe(ref, w_pinion, inp["max_substep"], H))
+                                     **_probe(ref, w_pinion, inp["max_substep"], H, n_sub > 0))
             guess = cost.scaled(ref_cost, n_tri)
             memory = cost.available_memory_bytes()
             if guess.total_s > 4 * budget or (memory and guess.memory_bytes > 0.5 * memory):
@@ -214,7 +215,8 @@ def check_contact_cost(spec, duration_s: float, max_hours: float) -> list[dict]:
         pair = build_pcm_pair(gear, inp["pcm"], res, inp["health"], files.get("pinion"), files.get("wheel"),
                               inp["mesh_units"], fault_kwargs=inp["fault_kwargs"])
         est = cost.estimate(sum(pair.info.values()), build_s=time.perf_counter() - t0, map_rows=rows,
-                            map_workers=map_workers(), n_substeps=n_sub, **_probe(pair, w_pinion, inp["max_substep"], H))
+                            map_workers=map_workers(), n_substeps=n_sub,
+                            **_probe(pair, w_pinion, inp["max_substep"], H, n_sub > 0))
         del pair
         rep = _cost_report(comp.name, est, "measured")
         if est.total_s > budget:
@@ -228,11 +230,12 @@ def check_contact_cost(spec, duration_s: float, max_hours: float) -> list[dict]:
     return reports
 
 
-def _probe(pair, w_pinion, max_substep, H) -> dict:
+def _probe(pair, w_pinion, max_substep, H, online: bool) -> dict:
+    """The measured costs of a pair; the online sub-steps only for a gear that runs online (pcm)."""
     from gearcontact_fmu import cost
     from gearcontact_fmu.params import substeps
 
-    row_s, sub_s = cost.probe(pair, w_pinion, H / substeps(H, max_substep))
+    row_s, sub_s = cost.probe(pair, w_pinion, H / substeps(H, max_substep), n_substeps=100 if online else 0)
     return {"row_s": row_s, "substep_s": sub_s}
 
 

@@ -35,7 +35,7 @@ class CheckResult:
     title: str
     statement: str          # the paper's words or the reference value
     figure: str = ""        # ours
-    status: str = "not run"   # pass | fail | not run
+    status: str = "not run"   # pass | fail | report | not run
     details: list = field(default_factory=list)
 
 
@@ -44,7 +44,8 @@ def case_name(health: str, speed: float, load: float, realistic: bool = True) ->
 
 
 def scenes(base: Path, duration_s: float, settle_s: float, overrides: tuple = ()) -> list:
-    """Every scene the checks need (names from :func:`case_name`, plus the reproducibility pair)."""
+    """Every scene the checks need: the realistic grid and the healthy points with the effects off (names
+    from :func:`case_name`), another seed (check 10) and the severe case without compliance (check 9)."""
     from drivetrain.scenario import load_scene
 
     common = [f"time.duration_s={duration_s}", f"time.settle_s={settle_s}", "outputs.plots=false",
@@ -89,6 +90,7 @@ class Runs:
         self.records = {r["name"]: r for r in manifest.get("runs", [])}
         self._sig: dict = {}
         self._sum: dict = {}
+        self._spec: dict = {}
 
     def ok(self, name: str) -> bool:
         return self.records.get(name, {}).get("status") == "ok"
@@ -114,15 +116,18 @@ class Runs:
         return d["signals"][sensor][m], s["sample_rate_Hz"]
 
 
+    def spectrum(self, name: str, sensor: str):
+        """Amplitude spectrum (f, A) of a settled sensor signal, computed once per run and sensor."""
+        from drivetrain.signals import amplitude_spectrum
+
+        key = (name, sensor)
+        if key not in self._spec:
+            self._spec[key] = amplitude_spectrum(*self.settled(name, sensor))
+        return self._spec[key]
+
+
 def _missing(runs: Runs, names) -> list:
     return [n for n in names if not runs.ok(n)]
-
-
-def _spectrum(runs: Runs, name: str, sensor: str):
-    from drivetrain.signals import amplitude_spectrum
-
-    x, fs = runs.settled(name, sensor)
-    return amplitude_spectrum(x, fs)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -188,7 +193,7 @@ def check_frequencies(runs: Runs) -> CheckResult:
         for k, v in want.items():
             if abs(s[k] - v) > 1e-9 * v:
                 r.details.append(f"{name}: summary {k} = {s[k]:.6g} Hz, gear data {v:.6g} Hz")
-        f, A = _spectrum(runs, name, "propeller_shaft_torque")
+        f, A = runs.spectrum(name, "propeller_shaft_torque")
         df = f[1] - f[0]
         got = peak_frequency(f, A, 0.9 * want["f_GMF"], 1.1 * want["f_GMF"])
         worst = max(worst, abs(got - want["f_GMF"]) / df)
@@ -214,7 +219,7 @@ def check_shaft_peaks(runs: Runs) -> CheckResult:
         peak, floor = {}, {}
         for name in (on, off):
             s = runs.summary(name)
-            f, A = _spectrum(runs, name, sensor)
+            f, A = runs.spectrum(name, sensor)
             f0, lines = s[order], s["f_PSH"]
             peak[name], floor[name] = amplitude_near(f, A, f0, 1), local_floor(f, A, f0, 3 * lines, lines)
         level = 20 * math.log10(peak[on] / floor[on])
@@ -248,7 +253,7 @@ def check_mild(runs: Runs) -> CheckResult:
     sb = []
     for sign in (-1, 1):
         f0 = s["f_GMF"] + sign * s["f_MSH"]
-        a = {n: amplitude_near(*_spectrum(runs, n, sensor), f0) for n in (h, m)}
+        a = {n: amplitude_near(*runs.spectrum(n, sensor), f0) for n in (h, m)}
         sb.append(20 * math.log10(a[m] / a[h]))
     r.figure = f"peak-to-peak {ratio:.2f}x healthy; sidebands {sb[0]:+.1f} / {sb[1]:+.1f} dB over healthy"
     r.status = "pass" if ratio <= 1.5 and max(sb) >= 6.0 else "fail"
@@ -270,7 +275,7 @@ def check_order(runs: Runs) -> CheckResult:
             s = runs.summary(names[0])
             lv = []
             for name in names:
-                f, A = _spectrum(runs, name, "propeller_shaft_torque")
+                f, A = runs.spectrum(name, "propeller_shaft_torque")
                 lv.append(max(amplitude_near(f, A, s["f_GMF"] + k * s["f_MSH"]) for k in (-1, 1)))
             if lv[0] < lv[1] < lv[2]:
                 n_ok += 1
@@ -399,7 +404,7 @@ def plot_spectra(manifest: dict, path: Path) -> Path | None:
                 ax.set_title(f"{name}: missing")
                 continue
             s = runs.summary(name)
-            f, A = _spectrum(runs, name, sensor)
+            f, A = runs.spectrum(name, sensor)
             m = (f > 0) & (f <= 2.5 * s["f_GMF"])
             ax.semilogy(f[m], A[m], lw=0.6, color="k")
             for k, c in (("f_PSH", "tab:purple"), ("f_MSH", "tab:orange"), ("f_DSH", "tab:blue"),

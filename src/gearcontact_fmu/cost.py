@@ -82,7 +82,8 @@ def probe(pair, pinion_speed_rad_s: float, substep_s: float, n_substeps: int = 1
     The sub-step probe follows the pair in mesh at ``pinion_speed_rad_s`` with sub-steps of
     ``substep_s`` and evaluates :data:`EVALS_PER_SUBSTEP` times per sub-step (the integrator's points
     lie within one sub-step of each other); ``n_warm`` sub-steps first compile and warm the contact
-    search's caches (untimed: the first sub-steps along a trajectory cost 2-3x the steady ones)."""
+    search's caches (untimed: the first sub-steps along a trajectory cost 2-3x the steady ones).
+    ``n_substeps = 0``: no sub-step probe (a table gear does not run online), 0 s per sub-step."""
     from gearcontact_fmu.contact import engine
     from gearcontact_fmu.contact_map import MapGrid, _approach_grid, _tabulate_rows
     from gearcontact_fmu.gearpair import contact_onset
@@ -94,15 +95,17 @@ def probe(pair, pinion_speed_rad_s: float, substep_s: float, n_substeps: int = 1
     s = contact_onset(pair, th0, +1)
     s = (s if math.isfinite(s) else 0.0) + 1e-6          # lightly loaded: elements in contact
     dth = max(pinion_speed_rad_s, 1.0) * substep_s
-    t0 = 0.0
-    for i in range(n_warm + n_substeps):
-        if i == n_warm:
-            t0 = time.perf_counter()
-        th = th0 + i * dth
-        for q in range(EVALS_PER_SUBSTEP):
-            thw = (th - s - 1e-9 * q) * z1 / z2
-            engine.fixed_axis_eval(pair.data, th, thw, pinion_speed_rad_s, pinion_speed_rad_s * z1 / z2, out)
-    sub = (time.perf_counter() - t0) / n_substeps
+    sub = 0.0
+    if n_substeps > 0:
+        t0 = 0.0
+        for i in range(n_warm + n_substeps):
+            if i == n_warm:
+                t0 = time.perf_counter()
+            th = th0 + i * dth
+            for q in range(EVALS_PER_SUBSTEP):
+                thw = (th - s - 1e-9 * q) * z1 / z2
+                engine.fixed_axis_eval(pair.data, th, thw, pinion_speed_rad_s, pinion_speed_rad_s * z1 / z2, out)
+        sub = (time.perf_counter() - t0) / n_substeps
     grid = MapGrid()
     a, _ = _approach_grid(pair, grid)
     t0 = time.perf_counter()

@@ -8,6 +8,7 @@ entry point (the shape of scipy.integrate's ``solve_ivp`` method table).
 from __future__ import annotations
 
 import importlib
+import math
 
 import numpy as np
 from numba import njit
@@ -77,7 +78,9 @@ def make_mesh_model(fidelity: str, gear_params=None, pcm_params=None, resolution
     if fidelity not in BUILDERS:
         raise ValueError(f"unknown fidelity {fidelity!r}; expected one of {FIDELITIES}")
     errors = kw.pop("manufacturing_errors", None)
-    compliance = float(kw.pop("tooth_compliance", 1.0) or 1.0)
+    compliance = float(kw.pop("tooth_compliance", 1.0))
+    if not (math.isfinite(compliance) and compliance >= 1.0):
+        raise ValueError(f"tooth compliance factor must be >= 1 (1 = none), not {compliance!r}")
     if compliance != 1.0:
         if fidelity in ("pcm", "ideal"):
             raise ValueError(f"tooth compliance is carried by the table fidelity (a series compliance on its map's "
@@ -101,8 +104,6 @@ def static_mesh_stiffness(model: MeshModel, gear: BevelGearParams, torque_Nm: fl
     the secant stiffness between them (independent of how finely a table resolves its approach axis);
     returned per unit face width along the line of action [N/(mm um)] (``k``, array), with its mean and
     the double/single ratio (max/min)."""
-    import math
-
     from scipy.optimize import brentq
 
     from gearcontact_fmu.geometry import mean_base_radius

@@ -51,13 +51,13 @@ import numpy as np
 from numba import njit
 
 from gearcontact_fmu import geometry
-from gearcontact_fmu.analytic import _smoothstep
+from gearcontact_fmu.analytic import _smoothstep, virtual_spur_gears
 from gearcontact_fmu.manufacturing_specs import ManufacturingErrors, errors_of
 from gearcontact_fmu.mesh_model import OUT_TAU_PINION, OUT_TAU_WHEEL, MeshModel
 from gearcontact_fmu.params import BevelGearParams
 
 # layout of the parameter array of the offset kernel
-P_PITCH_P, P_PITCH_W, P_RATIO, P_ECC_P, P_PHASE_P, P_ECC_W, P_PHASE_W, P_EPS, P_RAMP, N_P = range(10)
+P_PITCH_P, P_RATIO, P_ECC_P, P_PHASE_P, P_ECC_W, P_PHASE_W, P_EPS, P_RAMP, N_P = range(9)
 
 #: where pair n's engagement is centred [pitches from theta_p = n pitches] and the length of the C1
 #: ramps at its ends [pitches]: measured on the online PCM with one advanced tooth at 20 N·m (entry at
@@ -75,14 +75,11 @@ def runout_factor(gear: BevelGearParams, member: str) -> float:
 
 def offset_data(errors: ManufacturingErrors, gear: BevelGearParams | None = None) -> tuple:
     """Parameter tuple of :func:`te_offset`: (p, pinion errors [rad of s], wheel errors [rad of s])."""
-    from gearcontact_fmu.analytic import virtual_spur_gears
-
     gear = gear or BevelGearParams()
     errors.check(gear)
     rb = geometry.mean_base_radius(gear)
     p = np.zeros(N_P)
     p[P_PITCH_P] = 2.0 * math.pi / gear.z_pinion
-    p[P_PITCH_W] = 2.0 * math.pi / gear.z_wheel
     p[P_RATIO] = gear.z_wheel / gear.z_pinion
     p[P_ECC_P] = errors.pinion_eccentricity_um * 1e-6 * runout_factor(gear, "pinion") / rb
     p[P_PHASE_P] = errors.pinion_phase_rad

@@ -55,11 +55,19 @@ class ManufacturingErrors:
         if bad:
             raise ValueError(f"unknown manufacturing-error keys {bad}; known: {sorted(known)}")
         kw = dict(d)
-        for k in ("pinion_position_um", "wheel_position_um"):
-            kw[k] = tuple(float(v) for v in kw.get(k, ()))
-        for k in ("pinion_eccentricity_um", "pinion_phase_rad", "wheel_eccentricity_um", "wheel_phase_rad"):
-            if k in kw:
-                kw[k] = float(kw[k])
+        for k, v in d.items():
+            if k == "source":
+                continue
+            try:
+                if k.endswith("_position_um"):
+                    if not isinstance(v, (list, tuple)):
+                        raise TypeError
+                    kw[k] = tuple(float(x) for x in v)
+                else:
+                    kw[k] = float(v)
+            except (TypeError, ValueError):
+                want = "a list of numbers, one per tooth" if k.endswith("_position_um") else "a number"
+                raise ValueError(f"manufacturing error {k} = {v!r}: expected {want}") from None
         e = cls(**kw)
         vals = list(e.pinion_position_um) + list(e.wheel_position_um) + [
             e.pinion_eccentricity_um, e.pinion_phase_rad, e.wheel_eccentricity_um, e.wheel_phase_rad]

@@ -110,6 +110,27 @@ def test_apply_health_and_errors(pinion):
     sub = G.build_gear_mesh(P, "pinion", RES, teeth=[1, 2])
     with pytest.raises(ValueError, match="not in the mesh"):
         faults.mild_flank_fracture(sub, P, tooth=0)
+    # a fault list names the fault that does not fit (index, kind, member, tooth)
+    bad = [{"kind": "pit", "tooth": 3}, {"kind": "void", "tooth": 4, "position_mm": 5.0}]
+    with pytest.raises(faults.FaultGeometryError, match=r"gear.faults\[1\] \(void on pinion tooth 4\).*leaves the flank"):
+        faults.apply_faults(pinion, P, bad, "pinion")
+    with pytest.raises(faults.FaultGeometryError, match="the mild fault.*leaves the flank"):
+        faults.apply_health(pinion, P, "mild", position=5e-3)
+
+
+def test_a_fault_that_does_not_fit_refuses_the_run_naming_it():
+    """Found when the meshes are built (the scene's keys are well formed): a refusal before any step,
+    not a traceback."""
+    from test_scene_effects import EXAMPLE
+
+    from drivetrain.errors import ConfigurationError
+    from drivetrain.run import run_scene
+    from drivetrain.scenario import load_scene
+
+    scene = load_scene(EXAMPLE, overrides=['gear.health="faults"', "time.duration_s=0.01", "time.settle_s=0",
+                                           'gear.faults=[{kind="void", tooth=2, position_mm=-1.5}]'])
+    with pytest.raises(ConfigurationError, match=r"gear.faults\[0\] \(void on pinion tooth 2\).*base cone"):
+        run_scene(scene, out_dir=None, progress=False, build=False, fmu_paths={})
 
 
 def test_faulty_user_mesh_round_trip(tmp_path, mild):

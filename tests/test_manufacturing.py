@@ -48,6 +48,16 @@ def test_draws_are_seeded_within_tolerance_and_recorded():
     dev = np.diff(np.r_[pos, pos[0]])                          # single pitch deviations, closing the circle
     assert np.all(np.abs(dev) <= 2 * f_pt + 1e-9) and abs(pos.mean()) < 1e-9
     assert a.pinion_eccentricity_um == pytest.approx(0.5 * a.source["pinion"]["F_r_um"])
+    # the runout as mounted has a grade of its own: the eccentricities follow it, the teeth do not
+    for member, z in (("pinion", G.z_pinion), ("wheel", G.z_wheel)):
+        d_mm = G.module * z * 1e3
+        for rg in (4, 9):
+            r = draw_errors(G, 6, seed=3, runout_grade=rg)
+            want = 0.5 * iso1328_tolerances(rg, G.module * 1e3, d_mm)["F_r_um"]
+            assert getattr(r, f"{member}_eccentricity_um") == pytest.approx(want)
+            assert getattr(r, f"{member}_position_um") == getattr(a, f"{member}_position_um")
+    assert draw_errors(G, 6, seed=3, runout_grade=9).wheel_eccentricity_um \
+        == pytest.approx(2.0 * draw_errors(G, 6, seed=3, runout_grade=7).wheel_eccentricity_um)   # sqrt(2) a grade
     # the wheel's draw does not depend on whether the pinion has errors
     w = draw_errors(G, 6, seed=3, members=("wheel",))
     assert w.wheel_position_um == a.wheel_position_um and w.pinion_position_um == ()
@@ -227,6 +237,9 @@ def test_scene_keys_draw_from_the_seed_and_refuse_the_ideal_gear():
     assert a == draw_errors(G, 6, seed=0)
     b = manufacturing_errors(load_scene(EXAMPLE, overrides=on + ["manufacturing.seed=7", "manufacturing.grade=8"]))
     assert b == draw_errors(G, 8, seed=7) and b != a
+    r = manufacturing_errors(load_scene(EXAMPLE, overrides=on + ["manufacturing.runout_grade=5"]))
+    assert r == draw_errors(G, 6, seed=0, runout_grade=5) and r.pinion_position_um == a.pinion_position_um
+    assert r.wheel_eccentricity_um == pytest.approx(0.5 * a.wheel_eccentricity_um)
     c = manufacturing_errors(load_scene(EXAMPLE, overrides=on + ["manufacturing.runout_um=0",
                                                                   'manufacturing.members=["wheel"]']))
     assert c.pinion_position_um == () and c.wheel_eccentricity_um == 0.0 and c.wheel_position_um

@@ -54,7 +54,8 @@ def manufacturing_errors(scene, gear: BevelGearParams | None = None):
         return None
     m = scene.manufacturing
     return draw_errors(gear or BevelGearParams(), grade=m.grade, seed=m.seed, single_pitch_um=m.single_pitch_um,
-                       runout_um=m.runout_um, members=tuple(m.members))
+                       runout_um=m.runout_um, members=tuple(m.members),
+                       runout_grade=m.runout_grade)
 
 
 def _gear_parameters(scene, part: rig.Partition, max_substep: float) -> dict:

@@ -21,14 +21,15 @@ from typing import Any
 
 import numpy as np
 
-from drivetrain import __version__
+from drivetrain import __version__, instruments
 from drivetrain import outputs as O
-from drivetrain import instruments, stability
-from drivetrain.errors import ConfigurationError, CosimError, RunFailedError  # noqa: F401  (re-exported)
+from drivetrain import stability
 from drivetrain.cosim import CosimResult, Master
+from drivetrain.errors import ConfigurationError, CosimError, RunFailedError  # noqa: F401  (re-exported)
 from drivetrain.scenario import RIG_SENSORS, TORQUE_SENSORS, Scene
 from drivetrain.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies, stats, to_db
 from drivetrain.system import SystemSpec
+from gearcontact_fmu.fault_specs import FaultGeometryError
 from gearcontact_fmu.params import substeps
 
 #: messages for the user (progress, warnings); the CLI passes its own ``log``, a library caller sees them
@@ -255,6 +256,8 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
         contact_range = stability.check_contact_range(spec)
     except (stability.ContactCostError, stability.ContactRangeError) as exc:
         raise ConfigurationError(exc.problems) from None
+    except FaultGeometryError as exc:
+        raise ConfigurationError([str(exc)]) from None
     for rep in contact_cost:
         if rep.get("warning"):
             warnings.append(rep["warning"])

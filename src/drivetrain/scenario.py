@@ -41,6 +41,7 @@ from drivetrain.rig import RIG_SENSORS, TORQUE_SENSORS, UPPER_RATIO, Z_PINION, Z
 from gearcontact_fmu.fault_specs import (FAULT_KINDS, draw_faults, draw_rule_problems, fault_spec_problems,
                                          normalised_spec)
 from gearcontact_fmu.manufacturing_specs import DEFAULT_GRADE as MANUFACTURING_GRADE
+from gearcontact_fmu.manufacturing_specs import DEFAULT_RUNOUT_GRADE as MANUFACTURING_RUNOUT_GRADE
 from gearcontact_fmu.manufacturing_specs import GRADES
 from gearcontact_fmu.mesh_model import FIDELITIES, HEALTH_STATES
 from gearcontact_fmu.params import DEFAULT_COMM_STEP_S, TOOTH_COMPLIANCE_FACTOR, MeshResolution
@@ -243,13 +244,16 @@ SCHEMA: dict[str, dict[str, Key]] = {
     },
     "manufacturing": {
         "grade": Key("int", MANUFACTURING_GRADE, minimum=min(GRADES), maximum=max(GRADES), doc=(
-            "ISO 1328 accuracy grade that sets the single pitch tolerance f_pt and the radial runout F_r "
-            "of each gear (lower = finer; 6 = ground industrial gear)")),
+            "ISO 1328 accuracy grade of the teeth: sets the single pitch tolerance f_pt of each gear (lower = "
+            "finer; 6 = ground industrial gear)")),
+        "runout_grade": Key("int", MANUFACTURING_RUNOUT_GRADE, minimum=min(GRADES), maximum=max(GRADES), doc=(
+            "ISO 1328 grade of the radial runout F_r of each gear as mounted (its own runout plus its seat "
+            "on the shaft; coarser than the teeth)")),
         "seed": Key("int", 0, minimum=0, doc="seed of the draw (one seed, one set of errors; recorded in the summary)"),
         "single_pitch_um": _f(None, "um", "length", "single pitch tolerance f_pt of both gears, instead of the grade's",
                               minimum=0.0, default_doc="from grade"),
         "runout_um": _f(None, "um", "length", "radial runout F_r (= 2 x eccentricity) of both gears, instead of the "
-                        "grade's", minimum=0.0, default_doc="from grade"),
+                        "runout grade's", minimum=0.0, default_doc="from runout_grade"),
         "members": Key("str_list", ["pinion", "wheel"], allowed=("pinion", "wheel"),
                        doc="the gears that have errors"),
     },
@@ -355,6 +359,7 @@ class ToothComplianceSpec:
 @dataclass(frozen=True)
 class ManufacturingSpec:
     grade: int = MANUFACTURING_GRADE
+    runout_grade: int = MANUFACTURING_RUNOUT_GRADE
     seed: int = 0
     single_pitch_um: float | None = None
     runout_um: float | None = None

@@ -32,7 +32,7 @@ import numpy as np
 
 from . import geometry
 from .fault_specs import (DEFAULT_DEPTH, DEFAULT_POSITION, DEFAULT_WIDTH, FAULT_KINDS, FLANKS, WEAR_PROFILES,
-                          normalised_spec)
+                          FaultGeometryError, normalised_spec)
 from .mesh_check import load_gear_mesh
 from .mesh_model import GENERATED_HEALTH
 from .meshes import KIND_TIP_ROUND, SurfaceMesh, concatenate
@@ -380,16 +380,23 @@ def _si_keywords(spec: dict) -> dict:
 
 
 def apply_faults(mesh: SurfaceMesh, params: BevelGearParams | None, specs, member: str) -> SurfaceMesh:
-    """The mesh of ``member`` with every specification of that member applied, in order."""
-    for spec in specs:
+    """The mesh of ``member`` with every specification of that member applied, in order. A fault that
+    does not fit its tooth raises :class:`FaultGeometryError` naming it (``gear.faults[i]``)."""
+    for i, spec in enumerate(specs):
         spec = normalised_spec(spec)
         if spec["member"] != member:
             continue
-        if spec["kind"] == "missing_tooth":             # a whole tooth: no flank, no sizes
-            mesh = missing_tooth(mesh, spec["tooth"])
-        else:
-            mesh = FAMILIES[spec["kind"]](mesh, params, tooth=spec["tooth"], flank=spec["flank"],
-                                          **_si_keywords(spec))
+        try:
+            if spec["kind"] == "missing_tooth":             # a whole tooth: no flank, no sizes
+                mesh = missing_tooth(mesh, spec["tooth"])
+            else:
+                mesh = FAMILIES[spec["kind"]](mesh, params, tooth=spec["tooth"], flank=spec["flank"],
+                                              **_si_keywords(spec))
+        except FaultGeometryError:
+            raise
+        except ValueError as exc:
+            raise FaultGeometryError(f"gear.faults[{i}] ({spec['kind']} on {member} tooth {spec['tooth']}): {exc}") \
+                from None
     return mesh
 
 
@@ -409,7 +416,10 @@ def apply_health(mesh: SurfaceMesh, params: BevelGearParams | None = None, healt
     if member != "pinion":
         return mesh
     if health == "mild":
-        return mild_flank_fracture(mesh, params, **kw)
+        try:
+            return mild_flank_fracture(mesh, params, **kw)
+        except ValueError as exc:
+            raise FaultGeometryError(f"the mild fault: {exc}") from None
     return missing_tooth(mesh, tooth=kw.get("tooth", 0))
 
 

@@ -12,8 +12,13 @@ from gearcontact_fmu.params import BevelGearParams
 
 #: accuracy grades of ISO 1328 (0 best .. 12 coarsest)
 GRADES = tuple(range(0, 13))
-#: the default grade: a ground industrial gear (the rig's pair is a catalogue gear)
+#: the default grade of the teeth (single pitch): a ground industrial gear (the rig's pair is a catalogue
+#: gear). Finer grades trade one of the paper's findings for another: docs/VALIDATION.md, checks 5 and 6.
 DEFAULT_GRADE = 6
+#: the default grade of the radial runout as mounted: the gear's own runout plus its seat on the shaft
+#: (bore fit, shaft and bearing runout), a grade coarser than the teeth. It puts the wheel's
+#: eccentricity at 20 um, which makes the paper's clear peak at f_PSH in the propeller-shaft spectrum.
+DEFAULT_RUNOUT_GRADE = 7
 
 
 def iso1328_tolerances(grade: int, module_mm: float, pitch_diameter_mm: float) -> dict:
@@ -84,18 +89,20 @@ class ManufacturingErrors:
 
 def draw_errors(gear: BevelGearParams | None = None, grade: int = DEFAULT_GRADE, seed: int = 0,
                 single_pitch_um: float | None = None, runout_um: float | None = None,
-                members: tuple = ("pinion", "wheel")) -> ManufacturingErrors:
-    """Errors of both gears drawn with ``seed`` from the tolerances of ``grade`` (or the explicit single
-    pitch tolerance f_pt and radial runout F_r [um], the same for both gears); ``members`` limits them
-    to one gear. Deterministic: one seed, one set of errors."""
+                members: tuple = ("pinion", "wheel"), runout_grade: int = DEFAULT_RUNOUT_GRADE) -> ManufacturingErrors:
+    """Errors of both gears drawn with ``seed``: single pitch deviations from the tolerance f_pt of
+    ``grade``, eccentricities from the radial runout F_r of ``runout_grade`` (or the explicit f_pt and
+    F_r [um], the same for both gears); ``members`` limits them to one gear. Deterministic: one seed,
+    one set of errors."""
     gear = gear or BevelGearParams()
     rng = np.random.default_rng(int(seed))
-    out, source = {}, {"grade": int(grade), "seed": int(seed)}
+    out, source = {}, {"grade": int(grade), "runout_grade": int(runout_grade), "seed": int(seed)}
     for member, z in (("pinion", gear.z_pinion), ("wheel", gear.z_wheel)):
         d_mm = gear.module * z * 1e3
         tol = iso1328_tolerances(grade, gear.module * 1e3, d_mm)
         f_pt = tol["f_pt_um"] if single_pitch_um is None else float(single_pitch_um)
-        F_r = tol["F_r_um"] if runout_um is None else float(runout_um)
+        F_r = iso1328_tolerances(runout_grade, gear.module * 1e3, d_mm)["F_r_um"] if runout_um is None \
+            else float(runout_um)
         if not (f_pt >= 0 and F_r >= 0 and math.isfinite(f_pt) and math.isfinite(F_r)):
             raise ValueError("single pitch and runout tolerances must be finite and >= 0")
         # draw every member so that the wheel's errors do not depend on whether the pinion has any

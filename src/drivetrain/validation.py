@@ -283,6 +283,10 @@ def check_order(runs: Runs) -> CheckResult:
                 bad.append(f"{n:g} rpm {t:g} N·m: " + " / ".join(f"{v:.2e}" for v in lv))
     r.figure = f"ordered in {n_ok} of 18 operating points (x 3 health states = 54 cells)"
     r.details = bad
+    if bad:
+        r.details.append("why: the pinion's tooth position errors put a healthy sideband at f_GMF - f_MSH as "
+                         "large as the mild fault's; finer teeth order it but make the mild fault plain in the "
+                         "time domain (check 5): docs/GEAR-CONTACT.md, 'Pitch errors against the mild fault'")
     r.status = "pass" if n_ok == 18 else "fail"
     return r
 

@@ -31,6 +31,24 @@ def _scene_errors(exc: BaseException) -> int:
     return 2
 
 
+def _cmd_export_ssp(args: argparse.Namespace) -> int:
+    from drivetrain.errors import ConfigurationError, ScenarioError
+    from drivetrain.scenario import load_scene
+    from drivetrain.ssp import export_ssp
+
+    try:
+        scene = load_scene(args.scene, args.set or (), case=args.case)
+    except ScenarioError as exc:
+        return _scene_errors(exc)
+    try:
+        path = export_ssp(scene, args.out or f"{scene.name}.ssp", fmu_dir=args.fmu_dir,
+                          log=lambda m: print(m, file=sys.stderr))
+    except ConfigurationError as exc:
+        return _scene_errors(exc)
+    print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB): {scene.name}, stop time {scene.time.duration_s:g} s")
+    return 0
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from drivetrain.cosim import ConfigurationError, CosimError
     from drivetrain.scenario import ScenarioError, load_scene
@@ -409,6 +427,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no report")
     p.set_defaults(func=_cmd_run)
+
+    p = sub.add_parser("export-ssp", help="the scene's system (FMUs, connections, assembled parameters, "
+                       "experiment) as an SSP 1.0 archive for other FMI tools")
+    p.add_argument("scene", help="scene file (.toml); a grid file needs --case")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a scene key (repeatable)")
+    p.add_argument("--case", default=None, help="with a grid file: the name of the case to export")
+    p.add_argument("--out", default=None, help="the archive (default: <scene name>.ssp)")
+    p.add_argument("--fmu-dir", default="fmus", help="where the FMUs are (built on demand; default: fmus)")
+    p.set_defaults(func=_cmd_export_ssp)
 
     p = sub.add_parser("eigen", help="natural frequencies of the assembled, linearised drivetrain")
     p.add_argument("scene")

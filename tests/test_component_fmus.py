@@ -83,6 +83,9 @@ def test_fmu_validates_with_units_and_causalities(fmus, model):
     from gearcontact_fmu.params import DEFAULT_COMM_STEP_S
 
     assert float(md.defaultExperiment.stepSize) == pytest.approx(DEFAULT_COMM_STEP_S)   # fmpy's step otherwise: 2e-3 s
+    # self-describing: every variable says what it is, every Real has a unit (dimensionless: "1")
+    assert [x.name for x in md.modelVariables if not x.description] == []
+    assert [x.name for x in md.modelVariables if x.type == "Real" and not x.unit] == []
     import zipfile
 
     with zipfile.ZipFile(fmus[model]) as z:        # the Python runtime it needs, said inside the FMU

@@ -39,6 +39,10 @@ def test_validate_and_model_description(fmu):
     root, names = _md(fmu)
     assert root.find("CoSimulation").get("needsExecutionTool") == "false"
     svs = {sv.get("name"): sv for sv in root.find("ModelVariables")}
+    # self-describing: every variable says what it is (options listed), every Real has a unit ("1" if none)
+    assert [n for n, sv in svs.items() if not sv.get("description")] == []
+    assert [n for n, sv in svs.items() if sv.find("Real") is not None and not sv.find("Real").get("unit")] == []
+    assert "pcm" in svs["fidelity"].get("description") and "ideal" in svs["fidelity"].get("description")
     for name, unit in (("flange_a_phi", "rad"), ("flange_b_w", "rad/s"), ("flange_a_tau", "N.m"),
                        ("energy_stored", "J"), ("contact_area", "m2"), ("peak_pressure", "Pa"),
                        ("J_pinion", "kg.m2"), ("normal_force", "N"), ("max_penetration", "m")):

@@ -88,6 +88,119 @@ DESCRIPTIONS = {
 }
 
 
+#: what every variable of the drivetrain FMUs means (modelDescription ``description``, written by
+#: drivetrain.fmubuild); option values are listed. Per model: the common entries, then its own.
+_COMMON_DESCRIPTIONS = {
+    "max_substep": "largest internal sub-step; sub-steps per communication step = ceil(H / max_substep)",
+    "energy_correction": "1: energy-conserving correction of the spring-side flange torque (returns the measured "
+                         "work mismatch of the cut over 10 ms); 0: off",
+    "output_torque": "what the spring-side flange torque carries: 0 = mean over the step, 1 = value at the step end",
+    "torque_sensor": "drive-shaft torque transducer reading (the section between its hubs)",
+    "coupling_energy_error": "work mismatch of the spring-side cut since t = 0 not yet corrected (energy audit)",
+    "energy_stored": "kinetic and elastic energy inside the FMU",
+    "energy_dissipated": "energy dissipated inside the FMU since t = 0 (dampers, losses)",
+    "energy_supplied": "work done by sources inside the FMU since t = 0 (motors)",
+}
+_FLANGE_DESCRIPTIONS = {
+    "spring": ("angle of the body connected to flange {p} (input, spring side)",
+               "speed of the body connected to flange {p} (input, spring side)",
+               "torque flange {p} applies to the connected body (output, spring side)"),
+    "inertia": ("angle of the body at flange {p} (output, inertia side)",
+                "speed of the body at flange {p} (output, inertia side)",
+                "torque the connected neighbour applies at flange {p} (input, inertia side)"),
+}
+_MODEL_DESCRIPTIONS = {
+    "FlexibleShaft": {
+        "J_a": "inertia of transducer hub A (flange_a side)",
+        "k_t": "torsional stiffness of the transducer section",
+        "d_t": "damping of the transducer section",
+        "J_b": "inertia of transducer hub B",
+        "k_c": "stiffness of the stiff coupling between hub B and the thin shaft (<= 0: rigid)",
+        "d_c": "damping of the stiff coupling",
+        "k_shaft": "torsional stiffness of the whole thin shaft",
+        "d_shaft": "damping of the whole thin shaft",
+        "J_shaft": "inertia of the whole thin shaft (distributed over its elements)",
+        "n_elements": "number of equal shaft elements",
+        "mass_model": "element inertia: 0 = lumped (J_e/2 at each end), 1 = consistent (J_e/6 [[2,1],[1,2]])",
+        "phi0": "initial angle of the line (all nodes, before twist)",
+        "w0": "initial speed of the line",
+        "tau0": "initial torque through the line (sets the initial twist of every spring)",
+        "flange_b_tau_mean": "exact mean over the last step of the torque at flange_b",
+        "shaft_torque": "torque in the thin shaft at its flange_b end",
+        "hub_b_phi": "angle of transducer hub B",
+        "hub_b_w": "speed of transducer hub B",
+    },
+    "UpperTransmission": {
+        "J_in": "inertia on the input (drive) shaft, the drive-line parts lumped into it",
+        "J_out": "inertia on the output (middle) shaft",
+        "ratio": "transmission ratio input speed / output speed (3 for the rig's upper gearbox)",
+        "loss_c": "loss law: viscous coefficient on the input shaft",
+        "loss_Tc": "loss law: Coulomb torque level",
+        "loss_wc": "loss law: speed below which the Coulomb torque is regularised",
+        "loss_a": "loss law: load-dependent share of the transmitted torque",
+        "J_sensor": "inertia upstream of the drive-shaft transducer section (rigid shafts: the transducer sits "
+                    "inside this body); 0 = none",
+        "phi0": "initial angle of the input shaft",
+        "w0": "initial speed of the input shaft",
+        "loss_torque": "loss torque of the gearbox on the input shaft",
+        "torque_sensor": "drive-shaft transducer torque (rigid shafts: flange_a torque minus J_sensor acceleration)",
+    },
+    "MotorLoad": {
+        "J_motor": "drive motor rotor inertia",
+        "c_motor": "drive motor bearing viscous loss",
+        "k_c1": "stiffness of elastomer coupling C1 (motor - drive flywheel)",
+        "d_c1": "damping of coupling C1",
+        "J_flywheel": "drive flywheel inertia",
+        "k_c2": "stiffness of elastomer coupling C2 (drive flywheel - flange drive; the port spring)",
+        "d_c2": "damping of coupling C2",
+        "Kp": "speed controller proportional gain",
+        "Ti": "speed controller integral time",
+        "Ni": "anti-windup gain of the controller (LimPID back-calculation)",
+        "tau_max": "drive motor torque limit",
+        "J_load": "propeller-shaft side inertia (flywheel / propeller mass), propeller-shaft frame",
+        "J_load_motor": "load motor rotor inertia (referred through ratio_pg^2)",
+        "ratio_pg": "planetary gearbox ratio load motor speed / propeller-shaft speed (8 on the rig)",
+        "pg_c": "planetary loss law: viscous coefficient",
+        "pg_Tc": "planetary loss law: Coulomb torque level",
+        "pg_wc": "planetary loss law: regularisation speed",
+        "pg_a": "planetary loss law: load-dependent share",
+        "load_mode": "load motor law: 0 = torque setting (the rig; regularised below load_w_reg so that it brakes "
+                     "but never drives), 1 = viscous torque equal to the setting at load_w_nom (the paper)",
+        "load_w_reg": "load_mode 0: speed below which the load torque is regularised",
+        "load_w_nom": "load_mode 1: speed at which the viscous load equals the setting",
+        "speed_profile": "drive speed reference over time as 't0:v0; t1:v1; ...' [s:rpm], linear between points; "
+                         "empty = the speed_ref_rpm input",
+        "load_profile": "load torque setting over time as 't0:v0; t1:v1; ...' [s:N.m]; empty = the load_torque input",
+        "phi0_motor": "initial angle of the drive motor",
+        "w0": "initial speed of the drive side",
+        "tau0": "initial torque through the drive couplings (sets their initial twist)",
+        "phi0_load": "initial angle of the load body",
+        "w0_load": "initial speed of the load body",
+        "speed_ref_rpm": "drive motor speed reference",
+        "load_torque": "load motor torque setting (at the load motor; times ratio_pg at the propeller shaft)",
+        "drive_tau_mean": "exact mean over the last step of the torque at flange drive",
+        "motor_phi": "drive motor angle (encoder 1)",
+        "motor_w": "drive motor speed",
+        "flywheel_phi": "drive flywheel angle",
+        "flywheel_w": "drive flywheel speed",
+        "motor_torque": "drive motor air-gap torque",
+        "load_motor_torque": "load motor torque at the propeller shaft",
+        "load_motor_w": "load motor speed",
+        "coupling_torque": "torque in coupling C1",
+    },
+}
+
+
+def variable_descriptions(model: str) -> dict:
+    """Variable name -> description of a drivetrain FMU (its flanges, the common entries, its own)."""
+    out = {}
+    for p, kind in PORTS[model].items():
+        for suffix, text in zip(("_phi", "_w", "_tau"), _FLANGE_DESCRIPTIONS[kind]):
+            out[p + suffix] = text.format(p=p)
+    out.update(_COMMON_DESCRIPTIONS)
+    out.update(_MODEL_DESCRIPTIONS[model])
+    return out
+
 def port_inputs(model: str) -> list[str]:
     out = []
     for p, kind in PORTS[model].items():

@@ -9,6 +9,7 @@ rendered from ``fmu_runtime.slave_template`` into a temporary directory, one per
    ``resources/_bundled/``; the slave script imports the installed packages when importable and falls
    back to the bundled copy (``BEVEL_FMU_USE_BUNDLED=1`` forces it).
 2. Post-process ``modelDescription.xml``:
+   - ``description=`` on every variable from the slave class attribute ``variable_descriptions``;
    - ``unit=`` on every Real variable whose unit is known, from the slave class attribute ``units``
      (name -> unit) or else from the naming table :data:`NAME_UNITS` (suffixes ``_phi``, ``_w``,
      ``_tau``, ``energy_*`` ...), and the matching ``<UnitDefinitions>`` with SI base-unit exponents;
@@ -68,6 +69,7 @@ UNIT_DEFS: dict[str, dict[str, int]] = {
     "W": {"kg": 1, "m": 2, "s": -3},
     "A": {"A": 1},
     "V": {"kg": 1, "m": 2, "s": -3, "A": -1},
+    "1": {},                                    # dimensionless
 }
 UNIT_FACTORS = {"rpm": 2.0 * 3.141592653589793 / 60.0, "mm": 1e-3}
 
@@ -81,10 +83,10 @@ NAME_UNITS: tuple[tuple[str, str], ...] = (
 
 def unit_for(name: str, overrides: dict | None = None) -> str | None:
     """Unit of a variable: the slave's ``units`` entry, else the naming table, else None.
-    Dimensionless entries ("1", "") get no unit."""
+    Dimensionless variables have the unit "1"; an empty entry means none."""
     if overrides and name in overrides:
         u = overrides[name]
-        return u if u and u != "1" else None
+        return u or None
     for pattern, unit in NAME_UNITS:
         if re.search(pattern, name):
             return unit
@@ -181,7 +183,7 @@ def documentation_html(model: str, description: str, requirements: str) -> str:
 
 def postprocess_model_description(fmu: Path, units: dict | None = None,
                                   output_dependencies: dict | None = None, model: str = "",
-                                  description: str = "") -> None:
+                                  description: str = "", variable_descriptions: dict | None = None) -> None:
     """Add units, UnitDefinitions, output dependencies and needsExecutionTool=false in place, and the
     runtime requirements and documentation (resources/requirements.txt, documentation/index.html)."""
     fmu = Path(fmu)
@@ -190,7 +192,7 @@ def postprocess_model_description(fmu: Path, units: dict | None = None,
         for item in zin.infolist():
             data = zin.read(item.filename)
             if item.filename == "modelDescription.xml":
-                data = _edit_xml(data, units or {}, output_dependencies or {})
+                data = _edit_xml(data, units or {}, output_dependencies or {}, variable_descriptions or {})
             if item.filename in ("resources/requirements.txt", "documentation/index.html"):
                 continue
             zout.writestr(item, data)
@@ -200,7 +202,7 @@ def postprocess_model_description(fmu: Path, units: dict | None = None,
     tmp.replace(fmu)
 
 
-def _edit_xml(data: bytes, units: dict, output_dependencies: dict) -> bytes:
+def _edit_xml(data: bytes, units: dict, output_dependencies: dict, descriptions: dict | None = None) -> bytes:
     root = ET.fromstring(data)
     cs = root.find("CoSimulation")
     if cs is not None:
@@ -208,6 +210,9 @@ def _edit_xml(data: bytes, units: dict, output_dependencies: dict) -> bytes:
     svs = list(root.find("ModelVariables"))
     used = set()
     for sv in svs:
+        text = (descriptions or {}).get(sv.get("name"))
+        if text:
+            sv.set("description", text)
         real = sv.find("Real")
         if real is None:
             continue
@@ -265,7 +270,8 @@ def build_fmu(script: Path, out_dir: Path) -> Path:
         fmu = FmuBuilder.build_FMU(script, dest=out_dir, project_files=[bundled], needsExecutionTool=False)
     fmu = Path(fmu)
     postprocess_model_description(fmu, getattr(cls, "units", None), getattr(cls, "output_dependencies", None),
-                                  model=cls.__name__, description=getattr(cls, "description", ""))
+                                  model=cls.__name__, description=getattr(cls, "description", ""),
+                                  variable_descriptions=getattr(cls, "variable_descriptions", None))
     return fmu
 
 

@@ -40,6 +40,7 @@ class {model}(Fmi2Slave):
     author = "bevel-drivetrain"
     version = "0.1.0"
     units = fmishell.UNITS          # read by drivetrain.fmubuild (modelDescription units)
+    variable_descriptions = fmishell.variable_descriptions("{model}")   # and descriptions
     default_experiment = fmishell.DEFAULT_EXPERIMENT
 
     def __init__(self, **kwargs):

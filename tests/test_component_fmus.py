@@ -86,6 +86,9 @@ def test_fmu_validates_with_units_and_causalities(fmus, model):
     # self-describing: every variable says what it is, every Real has a unit (dimensionless: "1")
     assert [x.name for x in md.modelVariables if not x.description] == []
     assert [x.name for x in md.modelVariables if x.type == "Real" and not x.unit] == []
+    # one type per concept: output_torque is a String here as in GearContact ("mean" | "end")
+    if "spring" in fmishell.PORTS[model].values():          # only a spring-side port has an output torque
+        assert v["output_torque"].type == "String" and v["output_torque"].start == "mean"
     import zipfile
 
     with zipfile.ZipFile(fmus[model]) as z:        # the Python runtime it needs, said inside the FMU

@@ -357,7 +357,7 @@ class LineModel:
                 raise ValueError(f"output_torque must be 0 (mean) or 1 (end), got {output_torque}")
             output_torque = OUTPUT_TORQUES[int(output_torque)]
         if output_torque not in OUTPUT_TORQUES:
-            raise ValueError(f"output_torque must be one of {OUTPUT_TORQUES}")
+            raise ValueError(f"output_torque must be one of {OUTPUT_TORQUES}, got {output_torque!r}")
         self.output_torque = output_torque
         self.max_substep = float(max_substep)
         self.node_names = list(node_names) if node_names else [f"n{i}" for i in range(n)]
@@ -602,7 +602,7 @@ class FlexibleShaftParams:
     n_elements: int = 4
     mass_model: int = 0
     max_substep: float = 1e-5
-    output_torque: int = 0
+    output_torque: str = "mean"     # what the spring-side flange torque carries: "mean" | "end"
     energy_correction: int = 1      # 1: energy-conserving correction of the flange_b torque (coupling.py)
     phi0: float = 0.0
     w0: float = 0.0
@@ -668,7 +668,7 @@ class MotorLoadParams:
     speed_profile: str = ""
     load_profile: str = ""
     max_substep: float = 1e-5
-    output_torque: int = 0
+    output_torque: str = "mean"     # what the spring-side flange torque carries: "mean" | "end"
     energy_correction: int = 1      # 1: energy-conserving correction of the drive torque (coupling.py)
     phi0_motor: float = 0.0
     w0: float = 0.0
@@ -778,7 +778,7 @@ class FlexibleShaft:
         self.port_c = ce
         ports = [Port("flange_a", 0, INERTIA_PORT), Port("flange_b", len(J) - 1, SPRING_PORT, 1.0, ke, ce)]
         self.line = LineModel(J, k, c, None, ports, (), max_substep=p.max_substep,
-                              output_torque=int(p.output_torque), Mo=Mo, node_names=names,
+                              output_torque=p.output_torque, Mo=Mo, node_names=names,
                               energy_correction=bool(p.energy_correction))
         self.sensor_element = 0 if p.k_t > 0 else -1
         self.initialize()
@@ -908,7 +908,7 @@ class MotorLoad:
                 Law("load_motor", 2, 0.0, 0.0, p.load_w_reg if p.load_w_reg > 0 else 1e-3, 0.0, source=True)]
         self.line = LineModel(J, k, c, cext, ports, laws, motor_node=0,
                               motor_par=(p.Kp, p.Ti, p.Ni, p.tau_max), max_substep=p.max_substep,
-                              output_torque=int(p.output_torque), node_names=["motor", "flywheel", "load"],
+                              output_torque=p.output_torque, node_names=["motor", "flywheel", "load"],
                               energy_correction=bool(p.energy_correction))
         self.speed_profile = parse_profile(p.speed_profile)
         self.load_profile = parse_profile(p.load_profile)

@@ -94,7 +94,7 @@ _COMMON_DESCRIPTIONS = {
     "max_substep": "largest internal sub-step; sub-steps per communication step = ceil(H / max_substep)",
     "energy_correction": "1: energy-conserving correction of the spring-side flange torque (returns the measured "
                          "work mismatch of the cut over 10 ms); 0: off",
-    "output_torque": "what the spring-side flange torque carries: 0 = mean over the step, 1 = value at the step end",
+    "output_torque": "what the spring-side flange torque carries: mean (over the step) | end (value at the step end)",
     "torque_sensor": "drive-shaft torque transducer reading (the section between its hubs)",
     "coupling_energy_error": "work mismatch of the spring-side cut since t = 0 not yet corrected (energy audit)",
     "energy_stored": "kinetic and elastic energy inside the FMU",

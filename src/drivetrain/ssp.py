@@ -5,8 +5,8 @@ What: ``export_ssp(scene, path)`` writes one ``.ssp`` (a zip) holding
 * ``SystemStructure.ssd``: one component per FMU of the assembled system (instance names as in our
   master: motors, drive_shaft, upper, gear), a connector for every connected variable and the
   connections of each flange (inertia side phi, w -> spring side; spring side tau -> inertia side),
-  the default experiment (0 .. the scene's duration) and the communication step (the OpenModelica
-  FixedStepMaster annotation, which libcosim and Ecos read as well);
+  the default experiment (0 .. the scene's duration) and the communication step (OpenModelica's
+  FixedStepMaster annotation; libcosim takes its step from the caller: pass the same one);
 * ``resources/<Model>.fmu``: the FMUs, as built from this checkout;
 * ``resources/<instance>.ssv``: the assembled, calibrated parameter values of each instance and its
   constant inputs (speed reference, load torque), one parameter set per component, all with the same

@@ -106,6 +106,12 @@ def test_cli_export_ssp(tmp_path, fmu_dir):
                           "operating_point.speed_profile_rpm=[[0.0, 0.0], [0.2, 1500.0]]", "--out", str(tmp_path / "r.ssp"),
                           "--fmu-dir", str(fmu_dir)], capture_output=True, text=True, cwd=tmp_path)
     assert bad.returncode == 2 and "time profile" in bad.stderr and "Traceback" not in bad.stderr
+    blocked = tmp_path / "a_file"
+    blocked.write_text("")
+    nowhere = subprocess.run([sys.executable, "-m", "drivetrain", "export-ssp", str(EXAMPLE), "--out",
+                              str(blocked / "sys.ssp"), "--fmu-dir", str(fmu_dir)], capture_output=True, text=True,
+                             cwd=tmp_path)
+    assert nowhere.returncode == 2 and "cannot write" in nowhere.stderr and "Traceback" not in nowhere.stderr
 
 
 _LIBCOSIM = textwrap.dedent("""

@@ -45,6 +45,9 @@ def _cmd_export_ssp(args: argparse.Namespace) -> int:
                           log=lambda m: print(m, file=sys.stderr))
     except ConfigurationError as exc:
         return _scene_errors(exc)
+    except OSError as exc:
+        print(f"error: cannot write the archive: {exc}", file=sys.stderr)
+        return 2
     print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB): {scene.name}, stop time {scene.time.duration_s:g} s")
     return 0
 

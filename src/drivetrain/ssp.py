@@ -178,13 +178,18 @@ def export_ssp(scene, path: str | Path, fmu_dir: str | Path = "fmus", spec: Syst
     problems = _problems(spec, descriptions)
     if problems:
         raise ConfigurationError(problems)
+    ssd = ssd_text(spec, scene.name, scene.time.duration_s, descriptions)
+    ssvs = {c.name: ssv_text(c, descriptions[c.model]) for c in spec.components}
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".part")
-    with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as z:
-        z.writestr(SSD_NAME, ssd_text(spec, scene.name, scene.time.duration_s, descriptions))
-        for c in spec.components:
-            z.writestr(f"resources/{c.name}.ssv", ssv_text(c, descriptions[c.model]))
-        for m, p in fmus.items():
-            z.write(p, f"resources/{m}.fmu")
-    tmp.replace(path)
+    try:
+        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as z:
+            z.writestr(SSD_NAME, ssd)
+            for name, text in ssvs.items():
+                z.writestr(f"resources/{name}.ssv", text)
+            for m, p in fmus.items():
+                z.write(p, f"resources/{m}.fmu")
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
     return path

@@ -87,12 +87,29 @@ def test_the_archive_holds_the_assembled_system(exported, fmu_dir):
         assert {f"resources/{c.name}.ssv" for c in spec.components} <= names
 
 
+def test_time_profiles_go_to_the_parameters_that_carry_them(tmp_path, fmu_dir):
+    ramp = load_scene(EXAMPLE, SHORT + ["operating_point.speed_profile_rpm=[[0.0, 0.0], [0.2, 1500.0]]",
+                                        "operating_point.load_profile_Nm=[[0.0, 0.5], [0.3, 1.31]]"])
+    with zipfile.ZipFile(export_ssp(ramp, tmp_path / "ramp.ssp", fmu_dir=fmu_dir)) as z:
+        ssv = ET.fromstring(z.read("resources/motors.ssv"))
+    got = {p.get("name"): _value(p) for p in ssv.findall("ssv:Parameters/ssv:Parameter", NS)}
+    assert "speed_ref_rpm" not in got and "load_torque" not in got
+    from drivetrain.components import parse_profile
+
+    for name, want in (("speed_profile", [[0.0, 0.0], [0.2, 1500.0]]), ("load_profile", [[0.0, 0.5], [0.3, 1.31]])):
+        t, v = parse_profile(got[name])                  # read back as the FMU reads it
+        assert t.tolist() == [p[0] for p in want] and v.tolist() == [p[1] for p in want]
+
+
 def test_what_ssp_cannot_say_is_refused_and_nothing_is_written(tmp_path, fmu_dir):
-    ramp = load_scene(EXAMPLE, SHORT + ["operating_point.speed_profile_rpm=[[0.0, 0.0], [0.2, 1500.0]]"])
-    with pytest.raises(ConfigurationError, match="time profile"):
-        export_ssp(ramp, tmp_path / "ramp.ssp", fmu_dir=fmu_dir)
+    scene = load_scene(EXAMPLE, SHORT)
+    spec = assemble_scene(scene)
+    gear = next(c for c in spec.components if c.model == "GearContact")
+    gear.inputs["flange_a_phi"] = [[0.0, 0.0], [1.0, 1.0]]        # a profile no parameter carries
+    with pytest.raises(ConfigurationError, match="gear.flange_a_phi is a time profile"):
+        export_ssp(scene, tmp_path / "x.ssp", fmu_dir=fmu_dir, spec=spec)
     with pytest.raises(ConfigurationError, match=r"ends in \.ssp"):
-        export_ssp(load_scene(EXAMPLE, SHORT), tmp_path / "system.zip", fmu_dir=fmu_dir)
+        export_ssp(scene, tmp_path / "system.zip", fmu_dir=fmu_dir)
     assert list(tmp_path.iterdir()) == []
 
 
@@ -102,10 +119,9 @@ def test_cli_export_ssp(tmp_path, fmu_dir):
                         "--out", str(out), "--fmu-dir", str(fmu_dir)], capture_output=True, text=True, cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert out.is_file() and "wrote" in r.stdout
-    bad = subprocess.run([sys.executable, "-m", "drivetrain", "export-ssp", str(EXAMPLE), "--set",
-                          "operating_point.speed_profile_rpm=[[0.0, 0.0], [0.2, 1500.0]]", "--out", str(tmp_path / "r.ssp"),
+    bad = subprocess.run([sys.executable, "-m", "drivetrain", "export-ssp", str(EXAMPLE), "--out", str(tmp_path / "r.zip"),
                           "--fmu-dir", str(fmu_dir)], capture_output=True, text=True, cwd=tmp_path)
-    assert bad.returncode == 2 and "time profile" in bad.stderr and "Traceback" not in bad.stderr
+    assert bad.returncode == 2 and "ends in .ssp" in bad.stderr and "Traceback" not in bad.stderr
     blocked = tmp_path / "a_file"
     blocked.write_text("")
     nowhere = subprocess.run([sys.executable, "-m", "drivetrain", "export-ssp", str(EXAMPLE), "--out",
@@ -139,12 +155,16 @@ _LIBCOSIM = textwrap.dedent("""
 
 
 @pytest.mark.hosts
-def test_the_ssp_runs_in_libcosim_as_in_our_master(exported, fmu_dir, tmp_path):
+@pytest.mark.parametrize("overrides", [[], ["operating_point.speed_profile_rpm=[[0.0, 0.0], [0.3, 1500.0]]"]],
+                         ids=["steady", "startup_ramp"])
+def test_the_ssp_runs_in_libcosim_as_in_our_master(overrides, fmu_dir, tmp_path):
     pytest.importorskip("libcosimpy")
     from drivetrain.assemble import sensor_map
     from drivetrain.outputs import read_hdf5
 
-    scene, spec, path = exported
+    scene = load_scene(EXAMPLE, SHORT + overrides)
+    spec = assemble_scene(scene)
+    path = export_ssp(scene, tmp_path / "system.ssp", fmu_dir=fmu_dir, spec=spec)
     res = run_scene(scene, tmp_path / "ours", progress=False, fmu_dir=fmu_dir)
     ours = read_hdf5(res.files["signals"])["signals"]
     sensors = sensor_map(scene.effects.shaft_flexibility)

@@ -45,6 +45,12 @@ EXTRA_INPUTS = {
     "UpperTransmission": (),
     "MotorLoad": ("speed_ref_rpm", "load_torque"),
 }
+#: extra inputs that a parameter of the same FMU can carry as a time profile ('t0:v0; t1:v1; ...',
+#: linear between points, held outside; components.parse_profile): a host without input signals sets
+#: the parameter instead (drivetrain.ssp)
+INPUT_PROFILES = {
+    "MotorLoad": {"speed_ref_rpm": "speed_profile", "load_torque": "load_profile"},
+}
 OUTPUTS = {
     "FlexibleShaft": ("flange_b_tau_mean", "torque_sensor", "shaft_torque", "hub_b_phi", "hub_b_w",
                       "coupling_energy_error"),

@@ -17,10 +17,13 @@ Why this shape: it is the subset of SSP 1.0 that fmpy, OMSimulator, libcosim and
 bound variables, parameters in per-component .ssv files. Variable types come from each FMU's own model
 description, so a parameter is written as the type the FMU declares.
 
-What it cannot say: a time profile (a speed ramp, a load step) is an input that changes during the
-run; SSP 1.0 has no signal tables that every host reads, so such a scene is refused (export a constant
-operating point). The master's own bookkeeping (energy audit, output sampling, rig instruments) is not
-part of the system: another host gives the FMUs' outputs as they are.
+Time profiles (a speed ramp, a load step): our master feeds them as inputs, SSP 1.0 has no signal
+table every host reads. MotorLoad carries them itself (``speed_profile``, ``load_profile``:
+fmishell.INPUT_PROFILES), so they are written as those parameters; a profile on an input without such a
+parameter is refused. The drive speed reference then moves linearly inside a step instead of being held
+from the step start (the load setting is read at the step start either way): a lag of half a step
+on a ramp. The master's own bookkeeping (energy audit, output sampling, rig instruments) is not part of
+the system: another host gives the FMUs' outputs as they are.
 """
 from __future__ import annotations
 
@@ -34,6 +37,7 @@ from fmpy import read_model_description
 from drivetrain.cosim.fmus import ensure_fmus
 from drivetrain.cosim.plan import is_profile
 from drivetrain.errors import ConfigurationError
+from drivetrain.fmishell import INPUT_PROFILES
 from drivetrain.run import assemble_scene
 from drivetrain.system import INERTIA, SPRING, SystemSpec
 
@@ -79,14 +83,32 @@ def system_connections(spec: SystemSpec) -> list[tuple[str, str, str, str]]:
     return out
 
 
+def profile_text(points) -> str:
+    """A time profile [[t, v], ...] as the FMU's profile parameter text 't0:v0; t1:v1; ...'."""
+    return "; ".join(f"{float(t)!r}:{float(v)!r}" for t, v in points)
+
+
+def bound_values(component) -> dict:
+    """The values an instance's parameter set binds: its parameters and constant inputs, and each time
+    profile on an input as the parameter that carries it (fmishell.INPUT_PROFILES)."""
+    out = dict(component.parameters)
+    carriers = INPUT_PROFILES.get(component.model, {})
+    for name, value in component.inputs.items():
+        if is_profile(value) and name in carriers:
+            out[carriers[name]] = profile_text(value)
+        else:
+            out[name] = value
+    return out
+
+
 def _problems(spec: SystemSpec, descriptions: dict) -> list[str]:
     problems = []
     for c in spec.components:
         md = descriptions[c.model]
-        for name, value in list(c.parameters.items()) + list(c.inputs.items()):
+        for name, value in bound_values(c).items():
             if is_profile(value):
-                problems.append(f"{c.name}.{name} is a time profile: SSP 1.0 has no input signal every host "
-                                "reads; export a scene with a constant operating point")
+                problems.append(f"{c.name}.{name} is a time profile and {c.model} has no parameter that carries "
+                                "it: SSP 1.0 has no input signal every host reads")
             elif name not in md:
                 problems.append(f"{c.name}.{name}: not a variable of {c.model}.fmu")
     for a, va, b, vb in system_connections(spec):
@@ -106,7 +128,7 @@ def _variables(fmu_path: Path) -> dict:
 def ssv_text(component, variables: dict) -> str:
     """The parameter set of one instance: its parameters and constant inputs, typed as its FMU declares."""
     rows = []
-    for name, value in list(component.parameters.items()) + list(component.inputs.items()):
+    for name, value in bound_values(component).items():
         vtype = variables[name][0]
         try:
             text = _value_text(vtype, value)

@@ -202,7 +202,7 @@ def postprocess_model_description(fmu: Path, units: dict | None = None,
     tmp.replace(fmu)
 
 
-def _edit_xml(data: bytes, units: dict, output_dependencies: dict, descriptions: dict | None = None) -> bytes:
+def _edit_xml(data: bytes, units: dict, output_dependencies: dict, descriptions: dict) -> bytes:
     root = ET.fromstring(data)
     cs = root.find("CoSimulation")
     if cs is not None:
@@ -210,7 +210,7 @@ def _edit_xml(data: bytes, units: dict, output_dependencies: dict, descriptions:
     svs = list(root.find("ModelVariables"))
     used = set()
     for sv in svs:
-        text = (descriptions or {}).get(sv.get("name"))
+        text = descriptions.get(sv.get("name"))
         if text:
             sv.set("description", text)
         real = sv.find("Real")

@@ -39,7 +39,7 @@ from drivetrain.cosim.plan import is_profile
 from drivetrain.errors import ConfigurationError
 from drivetrain.fmishell import INPUT_PROFILES
 from drivetrain.run import assemble_scene
-from drivetrain.system import INERTIA, SPRING, SystemSpec
+from drivetrain.system import SystemSpec
 
 SSD_NAME = "SystemStructure.ssd"
 PARAMETER_SET = "parameters"
@@ -62,13 +62,6 @@ def _value_text(vtype: str, value) -> str:
     if vtype == "Boolean":
         return "true" if bool(value) else "false"
     return str(value)
-
-
-def _flange_variables(component: str, port: str, side: str) -> dict:
-    """(variable -> causality as seen by the component) of one flange."""
-    if side == SPRING:
-        return {f"{port}_phi": "input", f"{port}_w": "input", f"{port}_tau": "output"}
-    return {f"{port}_phi": "output", f"{port}_w": "output", f"{port}_tau": "input"}
 
 
 def system_connections(spec: SystemSpec) -> list[tuple[str, str, str, str]]:
@@ -146,17 +139,17 @@ def ssv_text(component, variables: dict) -> str:
 def ssd_text(spec: SystemSpec, name: str, stop_time_s: float, descriptions: dict) -> str:
     """The system structure: components with their connectors and parameter bindings, connections,
     the fixed communication step and the default experiment."""
-    connected: dict[str, dict[str, str]] = {c.name: {} for c in spec.components}
-    for c in spec.connections:
-        for ref, side in ((c.spring, SPRING), (c.inertia, INERTIA)):
-            comp, port = ref.split(".", 1)
-            connected[comp].update(_flange_variables(comp, port, side))
+    links = system_connections(spec)
+    connected: dict[str, list[str]] = {c.name: [] for c in spec.components}
+    for a, va, b, vb in links:
+        connected[a].append(va)
+        connected[b].append(vb)
     elements = []
     for c in spec.components:
         md = descriptions[c.model]
         conns = []
-        for var, causality in connected[c.name].items():
-            vtype = md[var][0]
+        for var in sorted(connected[c.name]):
+            vtype, causality = md[var]               # the kind the FMU itself declares
             conns.append(f'          <ssd:Connector name={quoteattr(var)} kind="{causality}">'
                          f'<ssc:{_SSV_TYPE[vtype]}/></ssd:Connector>')
         elements.append(
@@ -166,8 +159,7 @@ def ssd_text(spec: SystemSpec, name: str, stop_time_s: float, descriptions: dict
             f'          <ssd:ParameterBinding source="resources/{c.name}.ssv"/>\n'
             '        </ssd:ParameterBindings>\n      </ssd:Component>')
     links = [f'      <ssd:Connection startElement={quoteattr(a)} startConnector={quoteattr(va)} '
-             f'endElement={quoteattr(b)} endConnector={quoteattr(vb)}/>'
-             for a, va, b, vb in system_connections(spec)]
+             f'endElement={quoteattr(b)} endConnector={quoteattr(vb)}/>' for a, va, b, vb in links]
     H = repr(float(spec.comm_step))
     return ('<?xml version="1.0" encoding="UTF-8"?>\n'
             f'<ssd:SystemStructureDescription {_NS} version="1.0" name={quoteattr(name)}>\n'

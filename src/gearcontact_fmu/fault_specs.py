@@ -37,13 +37,12 @@ at face_position. ``wear``: depth_um removed over the whole flank, profile "unif
 the distance from the pitch cone). Lengths along the profile are at the mean cone distance (the teeth
 taper)."""
 SPEC_KEYS = ("kind", "member", "tooth", "flank")
+WEAR_PROFILES = ("uniform", "sliding")
 
 
 class FaultGeometryError(ValueError):
     """A fault specification that is well formed but does not fit its tooth (a void that leaves the
     flank, a pit deeper than the tooth, ...), found when the mesh is built; the message names the fault."""
-
-WEAR_PROFILES = ("uniform", "sliding")
 
 
 def fault_spec_problems(spec, z_pinion: int, z_wheel: int) -> list[tuple[str, object, str]]:

@@ -36,8 +36,62 @@ class _Log:
         self.lines.append(f"[{st}] {category + ': ' if category else ''}{message}")
 
 
+class _LoggerRoutes:
+    """The one FMI logger of this process: fmpy's C proxy in front of one Python callback, kept forever.
+
+    FMUs log printf-style (a format and variadic arguments) that ctypes cannot receive, so fmpy puts a
+    C function in front (``fmpy.logging.addLoggerProxy``). That proxy keeps the Python callback in **one
+    global** of the library: each call re-points it, and a callback object that is later freed leaves
+    every FMU of the process (ours, fmpy's default ones, a user's) calling freed memory at its next log
+    message, which is a segmentation fault. So the proxy is set up once, with a callback that lives as
+    long as the process, and each ``FmiCallbacks`` struct carries that proxy with its own key in
+    ``componentEnvironment``, which FMUs pass back with every message. Messages under a key that is
+    gone, or from FMUs on fmpy's default callbacks, are printed as fmpy prints them.
+    """
+
+    _instance: "_LoggerRoutes | None" = None
+
+    def __init__(self):
+        import itertools
+        import weakref
+
+        from fmpy.fmi2 import fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
+        from fmpy.logging import addLoggerProxy
+
+        self._routes: weakref.WeakValueDictionary[int, FmiCallbacks] = weakref.WeakValueDictionary()
+        self._keys = itertools.count(1)
+        self._callback = fmi2CallbackLoggerTYPE(self._dispatch)
+        self._proxied = fmi2CallbackFunctions()
+        self._proxied.logger = self._callback
+        addLoggerProxy(ctypes.byref(self._proxied))    # now _proxied.logger is the C proxy
+
+    @classmethod
+    def get(cls) -> "_LoggerRoutes":
+        if cls._instance is None:
+            cls._instance = cls()
+        return cls._instance
+
+    @property
+    def proxy(self):
+        return self._proxied.logger
+
+    def register(self, callbacks: "FmiCallbacks") -> int:
+        key = next(self._keys)
+        self._routes[key] = callbacks
+        return key
+
+    def _dispatch(self, env, instance, status, category, message):
+        target = self._routes.get(env or 0)
+        if target is None:
+            from fmpy.fmi2 import printLogMessage
+
+            printLogMessage(env, instance, status, category, message or b"")
+            return
+        target.log_message(instance, status, category, message)
+
+
 class FmiCallbacks:
-    """One fmi2CallbackFunctions struct for all instances; routes log messages by instance name."""
+    """One fmi2CallbackFunctions struct for all instances of a run; routes log messages by instance name."""
 
     def __init__(self):
         from fmpy import calloc, free
@@ -45,25 +99,19 @@ class FmiCallbacks:
             fmi2CallbackAllocateMemoryTYPE,
             fmi2CallbackFreeMemoryTYPE,
             fmi2CallbackFunctions,
-            fmi2CallbackLoggerTYPE,
             fmi2StepFinishedTYPE,
         )
 
+        routes = _LoggerRoutes.get()
         self.logs: dict[str, _Log] = {}
         self._cb = fmi2CallbackFunctions()
-        self._logger = fmi2CallbackLoggerTYPE(self._log)
-        self._cb.logger = self._logger
+        self._cb.logger = routes.proxy
         self._cb.allocateMemory = fmi2CallbackAllocateMemoryTYPE(calloc)
         self._cb.freeMemory = fmi2CallbackFreeMemoryTYPE(free)
         self._cb.stepFinished = fmi2StepFinishedTYPE()
-        try:
-            from fmpy.logging import addLoggerProxy
+        self._cb.componentEnvironment = routes.register(self)
 
-            addLoggerProxy(ctypes.byref(self._cb))   # formats printf-style messages in C
-        except Exception:  # pragma: no cover
-            pass
-
-    def _log(self, env, instance, status, category, message):
+    def log_message(self, instance, status, category, message):
         name = instance.decode("utf-8", "replace") if instance else "?"
         log = self.logs.setdefault(name, _Log())
         log.add(int(status), category.decode("utf-8", "replace") if category else "",
@@ -178,14 +226,6 @@ class FmiSlave(Slave):
                     self.fmu.terminate()
                 except Exception as exc:
                     errors.append(f"terminate: {exc}")
-            if self.fatal:
-                # pythonfmu 0.7.0: freeing an instance after a fatal error (a Python exception inside the
-                # FMU) corrupts the interpreter and crashes the process at a later garbage collection.
-                # The broken instance is never called again; it is kept alive and not freed.
-                _LEAKED.append((self.fmu, self._callbacks))
-                self.instantiated = False
-                errors.append("instance not freed after a fatal error (pythonfmu would crash the process)")
-                return errors
             try:
                 # fmi2FreeInstance only: fmpy's freeInstance() also dlclose()s the shared library, and a
                 # pythonfmu library unloaded while Python objects it created are still alive crashes the
@@ -198,7 +238,6 @@ class FmiSlave(Slave):
 
 
 _SLAVE_CLASS_CACHE: dict[str, type] = {}
-_LEAKED: list = []     # instances deliberately not freed (see FmiSlave.teardown)
 
 
 def load_slave_class(info: FMUInfo) -> type:

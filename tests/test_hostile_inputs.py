@@ -52,14 +52,71 @@ def test_calibrate_names_the_bad_row(tmp_path, capsys, row, why):
     assert rc == 2 and why in text and "Traceback" not in text
 
 
-def test_a_costly_scene_is_announced_before_it_runs():
-    from drivetrain.run import cost_warning
+def test_a_costly_scene_is_refused_before_it_runs_unless_forced(tmp_path, capsys):
+    """max_substep_s = 1e-9 asks for 2e10 gear-stage sub-steps (hours): refused at once, naming the
+    prediction, the key to change and --force; nothing is written."""
+    out = tmp_path / "run"
+    rc, text = _rc(["run", str(ROOT / "scenarios" / "example.toml"), "--set", "numerics.max_substep_s=1e-9",
+                    "--out", str(out), "--quiet"], capsys)
+    assert rc == 2 and "Traceback" not in text
+    assert "predicted to take about" in text and "numerics.max_substep_s" in text and "--force" in text
+    assert not out.exists()
+
+
+def test_runcost_predicts_the_default_scene_cheap_and_online_pcm_costly():
+    """The default 20 s scene runs in a few times its simulated time; 20 s of online PCM takes hours
+    (measured here: 0.05 s in 19.5 s of loop) and is refused; 0.05 s of it is below the floor."""
+    from drivetrain import runcost
     from drivetrain.scenario import load_scene
 
     example = ROOT / "scenarios" / "example.toml"
-    assert cost_warning(load_scene(example)) is None
-    w = cost_warning(load_scene(example, ["numerics.max_substep_s=1e-9"]))
-    assert w and "max_substep_s" in w and "x the default" in w
+    default = load_scene(example)
+    c = runcost.predict(default)
+    assert 1.0 < c.factor < runcost.REFUSE_FACTOR and runcost.refusal(default, c) is None
+    pcm = load_scene(example, ["effects.mesh_contact=pcm"])
+    c = runcost.predict(pcm)
+    assert 3600 < c.total_s < 6 * 3600
+    assert 'effects.mesh_contact = "table"' in runcost.refusal(pcm, c)
+    short = load_scene(example, ["effects.mesh_contact=pcm", "time.duration_s=0.05"])
+    assert runcost.refusal(short, runcost.predict(short)) is None
+    # a measured contact model (mesh files, finer elements) replaces the default pcm figure
+    c = runcost.predict(pcm, contact_reports=[{"estimate_s": 7200.0}])
+    assert c.parts["contact model (measured on this machine)"] == 7200.0 and c.total_s < 7200.0 + 100
+
+
+def test_force_runs_a_refused_scene_and_says_so(monkeypatch):
+    """With the limit lowered so that a 0.02 s run is 'too costly': refused without force, run with it,
+    and the summary carries the forced prediction as a warning."""
+    from drivetrain import runcost
+    from drivetrain.errors import ConfigurationError
+    from drivetrain.run import run_scene
+    from drivetrain.scenario import load_scene
+
+    monkeypatch.setattr(runcost, "REFUSE_FACTOR", 1e-6)
+    monkeypatch.setattr(runcost, "REFUSE_FLOOR_S", 0.0)
+    scene = load_scene(ROOT / "scenarios" / "example.toml",
+                       ["time.duration_s=0.02", "time.settle_s=0.005", "effects.mesh_contact=ideal",
+                        "outputs.plots=false"])
+    with pytest.raises(ConfigurationError, match="predicted to take"):
+        run_scene(scene, None, backend="inprocess", progress=False)
+    res = run_scene(scene, None, backend="inprocess", progress=False, force=True, log=lambda m: None)
+    assert res.summary["status"] == "ok"
+    assert any(w.startswith("forced: this run is predicted") for w in res.summary["warnings"])
+
+
+def test_a_sweep_refuses_every_costly_case_before_any_run(tmp_path, capsys):
+    grid = tmp_path / "grid.toml"
+    grid.write_text((ROOT / "scenarios" / "example.toml").read_text() + """
+[sweep]
+name = "c_{numerics.max_substep_s:g}"
+[sweep.axes]
+"numerics.max_substep_s" = [1e-9, 2e-9, 5e-6]
+""")
+    out = tmp_path / "sweep"
+    rc, text = _rc(["sweep", str(grid), "--out", str(out), "--quiet", "--workers", "1"], capsys)
+    assert rc == 2 and "Traceback" not in text
+    assert text.count("predicted to take about") == 2, text
+    assert not (out / "manifest.json").exists()
 
 
 def test_a_huge_communication_step_is_refused_not_computed():

@@ -52,6 +52,10 @@ def _cmd_export_ssp(args: argparse.Namespace) -> int:
     return 0
 
 
+_FORCE_HELP = ("run even when the run is predicted to take more than 10x its simulated time (and over 10 min), "
+               "or its contact model longer than numerics.max_contact_hours")
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from drivetrain.cosim import ConfigurationError, CosimError
     from drivetrain.scenario import ScenarioError, load_scene
@@ -65,7 +69,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     try:
         res = run_scene(scene, out, backend=args.backend, progress=not args.quiet, fmu_dir=args.fmu_dir,
-                        plots=False if args.no_plots else None)
+                        plots=False if args.no_plots else None, force=args.force)
     except ConfigurationError as exc:
         return _scene_errors(exc)
     except RunFailedError as exc:
@@ -208,7 +212,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         manifest = run_sweep(scenes, args.out, workers=args.workers, address=args.scheduler,
                              backend=args.backend, fmu_dir=args.fmu_dir, skip_existing=args.skip_existing,
                              plots=False if args.no_plots else None, progress=not args.quiet,
-                             grid_names=grid_names)
+                             grid_names=grid_names, force=args.force)
     except ConfigurationError as exc:
         return _scene_errors(exc)
     failed = [r for r in manifest["runs"] if r["status"] != "ok"]
@@ -429,6 +433,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fmu-dir", default="fmus", help="where the FMUs are (built on demand; default: fmus)")
     p.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no report")
+    p.add_argument("--force", action="store_true", help=_FORCE_HELP)
     p.set_defaults(func=_cmd_run)
 
     p = sub.add_parser("export-ssp", help="the scene's system (FMUs, connections, assembled parameters, "
@@ -468,6 +473,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(fingerprint in case.json), run the rest")
     p.add_argument("--no-plots", action="store_true")
     p.add_argument("--quiet", action="store_true")
+    p.add_argument("--force", action="store_true", help=_FORCE_HELP)
     p.set_defaults(func=_cmd_sweep)
 
     p = sub.add_parser("validate", help="run the checks against the paper's findings and write docs/VALIDATION.md")

@@ -23,14 +23,13 @@ import numpy as np
 
 from drivetrain import __version__, instruments
 from drivetrain import outputs as O
-from drivetrain import stability
+from drivetrain import runcost, stability
 from drivetrain.cosim import CosimResult, Master
 from drivetrain.errors import ConfigurationError, CosimError, RunFailedError  # noqa: F401  (re-exported)
 from drivetrain.scenario import RIG_SENSORS, TORQUE_SENSORS, Scene
 from drivetrain.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies, stats, to_db
 from drivetrain.system import SystemSpec
 from gearcontact_fmu.fault_specs import FaultGeometryError
-from gearcontact_fmu.params import substeps
 
 #: messages for the user (progress, warnings); the CLI passes its own ``log``, a library caller sees them
 #: through Python logging (on stderr when logging is not configured)
@@ -208,34 +207,17 @@ def _natural_frequencies(spec: SystemSpec, n: int = 6) -> list[float] | None:
         return None
 
 
-#: gear-stage sub-steps of the default 20 s scene (1/12000 s steps of 17 sub-steps of 5 µs) and the
-#: multiple of it beyond which a run is announced as expensive before it starts
-DEFAULT_RUN_SUBSTEPS = 4.08e6
-COSTLY_FACTOR = 100.0
-
-
-def cost_warning(scene: Scene) -> str | None:
-    """A warning, said before the run starts, when the scene asks for far more gear-stage sub-steps than
-    the default 20 s scene (a tiny max_substep_s or a long duration): the user learns the price first."""
-
-    H = scene.numerics.comm_step_s
-    n = (scene.time.duration_s / H) * substeps(H, scene.numerics.max_substep_s)
-    if n > COSTLY_FACTOR * DEFAULT_RUN_SUBSTEPS:
-        return (f"this scene needs about {n:.3g} gear-stage sub-steps ({n / DEFAULT_RUN_SUBSTEPS:.0f}x the "
-                f"default 20 s scene; numerics.max_substep_s = {scene.numerics.max_substep_s:.3g} s, "
-                f"time.duration_s = {scene.time.duration_s:g} s): expect a long run")
-    return None
-
-
 def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "fmi", progress: bool = True,
               *, fmu_dir: str | Path = "fmus", spec: SystemSpec | None = None,
               fmu_paths: dict | None = None, plots: bool | None = None, build: bool = True,
-              log=None) -> RunResult:
+              log=None, force: bool = False) -> RunResult:
     """Simulate a validated scene and (if out_dir) write signals.h5, summary.json, plots and CSV.
 
     ``spec``: use this system instead of ``assemble(scene)`` (tests, custom systems).
     ``fmu_paths``: explicit {model: path} (no building). ``plots``: override ``scene.outputs.plots``.
-    Raises ConfigurationError before any step if the system cannot run as specified. If an FMU fails
+    Raises ConfigurationError before any step if the system cannot run as specified, or is predicted to
+    cost far more than its simulated time (:mod:`drivetrain.runcost`; ``force=True`` runs it anyway, and
+    lifts ``numerics.max_contact_hours``). If an FMU fails
     during the run, the completed part is post-processed (and written: signals up to the failure,
     summary with ``status = "failed"`` and ``failure``) and :class:`RunFailedError` is raised with it
     (a CosimError; a failure before the first step raises the master's CosimError, nothing written).
@@ -245,19 +227,22 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
     warnings: list[str] = []
     if spec is None:
         spec = assemble_scene(scene)
-    cost = cost_warning(scene)
-    if cost:
-        warnings.append(cost)
-        log(f"warning: {cost}")
-
     try:   # a contact model too costly for the scene's budget, or a u_max the static load alone would
         #    pass, is refused before any step
-        contact_cost = stability.check_contact_cost(spec, scene.time.duration_s, scene.numerics.max_contact_hours)
+        contact_cost = stability.check_contact_cost(
+            spec, scene.time.duration_s, float("inf") if force else scene.numerics.max_contact_hours)
         contact_range = stability.check_contact_range(spec)
     except (stability.ContactCostError, stability.ContactRangeError) as exc:
         raise ConfigurationError(exc.problems) from None
     except FaultGeometryError as exc:
         raise ConfigurationError([str(exc)]) from None
+    predicted = runcost.predict(scene, backend, contact_cost)
+    too_costly = runcost.refusal(scene, predicted)
+    if too_costly and not force:
+        raise ConfigurationError([too_costly])
+    if too_costly:
+        warnings.append(f"forced: {too_costly}")
+        log(f"warning: forced: {too_costly}")
     for rep in contact_cost:
         if rep.get("warning"):
             warnings.append(rep["warning"])

@@ -831,10 +831,9 @@ def regenerate_report(out_dir: Path | str) -> dict:
 
 def _cost(c: StressCase) -> float:
     """Rough relative cost, to submit the longest runs first."""
-    sc = c.scene
-    steps = sc.time.duration_s / sc.numerics.comm_step_s
-    per_step = {"pcm": 300.0, "table": 1.5, "analytic": 1.0, "ideal": 1.0}.get(sc.effects.mesh_contact, 1.0)
-    return steps * per_step + 5000.0
+    from drivetrain.runcost import predict
+
+    return predict(c.scene).total_s
 
 
 def _map_key(comp) -> str:

@@ -38,6 +38,7 @@ import traceback
 from pathlib import Path
 from typing import Any
 
+from drivetrain import runcost
 from drivetrain.cosim import ConfigurationError
 from drivetrain.cosim import simulate as simulate_system
 from drivetrain.cosim import sources_hash
@@ -52,7 +53,7 @@ _LOG = logging.getLogger(__name__)
 
 
 def make_case(scene: Scene, out_dir: Path, *, backend: str = "fmi", fmu_dir: str | Path = "fmus",
-              plots: bool | None = None, spec=None, fmu_paths: dict | None = None) -> dict:
+              plots: bool | None = None, spec=None, fmu_paths: dict | None = None, force: bool = False) -> dict:
     """A picklable description of one run (the scene as plain data, not the Scene object). ``plots``:
     None = as the scene says (``outputs.plots``), False = never."""
     return {
@@ -67,6 +68,7 @@ def make_case(scene: Scene, out_dir: Path, *, backend: str = "fmi", fmu_dir: str
         "fingerprint": fingerprint(scene),
         "spec": spec,
         "fmu_paths": {k: str(v) for k, v in (fmu_paths or {}).items()} or None,
+        "force": bool(force),
     }
 
 
@@ -134,7 +136,7 @@ def simulate(case: dict) -> dict:
         res = run_scene(scene, case["out_dir"], backend=case.get("backend", "fmi"), progress=False,
                         fmu_dir=case.get("fmu_dir", "fmus"), spec=case.get("spec"),
                         fmu_paths=case.get("fmu_paths"), plots=None if plots is None else bool(plots),
-                        build=False, log=lambda m: None)
+                        build=False, log=lambda m: None, force=bool(case.get("force")))
         rec.update({
             "status": "ok",
             "signals": str(Path(case["out_dir"]) / "signals.h5"),
@@ -289,7 +291,7 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
               backend: str = "fmi", fmu_dir: str | Path = "fmus", skip_existing: bool = False,
               plots: bool | None = None, progress: bool = True, specs: dict[str, Any] | None = None,
               fmu_paths: dict | None = None, executor=None, prepare: bool = True,
-              grid_names: list[str] | None = None) -> dict:
+              grid_names: list[str] | None = None, force: bool = False) -> dict:
     """Run every scene; returns the manifest (written to out_dir/manifest.json and .csv after every
     finished run, ``complete`` once all are done).
 
@@ -299,15 +301,20 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
     components' disk caches (contact maps) in this process first (:func:`prepare_caches`). ``plots``:
     None = as each scene says, False = none. ``skip_existing``: reuse finished runs of the same
     fingerprint. ``grid_names``: every case name of the sweep when ``scenes`` is a selection of it; the
-    manifest keeps the earlier records of the others.
+    manifest keeps the earlier records of the others. A case predicted to cost far more than its
+    simulated time (:mod:`drivetrain.runcost`) is refused, with every other such case, before anything
+    runs; ``force`` runs them anyway.
     """
     out = Path(out_dir)
     names = [s.name for s in scenes]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
-        from drivetrain.cosim import ConfigurationError
-
         raise ConfigurationError(f"scene names must be unique in a sweep: {', '.join(dup)}")
+    if not force:
+        too_costly = [f"{s.name}: {why}" for s in scenes
+                      if (why := runcost.refusal(s, runcost.predict(s, backend))) is not None]
+        if too_costly:
+            raise ConfigurationError(too_costly)
     _check_writable(out)
     log = _LOG.warning if progress else None
     all_specs = _specs_of(scenes, specs)
@@ -332,7 +339,8 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
     cases, runs = [], []
     for s, sp in zip(scenes, all_specs):
         d = out / s.name
-        case = make_case(s, d, backend=backend, fmu_dir=fmu_dir, plots=plots, spec=sp, fmu_paths=fmu_paths)
+        case = make_case(s, d, backend=backend, fmu_dir=fmu_dir, plots=plots, spec=sp, fmu_paths=fmu_paths,
+                         force=force)
         if skip_existing:
             prev, why = _reuse(s, d, case["fingerprint"])
             if prev is not None:

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from drivetrain.outputs import read_hdf5
+from drivetrain.sweep import JOURNAL, read_runs
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -43,10 +44,15 @@ def _sweep(grid, out, fmu_dir, *extra, **popen):
 
 
 def _runs(out):
+    """The records a reader finds: manifest.json updated by the append-only journal."""
     try:
-        return json.loads((out / "manifest.json").read_text())["runs"]
-    except (OSError, ValueError, KeyError):
+        return read_runs(out)
+    except OSError:
         return []
+
+
+def _journal(out):
+    return (out / JOURNAL).read_bytes()
 
 
 def test_a_killed_sweep_resumes_without_loss_or_duplicates(tmp_path):
@@ -68,6 +74,10 @@ def test_a_killed_sweep_resumes_without_loss_or_duplicates(tmp_path):
     assert 2 <= len(done_before) < 6, done_before          # killed in the middle
     m = json.loads((killed / "manifest.json").read_text())
     assert m["complete"] is False
+    # the journal holds one whole line per finished run, each with its finished files
+    lines = [json.loads(ln) for ln in _journal(killed).splitlines()]
+    assert [x["name"] for x in lines] == done_before and all(x["status"] == "ok" for x in lines)
+    assert all((killed / x["name"] / "summary.json").is_file() for x in lines)
 
     r = subprocess.run(_sweep(grid, killed, fmu_dir, "--resume"), cwd=ROOT, capture_output=True, text=True,
                        timeout=900)
@@ -82,3 +92,29 @@ def test_a_killed_sweep_resumes_without_loss_or_duplicates(tmp_path):
         assert a.keys() == b.keys()
         for k in a:
             np.testing.assert_array_equal(a[k], b[k], err_msg=f"{x['name']} {k}")
+
+
+def test_read_runs_skips_a_torn_line_and_prefers_the_journal(tmp_path):
+    (tmp_path / "manifest.json").write_text(json.dumps({"runs": [{"name": "a", "status": "failed"},
+                                                                 {"name": "b", "status": "ok"}]}))
+    (tmp_path / JOURNAL).write_bytes(b'{"name":"a","status":"ok"}\n{"name":"c","status":"ok"}\n{"name":"d","sta')
+    runs = read_runs(tmp_path)
+    assert [(r["name"], r["status"]) for r in runs] == [("a", "ok"), ("b", "ok"), ("c", "ok")]
+    with pytest.raises(OSError):
+        read_runs(tmp_path / "nothing")
+
+
+def test_a_dataset_of_a_killed_sweep_has_its_journaled_runs(tmp_path):
+    """The dataset export reads the journal: a run that finished after the last manifest write is in it."""
+    from drivetrain.dataset import collect
+
+    grid = tmp_path / "kill.toml"
+    grid.write_text(GRID.replace("[0.12, 0.4, 0.71, 1.0, 1.31, 1.6]", "[0.12, 0.4]"))
+    out = tmp_path / "sweep"
+    r = subprocess.run(_sweep(grid, out, tmp_path / "fmus"), cwd=ROOT, capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr[-2000:]
+    m = json.loads((out / "manifest.json").read_text())
+    m["runs"] = m["runs"][:1]                         # as if killed before the manifest caught up
+    m["complete"] = False
+    (out / "manifest.json").write_text(json.dumps(m))
+    assert sorted(x["name"] for x in collect(out)) == ["kill_0.12Nm", "kill_0.4Nm"]

@@ -1,7 +1,7 @@
 """A labelled dataset from a sweep directory: every run's signals with its labels, in one file set.
 
 ``drivetrain dataset SWEEP_DIR --format parquet|hdf5|aalto [--out PATH]`` reads the sweep's
-``manifest.json`` and each listed run's ``signals.h5`` (completed runs, and the completed part of
+records (``manifest.json``, with the journal ``manifest.jsonl`` of a killed sweep) and each listed run's ``signals.h5`` (completed runs, and the completed part of
 failed runs, marked by ``status``) and writes:
 
 - ``parquet``: one table, one row per sample: ``run``, ``time_s``, one column per channel (NaN where a
@@ -28,6 +28,7 @@ import numpy as np
 
 from drivetrain.errors import DatasetError  # noqa: F401  (re-exported)
 from drivetrain.outputs import read_hdf5, write_aalto_csv
+from drivetrain.sweep import read_runs
 
 FORMATS = ("parquet", "hdf5", "aalto")
 DEFAULT_NAMES = {"parquet": "dataset.parquet", "hdf5": "dataset.h5", "aalto": "dataset_aalto"}
@@ -61,11 +62,12 @@ def collect(sweep_dir: Path | str) -> list[dict]:
 
     d = Path(sweep_dir)
     try:
-        manifest = json.loads((d / "manifest.json").read_text())
-    except (OSError, ValueError) as exc:
-        raise DatasetError(f"{d}: no readable manifest.json ({exc}); is it a sweep directory?") from None
+        records = read_runs(d)           # the manifest, with the journal's runs of a killed sweep
+    except OSError as exc:
+        raise DatasetError(f"{d}: no readable manifest.json or manifest.jsonl ({exc}); is it a sweep "
+                           "directory?") from None
     runs = []
-    for rec in manifest.get("runs", []):
+    for rec in records:
         name = rec.get("name")
         sig = d / str(name) / "signals.h5"
         if not name or not sig.is_file():

@@ -55,7 +55,7 @@ from drivetrain.cosim import ConfigurationError
 from drivetrain.outputs import jsonable, now_iso
 from drivetrain.run import assemble_scene
 from drivetrain.scenario import FIDELITIES, TORQUE_SENSORS, Scene, load_scenes, scene_from_dict
-from drivetrain.sweep import CACHED_FIDELITIES, prepare_caches, run_sweep
+from drivetrain.sweep import CACHED_FIDELITIES, prepare_caches, read_runs, run_sweep
 from drivetrain.system import SystemSpec
 from gearcontact_fmu import faults, geometry
 from gearcontact_fmu.meshes import save_mesh
@@ -814,13 +814,10 @@ def regenerate_report(out_dir: Path | str) -> dict:
     rec = json.loads((out / "stress.json").read_text())
     entries = [{k: r.get(k) for k in ("name", "set", "classes", "parameters", "pair_of", "refused")}
                for r in rec["runs"]]
-    records = {}
-    man = out / "manifest.json"
-    if man.is_file():
-        try:
-            records = {r["name"]: r for r in json.loads(man.read_text()).get("runs", [])}
-        except (OSError, ValueError, KeyError):
-            records = {}
+    try:
+        records = {r["name"]: r for r in read_runs(out)}
+    except OSError:
+        records = {}
     return _finish(rec, entries, out, records)
 
 

@@ -18,8 +18,14 @@ wrote its partial files: its record has ``status = "failed"``, ``error``, ``fail
 ``partial = true`` and the paths ``signals``/``summary``; the sweep
 goes on with the other runs.
 
-Nothing is lost to a kill: the manifest is rewritten (atomically) after every finished run, with
-``complete = false`` until the last. Each run directory holds ``case.json`` (the resolved scene and the
+Nothing is lost to a kill: each finished run's record is appended to the journal
+``<out>/manifest.jsonl`` the moment it ends (one JSON line, one ``write`` on an append-only file, then
+``fsync``: a kill leaves whole lines, at most a torn last one, which readers skip). The full manifest is
+rewritten atomically (temporary file + rename) at the start, at most every ``MANIFEST_EVERY_S`` while
+runs finish, and at the end, with ``complete = false`` until the last run: a sweep of thousands of runs
+does not rewrite a growing manifest after each one. :func:`read_runs` gives every record of a sweep
+directory, the manifest's updated by the journal's, so a killed sweep's last runs are never missing
+(the dataset export and ``--only``/``--resume`` read it). Each run directory holds ``case.json`` (the resolved scene and the
 fingerprint of scene + model sources); ``skip_existing`` reuses a finished run only when that fingerprint
 matches (otherwise it runs again and says why), and a reused run keeps its metrics in the manifest.
 ``grid_names`` (all cases of the sweep, of which ``scenes`` may be a selection, e.g. ``--only``): records
@@ -258,6 +264,64 @@ def _reuse(scene: Scene, d: Path, fp: str) -> tuple[dict | None, str]:
     return rec, ""
 
 
+#: the append-only journal of finished runs, beside manifest.json
+JOURNAL = "manifest.jsonl"
+#: while runs finish, manifest.json/csv are rewritten at most this often [s] (the journal: every run)
+MANIFEST_EVERY_S = 30.0
+
+
+def _journal_line(rec: dict) -> bytes:
+    return (json.dumps(jsonable(rec), separators=(",", ":")) + "\n").encode("utf-8")
+
+
+def _append_journal(out: Path, rec: dict) -> None:
+    """One record, one write on an append-only file, then fsync: a kill leaves whole lines."""
+    fd = os.open(out / JOURNAL, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        os.write(fd, _journal_line(rec))
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _start_journal(out: Path, records: list[dict]) -> None:
+    """A new journal for this invocation holding the records it starts from (atomic replace)."""
+    tmp = out / f".{JOURNAL}.{os.getpid()}"
+    tmp.write_bytes(b"".join(_journal_line(r) for r in records))
+    os.replace(tmp, out / JOURNAL)
+
+
+def read_runs(out_dir: str | Path) -> list[dict]:
+    """Every run record of a sweep directory: those of manifest.json, then the journal's (a later record
+    of a name replaces an earlier one; a torn last line of a killed sweep is skipped). In manifest
+    order, the journal's new names after. Raises OSError when the directory has neither file."""
+    out = Path(out_dir)
+    by_name: dict[str, dict] = {}
+    found = False
+    try:
+        for r in json.loads((out / "manifest.json").read_text()).get("runs", []):
+            if isinstance(r, dict) and r.get("name"):
+                by_name[r["name"]] = r
+        found = True
+    except (OSError, ValueError, AttributeError):
+        pass
+    try:
+        lines = (out / JOURNAL).read_bytes().splitlines()
+        found = True
+    except OSError:
+        lines = []
+    for ln in lines:
+        try:
+            r = json.loads(ln)
+        except ValueError:
+            continue                     # a line torn by a kill
+        if isinstance(r, dict) and r.get("name"):
+            by_name[r["name"]] = r
+    if not found:
+        raise OSError(f"{out}: neither manifest.json nor {JOURNAL}")
+    return list(by_name.values())
+
+
 def _write_manifest(out: Path, runs: list[dict], meta: dict, complete: bool) -> dict:
     """manifest.json and manifest.csv, each written to a temporary file and renamed (a kill never
     leaves a half-written manifest)."""
@@ -330,10 +394,10 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
     if grid_names:
         others = set(grid_names) - set(names)
         try:
-            old = json.loads((out / "manifest.json").read_text()).get("runs", [])
-        except (OSError, ValueError):
+            old = read_runs(out)
+        except OSError:
             old = []
-        kept = [r for r in old if isinstance(r, dict) and r.get("name") in others]
+        kept = [r for r in old if r.get("name") in others]
     order = {n: i for i, n in enumerate(grid_names or names)}
     by_name = {s.name: s for s in scenes}
     cases, runs = [], []
@@ -361,10 +425,13 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
         return r
 
     def write(complete):
-        allr = sorted(kept + [annotate(r) for r in runs], key=lambda r: order.get(r["name"], len(order)))
+        allr = sorted(kept + runs, key=lambda r: order.get(r["name"], len(order)))
         return _write_manifest(out, allr, {**meta, "wall_time_s": time.perf_counter() - t0}, complete)
 
+    runs = [annotate(r) for r in runs]          # the reused ones
+    _start_journal(out, kept + runs)
     write(not cases)
+    last_write = time.monotonic()
     client = None
     own = executor is None
     if cases:
@@ -381,8 +448,12 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
                 rec = fut.result()
                 if futures[fut].get("rerun_reason"):
                     rec["rerun_reason"] = futures[fut]["rerun_reason"]
+                rec = annotate(rec)
+                _append_journal(out, rec)
                 runs.append(rec)
-                write(False)
+                if time.monotonic() - last_write >= MANIFEST_EVERY_S:
+                    write(False)
+                    last_write = time.monotonic()
                 if bar is not None:
                     bar.update(1)
             if bar is not None:
@@ -395,4 +466,4 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
     return write(True)
 
 
-__all__ = ["simulate", "run_sweep", "make_case", "prepare_caches"]
+__all__ = ["simulate", "run_sweep", "make_case", "prepare_caches", "read_runs"]

@@ -118,9 +118,7 @@ def test_a_damaged_cache_file_is_named_and_rebuilt(cache):
     """A truncated cache file crashed without naming it; one with an altered array shape ran with exit
     code 0 and wrong torques. Now: load_map names the file and the problem, get_map moves the file
     aside and rebuilds the same map."""
-    from gearcontact_fmu.contact_map import ContactMapFileError, load_map
-
-    from gearcontact_fmu.contact_map import cache_dir, cache_key
+    from gearcontact_fmu.contact_map import ContactMapFileError, cache_dir, cache_key, content_digest, load_map
 
     grid, res = MapGrid(points_per_pitch=2, s_points=8, max_torque=120.0), MeshResolution(profile=0.3e-3, face=3e-3)
     cmap = get_map(GEAR, PCM, res, grid=grid)                           # a coarse map: cheap to rebuild
@@ -135,14 +133,35 @@ def test_a_damaged_cache_file_is_named_and_rebuilt(cache):
         np.testing.assert_array_equal(again.values, cmap.values)
         assert Path(str(path) + ".damaged").exists()
 
-        v = cmap.values.reshape(cmap.values.shape[0] * 2, 1, *cmap.values.shape[2:])   # same size, other shape
-        np.savez_compressed(path, theta=cmap.theta, a=cmap.a, onset=cmap.onset, values=v,
-                            info=np.array(repr(cmap.info)))
+        def write(values, digest_of=None):
+            arrays = {"theta": cmap.theta, "a": cmap.a, "onset": cmap.onset, "values": values}
+            info = repr(cmap.info)
+            digest = content_digest(digest_of or arrays, info)
+            np.savez_compressed(path, **arrays, info=np.array(info), digest=np.array(digest))
+
+        # same size, other shape, consistent digest: the layout check names it
+        write(cmap.values.reshape(cmap.values.shape[0] * 2, 1, *cmap.values.shape[2:]))
         with pytest.raises(ContactMapFileError, match="values has shape"):
             load_map(path, GEAR, PCM, grid)
         again = get_map(GEAR, PCM, res, grid=grid)
         assert "values has shape" in again.info["cache_problem"]
         np.testing.assert_array_equal(again.values, cmap.values)
+
+        # one finite value altered, the layout intact: only the content digest can tell
+        altered = cmap.values.copy()
+        altered[0, 0, 0, 0] += 1.0
+        write(altered, digest_of={"theta": cmap.theta, "a": cmap.a, "onset": cmap.onset, "values": cmap.values})
+        with pytest.raises(ContactMapFileError, match="does not match its digest"):
+            load_map(path, GEAR, PCM, grid)
+        again = get_map(GEAR, PCM, res, grid=grid)
+        assert "digest" in again.info["cache_problem"]
+        np.testing.assert_array_equal(again.values, cmap.values)
+
+        # a file of an older writer (no digest) is rebuilt, not trusted
+        np.savez_compressed(path, theta=cmap.theta, a=cmap.a, onset=cmap.onset, values=cmap.values,
+                            info=np.array(repr(cmap.info)))
+        with pytest.raises(ContactMapFileError, match="no content digest"):
+            load_map(path, GEAR, PCM, grid)
     finally:
         path.write_bytes(good)
 

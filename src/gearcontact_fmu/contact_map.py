@@ -45,7 +45,8 @@ from gearcontact_fmu.mesh_model import (N_OUT, OUT_CONTACT_AREA, OUT_DISSIPATED_
                                         OUT_STATUS, OUT_TAU_PINION, OUT_TAU_WHEEL, MeshModel)
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams, params_hash
 
-MAP_VERSION = 5
+#: part of every cache key: raised when the map content or the file format changes (6: content digest)
+MAP_VERSION = 6
 # channels stored per grid node
 CH_TAU_P, CH_TAU_W, CH_N, CH_AREA, CH_PEAK, CH_PEN, CH_FN, CH_EEL, CH_DAMP, CH_FRIC_P, CH_FRIC_W = range(11)
 N_CH = 11
@@ -329,11 +330,28 @@ def cache_key(gear, pcm, resolution, health, mesh_files, grid, fault_kwargs=None
     return params_hash(gear, pcm, resolution, health, files, grid, fault_kwargs or {}, MAP_VERSION)
 
 
+_MAP_ARRAYS = ("theta", "a", "onset", "values")
+
+
+def content_digest(arrays: dict, info: str) -> str:
+    """SHA-256 over the map's arrays (dtype, shape and bytes, in a fixed order) and its info text: a
+    file whose content was altered in any way no longer matches the digest stored with it."""
+    h = hashlib.sha256()
+    for k in _MAP_ARRAYS:
+        arr = np.ascontiguousarray(arrays[k])
+        h.update(f"{k}:{arr.dtype.str}:{arr.shape};".encode())
+        h.update(arr.tobytes())
+    h.update(info.encode("utf-8"))
+    return h.hexdigest()
+
+
 def save_map(cmap: ContactMap, path: Path) -> None:
+    """Write the map with its content digest to a temporary file, then rename (never half a file)."""
+    arrays = {k: getattr(cmap, k) for k in _MAP_ARRAYS}
+    info = repr(cmap.info)
     tmp = Path(str(path) + f".tmp{os.getpid()}")
     with open(tmp, "wb") as f:
-        np.savez_compressed(f, theta=cmap.theta, a=cmap.a, onset=cmap.onset, values=cmap.values,
-                            info=np.array(repr(cmap.info)))
+        np.savez_compressed(f, **arrays, info=np.array(info), digest=np.array(content_digest(arrays, info)))
     os.replace(tmp, path)
 
 
@@ -350,10 +368,18 @@ def load_map(path: Path, gear, pcm, grid, n_rev: int = 1) -> ContactMap:
 
     try:
         with np.load(path, allow_pickle=False) as z:
-            info = ast.literal_eval(str(z["info"]))
-            theta, a, onset, values = (z[k].copy() for k in ("theta", "a", "onset", "values"))
+            info_text = str(z["info"])
+            arrays = {k: z[k].copy() for k in _MAP_ARRAYS}
+            stored = str(z["digest"]) if "digest" in z.files else None
+        info = ast.literal_eval(info_text)
     except (OSError, EOFError, ValueError, KeyError, SyntaxError, zipfile.BadZipFile) as exc:
         raise ContactMapFileError(f"contact map {path}: unreadable ({type(exc).__name__}: {exc})") from None
+    if stored is None:
+        raise ContactMapFileError(f"contact map {path}: no content digest (written by an older version)")
+    if content_digest(arrays, info_text) != stored:
+        raise ContactMapFileError(f"contact map {path}: its content does not match its digest (altered or "
+                                  "corrupted)")
+    theta, a, onset, values = (arrays[k] for k in _MAP_ARRAYS)
     n_theta = grid.points_per_pitch * gear.z_pinion * n_rev
     want = {"theta": (theta, (n_theta,)), "a": (a, (grid.s_points,)), "onset": (onset, (n_theta, 2)),
             "values": (values, (n_theta, 2, grid.s_points, N_CH))}

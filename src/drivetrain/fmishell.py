@@ -327,9 +327,12 @@ def _publish(slave, initial: bool = False):
         slave._lazy_pending = False
     else:
         slave._lazy_pending = True       # LAZY_OUTPUTS: computed when read
-    for name in slave._outputs:
-        if name in out:
-            setattr(slave, name, float(out[name]))
+    values = {name: float(out[name]) for name in slave._outputs if name in out}
+    if not all(map(math.isfinite, values.values())):
+        bad = {n: v for n, v in values.items() if not math.isfinite(v)}
+        raise C.ComponentError(f"the step produced non-finite outputs {bad} (inputs far out of range?)")
+    for name, v in values.items():
+        setattr(slave, name, v)
 
 
 def enter_init(slave):

@@ -458,6 +458,9 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
                     bar.update(1)
             if bar is not None:
                 bar.close()
+        except BaseException:
+            write(False)           # interrupted (Ctrl-C, an executor that died): the manifest catches up
+            raise
         finally:
             if own:
                 executor.shutdown(wait=True)

@@ -106,26 +106,100 @@ def guard_value_references(slave, model: str) -> None:
     # instance is not kept alive by a reference cycle (freed by the garbage collector at some later time,
     # possibly after pythonfmu's export library has released the interpreter state)
     ref = weakref.ref(slave)
+    # what a host may still set once initialization is over: inputs and tunable parameters (FMI 2.0)
+    settable_in_step = frozenset(vr for vr, v in slave.vars.items()
+                                 if getattr(v.causality, "name", "") == "input" or getattr(v.variability, "name", "") == "tunable")
+    slave._fmi_phase = "instantiated"
+
+    def fail(msg):
+        slave = ref()
+        slave._failed = msg
+        slave.log(fmi_text(msg), Fmi2Status.error)
+        raise ValueError(msg)
+
     for name, vtype in _ACCESSORS.items():
         original = getattr(type(slave), name)
         # the variables are all registered by now (the guard is installed at the end of __init__)
         valid = frozenset(vr for vr, v in slave.vars.items() if type(v).__name__ == vtype)
+        call = f"fmi2{name.split('_')[0].capitalize()}{vtype}"
 
-        def checked(vrs, *args, _original=original, _name=name, _vtype=vtype, _valid=valid):
+        def checked(vrs, *args, _original=original, _call=call, _vtype=vtype, _valid=valid,
+                    _setter=name.startswith("set")):
             slave = ref()
             if not _valid.issuperset(vrs):          # one set operation per call: no cost per variable
                 bad = [vr for vr in vrs if vr not in _valid]
                 detail = ", ".join(f"{vr} ({type(slave.vars[vr]).__name__} {slave.vars[vr].name})"
                                    if vr in slave.vars else f"{vr} (no such variable)" for vr in bad)
-                msg = (f"{model}: fmi2{_name.split('_')[0].capitalize()}{_vtype} with value references that "
-                       f"are not {_vtype} variables of this FMU: {detail}; the instance is now in its error state")
-                slave._failed = msg
-                slave.log(fmi_text(msg), Fmi2Status.error)
-                raise ValueError(msg)
+                fail(f"{model}: {_call} with value references that are not {_vtype} variables of this FMU: "
+                     f"{detail}; the instance is now in its error state")
+            if _setter and slave._fmi_phase in _AFTER_INIT and not settable_in_step.issuperset(vrs):
+                names = ", ".join(slave.vars[vr].name for vr in vrs if vr not in settable_in_step)
+                fail(f"{model}: {_call} of {names} after initialization: fixed parameters can only be set "
+                     f"before fmi2ExitInitializationMode (FMI 2.0; the value would not take effect); the "
+                     f"instance is now in its error state")
             return _original(slave, vrs, *args)
 
         setattr(slave, name, checked)
-    _install_fast_real_access(slave, ref)
+    _install_fast_real_access(slave, ref, settable_in_step)
+    _install_state_machine(slave, ref, model)
+
+
+#: phases after initialization: only inputs and tunable parameters may be set
+_AFTER_INIT = frozenset(("step", "terminated"))
+
+
+def _install_state_machine(slave, ref, model: str) -> None:
+    """The FMI 2.0 co-simulation states around the slave's own callbacks: ``fmi2DoStep`` only between
+    fmi2ExitInitializationMode and fmi2Terminate, and only at the communication point where the previous
+    step ended (these FMUs cannot roll back: a jump would be integrated as if time were continuous).
+    Anything else is logged naming the call and what was expected, and the instance enters its error
+    state (every later step refused), as for any other error."""
+    from pythonfmu.enums import Fmi2Status
+
+    cls = type(slave)
+    slave._fmi_t_next = None
+
+    def enter_initialization_mode():
+        s = ref()
+        s._fmi_phase = "initialization"
+        s._fmi_t_next = None
+        return cls.enter_initialization_mode(s)
+
+    def exit_initialization_mode():
+        s = ref()
+        s._fmi_phase = "step"
+        return cls.exit_initialization_mode(s)
+
+    def terminate():
+        s = ref()
+        s._fmi_phase = "terminated"
+        return cls.terminate(s)
+
+    def do_step(current_time, step_size):
+        s = ref()
+        t_next = s._fmi_t_next
+        if s._fmi_phase != "step" or (t_next is not None and s._failed is None
+                                      and abs(current_time - t_next) > 1e-3 * step_size + 1e-12 * abs(t_next)):
+            if s._fmi_phase == "terminated":
+                why = "after fmi2Terminate"
+            elif s._fmi_phase != "step":
+                why = "before fmi2ExitInitializationMode"
+            else:
+                why = (f"but the previous step ended at t = {t_next:.12g} s (communication points must follow "
+                       f"each other; this FMU cannot roll back)")
+            msg = f"{model}: fmi2DoStep at t = {current_time:.12g} s {why}; the instance is now in its error state"
+            s._failed = s._failed or msg
+            s.log(fmi_text(msg), Fmi2Status.error)
+            return False
+        ok = cls.do_step(s, current_time, step_size)
+        if ok:
+            s._fmi_t_next = current_time + step_size
+        return ok
+
+    slave.enter_initialization_mode = enter_initialization_mode
+    slave.exit_initialization_mode = exit_initialization_mode
+    slave.terminate = terminate
+    slave.do_step = do_step
 
 
 def _default_accessor(fn) -> bool:
@@ -134,7 +208,7 @@ def _default_accessor(fn) -> bool:
             and getattr(fn, "__qualname__", "").startswith("Fmi2Slave.register_variable."))
 
 
-def _install_fast_real_access(slave, ref) -> None:
+def _install_fast_real_access(slave, ref, settable_in_step: frozenset) -> None:
     """``get_real``/``set_real`` for the value-reference lists a host repeats every step (an FMI master
     passes the same references at every communication point): the first call with a list is checked
     and served by the guarded pythonfmu path above; it also prepares a plan for that list (attribute
@@ -196,9 +270,15 @@ def _install_fast_real_access(slave, ref) -> None:
         if plan is None:
             result = checked_set(vrs, values)
             try:
-                set_plans[key] = plan_set(key)
+                plan = plan_set(key)
             except Exception:  # noqa: BLE001
-                set_plans[key] = lambda s, values: checked_set(vrs, values)
+                plan = lambda s, values: checked_set(vrs, values)  # noqa: E731
+            if not settable_in_step.issuperset(key):
+                # a list with fixed parameters: the phase is checked at every call (refused after init)
+                fast = plan
+                plan = lambda s, values: (checked_set(vrs, values) if s._fmi_phase in _AFTER_INIT  # noqa: E731
+                                          else fast(s, values))
+            set_plans[key] = plan
             return result
         return plan(ref(), values)
 

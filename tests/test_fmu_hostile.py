@@ -1,0 +1,173 @@
+"""Hostile calls to every FMU through its FMI interface (issue 11): each is refused with a logged message
+naming the problem, or behaves as FMI 2.0 says; none crashes the host.
+
+The calls of one FMU run in one subprocess (one FMU load and JIT per model, not per case), each case on
+a fresh instance; the subprocess prints one JSON line per finished case. A crash ends the subprocess:
+the case it was in and all after it fail, naming the exit code, instead of killing the test run."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from drivetrain.cosim import ensure_fmus
+
+MODELS = ("GearContact", "FlexibleShaft", "UpperTransmission", "MotorLoad")
+
+SCRIPT = textwrap.dedent(r'''
+    import json, math, sys, time, warnings
+    warnings.simplefilter("ignore")
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+    from drivetrain.cosim.slaves import FmiCallbacks
+
+    path = sys.argv[1]
+    md = read_model_description(path)
+    DIR = extract(path)
+    V = {v.name: v for v in md.modelVariables}
+    H = 1.0 / 12000.0
+    INPUT = next(v.name for v in md.modelVariables if v.causality == "input" and v.type == "Real")
+    OUTPUTS = [v.valueReference for v in md.modelVariables if v.causality == "output" and v.type == "Real"]
+    PARAM = next(v.name for v in md.modelVariables
+                 if v.causality == "parameter" and v.type == "Real" and v.variability == "fixed")
+    STRINGS = [v.name for v in md.modelVariables if v.causality == "parameter" and v.type == "String"]
+    CB = FmiCallbacks()
+    HOSTILE = "%n%s%x%%"
+
+    def vr(name):
+        return V[name].valueReference
+
+    def instance(name, initialized=True):
+        f = FMU2Slave(guid=md.guid, unzipDirectory=DIR, modelIdentifier=md.coSimulation.modelIdentifier,
+                      instanceName=name)
+        f.instantiate(loggingOn=True, callbacks=CB.struct)
+        f.setupExperiment(startTime=0.0)
+        if initialized:
+            f.enterInitializationMode()
+            f.exitInitializationMode()
+            f.doStep(0.0, H)
+        return f
+
+    def call(fn):
+        try:
+            fn()
+            return "ok"
+        except Exception:
+            return "refused"
+
+    CASES = {
+        "nan_input": (True, lambda f: [call(lambda: f.setReal([vr(INPUT)], [math.nan])),
+                                       call(lambda: f.doStep(H, H)), call(lambda: f.doStep(2 * H, H))]),
+        "inf_input": (True, lambda f: [call(lambda: f.setReal([vr(INPUT)], [math.inf])),
+                                       call(lambda: f.doStep(H, H))]),
+        "huge_input": (True, lambda f: [call(lambda: f.setReal([vr(INPUT)], [1e300])),
+                                        call(lambda: f.doStep(H, H)), call(lambda: f.doStep(H, H))]),
+        "unknown_vr_set": (True, lambda f: [call(lambda: f.setReal([987654], [1.0])), call(lambda: f.doStep(H, H))]),
+        "unknown_vr_get": (True, lambda f: [call(lambda: f.getReal([987654])), call(lambda: f.doStep(H, H))]),
+        "real_vr_as_integer": (True, lambda f: [call(lambda: f.setInteger([vr(INPUT)], [1])),
+                                                call(lambda: f.doStep(H, H))]),
+        "negative_step": (True, lambda f: [call(lambda: f.doStep(H, -H)), call(lambda: f.doStep(H, H))]),
+        "zero_step": (True, lambda f: [call(lambda: f.doStep(H, 0.0))]),
+        "nan_step": (True, lambda f: [call(lambda: f.doStep(H, math.nan))]),
+        "huge_step": (True, lambda f: [call(lambda: f.doStep(H, 1000.0))]),
+        "time_jump": (True, lambda f: [call(lambda: f.doStep(5.0, H)), call(lambda: f.doStep(H, H))]),
+        "time_back": (True, lambda f: [call(lambda: f.doStep(0.0, H))]),
+        "fixed_parameter_after_init": (True, lambda f: [call(lambda: f.setReal([vr(PARAM)], [1.0])),
+                                                        call(lambda: f.doStep(H, H))]),
+        "string_parameter_after_init": (True, lambda f: [call(lambda: f.setString([vr(STRINGS[0])], [HOSTILE]))]
+                                        if STRINGS else ["n/a"]),
+        "hostile_string_before_init": (False, lambda f: [call(lambda: f.setString([vr(STRINGS[0])], [HOSTILE])),
+                                                         call(lambda: f.enterInitializationMode()),
+                                                         call(lambda: f.exitInitializationMode()),
+                                                         call(lambda: f.doStep(0.0, H))]
+                                       if STRINGS else ["n/a"]),
+        "step_before_init": (False, lambda f: [call(lambda: f.doStep(0.0, H))]),
+        "step_after_terminate": (True, lambda f: [call(lambda: f.terminate()), call(lambda: f.doStep(H, H))]),
+        "reset_and_run_again": (True, lambda f: [call(lambda: f.reset()),
+                                                 call(lambda: f.setReal([vr(PARAM)], [float(V[PARAM].start)])),
+                                                 call(lambda: f.enterInitializationMode()),
+                                                 call(lambda: f.exitInitializationMode()),
+                                                 call(lambda: f.doStep(0.0, H)), call(lambda: f.doStep(H, H))]),
+        "normal_steps_still_work": (True, lambda f: [call(lambda: f.doStep(H, H)), call(lambda: f.doStep(2 * H, H)),
+                                                     call(lambda: f.getReal(OUTPUTS))]),
+    }
+    for name, (initialized, fn) in CASES.items():
+        print(json.dumps({"start": name}), flush=True)
+        t0 = time.perf_counter()
+        f = instance(name, initialized)
+        outcomes = fn(f)
+        log = list(CB.logs[name].lines) if name in CB.logs else []
+        print(json.dumps({"case": name, "outcomes": outcomes, "log": log,
+                          "seconds": time.perf_counter() - t0}), flush=True)
+''')
+
+# every call's outcome ("ok" | "refused"), the same for every FMU; and text the log must hold
+EXPECT = {
+    "nan_input": (["ok", "refused", "refused"], "non-finite input"),
+    "inf_input": (["ok", "refused"], "non-finite input"),
+    "huge_input": (["ok", "refused", "refused"], "error state"),
+    "unknown_vr_set": (["refused", "refused"], "987654 (no such variable)"),
+    "unknown_vr_get": (["refused", "refused"], "987654 (no such variable)"),
+    "real_vr_as_integer": (["refused", "refused"], "are not Integer variables"),
+    "negative_step": (["refused", "refused"], "step"),
+    "zero_step": (["refused"], "step"),
+    "nan_step": (["refused"], "step"),
+    "huge_step": (["refused"], "sub-steps"),
+    "time_jump": (["refused", "refused"], "the previous step ended at t = 8.33333333333e-05 s"),
+    "time_back": (["refused"], "the previous step ended at"),
+    "fixed_parameter_after_init": (["refused", "refused"], "after initialization: fixed parameters"),
+    "string_parameter_after_init": (["refused"], "after initialization: fixed parameters"),
+    "hostile_string_before_init": (["ok", "ok", "ok", "refused"], "%n%s%x%%"),
+    "step_before_init": (["refused"], "before fmi2ExitInitializationMode"),
+    "step_after_terminate": (["ok", "refused"], "after fmi2Terminate"),
+    "reset_and_run_again": (["ok"] * 6, None),
+    "normal_steps_still_work": (["ok"] * 3, None),
+}
+NO_STRINGS = {"UpperTransmission"}           # no String parameter to abuse
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory):
+    fmu_dir = tmp_path_factory.mktemp("fmus_hostile")
+    ensure_fmus(list(MODELS), fmu_dir)
+    cache: dict[str, tuple[dict, str]] = {}
+
+    def of(model):
+        if model not in cache:
+            r = subprocess.run([sys.executable, "-c", SCRIPT, str(fmu_dir / f"{model}.fmu")],
+                               capture_output=True, text=True, timeout=600)
+            done, started = {}, None
+            for ln in r.stdout.splitlines():
+                try:
+                    rec = json.loads(ln)
+                except ValueError:
+                    continue
+                if "start" in rec:
+                    started = rec["start"]
+                elif "case" in rec:
+                    done[rec["case"]] = rec
+            cache[model] = (done, f"subprocess rc {r.returncode}, last case started: {started}\n"
+                                  f"{r.stderr[-1500:]}")
+        return cache[model]
+    return of
+
+
+@pytest.mark.parametrize("case", list(EXPECT))
+@pytest.mark.parametrize("model", MODELS)
+def test_hostile_fmi_call(results, model, case):
+    done, why = results(model)
+    assert case in done, f"no result for {case}: the host did not survive ({why})"
+    rec = done[case]
+    outcomes, text = EXPECT[case]
+    if rec["outcomes"] == ["n/a"]:
+        assert model in NO_STRINGS and "string" in case
+        return
+    assert rec["outcomes"] == outcomes, f"{model} {case}: {rec['outcomes']}\nlog: {rec['log']}"
+    if text is not None:
+        assert any(text in line for line in rec["log"]), f"{model} {case}: {text!r} not in log {rec['log']}"
+    if "error" not in case and outcomes.count("refused") == 0:
+        assert not any(line.startswith("[error]") for line in rec["log"]), rec["log"]
+    assert rec["seconds"] < 30.0                     # refusals are immediate (GearContact: + its build)

@@ -118,3 +118,21 @@ def test_a_dataset_of_a_killed_sweep_has_its_journaled_runs(tmp_path):
     m["complete"] = False
     (out / "manifest.json").write_text(json.dumps(m))
     assert sorted(x["name"] for x in collect(out)) == ["kill_0.12Nm", "kill_0.4Nm"]
+
+
+def test_the_fingerprint_covers_version_sources_and_given_fmus(tmp_path, monkeypatch):
+    """--resume reuses a run only if it would compute the same: a swapped-in FMU file (same path, other
+    content) or another project version is another computation."""
+    import drivetrain.sweep as S
+    from drivetrain.scenario import load_scene
+
+    scene = load_scene(ROOT / "scenarios" / "example.toml")
+    fmu = tmp_path / "GearContact.fmu"
+    fmu.write_bytes(b"one")
+    a = S.fingerprint(scene, {"GearContact": fmu})
+    assert S.fingerprint(scene, {"GearContact": fmu}) == a
+    fmu.write_bytes(b"two!")
+    assert S.fingerprint(scene, {"GearContact": fmu}) != a
+    b = S.fingerprint(scene)
+    monkeypatch.setattr(S, "__version__", "0.0.0-other")
+    assert S.fingerprint(scene) != b

@@ -25,9 +25,12 @@ rewritten atomically (temporary file + rename) at the start, at most every ``MAN
 runs finish, and at the end, with ``complete = false`` until the last run: a sweep of thousands of runs
 does not rewrite a growing manifest after each one. :func:`read_runs` gives every record of a sweep
 directory, the manifest's updated by the journal's, so a killed sweep's last runs are never missing
-(the dataset export and ``--only``/``--resume`` read it). Each run directory holds ``case.json`` (the resolved scene and the
-fingerprint of scene + model sources); ``skip_existing`` reuses a finished run only when that fingerprint
-matches (otherwise it runs again and says why), and a reused run keeps its metrics in the manifest.
+(the dataset export and ``--only``/``--resume`` read it).
+
+Each run directory holds ``case.json``: the resolved scene and the fingerprint of scene, project
+version, model sources and any explicitly given FMU files. ``skip_existing`` reuses a finished run only
+when that fingerprint matches (otherwise it runs again and says why), and a reused run keeps its
+metrics in the manifest.
 ``grid_names`` (all cases of the sweep, of which ``scenes`` may be a selection, e.g. ``--only``): records
 of other cases already in the manifest are kept, not dropped. A run directory is cleared of earlier
 outputs before its run writes.
@@ -36,6 +39,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import csv
+import functools
 import json
 import logging
 import os
@@ -44,7 +48,7 @@ import traceback
 from pathlib import Path
 from typing import Any
 
-from drivetrain import runcost
+from drivetrain import __version__, runcost
 from drivetrain.cosim import ConfigurationError
 from drivetrain.cosim import simulate as simulate_system
 from drivetrain.cosim import sources_hash
@@ -71,7 +75,7 @@ def make_case(scene: Scene, out_dir: Path, *, backend: str = "fmi", fmu_dir: str
         "backend": backend,
         "fmu_dir": str(Path(fmu_dir).resolve()),
         "plots": plots,
-        "fingerprint": fingerprint(scene),
+        "fingerprint": fingerprint(scene, fmu_paths),
         "spec": spec,
         "fmu_paths": {k: str(v) for k, v in (fmu_paths or {}).items()} or None,
         "force": bool(force),
@@ -89,13 +93,29 @@ def labels(scene: dict) -> dict:
 RUN_OUTPUTS = ("signals.h5", "summary.json", "sensors.csv", "case.json")
 
 
-def fingerprint(scene: Scene) -> str:
-    """Identity of what a run computes: the resolved scene and the sources of the models and FMUs."""
+def fingerprint(scene: Scene, fmu_paths: dict | None = None) -> str:
+    """Identity of what a run computes: the resolved scene, the project version, the sources of the models
+    and FMUs, and the content of explicitly given FMUs (a swapped-in FMU is another computation)."""
     import hashlib
 
-
     text = json.dumps(jsonable(scene.to_dict()), sort_keys=True, default=str)
-    return hashlib.sha256((text + "|" + sources_hash()).encode()).hexdigest()[:24]
+    h = hashlib.sha256(f"{text}|{__version__}|{sources_hash()}".encode())
+    for model, path in sorted((fmu_paths or {}).items()):
+        st = os.stat(path)
+        h.update(f"|{model}:{_content_digest(str(path), st.st_mtime_ns, st.st_size)}".encode())
+    return h.hexdigest()[:24]
+
+
+@functools.lru_cache(maxsize=64)
+def _content_digest(path: str, mtime_ns: int, size: int) -> str:
+    """SHA-256 of a file, once per (path, modification time, size) in a process."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
 
 
 def _clear_run_dir(d: Path) -> None:

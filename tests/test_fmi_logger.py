@@ -91,3 +91,22 @@ def test_two_live_runs_keep_their_own_logs(shaft_fmu):
     assert "FIRST 0" in proc.stdout
     second = [ln for ln in proc.stdout.splitlines() if ln.startswith("SECOND")]
     assert second and int(second[0].split()[1]) >= 1, proc.stdout
+
+
+def test_a_run_after_fmpy_installed_its_own_logger_still_gets_its_log(shaft_fmu):
+    """fmpy.instantiate_fmu/simulate_fmu(logger=f) point fmpy's proxy at f: a run made after that must
+    still see its FMUs' messages (the master points the proxy back at its own callback)."""
+    proc = _run(shaft_fmu, """
+        from fmpy import instantiate_fmu
+        seen = []
+        earlier_run = FmiCallbacks()                    # the master's callback is installed first ...
+        other = instantiate_fmu(DIR, MD, fmi_type="CoSimulation", logger=lambda *a: seen.append(a))
+        run = FmiCallbacks()                            # ... fmpy's then, and a new run begins
+        fmu = failing_instance("shaft", run.struct)
+        fail(fmu)
+        lines = list(run.logs["shaft"].lines) if "shaft" in run.logs else []
+        print("OURS", len([x for x in lines if "non-finite input" in x]))
+    """)
+    assert proc.returncode == 0, f"rc {proc.returncode}\n{proc.stdout}\n{proc.stderr[-2000:]}"
+    ours = [ln for ln in proc.stdout.splitlines() if ln.startswith("OURS")]
+    assert ours and int(ours[0].split()[1]) >= 1, proc.stdout

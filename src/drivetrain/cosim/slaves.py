@@ -47,6 +47,9 @@ class _LoggerRoutes:
     long as the process, and each ``FmiCallbacks`` struct carries that proxy with its own key in
     ``componentEnvironment``, which FMUs pass back with every message. Messages under a key that is
     gone, or from FMUs on fmpy's default callbacks, are printed as fmpy prints them.
+
+    Others re-point the global too: ``fmpy.simulate_fmu(..., logger=f)`` installs a callback of its own
+    and frees it when it returns. So every new run points it back at this one (:meth:`get`).
     """
 
     _instance: "_LoggerRoutes | None" = None
@@ -67,9 +70,20 @@ class _LoggerRoutes:
 
     @classmethod
     def get(cls) -> "_LoggerRoutes":
+        """The process's routes, with fmpy's proxy pointed (again) at their callback."""
         if cls._instance is None:
             cls._instance = cls()
+        else:
+            cls._instance._install()
         return cls._instance
+
+    def _install(self) -> None:
+        from fmpy.fmi2 import fmi2CallbackFunctions
+        from fmpy.logging import addLoggerProxy
+
+        again = fmi2CallbackFunctions()
+        again.logger = self._callback
+        addLoggerProxy(ctypes.byref(again))          # the library's global -> self._callback
 
     @property
     def proxy(self):

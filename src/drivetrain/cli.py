@@ -6,6 +6,8 @@ and a missing optional piece does not break the others.
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import os
 import sys
 from pathlib import Path
@@ -60,8 +62,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from drivetrain.cosim import ConfigurationError, CosimError
     from drivetrain.scenario import ScenarioError, load_scene
 
+    overrides = list(args.set or ())
+    if args.tolerance is not None:
+        overrides.append(f"numerics.tolerance_pct={args.tolerance!r}")
     try:
-        scene = load_scene(args.scene, args.set or (), case=args.case)
+        scene = load_scene(args.scene, overrides, case=args.case)
     except ScenarioError as exc:
         return _scene_errors(exc)
     out = args.out or f"out/{scene.name}"
@@ -239,8 +244,6 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     except ScenarioError as exc:
         return _scene_errors(exc)
     if args.judge_only:                 # the runs exist: judge them again (e.g. after a judge changed)
-        import json
-
         try:
             manifest, repeat = (json.loads((Path(args.out) / d / "manifest.json").read_text())
                                 for d in ("grid", "repeat"))
@@ -277,6 +280,44 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         print(f"{r.number:2d} {r.status:8s} {r.title}: {r.figure}")
     print(f"wrote {report} ({meta['wall_time_s'] / 60:.1f} min)")
     return 0 if all(r.status != "fail" for r in results) else 3
+
+
+def _cmd_accuracy_cost(args: argparse.Namespace) -> int:
+    import shlex
+    import time
+
+    from drivetrain import accuracy as A
+    from drivetrain.cosim import ConfigurationError
+    from drivetrain.outputs import jsonable
+
+    t0 = time.perf_counter()
+    argv = sys.argv[1:]
+    command = ("drivetrain " + " ".join(shlex.quote(a) for a in argv[argv.index("accuracy-cost"):])
+               if "accuracy-cost" in argv else "drivetrain accuracy-cost")
+    meta = {"command": command, "duration_s": A.STUDY_DURATION_S, "settle_s": A.STUDY_SETTLE_S,
+            "workers": args.workers or os.cpu_count(), "backend": args.backend}
+    try:
+        results = A.run_study(args.out, args.scenes, args.settings, workers=args.workers, address=args.scheduler,
+                              resume=args.resume, fmu_dir=args.fmu_dir, backend=args.backend,
+                              progress=not args.quiet, meta=meta)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except ConfigurationError as exc:
+        return _scene_errors(exc)
+    results["meta"]["wall_time_s"] = time.perf_counter() - t0
+    report = Path(args.report)
+    report.parent.mkdir(parents=True, exist_ok=True)
+    figures = A.plot_pareto(results, report.parent / "figures")
+    results_path = Path(args.results) if args.results else A.RESULTS_FILE
+    results_path.parent.mkdir(parents=True, exist_ok=True)
+    results_path.write_text(json.dumps(jsonable(results), indent=1) + "\n")
+    report.write_text(A.report_markdown(results, {k: f"figures/{v}" for k, v in figures.items()}))
+    for name, sc in results["scenes"].items():
+        ok = sum(r.get("status") == "ok" for r in sc["rows"].values())
+        print(f"{name}: {ok}/{len(sc['rows'])} settings ran")
+    print(f"wrote {report}, {results_path} ({results['meta']['wall_time_s'] / 60:.1f} min)")
+    return 0
 
 
 def _cmd_dataset(args: argparse.Namespace) -> int:
@@ -350,8 +391,6 @@ def _cmd_stress(args: argparse.Namespace) -> int:
 
 def _cmd_check(args: argparse.Namespace) -> int:
     """Run scenes and check them against their [expect] section and baseline (drivetrain.check)."""
-    import json
-
     from drivetrain.check import CheckReport, check_scenes, format_table, select
     from drivetrain.cosim import ConfigurationError
     from drivetrain.scenario import ScenarioError, load_scenes
@@ -402,6 +441,17 @@ def _cmd_baseline(args: argparse.Namespace) -> int:
     return 0 if not bad else 3
 
 
+def _percent(text: str) -> float:
+    """A tolerance in percent: "1%", "1" (both 1 %), "0.5 %"."""
+    try:
+        v = float(text.strip().rstrip("%").strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a percentage (e.g. 1%)") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: a tolerance must be a positive percentage")
+    return v
+
+
 def _positive_int(text: str) -> int:
     """argparse type of a count that must be >= 1 (``--workers -1`` was a traceback from the pool)."""
     try:
@@ -434,6 +484,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no report")
     p.add_argument("--force", action="store_true", help=_FORCE_HELP)
+    p.add_argument("--tolerance", type=_percent, default=None, metavar="T%",
+                   help="run with the cheapest studied setting within T %% on mean torques and fluctuation and "
+                        "T dB on GMF and sidebands (numerics.tolerance_pct; docs/ACCURACY-COST.md)")
     p.set_defaults(func=_cmd_run)
 
     p = sub.add_parser("export-ssp", help="the scene's system (FMUs, connections, assembled parameters, "
@@ -492,6 +545,22 @@ def build_parser() -> argparse.ArgumentParser:
                    help="run nothing: judge the runs already in --out again and rewrite the report")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_validate)
+
+    p = sub.add_parser("accuracy-cost", help="the accuracy-cost study: every setting against a converged reference "
+                                             "per scene; writes docs/ACCURACY-COST.md, its plots and the shipped results")
+    p.add_argument("--scenes", nargs="*", default=None, metavar="NAME", help="studied scenes (default: all)")
+    p.add_argument("--settings", nargs="*", default=None, metavar="NAME",
+                   help="settings (default: all; the reference always runs)")
+    p.add_argument("--out", default="out/accuracy", help="run directory (default: out/accuracy)")
+    p.add_argument("--report", default="docs/ACCURACY-COST.md", help="the report (default: docs/ACCURACY-COST.md)")
+    p.add_argument("--results", default=None, help="where the results go (default: the package's data file)")
+    p.add_argument("--workers", type=_positive_int, default=None, help="local worker processes (default: CPU count)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler address")
+    p.add_argument("--backend", choices=("fmi", "inprocess"), default="fmi")
+    p.add_argument("--fmu-dir", default="fmus")
+    p.add_argument("--resume", action="store_true", help="reuse finished runs of the same scenes and settings")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_accuracy_cost)
 
     p = sub.add_parser("dataset", help="one labelled dataset (signals + labels of every run) from a sweep directory")
     p.add_argument("sweep_dir", help="the --out directory of a sweep (with manifest.json)")

@@ -91,7 +91,7 @@ SUMMARY_TREE: dict = {
     "effects": {"mesh_contact": "str", "shaft_flexibility": "str", "shaft_elements": "int", "friction": "bool",
                 "contact_damping": "bool", "losses": "bool", "sensors": "str", "tooth_compliance": "bool",
                 "manufacturing_errors": "bool"},
-    "manufacturing_errors": "any", "instruments": "any",
+    "manufacturing_errors": "any", "instruments": "any", "accuracy_choice": "any",
     "torque": {"<torque>": _STATS_TREE},
     "channels": {"<channel>": _STATS_TREE},
     "f_DSH": "num", "f_MSH": "num", "f_PSH": "num", "f_GMF": "num",

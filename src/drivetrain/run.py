@@ -23,7 +23,7 @@ import numpy as np
 
 from drivetrain import __version__, instruments
 from drivetrain import outputs as O
-from drivetrain import runcost, stability
+from drivetrain import accuracy, runcost, stability
 from drivetrain.cosim import CosimResult, Master
 from drivetrain.errors import ConfigurationError, CosimError, RunFailedError  # noqa: F401  (re-exported)
 from drivetrain.scenario import RIG_SENSORS, TORQUE_SENSORS, Scene
@@ -225,7 +225,14 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
     t0 = _time.perf_counter()
     log = log or _LOG.warning
     warnings: list[str] = []
+    choice = None
     if spec is None:
+        if scene.numerics.tolerance_pct is not None:   # the cheapest studied setting within the tolerance
+            try:
+                scene, choice = accuracy.apply_tolerance(scene)
+            except (FileNotFoundError, ValueError) as exc:
+                raise ConfigurationError([f"numerics.tolerance_pct = {scene.numerics.tolerance_pct:g}: {exc}"]) from None
+            log(f"tolerance {choice.tolerance_pct:g} %: setting {choice.setting!r}: {choice.why}")
         spec = assemble_scene(scene)
     try:   # a contact model too costly for the scene's budget, or a u_max the static load alone would
         #    pass, is refused before any step
@@ -381,6 +388,7 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
         "fmus": fmus,
         "nonfinite_channels": nonfinite,
         "warnings": warnings,
+        "accuracy_choice": choice.to_dict() if choice is not None else None,
         "drivetrain_version": __version__,
     }
     result = RunResult(scene=scene, summary=summary, time=t, signals=signals, units=units, sources=sources,

@@ -200,6 +200,11 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "refuse, before it starts, a run whose contact model (map build and online PCM) is estimated "
             "to take longer: mesh files or element sizes finer than the default are timed on this machine "
             "first, and the refusal says how far to coarsen"), minimum=0.0, min_exclusive=True),
+        "tolerance_pct": _f(None, "%", "", (
+            "run with the cheapest setting whose measured error for the closest studied scene is within "
+            "this: mean torques and fluctuation within T %, GMF and sidebands within T dB (docs/ACCURACY-COST.md; "
+            "the choice and why go to the summary as accuracy_choice); `drivetrain run --tolerance 1%`"),
+            minimum=0.0, min_exclusive=True, default_doc="none: the scene's own settings"),
     },
     "effects": {
         "mesh_contact": Key("enum", "table", allowed=FIDELITIES, doc=(
@@ -333,6 +338,7 @@ class NumericsSpec:
     energy_correction: bool = True
     anti_alias: str = "fir"
     max_contact_hours: float = 4.0
+    tolerance_pct: float | None = None
 
     def steps_per_output(self, sample_rate_Hz: float) -> int:
         return int(round(1.0 / (sample_rate_Hz * self.comm_step_s)))

@@ -1,0 +1,500 @@
+"""What accuracy costs in time: the settings a run can choose, their error against a converged reference
+per scene, their cost, and the cheapest setting within a tolerance (``numerics.tolerance_pct``).
+
+The study (``drivetrain accuracy-cost``) runs every studied scene (:data:`STUDY_SCENES`: healthy, mild
+and severe at 250 and 1500 rpm, and a wheel fault) with every setting (:data:`SETTINGS`: mesh size,
+fidelity, communication step and sub-step, shaft elements, energy correction, realism effects) through
+the sweep machinery (local processes or Dask, resumable), and compares each run with the same scene's
+``reference`` run (:func:`compare`). Metrics, per torque channel and reported as the worse channel:
+
+* errors of the mean torque, of the fluctuation (standard deviation) and of the peak-to-peak [%];
+* level differences at f_GMF and at the first sidebands f_GMF ± f_MSH (± f_PSH for a wheel fault) [dB],
+  where the reference's sideband stands at least ``RESOLVED_DB`` above the numerical floor (a healthy
+  gear's sidebands are numerical noise, -150 dB re GMF: a difference of noise is no error);
+* a spectral distance over 0..5 f_GMF: the L2 norm of the amplitude difference over the reference's [%];
+* the run's energy residual; cost: loop seconds per simulated second, and the one-off build time
+  (contact map, FMU set-up) apart.
+
+The reference is the ``table`` gear on the converged mesh (0.025 mm profile elements, where the
+stiffness moved 0.15 % from 0.05 mm: docs/GEAR-CONTACT.md), with the communication step and sub-step
+halved and more shaft elements: a step beyond the defaults in every setting at once. Online PCM at those
+settings would cost hours per simulated second (:mod:`drivetrain.runcost`); the table gear reproduces
+online PCM at the same mesh (``pcm`` row; docs/ACCURACY-COST.md). The results ship with the package
+(:data:`RESULTS_FILE`), so :func:`choose` needs no re-run. Pure: no printing; the report and the plots
+are written by :func:`report_markdown` / :func:`plot_pareto` for the command.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from drivetrain.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies, to_db
+
+ROOT = Path(__file__).resolve().parents[2]
+RESULTS_FILE = Path(__file__).resolve().parent / "data" / "accuracy_cost.json"
+CHANNELS = ("drive_shaft_torque", "propeller_shaft_torque")
+STUDY_DURATION_S = 4.5
+STUDY_SETTLE_S = 0.5
+#: a reference sideband counts (and constrains a setting) only this far above the spectrum's floor [dB]
+RESOLVED_DB = 20.0
+REFERENCE = "reference"
+DEFAULT = "default"
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One way to run a scene: ``overrides`` of numerics/effects keys (never of the scene's physics)."""
+
+    name: str
+    group: str
+    overrides: tuple[str, ...]
+    what: str
+    #: False: it changes what is simulated (a realism effect), so it is a cost of realism, not an
+    #: approximation a tolerance may pick
+    choosable: bool = True
+
+
+_H6000, _H12000, _H24000 = 1.0 / 6000.0, 1.0 / 12000.0, 1.0 / 24000.0
+SETTINGS: dict[str, Setting] = {s.name: s for s in (
+    Setting(REFERENCE, "reference", ("numerics.profile_element_mm=0.025", "numerics.face_element_mm=1.0",
+                                     f"numerics.comm_step_s={_H24000!r}", "numerics.max_substep_s=1e-06",
+                                     "effects.shaft_elements=8"),
+            "table gear, converged mesh 0.025 x 1 mm, H = 1/24000 s, sub-step 1 us, 8 shaft elements"),
+    Setting(DEFAULT, "default", (), "the defaults: table gear, mesh 0.05 x 2 mm, H = 1/12000 s, sub-step "
+                                    "5 us, 4 shaft elements"),
+    Setting("mesh_0.025mm", "mesh", ("numerics.profile_element_mm=0.025", "numerics.face_element_mm=1.0"),
+            "converged mesh 0.025 x 1 mm (other settings default)"),
+    Setting("mesh_0.1mm", "mesh", ("numerics.profile_element_mm=0.1",), "profile elements 0.1 mm"),
+    Setting("mesh_0.2mm", "mesh", ("numerics.profile_element_mm=0.2",), "profile elements 0.2 mm"),
+    Setting("mesh_0.5mm", "mesh", ("numerics.profile_element_mm=0.5",), "the paper's 0.5 mm profile elements"),
+    Setting("pcm", "fidelity", ("effects.mesh_contact=pcm",), "online PCM (default mesh and steps)"),
+    Setting("analytic", "fidelity", ("effects.mesh_contact=analytic",), "ISO 6336 analytic mesh (healthy only)"),
+    Setting("ideal", "fidelity", ("effects.mesh_contact=ideal",), "ideal gear: a ratio (healthy only)"),
+    Setting("H_24000", "steps", (f"numerics.comm_step_s={_H24000!r}",), "communication step 1/24000 s"),
+    Setting("H_6000", "steps", (f"numerics.comm_step_s={_H6000!r}",), "communication step 1/6000 s"),
+    Setting("substep_1us", "steps", ("numerics.max_substep_s=1e-06",), "gear sub-step 1 us"),
+    Setting("substep_20us", "steps", ("numerics.max_substep_s=2e-05",), "gear sub-step 20 us"),
+    Setting("no_energy_correction", "steps", ("numerics.energy_correction=false",),
+            "no energy-conserving correction at the cuts"),
+    Setting("shaft_1", "shafts", ("effects.shaft_elements=1",), "1 element per long shaft"),
+    Setting("shaft_2", "shafts", ("effects.shaft_elements=2",), "2 elements per long shaft"),
+    Setting("shaft_8", "shafts", ("effects.shaft_elements=8",), "8 elements per long shaft"),
+    Setting("rigid_shafts", "shafts", ("effects.shaft_flexibility=rigid",), "rigid shafts (no shaft FMU)"),
+    Setting("fast", "combined", (f"numerics.comm_step_s={_H6000!r}", "numerics.max_substep_s=2e-05",
+                                 "effects.shaft_elements=2"),
+            "H = 1/6000 s, sub-step 20 us, 2 shaft elements"),
+    Setting("tooth_compliance", "realism", ("effects.tooth_compliance=true",),
+            "realism: tooth bending compliance (changes the physics)", choosable=False),
+    Setting("manufacturing_errors", "realism", ("effects.manufacturing_errors=true",),
+            "realism: pitch errors and runout (changes the physics)", choosable=False),
+    Setting("rig_sensors", "realism", ("effects.sensors=rig",),
+            "realism: the rig's instruments (changes the signals)", choosable=False),
+)}
+
+_EXAMPLE = "scenarios/example.toml"
+#: name -> (scene file relative to the repository, overrides, what)
+STUDY_SCENES: dict[str, tuple[str, tuple[str, ...], str]] = {
+    f"{h}_{n}rpm": (_EXAMPLE, (f"operating_point.drive_speed_rpm={n}", f"gear.health={h}",
+                               "operating_point.load_torque_Nm=1.31"), f"{h}, {n} rpm, 1.31 N·m")
+    for h in ("healthy", "mild", "severe") for n in (250, 1500)
+}
+STUDY_SCENES["wheel_void_1500rpm"] = ("scenarios/faults/wheel_void_1500rpm.toml", (),
+                                      "void on wheel tooth 38, 1500 rpm, 1.31 N·m")
+
+_COMMON = (f"time.duration_s={STUDY_DURATION_S}", f"time.settle_s={STUDY_SETTLE_S}", "outputs.plots=false",
+           'outputs.sensors=["drive_shaft_torque", "propeller_shaft_torque"]')
+
+
+def run_name(scene: str, setting: str) -> str:
+    return f"{scene}__{setting}"
+
+
+def study_overrides(scene: str, setting: str, extra: tuple[str, ...] = ()) -> tuple[str, list[str]]:
+    """(scene file, overrides) of one run of the study."""
+    path, over, _ = STUDY_SCENES[scene]
+    return str(ROOT / path), [*_COMMON, *over, *SETTINGS[setting].overrides, *extra,
+                              f"scenario.name={run_name(scene, setting)}"]
+
+
+# ------------------------------------------------------------------------------------------------
+# Metrics
+# ------------------------------------------------------------------------------------------------
+
+
+def _sideband_freqs(cf: dict, wheel: bool) -> list[float]:
+    f_mod = cf["f_PSH"] if wheel else cf["f_MSH"]
+    return [cf["f_GMF"] - f_mod, cf["f_GMF"] + f_mod]
+
+
+def compare(ref: dict, run: dict, fs: float, settle_s: float, speed_rpm: float, wheel: bool = False) -> dict:
+    """Errors of ``run`` against ``ref`` (each {"time": t, channel: samples}), per channel and worst."""
+    cf = characteristic_frequencies(speed_rpm)
+    per = {}
+    for ch in CHANNELS:
+        if ch not in ref or ch not in run:
+            continue
+        r = np.asarray(ref[ch], float)[np.asarray(ref["time"]) >= settle_s]
+        x = np.asarray(run[ch], float)[np.asarray(run["time"]) >= settle_s]
+        n = min(len(r), len(x))
+        if n < 32:
+            continue
+        r, x = r[:n], x[:n]
+        mr, mx, sr, sx = r.mean(), x.mean(), r.std(), x.std()
+        pr, px = np.ptp(r), np.ptp(x)
+        f, Ar = amplitude_spectrum(r, fs, lowpass_Hz=5.0 * cf["f_GMF"])
+        _, Ax = amplitude_spectrum(x, fs, lowpass_Hz=5.0 * cf["f_GMF"])
+        band = (f > 0) & (f <= 5.0 * cf["f_GMF"])
+        floor = float(np.median(Ar[band])) if band.any() else 0.0
+        g_r, g_x = amplitude_near(f, Ar, cf["f_GMF"]), amplitude_near(f, Ax, cf["f_GMF"])
+        sb = []
+        for fsb in _sideband_freqs(cf, wheel):
+            a_r, a_x = amplitude_near(f, Ar, fsb), amplitude_near(f, Ax, fsb)
+            if a_r > 0 and floor > 0 and float(to_db(a_r / floor)) >= RESOLVED_DB:
+                sb.append(float(to_db(max(a_x, 1e-300) / a_r)))
+        per[ch] = {
+            "mean_err_pct": 100.0 * abs(mx - mr) / abs(mr) if mr else float("nan"),
+            "std_err_pct": 100.0 * abs(sx - sr) / sr if sr > 0 else float("nan"),
+            "ptp_err_pct": 100.0 * abs(px - pr) / pr if pr > 0 else float("nan"),
+            "gmf_dB": float(to_db(g_x / g_r)) if g_r > 0 and g_x > 0 else float("nan"),
+            "sideband_dB": max(sb, key=abs) if sb else None,
+            "spectral_distance_pct": 100.0 * float(np.linalg.norm(Ax[band] - Ar[band]) / np.linalg.norm(Ar[band]))
+            if band.any() and np.any(Ar[band]) else float("nan"),
+        }
+    worst = {}
+    for k in ("mean_err_pct", "std_err_pct", "ptp_err_pct", "gmf_dB", "sideband_dB", "spectral_distance_pct"):
+        vals = [p[k] for p in per.values() if p.get(k) is not None and math.isfinite(p[k])]
+        worst[k] = max(vals, key=abs) if vals else None
+    return {"worst": worst, "channels": per}
+
+
+# ------------------------------------------------------------------------------------------------
+# The study
+# ------------------------------------------------------------------------------------------------
+
+
+def study_scenes(scenes=None, settings=None, extra: tuple[str, ...] = ()) -> tuple[list, dict]:
+    """The runs of the study as validated Scenes, and {(scene, setting): why} for the combinations the
+    scene schema refuses (an analytic or ideal gear cannot carry a fault)."""
+    from drivetrain.scenario import ScenarioError, load_scene
+
+    names = list(scenes or STUDY_SCENES)
+    wanted = list(dict.fromkeys([REFERENCE, *(settings or SETTINGS)]))
+    unknown = [n for n in names if n not in STUDY_SCENES] + [s for s in wanted if s not in SETTINGS]
+    if unknown:
+        raise ValueError(f"unknown studied scene or setting: {', '.join(unknown)} (scenes: {', '.join(STUDY_SCENES)}; "
+                         f"settings: {', '.join(SETTINGS)})")
+    runs, refused = [], {}
+    for sc in names:
+        for st in wanted:
+            path, over = study_overrides(sc, st, extra)
+            try:
+                runs.append(load_scene(path, over))
+            except ScenarioError as exc:
+                refused[(sc, st)] = "; ".join(f"{k}: {why}" for k, _, why in exc.problems)
+    return runs, refused
+
+
+def _map_build_s(spec) -> float | None:
+    """The contact map's own tabulation time (recorded in the cached map) of a table gear, else None."""
+    from drivetrain.stability import _contact_gears, _contact_inputs
+
+    for comp in _contact_gears(spec):
+        inp = _contact_inputs(comp)
+        if inp["fidelity"] != "table":
+            return None
+        from gearcontact_fmu.contact_map import get_map
+
+        cmap = get_map(inp["gear"], inp["pcm"], inp["resolution"], inp["health"], inp["files"] or None,
+                       mesh_units=inp["mesh_units"], build=False, fault_kwargs=inp["fault_kwargs"])
+        return float(cmap.info.get("build_seconds", 0.0)) if cmap is not None else None
+    return None
+
+
+def evaluate(run_dir: Path, records: list[dict], scenes: list, refused: dict, meta: dict) -> dict:
+    """The study's results from its run directories: per studied scene and setting, the status, the
+    errors against the reference (:func:`compare`) and the costs."""
+    from drivetrain.outputs import read_hdf5
+    from drivetrain.run import assemble_scene
+
+    by_name = {r["name"]: r for r in records}
+    scene_of = {s.name: s for s in scenes}
+    out = {"meta": meta, "scenes": {}}
+    studied = list(dict.fromkeys([n.split("__")[0] for n in scene_of] + [k[0] for k in refused]))
+    for sc in studied:
+        _, over, what = STUDY_SCENES[sc]
+        ref_scene = scene_of.get(run_name(sc, REFERENCE))
+        rec = {"what": what, "rows": {}}
+        if ref_scene is not None:
+            rec["speed_rpm"] = ref_scene.operating_point.final_speed_rpm
+            rec["health_class"] = _health_class(ref_scene)
+        ref = None
+        ref_rec = by_name.get(run_name(sc, REFERENCE))
+        if ref_rec and ref_rec.get("status") == "ok":
+            h = read_hdf5(run_dir / run_name(sc, REFERENCE) / "signals.h5")
+            ref = {"time": h["time"], **h["signals"]}
+        for st in SETTINGS:
+            key = run_name(sc, st)
+            if (sc, st) in refused:
+                rec["rows"][st] = {"status": "not applicable", "reason": refused[(sc, st)]}
+                continue
+            r = by_name.get(key)
+            if r is None:
+                continue
+            row = {"status": r.get("status"), "what": SETTINGS[st].what, "overrides": list(SETTINGS[st].overrides)}
+            if r.get("status") != "ok":
+                row["reason"] = (r.get("failure_cause") or r.get("error") or "")[:300]
+                rec["rows"][st] = row
+                continue
+            summ = json.loads((run_dir / key / "summary.json").read_text())
+            sim = float(summ.get("sim_time_s") or 0.0)
+            row["loop_s_per_s"] = float(summ["loop_time_s"]) / sim if sim > 0 else None
+            tb = summ.get("time_breakdown_s") or {}
+            map_s = _map_build_s(assemble_scene(scene_of[key])) if key in scene_of else None
+            row["build_s"] = float(tb.get("fmu_setup", 0.0)) + float(map_s or 0.0)
+            row["map_build_s"] = map_s
+            row["energy_residual"] = summ.get("energy_residual")
+            if ref is not None:
+                h = read_hdf5(run_dir / key / "signals.h5")
+                s = scene_of[key]
+                row["errors"] = compare(ref, {"time": h["time"], **h["signals"]}, s.time.sample_rate_Hz,
+                                        s.time.settle_s, s.operating_point.final_speed_rpm,
+                                        wheel=rec.get("health_class") == "wheel")["worst"]
+            rec["rows"][st] = row
+        out["scenes"][sc] = rec
+    return out
+
+
+def run_study(out_dir: Path | str, scenes=None, settings=None, *, workers: int | None = None,
+              address: str | None = None, resume: bool = False, fmu_dir: str | Path = "fmus",
+              backend: str = "fmi", progress: bool = True, meta: dict | None = None) -> dict:
+    """Run (or, with ``resume``, complete) the study into ``out_dir/runs`` and evaluate it. Online-PCM
+    rows are costly by design: they run (``force``) whatever their predicted cost."""
+    from drivetrain.sweep import read_runs, run_sweep
+
+    runs, refused = study_scenes(scenes, settings)
+    run_dir = Path(out_dir) / "runs"
+    run_sweep(runs, run_dir, workers=workers, address=address, backend=backend, fmu_dir=fmu_dir,
+              skip_existing=resume, plots=False, progress=progress, force=True)
+    return evaluate(run_dir, read_runs(run_dir), runs, refused, dict(meta or {}))
+
+
+# ------------------------------------------------------------------------------------------------
+# Choosing a setting from the shipped results
+# ------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Choice:
+    setting: str
+    studied_scene: str
+    tolerance_pct: float
+    overrides: tuple[str, ...]
+    errors: dict
+    loop_s_per_s: float
+    why: str
+    candidates: list = field(default_factory=list)
+
+    def to_dict(self) -> dict:
+        return {"setting": self.setting, "studied_scene": self.studied_scene, "tolerance_pct": self.tolerance_pct,
+                "overrides": list(self.overrides), "errors": self.errors, "loop_s_per_s": self.loop_s_per_s,
+                "why": self.why}
+
+
+def load_results(path: Path | str | None = None) -> dict:
+    """The study's results ({"meta", "scenes": {scene: {"rows": {setting: row}}}}); shipped with the package."""
+    p = Path(path) if path else RESULTS_FILE
+    try:
+        return json.loads(p.read_text())
+    except (OSError, ValueError) as exc:
+        raise FileNotFoundError(f"accuracy-cost results {p}: not readable ({exc}); run `drivetrain "
+                                f"accuracy-cost` to produce them") from None
+
+
+def _health_class(scene) -> str:
+    h = scene.gear.health
+    if h == "faults":
+        members = {str(f.get("member", "pinion")) for f in scene.gear.faults}
+        return "wheel" if members == {"wheel"} else "severe"
+    return h if h in ("healthy", "mild", "severe") else "severe"
+
+
+def closest_scene(scene, results: dict) -> str:
+    """The studied scene nearest to ``scene``: the same health class (healthy, mild, severe, wheel
+    fault; other faults count as severe), then the nearest speed on a log scale."""
+    want = _health_class(scene)
+    rpm = max(float(scene.operating_point.final_speed_rpm), 1.0)
+    best = None
+    for name, rec in results.get("scenes", {}).items():
+        cls, speed = rec.get("health_class"), float(rec.get("speed_rpm", 0.0)) or 1.0
+        key = (cls != want, abs(math.log(rpm / speed)))
+        if best is None or key < best[0]:
+            best = (key, name)
+    if best is None:
+        raise ValueError("the accuracy-cost results hold no scene")
+    return best[1]
+
+
+def within(errors: dict, tolerance_pct: float) -> bool:
+    """Mean torques and fluctuation within T %, GMF and resolved sidebands within T dB (1 % -> 1 dB)."""
+    T = float(tolerance_pct)
+    for k, lim in (("mean_err_pct", T), ("std_err_pct", T), ("gmf_dB", T), ("sideband_dB", T)):
+        v = errors.get(k)
+        if v is None:
+            continue
+        if not math.isfinite(v) or abs(v) > lim:
+            return False
+    return True
+
+
+def choose(scene, tolerance_pct: float, results: dict | None = None) -> Choice:
+    """The cheapest choosable setting whose measured error for the closest studied scene is within the
+    tolerance (the reference, which always is, when nothing cheaper is)."""
+    results = results if results is not None else load_results()
+    name = closest_scene(scene, results)
+    rows = results["scenes"][name]["rows"]
+    ok = [(r["loop_s_per_s"], s) for s, r in rows.items()
+          if s in SETTINGS and SETTINGS[s].choosable and r.get("status") == "ok"
+          and (s == REFERENCE or within(r.get("errors") or {}, tolerance_pct))]
+    if not ok:
+        raise ValueError(f"no studied setting of {name} ran")
+    ok.sort()
+    cost, s = ok[0]
+    r = rows[s]
+    ref_cost = rows.get(REFERENCE, {}).get("loop_s_per_s")
+    why = (f"cheapest of {len(ok)} settings within {tolerance_pct:g} % (mean torques, fluctuation) and "
+           f"{tolerance_pct:g} dB (GMF, sidebands) for the studied scene {name}: {SETTINGS[s].what}; "
+           f"{cost:.3g} s per simulated s" + (f" ({cost / ref_cost:.2g}x the reference)" if ref_cost else ""))
+    return Choice(s, name, float(tolerance_pct), SETTINGS[s].overrides, r.get("errors") or {}, cost, why,
+                  [x[1] for x in ok])
+
+
+def apply_tolerance(scene) -> tuple:
+    """The scene with the chosen setting applied when ``numerics.tolerance_pct`` is set: (scene, Choice
+    or None)."""
+    T = getattr(scene.numerics, "tolerance_pct", None)
+    if T is None:
+        return scene, None
+    c = choose(scene, T)
+    return (scene.with_overrides(list(c.overrides)) if c.overrides else scene), c
+
+
+# ------------------------------------------------------------------------------------------------
+# Report
+# ------------------------------------------------------------------------------------------------
+
+
+def pareto_front(points: list[tuple[float, float, str]]) -> set[str]:
+    """Names of the points (cost, error, name) no other point beats in both."""
+    front, best = set(), float("inf")
+    for c, e, n in sorted(points, key=lambda p: (p[0], p[1])):
+        if e < best:
+            front.add(n)
+            best = e
+    return front
+
+
+def row_error(r: dict) -> float:
+    """One number for the Pareto plot: the worst of the mean and fluctuation errors [%] and the GMF and
+    sideband differences [dB], each against its 1 % / 1 dB scale."""
+    e = r.get("errors") or {}
+    vals = [abs(e[k]) for k in ("mean_err_pct", "std_err_pct", "gmf_dB", "sideband_dB")
+            if e.get(k) is not None and math.isfinite(e[k])]
+    return max(vals) if vals else float("nan")
+
+
+def _fmt(v, spec=".2f", unit=""):
+    if v is None:
+        return "–"
+    if isinstance(v, float) and not math.isfinite(v):
+        return "n/a"
+    return f"{v:{spec}}{unit}"
+
+
+def report_markdown(results: dict, figures: dict[str, str]) -> str:
+    meta = results.get("meta", {})
+    out = ["# What accuracy costs in time", "",
+           f"Regenerate: `{meta.get('command', 'drivetrain accuracy-cost')}` ({meta.get('wall_time_s', 0) / 60:.0f} min "
+           f"on {meta.get('workers', '?')} workers here; `--resume` reuses finished runs). Each scene runs "
+           f"{meta.get('duration_s', STUDY_DURATION_S):g} s, of which the last "
+           f"{meta.get('duration_s', STUDY_DURATION_S) - meta.get('settle_s', STUDY_SETTLE_S):g} s are compared "
+           "with the same scene's reference run.", ""]
+    out += meta.get("intro", [])
+    for name, sc in results.get("scenes", {}).items():
+        rows = sc["rows"]
+        ref_cost = (rows.get(REFERENCE) or {}).get("loop_s_per_s")
+        out += ["", f"## {name}: {sc.get('what', '')}", ""]
+        if name in figures:
+            out += [f"![error against cost, {name}]({figures[name]})", ""]
+        out += ["| setting | cost [s/s] | x reference | build [s] | mean | fluct. (std) | ptp | GMF | sidebands | "
+                "spectral dist. | energy res. |",
+                "|---|---|---|---|---|---|---|---|---|---|---|"]
+        for s, r in rows.items():
+            if r.get("status") != "ok":
+                out.append(f"| {s} | {r.get('status', '?')}: {r.get('reason', '')} |" + " |" * 9)
+                continue
+            e = r.get("errors") or {}
+            mark = "" if SETTINGS.get(s) is None or SETTINGS[s].choosable else " (realism)"
+            out.append(
+                f"| {s}{mark} | {_fmt(r.get('loop_s_per_s'), '.3g')} | "
+                f"{_fmt(r['loop_s_per_s'] / ref_cost if ref_cost else None, '.2g')} | "
+                f"{_fmt(r.get('build_s'), '.3g')} | {_fmt(e.get('mean_err_pct'), '.3f', ' %')} | "
+                f"{_fmt(e.get('std_err_pct'), '.2f', ' %')} | {_fmt(e.get('ptp_err_pct'), '.1f', ' %')} | "
+                f"{_fmt(e.get('gmf_dB'), '+.2f', ' dB')} | {_fmt(e.get('sideband_dB'), '+.2f', ' dB')} | "
+                f"{_fmt(e.get('spectral_distance_pct'), '.1f', ' %')} | {_fmt(r.get('energy_residual'), '.1e')} |")
+        for T in (1.0, 5.0):
+            ok = [s for s, r in rows.items() if s in SETTINGS and SETTINGS[s].choosable and r.get("status") == "ok"
+                  and (s == REFERENCE or within(r.get("errors") or {}, T))]
+            if ok:
+                best = min(ok, key=lambda s: rows[s]["loop_s_per_s"])
+                out.append("")
+                out.append(f"Within {T:g} % / {T:g} dB: cheapest `{best}` "
+                           f"({rows[best]['loop_s_per_s']:.3g} s/s"
+                           + (f", {rows[best]['loop_s_per_s'] / ref_cost:.2g}x the reference)." if ref_cost else ")."))
+    out += ["", *meta.get("guide", [])]
+    return "\n".join(out) + "\n"
+
+
+def plot_pareto(results: dict, out_dir: Path) -> dict[str, str]:
+    """One PNG per scene: error (row_error) against cost, the Pareto front marked. {scene: file name}."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    files = {}
+    for name, sc in results.get("scenes", {}).items():
+        pts = [(r["loop_s_per_s"], max(row_error(r), 1e-4), s) for s, r in sc["rows"].items()
+               if r.get("status") == "ok" and s != REFERENCE and math.isfinite(row_error(r))
+               and SETTINGS.get(s, Setting(s, "", (), "")).choosable]
+        if not pts:
+            continue
+        front = pareto_front(pts)
+        fig, ax = plt.subplots(figsize=(7, 4.5))
+        for c, e, s in pts:
+            ax.scatter(c, e, color="tab:red" if s in front else "tab:blue", zorder=3)
+            ax.annotate(s, (c, e), fontsize=7, xytext=(3, 3), textcoords="offset points")
+        fp = sorted((c, e) for c, e, s in pts if s in front)
+        ax.step([p[0] for p in fp], [p[1] for p in fp], where="post", color="tab:red", lw=1, label="Pareto front")
+        ax.axhline(1.0, color="gray", lw=0.8, ls="--", label="1 % / 1 dB")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("cost [loop s per simulated s]")
+        ax.set_ylabel("worst error [% or dB] vs reference")
+        ax.set_title(f"{name}: accuracy against cost")
+        ax.legend(fontsize=8)
+        fig.tight_layout()
+        fn = f"accuracy_{name}.png"
+        fig.savefig(out_dir / fn, dpi=110)
+        plt.close(fig)
+        files[name] = fn
+    return files
+
+
+__all__ = ["SETTINGS", "STUDY_SCENES", "Setting", "compare", "run_study", "study_scenes", "evaluate", "choose", "apply_tolerance", "closest_scene",
+           "load_results", "within", "report_markdown", "plot_pareto", "pareto_front", "run_name",
+           "study_overrides", "RESULTS_FILE"]

@@ -286,7 +286,8 @@ def _cmd_accuracy_cost(args: argparse.Namespace) -> int:
     import shlex
     import time
 
-    from drivetrain import accuracy as A
+    from drivetrain import accuracy_study as S
+    from drivetrain.accuracy import RESULTS_FILE, STUDY_DURATION_S, STUDY_SETTLE_S
     from drivetrain.cosim import ConfigurationError
     from drivetrain.outputs import jsonable
 
@@ -294,10 +295,10 @@ def _cmd_accuracy_cost(args: argparse.Namespace) -> int:
     argv = sys.argv[1:]
     command = ("drivetrain " + " ".join(shlex.quote(a) for a in argv[argv.index("accuracy-cost"):])
                if "accuracy-cost" in argv else "drivetrain accuracy-cost")
-    meta = {"command": command, "duration_s": A.STUDY_DURATION_S, "settle_s": A.STUDY_SETTLE_S,
+    meta = {"command": command, "duration_s": STUDY_DURATION_S, "settle_s": STUDY_SETTLE_S,
             "workers": args.workers or os.cpu_count(), "backend": args.backend}
     try:
-        results = A.run_study(args.out, args.scenes, args.settings, workers=args.workers, address=args.scheduler,
+        results = S.run_study(args.out, args.scenes, args.settings, workers=args.workers, address=args.scheduler,
                               resume=args.resume, fmu_dir=args.fmu_dir, backend=args.backend,
                               progress=not args.quiet, meta=meta)
     except ValueError as exc:
@@ -308,11 +309,11 @@ def _cmd_accuracy_cost(args: argparse.Namespace) -> int:
     results["meta"]["wall_time_s"] = time.perf_counter() - t0
     report = Path(args.report)
     report.parent.mkdir(parents=True, exist_ok=True)
-    figures = A.plot_pareto(results, report.parent / "figures")
-    results_path = Path(args.results) if args.results else A.RESULTS_FILE
+    figures = S.plot_pareto(results, report.parent / "figures")
+    results_path = Path(args.results) if args.results else RESULTS_FILE
     results_path.parent.mkdir(parents=True, exist_ok=True)
     results_path.write_text(json.dumps(jsonable(results), indent=1) + "\n")
-    report.write_text(A.report_markdown(results, {k: f"figures/{v}" for k, v in figures.items()}))
+    report.write_text(S.report_markdown(results, {k: f"figures/{v}" for k, v in figures.items()}))
     for name, sc in results["scenes"].items():
         ok = sum(r.get("status") == "ok" for r in sc["rows"].values())
         print(f"{name}: {ok}/{len(sc['rows'])} settings ran")

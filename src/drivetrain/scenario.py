@@ -180,7 +180,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
                           minimum=0.0, min_exclusive=True, default_doc="1/12000 (8.333e-05)"),
         "max_substep_s": _f(5.0e-6, "s", "time",
                             "largest internal sub-step of the gear stage; <= comm_step_s (5 µs: the same "
-                            "torques as 1 µs to 0.1 %, see docs/accuracy_cost.md)",
+                            "torques as 1 µs to 0.1 %, see docs/pcm_vs_table.md)",
                             minimum=0.0, min_exclusive=True),
         "profile_element_mm": _f(_RES.profile * 1e3, "mm", "length",
                                  "contact-mesh element size along the tooth profile (default: the converged "

@@ -8,8 +8,8 @@ error of the mean propeller-shaft and drive-shaft torques, of the torque fluctua
 mean-free signal) and of the spectrum at the gear-mesh frequency and its first sidebands, plus the
 cost as wall seconds per simulated second (1 / real-time factor).
 
-    python benchmarks/accuracy_cost.py                  # writes docs/accuracy_cost.md and .png
-    python benchmarks/accuracy_cost.py --quick          # shorter scene, fewer variants
+    python benchmarks/pcm_vs_table.py                   # writes docs/pcm_vs_table.md and .png
+    python benchmarks/pcm_vs_table.py --quick          # shorter scene, fewer variants
 
 Read the table: go down the "cost" column to what you can afford; the error columns say what you
 give up against the reference. The first row is the reference itself (its own error is zero by
@@ -96,7 +96,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="shorter scene and fewer variants")
     ap.add_argument("--duration", type=float, default=None, help="scene duration [s] (default 0.6, quick 0.4)")
-    ap.add_argument("--out", default=str(ROOT / "docs" / "accuracy_cost"), help="output path stem (.md, .png)")
+    ap.add_argument("--out", default=str(ROOT / "docs" / "pcm_vs_table"), help="output path stem (.md, .png)")
     args = ap.parse_args(argv)
     duration = args.duration or (0.4 if args.quick else 0.6)
     settle = 0.5 * duration
@@ -119,7 +119,7 @@ def main(argv=None):
         "# Accuracy against cost",
         "",
         f"Scene: `{SCENE.relative_to(ROOT)}` (severe fault, 1500 rpm, 1.31 N·m), {duration:g} s, statistics after "
-        f"{settle:g} s. Reference: the first row. Regenerate: `python benchmarks/accuracy_cost.py`.",
+        f"{settle:g} s. Reference: the first row. Regenerate: `python benchmarks/pcm_vs_table.py`.",
         "",
         "| variant | cost [loop s / sim s] | PSH mean err | DSH mean err | PSH fluct. err | GMF amp. [dB] | sidebands [dB] | energy residual |",
         "|---|---|---|---|---|---|---|---|",

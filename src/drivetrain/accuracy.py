@@ -58,12 +58,17 @@ class Setting:
     choosable: bool = True
 
 
-_H6000, _H12000, _H24000 = 1.0 / 6000.0, 1.0 / 12000.0, 1.0 / 24000.0
+_H6000, _H24000, _H48000 = 1.0 / 6000.0, 1.0 / 24000.0, 1.0 / 48000.0
 SETTINGS: dict[str, Setting] = {s.name: s for s in (
     Setting(REFERENCE, "reference", ("numerics.profile_element_mm=0.025", "numerics.face_element_mm=1.0",
                                      f"numerics.comm_step_s={_H24000!r}", "numerics.max_substep_s=1e-06",
                                      "effects.shaft_elements=8"),
             "table gear, converged mesh 0.025 x 1 mm, H = 1/24000 s, sub-step 1 us, 8 shaft elements"),
+    Setting("reference_refined", "reference", ("numerics.profile_element_mm=0.025", "numerics.face_element_mm=1.0",
+                                               f"numerics.comm_step_s={_H48000!r}", "numerics.max_substep_s=5e-07",
+                                               "effects.shaft_elements=16"),
+            "the reference refined once more in time and shafts: H = 1/48000 s, sub-step 0.5 us, 16 shaft "
+            "elements (the mesh stays at 0.025 mm: 0.15 % from 0.05 mm in stiffness already)"),
     Setting(DEFAULT, "default", (), "the defaults: table gear, mesh 0.05 x 2 mm, H = 1/12000 s, sub-step "
                                     "5 us, 4 shaft elements"),
     Setting("mesh_0.025mm", "mesh", ("numerics.profile_element_mm=0.025", "numerics.face_element_mm=1.0"),

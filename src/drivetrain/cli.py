@@ -300,7 +300,7 @@ def _cmd_accuracy_cost(args: argparse.Namespace) -> int:
     try:
         results = S.run_study(args.out, args.scenes, args.settings, workers=args.workers, address=args.scheduler,
                               resume=args.resume, fmu_dir=args.fmu_dir, backend=args.backend,
-                              progress=not args.quiet, meta=meta)
+                              progress=not args.quiet, meta=meta, evaluate_only=args.evaluate_only)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -560,6 +560,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--backend", choices=("fmi", "inprocess"), default="fmi")
     p.add_argument("--fmu-dir", default="fmus")
     p.add_argument("--resume", action="store_true", help="reuse finished runs of the same scenes and settings")
+    p.add_argument("--evaluate-only", action="store_true",
+                   help="run nothing: evaluate every run found in --out (e.g. rows run separately)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_accuracy_cost)
 

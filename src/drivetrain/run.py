@@ -356,6 +356,7 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
         "real_time_factor": res.real_time_factor if res.loop_time_s > 0 else None,
         "real_time_factor_wall": res.sim_time_s / wall if wall > 0 else None,
         "loop_time_s": res.loop_time_s,
+        "loop_cpu_time_s": res.loop_cpu_time_s,
         "time_breakdown_s": {"assemble_and_check": t_master - t0, "fmu_setup": res.setup_time_s,
                              "loop": res.loop_time_s,
                              "postprocess": max(0.0, wall - (t_master - t0) - res.setup_time_s - res.loop_time_s)},

@@ -85,6 +85,8 @@ class CosimResult:
     raw: dict[str, np.ndarray] | None = None   # internal-rate records if requested ("time" + y names)
     status: str = "ok"                     # "ok" | "failed" (then: the completed part only)
     setup_time_s: float = 0.0              # checks + FMU loading + instantiation + initialisation (map builds)
+    loop_cpu_time_s: float | None = None   # the stepping loop's CPU time of this process (less sensitive to
+    #                                        other processes on a shared machine than loop_time_s)
     failure: dict | None = None            # time_s, component, model, function, status, cause, log,
     #                                        steps_completed, last_sample_time_s, outputs {comp: {var: v}}
     final: dict[str, float] = dataclasses.field(default_factory=dict)   # Master.run(final=...) values
@@ -261,6 +263,7 @@ class Master:
         snap_values: dict[float, dict[str, float]] = {}
         fail_outputs: dict[str, dict | None] = {}
         loop_time = 0.0
+        loop_cpu = None
         setup_time = 0.0                   # checks, FMU loading, instantiation, initialisation (map builds)
         chunk_costs: list[float] = []
         try:
@@ -329,6 +332,7 @@ class Master:
                            mininterval=0.5, leave=False)
             chunk = 4096
             t_loop0 = time.perf_counter()
+            cpu_loop0 = time.process_time()
             setup_time = t_loop0 - t_wall0
             chunk_costs = []
             k = 0
@@ -371,6 +375,7 @@ class Master:
                 loop_done = True
                 k_done = n_steps
                 loop_time = time.perf_counter() - t_loop0
+                loop_cpu = time.process_time() - cpu_loop0
                 if bar is not None:
                     bar.close()
                 e1 = [dict(zip(plan.energy[i], s.get_reals(list(plan.energy[i])))) if plan.energy[i] else {}
@@ -383,6 +388,7 @@ class Master:
                 if not loop_done:
                     k_done = kk
                     loop_time = time.perf_counter() - t_loop0
+                    loop_cpu = time.process_time() - cpu_loop0
                 if bar is not None:
                     bar.close()
                 final_values = _read_values(slaves, plan, final)
@@ -463,7 +469,7 @@ class Master:
             us_per_step=1e6 * loop_time / max(k_done, 1),
             us_per_step_steady=1e6 * float(np.median(steady)) if steady else 1e6 * loop_time / max(k_done, 1),
             real_time_factor=T_done / loop_time if loop_time > 0 else float("inf"),
-            setup_time_s=setup_time,
+            setup_time_s=setup_time, loop_cpu_time_s=loop_cpu,
             backend=self.backend, energy=audit, fmus=fmus, warnings=list(plan.warnings), logs=logs, raw=raw,
             status="ok" if fail is None else "failed", failure=failure, final=final_values,
             snapshots=snap_values)

@@ -11,6 +11,12 @@ from pathlib import Path
 
 from drivetrain.accuracy import (REFERENCE, SETTINGS, STUDY_DURATION_S, STUDY_SCENES, STUDY_SETTLE_S, Setting, compare,
                                  health_class, run_name, study_overrides, within)
+from drivetrain.outputs import read_hdf5
+from drivetrain.run import assemble_scene
+from drivetrain.scenario import ScenarioError, load_scene
+from drivetrain.stability import contact_gears, contact_inputs
+from drivetrain.sweep import run_sweep
+from gearcontact_fmu.contact_map import get_map
 
 # ------------------------------------------------------------------------------------------------
 # The study
@@ -20,8 +26,6 @@ from drivetrain.accuracy import (REFERENCE, SETTINGS, STUDY_DURATION_S, STUDY_SC
 def study_scenes(scenes=None, settings=None, extra: tuple[str, ...] = ()) -> tuple[list, dict]:
     """The runs of the study as validated Scenes, and {(scene, setting): why} for the combinations the
     scene schema refuses (an analytic or ideal gear cannot carry a fault)."""
-    from drivetrain.scenario import ScenarioError, load_scene
-
     names = list(scenes or STUDY_SCENES)
     wanted = list(dict.fromkeys([REFERENCE, *(settings or SETTINGS)]))
     unknown = [n for n in names if n not in STUDY_SCENES] + [s for s in wanted if s not in SETTINGS]
@@ -41,14 +45,10 @@ def study_scenes(scenes=None, settings=None, extra: tuple[str, ...] = ()) -> tup
 
 def _map_build_s(spec) -> float | None:
     """The contact map's own tabulation time (recorded in the cached map) of a table gear, else None."""
-    from drivetrain.stability import _contact_gears, _contact_inputs
-
-    for comp in _contact_gears(spec):
-        inp = _contact_inputs(comp)
+    for comp in contact_gears(spec):
+        inp = contact_inputs(comp)
         if inp["fidelity"] != "table":
             return None
-        from gearcontact_fmu.contact_map import get_map
-
         cmap = get_map(inp["gear"], inp["pcm"], inp["resolution"], inp["health"], inp["files"] or None,
                        mesh_units=inp["mesh_units"], build=False, fault_kwargs=inp["fault_kwargs"])
         return float(cmap.info.get("build_seconds", 0.0)) if cmap is not None else None
@@ -58,9 +58,6 @@ def _map_build_s(spec) -> float | None:
 def evaluate(run_dir: Path, records: list[dict], scenes: list, refused: dict, meta: dict) -> dict:
     """The study's results from its run directories: per studied scene and setting, the status, the
     errors against the reference (:func:`compare`) and the costs."""
-    from drivetrain.outputs import read_hdf5
-    from drivetrain.run import assemble_scene
-
     by_name = {r["name"]: r for r in records}
     scene_of = {s.name: s for s in scenes}
     out = {"meta": meta, "scenes": {}}
@@ -134,8 +131,6 @@ def run_study(out_dir: Path | str, scenes=None, settings=None, *, workers: int |
     """Run (or, with ``resume``, complete) the study into ``out_dir/runs`` and evaluate it. Online-PCM
     rows are costly by design: they run (``force``) whatever their predicted cost. ``evaluate_only``:
     run nothing; evaluate every run of every studied scene and setting found in ``out_dir/runs``."""
-    from drivetrain.sweep import run_sweep
-
     run_dir = Path(out_dir) / "runs"
     if evaluate_only:
         runs, refused = study_scenes(scenes)                 # all settings: whatever ran is evaluated

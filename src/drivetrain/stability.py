@@ -123,13 +123,13 @@ def cut_report(spring: str, inertia: str, k: float, c: float, J_spring: float, J
     return CutReport(spring, inertia, k, c, J_spring, J_inertia, H, w, zeta, rho, output, rho <= 1.0 + tol)
 
 
-def _contact_gears(spec) -> list:
+def contact_gears(spec) -> list:
     """The GearContact components of a spec whose fidelity evaluates the PCM engine (table or pcm)."""
     return [c for c in spec.components if c.model == "GearContact"
             and str(c.parameters.get("fidelity", "")).strip().lower() in ("table", "pcm")]
 
 
-def _contact_inputs(comp) -> dict:
+def contact_inputs(comp) -> dict:
     """What a GearContact component's contact model is built from, read from its parameters once."""
     from gearcontact_fmu.gearpair import fault_kwargs_of
     from gearcontact_fmu.stage import StageParams
@@ -164,7 +164,7 @@ def check_contact_cost(spec, duration_s: float, max_hours: float) -> list[dict]:
     this machine (:func:`gearcontact_fmu.cost.probe`): a table gear pays the rows of its map not yet
     cached, a pcm gear 4 evaluations per sub-step of the run. Returns one report per probed gear
     (``estimate_s``, ``triangles``, ``warning`` when the estimate exceeds COSTLY_CONTACT_S)."""
-    gears = _contact_gears(spec)
+    gears = contact_gears(spec)
     if not gears:
         return []
     from gearcontact_fmu import cost
@@ -178,7 +178,7 @@ def check_contact_cost(spec, duration_s: float, max_hours: float) -> list[dict]:
     budget = max_hours * 3600.0
     reports, problems = [], []
     for comp in gears:
-        inp = _contact_inputs(comp)
+        inp = contact_inputs(comp)
         gear, res, files = inp["gear"], inp["resolution"], inp["files"]
         finer = res.profile < MeshResolution().profile * (1 - 1e-9) or res.face < MeshResolution().face * (1 - 1e-9)
         if not files and not finer:
@@ -299,14 +299,14 @@ def check_contact_range(spec, raise_on_error: bool = True) -> list[dict]:
     ss = (spec.metadata or {}).get("steady_state") or {}
     T = ss.get("T_msh")
     reports, problems = [], []
-    gears = _contact_gears(spec)
+    gears = contact_gears(spec)
     if T is None or not gears:
         return reports
     # only now: an ideal or analytic gear loads no contact engine
     from gearcontact_fmu.contact_map import get_map, static_penetration
 
     for comp in gears:
-        inp = _contact_inputs(comp)
+        inp = contact_inputs(comp)
         gear, pcm, res, files, health = inp["gear"], inp["pcm"], inp["resolution"], inp["files"], inp["health"]
         fidelity = inp["fidelity"]
         # the elastic response does not depend on u_max, but the map's search length (2 u_max) does:

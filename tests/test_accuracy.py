@@ -133,3 +133,14 @@ def test_run_with_a_tolerance_meets_it_against_the_reference(tmp_path):
     b = run_scene(ref, None, backend="inprocess", progress=False, log=lambda m: None)
     e = A.compare({"time": b.time, **b.signals}, {"time": a.time, **a.signals}, 3000.0, 0.5, 1500.0)["worst"]
     assert A.within(e, T), e
+
+
+def test_the_report_and_plots_render(tmp_path):
+    R = _results()
+    R["meta"] = {"command": "drivetrain accuracy-cost", "wall_time_s": 60.0, "workers": 2}
+    R["scenes"]["healthy_1500rpm"]["rows"]["mesh_0.5mm"] = {"status": "not applicable", "reason": "x"}
+    figs = S.plot_pareto(R, tmp_path)
+    assert set(figs) == {"healthy_1500rpm", "severe_250rpm"} and all((tmp_path / f).is_file() for f in figs.values())
+    md = S.report_markdown(R, {k: f"figures/{v}" for k, v in figs.items()})
+    assert "## healthy_1500rpm" in md and "| fast | 0.9 |" in md and "not applicable: x" in md
+    assert "Within 5 % / 5 dB: cheapest `fast`" in md and "(realism)" in md

@@ -307,10 +307,17 @@ def _cmd_accuracy_cost(args: argparse.Namespace) -> int:
     except ConfigurationError as exc:
         return _scene_errors(exc)
     results["meta"]["wall_time_s"] = time.perf_counter() - t0
+    results_path = Path(args.results) if args.results else RESULTS_FILE
+    if args.evaluate_only:              # the runs are the earlier study's: keep how they were made
+        try:
+            earlier = json.loads(results_path.read_text()).get("meta", {})
+        except (OSError, ValueError):
+            earlier = {}
+        results["meta"].update({k: earlier[k] for k in ("command", "wall_time_s", "workers") if k in earlier})
+        results["meta"]["evaluated_again_with"] = command
     report = Path(args.report)
     report.parent.mkdir(parents=True, exist_ok=True)
     figures = S.plot_pareto(results, report.parent / "figures")
-    results_path = Path(args.results) if args.results else RESULTS_FILE
     results_path.parent.mkdir(parents=True, exist_ok=True)
     results_path.write_text(json.dumps(jsonable(results), indent=1) + "\n")
     report.write_text(S.report_markdown(results, {k: f"figures/{v}" for k, v in figures.items()}))

@@ -61,7 +61,8 @@ def evaluate(run_dir: Path, records: list[dict], scenes: list, refused: dict, me
     by_name = {r["name"]: r for r in records}
     scene_of = {s.name: s for s in scenes}
     out = {"meta": meta, "scenes": {}}
-    studied = list(dict.fromkeys([n.split("__")[0] for n in scene_of] + [k[0] for k in refused]))
+    # the studied scenes with at least one run on disk
+    studied = list(dict.fromkeys(n.split("__")[0] for n in by_name))
     for sc in studied:
         _, over, what = STUDY_SCENES[sc]
         ref_scene = scene_of.get(run_name(sc, REFERENCE))
@@ -129,16 +130,18 @@ def run_study(out_dir: Path | str, scenes=None, settings=None, *, workers: int |
               backend: str = "fmi", progress: bool = True, meta: dict | None = None,
               evaluate_only: bool = False) -> dict:
     """Run (or, with ``resume``, complete) the study into ``out_dir/runs`` and evaluate it. Online-PCM
-    rows are costly by design: they run (``force``) whatever their predicted cost. ``evaluate_only``:
-    run nothing; evaluate every run of every studied scene and setting found in ``out_dir/runs``."""
+    rows are costly by design: they run (``force``) whatever their predicted cost. The evaluation covers
+    every run of every studied scene and setting found in ``out_dir/runs``; ``evaluate_only``: run nothing."""
     run_dir = Path(out_dir) / "runs"
-    if evaluate_only:
-        runs, refused = study_scenes(scenes)                 # all settings: whatever ran is evaluated
-        return evaluate(run_dir, _records_on_disk(run_dir, runs), runs, refused, dict(meta or {}))
-    runs, refused = study_scenes(scenes, settings)
-    run_sweep(runs, run_dir, workers=workers, address=address, backend=backend, fmu_dir=fmu_dir,
-              skip_existing=resume, plots=False, progress=progress, force=True)
-    return evaluate(run_dir, _records_on_disk(run_dir, runs), runs, refused, dict(meta or {}))
+    every, every_refused = study_scenes()
+    if not evaluate_only:
+        runs, _ = study_scenes(scenes, settings)
+        run_sweep(runs, run_dir, workers=workers, address=address, backend=backend, fmu_dir=fmu_dir,
+                  skip_existing=resume, plots=False, progress=progress, force=True,
+                  grid_names=[s.name for s in every])
+    # every run of the study found in run_dir is evaluated, whichever invocation made it: a study can be
+    # completed piecewise (e.g. the costly pcm row scene by scene)
+    return evaluate(run_dir, _records_on_disk(run_dir, every), every, every_refused, dict(meta or {}))
 
 
 # ------------------------------------------------------------------------------------------------
@@ -205,12 +208,12 @@ GUIDE = [
     "of the reference, even the paper's 0.5 mm mesh, rigid shafts and the ideal gear (the table above). Take the "
     "cheapest.",
     "- **Fluctuation and spectra** (condition monitoring, ML datasets): the contact mesh decides. The paper's "
-    "0.5 mm profile elements are off by tens to hundreds of per cent and 0.2 mm still by up to ~150 % at low "
-    "speed (a few facets carry the whole ~0.3 mm contact strip, so the stiffness jumps with the angle); "
-    "0.1 mm is usable at 1500 rpm only. From the default 0.05 mm to the converged 0.025 mm the fluctuation moves "
-    "by up to ~7 % (healthy, 250 rpm, where it is smallest) and by 0.3-2 % elsewhere. The communication step "
-    "and the sub-step come next (1/6000 s or 20 µs: a few %); the number of shaft elements does not matter for "
-    "these torques (1 to 8 agree); rigid shafts remove the shaft modes and are a different model, not an "
+    "0.5 mm profile elements are off by tens to hundreds of per cent, 0.2 mm by up to ~150 % and 0.1 mm by up to "
+    "~70 %, worst at low speed (a few facets carry the whole ~0.3 mm contact strip, so the stiffness jumps with "
+    "the angle). The default 0.05 mm is 0.25-7.4 % off (most for the healthy gear at 250 rpm, whose fluctuation "
+    "is smallest); the converged 0.025 mm mesh with the default steps 0.3-1.8 %. The communication step and the "
+    "sub-step come next (1/6000 s or 20 µs: a few % more); the number of shaft elements does not matter for these "
+    "torques (1 to 8 agree); rigid shafts remove the shaft modes and are a different model, not an "
     "approximation. Without the energy correction the energy residual grows 100-1000x.",
     "- **Let the run choose**: `drivetrain run SCENE --tolerance 5%` (or `numerics.tolerance_pct = 5` in the "
     "scene) takes the cheapest setting whose measured error for the closest studied scene (same health class, "
@@ -224,8 +227,9 @@ GUIDE = [
     "thousands of seconds per simulated second, the figure the issue's 1/100 had in mind) every table setting "
     "costs well under 1/1000.",
     "- **Not studied yet**: the contact-map grid density (nodes per pitch and along the approach) and the gear "
-    "stage's integrator (ros2, rk4) have no scene keys so far; online PCM ran on one scene (the cost of 4.5 s "
-    "of it on every scene is about 4 hours).",
+    "stage's integrator (ros2, rk4) have no scene keys so far. Online PCM ran on one scene; 4.5 s of it cost "
+    "about 30 min of one core per scene. Add a scene's row with `drivetrain accuracy-cost --scenes NAME "
+    "--settings pcm --resume` (the study evaluates every run in its directory, so rows can be added piecewise).",
 ]
 
 

@@ -344,7 +344,7 @@ def plot_pareto(results: dict, out_dir: Path) -> dict[str, str]:
         ax.axhline(1.0, color="gray", lw=0.8, ls="--", label="1 % / 1 dB")
         ax.set_xscale("log")
         ax.set_yscale("log")
-        ax.set_xlabel("cost [loop s per simulated s]")
+        ax.set_xlabel("cost [loop CPU s per simulated s]")
         ax.set_ylabel("worst error [% or dB] vs reference")
         ax.set_title(f"{name}: accuracy against cost")
         ax.legend(fontsize=8)

@@ -449,6 +449,15 @@ def _cmd_baseline(args: argparse.Namespace) -> int:
     return 0 if not bad else 3
 
 
+def _add_execution_options(p: argparse.ArgumentParser, workers_help: str = "local worker processes (default: CPU count)") -> None:
+    """Where and how the runs of a many-run command execute: --workers, --scheduler, --backend, --fmu-dir."""
+    p.add_argument("--workers", type=_positive_int, default=None, help=workers_help)
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="Dask scheduler address (tcp://host:8786); default: local process pool")
+    p.add_argument("--backend", choices=("fmi", "inprocess"), default="fmi")
+    p.add_argument("--fmu-dir", default="fmus")
+
+
 def _percent(text: str) -> float:
     """A tolerance in percent: "1%", "1" (both 1 %), "0.5 %"."""
     try:
@@ -524,11 +533,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key of every scene")
     p.add_argument("--out", default="out/sweep", help="output directory (default: out/sweep)")
     p.add_argument("--only", nargs="*", default=None, help="run only cases whose name matches these patterns")
-    p.add_argument("--workers", type=_positive_int, default=None, help="local worker processes (default: CPU count)")
-    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                   help="Dask scheduler address (tcp://host:8786); default: local process pool")
-    p.add_argument("--backend", choices=("fmi", "inprocess"), default="fmi")
-    p.add_argument("--fmu-dir", default="fmus")
+    _add_execution_options(p)
     p.add_argument("--resume", "--skip-existing", dest="skip_existing", action="store_true",
                    help="continue a sweep: reuse finished runs of the same scene and model sources "
                         "(fingerprint in case.json), run the rest")
@@ -544,10 +549,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--report", default="docs/VALIDATION.md", help="the report (default: docs/VALIDATION.md)")
     p.add_argument("--duration", type=float, default=20.0, help="simulated seconds per run (default: 20, the paper's)")
     p.add_argument("--settle", type=float, default=None, help="settling time excluded (default: min(2 s, 20 %%))")
-    p.add_argument("--workers", type=_positive_int, default=None, help="local worker processes (default: CPU count)")
-    p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler address")
-    p.add_argument("--backend", choices=("fmi", "inprocess"), default="fmi")
-    p.add_argument("--fmu-dir", default="fmus")
+    _add_execution_options(p)
     p.add_argument("--resume", action="store_true", help="reuse finished runs of the same scenes")
     p.add_argument("--judge-only", action="store_true",
                    help="run nothing: judge the runs already in --out again and rewrite the report")
@@ -562,10 +564,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="out/accuracy", help="run directory (default: out/accuracy)")
     p.add_argument("--report", default="docs/ACCURACY-COST.md", help="the report (default: docs/ACCURACY-COST.md)")
     p.add_argument("--results", default=None, help="where the results go (default: the package's data file)")
-    p.add_argument("--workers", type=_positive_int, default=None, help="local worker processes (default: CPU count)")
-    p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler address")
-    p.add_argument("--backend", choices=("fmi", "inprocess"), default="fmi")
-    p.add_argument("--fmu-dir", default="fmus")
+    _add_execution_options(p)
     p.add_argument("--resume", action="store_true", help="reuse finished runs of the same scenes and settings")
     p.add_argument("--evaluate-only", action="store_true",
                    help="run nothing: evaluate every run found in --out (e.g. rows run separately)")
@@ -588,10 +587,7 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--baseline-dir", default=None, metavar="DIR",
                        help="baseline files DIR/<scene>.baseline.h5 (default: beside each scene file, "
                             "or [check] baseline)")
-        p.add_argument("--workers", type=_positive_int, default=None, help="local worker processes for several cases")
-        p.add_argument("--scheduler", default=None, metavar="ADDRESS", help="Dask scheduler address")
-        p.add_argument("--backend", choices=("fmi", "inprocess"), default="fmi")
-        p.add_argument("--fmu-dir", default="fmus")
+        _add_execution_options(p, "local worker processes for several cases")
         p.add_argument("--quiet", action="store_true")
         if name == "check":
             p.add_argument("--out", default="out/check",

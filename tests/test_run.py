@@ -286,3 +286,34 @@ def test_severe_fault_raises_first_sidebands(tmp_path, fmu_dir, rpm):
         assert abs(gmf["f_Hz"] - 15 * rpm / 180.0) < 1e-9
     for i in range(2):
         assert 20 * np.log10(levels["severe"][i] / levels["healthy"][i]) > 10.0
+
+
+def test_an_inprocess_run_leaves_pythonfmu_as_installed(tmp_path):
+    """The in-process backend put each FMU's resources first on sys.path; pythonfmu copies a partial
+    pythonfmu package (no export binaries) into them, so a fresh process that ran a scene in-process and
+    then built an FMU got one without binaries. Runs in a fresh process (pytest has pythonfmu loaded)."""
+    import subprocess
+    import sys
+    import textwrap
+
+    code = textwrap.dedent(f"""
+        import os, sys
+        sys.path.insert(0, {str(Path(__file__).parent)!r})
+        from pathlib import Path
+        from drivetrain.run import run_scene
+        from drivetrain.scenario import load_scene
+        scene = load_scene({str(EXAMPLE)!r}, ["time.duration_s=0.02", "time.settle_s=0.005",
+                                              "effects.mesh_contact=ideal", "outputs.plots=false"])
+        run_scene(scene, None, backend="inprocess", progress=False, log=lambda m: None)
+        import pythonfmu
+        from _cosim_test_fmus import build_test_fmus
+        paths = build_test_fmus(Path({str(tmp_path)!r}))
+        import zipfile
+        names = zipfile.ZipFile(paths["MTInertia"]).namelist()
+        print("PYTHONFMU", pythonfmu.__file__)
+        print("BINARIES", any(n.startswith("binaries/linux64/") for n in names))
+    """)
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert p.returncode == 0, p.stderr[-2000:]
+    assert "BINARIES True" in p.stdout, p.stdout
+    assert "site-packages" in p.stdout.split("PYTHONFMU", 1)[1].splitlines()[0]

@@ -271,10 +271,15 @@ def load_slave_class(info: FMUInfo) -> type:
     cls = _SLAVE_CLASS_CACHE.get(key)
     if cls is not None:
         return cls
+    importlib.import_module("pythonfmu")      # the installed one, before the FMU's resources join sys.path
+
     res = Path(extracted_dir(info.path)) / "resources"
     modname = (res / "slavemodule.txt").read_text().strip()
     if str(res) not in sys.path:
-        sys.path.insert(0, str(res))
+        # appended, not prepended: pythonfmu's builder copies a partial pythonfmu package (no export
+        # binaries) into every FMU's resources; ahead on sys.path it shadowed the installed one, and a
+        # later FmuBuilder in the same process wrote FMUs without binaries
+        sys.path.append(str(res))
     mod = sys.modules.get(modname)
     if mod is None:
         mod = importlib.import_module(modname)

@@ -56,6 +56,7 @@ from drivetrain.outputs import jsonable
 from drivetrain.run import RunFailedError, assemble_scene, run_scene
 from drivetrain.scenario import Scene, resolve
 from drivetrain.system import SystemSpec
+from gearcontact_fmu.params import file_sha256
 
 #: messages for the user (progress, warnings); the CLI passes its own ``log``, a library caller sees them
 #: through Python logging (on stderr when logging is not configured)
@@ -109,13 +110,7 @@ def fingerprint(scene: Scene, fmu_paths: dict | None = None) -> str:
 @functools.lru_cache(maxsize=64)
 def _content_digest(path: str, mtime_ns: int, size: int) -> str:
     """SHA-256 of a file, once per (path, modification time, size) in a process."""
-    import hashlib
-
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
+    return file_sha256(path)
 
 
 def _clear_run_dir(d: Path) -> None:

@@ -43,7 +43,7 @@ from gearcontact_fmu.gearpair import build_pcm_pair, contact_onset, fault_kwargs
 from gearcontact_fmu.mesh_model import (N_OUT, OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY,
                                         OUT_MAX_PENETRATION, OUT_N_CONTACT, OUT_NORMAL_FORCE, OUT_PEAK_PRESSURE,
                                         OUT_STATUS, OUT_TAU_PINION, OUT_TAU_WHEEL, MeshModel)
-from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams, params_hash
+from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams, file_sha256, params_hash
 
 #: part of every cache key: raised when the map content or the file format changes (6: content digest)
 MAP_VERSION = 6
@@ -72,13 +72,7 @@ def cache_dir() -> Path:
 
 
 def _file_digest(path) -> str:
-    if not path:
-        return ""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()[:16]
+    return file_sha256(path)[:16] if path else ""
 
 
 @dataclass

@@ -148,3 +148,12 @@ def params_hash(*objs) -> str:
 
     payload = json.dumps([enc(o) for o in objs], sort_keys=True, default=str).encode()
     return hashlib.sha256(payload).hexdigest()[:16]
+
+
+def file_sha256(path) -> str:
+    """SHA-256 (hex) of a file's content, read in 1 MiB chunks (mesh files, FMUs: cache and resume keys)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()

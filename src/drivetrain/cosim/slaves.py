@@ -58,36 +58,31 @@ class _LoggerRoutes:
         import itertools
         import weakref
 
-        from fmpy.fmi2 import fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
-        from fmpy.logging import addLoggerProxy
+        from fmpy.fmi2 import fmi2CallbackLoggerTYPE
 
         self._routes: weakref.WeakValueDictionary[int, FmiCallbacks] = weakref.WeakValueDictionary()
         self._keys = itertools.count(1)
         self._callback = fmi2CallbackLoggerTYPE(self._dispatch)
-        self._proxied = fmi2CallbackFunctions()
-        self._proxied.logger = self._callback
-        addLoggerProxy(ctypes.byref(self._proxied))    # now _proxied.logger is the C proxy
+        self.proxy = None
 
     @classmethod
     def get(cls) -> "_LoggerRoutes":
         """The process's routes, with fmpy's proxy pointed (again) at their callback."""
         if cls._instance is None:
             cls._instance = cls()
-        else:
-            cls._instance._install()
+        cls._instance._install()
         return cls._instance
 
     def _install(self) -> None:
+        """Point the library's global at this callback; ``proxy`` is then the C function in front of it."""
         from fmpy.fmi2 import fmi2CallbackFunctions
         from fmpy.logging import addLoggerProxy
 
-        again = fmi2CallbackFunctions()
-        again.logger = self._callback
-        addLoggerProxy(ctypes.byref(again))          # the library's global -> self._callback
-
-    @property
-    def proxy(self):
-        return self._proxied.logger
+        cb = fmi2CallbackFunctions()
+        cb.logger = self._callback
+        addLoggerProxy(ctypes.byref(cb))       # the global -> self._callback; cb.logger -> the C proxy
+        self._proxied = cb                     # (keeps the struct the proxy function was read from)
+        self.proxy = cb.logger
 
     def register(self, callbacks: "FmiCallbacks") -> int:
         key = next(self._keys)

@@ -227,8 +227,17 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     return 0 if not failed else 3
 
 
-def _cmd_validate(args: argparse.Namespace) -> int:
+def _command_line(subcommand: str) -> str:
+    """This invocation as a user would type it (for a generated report's "regenerate with" line)."""
     import shlex
+
+    argv = sys.argv[1:]
+    if subcommand not in argv:
+        return f"drivetrain {subcommand}"
+    return "drivetrain " + " ".join(shlex.quote(a) for a in argv[argv.index(subcommand):])
+
+
+def _cmd_validate(args: argparse.Namespace) -> int:
     import time
 
     from drivetrain import validation as V
@@ -267,9 +276,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     fig_path = report.parent / "figures" / "validation_spectra.png"
     fig_path.parent.mkdir(parents=True, exist_ok=True)
     fig = V.plot_spectra(manifest, fig_path)
-    argv = sys.argv[1:]
-    command = "drivetrain " + " ".join(shlex.quote(a) for a in argv[argv.index("validate"):]) \
-        if "validate" in argv else "drivetrain validate"
+    command = _command_line("validate")
     meta = {"command": command, "n_scenes": len(scenes), "duration_s": args.duration,
             "settle_s": scenes[0].time.settle_s, "wall_time_s": time.perf_counter() - t0,
             "workers": args.workers or os.cpu_count(), "judge_only": args.judge_only,
@@ -283,7 +290,6 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 
 def _cmd_accuracy_cost(args: argparse.Namespace) -> int:
-    import shlex
     import time
 
     from drivetrain import accuracy_study as S
@@ -292,9 +298,7 @@ def _cmd_accuracy_cost(args: argparse.Namespace) -> int:
     from drivetrain.outputs import jsonable
 
     t0 = time.perf_counter()
-    argv = sys.argv[1:]
-    command = ("drivetrain " + " ".join(shlex.quote(a) for a in argv[argv.index("accuracy-cost"):])
-               if "accuracy-cost" in argv else "drivetrain accuracy-cost")
+    command = _command_line("accuracy-cost")
     meta = {"command": command, "duration_s": STUDY_DURATION_S, "settle_s": STUDY_SETTLE_S,
             "workers": args.workers or os.cpu_count(), "backend": args.backend}
     try:
@@ -449,7 +453,8 @@ def _cmd_baseline(args: argparse.Namespace) -> int:
     return 0 if not bad else 3
 
 
-def _add_execution_options(p: argparse.ArgumentParser, workers_help: str = "local worker processes (default: CPU count)") -> None:
+def _add_execution_options(p: argparse.ArgumentParser,
+                           workers_help: str = "local worker processes (default: CPU count)") -> None:
     """Where and how the runs of a many-run command execute: --workers, --scheduler, --backend, --fmu-dir."""
     p.add_argument("--workers", type=_positive_int, default=None, help=workers_help)
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",

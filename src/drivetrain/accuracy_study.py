@@ -57,7 +57,8 @@ def _map_build_s(spec) -> float | None:
 
 def evaluate(run_dir: Path, records: list[dict], scenes: list, refused: dict, meta: dict) -> dict:
     """The study's results from its run directories: per studied scene and setting, the status, the
-    errors against the reference (:func:`compare`) and the costs."""
+    errors against the reference (:func:`compare`) and the costs. ``records``: :func:`_records_on_disk`
+    (each with its run's summary)."""
     by_name = {r["name"]: r for r in records}
     scene_of = {s.name: s for s in scenes}
     out = {"meta": meta, "scenes": {}}
@@ -88,7 +89,7 @@ def evaluate(run_dir: Path, records: list[dict], scenes: list, refused: dict, me
                 row["reason"] = (r.get("failure_cause") or r.get("error") or "")[:300]
                 rec["rows"][st] = row
                 continue
-            summ = json.loads((run_dir / key / "summary.json").read_text())
+            summ = r["summary"]
             sim = float(summ.get("sim_time_s") or 0.0)
             # CPU seconds of the loop where recorded: parallel runs on a shared machine slow each other's
             # wall clock, not their CPU time
@@ -113,7 +114,7 @@ def evaluate(run_dir: Path, records: list[dict], scenes: list, refused: dict, me
 
 
 def _records_on_disk(run_dir: Path, runs: list) -> list[dict]:
-    """A record per run directory with a summary (whichever invocation wrote it)."""
+    """A record per run directory with a summary (whichever invocation wrote it), the summary with it."""
     out = []
     for s in runs:
         try:
@@ -121,7 +122,7 @@ def _records_on_disk(run_dir: Path, runs: list) -> list[dict]:
         except (OSError, ValueError):
             continue
         out.append({"name": s.name, "status": summ.get("status", "ok"),
-                    "failure_cause": (summ.get("failure") or {}).get("cause")})
+                    "failure_cause": (summ.get("failure") or {}).get("cause"), "summary": summ})
     return out
 
 

@@ -16,7 +16,7 @@ predicted from its counts before anything is built or stepped:
   the default pcm figure.
 
 The constants were measured on the reference 2-core machine (``drivetrain run`` summaries,
-``loop_time_s``; benchmarks/bench_cosim.py): the default 20 s scene is predicted at about 2.5x its
+``loop_time_s``; benchmarks/bench_cosim.py): the default 20 s scene is predicted at about 2.7x its
 simulated time. They are rounded up, not tuned: a prediction is good to a factor of about two, which is
 what a refusal needs.
 

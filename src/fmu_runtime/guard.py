@@ -108,7 +108,8 @@ def guard_value_references(slave, model: str) -> None:
     ref = weakref.ref(slave)
     # what a host may still set once initialization is over: inputs and tunable parameters (FMI 2.0)
     settable_in_step = frozenset(vr for vr, v in slave.vars.items()
-                                 if getattr(v.causality, "name", "") == "input" or getattr(v.variability, "name", "") == "tunable")
+                                 if getattr(v.causality, "name", "") == "input"
+                                 or getattr(v.variability, "name", "") == "tunable")
     slave._fmi_phase = "instantiated"
 
     def fail(msg):

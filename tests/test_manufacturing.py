@@ -48,6 +48,30 @@ def test_draws_are_seeded_within_tolerance_and_recorded():
     dev = np.diff(np.r_[pos, pos[0]])                          # single pitch deviations, closing the circle
     assert np.all(np.abs(dev) <= 2 * f_pt + 1e-9) and abs(pos.mean()) < 1e-9
     assert a.pinion_eccentricity_um == pytest.approx(0.5 * a.source["pinion"]["F_r_um"])
+    # the pair is numbered from its most loaded pinion tooth (the most advanced one: a pair carries load as
+    # far as it leads), for every seed; the numbering turns both gears together, so the transmission error
+    # is that of the pair as drawn (the documented draw, repeated here), k pitches on: the same gears in
+    # the same assembly
+    rng = np.random.default_rng(5)
+    for seed in range(12):
+        d = draw_errors(G, 6, seed=seed)
+        k = d.source["numbered_from_drawn_tooth"]
+        assert int(np.argmax(d.pinion_position_um)) == 0
+        raw, r = {}, np.random.default_rng(seed)
+        for member, z in (("pinion", G.z_pinion), ("wheel", G.z_wheel)):
+            f_pt = d.source[member]["f_pt_um"]
+            dev = np.clip(r.normal(0.0, 0.5 * f_pt, z), -f_pt, f_pt)
+            pos = np.cumsum(dev - dev.mean())
+            raw[f"{member}_position_um"] = tuple(pos - pos.mean())
+            raw[f"{member}_phase_rad"] = r.uniform(0.0, 2 * np.pi)
+            raw[f"{member}_eccentricity_um"] = getattr(d, f"{member}_eccentricity_um")
+        drawn = ManufacturingErrors(**raw)
+        assert k == int(np.argmax(drawn.pinion_position_um))
+        for _ in range(20):
+            tp = rng.uniform(0, 2 * np.pi)
+            tw = tp * G.z_pinion / G.z_wheel + rng.uniform(-0.02, 0.02)
+            shifted = mesh_offset(drawn, tp + 2 * np.pi * k / G.z_pinion, tw + 2 * np.pi * k / G.z_wheel, G)
+            assert mesh_offset(d, tp, tw, G) == pytest.approx(shifted, abs=1e-12)
     # the runout as mounted has a grade of its own: the eccentricities follow it, the teeth do not
     for member, z in (("pinion", G.z_pinion), ("wheel", G.z_wheel)):
         d_mm = G.module * z * 1e3

@@ -68,6 +68,34 @@ def test_mild_judge(tmp_path):
     assert judge(15 + gmf + sb(0.002), "c").status == "fail"              # no sideband rise
 
 
+def test_order_judge(tmp_path):
+    """Check 6 on 54 synthetic cells: healthy < mild < severe in the sum of the first sideband pair passes,
+    also where the mild fault raises only one sideband of the two; one cell where the mild fault leaves
+    both as they were fails it (17 of 18); missing runs fail."""
+    n = int(6 * FS)
+    gmf = _sine(F["f_GMF"], 0.1, n)
+
+    def sig(lower, upper):
+        return 15 + gmf + _sine(F["f_GMF"] - F["f_MSH"], lower, n) + _sine(F["f_GMF"] + F["f_MSH"], upper, n)
+
+    def runs(sub, flat_cell=None):
+        out = []
+        for speed in V.SPEEDS_RPM:
+            for load in V.LOADS_NM:
+                flat = (speed, load) == flat_cell
+                for h, (lo, up) in zip(V.HEALTHS, ((0.002, 0.003), (0.002 if flat else 0.0027, 0.003),
+                                                   (0.02, 0.02))):
+                    out.append(_run(tmp_path / sub, V.case_name(h, speed, load),
+                                    {"propeller_shaft_torque": sig(lo, up)}))
+        return V.Runs({"runs": out})
+
+    r = V.check_order(runs("a"))
+    assert r.status == "pass" and "18 of 18" in r.figure, (r.figure, r.details)
+    r = V.check_order(runs("b", flat_cell=(250.0, 0.12)))
+    assert r.status == "fail" and "17 of 18" in r.figure and r.details[0].startswith("250 rpm 0.12")
+    assert V.check_order(V.Runs({"runs": []})).status == "fail"
+
+
 def test_stiffness_check_is_static_and_passes():
     """Check 8 needs no run: the table model with the default compliance against ISO 6336 at the pinion
     torques of the measured table (1500 rpm); check 9 without its runs fails rather than reports."""

@@ -13,7 +13,7 @@ from gearcontact_fmu.params import BevelGearParams
 #: accuracy grades of ISO 1328 (0 best .. 12 coarsest)
 GRADES = tuple(range(0, 13))
 #: the default grade of the teeth (single pitch): a ground industrial gear (the rig's pair is a catalogue
-#: gear). Finer grades trade one of the paper's findings for another: docs/VALIDATION.md, checks 5 and 6.
+#: gear). How it bears on the paper's mild-fault findings: docs/GEAR-CONTACT.md, 'Pitch errors and the mild fault'.
 DEFAULT_GRADE = 6
 #: the default grade of the radial runout as mounted: the gear's own runout plus its seat on the shaft
 #: (bore fit, shaft and bearing runout), a grade coarser than the teeth. It puts the wheel's
@@ -93,10 +93,17 @@ def draw_errors(gear: BevelGearParams | None = None, grade: int = DEFAULT_GRADE,
     """Errors of both gears drawn with ``seed``: single pitch deviations from the tolerance f_pt of
     ``grade``, eccentricities from the radial runout F_r of ``runout_grade`` (or the explicit f_pt and
     F_r [um], the same for both gears); ``members`` limits them to one gear. Deterministic: one seed,
-    one set of errors."""
+    one set of errors.
+
+    The pair is numbered from its most loaded pinion tooth. A pair carries load as far as it leads
+    (e = P_pinion - P_wheel), so the most advanced pinion tooth carries the most, and a flank fracture
+    starts where the load is highest: a fault on tooth 0 (the default of every fault) sits there. The
+    numbering turns both gears together by the same number of teeth, eccentricities included, so it is
+    the same pair of gears in the same assembly, started a few pitches later (tests/test_manufacturing.py)."""
     gear = gear or BevelGearParams()
     rng = np.random.default_rng(int(seed))
     out, source = {}, {"grade": int(grade), "runout_grade": int(runout_grade), "seed": int(seed)}
+    drawn = {}
     for member, z in (("pinion", gear.z_pinion), ("wheel", gear.z_wheel)):
         d_mm = gear.module * z * 1e3
         tol = iso1328_tolerances(grade, gear.module * 1e3, d_mm)
@@ -110,12 +117,17 @@ def draw_errors(gear: BevelGearParams | None = None, grade: int = DEFAULT_GRADE,
         dev -= dev.mean()                                 # the deviations close the circle
         pos = np.cumsum(dev)
         pos -= pos.mean()
-        phase = float(rng.uniform(0.0, 2.0 * math.pi))
+        drawn[member] = (z, pos, float(rng.uniform(0.0, 2.0 * math.pi)), F_r)
+        source[member] = {"f_pt_um": f_pt, "F_r_um": F_r, "pitch_diameter_mm": d_mm}
+    k = int(np.argmax(drawn["pinion"][1]))           # the most loaded pinion tooth becomes tooth 0
+    for member, (z, pos, phase, F_r) in drawn.items():
+        # tooth i is drawn tooth i + k; the body frame turns by k pitches with it (theta = theta_drawn - k p)
+        pos, phase = np.roll(pos, -k), math.fmod(phase + 2.0 * math.pi * k / z, 2.0 * math.pi)
         on = member in members
         out[f"{member}_position_um"] = tuple(float(v) for v in pos) if on else ()
         out[f"{member}_eccentricity_um"] = 0.5 * F_r if on else 0.0
         out[f"{member}_phase_rad"] = phase if on else 0.0
-        source[member] = {"f_pt_um": f_pt, "F_r_um": F_r, "pitch_diameter_mm": d_mm}
+    source["numbered_from_drawn_tooth"] = k
     return ManufacturingErrors(**out, source=source)
 
 

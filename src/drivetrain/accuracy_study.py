@@ -50,7 +50,7 @@ def _map_build_s(spec) -> float | None:
         if inp["fidelity"] != "table":
             return None
         cmap = get_map(inp["gear"], inp["pcm"], inp["resolution"], inp["health"], inp["files"] or None,
-                       mesh_units=inp["mesh_units"], build=False, fault_kwargs=inp["fault_kwargs"])
+                       mesh_units=inp["mesh_units"], build=False, fault_kwargs=inp["fault_kwargs"], grid=inp["grid"])
         return float(cmap.info.get("build_seconds", 0.0)) if cmap is not None else None
     return None
 

@@ -65,6 +65,9 @@ def _gear_parameters(scene, part: rig.Partition, max_substep: float) -> dict:
     p.update(fidelity=eff.mesh_contact, health=scene.gear.health, max_substep=float(max_substep),
              profile_element_size=scene.numerics.profile_element_mm * 1e-3,
              face_element_size=scene.numerics.face_element_mm * 1e-3,
+             map_points_per_pitch=int(scene.numerics.map_points_per_pitch),
+             map_approach_points=int(scene.numerics.map_approach_points),
+             scheme=scene.numerics.mesh_integrator,
              energy_correction=bool(scene.numerics.energy_correction))
     if scene.gear.faults:
         p["faults"] = json.dumps([dict(f) for f in scene.gear.faults])

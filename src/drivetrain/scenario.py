@@ -43,8 +43,8 @@ from gearcontact_fmu.fault_specs import (FAULT_KINDS, draw_faults, draw_rule_pro
 from gearcontact_fmu.manufacturing_specs import DEFAULT_GRADE as MANUFACTURING_GRADE
 from gearcontact_fmu.manufacturing_specs import DEFAULT_RUNOUT_GRADE as MANUFACTURING_RUNOUT_GRADE
 from gearcontact_fmu.manufacturing_specs import GRADES
-from gearcontact_fmu.mesh_model import FIDELITIES, HEALTH_STATES
-from gearcontact_fmu.params import DEFAULT_COMM_STEP_S, TOOTH_COMPLIANCE_FACTOR, MeshResolution
+from gearcontact_fmu.mesh_model import FIDELITIES, HEALTH_STATES, SCHEMES
+from gearcontact_fmu.params import DEFAULT_COMM_STEP_S, TOOTH_COMPLIANCE_FACTOR, MapGrid, MeshResolution
 
 # --------------------------------------------------------------------------------------------------
 # Fixed vocabularies
@@ -119,6 +119,7 @@ def _f(default, unit, dimension, doc, minimum=None, min_exclusive=False, maximum
 
 
 _RES = MeshResolution()       # the converged contact-mesh resolution of the gear library is the scene default
+_GRID = MapGrid()             # the contact-map grid, likewise
 _INST = Instruments()         # the instrument constants are declared in drivetrain.instruments
 SENSOR_MODELS = ("ideal", "rig")
 
@@ -189,6 +190,14 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "face_element_mm": _f(_RES.face * 1e3, "mm", "length",
                               "contact-mesh element size along the face width (default: MeshResolution)",
                               minimum=0.0, min_exclusive=True),
+        "map_points_per_pitch": Key("int", _GRID.points_per_pitch, minimum=4, maximum=4096, doc=(
+            "table: contact-map nodes along the pinion angle per pinion pitch (bilinear between them)")),
+        "map_approach_points": Key("int", _GRID.s_points, minimum=4, maximum=4096, doc=(
+            "table: contact-map nodes per flank along the approach beyond the contact onset")),
+        "mesh_integrator": Key("enum", "auto", allowed=SCHEMES, doc=(
+            "sub-step integrator of the gear stage: auto (rk4 where it is stable at max_substep_s, else "
+            "ros2), ros2 (linearly implicit Rosenbrock, 2nd order), rk4 (explicit; stiff contact needs small "
+            "sub-steps)")),
         "energy_correction": Key("bool", True, doc=(
             "energy-conserving correction of the torques the spring-side ports hand over (gear stage, "
             "drive motor, drive shaft; gearcontact_fmu.coupling): removes the first-order energy error "
@@ -335,6 +344,9 @@ class NumericsSpec:
     max_substep_s: float = 5.0e-6
     profile_element_mm: float = 0.05
     face_element_mm: float = 2.0
+    map_points_per_pitch: int = _GRID.points_per_pitch
+    map_approach_points: int = _GRID.s_points
+    mesh_integrator: str = "auto"
     energy_correction: bool = True
     anti_alias: str = "fir"
     max_contact_hours: float = 4.0

@@ -22,7 +22,7 @@ from scipy.linalg import expm
 
 from drivetrain import eigen
 from drivetrain.errors import ContactCostError, ContactRangeError, UnstableCutError  # noqa: F401
-from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
+from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCMParams
 
 # gearcontact_fmu.contact_map (the PCM engine) is imported by check_contact_range only for table/pcm gears
 
@@ -136,7 +136,7 @@ def contact_inputs(comp) -> dict:
 
     p = comp.parameters
     pick = (lambda cls: cls(**{f.name: p[f.name] for f in dataclasses.fields(cls) if f.name in p}))
-    base = MeshResolution()
+    base, grid = MeshResolution(), MapGrid()
     health = str(p.get("health", "healthy"))
     return {"gear": pick(BevelGearParams), "pcm": pick(PCMParams),
             "resolution": MeshResolution(profile=float(p.get("profile_element_size", base.profile)),
@@ -145,6 +145,8 @@ def contact_inputs(comp) -> dict:
             "fidelity": str(p.get("fidelity")).strip().lower(), "health": health,
             "mesh_units": str(p.get("mesh_units", "mm")),
             "fault_kwargs": fault_kwargs_of(health, json.loads(p.get("faults") or "[]")),
+            "grid": MapGrid(points_per_pitch=int(p.get("map_points_per_pitch", grid.points_per_pitch)),
+                            s_points=int(p.get("map_approach_points", grid.s_points))),
             "max_substep": float(p.get("max_substep", StageParams().max_substep))}
 
 
@@ -168,7 +170,7 @@ def check_contact_cost(spec, duration_s: float, max_hours: float) -> list[dict]:
     if not gears:
         return []
     from gearcontact_fmu import cost
-    from gearcontact_fmu.contact_map import MapGrid, get_map, map_workers, pairing_revolutions, wheel_faults
+    from gearcontact_fmu.contact_map import get_map, map_workers, pairing_revolutions, wheel_faults
     from gearcontact_fmu.gearpair import build_pcm_pair
     from gearcontact_fmu.params import substeps
 
@@ -187,11 +189,11 @@ def check_contact_cost(spec, duration_s: float, max_hours: float) -> list[dict]:
         n_rev = pairing_revolutions(gear, not (wheel_faults(inp["health"], inp["fault_kwargs"]) or "wheel" in files))
         # user meshes are computed row by row; generated ones tile their healthy pitch blocks
         blocks = gear.z_pinion * n_rev if files else 1 + 3 * len((inp["fault_kwargs"] or {}).get("faults", []))
-        map_rows = blocks * MapGrid().points_per_pitch        # what a table gear of this geometry computes
+        map_rows = blocks * inp["grid"].points_per_pitch        # what a table gear of this geometry computes
         rows = 0
         if inp["fidelity"] == "table":
             if get_map(gear, inp["pcm"], res, inp["health"], files or None, mesh_units=inp["mesh_units"],
-                       build=False, fault_kwargs=inp["fault_kwargs"]) is not None:
+                       build=False, fault_kwargs=inp["fault_kwargs"], grid=inp["grid"]) is not None:
                 continue                                   # cached: the run pays nothing for it
             rows = map_rows
         what = (" and ".join(f"{k} mesh {v}" for k, v in files.items()) if files else
@@ -315,7 +317,7 @@ def check_contact_range(spec, raise_on_error: bool = True) -> list[dict]:
         # a table gear builds its map anyway (the run uses it); a pcm gear is predicted only from a
         # cached map of its geometry, never by building one just for the check
         cmap = get_map(gear, search, res, health, files or None, mesh_units=inp["mesh_units"],
-                       build=fidelity == "table", fault_kwargs=inp["fault_kwargs"])
+                       build=fidelity == "table", fault_kwargs=inp["fault_kwargs"], grid=inp["grid"])
         if cmap is None:
             reports.append({"component": comp.name, "pinion_torque_Nm": float(T), "static_penetration_m": None,
                             "u_max_m": pcm.u_max, "note": "not predicted: no contact map of this geometry cached"})

@@ -43,7 +43,7 @@ from gearcontact_fmu.gearpair import build_pcm_pair, contact_onset, fault_kwargs
 from gearcontact_fmu.mesh_model import (N_OUT, OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY,
                                         OUT_MAX_PENETRATION, OUT_N_CONTACT, OUT_NORMAL_FORCE, OUT_PEAK_PRESSURE,
                                         OUT_STATUS, OUT_TAU_PINION, OUT_TAU_WHEEL, MeshModel)
-from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams, file_sha256, params_hash
+from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCMParams, file_sha256, params_hash
 
 #: part of every cache key: raised when the map content or the file format changes (6: content digest)
 MAP_VERSION = 6
@@ -51,18 +51,6 @@ MAP_VERSION = 6
 CH_TAU_P, CH_TAU_W, CH_N, CH_AREA, CH_PEAK, CH_PEN, CH_FN, CH_EEL, CH_DAMP, CH_FRIC_P, CH_FRIC_W = range(11)
 N_CH = 11
 SIDE_DRIVE, SIDE_COAST = 0, 1
-
-
-@dataclass(frozen=True)
-class MapGrid:
-    points_per_pitch: int = 48          # pinion-angle nodes per pinion pitch (full revolution stored)
-    s_points: int = 48                  # nodes per flank along the approach beyond the contact onset
-    max_torque: float = 200.0           # pinion torque [N·m] the approach range must cover
-    reference_speed: float = 100.0      # pinion speed [rad/s] at which friction is tabulated
-    omega_regularisation: float = 1.0   # pinion speed [rad/s] below which friction is ramped out
-    max_approach: float = 0.5e-3        # onset search range along the line of action [m]: a pinion that
-    #                                     runs ahead through a missing-tooth window meets the next tooth
-    #                                     early, at its tip (~0.1 mm further on at 1500 rpm)
 
 
 def cache_dir() -> Path:

@@ -33,6 +33,8 @@ OUT_UNITS = ("N.m", "N.m", "1", "m2", "Pa", "m", "N", "J", "W", "1")
 STATUS_OK = 0
 STATUS_PENETRATION_EXCEEDED = 1
 
+#: sub-step integrators of the gear stage (auto: rk4 where it is stable, ros2 for stiff contact; stage.py)
+SCHEMES = ("auto", "ros2", "rk4")
 FIDELITIES = ("pcm", "table", "analytic", "ideal")
 """Mesh-contact fidelities, finest first (``fidelity.BUILDERS`` maps each to its builder)."""
 GENERATED_HEALTH = ("healthy", "mild", "severe", "faults")

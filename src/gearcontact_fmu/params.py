@@ -132,6 +132,26 @@ class MeshResolution:
 TOOTH_COMPLIANCE_FACTOR = 4.5
 
 
+@dataclass(frozen=True)
+class MapGrid:
+    """Grid of the fixed-axis contact map (fidelity "table"; gearcontact_fmu.contact_map)."""
+
+    points_per_pitch: int = 48          # pinion-angle nodes per pinion pitch (full revolution stored)
+    s_points: int = 48                  # nodes per flank along the approach beyond the contact onset
+    max_torque: float = 200.0           # pinion torque [N·m] the approach range must cover
+    reference_speed: float = 100.0      # pinion speed [rad/s] at which friction is tabulated
+    omega_regularisation: float = 1.0   # pinion speed [rad/s] below which friction is ramped out
+    max_approach: float = 0.5e-3        # onset search range along the line of action [m]: a pinion that
+    #                                     runs ahead through a missing-tooth window meets the next tooth
+    #                                     early, at its tip (~0.1 mm further on at 1500 rpm)
+
+    def __post_init__(self):
+        for name in ("points_per_pitch", "s_points"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or int(v) != v or not 4 <= v <= 4096:
+                raise ValueError(f"contact-map grid: {name} must be an integer in 4..4096, got {v!r}")
+
+
 def params_hash(*objs) -> str:
     """Stable short hash of dataclasses / plain values, for disk caches."""
 

@@ -68,6 +68,7 @@ from gearcontact_fmu.coupling import EnergyCorrection
 from gearcontact_fmu.fidelity import make_mesh_model
 from gearcontact_fmu.mesh_model import (
     N_OUT,
+    SCHEMES,
     OUT_DISSIPATED_POWER,
     OUT_ELASTIC_ENERGY,
     OUT_MAX_PENETRATION,
@@ -86,7 +87,6 @@ class StageError(RuntimeError):
 
 
 MODES = ("stage", "bare")
-SCHEMES = ("auto", "ros2", "rk4")
 
 # kernel modes
 _M_STAGE = 0

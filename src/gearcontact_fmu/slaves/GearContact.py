@@ -64,6 +64,7 @@ class GearContact(Fmi2Slave):
         "module": "m", "pressure_angle": "rad", "shaft_angle": "rad", "face_width": "m", "x_pinion": "1",
         "addendum_coefficient": "1", "dedendum_coefficient": "1", "backlash": "m", "tip_radius": "m",
         "mesh_damping_ratio": "1", "mesh_phase": "rad", "tooth_compliance": "1",
+        "map_points_per_pitch": "1", "map_approach_points": "1",
         "peak_penetration": "m", "min_substep": "s", "n_substeps": "1", "n_refinements": "1",
         "separated_time": "s", "n_separations": "1",
     }
@@ -105,6 +106,8 @@ class GearContact(Fmi2Slave):
         "addendum_coefficient": "addendum / module", "dedendum_coefficient": "dedendum / module",
         "backlash": "circumferential backlash on the outer pitch circle", "tip_radius": "tip rounding radius",
         "tooth_compliance": "total mesh approach per PCM layer approach (table only; 1 = the layers alone)",
+        "map_points_per_pitch": "table: contact-map nodes along the pinion angle per pinion pitch",
+        "map_approach_points": "table: contact-map nodes per flank along the approach beyond the contact onset",
         "mesh_damping_ratio": "analytic mesh: damping ratio of the mesh mode",
         "mesh_phase": "analytic mesh: pinion angle at which a drive flank passes the pitch point",
         "flange_a_phi": "angle of the body connected to flange_a (middle shaft, pinion side)",
@@ -154,7 +157,7 @@ class GearContact(Fmi2Slave):
 
         # pythonfmu 0.7.0 releases its interpreter state twice at process exit: see fmu_runtime.guard
         pin_export_library_state(kwargs, type(self).__name__)
-        from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
+        from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCMParams
         from gearcontact_fmu.stage import StageParams
 
         g, p, r, s = BevelGearParams(), PCMParams(), MeshResolution(), StageParams()
@@ -165,6 +168,8 @@ class GearContact(Fmi2Slave):
         self.faults = "[]"          # health "faults": JSON list of fault specifications (faults.FAULT_KINDS)
         self.manufacturing_errors = ""   # JSON of manufacturing_specs.ManufacturingErrors ("" = none)
         self.tooth_compliance = 1.0      # series factor of the table map's approach (1 = the PCM layers alone)
+        grid = MapGrid()                 # the table's contact-map grid
+        self.map_points_per_pitch, self.map_approach_points = grid.points_per_pitch, grid.s_points
         self.pinion_mesh_file = ""
         self.wheel_mesh_file = ""
         self.mesh_units = "mm"
@@ -202,7 +207,7 @@ class GearContact(Fmi2Slave):
         for name in ("fidelity", "mode", "health", "faults", "manufacturing_errors", "pinion_mesh_file",
                      "wheel_mesh_file", "mesh_units", "scheme", "output_torque"):
             self.register_variable(String(name, causality=P, variability=F))
-        for name in ("z_pinion", "z_wheel"):
+        for name in ("z_pinion", "z_wheel", "map_points_per_pitch", "map_approach_points"):
             self.register_variable(Integer(name, causality=P, variability=F))
         for name in ("friction", "contact_damping", "energy_correction"):
             self.register_variable(Boolean(name, causality=P, variability=F))
@@ -270,7 +275,7 @@ class GearContact(Fmi2Slave):
         self.log(fmi_text(msg), Fmi2Status.error)
 
     def _build(self):
-        from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
+        from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCMParams
         from gearcontact_fmu.stage import StageParams, make_stage
 
         gear = BevelGearParams(
@@ -298,6 +303,9 @@ class GearContact(Fmi2Slave):
         elif fidelity in ("pcm", "table"):
             kw = dict(friction=friction, damping=damping, mesh_units=str(self.mesh_units).strip(),
                       faults=self._fault_specs())
+            if fidelity == "table":
+                kw["grid"] = MapGrid(points_per_pitch=int(self.map_points_per_pitch),
+                                     s_points=int(self.map_approach_points))
         if float(self.tooth_compliance) != 1.0:          # table only: pcm and ideal refuse it
             kw["tooth_compliance"] = float(self.tooth_compliance)
         if str(self.manufacturing_errors).strip():      # the ideal mesh refuses them (no mesh coordinate)

@@ -263,7 +263,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "runout_grade": Key("int", MANUFACTURING_RUNOUT_GRADE, minimum=min(GRADES), maximum=max(GRADES), doc=(
             "ISO 1328 grade of the radial runout F_r of each gear as mounted (its own runout plus its seat "
             "on the shaft; coarser than the teeth)")),
-        "seed": Key("int", 0, minimum=0, doc="seed of the draw (one seed, one set of errors; recorded in the summary)"),
+        "seed": Key("int", 0, minimum=0, doc=(
+            "seed of the draw (one seed, one set of errors; recorded in the summary); the pair is numbered from "
+            "its most loaded pinion tooth, so a fault on tooth 0 sits where a flank fracture starts")),
         "single_pitch_um": _f(None, "um", "length", "single pitch tolerance f_pt of both gears, instead of the grade's",
                               minimum=0.0, default_doc="from grade"),
         "runout_um": _f(None, "um", "length", "radial runout F_r (= 2 x eccentricity) of both gears, instead of the "

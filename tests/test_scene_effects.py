@@ -122,3 +122,25 @@ def test_mesh_units_reach_the_contact_model(tmp_path):
                                  "gear.mesh_units=m", "effects.mesh_contact=pcm"])
     gear = [c for c in assemble(scene, check=False).components if c.model == "GearContact"][0]
     assert gear.parameters["mesh_units"] == "m"
+
+
+def test_map_grid_and_integrator_reach_the_gear():
+    """numerics.map_points_per_pitch / map_approach_points reach the GearContact parameters and the map
+    that is built from them (nodes per pitch x teeth along the angle, nodes along the approach);
+    numerics.mesh_integrator reaches the stage's scheme; a grid outside 4..4096 is refused by name."""
+    from drivetrain.stability import contact_inputs
+    from gearcontact_fmu.contact_map import get_map
+    from gearcontact_fmu.params import MapGrid
+
+    scene = load_scene(EXAMPLE, SHORT + ["numerics.profile_element_mm=0.3", "numerics.face_element_mm=3",
+                                         "numerics.map_points_per_pitch=12", "numerics.map_approach_points=16",
+                                         "numerics.mesh_integrator=rk4"])
+    gear = next(c for c in assemble(scene, check=False).components if c.model == "GearContact")
+    assert (gear.parameters["map_points_per_pitch"], gear.parameters["map_approach_points"]) == (12, 16)
+    assert gear.parameters["scheme"] == "rk4"
+    inp = contact_inputs(gear)
+    assert inp["grid"] == MapGrid(points_per_pitch=12, s_points=16)
+    cmap = get_map(inp["gear"], inp["pcm"], inp["resolution"], inp["health"], grid=inp["grid"])
+    assert cmap.theta.shape == (12 * inp["gear"].z_pinion,) and cmap.a.shape == (16,)
+    with pytest.raises(ValueError, match="points_per_pitch"):
+        MapGrid(points_per_pitch=2)

@@ -216,29 +216,34 @@ GUIDE = [
     "- **Mean torques** (calibration, efficiency maps): every setting is within a few hundredths of a per cent "
     "of the reference, even the paper's 0.5 mm mesh, rigid shafts and the ideal gear (the table above). Take the "
     "cheapest.",
-    "- **Fluctuation and spectra** (condition monitoring, ML datasets): the contact mesh decides. The paper's "
-    "0.5 mm profile elements are off by tens to hundreds of per cent, 0.2 mm by up to ~150 % and 0.1 mm by up to "
-    "~70 %, worst at low speed (a few facets carry the whole ~0.3 mm contact strip, so the stiffness jumps with "
-    "the angle). The default 0.05 mm is 0.25-7.4 % off (most for the healthy gear at 250 rpm, whose fluctuation "
-    "is smallest); the converged 0.025 mm mesh with the default steps 0.3-1.8 %. The communication step and the "
-    "sub-step come next (1/6000 s or 20 µs: a few % more); the number of shaft elements does not matter for these "
-    "torques (1 to 8 agree); rigid shafts remove the shaft modes and are a different model, not an "
-    "approximation. Without the energy correction the energy residual grows 100-1000x.",
+    "- **Fluctuation and spectra** (condition monitoring, ML datasets): the contact mesh and the contact map's "
+    "grid decide, together. The paper's 0.5 mm profile elements are off by 10-1100 %, 0.2 mm by up to ~140 % "
+    "and 0.1 mm by up to ~65 %, worst at low speed (a few facets carry the whole ~0.3 mm contact strip, so the "
+    "stiffness jumps with the angle). The defaults (0.05 mm, 48 map nodes per pitch) are 0.4-5.4 % off and "
+    "within 1.9 dB at f_GMF (most for the healthy and faulty gears at 250 rpm). Refining only one of the two "
+    "does not help: the 0.025 mm mesh on the default 48-node map is 1-10 % off (the finer ripple of the contact "
+    "elements falls between the nodes), and 96 or 192 nodes on the default mesh are 0.4-6.4 % off (the mesh's "
+    "own ripple is then resolved). The communication step and the sub-step come next (1/6000 s: up to 8 %); the "
+    "integrator (rk4 in place of ros2) and the number of shaft elements change nothing that matters (1 to 8 "
+    "agree); rigid shafts remove the shaft modes and are a different model, not an approximation. Without the "
+    "energy correction the energy residual grows 100-1000x.",
     "- **Let the run choose**: `drivetrain run SCENE --tolerance 5%` (or `numerics.tolerance_pct = 5` in the "
     "scene) takes the cheapest setting whose measured error for the closest studied scene (same health class, "
     "nearest speed) is within 5 % on the mean torques and the fluctuation and 5 dB at f_GMF and the resolved "
     "sidebands; the summary's `accuracy_choice` says which and why. Realism effects are never chosen.",
-    "- **1 %**: the mean torques are within 1 % everywhere, but the fluctuation of most scenes moves by more "
-    "than 1 % between the defaults and the reference, so a 1 % tolerance keeps the reference there (or the "
-    "converged mesh where that is enough). None of the cheaper settings costs 1/100 of the reference: the "
-    "reference is itself a table gear at a few seconds per simulated second. Against online PCM at the "
-    "reference's mesh and steps (the `pcm` row times 3 for the 4x finer mesh, times 5 for the 1 µs sub-steps: "
-    "thousands of seconds per simulated second, the figure the issue's 1/100 had in mind) every table setting "
-    "costs well under 1/1000.",
-    "- **Not studied yet**: the contact-map grid density (nodes per pitch and along the approach) and the gear "
-    "stage's integrator (ros2, rk4) have no scene keys so far. Online PCM ran on one scene; 4.5 s of it cost "
-    "about 30 min of one core per scene. Add a scene's row with `drivetrain accuracy-cost --scenes NAME "
-    "--settings pcm --resume` (the study evaluates every run in its directory, so rows can be added piecewise).",
+    "- **1 %**: the mean torques are within 1 % everywhere, but the fluctuation of the 250 rpm scenes moves by "
+    "more than 1 % between the cheap settings and the reference, so a 1 % tolerance keeps the reference there. "
+    "On the 1500 rpm scenes and the wheel fault a setting at 0.19-0.38x the reference is within 1 % and 1 dB. "
+    "None of the cheaper settings costs 1/100 of the reference: the reference is itself a table gear at 8-11 s "
+    "per simulated second. Against online PCM at the reference's mesh and steps (the `pcm` row, 30x the "
+    "reference at the default mesh and 5 µs, times about 3 for the 4x finer mesh and 5 for the 1 µs sub-steps: "
+    "several thousand seconds per simulated second, the figure the issue's 1/100 had in mind) every table "
+    "setting costs under 1/1000, and the default is within 1 % on the means and within 1 dB on the sidebands "
+    "where the reference resolves them, in every studied scene.",
+    "- **Not studied yet**: online PCM ran on one scene (4.5 s of it cost about 30 min of one core). Add a "
+    "scene's row with `drivetrain accuracy-cost --scenes NAME --settings pcm --resume` (the study evaluates every "
+    "run in its directory, so rows can be added piecewise). A 384-node map of a faulty pair takes 10-16 min to "
+    "build on 2 cores, so the map grid's convergence (192 -> 384 nodes: 0.22 %) was measured on the healthy gear only.",
 ]
 
 

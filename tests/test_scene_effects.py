@@ -127,7 +127,7 @@ def test_mesh_units_reach_the_contact_model(tmp_path):
 def test_map_grid_and_integrator_reach_the_gear():
     """numerics.map_points_per_pitch / map_approach_points reach the GearContact parameters and the map
     that is built from them (nodes per pitch x teeth along the angle, nodes along the approach);
-    numerics.mesh_integrator reaches the stage's scheme; a grid outside 4..4096 is refused by name."""
+    numerics.mesh_integrator reaches the stage's scheme; a grid outside 2..4096 is refused by name."""
     from drivetrain.stability import contact_inputs
     from gearcontact_fmu.contact_map import get_map
     from gearcontact_fmu.params import MapGrid
@@ -143,4 +143,4 @@ def test_map_grid_and_integrator_reach_the_gear():
     cmap = get_map(inp["gear"], inp["pcm"], inp["resolution"], inp["health"], grid=inp["grid"])
     assert cmap.theta.shape == (12 * inp["gear"].z_pinion,) and cmap.a.shape == (16,)
     with pytest.raises(ValueError, match="points_per_pitch"):
-        MapGrid(points_per_pitch=2)
+        MapGrid(points_per_pitch=1)

@@ -148,8 +148,8 @@ class MapGrid:
     def __post_init__(self):
         for name in ("points_per_pitch", "s_points"):
             v = getattr(self, name)
-            if isinstance(v, bool) or int(v) != v or not 4 <= v <= 4096:
-                raise ValueError(f"contact-map grid: {name} must be an integer in 4..4096, got {v!r}")
+            if isinstance(v, bool) or int(v) != v or not 2 <= v <= 4096:
+                raise ValueError(f"contact-map grid: {name} must be an integer in 2..4096, got {v!r}")
 
 
 def params_hash(*objs) -> str:

@@ -68,7 +68,6 @@ from gearcontact_fmu.coupling import EnergyCorrection
 from gearcontact_fmu.fidelity import make_mesh_model
 from gearcontact_fmu.mesh_model import (
     N_OUT,
-    SCHEMES,
     OUT_DISSIPATED_POWER,
     OUT_ELASTIC_ENERGY,
     OUT_MAX_PENETRATION,
@@ -76,6 +75,7 @@ from gearcontact_fmu.mesh_model import (
     OUT_STATUS,
     OUT_TAU_PINION,
     OUT_TAU_WHEEL,
+    SCHEMES,
     MeshModel,
 )
 from gearcontact_fmu.params import (CODE_MESH_STATUS, CODE_NONFINITE_INPUT, CODE_NONFINITE_STATE, CODE_OK,

@@ -4,11 +4,19 @@
 # site-packages that hold numpy/numba/scipy (and the project, unless the bundled copy is wanted).
 #
 #   examples/c_host/run_c_host.sh [fmus/GearContact.fmu] [nan_at_step]
+#   examples/c_host/run_c_host.sh --native fmus/native/GearContact.fmu [nan_at_step]
 #
-# Uses the project venv's interpreter to locate libpython and site-packages.
+# Uses the project venv's interpreter to locate libpython and site-packages (and the FMI headers).
+# --native: the FMU is the Python-free GearContact (drivetrain build-native-gear): no LD_PRELOAD,
+# PYTHONHOME or PYTHONPATH, and the host runs with an empty environment but PATH.
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 root="$(cd "$here/../.." && pwd)"
+native=0
+if [ "${1:-}" = "--native" ]; then
+    native=1
+    shift
+fi
 fmu="${1:-$root/fmus/GearContact.fmu}"
 nan_at="${2:--1}"
 py="${PYTHON:-$root/.venv/bin/python}"
@@ -27,6 +35,13 @@ vr = {v.get("name"): v.get("valueReference") for v in ET.parse(sys.argv[1]).getr
 print(" ".join(vr[n] for n in ("flange_a_phi", "flange_a_w", "flange_b_phi", "flange_b_w", "flange_a_tau", "flange_b_tau")))
 EOF
 )
+
+if [ "$native" = 1 ]; then
+    rc=0
+    # shellcheck disable=SC2086
+    env -i PATH=/usr/bin:/bin "$work/host" "$work/fmu" $vrs "$nan_at" || rc=$?
+    exit "$rc"
+fi
 
 # what a non-Python tool needs: the interpreter library and the packages the FMU imports
 libpython="$("$py" -c 'import sysconfig, os; print(os.path.join(sysconfig.get_config_var("LIBDIR"), sysconfig.get_config_var("INSTSONAME")))')"

@@ -54,6 +54,24 @@ def _cmd_export_ssp(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_build_native_gear(args: argparse.Namespace) -> int:
+    from drivetrain.errors import ConfigurationError, ScenarioError
+    from drivetrain.nativebuild import build_native_gear, gear_parameters
+    from drivetrain.scenario import load_scene
+
+    try:
+        scene = load_scene(args.scene, args.set or (), case=args.case)
+        params = gear_parameters(scene)
+        path = build_native_gear(params, args.out, log=lambda m: print(m, file=sys.stderr))
+    except (ScenarioError, ConfigurationError) as exc:
+        return _scene_errors(exc)
+    except OSError as exc:
+        print(f"error: cannot write the FMU: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB): native GearContact of {scene.name} (table, stage)")
+    return 0
+
+
 _FORCE_HELP = ("run even when the run is predicted to take more than 10x its simulated time (and over 10 min), "
                "or its contact model longer than numerics.max_contact_hours")
 
@@ -510,6 +528,15 @@ def build_parser() -> argparse.ArgumentParser:
                    help="run with the cheapest studied setting within T %% on mean torques and fluctuation and "
                         "T dB on GMF and sidebands (numerics.tolerance_pct; docs/ACCURACY-COST.md)")
     p.set_defaults(func=_cmd_run)
+
+    p = sub.add_parser("build-native-gear", help="the scene's GearContact (fidelity table) as a native FMU: "
+                       "compiled C and the contact map as a resource, no Python needed (docs/FMU.md)")
+    p.add_argument("scene", help="scene file (.toml); a grid file needs --case")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a scene key (repeatable)")
+    p.add_argument("--case", default=None, help="with a grid file: the name of the case")
+    p.add_argument("--out", default="fmus/native/GearContact.fmu",
+                   help="the FMU file (default: fmus/native/GearContact.fmu)")
+    p.set_defaults(func=_cmd_build_native_gear)
 
     p = sub.add_parser("export-ssp", help="the scene's system (FMUs, connections, assembled parameters, "
                        "experiment) as an SSP 1.0 archive for other FMI tools")

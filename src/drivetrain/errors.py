@@ -48,6 +48,13 @@ class ConfigurationError(Refused):
     headline = "system refused before any step"
 
 
+class NativeBuildError(ConfigurationError):
+    """The native GearContact FMU cannot be built as asked (drivetrain.nativebuild). ``problems``: list
+    of strings."""
+
+    headline = "native GearContact not built"
+
+
 class UnstableCutError(Refused):
     """A cut of the partition is unstable at the communication step (raised before any step).
     ``reports``: the CutReport of every cut."""

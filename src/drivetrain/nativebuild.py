@@ -38,7 +38,7 @@ from xml.etree import ElementTree as ET
 import numpy as np
 
 import gearcontact_fmu
-from drivetrain.errors import ConfigurationError
+from drivetrain.errors import NativeBuildError
 
 NATIVE_DIR = Path(gearcontact_fmu.__file__).resolve().parent / "native"
 SLAVE_SCRIPT = Path(gearcontact_fmu.__file__).resolve().parent / "slaves" / "GearContact.py"
@@ -77,7 +77,7 @@ def gear_parameters(scene) -> dict:
     spec = assemble_scene(scene)
     gears = [c for c in spec.components if c.model == MODEL]
     if not gears:
-        raise ConfigurationError([f"scene {scene.name!r} has no {MODEL} component (effects.mesh_contact = "
+        raise NativeBuildError([f"scene {scene.name!r} has no {MODEL} component (effects.mesh_contact = "
                                   f"'ideal' with rigid shafts assembles none)"])
     return dict(gears[0].parameters)
 
@@ -106,7 +106,7 @@ def _table_arrays(slave, parameters: dict) -> dict:
     try:
         slave._build()
     except Exception as exc:  # noqa: BLE001 - every builder error becomes a refusal with its message
-        raise ConfigurationError([f"the contact map cannot be built: {type(exc).__name__}: {exc}"]) from None
+        raise NativeBuildError([f"the contact map cannot be built: {type(exc).__name__}: {exc}"]) from None
     model = slave._stage.model
     data, te = model.data, None
     if len(data) == 2:                         # manufacturing.with_errors: (inner data, offset data)
@@ -158,7 +158,7 @@ def _c_string(text: str) -> str:
 def _c_double(x: float) -> str:
     x = float(x)
     if not math.isfinite(x):
-        raise ConfigurationError([f"non-finite value {x!r} cannot be a start value"])
+        raise NativeBuildError([f"non-finite value {x!r} cannot be a start value"])
     return f"{x.hex()} /* {x!r} */"
 
 
@@ -294,12 +294,12 @@ def build_native_gear(parameters: dict | None = None, out: str | Path = "fmus/na
                       cc: str | None = None, log: Callable[[str], None] | None = None) -> Path:
     """Build the native GearContact FMU for these GearContact parameters; returns its path.
     Refusals (fidelity other than table, unknown parameters, a map that cannot be built, no compiler)
-    raise ConfigurationError with every problem."""
+    raise NativeBuildError (a ConfigurationError) with every problem."""
     parameters = dict(parameters or {})
     parameters.setdefault("fidelity", "table")
     out = Path(out)
     if out.suffix != ".fmu":
-        raise ConfigurationError([f"--out {out}: the FMU file name must end in .fmu"])
+        raise NativeBuildError([f"--out {out}: the FMU file name must end in .fmu"])
     cc = cc or os.environ.get("CC", "gcc")
     slave = _probe_slave()
     problems = _check(slave, parameters)
@@ -309,7 +309,7 @@ def build_native_gear(parameters: dict | None = None, out: str | Path = "fmus/na
         problems.append(f"the builder compiles binaries/linux64 only (this is {platform.system()} "
                         f"{platform.machine()}); compile the FMU's sources/ by hand (docs/FMU.md)")
     if problems:
-        raise ConfigurationError(problems)
+        raise NativeBuildError(problems)
     if log:
         log("contact map (from the cache or built) ...")
     arrays = _table_arrays(slave, parameters)
@@ -336,7 +336,7 @@ def build_native_gear(parameters: dict | None = None, out: str | Path = "fmus/na
             log(" ".join(cmd))
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:
-            raise ConfigurationError([f"compiling the native GearContact failed ({' '.join(cmd)}):\n{proc.stderr}"])
+            raise NativeBuildError([f"compiling the native GearContact failed ({' '.join(cmd)}):\n{proc.stderr}"])
         (tmp / "documentation").mkdir()
         (tmp / "documentation" / "index.html").write_text(
             "<html><body><h1>GearContact (native)</h1><p>Lower bevel gear stage, fidelity table, mode stage, "

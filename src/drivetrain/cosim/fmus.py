@@ -36,7 +36,8 @@ _UNIT_SYNONYMS = {"N·m": "N.m", "Nm": "N.m", "N*m": "N.m", "N m": "N.m", "rad.s
 HOST_ONLY_MODULES = {
     "drivetrain": {"cli.py", "master.py", "run.py", "sweep.py", "outputs.py", "signals.py", "scenario.py",
                    "assemble.py", "eigen.py", "calibrate.py", "fmubuild.py", "stress.py", "expect.py",
-                   "baseline.py", "check.py", "pytest_plugin.py", "dataset.py", "stability.py", "cosim"},
+                   "baseline.py", "check.py", "pytest_plugin.py", "dataset.py", "stability.py", "nativebuild.py",
+                   "cosim"},
     "gearcontact_fmu": set(),
 }
 

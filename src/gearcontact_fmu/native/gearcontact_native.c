@@ -1073,6 +1073,15 @@ static int settable_now(Inst *c, const GcVar *v, const char *call) {
     return 1;
 }
 
+/* the shortest %g form that reads back as x (Python's repr) */
+static const char *shortest(char *buf, size_t n, double x) {
+    for (int prec = 15; prec <= 17; prec++) {
+        snprintf(buf, n, "%.*g", prec, x);
+        if (strtod(buf, NULL) == x) break;
+    }
+    return buf;
+}
+
 static fmi2Status refuse_fixed(Inst *c, const GcVar *v, const char *value, const char *built) {
     fail(c, "GearContact (native): parameter %s = %s refused: this FMU was built with %s = %s, and the contact "
          "map compiled into it depends on it (rebuild it: drivetrain build-native-gear SCENE, or use the "
@@ -1087,9 +1096,7 @@ fmi2Status fmi2SetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t
         if (!settable_now(c, v, "fmi2SetReal")) return fmi2Error;
         if (v->fixed_by_build && !(value[i] == v->real_start)) {
             char a[40], b[40];
-            snprintf(a, sizeof a, "%.17g", value[i]);
-            snprintf(b, sizeof b, "%.17g", v->real_start);
-            return refuse_fixed(c, v, a, b);
+            return refuse_fixed(c, v, shortest(a, sizeof a, value[i]), shortest(b, sizeof b, v->real_start));
         }
         c->r[vr[i]] = value[i];
     }

@@ -155,13 +155,18 @@ static void locate(const double *s_nodes, int64_t n, double s, int64_t *j_out, d
     *w_out = (s - s_nodes[j]) / (s_nodes[j + 1] - s_nodes[j]);
 }
 
-#define VAL(v, na, i, side, j, ch) ((v)[(((size_t)(i) * 2 + (side)) * (size_t)(na) + (size_t)(j)) * N_CH + (ch)])
-
-static double bilinear(const double *v, int64_t na, int64_t i0, int64_t i1, int side, int64_t j, double w,
-                       double b, int ch) {
-    double v0 = VAL(v, na, i0, side, j, ch) + w * (VAL(v, na, i0, side, j + 1, ch) - VAL(v, na, i0, side, j, ch));
-    double v1 = VAL(v, na, i1, side, j, ch) + w * (VAL(v, na, i1, side, j + 1, ch) - VAL(v, na, i1, side, j, ch));
-    return v0 + b * (v1 - v0);
+/* contact_map._bilinear of every channel at once: between pinion-angle rows i0, i1 (weight b) and
+ * approach nodes j, j+1 (weight w); the same operations per channel as the Python (a loop the compiler
+ * may vectorise: each lane is one channel, bit for bit the scalar result) */
+static void bilinear_all(const double *v, int64_t na, int64_t i0, int64_t i1, int side, int64_t j, double w,
+                         double b, double *val) {
+    const double *r0 = v + (((size_t)i0 * 2 + (size_t)side) * (size_t)na + (size_t)j) * N_CH;
+    const double *r1 = v + (((size_t)i1 * 2 + (size_t)side) * (size_t)na + (size_t)j) * N_CH;
+    for (int ch = 0; ch < N_CH; ch++) {
+        double v0 = r0[ch] + w * (r0[N_CH + ch] - r0[ch]);
+        double v1 = r1[ch] + w * (r1[N_CH + ch] - r1[ch]);
+        val[ch] = v0 + b * (v1 - v0);
+    }
 }
 
 static void table_eval(const TableData *d, double theta_pinion, double theta_wheel, double omega_pinion,
@@ -190,8 +195,8 @@ static void table_eval(const TableData *d, double theta_pinion, double theta_whe
     double x = th / m->dtheta;
     int64_t i0 = (int64_t)floor(x);
     double b = x - (double)i0;
-    i0 = pmod(i0, n_theta);
-    int64_t i1 = pmod(i0 + 1, n_theta);
+    if (i0 < 0 || i0 >= n_theta) i0 = pmod(i0, n_theta);     /* Python's i0 % n_theta (no division if in range) */
+    int64_t i1 = i0 + 1 == n_theta ? 0 : i0 + 1;
     const double *on = m->onset;
     double on_d = on[i0 * 2 + 0] + b * (on[i1 * 2 + 0] - on[i0 * 2 + 0]);
     double on_c = on[i0 * 2 + 1] + b * (on[i1 * 2 + 1] - on[i0 * 2 + 1]);
@@ -204,17 +209,18 @@ static void table_eval(const TableData *d, double theta_pinion, double theta_whe
     double w;
     locate(d->a_nodes, na, a, &j, &w);
     int inside = w <= 1.0;
-#define BIL(ch) bilinear(values, na, i0, i1, side, j, w, b, (ch))
-    out[OUT_TAU_PINION] = BIL(CH_TAU_P);
-    out[OUT_TAU_WHEEL] = BIL(CH_TAU_W);
+    double val[N_CH];
+    bilinear_all(values, na, i0, i1, side, j, w, b, val);
+    out[OUT_TAU_PINION] = val[CH_TAU_P];
+    out[OUT_TAU_WHEEL] = val[CH_TAU_W];
     /* positive-definite channels cannot go below zero through extrapolation */
-    out[OUT_N_CONTACT] = pmax(BIL(CH_N), 0.0);
-    out[OUT_CONTACT_AREA] = pmax(BIL(CH_AREA), 0.0);
-    out[OUT_PEAK_PRESSURE] = pmax(BIL(CH_PEAK), 0.0);
-    out[OUT_MAX_PENETRATION] = pmax(BIL(CH_PEN), 0.0);
-    out[OUT_NORMAL_FORCE] = pmax(BIL(CH_FN), 0.0);
-    out[OUT_ELASTIC_ENERGY] = pmax(BIL(CH_EEL), 0.0);
-    double damp = pmax(BIL(CH_DAMP), 0.0);
+    out[OUT_N_CONTACT] = pmax(val[CH_N], 0.0);
+    out[OUT_CONTACT_AREA] = pmax(val[CH_AREA], 0.0);
+    out[OUT_PEAK_PRESSURE] = pmax(val[CH_PEAK], 0.0);
+    out[OUT_MAX_PENETRATION] = pmax(val[CH_PEN], 0.0);
+    out[OUT_NORMAL_FORCE] = pmax(val[CH_FN], 0.0);
+    out[OUT_ELASTIC_ENERGY] = pmax(val[CH_EEL], 0.0);
+    double damp = pmax(val[CH_DAMP], 0.0);
     if (out[OUT_TAU_PINION] == 0.0 && out[OUT_TAU_WHEEL] == 0.0) return;
     /* keep the elastic torques from changing sign through interpolation/extrapolation */
     if (side == 0) {
@@ -235,10 +241,9 @@ static void table_eval(const TableData *d, double theta_pinion, double theta_whe
     double tau_fp = 0.0, tau_fw = 0.0;
     if (d->fric_on > 0.0) {
         double scale = pmin(pmax(omega_pinion / m->w_reg, -1.0), 1.0);
-        tau_fp = scale * BIL(CH_FRIC_P);
-        tau_fw = scale * BIL(CH_FRIC_W);
+        tau_fp = scale * val[CH_FRIC_P];
+        tau_fw = scale * val[CH_FRIC_W];
     }
-#undef BIL
     out[OUT_TAU_PINION] += tau_d + tau_fp;
     out[OUT_TAU_WHEEL] += -ratio * tau_d + tau_fw;
     double p = -tau_d * sdot - (tau_fp * omega_pinion + tau_fw * omega_wheel);

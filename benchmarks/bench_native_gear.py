@@ -1,0 +1,117 @@
+"""doStep cost of the native GearContact against the pythonfmu GearContact, through fmpy, in one run.
+
+Both FMUs get the example scene's gear parameters (table, 48 x 48 map, max_substep 5 us, ros2) and the
+same input trajectory at H = 1/12000 s: 1500 rpm, the flanges twisted by 6e-3 rad (pinion-referred;
+about the scene's load) with a 70 Hz swing of 3e-3 rad, so that contacts change and sub-steps are
+halved as in a run. Per step, as our master does (raw ctypes calls on preallocated buffers): one setReal
+of the four flange inputs, doStep, one getReal of the two coupling torques; the doStep call is also
+timed alone. The two FMUs run alternately in rounds (best round of each: the
+least disturbed by other jobs on a shared machine); the first steps of each (JIT warm-up) are excluded.
+Prints us per doStep and per whole step of each, the ratios and the largest torque difference.
+
+    python benchmarks/bench_native_gear.py [--steps 6000] [--rounds 5]      # ~1 min on 2 cores
+"""
+import argparse
+import ctypes
+import functools
+import math
+import tempfile
+import time
+from pathlib import Path
+
+import fmpy
+import numpy as np
+from fmpy.fmi2 import FMU2Slave
+
+from drivetrain.fmubuild import build_all
+from drivetrain.nativebuild import build_native_gear, gear_parameters
+from drivetrain.scenario import load_scene
+
+ROOT = Path(__file__).resolve().parents[1]
+ap = argparse.ArgumentParser()
+ap.add_argument("--steps", type=int, default=6000)
+ap.add_argument("--rounds", type=int, default=5)
+args = ap.parse_args()
+
+H = 1.0 / 12000.0
+WARMUP = 200
+tmp = Path(tempfile.mkdtemp(prefix="bench_native_"))
+gear = gear_parameters(load_scene(ROOT / "scenarios" / "example.toml"))
+fmus = {"native": build_native_gear(gear, tmp / "native" / "GearContact.fmu"),
+        "pythonfmu": build_all(tmp / "py", only=["GearContact"])[0]}
+
+n_total = WARMUP + args.steps
+w = 50.0 * math.pi
+t = np.arange(n_total) * H
+delta = np.minimum(t / 0.02, 1.0) * (6e-3 + 3e-3 * np.sin(2 * math.pi * 70.0 * t))
+U = np.column_stack([w * t, np.full_like(t, w), (w * t - delta) / 4.0, np.full_like(t, w / 4.0)])
+keep = []
+
+
+def run(path):
+    """us per step of the doStep call alone and of the whole exchange (setReal, doStep, getReal), with
+    the raw FMI calls on preallocated buffers that our master makes (drivetrain.cosim.slaves.FmiSlave)."""
+    md = fmpy.read_model_description(str(path))
+    s = FMU2Slave(guid=md.guid, unzipDirectory=fmpy.extract(str(path)), modelIdentifier="GearContact",
+                  instanceName="gear")
+    s.instantiate()
+    keep.append(s)                      # pythonfmu instances stay loaded until exit (docs/FMU.md)
+    vr = {v.name: v for v in md.modelVariables}
+    for k, v in gear.items():
+        ref = [vr[k].valueReference]
+        {"Real": s.setReal, "Integer": s.setInteger, "Boolean": s.setBoolean, "String": s.setString}[vr[k].type](
+            ref, [v if vr[k].type != "Real" else float(v)])
+    names_in = ("flange_a_phi", "flange_a_w", "flange_b_phi", "flange_b_w")
+    s.setupExperiment(startTime=0.0)
+    s.enterInitializationMode()
+    s.setReal([vr[k].valueReference for k in names_in], U[0].tolist())
+    s.exitInitializationMode()
+    u = np.zeros(4)
+    y = np.zeros(2)
+    vin = (ctypes.c_uint * 4)(*[vr[k].valueReference for k in names_in])
+    vout = (ctypes.c_uint * 2)(vr["flange_a_tau"].valueReference, vr["flange_b_tau"].valueReference)
+    dp = ctypes.POINTER(ctypes.c_double)
+    f = s._functions
+    addr = lambda fn: ctypes.cast(fn, ctypes.c_void_p).value  # noqa: E731
+    raw = ctypes.CFUNCTYPE(ctypes.c_int)
+    c = ctypes.c_void_p(s.component)
+    set_fn = functools.partial(raw(addr(f["fmi2SetReal"])), c, vin, ctypes.c_size_t(4), ctypes.cast(u.ctypes.data, dp))
+    get_fn = functools.partial(raw(addr(f["fmi2GetReal"])), c, vout, ctypes.c_size_t(2), ctypes.cast(y.ctypes.data, dp))
+    step_fn = functools.partial(ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_double, ctypes.c_double,
+                                                 ctypes.c_int)(addr(f["fmi2DoStep"])), c)
+    out = np.empty((n_total, 2))
+    t_step = 0.0
+    clock = time.perf_counter
+    t0 = None
+    for k in range(n_total):
+        if k == WARMUP:
+            t_step = 0.0
+            t0 = clock()
+        u[:] = U[k]
+        set_fn()
+        ts = clock()
+        status = step_fn(k * H, H, 1)
+        t_step += clock() - ts
+        if status != 0:
+            raise RuntimeError(f"{path}: doStep at step {k} returned {status}")
+        get_fn()
+        out[k] = y
+    total = clock() - t0
+    return t_step / args.steps * 1e6, total / args.steps * 1e6, out
+
+
+best = {k: [math.inf, math.inf] for k in fmus}
+outs = {}
+for _ in range(args.rounds):
+    for name, path in fmus.items():
+        us_step, us_total, outs[name] = run(path)
+        best[name] = [min(best[name][0], us_step), min(best[name][1], us_total)]
+diff = np.max(np.abs(outs["native"] - outs["pythonfmu"])) / np.max(np.abs(outs["pythonfmu"]))
+print(f"steps {args.steps} (+{WARMUP} warm-up) at H = 1/12000 s, best of {args.rounds} rounds")
+print("| FMU | us per doStep | us per step (setReal + doStep + getReal, raw ctypes calls) |")
+print("|---|---|---|")
+for name in fmus:
+    print(f"| {name} | {best[name][0]:.1f} | {best[name][1]:.1f} |")
+print(f"ratio pythonfmu / native: doStep {best['pythonfmu'][0] / best['native'][0]:.1f}x, "
+      f"whole step {best['pythonfmu'][1] / best['native'][1]:.1f}x")
+print(f"largest torque difference, relative to the largest torque: {diff:.3g}")

@@ -233,6 +233,26 @@ def test_c_host_runs_it_without_python(native):
     assert bad.returncode == 12 and "non-finite input" in bad.stdout      # 10 + fmi2Discard
 
 
+def test_hostile_calls(native):
+    """The hostile FMI calls of tests/test_fmu_hostile.py on the native FMU: the same outcomes and log
+    texts as the pythonfmu FMUs, but for a String parameter set before initialization, which is refused
+    at once here (every String parameter of the native FMU is fixed by the build or an option list)."""
+    from test_fmu_hostile import EXPECT, SCRIPT
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    r = subprocess.run([sys.executable, "-c", SCRIPT, str(native)], capture_output=True, text=True, timeout=300,
+                       env=env)
+    done = {rec["case"]: rec for rec in map(json.loads, filter(None, r.stdout.splitlines())) if "case" in rec}
+    assert set(done) == set(EXPECT), (r.returncode, r.stderr[-2000:])
+    expect = {**EXPECT, "hostile_string_before_init": (["refused", "ok", "ok", "refused"], "%n%s%x%%")}
+    for case, (outcomes, text) in expect.items():
+        rec = done[case]
+        assert rec["outcomes"] == outcomes, (case, rec)
+        assert text is None or any(text in line for line in rec["log"]), (case, rec["log"])
+        if outcomes.count("refused") == 0:
+            assert not any(line.startswith("[error]") for line in rec["log"]), (case, rec["log"])
+
+
 def test_cli_refuses_with_a_message(tmp_path, capsys):
     from drivetrain.cli import main
 

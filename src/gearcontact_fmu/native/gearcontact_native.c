@@ -1015,8 +1015,9 @@ static double counter(const Inst *c, fmi2ValueReference vr) {
 
 static fmi2Status bad_vr(Inst *c, const char *call, fmi2ValueReference vr, const char *type) {
     const GcVar *v = var_of(vr);
-    fail(c, "GearContact: %s with value reference %u (%s%s%s), not a %s variable of this FMU; the instance is "
-         "now in its error state", call, vr, v ? v->type : "no such variable", v ? " " : "", v ? v->name : "", type);
+    fail(c, "GearContact: %s with value references that are not %s variables of this FMU: %u (%s%s%s); the "
+         "instance is now in its error state", call, type, vr, v ? v->type : "no such variable", v ? " " : "",
+         v ? v->name : "");
     return fmi2Error;
 }
 

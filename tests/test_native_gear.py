@@ -262,6 +262,9 @@ def test_cli_refuses_with_a_message(tmp_path, capsys):
     assert rc == 2 and "implements fidelity 'table' only" in err and "Traceback" not in err
     assert main(["build-native-gear", str(EXAMPLE), "--out", str(tmp_path / "g.zip")]) == 2
     assert "must end in .fmu" in capsys.readouterr().err
+    assert main(["run", str(EXAMPLE), "--fmu", f"GearContact={tmp_path / 'missing.fmu'}", "--fmu", "GearContact"]) == 2
+    err = capsys.readouterr().err
+    assert "no such file" in err and "expected MODEL=PATH" in err
 
 
 @pytest.mark.slow

@@ -90,9 +90,21 @@ def _cmd_run(args: argparse.Namespace) -> int:
     out = args.out or f"out/{scene.name}"
     from drivetrain.run import RunFailedError, run_scene
 
+    fmu_paths, problems = {}, []
+    for item in args.fmu or ():
+        model, sep, path = item.partition("=")
+        if not (sep and model and path):
+            problems.append(f"--fmu {item!r}: expected MODEL=PATH, e.g. GearContact=fmus/native/GearContact.fmu")
+        elif not Path(path).is_file():
+            problems.append(f"--fmu {item!r}: no such file {path}")
+        else:
+            fmu_paths[model] = Path(path)
+    if problems:
+        print("error: " + "\n  ".join(problems), file=sys.stderr)
+        return 2
     try:
         res = run_scene(scene, out, backend=args.backend, progress=not args.quiet, fmu_dir=args.fmu_dir,
-                        plots=False if args.no_plots else None, force=args.force)
+                        plots=False if args.no_plots else None, force=args.force, fmu_paths=fmu_paths or None)
     except ConfigurationError as exc:
         return _scene_errors(exc)
     except RunFailedError as exc:
@@ -521,6 +533,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--backend", choices=("fmi", "inprocess"), default="fmi",
                    help="fmi: FMUs through fmpy (default); inprocess: the same slave classes without FMI")
     p.add_argument("--fmu-dir", default="fmus", help="where the FMUs are (built on demand; default: fmus)")
+    p.add_argument("--fmu", action="append", metavar="MODEL=PATH",
+                   help="use this FMU file for a model instead of the one in --fmu-dir, e.g. "
+                        "GearContact=fmus/native/GearContact.fmu (drivetrain build-native-gear; repeatable)")
     p.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no report")
     p.add_argument("--force", action="store_true", help=_FORCE_HELP)

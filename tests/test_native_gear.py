@@ -149,6 +149,25 @@ def test_validates_and_declares_like_the_pythonfmu(native, pyfmu):
     assert svs["fidelity"].find("String").get("start") == "table"
 
 
+def test_sources_compile_with_the_documented_command(native, gear, tmp_path):
+    """What another platform does: compile sources/ (the command of docs/FMU.md) and run that binary."""
+    d = tmp_path / "fmu"
+    with zipfile.ZipFile(native) as z:
+        z.extractall(d)
+    so = d / "binaries" / "linux64" / "GearContact.so"
+    ref = _drive(*_open(native, gear), 50)
+    so.unlink()
+    subprocess.run(["gcc", "-O2", "-fPIC", "-shared", "-std=c99", "-ffp-contract=off", f"-I{d / 'sources'}",
+                    str(d / "sources" / "gearcontact_native.c"), "-o", str(so), "-lm"], check=True)
+    md = fmpy.read_model_description(str(native))
+    s = FMU2Slave(guid=md.guid, unzipDirectory=str(d), modelIdentifier="GearContact", instanceName="src")
+    s.instantiate()
+    _KEEP.append(s)
+    vr = {v.name: v for v in md.modelVariables}
+    _set(s, vr, gear)
+    assert np.array_equal(_drive(s, vr, 50), ref)
+
+
 def test_binary_has_no_libpython(native, tmp_path):
     if shutil.which("ldd") is None:
         pytest.skip("ldd not available")

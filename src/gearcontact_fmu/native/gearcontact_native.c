@@ -894,6 +894,7 @@ static int build_stage(Inst *c) {
 fmi2Status fmi2ExitInitializationMode(fmi2Component comp) {
     Inst *c = (Inst *)comp;
     c->phase = PH_STEP;
+    c->last_ok = c->t0;
     if (c->failed) return fmi2OK;       /* already logged; the first doStep is refused */
     if (build_stage(c)) {
         publish(c);

@@ -7,7 +7,9 @@ halved as in a run. Per step, as our master does (raw ctypes calls on preallocat
 of the four flange inputs, doStep, one getReal of the two coupling torques; the doStep call is also
 timed alone. The two FMUs run alternately in rounds (best round of each: the
 least disturbed by other jobs on a shared machine); the first steps of each (JIT warm-up) are excluded.
-Prints us per doStep and per whole step of each, the ratios and the largest torque difference.
+Prints us per doStep and per whole step of each, the ratios and the largest torque difference; and, for
+where the time goes, the pythonfmu FMU's model in this process without FMI (the numba stage kernel
+alone, and GearStage.step around it).
 
     python benchmarks/bench_native_gear.py [--steps 6000] [--rounds 5] [--max-substep 1e-5]   # ~30 s
 """
@@ -24,7 +26,7 @@ import numpy as np
 from fmpy.fmi2 import FMU2Slave
 
 from drivetrain.fmubuild import build_all
-from drivetrain.nativebuild import build_native_gear, gear_parameters
+from drivetrain.nativebuild import _probe_slave, build_native_gear, gear_parameters
 from drivetrain.scenario import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -103,12 +105,42 @@ def run(path):
     return t_step / args.steps * 1e6, total / args.steps * 1e6, out
 
 
+def run_kernel():
+    """The pythonfmu FMU's model without FMI: the numba stage kernel alone, and GearStage.step (the
+    kernel plus the Python around it: energy balance, coupling correction), in this process."""
+    slave = _probe_slave()
+    for k, v in gear.items():
+        setattr(slave, k, v)
+    slave._build()
+    st = slave._stage
+    st.initialize(0.0, *U[0])
+    clock = time.perf_counter
+    t_step = 0.0
+    for k in range(n_total):
+        ts = clock()
+        st.step(k * H, H, *U[k])
+        if k >= WARMUP:
+            t_step += clock() - ts
+    st.initialize(0.0, *U[0])
+    n_sub = st.n_substeps(H)
+    t_kernel = 0.0
+    for k in range(n_total):
+        st.u[:] = U[k]
+        ts = clock()
+        st._run(st.model.data, st._mode, st._scheme, st.x, st._par, st.u, H, n_sub, st.out, st._res)
+        if k >= WARMUP:
+            t_kernel += clock() - ts
+    return t_kernel / args.steps * 1e6, t_step / args.steps * 1e6
+
+
 best = {k: [math.inf, math.inf] for k in fmus}
+best_kernel = [math.inf, math.inf]
 outs = {}
 for _ in range(args.rounds):
     for name, path in fmus.items():
         us_step, us_total, outs[name] = run(path)
         best[name] = [min(best[name][0], us_step), min(best[name][1], us_total)]
+    best_kernel = [min(a, b) for a, b in zip(best_kernel, run_kernel())]
 diff = np.max(np.abs(outs["native"] - outs["pythonfmu"])) / np.max(np.abs(outs["pythonfmu"]))
 print(f"steps {args.steps} (+{WARMUP} warm-up) at H = 1/12000 s, max_substep {gear['max_substep']:g} s, "
       f"best of {args.rounds} rounds")
@@ -116,6 +148,8 @@ print("| FMU | us per doStep | us per step (setReal + doStep + getReal, raw ctyp
 print("|---|---|---|")
 for name in fmus:
     print(f"| {name} | {best[name][0]:.1f} | {best[name][1]:.1f} |")
+print(f"| (pythonfmu's model in-process: numba stage kernel / GearStage.step) | {best_kernel[0]:.1f} | "
+      f"{best_kernel[1]:.1f} |")
 print(f"ratio pythonfmu / native: doStep {best['pythonfmu'][0] / best['native'][0]:.1f}x, "
       f"whole step {best['pythonfmu'][1] / best['native'][1]:.1f}x")
 print(f"largest torque difference, relative to the largest torque: {diff:.3g}")

@@ -180,7 +180,8 @@ def test_binary_has_no_libpython(native, tmp_path):
 
 @pytest.mark.parametrize("extra", [
     {},
-    {"output_torque": "end", "energy_correction": False, "friction": False, "tooth_compliance": 4.5},
+    {"output_torque": "end", "energy_correction": False, "friction": False, "tooth_compliance": 4.5,
+     "initial_state": "inputs", "twist_a_start": 1e-4, "twist_b_start": -2e-4},
     {"output_torque": "mean", "contact_damping": False, "scheme": "rk4", "max_substep": 1e-6, "k_a": 900.0},
 ], ids=["scene", "switches", "rk4"])
 def test_matches_the_pythonfmu_gearcontact(native, pyfmu, gear, extra):
@@ -223,7 +224,16 @@ def test_build_fixed_parameters_are_refused(native, gear, capsys):
     assert "health = mild refused" in text and "scheme must be one of auto | ros2 | rk4" in text
 
 
-def test_nan_input_is_an_error_status_not_a_crash(native, gear, capsys):
+def test_nan_input_is_an_error_status_not_a_crash(native, pyfmu, gear, capsys):
+    errors = []
+    for path in (pyfmu, native):               # the same error text as the pythonfmu FMU's
+        p, pvr = _open(path, gear)
+        _drive(p, pvr, 10)
+        p.setReal([pvr["flange_a_w"].valueReference], [float("nan")])
+        with pytest.raises(FMICallException):
+            p.doStep(10 * H, H)
+        errors.append(p.getString([pvr["error"].valueReference])[0].decode())
+    assert errors[0] == errors[1]
     s, vr = _open(native, gear)
     _drive(s, vr, 10)
     s.setReal([vr["flange_a_w"].valueReference], [float("nan")])
@@ -234,7 +244,10 @@ def test_nan_input_is_an_error_status_not_a_crash(native, gear, capsys):
     with pytest.raises(FMICallException):
         s.doStep(11 * H, H)
     assert "GearContact is in the error state: do_step at t = " in capsys.readouterr().out
-    assert s.getReal([vr["flange_a_tau"].valueReference])[0] != 0.0   # outputs stay readable
+    # as the pythonfmu FMU: the error output says why, the torques are NaN, the bodies keep the last step
+    assert "non-finite input" in s.getString([vr["error"].valueReference])[0].decode()
+    tau, phi = s.getReal([vr["flange_a_tau"].valueReference, vr["pinion_phi"].valueReference])
+    assert math.isnan(tau) and math.isfinite(phi)
 
 
 def test_c_host_runs_it_without_python(native):

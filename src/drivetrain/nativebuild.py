@@ -51,7 +51,9 @@ MODEL = "GearContact"
 #: parameters the C model reads at initialization: settable as in the pythonfmu GearContact
 RUNTIME_PARAMETERS = frozenset({
     "J_pinion", "J_wheel", "k_a", "d_a", "k_b", "d_b", "max_substep", "scheme", "output_torque",
-    "energy_correction", "friction", "contact_damping", "tooth_compliance", "c_compression", "c_expansion"})
+    "energy_correction", "friction", "contact_damping", "tooth_compliance", "c_compression", "c_expansion",
+    "initial_state", "pinion_phi_start", "pinion_w_start", "wheel_phi_start", "wheel_w_start", "twist_a_start",
+    "twist_b_start"})
 #: accepted and not used, as by the pythonfmu GearContact at fidelity table (analytic mesh only)
 IGNORED_PARAMETERS = frozenset({"mesh_damping_ratio", "mesh_phase"})
 #: neutral values of the runtime parameters that act on the map's data, used when the map is built
@@ -166,6 +168,7 @@ def _variables(slave, parameters: dict) -> list[dict]:
     """Every variable of the slave with its value reference, type, causality, start and role."""
     rows = []
     counters = set(slave.STABILITY)
+    nan_on_failure = set(getattr(slave, "NAN_ON_FAILURE", ()))
     for vr, v in sorted(slave.vars.items()):
         kind = type(v).__name__
         causality = v.causality.name
@@ -178,7 +181,7 @@ def _variables(slave, parameters: dict) -> list[dict]:
             role = ("runtime" if v.name in RUNTIME_PARAMETERS else
                     "ignored" if v.name in IGNORED_PARAMETERS else "fixed")
         rows.append({"vr": vr, "name": v.name, "type": kind, "causality": causality, "start": start,
-                     "role": role, "counter": v.name in counters})
+                     "role": role, "counter": v.name in counters, "nan_on_failure": v.name in nan_on_failure})
     return rows
 
 
@@ -205,14 +208,16 @@ def write_header(rows: list[dict], guid: str, path: Path) -> None:
              "enum {"]
     lines += [f"    VR_{r['name']} = {r['vr']}," for r in rows]
     lines += ["};", "", "static const GcVar GC_VARS[GC_N_VARS] = {",
-              "    /* name, type, is_input, is_parameter, is_counter, fixed_by_build, real, int, string start */"]
+              "    /* name, type, is_input, is_parameter, is_counter, nan_on_failure, fixed_by_build, real, int, "
+              "string start */"]
     for r in rows:
         s = r["start"]
         real = _c_double(s) if r["type"] == "Real" else "0.0"
         integer = str(int(bool(s)) if r["type"] == "Boolean" else int(s)) if r["type"] in ("Integer", "Boolean") else "0"
         string = _c_string(s) if r["type"] == "String" else "\"\""
         lines.append(f"    {{{_c_string(r['name'])}, \"{r['type']}\", {int(r['causality'] == 'input')}, "
-                     f"{int(r['causality'] == 'parameter')}, {int(r['counter'])}, {int(r['role'] == 'fixed')}, "
+                     f"{int(r['causality'] == 'parameter')}, {int(r['counter'])}, {int(r['nan_on_failure'])}, "
+                     f"{int(r['role'] == 'fixed')}, "
                      f"{real}, {integer}, {string}}},")
     lines += ["};", "", "#endif", ""]
     path.write_text("\n".join(lines))

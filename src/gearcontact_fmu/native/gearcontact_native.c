@@ -35,6 +35,7 @@ typedef struct {
     const char *name;
     const char *type;            /* "Real" | "Integer" | "Boolean" | "String" */
     int is_input, is_parameter, is_counter;
+    int nan_on_failure;          /* an output that becomes NaN when the instance fails (NAN_ON_FAILURE) */
     int fixed_by_build;          /* a parameter the contact map depends on: only its built value is accepted */
     double real_start;
     int int_start;               /* Integer and Boolean */
@@ -622,8 +623,10 @@ static void correction_apply(Correction *c, const double *phi, const double *w, 
 enum { PH_INSTANTIATED, PH_INIT, PH_STEP, PH_TERMINATED };
 enum { OT_PREDICTED, OT_MEAN, OT_END };
 enum { SCH_AUTO, SCH_ROS2, SCH_RK4 };
+enum { IS_INPUTS, IS_PARAMETERS };
 static const char *SCHEME_NAMES[] = {"auto", "ros2", "rk4"};
 static const char *OUTPUT_NAMES[] = {"predicted", "mean", "end"};
+static const char *INITIAL_NAMES[] = {"inputs", "parameters"};   /* GearContact.INITIAL_STATES */
 
 typedef struct {
     /* ---- identity and resources (kept by fmi2SetFMUstate) ---- */
@@ -635,7 +638,7 @@ typedef struct {
     /* ---- everything below is the FMU state ---- */
     double r[GC_N_VARS];             /* Real variables by value reference */
     int iv[GC_N_VARS];               /* Integer and Boolean variables */
-    int scheme_sel, output_sel;
+    int scheme_sel, output_sel, initial_sel;
     int phase, failed;
     char failmsg[1024];
     double t0, t_next, last_ok;
@@ -647,6 +650,21 @@ typedef struct {
     Correction corr;
     int built;                       /* initialized (the stage exists) */
 } Inst;
+
+/* a double as Python's repr prints it (for messages): nan, inf, the shortest round-trip %g, with ".0"
+ * on integral values */
+typedef struct { char s[40]; } PyFloat;
+static PyFloat pyfloat(double x) {
+    PyFloat f;
+    if (isnan(x)) { snprintf(f.s, sizeof f.s, "nan"); return f; }
+    if (isinf(x)) { snprintf(f.s, sizeof f.s, x > 0 ? "inf" : "-inf"); return f; }
+    for (int prec = 1; prec <= 17; prec++) {
+        snprintf(f.s, sizeof f.s, "%.*g", prec, x);
+        if (strtod(f.s, NULL) == x) break;
+    }
+    if (!strpbrk(f.s, ".en")) strcat(f.s, ".0");
+    return f;
+}
 
 /* log: the message is handed to the host's logger as a printf format, so every '%' is doubled */
 static void logf_(Inst *c, fmi2Status st, const char *cat, const char *fmt, ...) {
@@ -666,17 +684,18 @@ static void logf_(Inst *c, fmi2Status st, const char *cat, const char *fmt, ...)
     c->cb.logger(c->cb.componentEnvironment, c->name, st, cat, esc);
 }
 
-/* the instance enters its error state: every later doStep is refused with this message */
+/* the instance enters its error state (fmu_runtime.guard.enter_error_state): every later doStep is
+ * refused, the output "error" holds the message, the outputs a host would pass on become NaN */
 static void fail(Inst *c, const char *fmt, ...) {
     char buf[1024];
     va_list ap;
     va_start(ap, fmt);
     vsnprintf(buf, sizeof buf, fmt, ap);
     va_end(ap);
-    if (!c->failed) {
-        c->failed = 1;
-        snprintf(c->failmsg, sizeof c->failmsg, "%s", buf);
-    }
+    c->failed = 1;
+    snprintf(c->failmsg, sizeof c->failmsg, "%s", buf);
+    for (int i = 0; i < GC_N_VARS; i++)
+        if (GC_VARS[i].nan_on_failure) c->r[i] = NAN;
     logf_(c, fmi2Error, "logStatusError", "%s", buf);
 }
 
@@ -691,9 +710,11 @@ static void set_defaults(Inst *c) {
     }
     c->scheme_sel = SCH_AUTO;
     c->output_sel = OT_PREDICTED;
+    c->initial_sel = IS_INPUTS;
     for (int k = 0; k < 3; k++) {
         if (strcmp(GC_VARS[VR_scheme].string_start, SCHEME_NAMES[k]) == 0) c->scheme_sel = k;
         if (strcmp(GC_VARS[VR_output_torque].string_start, OUTPUT_NAMES[k]) == 0) c->output_sel = k;
+        if (k < 2 && strcmp(GC_VARS[VR_initial_state].string_start, INITIAL_NAMES[k]) == 0) c->initial_sel = k;
     }
     c->phase = PH_INSTANTIATED;
     c->failed = 0;
@@ -860,15 +881,26 @@ static int build_stage(Inst *c) {
     c->corr.k[0] = r[VR_k_a];
     c->corr.k[1] = r[VR_k_b];
     c->corr.enabled = c->iv[VR_energy_correction] != 0;
-    /* initialize: pinion at flange_a, wheel at flange_b */
-    double u[4] = {r[VR_flange_a_phi], r[VR_flange_a_w], r[VR_flange_b_phi], r[VR_flange_b_w]};
+    /* the initial state (GearContact._initialize_stage + GearStage.initialize). "inputs": each body at
+     * its flange input plus the port twist, at the flange speed; "parameters": the bodies at the
+     * *_start values, the flanges taken at body - twist with the body speeds */
+    double ta = r[VR_twist_a_start], tb = r[VR_twist_b_start];
+    double u[4], *x = c->x;
+    if (c->initial_sel == IS_INPUTS) {
+        u[0] = r[VR_flange_a_phi]; u[1] = r[VR_flange_a_w]; u[2] = r[VR_flange_b_phi]; u[3] = r[VR_flange_b_w];
+        x[0] = u[0] + ta; x[1] = u[2] + tb; x[2] = u[1]; x[3] = u[3];
+    } else {
+        double p_phi = r[VR_pinion_phi_start], p_w = r[VR_pinion_w_start];
+        double w_phi = r[VR_wheel_phi_start], w_w = r[VR_wheel_w_start];
+        u[0] = p_phi - ta; u[1] = p_w; u[2] = w_phi - tb; u[3] = w_w;
+        x[0] = p_phi; x[1] = w_phi; x[2] = p_w; x[3] = w_w;
+    }
     if (!finite_n(u, 4)) {
         fail(c, "initialization failed: StageError: non-finite input at t = %.9g s: phi_a, w_a, phi_b, w_b = "
-             "[%.17g, %.17g, %.17g, %.17g]", c->t0, u[0], u[1], u[2], u[3]);
+             "[%s, %s, %s, %s]", c->t0, pyfloat(u[0]).s, pyfloat(u[1]).s, pyfloat(u[2]).s, pyfloat(u[3]).s);
         return 0;
     }
-    double *x = c->x;
-    x[0] = u[0]; x[1] = u[2]; x[2] = u[1]; x[3] = u[3]; x[4] = 0.0; x[5] = 0.0; x[6] = 0.0;
+    x[4] = 0.0; x[5] = 0.0; x[6] = 0.0;
     c->e_diss = 0.0;
     memcpy(c->u, u, sizeof u);
     /* GearStage._instantaneous */
@@ -922,7 +954,8 @@ static int stage_step(Inst *c, double t, double H) {
     double *r = c->r;
     double phi_a = r[VR_flange_a_phi], w_a = r[VR_flange_a_w], phi_b = r[VR_flange_b_phi], w_b = r[VR_flange_b_w];
     if (!(H > 0.0)) {
-        fail(c, "do_step at t = %.9g s failed: communication step must be > 0, got %.17g at t = %.9g s", t, H, t);
+        fail(c, "do_step at t = %.9g s failed: communication step must be > 0, got %s at t = %.9g s", t,
+             pyfloat(H).s, t);
         return 0;
     }
     double *u = c->u;
@@ -946,13 +979,14 @@ static int stage_step(Inst *c, double t, double H) {
         double tf = t + c->res[RTF];
         if (code == CODE_NONFINITE_INPUT)
             fail(c, "do_step at t = %.9g s failed: non-finite input at t = %.9g s: phi_a, w_a, phi_b, w_b = "
-                 "[%.17g, %.17g, %.17g, %.17g]", t, t, phi_a, w_a, phi_b, w_b);
+                 "[%s, %s, %s, %s]", t, t, pyfloat(phi_a).s, pyfloat(w_a).s, pyfloat(phi_b).s, pyfloat(w_b).s);
         else if (code == CODE_MESH_STATUS)
             fail(c, "do_step at t = %.9g s failed: mesh error state (status %d: penetration %.6g m beyond u_max) "
                  "at t = %.9g s", t, (int)c->out[OUT_STATUS], c->res[RDET], tf);
         else
-            fail(c, "do_step at t = %.9g s failed: non-finite stage state at t = %.9g s (state [%.17g, %.17g, "
-                 "%.17g, %.17g]); reduce max_substep or check the parameters", t, tf, x[0], x[1], x[2], x[3]);
+            fail(c, "do_step at t = %.9g s failed: non-finite stage state at t = %.9g s (state [%s, %s, %s, %s]); "
+                 "reduce max_substep or check the parameters", t, tf, pyfloat(x[0]).s, pyfloat(x[1]).s,
+                 pyfloat(x[2]).s, pyfloat(x[3]).s);
         return 0;
     }
     const double *res = c->res;
@@ -979,8 +1013,12 @@ fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real t, fmi2Real H, fmi2Boolean no
         if (c->phase == PH_TERMINATED) snprintf(why, sizeof why, "after fmi2Terminate");
         else if (c->phase != PH_STEP) snprintf(why, sizeof why, "before fmi2ExitInitializationMode");
         else snprintf(why, sizeof why, "but the previous step ended at t = %.12g s (communication points must "
-                      "follow each other; restore an FMU state to go back)", c->t_next);
-        fail(c, "GearContact: fmi2DoStep at t = %.12g s %s; the instance is now in its error state", t, why);
+                      "follow each other; this FMU cannot roll back)", c->t_next);
+        if (c->failed)
+            logf_(c, fmi2Error, "logStatusError", "GearContact: fmi2DoStep at t = %.12g s %s; the instance is now "
+                  "in its error state", t, why);
+        else
+            fail(c, "GearContact: fmi2DoStep at t = %.12g s %s; the instance is now in its error state", t, why);
         return fmi2Discard;
     }
     if (c->failed) {
@@ -1059,6 +1097,8 @@ fmi2Status fmi2GetString(fmi2Component comp, const fmi2ValueReference vr[], size
         CHECK_VR("fmi2GetString", "String")
         if (vr[i] == VR_scheme) value[i] = SCHEME_NAMES[c->scheme_sel];
         else if (vr[i] == VR_output_torque) value[i] = OUTPUT_NAMES[c->output_sel];
+        else if (vr[i] == VR_initial_state) value[i] = INITIAL_NAMES[c->initial_sel];
+        else if (vr[i] == VR_error) value[i] = c->failed ? c->failmsg : "";
         else value[i] = v->string_start;
     }
     return fmi2OK;
@@ -1142,17 +1182,21 @@ fmi2Status fmi2SetString(fmi2Component comp, const fmi2ValueReference vr[], size
         CHECK_VR("fmi2SetString", "String")
         if (!settable_now(c, v, "fmi2SetString")) return fmi2Error;
         const char *s = value[i] ? value[i] : "";
-        if (vr[i] == VR_scheme || vr[i] == VR_output_torque) {
-            const char **names = vr[i] == VR_scheme ? SCHEME_NAMES : OUTPUT_NAMES;
+        if (vr[i] == VR_scheme || vr[i] == VR_output_torque || vr[i] == VR_initial_state) {
+            const char **names = vr[i] == VR_scheme ? SCHEME_NAMES : vr[i] == VR_output_torque ? OUTPUT_NAMES
+                                                                                               : INITIAL_NAMES;
+            int n_names = vr[i] == VR_initial_state ? 2 : 3;
             int found = -1;
-            for (int k = 0; k < 3; k++)
+            for (int k = 0; k < n_names; k++)
                 if (strcmp(s, names[k]) == 0) found = k;
             if (found < 0) {
-                fail(c, "GearContact: %s must be one of %s | %s | %s, got '%s'", v->name, names[0], names[1],
-                     names[2], s);
+                fail(c, "GearContact: %s must be one of %s | %s%s%s, got '%s'", v->name, names[0], names[1],
+                     n_names == 3 ? " | " : "", n_names == 3 ? names[2] : "", s);
                 return fmi2Error;
             }
-            if (vr[i] == VR_scheme) c->scheme_sel = found; else c->output_sel = found;
+            if (vr[i] == VR_scheme) c->scheme_sel = found;
+            else if (vr[i] == VR_output_torque) c->output_sel = found;
+            else c->initial_sel = found;
         } else if (strcmp(s, v->string_start) != 0) {
             /* fidelity, mode, health, faults, manufacturing errors, mesh files: what the map was built from */
             return refuse_fixed(c, v, s, v->string_start);

@@ -10,6 +10,7 @@ and leaving initialization mode and passes no connected values during initializa
 must still be at its operating point after the first step (it once ran at 1 rad/s instead of 157).
 The container must start without a spike: no torque in the first 50 ms beyond 1.1x the steady torque.
 The libcosim run of the archive is in tests/test_ssp_export.py. docs/FMU.md has the recipe per host.
+Unmarked: the container export's own checks (start values without spaces, names), no host needed.
 """
 import importlib.util
 import json
@@ -22,8 +23,6 @@ from _hosts import EXAMPLE, SHORT, TORQUES, assert_matches, master_torques, run_
 
 from drivetrain.run import assemble_scene
 from drivetrain.scenario import load_scene
-
-pytestmark = pytest.mark.hosts
 
 
 @pytest.fixture(scope="module")
@@ -75,6 +74,7 @@ _ECOS = textwrap.dedent("""
 """)
 
 
+@pytest.mark.hosts
 def test_the_ssp_runs_in_ecos_as_in_our_master(system, fmu_dir, tmp_path):
     _installed("ecospy", "ecospy")
     from drivetrain.ssp import export_ssp
@@ -99,6 +99,7 @@ _CONTAINER = textwrap.dedent("""
 """)
 
 
+@pytest.mark.hosts
 def test_the_fmus_run_in_an_fmu_container_as_in_our_master(system, fmu_dir, tmp_path):
     _installed("fmu_manipulation_toolbox", "fmu-manipulation-toolbox")
     from drivetrain.container import export_container
@@ -114,3 +115,30 @@ def test_the_fmus_run_in_an_fmu_container_as_in_our_master(system, fmu_dir, tmp_
         a = np.asarray(got[k])
         steady = abs(a[n // 2:].mean())
         assert np.abs(a[:n50]).max() <= 1.1 * steady, (k, np.abs(a[:n50]).max() / steady)
+
+
+def test_container_start_values_are_written_without_spaces():
+    from drivetrain.components import parse_profile
+    from drivetrain.container import _spaceless
+
+    assert _spaceless("m.fidelity", "table") == "table"
+    profile = "0.0:0.0; 0.3:1500.0"
+    assert " " not in _spaceless("m.speed_profile", profile)
+    assert [a.tolist() for a in parse_profile(_spaceless("m.speed_profile", profile))] == \
+        [a.tolist() for a in parse_profile(profile)]
+    faults = json.dumps([{"kind": "void", "member": "wheel", "tooth": 38}])
+    assert json.loads(_spaceless("gear.faults", faults)) == json.loads(faults)
+    with pytest.raises(ValueError, match="gear.pinion_mesh_file = 'my mesh.obj'.*splits start values at spaces"):
+        _spaceless("gear.pinion_mesh_file", "my mesh.obj")
+
+
+def test_container_names_are_checked_first(tmp_path):
+    from drivetrain.container import export_container
+    from drivetrain.errors import ConfigurationError
+
+    scene = load_scene(EXAMPLE, SHORT)
+    with pytest.raises(ConfigurationError, match=r"ends in \.fmu"):
+        export_container(scene, tmp_path / "system.ssp")
+    with pytest.raises(ConfigurationError, match="C identifier"):
+        export_container(scene, tmp_path / "my-system.fmu")
+    assert list(tmp_path.iterdir()) == []

@@ -7,6 +7,7 @@ that reason. Signals are compared as our master records them: one sample every `
 first after ``every`` steps (our record's sample 0 is the initial value and is left out).
 """
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -43,10 +44,12 @@ def master_torques(scene, out_dir, fmu_dir) -> dict[str, np.ndarray]:
     return {k: np.asarray(signals[k])[1:] for k in TORQUES}
 
 
-def run_host(script: str, *args, timeout: float = 600) -> dict:
-    """Run a host script in a subprocess; its ``RESULT`` json (skips when it reports ``UNAVAILABLE``)."""
+def run_host(script: str, *args, timeout: float = 600, tmpdir=None) -> dict:
+    """Run a host script in a subprocess; its ``RESULT`` json (skips when it reports ``UNAVAILABLE``).
+    ``tmpdir``: the subprocess's TMPDIR (Ecos extracts archives there and leaves them)."""
+    env = None if tmpdir is None else {**os.environ, "TMPDIR": str(tmpdir)}
     r = subprocess.run([sys.executable, "-c", script, *map(str, args)], capture_output=True, text=True,
-                       timeout=timeout)
+                       timeout=timeout, env=env)
     lines = r.stdout.splitlines()
     unavailable = [line[12:] for line in lines if line.startswith("UNAVAILABLE ")]
     if unavailable:

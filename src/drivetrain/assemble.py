@@ -24,7 +24,7 @@ import dataclasses
 import json
 
 from drivetrain import rig, stability
-from drivetrain.components import FlexibleShaft, FlexibleShaftParams, params_from
+from drivetrain.components import COMPONENTS, FlexibleShaft, FlexibleShaftParams, make_component, params_from
 from drivetrain.signals import characteristic_frequencies
 from drivetrain.system import ComponentSpec, Connection, SystemSpec
 from gearcontact_fmu.manufacturing_specs import draw_errors
@@ -178,7 +178,7 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     components.append(ComponentSpec("upper", "UpperTransmission", up))
     components.append(ComponentSpec("gear", "GearContact", gear))
     connections = [Connection(s, i) for s, i in part.connections]
-
+    gear.update(gear_start_state(components, connections, "gear"))
 
     meta = {
         "sensors": sensor_map(eff.shaft_flexibility),
@@ -209,4 +209,28 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     return spec
 
 
-__all__ = ["assemble", "sensor_map", "SENSORS_COMMON"]
+#: the gear stage's bodies and the flange whose connected body each one starts at
+_GEAR_BODIES = (("pinion", "flange_a"), ("wheel", "flange_b"))
+
+
+def gear_start_state(components: list[ComponentSpec], connections: list[Connection], gear: str) -> dict:
+    """GearContact's initial-state parameters (``initial_state = "parameters"``): each of its bodies
+    starts at the angle and speed of the body its flange connects to, as that component starts (built
+    here from its own parameters and read back, so the values are the ones a master passes during
+    initialization, bit for bit). The FMU then starts right in a host that passes nothing before the
+    first step (docs/FMU.md, "Initialization"). Port twists 0, as with ``initial_state = "inputs"``."""
+    by_name = {c.name: c for c in components}
+    out = {"initial_state": "parameters", "twist_a_start": 0.0, "twist_b_start": 0.0}
+    for body, flange in _GEAR_BODIES:
+        conn = next(c for c in connections if c.spring == f"{gear}.{flange}")
+        comp_name, port = conn.inertia.split(".", 1)
+        comp = by_name[comp_name]
+        if comp.model not in COMPONENTS:          # another FMU: it passes its values during initialization
+            return {}
+        values = make_component(comp.model, comp.parameters).outputs(energy=False)
+        out[f"{body}_phi_start"] = float(values[f"{port}_phi"])
+        out[f"{body}_w_start"] = float(values[f"{port}_w"])
+    return out
+
+
+__all__ = ["assemble", "gear_start_state", "sensor_map", "SENSORS_COMMON"]

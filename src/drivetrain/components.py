@@ -35,6 +35,7 @@ It always opposes the motion (dissipative).
 """
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field, fields
 
@@ -991,6 +992,34 @@ class MotorLoad:
 COMPONENTS = {"FlexibleShaft": (FlexibleShaft, FlexibleShaftParams),
               "UpperTransmission": (UpperTransmission, UpperTransmissionParams),
               "MotorLoad": (MotorLoad, MotorLoadParams)}
+
+
+def get_state(comp) -> dict:
+    """A snapshot of a component (and its LineModel) for FMI fmi2GetFMUstate: every array copied,
+    every other attribute deep-copied. :func:`set_state` writes the arrays back in place, so views
+    into them (the LineModel's ``th``, ``om``, ... are views of its state vector) keep working."""
+    state = {}
+    for name, value in vars(comp).items():
+        if isinstance(value, LineModel):
+            state[name] = get_state(value)
+        elif isinstance(value, np.ndarray):
+            state[name] = value.copy()
+        else:
+            state[name] = copy.deepcopy(value)
+    return state
+
+
+def set_state(comp, state: dict) -> None:
+    """Restore a :func:`get_state` snapshot into the same component (the same steps then repeat bit for
+    bit; the snapshot stays usable for another restore)."""
+    for name, value in state.items():
+        current = getattr(comp, name)
+        if isinstance(current, LineModel):
+            set_state(current, value)
+        elif isinstance(current, np.ndarray):
+            current[...] = value
+        else:
+            setattr(comp, name, copy.deepcopy(value))
 
 
 def make_component(model: str, parameters: dict | None = None):

@@ -28,7 +28,7 @@ from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, 
 from pythonfmu.enums import Fmi2Status
 
 from drivetrain import components as C
-from fmu_runtime.guard import fmi_text, guard_value_references
+from fmu_runtime.guard import enter_error_state, fmi_text, guard_value_references, restore_shell_state, shell_state
 from gearcontact_fmu.params import DEFAULT_COMM_STEP_S
 
 #: the modelDescription's DefaultExperiment of every drivetrain FMU: the step they are validated at
@@ -106,6 +106,7 @@ _COMMON_DESCRIPTIONS = {
     "energy_stored": "kinetic and elastic energy inside the FMU",
     "energy_dissipated": "energy dissipated inside the FMU since t = 0 (dampers, losses)",
     "energy_supplied": "work done by sources inside the FMU since t = 0 (motors)",
+    "error": "empty while the instance works; after a failure, why it failed (every Real output is then NaN)",
 }
 _FLANGE_DESCRIPTIONS = {
     "spring": ("angle of the body connected to flange {p} (input, spring side)",
@@ -265,6 +266,10 @@ def init_slave(slave, model: str, slave_kwargs: dict | None = None) -> None:
     # all input values in one call (a tuple), for the per-step finiteness check
     slave._in_values = (operator.attrgetter(*slave._inputs) if len(slave._inputs) > 1
                         else lambda s, _n=tuple(slave._inputs): tuple(getattr(s, n) for n in _n))
+    slave.error = ""
+    slave.register_variable(String("error", causality=Fmi2Causality.output, variability=Fmi2Variability.discrete,
+                                   initial=Fmi2Initial.exact))
+    slave.NAN_ON_FAILURE = tuple(slave._outputs)
     slave._comp = None
     slave._built_with = None
     slave._failed = None
@@ -292,8 +297,30 @@ def _params(slave):
 
 
 def _fail(slave, msg: str):
-    slave._failed = msg
-    slave.log(fmi_text(f"{slave.MODEL}: {msg}"), Fmi2Status.error)
+    """Enter the error state (fmu_runtime.guard.enter_error_state): every Real output becomes NaN."""
+    slave._lazy_pending = False
+    enter_error_state(slave, f"{slave.MODEL}: {msg}")
+
+
+def get_fmu_state(slave) -> dict:
+    """fmi2GetFMUstate: the inputs, outputs and ``error``, the component (components.get_state) and the
+    shell's own flags. Parameters are fixed after initialization and not part of it."""
+    names = slave._inputs + slave._outputs
+    if slave.MODEL == "MotorLoad":
+        names.append("speed_ref_rpm")
+    return {"values": {n: getattr(slave, n) for n in names}, "lazy_pending": slave._lazy_pending,
+            "component": None if slave._comp is None else C.get_state(slave._comp),
+            "shell": shell_state(slave)}
+
+
+def set_fmu_state(slave, state: dict) -> None:
+    """fmi2SetFMUstate: restore a :func:`get_fmu_state` snapshot of this instance."""
+    for n, v in state["values"].items():
+        setattr(slave, n, v)
+    if state["component"] is not None:
+        C.set_state(slave._comp, state["component"])
+    slave._lazy_pending = state["lazy_pending"]
+    restore_shell_state(slave, state["shell"])
 
 
 def _check_inputs(slave, t: float):

@@ -19,7 +19,9 @@ rendered from ``fmu_runtime.slave_template`` into a temporary directory, one per
      to inputs immediately declares them in a class attribute ``output_dependencies``
      (output name -> list of input names, or ``"inputs"`` for all inputs); those are written as
      ``dependencies="<indices>"`` with ``dependenciesKind`` ``dependent``;
-   - ``needsExecutionTool="false"`` (the pythonfmu ``--no-external-tool`` flag).
+   - ``needsExecutionTool="false"`` (the pythonfmu ``--no-external-tool`` flag);
+   - ``canGetAndSetFMUstate="true"`` where the slave class says ``can_get_and_set_fmu_state = True``
+     (it then implements ``_get_fmu_state``/``_set_fmu_state``; pythonfmu keeps the snapshot object).
 
 Slave module names must be unique across FMUs (pythonfmu issue #228); build_all checks it.
 Built FMUs are outputs, not sources (``fmus/*.fmu`` is git-ignored).
@@ -267,7 +269,8 @@ def build_fmu(script: Path, out_dir: Path) -> Path:
     cls = _slave_class(script)
     with tempfile.TemporaryDirectory(prefix="fmubuild_") as tmp:
         bundled = _copy_packages(Path(tmp))
-        fmu = FmuBuilder.build_FMU(script, dest=out_dir, project_files=[bundled], needsExecutionTool=False)
+        fmu = FmuBuilder.build_FMU(script, dest=out_dir, project_files=[bundled], needsExecutionTool=False,
+                                   canGetAndSetFMUstate=bool(getattr(cls, "can_get_and_set_fmu_state", False)))
     fmu = Path(fmu)
     postprocess_model_description(fmu, getattr(cls, "units", None), getattr(cls, "output_dependencies", None),
                                   model=cls.__name__, description=getattr(cls, "description", ""),

@@ -88,6 +88,35 @@ def fmi_text(text: str) -> str:
     return str(text).replace("%", "%%")
 
 
+def enter_error_state(slave, msg: str) -> None:
+    """The one way an instance fails: later steps are refused (``slave._failed``), its ``error`` output
+    says why, the outputs named in ``slave.NAN_ON_FAILURE`` become NaN (a host that goes on passes NaN,
+    not a stale, finite value), and the message is logged with status error."""
+    import math
+
+    from pythonfmu.enums import Fmi2Status
+
+    slave._failed = msg
+    slave.error = msg
+    for name in getattr(slave, "NAN_ON_FAILURE", ()):
+        setattr(slave, name, math.nan)
+    slave.log(fmi_text(msg), Fmi2Status.error)
+
+
+#: the shell's own attributes an FMU state holds (besides the variables and the model)
+SHELL_STATE = ("_failed", "error", "_fmi_phase", "_fmi_t_next")
+
+
+def shell_state(slave) -> dict:
+    """The shell part of fmi2GetFMUstate (the error state and where the next step must start)."""
+    return {n: getattr(slave, n) for n in SHELL_STATE if hasattr(slave, n)}
+
+
+def restore_shell_state(slave, state: dict) -> None:
+    for n, v in state.items():
+        setattr(slave, n, v)
+
+
 _ACCESSORS = {"get_real": "Real", "set_real": "Real", "get_integer": "Integer", "set_integer": "Integer",
               "get_boolean": "Boolean", "set_boolean": "Boolean", "get_string": "String", "set_string": "String"}
 
@@ -100,8 +129,6 @@ def guard_value_references(slave, model: str) -> None:
     then accepted the next doStep as if nothing had happened."""
     import weakref
 
-    from pythonfmu.enums import Fmi2Status
-
     # the wrappers live on the instance: they hold it weakly and call the class's function, so that the
     # instance is not kept alive by a reference cycle (freed by the garbage collector at some later time,
     # possibly after pythonfmu's export library has released the interpreter state)
@@ -113,9 +140,7 @@ def guard_value_references(slave, model: str) -> None:
     slave._fmi_phase = "instantiated"
 
     def fail(msg):
-        slave = ref()
-        slave._failed = msg
-        slave.log(fmi_text(msg), Fmi2Status.error)
+        enter_error_state(ref(), msg)
         raise ValueError(msg)
 
     for name, vtype in _ACCESSORS.items():
@@ -152,9 +177,10 @@ _AFTER_INIT = frozenset(("step", "terminated"))
 def _install_state_machine(slave, ref, model: str) -> None:
     """The FMI 2.0 co-simulation states around the slave's own callbacks: ``fmi2DoStep`` only between
     fmi2ExitInitializationMode and fmi2Terminate, and only at the communication point where the previous
-    step ended (these FMUs cannot roll back: a jump would be integrated as if time were continuous).
+    step ended (a jump would be integrated as if time were continuous).
     Anything else is logged naming the call and what was expected, and the instance enters its error
-    state (every later step refused), as for any other error."""
+    state (every later step refused), as for any other error. fmi2SetFMUstate restores the point where
+    the next step must start (``SHELL_STATE``): a rollback is a jump back through the FMU state only."""
     from pythonfmu.enums import Fmi2Status
 
     cls = type(slave)
@@ -189,8 +215,10 @@ def _install_state_machine(slave, ref, model: str) -> None:
                 why = (f"but the previous step ended at t = {t_next:.12g} s (communication points must follow "
                        f"each other; this FMU cannot roll back)")
             msg = f"{model}: fmi2DoStep at t = {current_time:.12g} s {why}; the instance is now in its error state"
-            s._failed = s._failed or msg
-            s.log(fmi_text(msg), Fmi2Status.error)
+            if s._failed is None:
+                enter_error_state(s, msg)
+            else:
+                s.log(fmi_text(msg), Fmi2Status.error)
             return False
         ok = cls.do_step(s, current_time, step_size)
         if ok:

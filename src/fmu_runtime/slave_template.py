@@ -42,6 +42,7 @@ class {model}(Fmi2Slave):
     units = fmishell.UNITS          # read by drivetrain.fmubuild (modelDescription units)
     variable_descriptions = fmishell.variable_descriptions("{model}")   # and descriptions
     default_experiment = fmishell.DEFAULT_EXPERIMENT
+    can_get_and_set_fmu_state = True   # read by drivetrain.fmubuild (canGetAndSetFMUstate)
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
@@ -55,6 +56,12 @@ class {model}(Fmi2Slave):
 
     def do_step(self, current_time, step_size):
         return fmishell.do_step(self, current_time, step_size)
+
+    def _get_fmu_state(self):
+        return fmishell.get_fmu_state(self)
+
+    def _set_fmu_state(self, state):
+        fmishell.set_fmu_state(self, state)
 '''
 
 

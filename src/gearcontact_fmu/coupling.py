@@ -86,6 +86,15 @@ class EnergyCorrection:
         self._work = [0.0] * n
         self._started = False
 
+    def get_state(self) -> dict:
+        """A copy of the correction state (for FMU state get/set)."""
+        return {n: (list(v) if isinstance(v, list) else v)
+                for n in self.__slots__ if n not in ("n", "k", "enabled") for v in (getattr(self, n),)}
+
+    def set_state(self, state: dict) -> None:
+        for n, v in state.items():
+            setattr(self, n, list(v) if isinstance(v, list) else v)
+
     def apply(self, phi, w, H: float, tau_mean, tau_base, x_end) -> list[float]:
         """One call per step, after the port's step with the flange inputs ``phi``, ``w`` (sequences,
         one per port) over ``H``: ``tau_mean`` the step means the port accounted its work with,

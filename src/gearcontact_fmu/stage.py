@@ -769,6 +769,28 @@ class GearStage:
     def n_substeps(self, H: float) -> int:
         return substeps(H, self.params.max_substep)
 
+    #: what changes as the stage steps (the rest is fixed when it is built; the mesh models keep no state
+    #: that changes a result)
+    _STATE_ARRAYS = ("x", "u", "out", "_res")
+    _STATE_SCALARS = ("t", "tau_a", "tau_b", "tau_a_mean", "tau_b_mean", "energy_stored", "energy_supplied",
+                      "_e_diss_balance", "n_sub_last")
+
+    def get_state(self) -> dict:
+        """A snapshot of everything a step changes (copies): ``set_state`` of it and the same steps
+        repeat bit for bit (FMI fmi2GetFMUstate / fmi2SetFMUstate)."""
+        state = {n: getattr(self, n).copy() for n in self._STATE_ARRAYS}
+        state.update({n: getattr(self, n) for n in self._STATE_SCALARS})
+        state["correction"] = self.correction.get_state()
+        return state
+
+    def set_state(self, state: dict) -> None:
+        """Restore a snapshot of :meth:`get_state` (in place: the arrays keep their identity)."""
+        for n in self._STATE_ARRAYS:
+            getattr(self, n)[:] = state[n]
+        for n in self._STATE_SCALARS:
+            setattr(self, n, state[n])
+        self.correction.set_state(state["correction"])
+
     def initialize(self, t0: float, phi_a: float, w_a: float, phi_b: float, w_b: float,
                    theta_pinion: float | None = None, theta_wheel: float | None = None,
                    omega_pinion: float | None = None, omega_wheel: float | None = None) -> None:

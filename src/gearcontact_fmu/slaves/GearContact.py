@@ -34,10 +34,12 @@ from gearcontact_fmu.mesh_model import (OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, 
 from pythonfmu import Boolean, DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real, String  # noqa: E402
 from pythonfmu.enums import Fmi2Status  # noqa: E402
 
-from fmu_runtime.guard import fmi_text, guard_value_references  # noqa: E402
+from fmu_runtime.guard import enter_error_state, fmi_text, guard_value_references, restore_shell_state, shell_state  # noqa: E402,E501
 from gearcontact_fmu.params import DEFAULT_COMM_STEP_S  # noqa: E402
 
 PACKAGE_ORIGIN = str(Path(gearcontact_fmu.__file__).resolve().parent)
+#: values of the ``initial_state`` parameter (the first is the default)
+INITIAL_STATES = ("inputs", "parameters")
 
 
 class GearContact(Fmi2Slave):
@@ -46,6 +48,7 @@ class GearContact(Fmi2Slave):
     author = "bevel-drivetrain"
     version = gearcontact_fmu.__version__
     default_experiment = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=DEFAULT_COMM_STEP_S)
+    can_get_and_set_fmu_state = True   # read by drivetrain.fmubuild (canGetAndSetFMUstate)
 
     # units of the variables (read by drivetrain.fmubuild to post-process modelDescription.xml)
     units = {
@@ -67,6 +70,8 @@ class GearContact(Fmi2Slave):
         "map_points_per_pitch": "1", "map_approach_points": "1",
         "peak_penetration": "m", "min_substep": "s", "n_substeps": "1", "n_refinements": "1",
         "separated_time": "s", "n_separations": "1",
+        "pinion_phi_start": "rad", "pinion_w_start": "rad/s", "wheel_phi_start": "rad", "wheel_w_start": "rad/s",
+        "twist_a_start": "rad", "twist_b_start": "rad",
     }
 
     # what every variable means (read by drivetrain.fmubuild: modelDescription descriptions; docs/FMU.md)
@@ -83,6 +88,15 @@ class GearContact(Fmi2Slave):
         "mesh_units": "length unit of the mesh files: mm | m | cm | um | in",
         "scheme": "sub-step integrator: auto | ros2 | rk4",
         "output_torque": "what flange_*_tau carries: predicted | mean | end",
+        "initial_state": "where the pinion and wheel start: inputs (the flange inputs at exit of initialization "
+                         "plus twist_*_start) | parameters (pinion_*_start, wheel_*_start; for a host that "
+                         "passes no values during initialization)",
+        "pinion_phi_start": "initial_state parameters: pinion angle at the start time",
+        "pinion_w_start": "initial_state parameters: pinion speed at the start time",
+        "wheel_phi_start": "initial_state parameters: wheel angle at the start time",
+        "wheel_w_start": "initial_state parameters: wheel speed at the start time",
+        "twist_a_start": "twist of the flange_a port spring at the start time (pinion angle - flange_a angle)",
+        "twist_b_start": "twist of the flange_b port spring at the start time (wheel angle - flange_b angle)",
         "z_pinion": "pinion teeth", "z_wheel": "wheel teeth",
         "friction": "tooth friction in the mesh (false: not evaluated)",
         "contact_damping": "contact damping in the mesh (false: not evaluated)",
@@ -136,6 +150,9 @@ class GearContact(Fmi2Slave):
         "separated_time": "stability counter: time out of contact since t = 0",
         "n_separations": "stability counter: contact-loss events since t = 0",
         "coupling_energy_error": "work mismatch of the two flange cuts since t = 0 not yet corrected",
+        "error": "empty while the instance works; after a failure, why it failed (then the torque, mesh and "
+                 "energy outputs are NaN; pinion/wheel keep the last completed step, the counters include "
+                 "the failing sub-step)",
     }
 
     INPUTS = ("flange_a_phi", "flange_a_w", "flange_b_phi", "flange_b_w")
@@ -144,6 +161,8 @@ class GearContact(Fmi2Slave):
                "elastic_energy", "mesh_torque_pinion", "mesh_torque_wheel", "mesh_dissipated_power",
                "pinion_phi", "pinion_w", "wheel_phi", "wheel_w",
                "energy_stored", "energy_dissipated", "energy_supplied")
+    # after a failure: NaN (the state outputs keep the last completed step, see ``error``)
+    NAN_ON_FAILURE = tuple(n for n in OUTPUTS if n not in ("pinion_phi", "pinion_w", "wheel_phi", "wheel_w"))
     # stability counters of the stage and the pending coupling mismatch, cumulative since t = 0: read from
     # the stage when the host asks (no cost per step); after a failed do_step they include the failing sub-step
     STABILITY = {"peak_penetration": "peak_penetration", "min_substep": "min_substep",
@@ -175,6 +194,10 @@ class GearContact(Fmi2Slave):
         self.mesh_units = "mm"
         self.scheme = s.scheme
         self.output_torque = s.output_torque
+        # the initial state of pinion and wheel (INITIAL_STATES; docs/FMU.md "Initialization")
+        self.initial_state = INITIAL_STATES[0]
+        self.pinion_phi_start = self.pinion_w_start = self.wheel_phi_start = self.wheel_w_start = 0.0
+        self.twist_a_start = self.twist_b_start = 0.0
         # PCM constants (RIG.md)
         self.E, self.nu, self.layer_depth = p.E, p.nu, p.layer_depth
         self.c_compression, self.c_expansion = p.c_compression, p.c_expansion
@@ -205,7 +228,7 @@ class GearContact(Fmi2Slave):
 
         P, F = Fmi2Causality.parameter, Fmi2Variability.fixed
         for name in ("fidelity", "mode", "health", "faults", "manufacturing_errors", "pinion_mesh_file",
-                     "wheel_mesh_file", "mesh_units", "scheme", "output_torque"):
+                     "wheel_mesh_file", "mesh_units", "scheme", "output_torque", "initial_state"):
             self.register_variable(String(name, causality=P, variability=F))
         for name in ("z_pinion", "z_wheel", "map_points_per_pitch", "map_approach_points"):
             self.register_variable(Integer(name, causality=P, variability=F))
@@ -216,12 +239,16 @@ class GearContact(Fmi2Slave):
                      "J_pinion", "J_wheel", "k_a", "d_a", "k_b", "d_b", "max_substep",
                      "module", "pressure_angle", "shaft_angle", "face_width", "x_pinion",
                      "addendum_coefficient", "dedendum_coefficient", "backlash", "tip_radius", "tooth_compliance",
-                     "mesh_damping_ratio", "mesh_phase"):
+                     "mesh_damping_ratio", "mesh_phase", "pinion_phi_start", "pinion_w_start",
+                     "wheel_phi_start", "wheel_w_start", "twist_a_start", "twist_b_start"):
             self.register_variable(Real(name, causality=P, variability=F))
         for name in self.INPUTS:
             self.register_variable(Real(name, causality=Fmi2Causality.input))
         for name in self.OUTPUTS:
             self.register_variable(Real(name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact))
+        self.error = ""
+        self.register_variable(String("error", causality=Fmi2Causality.output,
+                                      variability=Fmi2Variability.discrete, initial=Fmi2Initial.exact))
         for name, prop in self.STABILITY.items():
             self.register_variable(Real(name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact,
                                         getter=(lambda prop=prop: self._counter(prop))))
@@ -238,8 +265,7 @@ class GearContact(Fmi2Slave):
     def exit_initialization_mode(self):
         try:
             self._build()
-            self._stage.initialize(self._t0, self.flange_a_phi, self.flange_a_w, self.flange_b_phi,
-                                   self.flange_b_w)
+            self._initialize_stage()
             self._publish()
             self.log(fmi_text(f"GearContact: fidelity {self.fidelity}, mode {self.mode}, scheme "
                               f"{self._stage.scheme}, package {PACKAGE_ORIGIN}"), Fmi2Status.ok)
@@ -260,7 +286,40 @@ class GearContact(Fmi2Slave):
         self._publish()
         return True
 
+    def _get_fmu_state(self):
+        """fmi2GetFMUstate: inputs, outputs, ``error`` and the stage (GearStage.get_state); the
+        parameters are fixed after initialization and not part of it."""
+        return {"values": {n: getattr(self, n) for n in self.INPUTS + self.OUTPUTS},
+                "stage": None if self._stage is None else self._stage.get_state(), "shell": shell_state(self)}
+
+    def _set_fmu_state(self, state):
+        """fmi2SetFMUstate: restore a snapshot of this instance; the steps after it repeat bit for bit."""
+        for n, v in state["values"].items():
+            setattr(self, n, v)
+        if state["stage"] is not None:
+            self._stage.set_state(state["stage"])
+        restore_shell_state(self, state["shell"])
+
     # ---- helpers ----------------------------------------------------------------------------------
+    def _initialize_stage(self):
+        """Start the stage (``initial_state``). "inputs": each body at its flange input plus the port
+        twist, at the flange speed. "parameters": the bodies at ``pinion_*_start``/``wheel_*_start``,
+        the flanges assumed at body - twist with the body speeds (for the outputs at the start time);
+        the inputs a host sets before the first doStep are used from then on."""
+        how = str(self.initial_state).strip()
+        if how not in INITIAL_STATES:
+            raise ValueError(f"initial_state = {how!r}: expected one of {' | '.join(INITIAL_STATES)}")
+        ta, tb = float(self.twist_a_start), float(self.twist_b_start)
+        if how == "inputs":
+            a_phi, a_w, b_phi, b_w = self.flange_a_phi, self.flange_a_w, self.flange_b_phi, self.flange_b_w
+            self._stage.initialize(self._t0, a_phi, a_w, b_phi, b_w, theta_pinion=a_phi + ta,
+                                   theta_wheel=b_phi + tb)
+            return
+        p_phi, p_w = float(self.pinion_phi_start), float(self.pinion_w_start)
+        w_phi, w_w = float(self.wheel_phi_start), float(self.wheel_w_start)
+        self._stage.initialize(self._t0, p_phi - ta, p_w, w_phi - tb, w_w, theta_pinion=p_phi,
+                               theta_wheel=w_phi, omega_pinion=p_w, omega_wheel=w_w)
+
     def _counter(self, prop):
         st = self._stage
         if st is None:
@@ -271,8 +330,8 @@ class GearContact(Fmi2Slave):
             return float("nan")
 
     def _fail(self, msg):
-        self._failed = msg
-        self.log(fmi_text(msg), Fmi2Status.error)
+        """Enter the error state (fmu_runtime.guard.enter_error_state; NAN_ON_FAILURE become NaN)."""
+        enter_error_state(self, msg)
 
     def _build(self):
         from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCMParams

@@ -1,17 +1,17 @@
 """Our system in two more FMI hosts (marked ``hosts``; each skips when its host is not installed):
 
 - the ``drivetrain export-ssp`` archive in Ecos (``pip install ecospy``; its library needs Debian's
-  libtbb12), and
+  libtbb12 and the unzip command), and
 - the four FMUs in an FMU container (``drivetrain.container``, FMU Manipulation Toolbox) run by fmpy,
 
 each against our master on the example scene over 0.5 s, steady and on a start-up ramp: mean and RMS
 of the drive-shaft and propeller-shaft torque transducers within 1e-4 relative. Ecos sets the
-parameters between entering and leaving initialization mode and passes no connected values during
-initialization: the drive motor must still be at its operating point after the first step (it once
-ran at 1 rad/s instead of 157). The container must start at the operating point without a spike: no
-torque in the first 50 ms beyond 1.1x the steady torque. The libcosim run of the archive is in
-tests/test_ssp_export.py; docs/FMU.md has the recipe per host. Unmarked: the container export's own
-checks (start values without spaces, names), no host needed.
+parameters after entering initialization mode and passes the outputs it reads there to the connected
+inputs: the drive motor must be at its operating point after the first step (it once ran at 1 rad/s
+instead of 157). The container must start at the operating point without a spike: no torque in the
+first 50 ms beyond 1.1x the steady torque or our master's own start-up peak. The libcosim run of the
+archive is in tests/test_ssp_export.py; docs/FMU.md has the recipe per host. Unmarked: the container
+export's own checks (start values without spaces, names, initialization order), no host needed.
 """
 import importlib.util
 import json
@@ -120,13 +120,16 @@ def test_the_fmus_run_in_an_fmu_container_as_in_our_master(system, fmu_dir, tmp_
     assert_matches({k: np.asarray(v)[every - 1::every] for k, v in got.items()}, ours)
     if scene.operating_point.speed_profile_rpm:
         return
-    # start-up at the operating point: every step of the first 50 ms within 1.1x the steady torque
-    # (the mean of the last half)
+    # start-up at the operating point: no spike. Every step of the first 50 ms within 1.1x the steady
+    # torque (the mean of the last half), or of our master's own start-up peak where the assembled system
+    # has one (the gear's port springs start untwisted: our master's propeller-shaft torque overshoots
+    # to 1.7x its steady value, the drive shaft's to 1.2x); a host that started a component at rest or
+    # from unset inputs gave 16x (docs/FMU.md, "The whole system as one FMU").
     n50 = round(0.05 / H)
     for k in TORQUES:
         a = np.asarray(got[k])
-        steady = abs(a[n // 2:].mean())
-        assert np.abs(a[:n50]).max() <= 1.1 * steady, (k, np.abs(a[:n50]).max() / steady)
+        allowed = 1.1 * max(abs(a[n // 2:].mean()), np.abs(ours[k][:n50 // every]).max())
+        assert np.abs(a[:n50]).max() <= allowed, (k, np.abs(a[:n50]).max(), allowed)
 
 
 def test_container_start_values_are_written_without_spaces():
@@ -154,3 +157,77 @@ def test_container_names_are_checked_first(tmp_path):
     with pytest.raises(ConfigurationError, match="C identifier"):
         export_container(scene, tmp_path / "my-system.fmu")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_container_initializes_every_spring_side_after_its_inertia_sides():
+    from drivetrain.container import initialization_order
+
+    spec = assemble_scene(load_scene(EXAMPLE, SHORT))
+    order = initialization_order(spec)
+    assert sorted(order) == sorted(c.name for c in spec.components)
+    for conn in spec.connections:
+        spring, inertia = conn.spring.split(".")[0], conn.inertia.split(".")[0]
+        assert order.index(inertia) < order.index(spring), (conn, order)
+
+
+def _start(fmus, spec, names, params_after_enter: bool) -> dict:
+    """Instantiate ``names`` of the assembled system with fmpy, set every bound value before or after
+    fmi2EnterInitializationMode, pass the connected values once in initialization mode as Ecos does,
+    exit, and return every connected output at the start time."""
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Slave
+
+    from drivetrain.ssp import bound_values, system_connections
+
+    comps = {c.name: c for c in spec.components if c.name in names}
+    slaves, refs = {}, {}
+    setters = {"Real": ("setReal", float), "Integer": ("setInteger", int), "Boolean": ("setBoolean", bool),
+               "String": ("setString", str)}
+
+    def set_bound(name):
+        for k, v in bound_values(comps[name]).items():
+            var = refs[name][k]
+            fn, cast = setters[var.type]
+            getattr(slaves[name], fn)([var.valueReference], [cast(v)])
+
+    for name, c in comps.items():
+        md = read_model_description(str(fmus[c.model]))
+        refs[name] = {v.name: v for v in md.modelVariables}
+        f = FMU2Slave(guid=md.guid, unzipDirectory=extract(str(fmus[c.model])), instanceName=name,
+                      modelIdentifier=md.coSimulation.modelIdentifier)
+        f.instantiate()
+        f.setupExperiment(startTime=0.0)
+        slaves[name] = f
+        if not params_after_enter:
+            set_bound(name)
+    for name, f in slaves.items():
+        f.enterInitializationMode()
+        if params_after_enter:
+            set_bound(name)
+    links = [(a, va, b, vb) for a, va, b, vb in system_connections(spec) if a in comps and b in comps]
+    values = [slaves[a].getReal([refs[a][va].valueReference])[0] for a, va, _, _ in links]
+    for (_, _, b, vb), x in zip(links, values):
+        slaves[b].setReal([refs[b][vb].valueReference], [x])
+    for f in slaves.values():
+        f.exitInitializationMode()
+    out = {f"{a}.{va}": slaves[a].getReal([refs[a][va].valueReference])[0] for a, va, _, _ in links}
+    for f in slaves.values():
+        f.terminate()
+        f.freeInstance()
+    return out
+
+
+def test_outputs_read_in_initialization_mode_follow_parameters_set_there(fmu_dir):
+    """Ecos sets the parameters after fmi2EnterInitializationMode and passes the outputs it then reads
+    to the connected inputs. The drivetrain FMUs build again before such a read (fmishell.refresh_init),
+    so the spring-side port starts from the right flange: FlexibleShaft flange_b gave -449 N.m at the
+    start instead of 1.9 when the read returned the build of the default parameters."""
+    from drivetrain.cosim.fmus import ensure_fmus
+
+    spec = assemble_scene(load_scene(EXAMPLE, SHORT))
+    fmus = ensure_fmus([c.model for c in spec.components], fmu_dir)
+    names = ("motors", "drive_shaft", "upper")
+    before = _start(fmus, spec, names, params_after_enter=False)
+    after = _start(fmus, spec, names, params_after_enter=True)
+    assert after == before
+    assert after["drive_shaft.flange_b_tau"] == pytest.approx(1.9016, rel=1e-3)

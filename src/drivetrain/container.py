@@ -4,8 +4,9 @@ What: ``export_container(scene, path)`` writes one co-simulation FMU (FMI 2.0) t
 of the assembled system (instances motors, drive_shaft, upper, gear, as in our master and the SSP
 archive), their internal connections (``ssp.system_connections``: phi and w of the inertia side to the
 spring side, tau back), every assembled parameter and constant input as the embedded FMUs' start
-values (``ssp.bound_values``, typed as each FMU declares it) and the container's internal step = the
-scene's communication step. The container exposes outputs only: the rig's sensors (``sensor_map``,
+values (``ssp.bound_values``, typed as each FMU declares it), the start values of the connected angle
+and speed inputs (``ssp.initial_inputs``) and the container's internal step = the scene's
+communication step. The container exposes outputs only: the rig's sensors (``sensor_map``,
 under the sensor names, e.g. ``drive_shaft_torque``) and any ``outputs`` asked for. Any FMI 2.0 host
 runs it as a single FMU (``fmpy.simulate_fmu(path, step_size=H, output_interval=H)``).
 
@@ -13,8 +14,8 @@ Why this shape: the container's runtime (FMU Manipulation Toolbox 2.0, ``contain
 in parallel mode (Jacobi: every FMU gets the others' outputs of the previous step), the schedule our
 master uses and the energy correction of the spring-side ports assumes (docs/FMU.md). It sets the start
 values before initialization and does not pass connected values in a loop of links during
-initialization: a GearContact whose ``initial_state`` is "inputs" then starts at rest, so the assembled
-system gives it its start state as parameters where it has them.
+initialization (our system is all loops): the spring-side ports would compute their torque at the start
+time from inputs at 0, hence the start values of the connected inputs.
 
 The toolbox splits a start value at spaces (one token per array element), so a String value is written
 without spaces: time profiles ('t0:v0;t1:v1') and JSON values (compact separators) are rewritten, any
@@ -34,7 +35,7 @@ from drivetrain.components import parse_profile
 from drivetrain.cosim.fmus import ensure_fmus
 from drivetrain.errors import ConfigurationError
 from drivetrain.run import assemble_scene
-from drivetrain.ssp import _problems, _value_text, _variables, bound_values, system_connections
+from drivetrain.ssp import _problems, _value_text, _variables, bound_values, initial_inputs, system_connections
 from drivetrain.system import SystemSpec
 
 
@@ -53,6 +54,26 @@ def _spaceless(name: str, text: str) -> str:
         pass
     raise ValueError(f"{name} = {text!r}: the container splits start values at spaces "
                      "(FMU Manipulation Toolbox), and this string has no form without them")
+
+
+def initialization_order(spec: SystemSpec) -> list[str]:
+    """The instances, each after the inertia sides its spring-side ports connect to (a topological order
+    of the flange connections; the spec's order among the rest). The container initializes its FMUs in
+    the order they are declared, each with the values of the FMUs initialized before it (a loop of
+    links is cut before the first one), so every spring-side port then starts from the angle and speed
+    of the body it connects to, as in our master."""
+    after: dict[str, set[str]] = {c.name: set() for c in spec.components}
+    for conn in spec.connections:
+        s_comp, i_comp = conn.spring.split(".", 1)[0], conn.inertia.split(".", 1)[0]
+        if s_comp != i_comp:
+            after[s_comp].add(i_comp)
+    order: list[str] = []
+    while len(order) < len(after):
+        ready = [n for n in after if n not in order and after[n] <= set(order)]
+        if not ready:                                # a loop of spring sides: the spec's order
+            ready = [n for n in after if n not in order]
+        order.append(ready[0])
+    return order
 
 
 def container_outputs(scene, outputs: dict | None = None) -> dict[str, tuple[str, str]]:
@@ -92,8 +113,9 @@ def export_container(scene, path: str | Path, fmu_dir: str | Path = "fmus", spec
         if inst not in instances or var not in descriptions[instances[inst]]:
             problems.append(f"output {name}: {inst}.{var} does not exist")
     starts = []
+    initial = initial_inputs(spec)
     for c in spec.components:
-        for name, value in bound_values(c).items():
+        for name, value in {**bound_values(c), **initial[c.name]}.items():
             if name not in descriptions[c.model]:
                 continue                                   # named by _problems
             vtype = descriptions[c.model][name][0]
@@ -110,8 +132,8 @@ def export_container(scene, path: str | Path, fmu_dir: str | Path = "fmus", spec
 
     node = AssemblyNode(path.name, step_size=spec.comm_step, auto_link=False, auto_input=False,
                         auto_output=False)
-    for c in spec.components:
-        node.add_fmu(f"{c.name}.fmu", f"{c.model}.fmu")
+    for name in initialization_order(spec):
+        node.add_fmu(f"{name}.fmu", instances[name] + ".fmu")
     for a, va, b, vb in system_connections(spec):
         node.add_link(f"{a}.fmu", va, f"{b}.fmu", vb)
     for inst, name, text in starts:

@@ -4,18 +4,20 @@ What: ``export_container(scene, path)`` writes one co-simulation FMU (FMI 2.0) t
 of the assembled system (instances motors, drive_shaft, upper, gear, as in our master and the SSP
 archive), their internal connections (``ssp.system_connections``: phi and w of the inertia side to the
 spring side, tau back), every assembled parameter and constant input as the embedded FMUs' start
-values (``ssp.bound_values``, typed as each FMU declares it), the start values of the connected angle
-and speed inputs (``ssp.initial_inputs``) and the container's internal step = the scene's
-communication step. The container exposes outputs only: the rig's sensors (``sensor_map``,
+values (``ssp.bound_values``, typed as each FMU declares it) and the container's internal step = the
+scene's communication step. The container exposes outputs only: the rig's sensors (``sensor_map``,
 under the sensor names, e.g. ``drive_shaft_torque``) and any ``outputs`` asked for. Any FMI 2.0 host
 runs it as a single FMU (``fmpy.simulate_fmu(path, step_size=H, output_interval=H)``).
 
 Why this shape: the container's runtime (FMU Manipulation Toolbox 2.0, ``container.so``) steps its FMUs
 in parallel mode (Jacobi: every FMU gets the others' outputs of the previous step), the schedule our
-master uses and the energy correction of the spring-side ports assumes (docs/FMU.md). It sets the start
-values before initialization and does not pass connected values in a loop of links during
-initialization (our system is all loops): the spring-side ports would compute their torque at the start
-time from inputs at 0, hence the start values of the connected inputs.
+master uses and the energy correction of the spring-side ports assumes (docs/FMU.md). It initializes
+the FMUs one after the other in the order they are declared, each with the link values of those before
+it; our system is all loops (phi and w one way, tau back), which it cuts before the first FMU of a loop,
+whose linked inputs then stay 0. A spring-side port (MotorLoad ``drive``, FlexibleShaft ``flange_b``)
+computes its torque at the start time from its angle and speed inputs at initialization: started before
+its inertia side it began at -449 N.m instead of 1.9 (a 16x spike of the drive-shaft torque). So the
+FMUs are declared with every spring side after its inertia sides (``initialization_order``).
 
 The toolbox splits a start value at spaces (one token per array element), so a String value is written
 without spaces: time profiles ('t0:v0;t1:v1') and JSON values (compact separators) are rewritten, any
@@ -35,7 +37,7 @@ from drivetrain.components import parse_profile
 from drivetrain.cosim.fmus import ensure_fmus
 from drivetrain.errors import ConfigurationError
 from drivetrain.run import assemble_scene
-from drivetrain.ssp import _problems, _value_text, _variables, bound_values, initial_inputs, system_connections
+from drivetrain.ssp import _problems, _value_text, _variables, bound_values, system_connections
 from drivetrain.system import SystemSpec
 
 
@@ -113,9 +115,8 @@ def export_container(scene, path: str | Path, fmu_dir: str | Path = "fmus", spec
         if inst not in instances or var not in descriptions[instances[inst]]:
             problems.append(f"output {name}: {inst}.{var} does not exist")
     starts = []
-    initial = initial_inputs(spec)
     for c in spec.components:
-        for name, value in {**bound_values(c), **initial[c.name]}.items():
+        for name, value in bound_values(c).items():
             if name not in descriptions[c.model]:
                 continue                                   # named by _problems
             vtype = descriptions[c.model][name][0]

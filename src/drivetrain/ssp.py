@@ -8,10 +8,9 @@ What: ``export_ssp(scene, path)`` writes one ``.ssp`` (a zip) holding
   the default experiment (0 .. the scene's duration) and the communication step (OpenModelica's
   FixedStepMaster annotation; libcosim takes its step from the caller: pass the same one);
 * ``resources/<Model>.fmu``: the FMUs, as built from this checkout;
-* ``resources/<instance>.ssv``: the assembled, calibrated parameter values of each instance, its
-  constant inputs (speed reference, load torque) and the start values of its connected angle and speed
-  inputs (``initial_inputs``: what our master passes during initialization, for hosts that pass
-  nothing then), one parameter set per component, all with the same set name.
+* ``resources/<instance>.ssv``: the assembled, calibrated parameter values of each instance and its
+  constant inputs (speed reference, load torque), one parameter set per component, all with the same
+  set name.
 
 Why this shape: it is the subset of SSP 1.0 that fmpy, OMSimulator, libcosim and Ecos read alike
 (docs/FMU.md): version 1.0, component-to-component connections only, connectors only for connected or
@@ -35,7 +34,6 @@ from xml.sax.saxutils import quoteattr
 
 from fmpy import read_model_description
 
-from drivetrain.components import COMPONENTS, make_component
 from drivetrain.cosim.fmus import ensure_fmus
 from drivetrain.cosim.plan import is_profile
 from drivetrain.errors import ConfigurationError
@@ -75,32 +73,6 @@ def system_connections(spec: SystemSpec) -> list[tuple[str, str, str, str]]:
         out += [(i_comp, f"{i_port}_phi", s_comp, f"{s_port}_phi"),
                 (i_comp, f"{i_port}_w", s_comp, f"{s_port}_w"),
                 (s_comp, f"{s_port}_tau", i_comp, f"{i_port}_tau")]
-    return out
-
-
-def initial_inputs(spec: SystemSpec) -> dict[str, dict[str, float]]:
-    """instance -> {input: value}: start values of the spring sides' connected ``_phi`` and ``_w``
-    inputs, the angle and speed of the body each flange connects to as that component starts (built
-    from its own parameters and read back, as ``assemble.gear_start_state`` does: the values our master
-    passes in its initialization sweeps). The spring-side ports (MotorLoad ``drive``, FlexibleShaft
-    ``flange_b``, GearContact with ``initial_state = "inputs"``) compute their torque at the start time
-    from these inputs at ``exitInitializationMode``; a host that passes no connected values during
-    initialization (Ecos, an FMU container) would leave them at 0 and start with a torque spike
-    (FlexibleShaft ``flange_b``: -449 N.m instead of 1.9 on the example scene). An inertia side that is
-    not one of our Python components gives none (that FMU's host must pass its values)."""
-    by_name = {c.name: c for c in spec.components}
-    started: dict[str, dict] = {}
-    out: dict[str, dict[str, float]] = {c.name: {} for c in spec.components}
-    for conn in spec.connections:
-        s_comp, s_port = conn.spring.split(".", 1)
-        i_comp, i_port = conn.inertia.split(".", 1)
-        comp = by_name[i_comp]
-        if comp.model not in COMPONENTS:
-            continue
-        if i_comp not in started:
-            started[i_comp] = make_component(comp.model, comp.parameters).outputs(energy=False)
-        for q in ("phi", "w"):
-            out[s_comp][f"{s_port}_{q}"] = float(started[i_comp][f"{i_port}_{q}"])
     return out
 
 
@@ -146,11 +118,10 @@ def _variables(fmu_path: Path) -> dict:
     return {v.name: (v.type, v.causality) for v in md.modelVariables}
 
 
-def ssv_text(component, variables: dict, initial: dict | None = None) -> str:
-    """The parameter set of one instance: its parameters and constant inputs, then the start values of its
-    connected inputs ``initial`` (``initial_inputs``), typed as its FMU declares."""
+def ssv_text(component, variables: dict) -> str:
+    """The parameter set of one instance: its parameters and constant inputs, typed as its FMU declares."""
     rows = []
-    for name, value in {**bound_values(component), **(initial or {})}.items():
+    for name, value in bound_values(component).items():
         vtype = variables[name][0]
         try:
             text = _value_text(vtype, value)
@@ -222,8 +193,7 @@ def export_ssp(scene, path: str | Path, fmu_dir: str | Path = "fmus", spec: Syst
     if problems:
         raise ConfigurationError(problems)
     ssd = ssd_text(spec, scene.name, scene.time.duration_s, descriptions)
-    initial = initial_inputs(spec)
-    ssvs = {c.name: ssv_text(c, descriptions[c.model], initial[c.name]) for c in spec.components}
+    ssvs = {c.name: ssv_text(c, descriptions[c.model]) for c in spec.components}
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".part")
     try:

@@ -220,3 +220,17 @@ def test_loss_law_is_dissipative_and_odd():
     T = loss_torque(w, 1.3, 1e-3, 0.3, 16.0, 0.06)
     assert np.all(T * w >= 0)
     assert np.allclose(T, -loss_torque(-w, 1.3, 1e-3, 0.3, 16.0, 0.06))
+
+
+def test_set_inputs_takes_the_fmu_inputs_in_order():
+    """The FMU shell hands a component its inputs positionally, in ``fmishell.port_inputs`` order: each
+    component's ``set_inputs`` must name them in that order (a swapped pair would pass a torque as an
+    angle)."""
+    import inspect
+
+    from drivetrain import fmishell
+    from drivetrain.components import COMPONENTS
+
+    for model, (cls, _) in COMPONENTS.items():
+        names = list(inspect.signature(cls.set_inputs).parameters)[1:]
+        assert names == fmishell.port_inputs(model), model

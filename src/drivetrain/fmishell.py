@@ -307,8 +307,6 @@ def get_fmu_state(slave) -> dict:
     """fmi2GetFMUstate: the inputs, outputs and ``error``, the component (components.get_state) and the
     shell's own flags. Parameters are fixed after initialization and not part of it."""
     names = slave._inputs + slave._outputs
-    if slave.MODEL == "MotorLoad":
-        names.append("speed_ref_rpm")
     return {"values": {n: getattr(slave, n) for n in names}, "lazy_pending": slave._lazy_pending,
             "component": None if slave._comp is None else C.get_state(slave._comp),
             "shell": shell_state(slave)}
@@ -333,14 +331,9 @@ def _check_inputs(slave, t: float):
 
 
 def _apply_inputs(slave):
-    comp = slave._comp
-    m = slave.MODEL
-    if m == "FlexibleShaft":
-        comp.set_inputs(slave.flange_a_tau, slave.flange_b_phi, slave.flange_b_w)
-    elif m == "UpperTransmission":
-        comp.set_inputs(slave.flange_a_tau, slave.flange_b_tau)
-    else:
-        comp.set_inputs(slave.drive_phi, slave.drive_w, slave.load_tau, slave.speed_ref_rpm, slave.load_torque)
+    """Hand the inputs to the component: ``set_inputs`` takes them positionally in the order of
+    :func:`port_inputs` (the port inputs by port, then the extra inputs)."""
+    slave._comp.set_inputs(*slave._in_values(slave))
 
 
 def _publish(slave, initial: bool = False):

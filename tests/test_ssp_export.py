@@ -13,11 +13,11 @@ import xml.etree.ElementTree as ET
 import zipfile
 from pathlib import Path
 
-import numpy as np
 import pytest
+from _hosts import assert_matches, master_torques, run_host, schedule, torque_refs
 
 from drivetrain.errors import ConfigurationError
-from drivetrain.run import assemble_scene, run_scene
+from drivetrain.run import assemble_scene
 from drivetrain.scenario import load_scene
 from drivetrain.ssp import PARAMETER_SET, SSD_NAME, export_ssp, system_connections
 
@@ -159,26 +159,11 @@ _LIBCOSIM = textwrap.dedent("""
                          ids=["steady", "startup_ramp"])
 def test_the_ssp_runs_in_libcosim_as_in_our_master(overrides, fmu_dir, tmp_path):
     pytest.importorskip("libcosimpy")
-    from drivetrain.assemble import sensor_map
-    from drivetrain.outputs import read_hdf5
-
     scene = load_scene(EXAMPLE, SHORT + overrides)
     spec = assemble_scene(scene)
     path = export_ssp(scene, tmp_path / "system.ssp", fmu_dir=fmu_dir, spec=spec)
-    res = run_scene(scene, tmp_path / "ours", progress=False, fmu_dir=fmu_dir)
-    ours = read_hdf5(res.files["signals"])["signals"]
-    sensors = sensor_map(scene.effects.shaft_flexibility)
-    refs = {k: sensors[k].split(".", 1) for k in ("drive_shaft_torque", "propeller_shaft_torque")}
-    H = spec.comm_step
-    n = round(scene.time.duration_s / H)
-    every = round(1.0 / scene.time.sample_rate_Hz / H)
-    r = subprocess.run([sys.executable, "-c", _LIBCOSIM, str(path), repr(H), str(n), str(every), json.dumps(refs)],
-                       capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0, r.stderr[-3000:]
-    theirs = json.loads(next(line for line in r.stdout.splitlines() if line.startswith("RESULT "))[7:])
-    for k in refs:
-        a = np.asarray(theirs[k])
-        b = np.asarray(ours[k][1:len(a) + 1])          # our record starts with the initial sample
-        assert len(a) == n // every and len(b) == len(a)
-        assert a.mean() == pytest.approx(b.mean(), rel=1e-4), k
-        assert np.sqrt(np.mean(a * a)) == pytest.approx(np.sqrt(np.mean(b * b)), rel=1e-4), k
+    ours = master_torques(scene, tmp_path / "ours", fmu_dir)
+    H, n, every = schedule(scene, spec)
+    theirs = run_host(_LIBCOSIM, path, repr(H), n, every, json.dumps(torque_refs(scene)))
+    assert all(len(v) == n // every for v in theirs.values())
+    assert_matches(theirs, ours)

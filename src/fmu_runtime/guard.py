@@ -185,16 +185,32 @@ def _install_state_machine(slave, ref, model: str) -> None:
 
     cls = type(slave)
     slave._fmi_t_next = None
+    # Initialization mode: a slave class with ``refresh_initialization_outputs`` brings its outputs up to
+    # date with parameters set after fmi2EnterInitializationMode before any fmi2GetReal (FMI 2.0 allows
+    # setting them there; Ecos does, then passes the outputs it reads to the connected inputs). The
+    # refreshing getter is installed for initialization mode only: no cost per step.
+    refresh = getattr(cls, "refresh_initialization_outputs", None)
+    step_get_real = slave.get_real
+
+    def init_get_real(vrs):
+        s = ref()
+        if s._fmi_phase == "initialization":
+            refresh(s)
+        return step_get_real(vrs)
 
     def enter_initialization_mode():
         s = ref()
         s._fmi_phase = "initialization"
         s._fmi_t_next = None
-        return cls.enter_initialization_mode(s)
+        result = cls.enter_initialization_mode(s)
+        if refresh is not None:
+            s.get_real = init_get_real
+        return result
 
     def exit_initialization_mode():
         s = ref()
         s._fmi_phase = "step"
+        s.get_real = step_get_real
         return cls.exit_initialization_mode(s)
 
     def terminate():

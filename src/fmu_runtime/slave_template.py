@@ -54,6 +54,9 @@ class {model}(Fmi2Slave):
     def exit_initialization_mode(self):
         fmishell.exit_init(self)
 
+    def refresh_initialization_outputs(self):
+        fmishell.refresh_init(self)
+
     def do_step(self, current_time, step_size):
         return fmishell.do_step(self, current_time, step_size)
 

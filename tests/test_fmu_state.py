@@ -99,8 +99,9 @@ def test_gear_starts_right_when_the_host_passes_nothing(fmus, assembled):
     without them (``initial_state = "inputs"``) it starts at rest against spinning neighbours."""
     gear = assembled["gear"]
     assert gear["initial_state"] == "parameters" and gear["pinion_w_start"] > 50.0
-    flange = {"flange_a_phi": gear["pinion_phi_start"], "flange_a_w": gear["pinion_w_start"],
-              "flange_b_phi": gear["wheel_phi_start"], "flange_b_w": gear["wheel_w_start"]}
+    assert gear["twist_a_start"] < 0.0 < gear["twist_b_start"]      # the port springs carry the load
+    flange = {"flange_a_phi": gear["pinion_phi_start"] - gear["twist_a_start"], "flange_a_w": gear["pinion_w_start"],
+              "flange_b_phi": gear["wheel_phi_start"] - gear["twist_b_start"], "flange_b_w": gear["wheel_w_start"]}
     out = _run(f"""
         gear, flange = json.loads({json.dumps(gear)!r}), json.loads({json.dumps(flange)!r})
         H = 1.0 / 12000.0
@@ -130,7 +131,9 @@ def test_gear_starts_right_when_the_host_passes_nothing(fmus, assembled):
     by_inputs, by_parameters, nothing = out
     assert by_parameters == by_inputs                    # bit for bit, the outputs at t0 included
     peak = max(abs(r[1]) for r in by_inputs)
-    assert max(abs(r[1]) for r in nothing) > 10 * peak   # the start-up spike the parameters prevent
+    assert by_inputs[0][1] == pytest.approx(gear["k_b"] * gear["twist_b_start"])   # the loaded port at t0
+    assert peak <= 1.1 * abs(by_inputs[0][1])            # ... and no start-up transient of the stage
+    assert max(abs(r[1]) for r in nothing) > 5 * peak    # the start-up spike the parameters prevent
 
 
 @pytest.mark.parametrize("model", ["GearContact", "MotorLoad", "FlexibleShaft", "UpperTransmission"])

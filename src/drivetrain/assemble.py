@@ -154,18 +154,24 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
         th_ut = th_next
     up.update(max_substep=csub, phi0=th_ut, w0=w)
     phi_a = th_ut / up["ratio"]
+    gear = _gear_parameters(scene, part, sub)
+    # the stage's port springs carry the steady through torques from the start: the pinion lags the
+    # body at flange_a by T_msh / k_a (the stage resists the drive), the wheel leads the propeller
+    # body by T_psh / k_b; the mesh sits at its static deflection s0 between them
+    twist_a, twist_b = -ss.T_msh / float(gear["k_a"]), ss.T_psh / float(gear["k_b"])
+    theta_p = phi_a + twist_a
     s0 = initial_mesh_deflection(ss.T_msh, eff.mesh_contact)
-    phi_b = (phi_a - s0) / rig.LOWER_RATIO
+    theta_w = (theta_p - s0) / rig.LOWER_RATIO
+    if "manufacturing_errors" in gear:
+        # the errors offset the mesh coordinate by Delta(theta_p, theta_w): start where the offset mesh sits at s0
+        from gearcontact_fmu.manufacturing import mesh_offset
+
+        theta_w += mesh_offset(gear["manufacturing_errors"], theta_p, theta_w) / rig.LOWER_RATIO
+    phi_b = theta_w - twist_b
+    gear.update(twist_a_start=twist_a, twist_b_start=twist_b)
     mo.update(max_substep=csub, energy_correction=int(bool(num.energy_correction)), phi0_motor=th_motor, w0=w,
               tau0=ss.T_dsh, phi0_load=phi_b, w0_load=ss.w_prop,
               load_w_nom=ss.w_prop if ss.w_prop > 0 else 1.0)
-    gear = _gear_parameters(scene, part, sub)
-    if "manufacturing_errors" in gear:
-        # the errors offset the mesh coordinate by Delta(phi_a, phi_b): start where the offset mesh sits at s0
-        from gearcontact_fmu.manufacturing import mesh_offset
-
-        phi_b += mesh_offset(gear["manufacturing_errors"], phi_a, phi_b) / rig.LOWER_RATIO
-        mo.update(phi0_load=phi_b)
 
     inputs = {}
     inputs["speed_ref_rpm"] = ([list(p) for p in op.speed_profile_rpm] if op.speed_profile_rpm
@@ -215,12 +221,15 @@ _GEAR_BODIES = (("pinion", "flange_a"), ("wheel", "flange_b"))
 
 def gear_start_state(components: list[ComponentSpec], connections: list[Connection], gear: str) -> dict:
     """GearContact's initial-state parameters (``initial_state = "parameters"``): each of its bodies
-    starts at the angle and speed of the body its flange connects to, as that component starts (built
+    starts at the angle of the body its flange connects to plus the port twist (``twist_a_start``,
+    ``twist_b_start`` of the gear's parameters), at that body's speed, as that component starts (built
     here from its own parameters and read back, so the values are the ones a master passes during
     initialization, bit for bit). The FMU then starts right in a host that passes nothing before the
-    first step (docs/FMU.md, "Initialization"). Port twists 0, as with ``initial_state = "inputs"``."""
+    first step (docs/FMU.md, "Initialization"); with ``initial_state = "inputs"`` it starts the same."""
     by_name = {c.name: c for c in components}
-    out = {"initial_state": "parameters", "twist_a_start": 0.0, "twist_b_start": 0.0}
+    twists = {"a": float(by_name[gear].parameters.get("twist_a_start", 0.0)),
+              "b": float(by_name[gear].parameters.get("twist_b_start", 0.0))}
+    out = {"initial_state": "parameters"}
     for body, flange in _GEAR_BODIES:
         conn = next(c for c in connections if c.spring == f"{gear}.{flange}")
         comp_name, port = conn.inertia.split(".", 1)
@@ -228,7 +237,7 @@ def gear_start_state(components: list[ComponentSpec], connections: list[Connecti
         if comp.model not in COMPONENTS:          # another FMU: it passes its values during initialization
             return {}
         values = make_component(comp.model, comp.parameters).outputs(energy=False)
-        out[f"{body}_phi_start"] = float(values[f"{port}_phi"])
+        out[f"{body}_phi_start"] = float(values[f"{port}_phi"]) + twists[flange[-1]]
         out[f"{body}_w_start"] = float(values[f"{port}_w"])
     return out
 

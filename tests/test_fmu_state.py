@@ -223,3 +223,23 @@ def test_after_a_failure_outputs_are_nan_and_error_says_why(fmus, assembled, mod
         assert {"pinion_phi", "pinion_w", "peak_penetration", "n_substeps"} <= set(out["finite"])
     else:
         assert out["finite"] == []
+
+
+def test_a_missing_package_is_named_at_the_default_log_level(fmus):
+    """A host whose Python lacks numba: pythonfmu 0.7.0 only says "Failed to instantiate model" and
+    forwards no log message without debug logging; the FMU names the package and what to install on
+    the host's stderr."""
+    code = _HOST + textwrap.dedent(f"""
+        sys.modules["numba"] = None          # as if numba were not installed
+        md = fmpy.read_model_description({fmus["MotorLoad"]!r})
+        f = FMU2Slave(guid=md.guid, unzipDirectory=fmpy.extract({fmus["MotorLoad"]!r}),
+                      modelIdentifier="MotorLoad", instanceName="m")
+        try:
+            f.instantiate(loggingOn=False)
+            print("INSTANTIATED")
+        except Exception as e:
+            print("FAILED", e)
+    """)
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert "FAILED" in p.stdout and "INSTANTIATED" not in p.stdout, p.stdout
+    assert "MotorLoad FMU" in p.stderr and "'numba'" in p.stderr and "requirements.txt" in p.stderr, p.stderr

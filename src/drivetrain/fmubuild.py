@@ -3,7 +3,7 @@
 For each slave script (``gearcontact_fmu/slaves/GearContact.py``, and the drivetrain component slaves
 rendered from ``fmu_runtime.slave_template`` into a temporary directory, one per model):
 
-1. pythonfmu ``FmuBuilder.build_FMU(script, dest, project_files=[_bundled], needsExecutionTool=False)``
+1. pythonfmu ``FmuBuilder.build_FMU(script, dest, project_files=[_bundled])``
    where ``_bundled`` holds copies of the packages ``gearcontact_fmu``, ``drivetrain`` and ``fmu_runtime`` (Python
    sources and package data only: no ``__pycache__``, no numba caches). They land in
    ``resources/_bundled/``; the slave script imports the installed packages when importable and falls
@@ -19,7 +19,9 @@ rendered from ``fmu_runtime.slave_template`` into a temporary directory, one per
      to inputs immediately declares them in a class attribute ``output_dependencies``
      (output name -> list of input names, or ``"inputs"`` for all inputs); those are written as
      ``dependencies="<indices>"`` with ``dependenciesKind`` ``dependent``;
-   - ``needsExecutionTool="false"`` (the pythonfmu ``--no-external-tool`` flag);
+   - ``needsExecutionTool="true"``: the FMU runs only in a host process that can load a CPython
+     with the packages of ``resources/requirements.txt`` (the execution tool; generationTool names
+     pythonfmu). The native GearContact (``drivetrain.nativebuild``) says "false";
    - ``canGetAndSetFMUstate="true"`` where the slave class says ``can_get_and_set_fmu_state = True``
      (it then implements ``_get_fmu_state``/``_set_fmu_state``; pythonfmu keeps the snapshot object).
 
@@ -36,6 +38,8 @@ import tempfile
 import zipfile
 from pathlib import Path
 from xml.etree import ElementTree as ET
+
+from fmu_runtime import RUNTIME_PACKAGES
 
 SRC_ROOT = Path(__file__).resolve().parents[1]          # src/
 PACKAGES = ("gearcontact_fmu", "drivetrain", "fmu_runtime")
@@ -147,8 +151,6 @@ def _slave_class(script: Path):
     return classes[0]
 
 
-#: what the bundled packages import in the host's Python (numba's JIT, scipy's filters, trimesh's mesh IO)
-RUNTIME_PACKAGES = ("pythonfmu", "numpy", "numba", "scipy", "trimesh")
 
 
 def runtime_requirements() -> str:
@@ -186,7 +188,7 @@ def documentation_html(model: str, description: str, requirements: str) -> str:
 def postprocess_model_description(fmu: Path, units: dict | None = None,
                                   output_dependencies: dict | None = None, model: str = "",
                                   description: str = "", variable_descriptions: dict | None = None) -> None:
-    """Add units, UnitDefinitions, output dependencies and needsExecutionTool=false in place, and the
+    """Add units, UnitDefinitions, output dependencies and needsExecutionTool=true in place, and the
     runtime requirements and documentation (resources/requirements.txt, documentation/index.html)."""
     fmu = Path(fmu)
     tmp = fmu.with_name(fmu.name + ".tmp")
@@ -208,7 +210,7 @@ def _edit_xml(data: bytes, units: dict, output_dependencies: dict, descriptions:
     root = ET.fromstring(data)
     cs = root.find("CoSimulation")
     if cs is not None:
-        cs.set("needsExecutionTool", "false")
+        cs.set("needsExecutionTool", "true")       # a CPython with requirements.txt: the tool it needs
     svs = list(root.find("ModelVariables"))
     used = set()
     for sv in svs:
@@ -269,7 +271,7 @@ def build_fmu(script: Path, out_dir: Path) -> Path:
     cls = _slave_class(script)
     with tempfile.TemporaryDirectory(prefix="fmubuild_") as tmp:
         bundled = _copy_packages(Path(tmp))
-        fmu = FmuBuilder.build_FMU(script, dest=out_dir, project_files=[bundled], needsExecutionTool=False,
+        fmu = FmuBuilder.build_FMU(script, dest=out_dir, project_files=[bundled], needsExecutionTool=True,
                                    canGetAndSetFMUstate=bool(getattr(cls, "can_get_and_set_fmu_state", False)))
     fmu = Path(fmu)
     postprocess_model_description(fmu, getattr(cls, "units", None), getattr(cls, "output_dependencies", None),

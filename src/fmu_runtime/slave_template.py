@@ -30,6 +30,9 @@ _FORCE_BUNDLED = os.environ.get("BEVEL_FMU_USE_BUNDLED", "").strip() not in ("",
 if _BUNDLED.is_dir() and (_FORCE_BUNDLED or importlib.util.find_spec("drivetrain") is None):
     sys.path.insert(0, str(_BUNDLED))
 
+from fmu_runtime import check_runtime  # noqa: E402
+
+check_runtime("{model}", _HERE)        # a missing package named where the host shows it
 from pythonfmu import Fmi2Slave  # noqa: E402
 
 from drivetrain import fmishell  # noqa: E402

@@ -27,6 +27,9 @@ _FORCE_BUNDLED = os.environ.get("BEVEL_FMU_USE_BUNDLED", "").strip() not in ("",
 if _BUNDLED.is_dir() and (_FORCE_BUNDLED or importlib.util.find_spec("gearcontact_fmu") is None):
     sys.path.insert(0, str(_BUNDLED))
 
+from fmu_runtime import check_runtime  # noqa: E402
+
+check_runtime("GearContact", _HERE)        # a missing package named where the host shows it
 import gearcontact_fmu  # noqa: E402
 from gearcontact_fmu.mesh_model import (OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY,  # noqa: E402
                                       OUT_MAX_PENETRATION, OUT_N_CONTACT, OUT_NORMAL_FORCE,

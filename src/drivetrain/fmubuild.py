@@ -133,7 +133,7 @@ def _copy_packages(dest: Path) -> Path:
     return bundled
 
 
-def _slave_class(script: Path):
+def slave_class(script: Path):
     """Import the slave script under a private module name and return its Fmi2Slave subclass."""
     from pythonfmu import Fmi2Slave
 
@@ -188,7 +188,7 @@ def documentation_html(model: str, description: str, requirements: str) -> str:
 def postprocess_model_description(fmu: Path, units: dict | None = None,
                                   output_dependencies: dict | None = None, model: str = "",
                                   description: str = "", variable_descriptions: dict | None = None) -> None:
-    """Add units, UnitDefinitions, output dependencies and needsExecutionTool=true in place, and the
+    """Add units, UnitDefinitions and output dependencies in place, and the
     runtime requirements and documentation (resources/requirements.txt, documentation/index.html)."""
     fmu = Path(fmu)
     tmp = fmu.with_name(fmu.name + ".tmp")
@@ -196,7 +196,7 @@ def postprocess_model_description(fmu: Path, units: dict | None = None,
         for item in zin.infolist():
             data = zin.read(item.filename)
             if item.filename == "modelDescription.xml":
-                data = _edit_xml(data, units or {}, output_dependencies or {}, variable_descriptions or {})
+                data = edit_model_description(data, units or {}, output_dependencies or {}, variable_descriptions or {})
             if item.filename in ("resources/requirements.txt", "documentation/index.html"):
                 continue
             zout.writestr(item, data)
@@ -206,11 +206,10 @@ def postprocess_model_description(fmu: Path, units: dict | None = None,
     tmp.replace(fmu)
 
 
-def _edit_xml(data: bytes, units: dict, output_dependencies: dict, descriptions: dict) -> bytes:
+def edit_model_description(data: bytes, units: dict, output_dependencies: dict, descriptions: dict) -> bytes:
+    """modelDescription.xml with the descriptions, units, UnitDefinitions and output dependencies of
+    the module docstring (also used for the native GearContact, drivetrain.nativebuild)."""
     root = ET.fromstring(data)
-    cs = root.find("CoSimulation")
-    if cs is not None:
-        cs.set("needsExecutionTool", "true")       # a CPython with requirements.txt: the tool it needs
     svs = list(root.find("ModelVariables"))
     used = set()
     for sv in svs:
@@ -268,7 +267,7 @@ def build_fmu(script: Path, out_dir: Path) -> Path:
     script = Path(script).resolve()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    cls = _slave_class(script)
+    cls = slave_class(script)
     with tempfile.TemporaryDirectory(prefix="fmubuild_") as tmp:
         bundled = _copy_packages(Path(tmp))
         fmu = FmuBuilder.build_FMU(script, dest=out_dir, project_files=[bundled], needsExecutionTool=True,

@@ -66,9 +66,9 @@ IGNORED_NOTE = " [not used at fidelity table]"
 def _probe_slave():
     """An instance of the pythonfmu GearContact slave (its variables, defaults, units, descriptions and
     map builder); nothing of pythonfmu's export library is loaded."""
-    from drivetrain.fmubuild import _slave_class
+    from drivetrain.fmubuild import slave_class
 
-    cls = _slave_class(SLAVE_SCRIPT)
+    cls = slave_class(SLAVE_SCRIPT)
     return cls(instance_name="native-build", resources=tempfile.gettempdir())
 
 
@@ -237,7 +237,7 @@ def _xml_start(r: dict) -> str:
 def model_description(slave, rows: list[dict], guid: str) -> bytes:
     """modelDescription.xml of the native FMU: the slave's variables (same names, types and value
     references), units and descriptions (drivetrain.fmubuild's post-processing)."""
-    from drivetrain.fmubuild import _edit_xml
+    from drivetrain.fmubuild import edit_model_description
 
     cls = type(slave)
     de = cls.default_experiment
@@ -279,7 +279,8 @@ def model_description(slave, rows: list[dict], guid: str) -> bytes:
         text = cls.variable_descriptions.get(r["name"], "")
         descriptions[r["name"]] = text + (FIXED_NOTE if r["role"] == "fixed" else
                                           IGNORED_NOTE if r["role"] == "ignored" else "")
-    return _edit_xml(ET.tostring(root, encoding="UTF-8", xml_declaration=True), cls.units, {}, descriptions)
+    return edit_model_description(ET.tostring(root, encoding="UTF-8", xml_declaration=True), cls.units, {},
+                                  descriptions)
 
 
 def fmi_header_dir() -> Path:

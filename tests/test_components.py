@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from drivetrain import components as C
+from drivetrain.system import SPRING
 from drivetrain.components import (ComponentError, FlexibleShaft, FlexibleShaftParams, MotorLoad, MotorLoadParams,
                                    UpperTransmission, UpperTransmissionParams, loss_torque, make_component)
 
@@ -170,7 +171,7 @@ def test_energy_balance_every_step(model):
     # stored energy at the step start with the step's inputs (port springs against phi_n)
     for k in range(400):
         _random_drive(comp, rng, t, H)
-        e_start = ln.stored_energy({p.name: ln.p_u0[ln.port_index[p.name]] for p in ln.ports if p.kind == 1})
+        e_start = ln.stored_energy({p.name: ln.p_u0[ln.port_index[p.name]] for p in ln.ports if p.kind == SPRING})
         d0, s0 = ln.energy_dissipated, ln.energy_supplied
         comp.step(t, H)
         t += H

@@ -44,13 +44,14 @@ from numba import njit
 
 from drivetrain import rig
 from drivetrain.errors import ComponentError  # noqa: F401  (re-exported)
+from drivetrain.system import INERTIA, SPRING
 from gearcontact_fmu.coupling import EnergyCorrection
 from gearcontact_fmu.params import CODE_NONFINITE_INPUT, CODE_NONFINITE_STATE, CODE_OK, checked_substeps, substeps
 
 RPM = 2.0 * math.pi / 60.0
 
-INERTIA_PORT = 0
-SPRING_PORT = 1
+#: the kernel's code of each port kind (drivetrain.system.INERTIA / SPRING: the one vocabulary)
+PORT_CODES = {INERTIA: 0, SPRING: 1}
 OUTPUT_TORQUES = ("mean", "end")
 
 
@@ -306,7 +307,7 @@ def line_step(H, n_sub, fp, ip, st, out, wk):
 class Port:
     name: str
     node: int
-    kind: int                 # INERTIA_PORT | SPRING_PORT
+    kind: str                 # drivetrain.system.INERTIA | SPRING
     ratio: float = 1.0        # flange angle = ratio * node angle
     k: float = 0.0            # port spring (spring side)
     c: float = 0.0
@@ -378,7 +379,7 @@ class LineModel:
         self.ip = np.zeros(5 + 2 * P + 2 * L, dtype=np.int64)
         self.ip[:5] = (n, P, L, self.motor_node, OUTPUT_TORQUES.index(output_torque))
         self.ip[5:5 + P] = [p.node for p in self.ports]
-        self.ip[5 + P:5 + 2 * P] = [p.kind for p in self.ports]
+        self.ip[5 + P:5 + 2 * P] = [PORT_CODES[p.kind] for p in self.ports]
         self.ip[5 + 2 * P:5 + 2 * P + L] = [lw.node for lw in self.laws]
         self.ip[5 + 2 * P + L:] = [1 if lw.source else 0 for lw in self.laws]
         self.fp = np.zeros(5 * n + 5 * P + 3 * L + 6)
@@ -419,7 +420,7 @@ class LineModel:
         self.wk = np.zeros(7 * n + 2 * L + 2)
         self.last_H = 0.0
         self.n_sub_last = 0
-        self.spring_ports = [q for q, p in enumerate(self.ports) if p.kind == SPRING_PORT]
+        self.spring_ports = [q for q, p in enumerate(self.ports) if p.kind == SPRING]
         self.correction = EnergyCorrection([self.p_k[q] for q in self.spring_ports], bool(energy_correction))
 
     # ---- state ------------------------------------------------------------------------------------
@@ -520,7 +521,7 @@ class LineModel:
             d = th[:-1] - th[1:]
             e += 0.5 * float(np.dot(self.k[: self.n - 1], d * d))
         for q, p in enumerate(self.ports):
-            if p.kind != SPRING_PORT:
+            if p.kind != SPRING:
                 continue
             if port_phi is not None and p.name in port_phi:
                 phi = port_phi[p.name]
@@ -550,7 +551,7 @@ class LineModel:
 def warmup() -> None:
     """Load (or compile) the kernel with a throw-away model (numba's first dispatch costs 0.1-1 s;
     call this to take it out of a timed section)."""
-    m = LineModel([1.0, 1.0], [1.0], [0.1], None, [Port("a", 0, INERTIA_PORT), Port("b", 1, SPRING_PORT, 1.0, 1.0, 0.1)],
+    m = LineModel([1.0, 1.0], [1.0], [0.1], None, [Port("a", 0, INERTIA), Port("b", 1, SPRING, 1.0, 1.0, 0.1)],
                   [Law("l", 0, 0.1, 0.1, 1.0)], motor_node=0)
     m.step(0.0, 1e-3)
 
@@ -721,6 +722,7 @@ class FlexibleShaft:
     """Drive-shaft line (see FlexibleShaftParams). Ports ``flange_a`` (inertia), ``flange_b`` (spring)."""
 
     model = "FlexibleShaft"
+    PORTS = {"flange_a": INERTIA, "flange_b": SPRING}       #: port name -> kind (the FMU's flanges)
 
     def __init__(self, p: FlexibleShaftParams):
         self.p = p
@@ -777,7 +779,8 @@ class FlexibleShaft:
         self.shaft_nodes = shaft_nodes
         self.port_k = ke
         self.port_c = ce
-        ports = [Port("flange_a", 0, INERTIA_PORT), Port("flange_b", len(J) - 1, SPRING_PORT, 1.0, ke, ce)]
+        kind = self.PORTS
+        ports = [Port("flange_a", 0, kind["flange_a"]), Port("flange_b", len(J) - 1, kind["flange_b"], 1.0, ke, ce)]
         self.line = LineModel(J, k, c, None, ports, (), max_substep=p.max_substep,
                               output_torque=p.output_torque, Mo=Mo, node_names=names,
                               energy_correction=bool(p.energy_correction))
@@ -829,6 +832,7 @@ class UpperTransmission:
     """Rigid 3:1 body with two inertia-side flanges and the calibrated loss (UpperTransmissionParams)."""
 
     model = "UpperTransmission"
+    PORTS = {"flange_a": INERTIA, "flange_b": INERTIA}     #: port name -> kind (the FMU's flanges)
 
     def __init__(self, p: UpperTransmissionParams):
         self.p = p
@@ -838,7 +842,8 @@ class UpperTransmission:
         if not Jtot > 0:
             raise ValueError("J_in + J_out / ratio^2 must be > 0")
         self.J = Jtot
-        ports = [Port("flange_a", 0, INERTIA_PORT, 1.0), Port("flange_b", 0, INERTIA_PORT, 1.0 / p.ratio)]
+        kind = self.PORTS
+        ports = [Port("flange_a", 0, kind["flange_a"], 1.0), Port("flange_b", 0, kind["flange_b"], 1.0 / p.ratio)]
         laws = [Law("loss", 0, p.loss_c, p.loss_Tc, p.loss_wc if p.loss_wc > 0 else 1.0, p.loss_a)]
         self.line = LineModel([Jtot], [], [], None, ports, laws, max_substep=p.max_substep)
         self.initialize()
@@ -891,6 +896,7 @@ class MotorLoad:
     ``load``, inertia side) with the planetary and the load motor (MotorLoadParams)."""
 
     model = "MotorLoad"
+    PORTS = {"drive": SPRING, "load": INERTIA}              #: port name -> kind (the FMU's flanges)
 
     def __init__(self, p: MotorLoadParams):
         self.p = p
@@ -904,7 +910,8 @@ class MotorLoad:
         k = [p.k_c1, 0.0]
         c = [p.d_c1, 0.0]
         cext = [p.c_motor, 0.0, 0.0]
-        ports = [Port("drive", 1, SPRING_PORT, 1.0, p.k_c2, p.d_c2), Port("load", 2, INERTIA_PORT, 1.0)]
+        kind = self.PORTS
+        ports = [Port("drive", 1, kind["drive"], 1.0, p.k_c2, p.d_c2), Port("load", 2, kind["load"], 1.0)]
         laws = [Law("planetary", 2, p.pg_c, p.pg_Tc, p.pg_wc if p.pg_wc > 0 else 1.0, p.pg_a),
                 Law("load_motor", 2, 0.0, 0.0, p.load_w_reg if p.load_w_reg > 0 else 1e-3, 0.0, source=True)]
         self.line = LineModel(J, k, c, cext, ports, laws, motor_node=0,

@@ -20,14 +20,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivetrain.components import COMPONENTS, SPRING_PORT, loss_slope, make_component
+from drivetrain.components import COMPONENTS, loss_slope, make_component
 from drivetrain.rig import default_parameters
-from drivetrain.system import SystemSpec
+from drivetrain.system import SPRING, SystemSpec
 from gearcontact_fmu.analytic import mesh_stiffness
 from gearcontact_fmu.params import BevelGearParams
 
-INERTIA = 0
-SPRING = 1
 
 
 @dataclass
@@ -127,7 +125,7 @@ def component_block(name: str, model: str, params: dict, operating: bool = True)
     comp = make_component(model, params)
     ln = comp.line
     M, K, C = ln.linear_matrices()
-    ports = {p.name: BlockPort(p.name, p.node, SPRING if p.kind == SPRING_PORT else INERTIA, p.ratio, p.k, p.c)
+    ports = {p.name: BlockPort(p.name, p.node, p.kind, p.ratio, p.k, p.c)
              for p in ln.ports}
     n = ln.n
     Kg = np.zeros((n, n))

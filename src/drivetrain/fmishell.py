@@ -29,18 +29,16 @@ from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, 
 from pythonfmu.enums import Fmi2Status
 
 from drivetrain import components as C
+from drivetrain.system import INERTIA, SPRING
 from fmu_runtime.guard import enter_error_state, fmi_text, guard_value_references, restore_shell_state, shell_state
 from gearcontact_fmu.params import DEFAULT_COMM_STEP_S
 
 #: the modelDescription's DefaultExperiment of every drivetrain FMU: the step they are validated at
 DEFAULT_EXPERIMENT = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=DEFAULT_COMM_STEP_S)
 
-#: per model: ports (name -> "spring" | "inertia"), extra inputs, outputs, parameter units
-PORTS = {
-    "FlexibleShaft": {"flange_a": "inertia", "flange_b": "spring"},
-    "UpperTransmission": {"flange_a": "inertia", "flange_b": "inertia"},
-    "MotorLoad": {"drive": "spring", "load": "inertia"},
-}
+#: per model: ports (name -> drivetrain.system.SPRING | INERTIA, as the component declares them), extra
+#: inputs, outputs, parameter units
+PORTS = {model: dict(cls.PORTS) for model, (cls, _) in C.COMPONENTS.items()}
 EXTRA_INPUTS = {
     "FlexibleShaft": (),
     "UpperTransmission": (),
@@ -110,10 +108,10 @@ _COMMON_DESCRIPTIONS = {
     "error": "empty while the instance works; after a failure, why it failed (every Real output is then NaN)",
 }
 _FLANGE_DESCRIPTIONS = {
-    "spring": ("angle of the body connected to flange {p} (input, spring side)",
+    SPRING: ("angle of the body connected to flange {p} (input, spring side)",
                "speed of the body connected to flange {p} (input, spring side)",
                "torque flange {p} applies to the connected body (output, spring side)"),
-    "inertia": ("angle of the body at flange {p} (output, inertia side)",
+    INERTIA: ("angle of the body at flange {p} (output, inertia side)",
                 "speed of the body at flange {p} (output, inertia side)",
                 "torque the connected neighbour applies at flange {p} (input, inertia side)"),
 }
@@ -212,14 +210,14 @@ def variable_descriptions(model: str) -> dict:
 def port_inputs(model: str) -> list[str]:
     out = []
     for p, kind in PORTS[model].items():
-        out += [f"{p}_phi", f"{p}_w"] if kind == "spring" else [f"{p}_tau"]
+        out += [f"{p}_phi", f"{p}_w"] if kind == SPRING else [f"{p}_tau"]
     return out + list(EXTRA_INPUTS[model])
 
 
 def port_outputs(model: str) -> list[str]:
     out = []
     for p, kind in PORTS[model].items():
-        out += [f"{p}_tau"] if kind == "spring" else [f"{p}_phi", f"{p}_w"]
+        out += [f"{p}_tau"] if kind == SPRING else [f"{p}_phi", f"{p}_w"]
     return out + list(OUTPUTS[model]) + list(ENERGY)
 
 
@@ -344,7 +342,7 @@ def _publish(slave, initial: bool = False):
     if initial:
         ln = slave._comp.line
         out["energy_stored"] = ln.stored_energy({p.name: ln.p_u0[ln.port_index[p.name]]
-                                                 for p in ln.ports if p.kind == C.SPRING_PORT})
+                                                 for p in ln.ports if p.kind == SPRING})
         slave._lazy_pending = False
     else:
         slave._lazy_pending = True       # LAZY_OUTPUTS: computed when read

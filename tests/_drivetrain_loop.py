@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from drivetrain.components import ComponentError, make_component
-from drivetrain.system import SystemSpec
+from drivetrain.system import SPRING, SystemSpec
 
 
 class _Gear:
@@ -27,10 +27,14 @@ class _Gear:
                       mu=p.get("mu", 0.002) if p.get("friction", True) else 0.0)
         self.stage = make_stage(fid, stage_params=sp, **kw)
         self.inputs = dict(flange_a_phi=0.0, flange_a_w=0.0, flange_b_phi=0.0, flange_b_w=0.0)
+        # the assembled port twists (the FMU's initial_state: each body at its flange plus the twist)
+        self.twist = (float(p.get("twist_a_start", 0.0)), float(p.get("twist_b_start", 0.0)))
 
     def init(self):
         i = self.inputs
-        self.stage.initialize(0.0, i["flange_a_phi"], i["flange_a_w"], i["flange_b_phi"], i["flange_b_w"])
+        self.stage.initialize(0.0, i["flange_a_phi"], i["flange_a_w"], i["flange_b_phi"], i["flange_b_w"],
+                              theta_pinion=i["flange_a_phi"] + self.twist[0],
+                              theta_wheel=i["flange_b_phi"] + self.twist[1])
 
     def step(self, t, H):
         i = self.inputs
@@ -74,7 +78,7 @@ class Loop:
         if initial and not isinstance(c, _Gear):
             # spring ports: instantaneous spring torque against the current flange inputs
             for p in c.line.ports:
-                if p.kind == 1:
+                if p.kind == SPRING:
                     q = c.line.port_index[p.name]
                     o[f"{p.name}_tau"] = c.line.spring_torque(p.name, c.line.p_u0[q], c.line.p_u1[q])
         return o

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from drivetrain.scenario import default_of
 from gearcontact_fmu.params import substeps
 
 #: wall seconds per communication step of the master (loop overhead without the mesh model)
@@ -90,7 +91,7 @@ def refusal(scene, cost: RunCost) -> str | None:
     ways = []
     if cost.mesh_contact == "pcm":
         ways.append("effects.mesh_contact = \"table\" (the same PCM contact, precomputed)")
-    default_substep_s = type(scene.numerics)().max_substep_s
+    default_substep_s = default_of("numerics.max_substep_s")
     if scene.numerics.max_substep_s < default_substep_s:
         ways.append(f"a larger numerics.max_substep_s (now {scene.numerics.max_substep_s:.3g} s; "
                     f"default {default_substep_s:g} s)")

@@ -286,18 +286,21 @@ CHECK_SECTIONS = ("expect", "check")
 # --------------------------------------------------------------------------------------------------
 
 
+# The resolved sections: every value is filled in by the loader from SCHEMA, which declares each key's
+# default once (the dataclasses have none; a section is never built with missing values).
+
 @dataclass(frozen=True)
 class ScenarioInfo:
     name: str
-    description: str = ""
+    description: str
 
 
 @dataclass(frozen=True)
 class OperatingPoint:
-    drive_speed_rpm: float = 1500.0
-    load_torque_Nm: float = 1.31
-    speed_profile_rpm: tuple[tuple[float, float], ...] | None = None
-    load_profile_Nm: tuple[tuple[float, float], ...] | None = None
+    drive_speed_rpm: float
+    load_torque_Nm: float
+    speed_profile_rpm: tuple[tuple[float, float], ...] | None
+    load_profile_Nm: tuple[tuple[float, float], ...] | None
 
     def speed_at(self, t: float) -> float:
         """Speed reference [rpm] at time t (profile if given)."""
@@ -313,18 +316,18 @@ class OperatingPoint:
 
 @dataclass(frozen=True)
 class GearSpec:
-    health: str = "healthy"
-    faults: tuple = ()                   # normalised fault specifications (dicts), health = "faults"
-    pinion_mesh: Path | None = None      # absolute
-    wheel_mesh: Path | None = None       # absolute
-    mesh_units: str = "mm"
+    health: str
+    faults: tuple                        # normalised fault specifications (dicts), health = "faults"
+    pinion_mesh: Path | None             # absolute
+    wheel_mesh: Path | None              # absolute
+    mesh_units: str
 
 
 @dataclass(frozen=True)
 class TimeSpec:
-    duration_s: float = 20.0
-    settle_s: float = 2.0
-    sample_rate_Hz: float = 3000.0
+    duration_s: float
+    settle_s: float
+    sample_rate_Hz: float
 
     @property
     def output_period_s(self) -> float:
@@ -333,26 +336,26 @@ class TimeSpec:
 
 @dataclass(frozen=True)
 class OutputSpec:
-    sensors: tuple[str, ...] = tuple(RIG_SENSORS)
-    variables: tuple[str, ...] = ()
-    plots: bool = True
-    aalto_csv: bool = False
-    dtype: str = "float64"
+    sensors: tuple[str, ...]
+    variables: tuple[str, ...]
+    plots: bool
+    aalto_csv: bool
+    dtype: str
 
 
 @dataclass(frozen=True)
 class NumericsSpec:
-    comm_step_s: float = DEFAULT_COMM_STEP_S
-    max_substep_s: float = 5.0e-6
-    profile_element_mm: float = 0.05
-    face_element_mm: float = 2.0
-    map_points_per_pitch: int = _GRID.points_per_pitch
-    map_approach_points: int = _GRID.s_points
-    mesh_integrator: str = "auto"
-    energy_correction: bool = True
-    anti_alias: str = "fir"
-    max_contact_hours: float = 4.0
-    tolerance_pct: float | None = None
+    comm_step_s: float
+    max_substep_s: float
+    profile_element_mm: float
+    face_element_mm: float
+    map_points_per_pitch: int
+    map_approach_points: int
+    mesh_integrator: str
+    energy_correction: bool
+    anti_alias: str
+    max_contact_hours: float
+    tolerance_pct: float | None
 
     def steps_per_output(self, sample_rate_Hz: float) -> int:
         return int(round(1.0 / (sample_rate_Hz * self.comm_step_s)))
@@ -360,30 +363,30 @@ class NumericsSpec:
 
 @dataclass(frozen=True)
 class EffectsSpec:
-    mesh_contact: str = "table"
-    shaft_flexibility: str = "flexible"
-    shaft_elements: int = 4
-    friction: bool = True
-    contact_damping: bool = True
-    losses: bool = True
-    sensors: str = "ideal"
-    tooth_compliance: bool = False
-    manufacturing_errors: bool = False
+    mesh_contact: str
+    shaft_flexibility: str
+    shaft_elements: int
+    friction: bool
+    contact_damping: bool
+    losses: bool
+    sensors: str
+    tooth_compliance: bool
+    manufacturing_errors: bool
 
 
 @dataclass(frozen=True)
 class ToothComplianceSpec:
-    factor: float = TOOTH_COMPLIANCE_FACTOR
+    factor: float
 
 
 @dataclass(frozen=True)
 class ManufacturingSpec:
-    grade: int = MANUFACTURING_GRADE
-    runout_grade: int = MANUFACTURING_RUNOUT_GRADE
-    seed: int = 0
-    single_pitch_um: float | None = None
-    runout_um: float | None = None
-    members: tuple[str, ...] = ("pinion", "wheel")
+    grade: int
+    runout_grade: int
+    seed: int
+    single_pitch_um: float | None
+    runout_um: float | None
+    members: tuple[str, ...]
 
 
 @dataclass(frozen=True)
@@ -397,9 +400,9 @@ class Scene:
     outputs: OutputSpec
     numerics: NumericsSpec
     effects: EffectsSpec
-    instruments: Instruments = dataclasses.field(default_factory=Instruments)
-    tooth_compliance: ToothComplianceSpec = dataclasses.field(default_factory=ToothComplianceSpec)
-    manufacturing: ManufacturingSpec = dataclasses.field(default_factory=ManufacturingSpec)
+    instruments: Instruments
+    tooth_compliance: ToothComplianceSpec
+    manufacturing: ManufacturingSpec
     source: Path | None = None           # the file it came from (None if built in code)
     overrides: tuple[str, ...] = ()      # the --set strings applied
     # drivetrain.expect.ExpectSpec of [expect]/[check] (None: absent); not part of what is simulated
@@ -1096,9 +1099,15 @@ def all_keys() -> list[str]:
     return [f"{s}.{k}" for s, keys in SCHEMA.items() for k in keys]
 
 
+def default_of(key: str) -> Any:
+    """The default of a scene key "section.key", as SCHEMA declares it (None: optional, absent)."""
+    section, name = key.split(".", 1)
+    return SCHEMA[section][name].default
+
+
 __all__ = [
     "Scene", "ScenarioInfo", "OperatingPoint", "GearSpec", "TimeSpec", "OutputSpec", "NumericsSpec",
     "EffectsSpec", "ScenarioError", "SCHEMA", "RIG_SENSORS", "TORQUE_SENSORS", "HEALTH_STATES", "FIDELITIES",
     "load_scene", "load_scenes", "resolve", "apply_overrides", "parse_override", "scene_from_dict",
-    "default_scene", "schema_markdown", "dump_toml", "all_keys", "is_grid", "Z_PINION", "Z_WHEEL", "UPPER_RATIO",
+    "default_scene", "schema_markdown", "dump_toml", "all_keys", "default_of", "is_grid", "Z_PINION", "Z_WHEEL", "UPPER_RATIO",
 ]

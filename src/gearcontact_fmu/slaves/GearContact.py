@@ -20,6 +20,7 @@ import importlib.util
 import os
 import sys
 from pathlib import Path
+from typing import Any, NamedTuple
 
 _HERE = Path(__file__).resolve().parent
 _BUNDLED = _HERE / "_bundled"
@@ -45,6 +46,174 @@ PACKAGE_ORIGIN = str(Path(gearcontact_fmu.__file__).resolve().parent)
 INITIAL_STATES = ("inputs", "parameters")
 
 
+class From(NamedTuple):
+    """A default taken from the library's parameter dataclasses (``_default_sources``)."""
+    source: str
+    attribute: str
+
+
+class Counter(NamedTuple):
+    """An output read from the stage when the host asks (no cost per step): ``GearStage.<prop>``."""
+    prop: str
+
+
+class Var(NamedTuple):
+    """One FMU variable, declared once: the slave registers it, fmubuild and nativebuild read its unit
+    and description from here."""
+    name: str
+    type: str            # Real | Integer | Boolean | String
+    causality: str       # PARAMETER (fixed) | INPUT | OUTPUT
+    unit: str            # Real only ("1": dimensionless)
+    default: Any         # a literal, From(...) or Counter(...)
+    description: str
+
+
+PARAMETER, INPUT, OUTPUT = "parameter", "input", "output"
+
+#: every variable of the FMU, in value-reference order
+VARIABLES = (
+    Var("fidelity", "String", PARAMETER, "", "analytic",
+        "mesh model: pcm (online polygonal contact) | table (precomputed contact map) | analytic (ISO "
+        "6336 reference) | ideal (rigid, exact ratio, no backlash)"),
+    Var("mode", "String", PARAMETER, "", From("stage", "mode"),
+        "stage (owns pinion and wheel inertias, sub-steps the mesh) | bare (raw contact torques)"),
+    Var("health", "String", PARAMETER, "", "healthy",
+        "healthy | mild (flank-fracture void) | severe (missing tooth) | faults (the faults list) | mesh "
+        "(the mesh files); all but healthy: pcm/table only"),
+    Var("faults", "String", PARAMETER, "", "[]",
+        "health faults: JSON list of fault specifications (kind, member, tooth, flank, sizes)"),
+    Var("manufacturing_errors", "String", PARAMETER, "", "",
+        "pitch errors and runout as JSON (ManufacturingErrors.to_dict()); empty = none"),
+    Var("pinion_mesh_file", "String", PARAMETER, "", "", "OBJ/STL surface mesh of the pinion; empty = generated"),
+    Var("wheel_mesh_file", "String", PARAMETER, "", "", "OBJ/STL surface mesh of the wheel; empty = generated"),
+    Var("mesh_units", "String", PARAMETER, "", "mm", "length unit of the mesh files: mm | m | cm | um | in"),
+    Var("scheme", "String", PARAMETER, "", From("stage", "scheme"), "sub-step integrator: auto | ros2 | rk4"),
+    Var("output_torque", "String", PARAMETER, "", From("stage", "output_torque"),
+        "what flange_*_tau carries: predicted | mean | end"),
+    Var("initial_state", "String", PARAMETER, "", INITIAL_STATES[0],
+        "where the pinion and wheel start: inputs (the flange inputs at exit of initialization plus "
+        "twist_*_start) | parameters (pinion_*_start, wheel_*_start; for a host that passes no values "
+        "during initialization)"),
+    Var("z_pinion", "Integer", PARAMETER, "", From("gear", "z_pinion"), "pinion teeth"),
+    Var("z_wheel", "Integer", PARAMETER, "", From("gear", "z_wheel"), "wheel teeth"),
+    Var("map_points_per_pitch", "Integer", PARAMETER, "", From("grid", "points_per_pitch"),
+        "table: contact-map nodes along the pinion angle per pinion pitch"),
+    Var("map_approach_points", "Integer", PARAMETER, "", From("grid", "s_points"),
+        "table: contact-map nodes per flank along the approach beyond the contact onset"),
+    Var("friction", "Boolean", PARAMETER, "", True, "tooth friction in the mesh (false: not evaluated)"),
+    Var("contact_damping", "Boolean", PARAMETER, "", True, "contact damping in the mesh (false: not evaluated)"),
+    Var("energy_correction", "Boolean", PARAMETER, "", From("stage", "energy_correction"),
+        "energy-conserving correction of flange_*_tau (returns the measured work mismatch of each cut "
+        "over 10 ms)"),
+    Var("E", "Real", PARAMETER, "Pa", From("pcm", "E"), "Young's modulus of the elastic layer"),
+    Var("nu", "Real", PARAMETER, "1", From("pcm", "nu"), "Poisson's ratio of the elastic layer"),
+    Var("layer_depth", "Real", PARAMETER, "m", From("pcm", "layer_depth"), "elastic layer depth of each body"),
+    Var("c_compression", "Real", PARAMETER, "N.s/m3", From("pcm", "c_compression"),
+        "PCM damping while compressing (pressure per penetration velocity)"),
+    Var("c_expansion", "Real", PARAMETER, "N.s/m3", From("pcm", "c_expansion"), "PCM damping while expanding"),
+    Var("transformation_depth", "Real", PARAMETER, "m", From("pcm", "transformation_depth"),
+        "penetration over which the damping ramps in"),
+    Var("mu", "Real", PARAMETER, "1", From("pcm", "mu"), "friction coefficient"),
+    Var("v_friction", "Real", PARAMETER, "m/s", From("pcm", "v_friction"), "regularisation velocity of friction"),
+    Var("u_max", "Real", PARAMETER, "m", From("pcm", "u_max"),
+        "largest admissible penetration (beyond it the step fails)"),
+    Var("profile_element_size", "Real", PARAMETER, "m", From("resolution", "profile"),
+        "PCM surface-mesh element size along the tooth profile"),
+    Var("face_element_size", "Real", PARAMETER, "m", From("resolution", "face"),
+        "PCM surface-mesh element size along the face width"),
+    Var("J_pinion", "Real", PARAMETER, "kg.m2", From("stage", "J_pinion"), "pinion-side inertia of the stage"),
+    Var("J_wheel", "Real", PARAMETER, "kg.m2", From("stage", "J_wheel"), "wheel-side inertia of the stage"),
+    Var("k_a", "Real", PARAMETER, "N.m/rad", From("stage", "k_a"), "stiffness of the flange_a - pinion port spring"),
+    Var("d_a", "Real", PARAMETER, "N.m.s/rad", From("stage", "d_a"), "damping of the flange_a - pinion port"),
+    Var("k_b", "Real", PARAMETER, "N.m/rad", From("stage", "k_b"), "stiffness of the flange_b - wheel port spring"),
+    Var("d_b", "Real", PARAMETER, "N.m.s/rad", From("stage", "d_b"), "damping of the flange_b - wheel port"),
+    Var("max_substep", "Real", PARAMETER, "s", From("stage", "max_substep"),
+        "largest internal sub-step; sub-steps per communication step = ceil(H / max_substep)"),
+    Var("module", "Real", PARAMETER, "m", From("gear", "module"), "outer transverse module"),
+    Var("pressure_angle", "Real", PARAMETER, "rad", From("gear", "pressure_angle"), "pressure angle"),
+    Var("shaft_angle", "Real", PARAMETER, "rad", From("gear", "shaft_angle"), "shaft angle"),
+    Var("face_width", "Real", PARAMETER, "m", From("gear", "face_width"), "face width"),
+    Var("x_pinion", "Real", PARAMETER, "1", From("gear", "x_pinion"), "pinion profile shift coefficient"),
+    Var("addendum_coefficient", "Real", PARAMETER, "1", From("gear", "addendum_coefficient"), "addendum / module"),
+    Var("dedendum_coefficient", "Real", PARAMETER, "1", From("gear", "dedendum_coefficient"), "dedendum / module"),
+    Var("backlash", "Real", PARAMETER, "m", From("gear", "backlash"),
+        "circumferential backlash on the outer pitch circle"),
+    Var("tip_radius", "Real", PARAMETER, "m", From("gear", "tip_radius"), "tip rounding radius"),
+    Var("tooth_compliance", "Real", PARAMETER, "1", 1.0,
+        "total mesh approach per PCM layer approach (table only; 1 = the layers alone)"),
+    Var("mesh_damping_ratio", "Real", PARAMETER, "1", 0.05, "analytic mesh: damping ratio of the mesh mode"),
+    Var("mesh_phase", "Real", PARAMETER, "rad", 0.0,
+        "analytic mesh: pinion angle at which a drive flank passes the pitch point"),
+    Var("pinion_phi_start", "Real", PARAMETER, "rad", 0.0,
+        "initial_state parameters: pinion angle at the start time"),
+    Var("pinion_w_start", "Real", PARAMETER, "rad/s", 0.0,
+        "initial_state parameters: pinion speed at the start time"),
+    Var("wheel_phi_start", "Real", PARAMETER, "rad", 0.0, "initial_state parameters: wheel angle at the start time"),
+    Var("wheel_w_start", "Real", PARAMETER, "rad/s", 0.0, "initial_state parameters: wheel speed at the start time"),
+    Var("twist_a_start", "Real", PARAMETER, "rad", 0.0,
+        "twist of the flange_a port spring at the start time (pinion angle - flange_a angle)"),
+    Var("twist_b_start", "Real", PARAMETER, "rad", 0.0,
+        "twist of the flange_b port spring at the start time (wheel angle - flange_b angle)"),
+    Var("flange_a_phi", "Real", INPUT, "rad", 0.0,
+        "angle of the body connected to flange_a (middle shaft, pinion side)"),
+    Var("flange_a_w", "Real", INPUT, "rad/s", 0.0, "speed of the body connected to flange_a"),
+    Var("flange_b_phi", "Real", INPUT, "rad", 0.0,
+        "angle of the body connected to flange_b (propeller shaft, wheel side)"),
+    Var("flange_b_w", "Real", INPUT, "rad/s", 0.0, "speed of the body connected to flange_b"),
+    Var("flange_a_tau", "Real", OUTPUT, "N.m", 0.0, "torque applied to the body at flange_a (see output_torque)"),
+    Var("flange_b_tau", "Real", OUTPUT, "N.m", 0.0, "torque applied to the body at flange_b (see output_torque)"),
+    Var("flange_a_tau_mean", "Real", OUTPUT, "N.m", 0.0, "exact mean over the last step of the torque at flange_a"),
+    Var("flange_b_tau_mean", "Real", OUTPUT, "N.m", 0.0, "exact mean over the last step of the torque at flange_b"),
+    Var("n_contact", "Real", OUTPUT, "1", 0.0, "pairs in contact (analytic), contact elements (pcm/table)"),
+    Var("contact_area", "Real", OUTPUT, "m2", 0.0, "contact area"),
+    Var("peak_pressure", "Real", OUTPUT, "Pa", 0.0, "peak contact pressure"),
+    Var("max_penetration", "Real", OUTPUT, "m", 0.0, "largest penetration"),
+    Var("normal_force", "Real", OUTPUT, "N", 0.0, "total normal force"),
+    Var("elastic_energy", "Real", OUTPUT, "J", 0.0, "energy in the mesh compliance"),
+    Var("mesh_torque_pinion", "Real", OUTPUT, "N.m", 0.0, "mesh torque on the pinion at the step end"),
+    Var("mesh_torque_wheel", "Real", OUTPUT, "N.m", 0.0, "mesh torque on the wheel at the step end"),
+    Var("mesh_dissipated_power", "Real", OUTPUT, "W", 0.0, "mesh damping and friction power"),
+    Var("pinion_phi", "Real", OUTPUT, "rad", 0.0, "pinion angle"),
+    Var("pinion_w", "Real", OUTPUT, "rad/s", 0.0, "pinion speed"),
+    Var("wheel_phi", "Real", OUTPUT, "rad", 0.0, "wheel angle"),
+    Var("wheel_w", "Real", OUTPUT, "rad/s", 0.0, "wheel speed"),
+    Var("energy_stored", "Real", OUTPUT, "J", 0.0, "kinetic, port-spring and mesh elastic energy"),
+    Var("energy_dissipated", "Real", OUTPUT, "J", 0.0,
+        "energy dissipated since t = 0 (port dampers, mesh damping and friction)"),
+    Var("energy_supplied", "Real", OUTPUT, "J", 0.0, "always 0 (no sources inside)"),
+    Var("error", "String", OUTPUT, "", "",
+        "empty while the instance works; after a failure, why it failed (then the torque, mesh and energy"
+        " outputs are NaN; pinion/wheel keep the last completed step, the counters include the failing "
+        "sub-step)"),
+    Var("peak_penetration", "Real", OUTPUT, "m", Counter("peak_penetration"),
+        "stability counter: largest element penetration since t = 0"),
+    Var("min_substep", "Real", OUTPUT, "s", Counter("min_substep"),
+        "stability counter: smallest accepted sub-step since t = 0"),
+    Var("n_substeps", "Real", OUTPUT, "1", Counter("n_substeps_total"),
+        "stability counter: accepted sub-steps since t = 0"),
+    Var("n_refinements", "Real", OUTPUT, "1", Counter("n_refinements"),
+        "stability counter: sub-step halvings since t = 0"),
+    Var("separated_time", "Real", OUTPUT, "s", Counter("separated_time"),
+        "stability counter: time out of contact since t = 0"),
+    Var("n_separations", "Real", OUTPUT, "1", Counter("n_separations"),
+        "stability counter: contact-loss events since t = 0"),
+    Var("coupling_energy_error", "Real", OUTPUT, "J", Counter("coupling_energy_error"),
+        "work mismatch of the two flange cuts since t = 0 not yet corrected"),
+)
+
+
+def _default_sources() -> dict:
+    """The objects ``From`` defaults refer to: the library's defaults, declared there once."""
+    from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCMParams
+    from gearcontact_fmu.stage import StageParams
+
+    return {"gear": BevelGearParams(), "pcm": PCMParams(), "resolution": MeshResolution(), "stage": StageParams(),
+            "grid": MapGrid()}
+
+
+_TYPES = {"Real": Real, "Integer": Integer, "Boolean": Boolean, "String": String}
+
+
 class GearContact(Fmi2Slave):
     description = ("Lower bevel gear stage (15/60, m 3 mm) of the azimuth-thruster rig: pinion and wheel "
                    "inertias, port spring-dampers and the mesh (pcm/table/analytic/ideal), sub-stepped.")
@@ -53,125 +222,19 @@ class GearContact(Fmi2Slave):
     default_experiment = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=DEFAULT_COMM_STEP_S)
     can_get_and_set_fmu_state = True   # read by drivetrain.fmubuild (canGetAndSetFMUstate)
 
-    # units of the variables (read by drivetrain.fmubuild to post-process modelDescription.xml)
-    units = {
-        "flange_a_phi": "rad", "flange_a_w": "rad/s", "flange_b_phi": "rad", "flange_b_w": "rad/s",
-        "flange_a_tau": "N.m", "flange_b_tau": "N.m", "flange_a_tau_mean": "N.m", "flange_b_tau_mean": "N.m",
-        "n_contact": "1", "contact_area": "m2", "peak_pressure": "Pa", "max_penetration": "m",
-        "normal_force": "N", "elastic_energy": "J", "mesh_torque_pinion": "N.m", "mesh_torque_wheel": "N.m",
-        "mesh_dissipated_power": "W",
-        "pinion_phi": "rad", "pinion_w": "rad/s", "wheel_phi": "rad", "wheel_w": "rad/s",
-        "energy_stored": "J", "energy_dissipated": "J", "energy_supplied": "J", "coupling_energy_error": "J",
-        "E": "Pa", "nu": "1", "layer_depth": "m", "c_compression": "N.s/m3", "c_expansion": "N.s/m3",
-        "transformation_depth": "m", "mu": "1", "v_friction": "m/s", "u_max": "m",
-        "profile_element_size": "m", "face_element_size": "m",
-        "J_pinion": "kg.m2", "J_wheel": "kg.m2", "k_a": "N.m/rad", "d_a": "N.m.s/rad", "k_b": "N.m/rad",
-        "d_b": "N.m.s/rad", "max_substep": "s",
-        "module": "m", "pressure_angle": "rad", "shaft_angle": "rad", "face_width": "m", "x_pinion": "1",
-        "addendum_coefficient": "1", "dedendum_coefficient": "1", "backlash": "m", "tip_radius": "m",
-        "mesh_damping_ratio": "1", "mesh_phase": "rad", "tooth_compliance": "1",
-        "map_points_per_pitch": "1", "map_approach_points": "1",
-        "peak_penetration": "m", "min_substep": "s", "n_substeps": "1", "n_refinements": "1",
-        "separated_time": "s", "n_separations": "1",
-        "pinion_phi_start": "rad", "pinion_w_start": "rad/s", "wheel_phi_start": "rad", "wheel_w_start": "rad/s",
-        "twist_a_start": "rad", "twist_b_start": "rad",
-    }
+    # read by drivetrain.fmubuild and nativebuild (modelDescription units and descriptions)
+    units = {v.name: v.unit for v in VARIABLES if v.unit}
+    variable_descriptions = {v.name: v.description for v in VARIABLES}
 
-    # what every variable means (read by drivetrain.fmubuild: modelDescription descriptions; docs/FMU.md)
-    variable_descriptions = {
-        "fidelity": "mesh model: pcm (online polygonal contact) | table (precomputed contact map) | analytic "
-                    "(ISO 6336 reference) | ideal (rigid, exact ratio, no backlash)",
-        "mode": "stage (owns pinion and wheel inertias, sub-steps the mesh) | bare (raw contact torques)",
-        "health": "healthy | mild (flank-fracture void) | severe (missing tooth) | faults (the faults list) | mesh "
-                  "(the mesh files); all but healthy: pcm/table only",
-        "faults": "health faults: JSON list of fault specifications (kind, member, tooth, flank, sizes)",
-        "manufacturing_errors": "pitch errors and runout as JSON (ManufacturingErrors.to_dict()); empty = none",
-        "pinion_mesh_file": "OBJ/STL surface mesh of the pinion; empty = generated",
-        "wheel_mesh_file": "OBJ/STL surface mesh of the wheel; empty = generated",
-        "mesh_units": "length unit of the mesh files: mm | m | cm | um | in",
-        "scheme": "sub-step integrator: auto | ros2 | rk4",
-        "output_torque": "what flange_*_tau carries: predicted | mean | end",
-        "initial_state": "where the pinion and wheel start: inputs (the flange inputs at exit of initialization "
-                         "plus twist_*_start) | parameters (pinion_*_start, wheel_*_start; for a host that "
-                         "passes no values during initialization)",
-        "pinion_phi_start": "initial_state parameters: pinion angle at the start time",
-        "pinion_w_start": "initial_state parameters: pinion speed at the start time",
-        "wheel_phi_start": "initial_state parameters: wheel angle at the start time",
-        "wheel_w_start": "initial_state parameters: wheel speed at the start time",
-        "twist_a_start": "twist of the flange_a port spring at the start time (pinion angle - flange_a angle)",
-        "twist_b_start": "twist of the flange_b port spring at the start time (wheel angle - flange_b angle)",
-        "z_pinion": "pinion teeth", "z_wheel": "wheel teeth",
-        "friction": "tooth friction in the mesh (false: not evaluated)",
-        "contact_damping": "contact damping in the mesh (false: not evaluated)",
-        "energy_correction": "energy-conserving correction of flange_*_tau (returns the measured work mismatch "
-                             "of each cut over 10 ms)",
-        "E": "Young's modulus of the elastic layer", "nu": "Poisson's ratio of the elastic layer",
-        "layer_depth": "elastic layer depth of each body",
-        "c_compression": "PCM damping while compressing (pressure per penetration velocity)",
-        "c_expansion": "PCM damping while expanding",
-        "transformation_depth": "penetration over which the damping ramps in",
-        "mu": "friction coefficient", "v_friction": "regularisation velocity of friction",
-        "u_max": "largest admissible penetration (beyond it the step fails)",
-        "profile_element_size": "PCM surface-mesh element size along the tooth profile",
-        "face_element_size": "PCM surface-mesh element size along the face width",
-        "J_pinion": "pinion-side inertia of the stage", "J_wheel": "wheel-side inertia of the stage",
-        "k_a": "stiffness of the flange_a - pinion port spring", "d_a": "damping of the flange_a - pinion port",
-        "k_b": "stiffness of the flange_b - wheel port spring", "d_b": "damping of the flange_b - wheel port",
-        "max_substep": "largest internal sub-step; sub-steps per communication step = ceil(H / max_substep)",
-        "module": "outer transverse module", "pressure_angle": "pressure angle", "shaft_angle": "shaft angle",
-        "face_width": "face width", "x_pinion": "pinion profile shift coefficient",
-        "addendum_coefficient": "addendum / module", "dedendum_coefficient": "dedendum / module",
-        "backlash": "circumferential backlash on the outer pitch circle", "tip_radius": "tip rounding radius",
-        "tooth_compliance": "total mesh approach per PCM layer approach (table only; 1 = the layers alone)",
-        "map_points_per_pitch": "table: contact-map nodes along the pinion angle per pinion pitch",
-        "map_approach_points": "table: contact-map nodes per flank along the approach beyond the contact onset",
-        "mesh_damping_ratio": "analytic mesh: damping ratio of the mesh mode",
-        "mesh_phase": "analytic mesh: pinion angle at which a drive flank passes the pitch point",
-        "flange_a_phi": "angle of the body connected to flange_a (middle shaft, pinion side)",
-        "flange_a_w": "speed of the body connected to flange_a",
-        "flange_b_phi": "angle of the body connected to flange_b (propeller shaft, wheel side)",
-        "flange_b_w": "speed of the body connected to flange_b",
-        "flange_a_tau": "torque applied to the body at flange_a (see output_torque)",
-        "flange_b_tau": "torque applied to the body at flange_b (see output_torque)",
-        "flange_a_tau_mean": "exact mean over the last step of the torque at flange_a",
-        "flange_b_tau_mean": "exact mean over the last step of the torque at flange_b",
-        "n_contact": "pairs in contact (analytic), contact elements (pcm/table)",
-        "contact_area": "contact area", "peak_pressure": "peak contact pressure",
-        "max_penetration": "largest penetration", "normal_force": "total normal force",
-        "elastic_energy": "energy in the mesh compliance",
-        "mesh_torque_pinion": "mesh torque on the pinion at the step end",
-        "mesh_torque_wheel": "mesh torque on the wheel at the step end",
-        "mesh_dissipated_power": "mesh damping and friction power",
-        "pinion_phi": "pinion angle", "pinion_w": "pinion speed", "wheel_phi": "wheel angle", "wheel_w": "wheel speed",
-        "energy_stored": "kinetic, port-spring and mesh elastic energy",
-        "energy_dissipated": "energy dissipated since t = 0 (port dampers, mesh damping and friction)",
-        "energy_supplied": "always 0 (no sources inside)",
-        "peak_penetration": "stability counter: largest element penetration since t = 0",
-        "min_substep": "stability counter: smallest accepted sub-step since t = 0",
-        "n_substeps": "stability counter: accepted sub-steps since t = 0",
-        "n_refinements": "stability counter: sub-step halvings since t = 0",
-        "separated_time": "stability counter: time out of contact since t = 0",
-        "n_separations": "stability counter: contact-loss events since t = 0",
-        "coupling_energy_error": "work mismatch of the two flange cuts since t = 0 not yet corrected",
-        "error": "empty while the instance works; after a failure, why it failed (then the torque, mesh and "
-                 "energy outputs are NaN; pinion/wheel keep the last completed step, the counters include "
-                 "the failing sub-step)",
-    }
-
-    INPUTS = ("flange_a_phi", "flange_a_w", "flange_b_phi", "flange_b_w")
-    OUTPUTS = ("flange_a_tau", "flange_b_tau", "flange_a_tau_mean", "flange_b_tau_mean",
-               "n_contact", "contact_area", "peak_pressure", "max_penetration", "normal_force",
-               "elastic_energy", "mesh_torque_pinion", "mesh_torque_wheel", "mesh_dissipated_power",
-               "pinion_phi", "pinion_w", "wheel_phi", "wheel_w",
-               "energy_stored", "energy_dissipated", "energy_supplied")
+    INPUTS = tuple(v.name for v in VARIABLES if v.causality == INPUT)
+    # the outputs published after every step
+    OUTPUTS = tuple(v.name for v in VARIABLES if v.causality == OUTPUT and v.type == "Real"
+                    and not isinstance(v.default, Counter))
     # after a failure: NaN (the state outputs keep the last completed step, see ``error``)
     NAN_ON_FAILURE = tuple(n for n in OUTPUTS if n not in ("pinion_phi", "pinion_w", "wheel_phi", "wheel_w"))
     # stability counters of the stage and the pending coupling mismatch, cumulative since t = 0: read from
-    # the stage when the host asks (no cost per step); after a failed do_step they include the failing sub-step
-    STABILITY = {"peak_penetration": "peak_penetration", "min_substep": "min_substep",
-                 "n_substeps": "n_substeps_total", "n_refinements": "n_refinements",
-                 "separated_time": "separated_time", "n_separations": "n_separations",
-                 "coupling_energy_error": "coupling_energy_error"}
+    # the stage when the host asks; after a failed do_step they include the failing sub-step
+    STABILITY = {v.name: v.default.prop for v in VARIABLES if isinstance(v.default, Counter)}
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
@@ -179,83 +242,24 @@ class GearContact(Fmi2Slave):
 
         # pythonfmu 0.7.0 releases its interpreter state twice at process exit: see fmu_runtime.guard
         pin_export_library_state(kwargs, type(self).__name__)
-        from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCMParams
-        from gearcontact_fmu.stage import StageParams
-
-        g, p, r, s = BevelGearParams(), PCMParams(), MeshResolution(), StageParams()
-        # structural choices (strings)
-        self.fidelity = "analytic"
-        self.mode = s.mode
-        self.health = "healthy"
-        self.faults = "[]"          # health "faults": JSON list of fault specifications (faults.FAULT_KINDS)
-        self.manufacturing_errors = ""   # JSON of manufacturing_specs.ManufacturingErrors ("" = none)
-        self.tooth_compliance = 1.0      # series factor of the table map's approach (1 = the PCM layers alone)
-        grid = MapGrid()                 # the table's contact-map grid
-        self.map_points_per_pitch, self.map_approach_points = grid.points_per_pitch, grid.s_points
-        self.pinion_mesh_file = ""
-        self.wheel_mesh_file = ""
-        self.mesh_units = "mm"
-        self.scheme = s.scheme
-        self.output_torque = s.output_torque
-        # the initial state of pinion and wheel (INITIAL_STATES; docs/FMU.md "Initialization")
-        self.initial_state = INITIAL_STATES[0]
-        self.pinion_phi_start = self.pinion_w_start = self.wheel_phi_start = self.wheel_w_start = 0.0
-        self.twist_a_start = self.twist_b_start = 0.0
-        # PCM constants (RIG.md)
-        self.E, self.nu, self.layer_depth = p.E, p.nu, p.layer_depth
-        self.c_compression, self.c_expansion = p.c_compression, p.c_expansion
-        self.transformation_depth, self.mu, self.v_friction, self.u_max = (
-            p.transformation_depth, p.mu, p.v_friction, p.u_max)
-        # resolution
-        self.profile_element_size, self.face_element_size = r.profile, r.face
-        # stage
-        self.J_pinion, self.J_wheel = s.J_pinion, s.J_wheel
-        self.k_a, self.d_a, self.k_b, self.d_b = s.k_a, s.d_a, s.k_b, s.d_b
-        self.max_substep = s.max_substep
-        # gear
-        self.z_pinion, self.z_wheel = g.z_pinion, g.z_wheel
-        self.module, self.pressure_angle, self.shaft_angle = g.module, g.pressure_angle, g.shaft_angle
-        self.face_width, self.x_pinion = g.face_width, g.x_pinion
-        self.addendum_coefficient, self.dedendum_coefficient = g.addendum_coefficient, g.dedendum_coefficient
-        self.backlash, self.tip_radius = g.backlash, g.tip_radius
-        # effects: switched off, they are not evaluated at all (and the contact map is shared)
-        self.friction = True
-        self.contact_damping = True
-        # coupling: energy-conserving correction of the flange torques (gearcontact_fmu.coupling)
-        self.energy_correction = s.energy_correction
-        # analytic mesh
-        self.mesh_damping_ratio = 0.05
-        self.mesh_phase = 0.0
-        for name in self.INPUTS + self.OUTPUTS:
-            setattr(self, name, 0.0)
-
-        P, F = Fmi2Causality.parameter, Fmi2Variability.fixed
-        for name in ("fidelity", "mode", "health", "faults", "manufacturing_errors", "pinion_mesh_file",
-                     "wheel_mesh_file", "mesh_units", "scheme", "output_torque", "initial_state"):
-            self.register_variable(String(name, causality=P, variability=F))
-        for name in ("z_pinion", "z_wheel", "map_points_per_pitch", "map_approach_points"):
-            self.register_variable(Integer(name, causality=P, variability=F))
-        for name in ("friction", "contact_damping", "energy_correction"):
-            self.register_variable(Boolean(name, causality=P, variability=F))
-        for name in ("E", "nu", "layer_depth", "c_compression", "c_expansion", "transformation_depth", "mu",
-                     "v_friction", "u_max", "profile_element_size", "face_element_size",
-                     "J_pinion", "J_wheel", "k_a", "d_a", "k_b", "d_b", "max_substep",
-                     "module", "pressure_angle", "shaft_angle", "face_width", "x_pinion",
-                     "addendum_coefficient", "dedendum_coefficient", "backlash", "tip_radius", "tooth_compliance",
-                     "mesh_damping_ratio", "mesh_phase", "pinion_phi_start", "pinion_w_start",
-                     "wheel_phi_start", "wheel_w_start", "twist_a_start", "twist_b_start"):
-            self.register_variable(Real(name, causality=P, variability=F))
-        for name in self.INPUTS:
-            self.register_variable(Real(name, causality=Fmi2Causality.input))
-        for name in self.OUTPUTS:
-            self.register_variable(Real(name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact))
-        self.error = ""
-        self.register_variable(String("error", causality=Fmi2Causality.output,
-                                      variability=Fmi2Variability.discrete, initial=Fmi2Initial.exact))
-        for name, prop in self.STABILITY.items():
-            self.register_variable(Real(name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact,
-                                        getter=(lambda prop=prop: self._counter(prop))))
-
+        sources = _default_sources()
+        for v in VARIABLES:
+            kind = _TYPES[v.type]
+            if isinstance(v.default, Counter):
+                self.register_variable(kind(v.name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact,
+                                            getter=(lambda prop=v.default.prop: self._counter(prop))))
+                continue
+            d = v.default
+            setattr(self, v.name, getattr(sources[d.source], d.attribute) if isinstance(d, From) else d)
+            if v.causality == PARAMETER:
+                self.register_variable(kind(v.name, causality=Fmi2Causality.parameter,
+                                            variability=Fmi2Variability.fixed))
+            elif v.causality == INPUT:
+                self.register_variable(kind(v.name, causality=Fmi2Causality.input))
+            else:
+                extra = {"variability": Fmi2Variability.discrete} if v.type == "String" else {}
+                self.register_variable(kind(v.name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact,
+                                            **extra))
         self._stage = None
         self._failed = None          # message once the instance is in the error state
         guard_value_references(self, "GearContact")

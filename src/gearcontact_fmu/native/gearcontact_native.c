@@ -53,6 +53,14 @@ enum { OUT_TAU_PINION, OUT_TAU_WHEEL, OUT_N_CONTACT, OUT_CONTACT_AREA, OUT_PEAK_
        OUT_MAX_PENETRATION, OUT_NORMAL_FORCE, OUT_ELASTIC_ENERGY, OUT_DISSIPATED_POWER, OUT_STATUS, N_OUT };
 /* map channels (contact_map.CH_*) */
 enum { CH_TAU_P, CH_TAU_W, CH_N, CH_AREA, CH_PEAK, CH_PEN, CH_FN, CH_EEL, CH_DAMP, CH_FRIC_P, CH_FRIC_W, N_CH };
+/* The channels as held in memory: reordered at load so that what a lean evaluation needs (the torques, the
+ * normal force for the contact test, damping and friction) comes first, and padded to an even count, so
+ * that the interpolation runs over pairs of channels (SSE2 lanes) with no remainder */
+enum { K_TAU_P, K_TAU_W, K_FN, K_DAMP, K_FRIC_P, K_FRIC_W,          /* the lean set */
+       K_N, K_AREA, K_PEAK, K_PEN, K_EEL, K_PAD, N_K };
+#define N_K_LEAN 6
+static const int K_FROM_CH[N_K - 1] = {CH_TAU_P, CH_TAU_W, CH_FN, CH_DAMP, CH_FRIC_P, CH_FRIC_W,
+                                       CH_N, CH_AREA, CH_PEAK, CH_PEN, CH_EEL};
 /* manufacturing offset parameters (manufacturing.P_*) */
 enum { P_PITCH_P, P_RATIO, P_ECC_P, P_PHASE_P, P_ECC_W, P_PHASE_W, P_EPS, P_RAMP, N_P };
 
@@ -64,7 +72,7 @@ typedef struct {
     double dtheta, ratio, w_reg;
     double *a;          /* (n_a) */
     double *onset;      /* (n_theta, 2) */
-    double *values;     /* (n_theta, 2, n_a, N_CH) */
+    double *values;     /* (n_theta, 2, n_a, N_K): the file's (..., N_CH) in the K_* order */
     double te_p[N_P];
     double *te_pin, *te_whl;
 } Map;
@@ -100,9 +108,15 @@ static Map *map_load(const char *path, char *why, size_t nwhy) {
         size_t nv = (size_t)m->n_theta * 2 * (size_t)m->n_a * N_CH;
         m->a = (double *)malloc(sizeof(double) * (size_t)m->n_a);
         m->onset = (double *)malloc(sizeof(double) * 2 * (size_t)m->n_theta);
-        m->values = (double *)malloc(sizeof(double) * nv);
-        ok = m->a && m->onset && m->values && read_doubles(f, m->a, (size_t)m->n_a)
-             && read_doubles(f, m->onset, 2 * (size_t)m->n_theta) && read_doubles(f, m->values, nv);
+        double *raw = (double *)malloc(sizeof(double) * nv);
+        m->values = (double *)malloc(sizeof(double) * (nv / N_CH) * N_K);
+        ok = m->a && m->onset && raw && m->values && read_doubles(f, m->a, (size_t)m->n_a)
+             && read_doubles(f, m->onset, 2 * (size_t)m->n_theta) && read_doubles(f, raw, nv);
+        for (size_t i = 0; ok && i < nv / N_CH; i++) {
+            for (int k = 0; k < N_K - 1; k++) m->values[i * N_K + k] = raw[i * N_CH + K_FROM_CH[k]];
+            m->values[i * N_K + K_PAD] = 0.0;
+        }
+        free(raw);
     }
     if (ok && m->has_te) {
         ok = m->te_zp > 0 && m->te_zw > 0 && m->te_zp < 100000 && m->te_zw < 100000;
@@ -140,110 +154,184 @@ static double pmax(double a, double b) { return b > a ? b : a; }
 static double pmin(double a, double b) { return b < a ? b : a; }
 static int64_t pmod(int64_t a, int64_t n) { int64_t r = a % n; return r < 0 ? r + n : r; }
 
-static void locate(const double *s_nodes, int64_t n, double s, int64_t *j_out, double *w_out) {
-    int64_t j;
-    if (s <= s_nodes[0]) j = 0;
-    else if (s >= s_nodes[n - 1]) j = n - 2;
-    else {
-        int64_t lo = 0, hi = n - 1;
-        while (hi - lo > 1) {
-            int64_t mid = (lo + hi) / 2;
-            if (s_nodes[mid] <= s) lo = mid; else hi = mid;
-        }
-        j = lo;
-    }
-    *j_out = j;
-    *w_out = (s - s_nodes[j]) / (s_nodes[j + 1] - s_nodes[j]);
+/* floor(x), the same value (sign of zero included), inline: on baseline x86-64 (no SSE4.1) floor() is a
+ * libm call, and the map index needs two per evaluation */
+static inline double ffloor(double x) {
+    if (!(fabs(x) < 4503599627370496.0)) return floor(x);     /* |x| >= 2^52 (integral), inf, nan */
+    double t = (double)(int64_t)x;                              /* truncation towards zero, exact */
+    return t > x ? t - 1.0 : (t == 0.0 ? x * 0.0 : t);         /* x * 0.0: floor(-0.0) is -0.0 */
 }
 
-/* contact_map._bilinear of every channel at once: between pinion-angle rows i0, i1 (weight b) and
- * approach nodes j, j+1 (weight w); the same operations per channel as the Python (a loop the compiler
- * may vectorise: each lane is one channel, bit for bit the scalar result) */
-static void bilinear_all(const double *v, int64_t na, int64_t i0, int64_t i1, int side, int64_t j, double w,
-                         double b, double *val) {
-    const double *r0 = v + (((size_t)i0 * 2 + (size_t)side) * (size_t)na + (size_t)j) * N_CH;
-    const double *r1 = v + (((size_t)i1 * 2 + (size_t)side) * (size_t)na + (size_t)j) * N_CH;
-    for (int ch = 0; ch < N_CH; ch++) {
-        double v0 = r0[ch] + w * (r0[N_CH + ch] - r0[ch]);
-        double v1 = r1[ch] + w * (r1[N_CH + ch] - r1[ch]);
-        val[ch] = v0 + b * (v1 - v0);
+/* contact_map._locate: the interval j of the approach nodes with s_nodes[j] <= s < s_nodes[j + 1] (j = n - 2
+ * beyond the last node; s > s_nodes[0] here). The same j as the binary search, found by walking from the
+ * previous evaluation's interval: the approach moves by a fraction of an interval per sub-step, so
+ * this is one or two comparisons instead of log2(n) unpredictable branches */
+static int64_t locate_from(const double *s_nodes, int64_t n, double s, int64_t j) {
+    if (s >= s_nodes[n - 1]) return n - 2;
+    if (j < 0 || j > n - 2) j = 0;
+    while (s < s_nodes[j]) j--;              /* stops: s > s_nodes[0] */
+    while (s >= s_nodes[j + 1]) j++;         /* stops: s < s_nodes[n - 1] */
+    return j;
+}
+
+/* contact_map._bilinear of the first nk channels (K_* order) at once: between pinion-angle rows i0, i1
+ * (weight b) and approach nodes j, j+1 (weight w); the same operations per channel as the Python (nk is
+ * a constant at each call, even: the compiler vectorises the loop two channels a lane pair, bit for bit
+ * the scalar result) */
+static inline void bilinear(const double *v, int64_t na, int64_t i0, int64_t i1, int side, int64_t j, double w,
+                            double b, const int nk, double *val) {
+    const double *r0 = v + (((size_t)i0 * 2 + (size_t)side) * (size_t)na + (size_t)j) * N_K;
+    const double *r1 = v + (((size_t)i1 * 2 + (size_t)side) * (size_t)na + (size_t)j) * N_K;
+    for (int k = 0; k < nk; k++) {
+        double v0 = r0[k] + w * (r0[N_K + k] - r0[k]);
+        double v1 = r1[k] + w * (r1[N_K + k] - r1[k]);
+        val[k] = v0 + b * (v1 - v0);
     }
 }
 
-static void table_eval(const TableData *d, double theta_pinion, double theta_wheel, double omega_pinion,
-                       double omega_wheel, double *out) {
+/* table_eval in two halves. MeshGeo is everything that depends on the two angles alone: the map row,
+ * the flank, the interpolated channels and what is computed from them (clipping, the torque sign
+ * clamp, the penetration status); mesh_vel adds the speed-dependent rest (contact damping, friction,
+ * dissipated power). The operations are those of the one-piece table_eval, in the same order, so the
+ * split changes no result. What it saves: the Jacobian's difference in the wheel speed moves no angle
+ * and needs mesh_vel alone, and its difference in the wheel angle keeps the pinion angle and, with a
+ * one-revolution map, the map row.
+ * A lean evaluation (full = 0) computes only what the integrator's stages and the Jacobian read: the two
+ * mesh torques, the normal force (the contact test) and the dissipated power; the other outputs, the
+ * penetration status (1) among them, are left unset. Only the accepted sub-step end is evaluated in full:
+ * its outputs are the published ones, its status the one checked. */
+enum { GEO_NONFINITE, GEO_FREE, GEO_CONTACT };
+typedef struct {
+    int state;                       /* GEO_*; GEO_FREE: in the backlash, every output 0 */
+    int has_row;                     /* the row below was computed (the angles were finite) */
+    double tp;                       /* the pinion angle of that row */
+    int64_t i0, i1;                  /* pinion-angle rows and weight b, onset of the drive/coast flank */
+    double b, on_d, on_c;
+    int side;                        /* 0: drive flank, 1: coast flank */
+    int64_t j;                       /* approach interval (where the next search starts) */
+    int elastic_zero;                /* both elastic torques exactly 0: no damping, no friction */
+    int overrun;                     /* penetration beyond u_max outside the map: status 1 (full only) */
+    double pos[OUT_ELASTIC_ENERGY + 1];   /* OUT_TAU_PINION .. OUT_ELASTIC_ENERGY before damping/friction */
+    double damp, fric_p, fric_w;     /* damping coefficient (clipped), friction torques at full slip */
+    double te_dp, te_dw;             /* maps with manufacturing errors: the offset's slopes */
+} MeshGeo;
+
+static void table_geo(const TableData *d, double theta_pinion, double theta_wheel, const MeshGeo *row,
+                      int64_t j_hint, int full, MeshGeo *g) {
     const Map *m = d->map;
-    const double *values = d->values;
     const int64_t na = m->n_a, n_theta = m->n_theta;
     const double ratio = m->ratio;
-    for (int k = 0; k < N_OUT; k++) out[k] = 0.0;
-    if (!(isfinite(theta_pinion) && isfinite(theta_wheel) && isfinite(omega_pinion) && isfinite(omega_wheel))) {
+    g->j = j_hint;
+    g->has_row = 0;
+    if (!(isfinite(theta_pinion) && isfinite(theta_wheel))) { g->state = GEO_NONFINITE; return; }
+    double s = theta_pinion - ratio * theta_wheel;
+    if (row && row->has_row && m->n_rev == 1 && row->tp == theta_pinion) {
+        /* one-revolution map: the row is a function of the pinion angle alone */
+        g->i0 = row->i0; g->i1 = row->i1; g->b = row->b; g->on_d = row->on_d; g->on_c = row->on_c;
+    } else {
+        const double two_pi = 2.0 * M_PI;
+        double th;
+        if (m->n_rev == 1) {
+            th = theta_pinion - two_pi * ffloor(theta_pinion / two_pi);
+        } else {
+            double period = two_pi * (double)m->n_rev;
+            th = ratio * theta_wheel;
+            th = th - period * ffloor(th / period) + s;
+            th = th - period * ffloor(th / period);
+        }
+        double x = th / m->dtheta;
+        int64_t i0 = (int64_t)ffloor(x);
+        double b = x - (double)i0;
+        if (i0 < 0 || i0 >= n_theta) i0 = pmod(i0, n_theta);     /* Python's i0 % n_theta */
+        int64_t i1 = i0 + 1 == n_theta ? 0 : i0 + 1;
+        const double *on = m->onset;
+        g->i0 = i0; g->i1 = i1; g->b = b;
+        g->on_d = on[i0 * 2 + 0] + b * (on[i1 * 2 + 0] - on[i0 * 2 + 0]);
+        g->on_c = on[i0 * 2 + 1] + b * (on[i1 * 2 + 1] - on[i0 * 2 + 1]);
+    }
+    g->has_row = 1;
+    g->tp = theta_pinion;
+    double a;
+    if (s >= 0.5 * (g->on_d + g->on_c)) { g->side = 0; a = s - g->on_d; }
+    else { g->side = 1; a = g->on_c - s; }
+    const double *an = d->a_nodes;
+    if (a <= an[0]) { g->state = GEO_FREE; return; }      /* free flight in the backlash */
+    g->state = GEO_CONTACT;
+    int64_t j = locate_from(an, na, a, j_hint);
+    double w = (a - an[j]) / (an[j + 1] - an[j]);
+    g->j = j;
+    int inside = w <= 1.0;
+    double val[N_K];
+    double *p = g->pos;
+    if (full) {
+        bilinear(d->values, na, g->i0, g->i1, g->side, j, w, g->b, N_K, val);
+        /* positive-definite channels cannot go below zero through extrapolation */
+        p[OUT_N_CONTACT] = pmax(val[K_N], 0.0);
+        p[OUT_CONTACT_AREA] = pmax(val[K_AREA], 0.0);
+        p[OUT_PEAK_PRESSURE] = pmax(val[K_PEAK], 0.0);
+        p[OUT_MAX_PENETRATION] = pmax(val[K_PEN], 0.0);
+        p[OUT_ELASTIC_ENERGY] = pmax(val[K_EEL], 0.0);
+    } else {
+        bilinear(d->values, na, g->i0, g->i1, g->side, j, w, g->b, N_K_LEAN, val);
+    }
+    p[OUT_TAU_PINION] = val[K_TAU_P];
+    p[OUT_TAU_WHEEL] = val[K_TAU_W];
+    p[OUT_NORMAL_FORCE] = pmax(val[K_FN], 0.0);
+    g->damp = pmax(val[K_DAMP], 0.0);
+    g->fric_p = val[K_FRIC_P];
+    g->fric_w = val[K_FRIC_W];
+    g->elastic_zero = p[OUT_TAU_PINION] == 0.0 && p[OUT_TAU_WHEEL] == 0.0;
+    g->overrun = 0;
+    if (g->elastic_zero) return;
+    /* keep the elastic torques from changing sign through interpolation/extrapolation */
+    if (g->side == 0) {
+        p[OUT_TAU_PINION] = pmin(p[OUT_TAU_PINION], 0.0);
+        p[OUT_TAU_WHEEL] = pmax(p[OUT_TAU_WHEEL], 0.0);
+    } else {
+        p[OUT_TAU_PINION] = pmax(p[OUT_TAU_PINION], 0.0);
+        p[OUT_TAU_WHEEL] = pmin(p[OUT_TAU_WHEEL], 0.0);
+    }
+    g->overrun = full && !inside && p[OUT_MAX_PENETRATION] > d->u_max;
+}
+
+/* full: every output (g may be lean or full, as mesh_geo made it); lean: the four of a lean evaluation */
+static void table_vel(const TableData *d, const MeshGeo *g, double omega_pinion, double omega_wheel, int full,
+                      double *out) {
+    const double ratio = d->map->ratio;
+    if (full) {
+        for (int k = 0; k < N_OUT; k++) out[k] = 0.0;
+    } else {
+        out[OUT_TAU_PINION] = 0.0; out[OUT_TAU_WHEEL] = 0.0; out[OUT_NORMAL_FORCE] = 0.0;
+        out[OUT_DISSIPATED_POWER] = 0.0; out[OUT_STATUS] = 0.0;
+    }
+    if (g->state == GEO_NONFINITE || !(isfinite(omega_pinion) && isfinite(omega_wheel))) {
         out[OUT_STATUS] = 2.0;
         return;
     }
-    double s = theta_pinion - ratio * theta_wheel;
+    if (g->state == GEO_FREE) return;
+    if (full) {
+        for (int k = 0; k <= OUT_ELASTIC_ENERGY; k++) out[k] = g->pos[k];
+    } else {
+        out[OUT_TAU_PINION] = g->pos[OUT_TAU_PINION];
+        out[OUT_TAU_WHEEL] = g->pos[OUT_TAU_WHEEL];
+        out[OUT_NORMAL_FORCE] = g->pos[OUT_NORMAL_FORCE];
+    }
+    if (g->elastic_zero) return;
+    if (g->overrun) out[OUT_STATUS] = 1.0;
     double sdot = omega_pinion - ratio * omega_wheel;
-    const double two_pi = 2.0 * M_PI;
-    double th;
-    if (m->n_rev == 1) {
-        th = theta_pinion - two_pi * floor(theta_pinion / two_pi);
-    } else {
-        double period = two_pi * (double)m->n_rev;
-        th = ratio * theta_wheel;
-        th = th - period * floor(th / period) + s;
-        th = th - period * floor(th / period);
-    }
-    double x = th / m->dtheta;
-    int64_t i0 = (int64_t)floor(x);
-    double b = x - (double)i0;
-    if (i0 < 0 || i0 >= n_theta) i0 = pmod(i0, n_theta);     /* Python's i0 % n_theta (no division if in range) */
-    int64_t i1 = i0 + 1 == n_theta ? 0 : i0 + 1;
-    const double *on = m->onset;
-    double on_d = on[i0 * 2 + 0] + b * (on[i1 * 2 + 0] - on[i0 * 2 + 0]);
-    double on_c = on[i0 * 2 + 1] + b * (on[i1 * 2 + 1] - on[i0 * 2 + 1]);
-    int side;
-    double a;
-    if (s >= 0.5 * (on_d + on_c)) { side = 0; a = s - on_d; }
-    else { side = 1; a = on_c - s; }
-    if (a <= d->a_nodes[0]) return;                 /* free flight in the backlash */
-    int64_t j;
-    double w;
-    locate(d->a_nodes, na, a, &j, &w);
-    int inside = w <= 1.0;
-    double val[N_CH];
-    bilinear_all(values, na, i0, i1, side, j, w, b, val);
-    out[OUT_TAU_PINION] = val[CH_TAU_P];
-    out[OUT_TAU_WHEEL] = val[CH_TAU_W];
-    /* positive-definite channels cannot go below zero through extrapolation */
-    out[OUT_N_CONTACT] = pmax(val[CH_N], 0.0);
-    out[OUT_CONTACT_AREA] = pmax(val[CH_AREA], 0.0);
-    out[OUT_PEAK_PRESSURE] = pmax(val[CH_PEAK], 0.0);
-    out[OUT_MAX_PENETRATION] = pmax(val[CH_PEN], 0.0);
-    out[OUT_NORMAL_FORCE] = pmax(val[CH_FN], 0.0);
-    out[OUT_ELASTIC_ENERGY] = pmax(val[CH_EEL], 0.0);
-    double damp = pmax(val[CH_DAMP], 0.0);
-    if (out[OUT_TAU_PINION] == 0.0 && out[OUT_TAU_WHEEL] == 0.0) return;
-    /* keep the elastic torques from changing sign through interpolation/extrapolation */
-    if (side == 0) {
-        out[OUT_TAU_PINION] = pmin(out[OUT_TAU_PINION], 0.0);
-        out[OUT_TAU_WHEEL] = pmax(out[OUT_TAU_WHEEL], 0.0);
-    } else {
-        out[OUT_TAU_PINION] = pmax(out[OUT_TAU_PINION], 0.0);
-        out[OUT_TAU_WHEEL] = pmin(out[OUT_TAU_WHEEL], 0.0);
-    }
-    if (!inside && out[OUT_MAX_PENETRATION] > d->u_max) out[OUT_STATUS] = 1.0;
     /* contact damping: compressing when the flank in contact closes */
+    int side = g->side;
     int closing = side == 0 ? sdot > 0.0 : sdot < 0.0;
     double dc = closing ? d->c_comp : d->c_exp;
-    double tau_d = -dc * damp * sdot;
+    double tau_d = -dc * g->damp * sdot;
     /* expansion damping cannot pull the flanks together (element forces are >= 0) */
     if (side == 0) tau_d = pmin(tau_d, -out[OUT_TAU_PINION]);
     else tau_d = pmax(tau_d, -out[OUT_TAU_PINION]);
     double tau_fp = 0.0, tau_fw = 0.0;
     if (d->fric_on > 0.0) {
-        double scale = pmin(pmax(omega_pinion / m->w_reg, -1.0), 1.0);
-        tau_fp = scale * val[CH_FRIC_P];
-        tau_fw = scale * val[CH_FRIC_W];
+        double scale = pmin(pmax(omega_pinion / d->map->w_reg, -1.0), 1.0);
+        tau_fp = scale * g->fric_p;
+        tau_fw = scale * g->fric_w;
     }
     out[OUT_TAU_PINION] += tau_d + tau_fp;
     out[OUT_TAU_WHEEL] += -ratio * tau_d + tau_fw;
@@ -311,16 +399,36 @@ static void te_offset(const Map *mp, double theta_pinion, double theta_wheel, do
     *d_out = d; *dp_out = dp; *dw_out = dw;
 }
 
-/* the mesh model of the stage: the table, at the offset mesh coordinate when the map carries errors */
-static void mesh_eval(const TableData *d, double tp, double tw, double op, double ow, double *out) {
-    if (!d->map->has_te) { table_eval(d, tp, tw, op, ow, out); return; }
+/* the mesh model of the stage: the table, at the offset mesh coordinate when the map carries errors;
+ * in the two halves of table_eval (mesh_geo: the angles; mesh_vel: the speeds, given mesh_geo's result).
+ * row: a MeshGeo at the same pinion angle whose map row may be reused (or NULL); j_hint: where the
+ * approach search starts */
+static void mesh_geo(const TableData *d, double tp, double tw, const MeshGeo *row, int64_t j_hint, int full,
+                     MeshGeo *g) {
+    if (!d->map->has_te) { table_geo(d, tp, tw, row, j_hint, full, g); return; }
     double r = d->map->te_p[P_RATIO];
     double de, dp, dw;
     te_offset(d->map, tp, tw, &de, &dp, &dw);
-    table_eval(d, tp, tw - de / r, op, ow - (dp * op + dw * ow) / r, out);
+    table_geo(d, tp, tw - de / r, row, j_hint, full, g);
+    g->te_dp = dp;
+    g->te_dw = dw;
+}
+
+static void mesh_vel(const TableData *d, const MeshGeo *g, double op, double ow, int full, double *out) {
+    if (!d->map->has_te) { table_vel(d, g, op, ow, full, out); return; }
+    double r = d->map->te_p[P_RATIO];
+    double dp = g->te_dp, dw = g->te_dw;
+    table_vel(d, g, op, ow - (dp * op + dw * ow) / r, full, out);
     double taup = out[OUT_TAU_PINION], tauw = out[OUT_TAU_WHEEL];
     out[OUT_TAU_PINION] = taup - tauw * dp / r;
     out[OUT_TAU_WHEEL] = tauw * (1.0 - dw / r);
+}
+
+/* the whole evaluation, in full (initialization) */
+static void mesh_eval(const TableData *d, double tp, double tw, double op, double ow, double *out) {
+    MeshGeo g;
+    mesh_geo(d, tp, tw, NULL, 0, 1, &g);
+    mesh_vel(d, &g, op, ow, 1, out);
 }
 
 /* ============================================================================================== */
@@ -334,12 +442,11 @@ enum { RTA, RTB, RES, RTF, RDET, RTAE, RTBE, RTAP, RTBP,          /* res layout 
 enum { S_ROS2, S_RK4 };
 enum { CODE_OK, CODE_MESH_STATUS, CODE_NONFINITE_STATE, CODE_NONFINITE_INPUT };
 
-static void rhs(const TableData *d, const double *par, const double *u, double t, const double *y, double *dy,
-                double *out) {
+/* the augmented rhs at y, given the mesh outputs there */
+static void rhs_dy(const double *par, const double *u, double t, const double *y, const double *out, double *dy) {
     double phi_a = u[0] + u[1] * t;
     double phi_b = u[2] + u[3] * t;
     double ka = par[PKA], da = par[PDA], kb = par[PKB], db = par[PDB];
-    mesh_eval(d, y[0], y[1], y[2], y[3], out);
     double ta = -ka * (y[0] - phi_a) - da * (y[2] - u[1]);
     double tb = -kb * (y[1] - phi_b) - db * (y[3] - u[3]);
     double ra = y[2] - u[1], rb = y[3] - u[3];
@@ -352,6 +459,15 @@ static void rhs(const TableData *d, const double *par, const double *u, double t
     dy[6] = (da * (ra * ra) + db * (rb * rb) + out[OUT_DISSIPATED_POWER]);
 }
 
+/* the augmented rhs with the mesh evaluated at y, lean (a stage) or in full (a sub-step end); g: the mesh
+ * geometry there (g->j on entry: where the approach search starts) */
+static void rhs(const TableData *d, const double *par, const double *u, double t, const double *y, double *dy,
+                double *out, MeshGeo *g, int full) {
+    mesh_geo(d, y[0], y[1], NULL, g->j, full, g);
+    mesh_vel(d, g, y[2], y[3], full, out);
+    rhs_dy(par, u, t, y, out, dy);
+}
+
 static double stored(const double *par, const double *u, double t, const double *y, const double *out) {
     double phi_a = u[0] + u[1] * t;
     double phi_b = u[2] + u[3] * t;
@@ -360,85 +476,93 @@ static double stored(const double *par, const double *u, double t, const double 
             + 0.5 * par[PKA] * (a * a) + 0.5 * par[PKB] * (b * b) + out[OUT_ELASTIC_ENERGY]);
 }
 
-/* Jacobian of the augmented rhs and its time derivative; out0: the mesh outputs at y */
-static void jacobian(const TableData *d, const double *par, const double *u, const double *y, const double *out0,
-                     double *outp, double J[N_X][N_X], double *ft) {
-    for (int i = 0; i < N_X; i++) {
-        ft[i] = 0.0;
-        for (int j = 0; j < N_X; j++) J[i][j] = 0.0;
-    }
+/* The Jacobian of the augmented rhs (stage.py builds it as a dense 7 x 7) has this structure:
+ *
+ *          th_p th_w om_p om_w  q_a q_b q_d
+ *        | 0    0    1    0     0   0   0  |   rows 0, 1: d theta / dt = omega
+ *        | 0    0    0    1     0   0   0  |
+ *    J = | j20  j21  j22  j23   0   0   0  |   rows 2, 3: the bodies (port springs and dampers, mesh slopes)
+ *        | j30  j31  j32  j33   0   0   0  |
+ *        | ka   0    da   0     0   0   0  |   rows 4..6: the quadrature states (torque integrals, the
+ *        | 0    kb   0    db    0   0   0  |   dissipated energy): they read the state, nothing reads them
+ *        | j60  j61  j62  j63   0   0   0  |
+ *
+ * and so has W = I - gamma h J: block lower triangular, its 4 x 4 block reduced to 2 x 2 by the angle rows
+ * (theta = b + gamma h omega). Only j2*, j3*, j6* and the time derivative ft are stored. */
+typedef struct { double j2[4], j3[4], j6[4], ft[N_X]; } Jac;
+
+/* J at y, with forward differences of the mesh towards the flank the mesh coordinate is closer to;
+ * g0, out0: the mesh at y */
+static void jacobian(const TableData *d, const double *par, const double *u, const double *y, const MeshGeo *g0,
+                     const double *out0, Jac *J) {
     double ka = par[PKA], da = par[PDA], kb = par[PKB], db = par[PDB], r = par[PR], jp = par[PJP], jw = par[PJW];
-    /* forward differences towards the flank the mesh coordinate is closer to */
     double sgn = y[0] - r * y[1] >= 0.0 ? -1.0 : 1.0;
     double hth = sgn * par[PHTH] / r;
     double hw = sgn * par[PHW] / r;
-    mesh_eval(d, y[0], y[1] + hth, y[2], y[3], outp);
+    MeshGeo gth;
+    double outp[N_OUT];
+    mesh_geo(d, y[0], y[1] + hth, g0, g0->j, 0, &gth);   /* same pinion angle: the map row is reused */
+    mesh_vel(d, &gth, y[2], y[3], 0, outp);
     double dtp_dthw = (outp[OUT_TAU_PINION] - out0[OUT_TAU_PINION]) / hth;
     double dtw_dthw = (outp[OUT_TAU_WHEEL] - out0[OUT_TAU_WHEEL]) / hth;
     double dp_dthw = (outp[OUT_DISSIPATED_POWER] - out0[OUT_DISSIPATED_POWER]) / hth;
-    mesh_eval(d, y[0], y[1], y[2], y[3] + hw, outp);
+    mesh_vel(d, g0, y[2], y[3] + hw, 0, outp);             /* same angles: the geometry of y */
     double dtp_dww = (outp[OUT_TAU_PINION] - out0[OUT_TAU_PINION]) / hw;
     double dtw_dww = (outp[OUT_TAU_WHEEL] - out0[OUT_TAU_WHEEL]) / hw;
     double dp_dww = (outp[OUT_DISSIPATED_POWER] - out0[OUT_DISSIPATED_POWER]) / hw;
-    J[0][2] = 1.0;
-    J[1][3] = 1.0;
-    J[2][0] = (-ka - dtp_dthw / r) / jp;
-    J[2][1] = dtp_dthw / jp;
-    J[2][2] = (-da - dtp_dww / r) / jp;
-    J[2][3] = dtp_dww / jp;
-    J[3][0] = (-dtw_dthw / r) / jw;
-    J[3][1] = (-kb + dtw_dthw) / jw;
-    J[3][2] = (-dtw_dww / r) / jw;
-    J[3][3] = (-db + dtw_dww) / jw;
-    J[4][0] = ka;
-    J[4][2] = da;
-    J[5][1] = kb;
-    J[5][3] = db;
-    J[6][0] = -dp_dthw / r;
-    J[6][1] = dp_dthw;
-    J[6][2] = 2.0 * da * (y[2] - u[1]) - dp_dww / r;
-    J[6][3] = 2.0 * db * (y[3] - u[3]) + dp_dww;
-    ft[2] = ka * u[1] / jp;
-    ft[3] = kb * u[3] / jw;
-    ft[4] = -ka * u[1];
-    ft[5] = -kb * u[3];
+    J->j2[0] = (-ka - dtp_dthw / r) / jp;
+    J->j2[1] = dtp_dthw / jp;
+    J->j2[2] = (-da - dtp_dww / r) / jp;
+    J->j2[3] = dtp_dww / jp;
+    J->j3[0] = (-dtw_dthw / r) / jw;
+    J->j3[1] = (-kb + dtw_dthw) / jw;
+    J->j3[2] = (-dtw_dww / r) / jw;
+    J->j3[3] = (-db + dtw_dww) / jw;
+    J->j6[0] = -dp_dthw / r;
+    J->j6[1] = dp_dthw;
+    J->j6[2] = 2.0 * da * (y[2] - u[1]) - dp_dww / r;
+    J->j6[3] = 2.0 * db * (y[3] - u[3]) + dp_dww;
+    for (int i = 0; i < N_X; i++) J->ft[i] = 0.0;
+    J->ft[2] = ka * u[1] / jp;
+    J->ft[3] = kb * u[3] / jw;
+    J->ft[4] = -ka * u[1];
+    J->ft[5] = -kb * u[3];
 }
 
-static void lu_factor(double A[N_X][N_X], int *piv) {
-    for (int k = 0; k < N_X; k++) {
-        int p = k;
-        double amax = fabs(A[k][k]);
-        for (int i = k + 1; i < N_X; i++)
-            if (fabs(A[i][k]) > amax) { amax = fabs(A[i][k]); p = i; }
-        piv[k] = p;
-        if (p != k)
-            for (int j = 0; j < N_X; j++) { double tmp = A[k][j]; A[k][j] = A[p][j]; A[p][j] = tmp; }
-        double akk = A[k][k];
-        if (akk == 0.0) continue;
-        for (int i = k + 1; i < N_X; i++) {
-            A[i][k] /= akk;
-            double lik = A[i][k];
-            if (lik != 0.0)
-                for (int j = k + 1; j < N_X; j++) A[i][j] -= lik * A[k][j];
-        }
-    }
+/* W = I - gh J, factored: with the angle rows substituted (x0 = b0 + gh x2, x1 = b1 + gh x3) the speed rows
+ * are the 2 x 2 system M (x2, x3) = (b2 + gh (j20 b0 + j21 b1), b3 + gh (j30 b0 + j31 b1)),
+ * M = I - gh [[j22, j23], [j32, j33]] - gh^2 [[j20, j21], [j30, j31]]; kept as its inverse. M is the
+ * identity plus gh^2 times the (positive) stiffness and gh times the damping of the two bodies: well
+ * conditioned, so the explicit 2 x 2 inverse is as accurate as the pivoted LU of the full W. */
+typedef struct { double gh, m00, m01, m10, m11; } WFactor;
+
+static void w_factor(const Jac *J, double gh, WFactor *f) {
+    double gh2 = gh * gh;
+    double a = 1.0 - gh * J->j2[2] - gh2 * J->j2[0];
+    double b = -gh * J->j2[3] - gh2 * J->j2[1];
+    double c = -gh * J->j3[2] - gh2 * J->j3[0];
+    double e = 1.0 - gh * J->j3[3] - gh2 * J->j3[1];
+    double det = a * e - b * c;
+    f->gh = gh;
+    f->m00 = e / det;
+    f->m01 = -b / det;
+    f->m10 = -c / det;
+    f->m11 = a / det;
 }
 
-static void lu_solve(double A[N_X][N_X], const int *piv, double *b) {
-    for (int k = 0; k < N_X; k++) {
-        int p = piv[k];
-        if (p != k) { double tmp = b[k]; b[k] = b[p]; b[p] = tmp; }
-    }
-    for (int i = 0; i < N_X; i++) {
-        double s = b[i];
-        for (int j = 0; j < i; j++) s -= A[i][j] * b[j];
-        b[i] = s;
-    }
-    for (int i = N_X - 1; i >= 0; i--) {
-        double s = b[i];
-        for (int j = i + 1; j < N_X; j++) s -= A[i][j] * b[j];
-        b[i] = s / A[i][i];
-    }
+/* solve W x = b in place */
+static void w_solve(const Jac *J, const double *par, const WFactor *f, double *x) {
+    double gh = f->gh;
+    double r2 = x[2] + gh * (J->j2[0] * x[0] + J->j2[1] * x[1]);
+    double r3 = x[3] + gh * (J->j3[0] * x[0] + J->j3[1] * x[1]);
+    double x2 = f->m00 * r2 + f->m01 * r3;
+    double x3 = f->m10 * r2 + f->m11 * r3;
+    double x0 = x[0] + gh * x2;
+    double x1 = x[1] + gh * x3;
+    x[4] += gh * (par[PKA] * x0 + par[PDA] * x2);
+    x[5] += gh * (par[PKB] * x1 + par[PDB] * x3);
+    x[6] += gh * (J->j6[0] * x0 + J->j6[1] * x1 + J->j6[2] * x2 + J->j6[3] * x3);
+    x[0] = x0; x[1] = x1; x[2] = x2; x[3] = x3;
 }
 
 static int in_contact(const double *out) { return out[OUT_TAU_PINION] != 0.0 || out[OUT_NORMAL_FORCE] != 0.0; }
@@ -461,10 +585,11 @@ static void tally(double *res, double dt, int c0, int c1, double pen) {
     res[RINC] = c1 ? 1.0 : 0.0;
 }
 
+/* all finite: x - x is 0 for a finite x and nan for inf or nan (one test, no branch per element) */
 static int finite_n(const double *y, int n) {
-    for (int i = 0; i < n; i++)
-        if (!isfinite(y[i])) return 0;
-    return 1;
+    double z = 0.0;
+    for (int i = 0; i < n; i++) z += y[i] - y[i];
+    return z == 0.0;
 }
 
 /* stage._advance_py, stage mode: advance x over [0, H] with n_sub sub-steps; returns a CODE_* */
@@ -479,12 +604,18 @@ static int advance(const TableData *d, int scheme, double *x, const double *par,
     x[5] = 0.0;
     double outp[N_OUT], outn[N_OUT];
     double *y = x;
-    double f0[N_X], fn[N_X], k1[N_X], k2[N_X], k3[N_X], k4[N_X], yn[N_X], ytmp[N_X], ft[N_X];
-    double J[N_X][N_X], W[N_X][N_X];
-    int piv[N_X];
+    double f0[N_X], fn[N_X], k1[N_X], k2[N_X], k3[N_X], k4[N_X], yn[N_X], ytmp[N_X];
+    Jac J;
+    WFactor W;
+    /* the mesh geometry at y (g0), at the candidate step end (gn), at a stage (gs) */
+    MeshGeo geo[3];
+    MeshGeo *g0 = &geo[0], *gn = &geo[1], *gs = &geo[2];
+    g0->j = 0;
     double h_min = h / 64.0;
     double t = 0.0, dt = h;
-    rhs(d, par, u, t, y, f0, out);
+    mesh_geo(d, y[0], y[1], NULL, 0, 1, g0);
+    mesh_vel(d, g0, y[2], y[3], 1, out);
+    rhs_dy(par, u, t, y, out, f0);
     tally_start(res, in_contact(out), out[OUT_MAX_PENETRATION]);
     int have_jac = 0;
     for (;;) {
@@ -501,38 +632,36 @@ static int advance(const TableData *d, int scheme, double *x, const double *par,
         if (dt > H - t) dt = H - t;
         int c0 = in_contact(out);
         int changed;
+        gs->j = g0->j;
         if (scheme == S_ROS2) {
             if (!have_jac) {
-                jacobian(d, par, u, y, out, outp, J, ft);
+                jacobian(d, par, u, y, g0, out, &J);
                 have_jac = 1;
             }
             double gh = GC_GAMMA * dt;
-            for (int a = 0; a < n; a++) {
-                for (int b = 0; b < n; b++) W[a][b] = -gh * J[a][b];
-                W[a][a] += 1.0;
-            }
-            lu_factor(W, piv);
-            for (int a = 0; a < n; a++) k1[a] = f0[a] + gh * ft[a];
-            lu_solve(W, piv, k1);
+            w_factor(&J, gh, &W);
+            for (int a = 0; a < n; a++) k1[a] = f0[a] + gh * J.ft[a];
+            w_solve(&J, par, &W, k1);
             for (int a = 0; a < n; a++) ytmp[a] = y[a] + dt * k1[a];
-            rhs(d, par, u, t + dt, ytmp, k2, outp);
+            rhs(d, par, u, t + dt, ytmp, k2, outp, gs, 0);
             changed = in_contact(outp) != c0;
-            for (int a = 0; a < n; a++) k2[a] = k2[a] - 2.0 * k1[a] - gh * ft[a];
-            lu_solve(W, piv, k2);
+            for (int a = 0; a < n; a++) k2[a] = k2[a] - 2.0 * k1[a] - gh * J.ft[a];
+            w_solve(&J, par, &W, k2);
             for (int a = 0; a < n; a++) yn[a] = y[a] + dt * (1.5 * k1[a] + 0.5 * k2[a]);
         } else {
             for (int a = 0; a < n; a++) ytmp[a] = y[a] + 0.5 * dt * f0[a];
-            rhs(d, par, u, t + 0.5 * dt, ytmp, k2, outp);
+            rhs(d, par, u, t + 0.5 * dt, ytmp, k2, outp, gs, 0);
             changed = in_contact(outp) != c0;
             for (int a = 0; a < n; a++) ytmp[a] = y[a] + 0.5 * dt * k2[a];
-            rhs(d, par, u, t + 0.5 * dt, ytmp, k3, outp);
+            rhs(d, par, u, t + 0.5 * dt, ytmp, k3, outp, gs, 0);
             changed = changed || in_contact(outp) != c0;
             for (int a = 0; a < n; a++) ytmp[a] = y[a] + dt * k3[a];
-            rhs(d, par, u, t + dt, ytmp, k4, outp);
+            rhs(d, par, u, t + dt, ytmp, k4, outp, gs, 0);
             changed = changed || in_contact(outp) != c0;
             for (int a = 0; a < n; a++) yn[a] = y[a] + dt / 6.0 * (f0[a] + 2.0 * k2[a] + 2.0 * k3[a] + k4[a]);
         }
-        rhs(d, par, u, t + dt, yn, fn, outn);
+        gn->j = gs->j;
+        rhs(d, par, u, t + dt, yn, fn, outn, gn, 1);
         /* a contact closing or opening inside the sub-step: halve it, down to h/64 */
         int c1 = in_contact(outn);
         if ((changed || c1 != c0) && dt > h_min) {
@@ -544,6 +673,7 @@ static int advance(const TableData *d, int scheme, double *x, const double *par,
         t += dt;
         for (int a = 0; a < n; a++) { y[a] = yn[a]; f0[a] = fn[a]; }
         for (int a = 0; a < N_OUT; a++) out[a] = outn[a];
+        MeshGeo *tmp = g0; g0 = gn; gn = tmp;          /* the geometry of the new y */
         have_jac = 0;
         if (dt < h) dt = pmin(2.0 * dt, h);
     }
@@ -853,14 +983,14 @@ static int build_stage(Inst *c) {
     free(c->values_eff); c->values_eff = NULL;
     free(c->a_eff); c->a_eff = NULL;
     if (comp != 1.0) {           /* contact_map.make_table_data: the series compliance */
-        size_t nv = (size_t)m->n_theta * 2 * (size_t)m->n_a * N_CH;
+        size_t nv = (size_t)m->n_theta * 2 * (size_t)m->n_a * N_K;
         c->values_eff = (double *)malloc(sizeof(double) * nv);
         c->a_eff = (double *)malloc(sizeof(double) * (size_t)m->n_a);
         if (!c->values_eff || !c->a_eff) { fail(c, "initialization failed: out of memory"); return 0; }
         memcpy(c->values_eff, m->values, sizeof(double) * nv);
-        for (size_t i = 0; i < nv; i += N_CH) {
-            c->values_eff[i + CH_EEL] *= comp;
-            c->values_eff[i + CH_DAMP] /= comp;
+        for (size_t i = 0; i < nv; i += N_K) {
+            c->values_eff[i + K_EEL] *= comp;
+            c->values_eff[i + K_DAMP] /= comp;
         }
         for (int64_t j = 0; j < m->n_a; j++) c->a_eff[j] = m->a[j] * comp;
     }

@@ -70,7 +70,9 @@ typedef struct {
     int64_t n_theta, n_a, n_rev, te_zp, te_zw;
     int has_te;
     double dtheta, ratio, w_reg;
+    double inv_dtheta, inv_period, inv_w_reg;   /* reciprocals: the hot path multiplies */
     double *a;          /* (n_a) */
+    double *a_inv;      /* (n_a - 1): 1 / (a[j + 1] - a[j]) */
     double *onset;      /* (n_theta, 2) */
     double *values;     /* (n_theta, 2, n_a, N_K): the file's (..., N_CH) in the K_* order */
     double te_p[N_P];
@@ -79,7 +81,7 @@ typedef struct {
 
 static void map_free(Map *m) {
     if (!m) return;
-    free(m->a); free(m->onset); free(m->values); free(m->te_pin); free(m->te_whl);
+    free(m->a); free(m->a_inv); free(m->onset); free(m->values); free(m->te_pin); free(m->te_whl);
     free(m);
 }
 
@@ -100,23 +102,28 @@ static Map *map_load(const char *path, char *why, size_t nwhy) {
     if (ok) {
         m->n_theta = hdr[0]; m->n_a = hdr[1]; m->n_rev = hdr[3]; m->has_te = hdr[4] != 0;
         m->te_zp = hdr[5]; m->te_zw = hdr[6];
+        m->inv_period = 1.0 / (2.0 * M_PI * (double)m->n_rev);
         m->dtheta = sc[0]; m->ratio = sc[1]; m->w_reg = sc[2];
+        m->inv_dtheta = 1.0 / m->dtheta;
+        m->inv_w_reg = 1.0 / m->w_reg;
         ok = hdr[2] == N_CH && m->n_theta > 1 && m->n_a > 1 && m->n_rev >= 1 && m->n_theta < 100000000
              && m->n_a < 100000;
     }
     if (ok) {
         size_t nv = (size_t)m->n_theta * 2 * (size_t)m->n_a * N_CH;
         m->a = (double *)malloc(sizeof(double) * (size_t)m->n_a);
+        m->a_inv = (double *)malloc(sizeof(double) * (size_t)m->n_a);
         m->onset = (double *)malloc(sizeof(double) * 2 * (size_t)m->n_theta);
         double *raw = (double *)malloc(sizeof(double) * nv);
         m->values = (double *)malloc(sizeof(double) * (nv / N_CH) * N_K);
-        ok = m->a && m->onset && raw && m->values && read_doubles(f, m->a, (size_t)m->n_a)
+        ok = m->a && m->a_inv && m->onset && raw && m->values && read_doubles(f, m->a, (size_t)m->n_a)
              && read_doubles(f, m->onset, 2 * (size_t)m->n_theta) && read_doubles(f, raw, nv);
         for (size_t i = 0; ok && i < nv / N_CH; i++) {
             for (int k = 0; k < N_K - 1; k++) m->values[i * N_K + k] = raw[i * N_CH + K_FROM_CH[k]];
             m->values[i * N_K + K_PAD] = 0.0;
         }
         free(raw);
+        for (int64_t j = 0; ok && j + 1 < m->n_a; j++) m->a_inv[j] = 1.0 / (m->a[j + 1] - m->a[j]);
     }
     if (ok && m->has_te) {
         ok = m->te_zp > 0 && m->te_zw > 0 && m->te_zp < 100000 && m->te_zw < 100000;
@@ -146,6 +153,7 @@ typedef struct {
     const Map *map;
     const double *values;   /* the map's, or scaled by the tooth compliance */
     const double *a_nodes;
+    const double *a_inv;    /* 1 / (a_nodes[j + 1] - a_nodes[j]) */
     double c_comp, c_exp, u_max, fric_on;
 } TableData;
 
@@ -232,14 +240,14 @@ static void table_geo(const TableData *d, double theta_pinion, double theta_whee
         const double two_pi = 2.0 * M_PI;
         double th;
         if (m->n_rev == 1) {
-            th = theta_pinion - two_pi * ffloor(theta_pinion / two_pi);
+            th = theta_pinion - two_pi * ffloor(theta_pinion * m->inv_period);
         } else {
             double period = two_pi * (double)m->n_rev;
             th = ratio * theta_wheel;
-            th = th - period * ffloor(th / period) + s;
-            th = th - period * ffloor(th / period);
+            th = th - period * ffloor(th * m->inv_period) + s;
+            th = th - period * ffloor(th * m->inv_period);
         }
-        double x = th / m->dtheta;
+        double x = th * m->inv_dtheta;
         int64_t i0 = (int64_t)ffloor(x);
         double b = x - (double)i0;
         if (i0 < 0 || i0 >= n_theta) i0 = pmod(i0, n_theta);     /* Python's i0 % n_theta */
@@ -258,7 +266,7 @@ static void table_geo(const TableData *d, double theta_pinion, double theta_whee
     if (a <= an[0]) { g->state = GEO_FREE; return; }      /* free flight in the backlash */
     g->state = GEO_CONTACT;
     int64_t j = locate_from(an, na, a, j_hint);
-    double w = (a - an[j]) / (an[j + 1] - an[j]);
+    double w = (a - an[j]) * d->a_inv[j];
     g->j = j;
     int inside = w <= 1.0;
     double val[N_K];
@@ -329,7 +337,7 @@ static void table_vel(const TableData *d, const MeshGeo *g, double omega_pinion,
     else tau_d = pmax(tau_d, -out[OUT_TAU_PINION]);
     double tau_fp = 0.0, tau_fw = 0.0;
     if (d->fric_on > 0.0) {
-        double scale = pmin(pmax(omega_pinion / d->map->w_reg, -1.0), 1.0);
+        double scale = pmin(pmax(omega_pinion * d->map->inv_w_reg, -1.0), 1.0);
         tau_fp = scale * g->fric_p;
         tau_fw = scale * g->fric_w;
     }
@@ -435,7 +443,8 @@ static void mesh_eval(const TableData *d, double tp, double tw, double op, doubl
 /* 3. The gear stage (stage.py, mode "stage"): pinion + wheel + port spring-dampers + mesh          */
 /* ============================================================================================== */
 
-enum { PJP, PJW, PKA, PDA, PKB, PDB, PR, PHTH, PHW, N_PAR };     /* par layout (stage._P*) */
+enum { PJP, PJW, PKA, PDA, PKB, PDB, PR, PHTH, PHW,               /* par layout (stage._P*) */
+       PIJP, PIJW, PIR, N_PAR };                                 /* and 1/J_p, 1/J_w, 1/r */
 #define N_X 7         /* theta_p, theta_w, omega_p, omega_w, int tau_a dt, int tau_b dt, dissipated */
 enum { RTA, RTB, RES, RTF, RDET, RTAE, RTBE, RTAP, RTBP,          /* res layout (stage._R*) */
        RDTMIN, RNREF, RNSUB, RTSEP, RNSEP, RPEN, RINC, N_RES };
@@ -452,8 +461,8 @@ static void rhs_dy(const double *par, const double *u, double t, const double *y
     double ra = y[2] - u[1], rb = y[3] - u[3];
     dy[0] = y[2];
     dy[1] = y[3];
-    dy[2] = (ta + out[OUT_TAU_PINION]) / par[PJP];
-    dy[3] = (tb + out[OUT_TAU_WHEEL]) / par[PJW];
+    dy[2] = (ta + out[OUT_TAU_PINION]) * par[PIJP];
+    dy[3] = (tb + out[OUT_TAU_WHEEL]) * par[PIJW];
     dy[4] = -ta;
     dy[5] = -tb;
     dy[6] = (da * (ra * ra) + db * (rb * rb) + out[OUT_DISSIPATED_POWER]);
@@ -495,36 +504,38 @@ typedef struct { double j2[4], j3[4], j6[4], ft[N_X]; } Jac;
  * g0, out0: the mesh at y */
 static void jacobian(const TableData *d, const double *par, const double *u, const double *y, const MeshGeo *g0,
                      const double *out0, Jac *J) {
-    double ka = par[PKA], da = par[PDA], kb = par[PKB], db = par[PDB], r = par[PR], jp = par[PJP], jw = par[PJW];
+    double ka = par[PKA], da = par[PDA], kb = par[PKB], db = par[PDB], r = par[PR];
+    double ir = par[PIR], ijp = par[PIJP], ijw = par[PIJW];
     double sgn = y[0] - r * y[1] >= 0.0 ? -1.0 : 1.0;
     double hth = sgn * par[PHTH] / r;
     double hw = sgn * par[PHW] / r;
+    double ihth = 1.0 / hth, ihw = 1.0 / hw;        /* off the critical path: y alone decides them */
     MeshGeo gth;
     double outp[N_OUT];
     mesh_geo(d, y[0], y[1] + hth, g0, g0->j, 0, &gth);   /* same pinion angle: the map row is reused */
     mesh_vel(d, &gth, y[2], y[3], 0, outp);
-    double dtp_dthw = (outp[OUT_TAU_PINION] - out0[OUT_TAU_PINION]) / hth;
-    double dtw_dthw = (outp[OUT_TAU_WHEEL] - out0[OUT_TAU_WHEEL]) / hth;
-    double dp_dthw = (outp[OUT_DISSIPATED_POWER] - out0[OUT_DISSIPATED_POWER]) / hth;
+    double dtp_dthw = (outp[OUT_TAU_PINION] - out0[OUT_TAU_PINION]) * ihth;
+    double dtw_dthw = (outp[OUT_TAU_WHEEL] - out0[OUT_TAU_WHEEL]) * ihth;
+    double dp_dthw = (outp[OUT_DISSIPATED_POWER] - out0[OUT_DISSIPATED_POWER]) * ihth;
     mesh_vel(d, g0, y[2], y[3] + hw, 0, outp);             /* same angles: the geometry of y */
-    double dtp_dww = (outp[OUT_TAU_PINION] - out0[OUT_TAU_PINION]) / hw;
-    double dtw_dww = (outp[OUT_TAU_WHEEL] - out0[OUT_TAU_WHEEL]) / hw;
-    double dp_dww = (outp[OUT_DISSIPATED_POWER] - out0[OUT_DISSIPATED_POWER]) / hw;
-    J->j2[0] = (-ka - dtp_dthw / r) / jp;
-    J->j2[1] = dtp_dthw / jp;
-    J->j2[2] = (-da - dtp_dww / r) / jp;
-    J->j2[3] = dtp_dww / jp;
-    J->j3[0] = (-dtw_dthw / r) / jw;
-    J->j3[1] = (-kb + dtw_dthw) / jw;
-    J->j3[2] = (-dtw_dww / r) / jw;
-    J->j3[3] = (-db + dtw_dww) / jw;
-    J->j6[0] = -dp_dthw / r;
+    double dtp_dww = (outp[OUT_TAU_PINION] - out0[OUT_TAU_PINION]) * ihw;
+    double dtw_dww = (outp[OUT_TAU_WHEEL] - out0[OUT_TAU_WHEEL]) * ihw;
+    double dp_dww = (outp[OUT_DISSIPATED_POWER] - out0[OUT_DISSIPATED_POWER]) * ihw;
+    J->j2[0] = (-ka - dtp_dthw * ir) * ijp;
+    J->j2[1] = dtp_dthw * ijp;
+    J->j2[2] = (-da - dtp_dww * ir) * ijp;
+    J->j2[3] = dtp_dww * ijp;
+    J->j3[0] = (-dtw_dthw * ir) * ijw;
+    J->j3[1] = (-kb + dtw_dthw) * ijw;
+    J->j3[2] = (-dtw_dww * ir) * ijw;
+    J->j3[3] = (-db + dtw_dww) * ijw;
+    J->j6[0] = -dp_dthw * ir;
     J->j6[1] = dp_dthw;
-    J->j6[2] = 2.0 * da * (y[2] - u[1]) - dp_dww / r;
+    J->j6[2] = 2.0 * da * (y[2] - u[1]) - dp_dww * ir;
     J->j6[3] = 2.0 * db * (y[3] - u[3]) + dp_dww;
     for (int i = 0; i < N_X; i++) J->ft[i] = 0.0;
-    J->ft[2] = ka * u[1] / jp;
-    J->ft[3] = kb * u[3] / jw;
+    J->ft[2] = ka * u[1] * ijp;
+    J->ft[3] = kb * u[3] * ijw;
     J->ft[4] = -ka * u[1];
     J->ft[5] = -kb * u[3];
 }
@@ -542,12 +553,12 @@ static void w_factor(const Jac *J, double gh, WFactor *f) {
     double b = -gh * J->j2[3] - gh2 * J->j2[1];
     double c = -gh * J->j3[2] - gh2 * J->j3[0];
     double e = 1.0 - gh * J->j3[3] - gh2 * J->j3[1];
-    double det = a * e - b * c;
+    double idet = 1.0 / (a * e - b * c);
     f->gh = gh;
-    f->m00 = e / det;
-    f->m01 = -b / det;
-    f->m10 = -c / det;
-    f->m11 = a / det;
+    f->m00 = e * idet;
+    f->m01 = -b * idet;
+    f->m10 = -c * idet;
+    f->m11 = a * idet;
 }
 
 /* solve W x = b in place */
@@ -618,15 +629,19 @@ static int advance(const TableData *d, int scheme, double *x, const double *par,
     rhs_dy(par, u, t, y, out, f0);
     tally_start(res, in_contact(out), out[OUT_MAX_PENETRATION]);
     int have_jac = 0;
+    int checked = 0;            /* y, f0 and out checked since they last changed (a halving changes none) */
     for (;;) {
-        if (out[OUT_STATUS] != 0.0) {
-            res[RTF] = t;
-            res[RDET] = out[OUT_MAX_PENETRATION];
-            return CODE_MESH_STATUS;
-        }
-        if (!(finite_n(y, n) && finite_n(f0, n))) {
-            res[RTF] = t;
-            return CODE_NONFINITE_STATE;
+        if (!checked) {
+            if (out[OUT_STATUS] != 0.0) {
+                res[RTF] = t;
+                res[RDET] = out[OUT_MAX_PENETRATION];
+                return CODE_MESH_STATUS;
+            }
+            if (!(finite_n(y, n) && finite_n(f0, n))) {
+                res[RTF] = t;
+                return CODE_NONFINITE_STATE;
+            }
+            checked = 1;
         }
         if (t >= H * (1.0 - 1e-12)) break;
         if (dt > H - t) dt = H - t;
@@ -675,6 +690,7 @@ static int advance(const TableData *d, int scheme, double *x, const double *par,
         for (int a = 0; a < N_OUT; a++) out[a] = outn[a];
         MeshGeo *tmp = g0; g0 = gn; gn = tmp;          /* the geometry of the new y */
         have_jac = 0;
+        checked = 0;
         if (dt < h) dt = pmin(2.0 * dt, h);
     }
     res[RTA] = y[4] / H;
@@ -764,7 +780,8 @@ typedef struct {
     fmi2CallbackFunctions cb;
     int logging_on;
     Map *map;
-    double *values_eff, *a_eff;      /* tooth compliance applied (owned; NULL: the map's own) */
+    double *values_eff, *a_eff;      /* tooth compliance applied (owned; NULL: the map's own); a_eff: the
+                                      * n_a nodes, then the n_a - 1 reciprocal widths */
     /* ---- everything below is the FMU state ---- */
     double r[GC_N_VARS];             /* Real variables by value reference */
     int iv[GC_N_VARS];               /* Integer and Boolean variables */
@@ -985,7 +1002,7 @@ static int build_stage(Inst *c) {
     if (comp != 1.0) {           /* contact_map.make_table_data: the series compliance */
         size_t nv = (size_t)m->n_theta * 2 * (size_t)m->n_a * N_K;
         c->values_eff = (double *)malloc(sizeof(double) * nv);
-        c->a_eff = (double *)malloc(sizeof(double) * (size_t)m->n_a);
+        c->a_eff = (double *)malloc(sizeof(double) * 2 * (size_t)m->n_a);
         if (!c->values_eff || !c->a_eff) { fail(c, "initialization failed: out of memory"); return 0; }
         memcpy(c->values_eff, m->values, sizeof(double) * nv);
         for (size_t i = 0; i < nv; i += N_K) {
@@ -993,11 +1010,13 @@ static int build_stage(Inst *c) {
             c->values_eff[i + K_DAMP] /= comp;
         }
         for (int64_t j = 0; j < m->n_a; j++) c->a_eff[j] = m->a[j] * comp;
+        for (int64_t j = 0; j + 1 < m->n_a; j++) c->a_eff[m->n_a + j] = 1.0 / (c->a_eff[j + 1] - c->a_eff[j]);
     }
     int damping = c->iv[VR_contact_damping] != 0;
     c->td.map = m;
     c->td.values = c->values_eff ? c->values_eff : m->values;
     c->td.a_nodes = c->a_eff ? c->a_eff : m->a;
+    c->td.a_inv = c->a_eff ? c->a_eff + m->n_a : m->a_inv;
     c->td.c_comp = damping ? r[VR_c_compression] : 0.0;
     c->td.c_exp = damping ? r[VR_c_expansion] : 0.0;
     c->td.u_max = r[VR_u_max];
@@ -1008,6 +1027,7 @@ static int build_stage(Inst *c) {
     par[PJP] = r[VR_J_pinion]; par[PJW] = r[VR_J_wheel];
     par[PKA] = r[VR_k_a]; par[PDA] = r[VR_d_a]; par[PKB] = r[VR_k_b]; par[PDB] = r[VR_d_b];
     par[PR] = m->ratio; par[PHTH] = GC_FD_ANGLE; par[PHW] = GC_FD_SPEED;
+    par[PIJP] = 1.0 / par[PJP]; par[PIJW] = 1.0 / par[PJW]; par[PIR] = 1.0 / par[PR];
     c->corr.k[0] = r[VR_k_a];
     c->corr.k[1] = r[VR_k_b];
     c->corr.enabled = c->iv[VR_energy_correction] != 0;
@@ -1366,6 +1386,7 @@ fmi2Status fmi2SetFMUstate(fmi2Component comp, fmi2FMUstate state) {
     c->td.map = c->map;
     c->td.values = c->values_eff ? c->values_eff : c->map->values;
     c->td.a_nodes = c->a_eff ? c->a_eff : c->map->a;
+    c->td.a_inv = c->a_eff ? c->a_eff + c->map->n_a : c->map->a_inv;
     return fmi2OK;
 }
 

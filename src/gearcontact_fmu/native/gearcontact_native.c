@@ -30,6 +30,14 @@
 #define M_PI 3.14159265358979323846
 #endif
 
+/* the hot path's small functions are inlined into the integrator (the call overhead and the round trip of
+ * their results through memory were a fifth of a sub-step) */
+#if defined(__GNUC__) || defined(__clang__)
+#define HOT static inline __attribute__((always_inline))
+#else
+#define HOT static inline
+#endif
+
 /* one variable of the model description (the table GC_VARS, indexed by value reference, is generated) */
 typedef struct {
     const char *name;
@@ -164,7 +172,7 @@ static int64_t pmod(int64_t a, int64_t n) { int64_t r = a % n; return r < 0 ? r 
 
 /* floor(x), the same value (sign of zero included), inline: on baseline x86-64 (no SSE4.1) floor() is a
  * libm call, and the map index needs two per evaluation */
-static inline double ffloor(double x) {
+HOT double ffloor(double x) {
     if (!(fabs(x) < 4503599627370496.0)) return floor(x);     /* |x| >= 2^52 (integral), inf, nan */
     double t = (double)(int64_t)x;                              /* truncation towards zero, exact */
     return t > x ? t - 1.0 : (t == 0.0 ? x * 0.0 : t);         /* x * 0.0: floor(-0.0) is -0.0 */
@@ -174,7 +182,7 @@ static inline double ffloor(double x) {
  * beyond the last node; s > s_nodes[0] here). The same j as the binary search, found by walking from the
  * previous evaluation's interval: the approach moves by a fraction of an interval per sub-step, so
  * this is one or two comparisons instead of log2(n) unpredictable branches */
-static int64_t locate_from(const double *s_nodes, int64_t n, double s, int64_t j) {
+HOT int64_t locate_from(const double *s_nodes, int64_t n, double s, int64_t j) {
     if (s >= s_nodes[n - 1]) return n - 2;
     if (j < 0 || j > n - 2) j = 0;
     while (s < s_nodes[j]) j--;              /* stops: s > s_nodes[0] */
@@ -186,7 +194,7 @@ static int64_t locate_from(const double *s_nodes, int64_t n, double s, int64_t j
  * (weight b) and approach nodes j, j+1 (weight w); the same operations per channel as the Python (nk is
  * a constant at each call, even: the compiler vectorises the loop two channels a lane pair, bit for bit
  * the scalar result) */
-static inline void bilinear(const double *v, int64_t na, int64_t i0, int64_t i1, int side, int64_t j, double w,
+HOT void bilinear(const double *v, int64_t na, int64_t i0, int64_t i1, int side, int64_t j, double w,
                             double b, const int nk, double *val) {
     const double *r0 = v + (((size_t)i0 * 2 + (size_t)side) * (size_t)na + (size_t)j) * N_K;
     const double *r1 = v + (((size_t)i1 * 2 + (size_t)side) * (size_t)na + (size_t)j) * N_K;
@@ -224,7 +232,7 @@ typedef struct {
     double te_dp, te_dw;             /* maps with manufacturing errors: the offset's slopes */
 } MeshGeo;
 
-static void table_geo(const TableData *d, double theta_pinion, double theta_wheel, const MeshGeo *row,
+HOT void table_geo(const TableData *d, double theta_pinion, double theta_wheel, const MeshGeo *row,
                       int64_t j_hint, int full, MeshGeo *g) {
     const Map *m = d->map;
     const int64_t na = m->n_a, n_theta = m->n_theta;
@@ -303,7 +311,7 @@ static void table_geo(const TableData *d, double theta_pinion, double theta_whee
 }
 
 /* full: every output (g may be lean or full, as mesh_geo made it); lean: the four of a lean evaluation */
-static void table_vel(const TableData *d, const MeshGeo *g, double omega_pinion, double omega_wheel, int full,
+HOT void table_vel(const TableData *d, const MeshGeo *g, double omega_pinion, double omega_wheel, int full,
                       double *out) {
     const double ratio = d->map->ratio;
     if (full) {
@@ -411,7 +419,7 @@ static void te_offset(const Map *mp, double theta_pinion, double theta_wheel, do
  * in the two halves of table_eval (mesh_geo: the angles; mesh_vel: the speeds, given mesh_geo's result).
  * row: a MeshGeo at the same pinion angle whose map row may be reused (or NULL); j_hint: where the
  * approach search starts */
-static void mesh_geo(const TableData *d, double tp, double tw, const MeshGeo *row, int64_t j_hint, int full,
+HOT void mesh_geo(const TableData *d, double tp, double tw, const MeshGeo *row, int64_t j_hint, int full,
                      MeshGeo *g) {
     if (!d->map->has_te) { table_geo(d, tp, tw, row, j_hint, full, g); return; }
     double r = d->map->te_p[P_RATIO];
@@ -422,7 +430,7 @@ static void mesh_geo(const TableData *d, double tp, double tw, const MeshGeo *ro
     g->te_dw = dw;
 }
 
-static void mesh_vel(const TableData *d, const MeshGeo *g, double op, double ow, int full, double *out) {
+HOT void mesh_vel(const TableData *d, const MeshGeo *g, double op, double ow, int full, double *out) {
     if (!d->map->has_te) { table_vel(d, g, op, ow, full, out); return; }
     double r = d->map->te_p[P_RATIO];
     double dp = g->te_dp, dw = g->te_dw;
@@ -434,7 +442,7 @@ static void mesh_vel(const TableData *d, const MeshGeo *g, double op, double ow,
 
 /* the whole evaluation, in full (initialization) */
 static void mesh_eval(const TableData *d, double tp, double tw, double op, double ow, double *out) {
-    MeshGeo g;
+    MeshGeo g = {0};
     mesh_geo(d, tp, tw, NULL, 0, 1, &g);
     mesh_vel(d, &g, op, ow, 1, out);
 }
@@ -452,7 +460,7 @@ enum { S_ROS2, S_RK4 };
 enum { CODE_OK, CODE_MESH_STATUS, CODE_NONFINITE_STATE, CODE_NONFINITE_INPUT };
 
 /* the augmented rhs at y, given the mesh outputs there */
-static void rhs_dy(const double *par, const double *u, double t, const double *y, const double *out, double *dy) {
+HOT void rhs_dy(const double *par, const double *u, double t, const double *y, const double *out, double *dy) {
     double phi_a = u[0] + u[1] * t;
     double phi_b = u[2] + u[3] * t;
     double ka = par[PKA], da = par[PDA], kb = par[PKB], db = par[PDB];
@@ -470,7 +478,7 @@ static void rhs_dy(const double *par, const double *u, double t, const double *y
 
 /* the augmented rhs with the mesh evaluated at y, lean (a stage) or in full (a sub-step end); g: the mesh
  * geometry there (g->j on entry: where the approach search starts) */
-static void rhs(const TableData *d, const double *par, const double *u, double t, const double *y, double *dy,
+HOT void rhs(const TableData *d, const double *par, const double *u, double t, const double *y, double *dy,
                 double *out, MeshGeo *g, int full) {
     mesh_geo(d, y[0], y[1], NULL, g->j, full, g);
     mesh_vel(d, g, y[2], y[3], full, out);
@@ -547,7 +555,7 @@ static void jacobian(const TableData *d, const double *par, const double *u, con
  * conditioned, so the explicit 2 x 2 inverse is as accurate as the pivoted LU of the full W. */
 typedef struct { double gh, m00, m01, m10, m11; } WFactor;
 
-static void w_factor(const Jac *J, double gh, WFactor *f) {
+HOT void w_factor(const Jac *J, double gh, WFactor *f) {
     double gh2 = gh * gh;
     double a = 1.0 - gh * J->j2[2] - gh2 * J->j2[0];
     double b = -gh * J->j2[3] - gh2 * J->j2[1];
@@ -562,7 +570,7 @@ static void w_factor(const Jac *J, double gh, WFactor *f) {
 }
 
 /* solve W x = b in place */
-static void w_solve(const Jac *J, const double *par, const WFactor *f, double *x) {
+HOT void w_solve(const Jac *J, const double *par, const WFactor *f, double *x) {
     double gh = f->gh;
     double r2 = x[2] + gh * (J->j2[0] * x[0] + J->j2[1] * x[1]);
     double r3 = x[3] + gh * (J->j3[0] * x[0] + J->j3[1] * x[1]);
@@ -576,7 +584,7 @@ static void w_solve(const Jac *J, const double *par, const WFactor *f, double *x
     x[0] = x0; x[1] = x1; x[2] = x2; x[3] = x3;
 }
 
-static int in_contact(const double *out) { return out[OUT_TAU_PINION] != 0.0 || out[OUT_NORMAL_FORCE] != 0.0; }
+HOT int in_contact(const double *out) { return out[OUT_TAU_PINION] != 0.0 || out[OUT_NORMAL_FORCE] != 0.0; }
 
 static void tally_start(double *res, int c, double pen) {
     if (res[RINC] == 1.0 && !c) res[RNSEP] += 1.0;

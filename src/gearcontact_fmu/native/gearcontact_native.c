@@ -37,8 +37,8 @@
 #define M_PI 3.14159265358979323846
 #endif
 
-/* the hot path's small functions are inlined into the integrator (the call overhead and the round trip of
- * their results through memory were a fifth of a sub-step) */
+/* the hot path's small functions are inlined into the integrator (their calls and the round trips of their
+ * results through memory were a sixth of a doStep's instructions) */
 #if defined(__GNUC__) || defined(__clang__)
 #define HOT static inline __attribute__((always_inline))
 #elif defined(_MSC_VER)

@@ -133,6 +133,24 @@ def _rel(a, b):
     return np.max(np.abs(a - b), axis=0) / scale
 
 
+# How close the native FMU's outputs are to the pythonfmu FMU's (relative to each output's largest
+# magnitude). The native ros2 solves its linear systems by the Jacobian's structure (a 2 x 2 system) where
+# the Python factors the dense 7 x 7 W: the same solution up to rounding, not bit for bit (the mesh model,
+# rhs and rk4 still are). Measured over 1200 steps (the cases below): coupling torques <= 3e-11, energies
+# <= 1.3e-10; the instantaneous mesh outputs, whose relative sensitivity to the absolute angles' rounding
+# is ~1e9 (a penetration of ~1e-5 rad out of angles of ~10 rad), <= 5.5e-10, and n_contact <= 3.6e-9 with
+# manufacturing errors (78 separations). Counters: identical.
+TOL = 1e-9
+TOL_MESH = 3e-8
+MESH_OUTPUTS = ("mesh_torque_pinion", "mesh_torque_wheel", "n_contact", "max_penetration")
+
+
+def _check_close(rel):
+    """rel: {output: relative difference}; the bounds above."""
+    bad = {k: v for k, v in rel.items() if v > (TOL_MESH if k in MESH_OUTPUTS else TOL)}
+    assert not bad, (bad, rel)
+
+
 def _md(path):
     with zipfile.ZipFile(path) as z:
         return ET.fromstring(z.read("modelDescription.xml")), z.namelist()
@@ -173,7 +191,7 @@ def test_sources_compile_with_the_documented_command(native, gear, tmp_path):
     so = d / "binaries" / "linux64" / "GearContact.so"
     ref = _drive(*_open(native, gear), 50)
     so.unlink()
-    subprocess.run(["gcc", "-O2", "-fPIC", "-shared", "-std=c99", "-ffp-contract=off", f"-I{d / 'sources'}",
+    subprocess.run(["gcc", "-O3", "-fPIC", "-shared", "-std=c99", "-ffp-contract=off", f"-I{d / 'sources'}",
                     str(d / "sources" / "gearcontact_native.c"), "-o", str(so), "-lm"], check=True)
     md = fmpy.read_model_description(str(native))
     s = FMU2Slave(guid=md.guid, unzipDirectory=str(d), modelIdentifier="GearContact", instanceName="src")
@@ -201,7 +219,10 @@ def test_binary_has_no_libpython(native, tmp_path):
     {"output_torque": "mean", "contact_damping": False, "scheme": "rk4", "max_substep": 1e-6, "k_a": 900.0},
 ], ids=["scene", "switches", "rk4"])
 def test_matches_the_pythonfmu_gearcontact(native, pyfmu, gear, extra):
-    """Driven by the same inputs, every output agrees to rounding (measured: bit-identical)."""
+    """Driven by the same inputs, every output agrees to rounding (TOL, TOL_MESH). rk4 involves no linear
+    solve and is bit-identical; it runs without contact damping (rk4 is unstable with it) and so rattles
+    (~170 separations in 300 steps): a chaotic regime, where any difference in rounding would grow to
+    percents within the 300 steps, so this case also checks that the mesh model is bit-identical."""
     params = {**gear, **extra}
     n = 300 if extra.get("scheme") == "rk4" else 1200
     a = _drive(*_open(native, params), n)
@@ -209,7 +230,22 @@ def test_matches_the_pythonfmu_gearcontact(native, pyfmu, gear, extra):
     assert np.all(np.isfinite(a))
     assert b[:, COMPARED.index("n_refinements")][-1] > 0           # the halving was exercised
     rel = dict(zip(COMPARED, _rel(a, b)))
-    assert max(rel.values()) <= 1e-9, rel
+    if extra.get("scheme") == "rk4":
+        assert b[:, COMPARED.index("n_separations")][-1] > 100
+        assert np.array_equal(a, b), rel
+    _check_close(rel)
+
+
+@pytest.mark.parametrize("name, factor", [("J_pinion", 1 + 1e-9), ("k_b", 1 + 1e-9)])
+def test_the_comparison_sees_a_wrong_parameter(native, pyfmu, gear, name, factor):
+    """The bounds have teeth: a parameter off by 1e-9 relative in one FMU breaks them (measured: the
+    coupling torques move by 2e-7 (J_pinion) and 3e-8 (k_b) relative)."""
+    a = _drive(*_open(native, gear), 1200)
+    b = _drive(*_open(pyfmu, {**gear, name: gear[name] * factor}), 1200)
+    rel = dict(zip(COMPARED, _rel(a, b)))
+    assert max(rel[k] for k in ("flange_a_tau", "flange_b_tau")) > 10 * TOL, rel
+    with pytest.raises(AssertionError):
+        _check_close(rel)
 
 
 def test_fmu_state_rollback_is_bit_identical(native, gear):
@@ -326,13 +362,14 @@ def test_manufacturing_errors_match(tmp_path, pyfmu):
     fmu = build_native_gear(gear, tmp_path / "GearContact.fmu")
     a = _drive(*_open(fmu, gear), 1200)
     b = _drive(*_open(pyfmu, gear), 1200)
-    assert max(_rel(a, b)) <= 1e-9
+    _check_close(dict(zip(COMPARED, _rel(a, b))))
 
 
 @pytest.mark.slow
 def test_example_system_with_the_native_gear(native, tmp_path):
     """The issue's figure: 1 s of the example scene, the native GearContact swapped in for the pythonfmu
-    one (Master's fmu_paths), every recorded torque within 1e-6 relative (measured: identical)."""
+    one (Master's fmu_paths), every recorded torque within 1e-6 relative (measured: <= 2.7e-11; the native
+    ros2 agrees to rounding, not bit for bit, see TOL)."""
     from drivetrain.cosim import simulate
     from drivetrain.run import assemble_scene
     from drivetrain.scenario import load_scene

@@ -292,7 +292,7 @@ def fmi_header_dir() -> Path:
 
 def compile_command(src_dir: Path, out: Path, cc: str = "gcc") -> list[str]:
     """The compiler call (the same one documented for other platforms in docs/FMU.md)."""
-    return [cc, "-O2", "-fPIC", "-shared", "-std=c99", "-ffp-contract=off", "-fvisibility=hidden",
+    return [cc, "-O3", "-fPIC", "-shared", "-std=c99", "-ffp-contract=off", "-fvisibility=hidden",
             f"-I{src_dir}", str(src_dir / C_SOURCE), "-o", str(out), "-lm"]
 
 
@@ -348,7 +348,7 @@ def build_native_gear(parameters: dict | None = None, out: str | Path = "fmus/na
             "<html><body><h1>GearContact (native)</h1><p>Lower bevel gear stage, fidelity table, mode stage, "
             "compiled C: no Python needed. The contact map is <code>resources/contact_map.bin</code>; the "
             "sources (<code>sources/</code>) compile on other platforms with "
-            "<code>cc -O2 -fPIC -shared -std=c99 -ffp-contract=off -I. gearcontact_native.c -o GearContact.so -lm</code>."
+            "<code>cc -O3 -fPIC -shared -std=c99 -ffp-contract=off -I. gearcontact_native.c -o GearContact.so -lm</code>."
             "</p></body></html>\n")
         out.parent.mkdir(parents=True, exist_ok=True)
         part = out.with_name(out.name + f".{os.getpid()}.part")

@@ -34,10 +34,8 @@ from pathlib import Path
 
 from drivetrain.assemble import sensor_map
 from drivetrain.components import parse_profile
-from drivetrain.cosim.fmus import ensure_fmus
 from drivetrain.errors import ConfigurationError
-from drivetrain.run import assemble_scene
-from drivetrain.ssp import _problems, _value_text, _variables, bound_values, system_connections
+from drivetrain.ssp import bound_values, system_connections, system_fmus, value_text
 from drivetrain.system import SystemSpec
 
 
@@ -103,12 +101,7 @@ def export_container(scene, path: str | Path, fmu_dir: str | Path = "fmus", spec
     except ImportError as exc:
         raise ConfigurationError([f"FMU Manipulation Toolbox is not installed ({exc}): "
                                   "pip install fmu-manipulation-toolbox"]) from None
-    if spec is None:
-        spec = assemble_scene(scene)
-    models = [c.model for c in spec.components]
-    fmus = ensure_fmus(models, fmu_dir, build=build, log=log)
-    descriptions = {m: _variables(fmus[m]) for m in dict.fromkeys(models)}
-    problems = _problems(spec, descriptions)
+    spec, fmus, descriptions, problems = system_fmus(scene, fmu_dir, spec, build, log)
     instances = {c.name: c.model for c in spec.components}
     exposed = container_outputs(scene, outputs)
     for name, (inst, var) in exposed.items():
@@ -118,10 +111,10 @@ def export_container(scene, path: str | Path, fmu_dir: str | Path = "fmus", spec
     for c in spec.components:
         for name, value in bound_values(c).items():
             if name not in descriptions[c.model]:
-                continue                                   # named by _problems
+                continue                                   # named by system_problems
             vtype = descriptions[c.model][name][0]
             try:
-                text = _value_text(vtype, value)
+                text = value_text(vtype, value)
                 if vtype == "String":
                     text = _spaceless(f"{c.name}.{name}", text)
             except (TypeError, ValueError) as exc:

@@ -51,7 +51,7 @@ _SSV_TYPE = {"Real": "Real", "Integer": "Integer", "Enumeration": "Integer", "Bo
              "String": "String"}
 
 
-def _value_text(vtype: str, value) -> str:
+def value_text(vtype: str, value) -> str:
     if vtype == "Real":
         v = float(value)
         if not math.isfinite(v):
@@ -94,7 +94,7 @@ def bound_values(component) -> dict:
     return out
 
 
-def _problems(spec: SystemSpec, descriptions: dict) -> list[str]:
+def system_problems(spec: SystemSpec, descriptions: dict) -> list[str]:
     problems = []
     for c in spec.components:
         md = descriptions[c.model]
@@ -112,7 +112,7 @@ def _problems(spec: SystemSpec, descriptions: dict) -> list[str]:
     return problems
 
 
-def _variables(fmu_path: Path) -> dict:
+def fmu_variables(fmu_path: Path) -> dict:
     """name -> (type, causality) from an FMU's model description."""
     md = read_model_description(str(fmu_path))
     return {v.name: (v.type, v.causality) for v in md.modelVariables}
@@ -124,7 +124,7 @@ def ssv_text(component, variables: dict) -> str:
     for name, value in bound_values(component).items():
         vtype = variables[name][0]
         try:
-            text = _value_text(vtype, value)
+            text = value_text(vtype, value)
         except (TypeError, ValueError) as exc:
             raise ConfigurationError([f"{component.name}.{name} = {value!r}: {exc}"]) from None
         rows.append(f'    <ssv:Parameter name={quoteattr(name)}>\n'
@@ -175,6 +175,18 @@ def ssd_text(spec: SystemSpec, name: str, stop_time_s: float, descriptions: dict
             '</ssd:SystemStructureDescription>\n')
 
 
+def system_fmus(scene, fmu_dir, spec: SystemSpec | None = None, build: bool = True, log=None):
+    """What an export of the scene's system starts from: the assembled spec (given or assembled here),
+    its FMUs (built when missing or stale), each model's variables (name -> (type, causality)) and
+    every problem of binding the spec to them (:func:`system_problems`)."""
+    if spec is None:
+        spec = assemble_scene(scene)
+    models = [c.model for c in spec.components]
+    fmus = ensure_fmus(models, fmu_dir, build=build, log=log)
+    descriptions = {m: fmu_variables(fmus[m]) for m in dict.fromkeys(models)}
+    return spec, fmus, descriptions, system_problems(spec, descriptions)
+
+
 def export_ssp(scene, path: str | Path, fmu_dir: str | Path = "fmus", spec: SystemSpec | None = None,
                build: bool = True, log=None) -> Path:
     """Write the scene's assembled system as an SSP 1.0 archive at ``path`` (module docstring). The
@@ -184,12 +196,7 @@ def export_ssp(scene, path: str | Path, fmu_dir: str | Path = "fmus", spec: Syst
     path = Path(path)
     if path.suffix != ".ssp":
         raise ConfigurationError([f"{path}: an SSP archive's name ends in .ssp"])
-    if spec is None:
-        spec = assemble_scene(scene)
-    models = [c.model for c in spec.components]
-    fmus = ensure_fmus(models, fmu_dir, build=build, log=log)
-    descriptions = {m: _variables(fmus[m]) for m in dict.fromkeys(models)}
-    problems = _problems(spec, descriptions)
+    spec, fmus, descriptions, problems = system_fmus(scene, fmu_dir, spec, build, log)
     if problems:
         raise ConfigurationError(problems)
     ssd = ssd_text(spec, scene.name, scene.time.duration_s, descriptions)

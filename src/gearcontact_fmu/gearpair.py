@@ -41,7 +41,8 @@ class PCMGearPair:
     def data_with(self, friction: bool, damping: bool) -> tuple:
         """Kernel data of the same meshes with friction and/or damping switched."""
         base, target, r0p, r0w = self.bodies
-        return engine.make_fixed_axis_data(base, target, r0p, r0w, self.pcm, friction=friction, damping=damping)
+        return engine.make_fixed_axis_data(base, target, r0p, r0w, self.pcm, friction=friction, damping=damping,
+                                           periods=(self.gear.z_pinion, self.gear.z_wheel))
 
     def evaluate(self, theta_pinion, theta_wheel, omega_pinion=0.0, omega_wheel=0.0, out=None):
         if out is None:
@@ -98,7 +99,8 @@ def build_pcm_pair(gear: BevelGearParams | None = None, pcm: PCMParams | None = 
     base = engine.PCMBody(pinion.vertices, pinion.faces, pinion.face_points, pinion.face_normals)
     target = engine.PCMBody(wheel.vertices, wheel.faces, wheel.face_points, wheel.face_normals)
     r0p, r0w = geometry.pinion_R0(gear), geometry.wheel_R0(gear)
-    data = engine.make_fixed_axis_data(base, target, r0p, r0w, pcm, friction=friction, damping=damping)
+    data = engine.make_fixed_axis_data(base, target, r0p, r0w, pcm, friction=friction, damping=damping,
+                                       periods=(gear.z_pinion, gear.z_wheel))
     info = {"pinion_triangles": int(len(pinion.faces)), "wheel_triangles": int(len(wheel.faces))}
     return PCMGearPair(gear, pcm, resolution, health, pinion, wheel, data, (base, target, r0p, r0w), info)
 

@@ -23,7 +23,23 @@ normal at the point ``p - u/2 n`` (mid-layer): on the target with +, on the base
 Cost: the search touches only tree nodes near the target (surface-patch oriented boxes), so it
 follows the number of elements within the search length of the contact, not the mesh size. The
 fixed-axis kernel adds a candidate cache (temporal coherence, exact results): see
-:func:`make_fixed_axis_data`.
+:func:`make_fixed_axis_data` and :func:`kernels.cached_search`. Three layers, each exact:
+
+* candidate lists (pairs within 20 um, valid while the motion since their build stays below the
+  margins), rebuilt by a tree traversal (~2-5 ms on the converged bevel pair) when they expire;
+* clearance skips: each list carries, per element and per pair, how far it may move before a hit
+  (or an entry) becomes possible; a call tests only the pairs whose clearance the motion since the
+  build has used up, about the elements in contact (:func:`kernels.candidate_clearances`);
+* the pitch atlas (pairs whose meshes are rotated copies of one tooth, checked on the meshes,
+  :func:`pitch_symmetry`): every list built is kept, and a later pitch, which meets the same
+  geometry with other tooth pairs, is served from the kept lists, renumbered, instead of the tree.
+  In a steady run the traversals stop after the first pitch. Faulty pairs and mesh files fail the
+  check and keep the first two layers.
+
+Measured (benchmarks/bench_pcm_trajectory.py, loaded healthy pair) in docs/GEAR-CONTACT.md. The
+goal of issue 13 (<= 10 us per evaluation along a trajectory) is not reached: the calls in the
+double-contact zone still test ~1-3 k pairs (clearances shrink as a list ages), and a new list is
+mapped every ~20-30 sub-steps of 1 us.
 """
 from __future__ import annotations
 
@@ -333,10 +349,14 @@ def make_fixed_axis_data(base_body: PCMBody, target_body: PCMBody, R0_base, R0_t
 
     Layout: ``(b_int, b_seg, b_obb, belem, b_order, t_int, t_box, t_obb, ttri, t_order, M, ab0,
     params, stamp, call, best_u, best_j, line, active, stack, Rbt, tbt, cache, cand, cand_tri,
-    nstamp, icount, fnode, fc, minsep, nbox, close, dR, dt)`` with
+    nstamp, icount, fnode, fc, minsep, nbox, close, dR, dt, ndisp, cand_c, cand_s, cand_d, cand_h,
+    cand_g, cand_f, slot_f, period, b_inv, t_inv, Rc, atlas_meta, atlas_pairs, atlas_c, atlas_s,
+    atlas_d, atlas_h, atlas_minsep, atlas_nbox, atlas_close)`` with
     ``M = R0_target.T @ R0_base``, ``ab0 = M[:, 2]`` (base axis in the target's reference frame),
     ``params`` see :func:`kernels.make_params`, ``cache`` (kernels.N_CACHE,) cache state and
-    statistics (see ``kernels.C_*``), the rest work arrays (see :mod:`.kernels`).
+    statistics (see ``kernels.C_*``), ``period`` = (pitch angle, triangles per tooth) of the base
+    and the target (zeros: no atlas), the rest work arrays (see :mod:`.kernels`). Memory of the
+    atlas: 24 bytes per pair of the pool and ~16 kB per snapshot (allocated, touched as used).
     """
     R0b = np.asarray(R0_base, dtype=np.float64).reshape(3, 3)
     R0t = np.asarray(R0_target, dtype=np.float64).reshape(3, 3)

@@ -19,7 +19,16 @@ holds triangle ``order[k]``):
   target rows of ``ttri``; ``nstamp`` (N_base_nodes,) int64, ``icount`` (1,) int64; far-check
   nodes of the base tree ``fnode`` (F,) int64 and ``fc`` (N_base_nodes, 2) int64 (range of
   far-check nodes under each node); ``minsep`` (F,), ``nbox`` (F, 6), ``close`` (F,) int64;
-  ``dR`` (3, 3), ``dt`` (3,) scratch.
+  ``dR`` (3, 3), ``dt`` (3,) scratch; clearances (:func:`candidate_clearances`) ``cand_c``,
+  ``cand_s``, ``cand_d``, ``cand_h`` (C,), ``cand_g``, ``cand_f`` (C,) int64, ``ndisp`` (F + 1,)
+  motion bounds of the far-check nodes' near leaves (last: bound of the line directions' change),
+  ``slot_f`` (m_base,) int64 far-check node of each base slot.
+* pitch atlas (fixed-axis kernel, see :func:`cached_search`): ``period`` (4,) = (base pitch angle,
+  base triangles per tooth, target pitch angle, target triangles per tooth), zeros when off;
+  ``b_inv``/``t_inv`` inverse slot orders; ``Rc`` (3, 3) scratch; snapshots ``atlas_meta`` (S,
+  N_SNAP) (see ``S_*``), pool ``atlas_pairs`` (P, 2) int32 (slots at the build),
+  ``atlas_c``/``atlas_s``/``atlas_d``/``atlas_h`` (P,) float32 (rounded to the safe side),
+  ``atlas_minsep`` (S, F), ``atlas_nbox`` (S, F, 6), ``atlas_close`` (S, F) int64.
 * base workspace (per base body): ``stamp`` (m,) int64, ``call`` (1,) int64, ``best_u`` (m,),
   ``best_j`` (m,) int64 (target slot of the winning hit), ``line`` (m, 7) ``[p', d', s_entry]`` element point
   and inward direction in the target frame, ``active`` (m,) int64 (base slots with a hit),
@@ -597,8 +606,10 @@ def candidate_clearances(n, cand, cand_tri, belem, slot_f, Rbt, tbt, L, s_neg, c
       the line meets the plane, at s0 = (v - o).n_g / den, den = d.n_g; ``cand_s[q]`` = |s0|,
       ``cand_d[q]`` = |den| (-inf / 0 when the line is nearly parallel to the plane). If later o
       moved by at most D and d by at most rho (|den| - rho > DOT_EPS, so den keeps its sign), the
-      meeting point moved in the plane by at most (D + |s0| rho)(1 + 1/(|den| - rho)); while that is
-      below cand_c the inside test fails: the pair gives neither a hit nor an entry.
+      meeting point q = o + s d moved by at most (D + |s0| rho)(1 + (t + rho)/(|den| - rho)),
+      t = sqrt(1 - den^2) the in-plane part of d (q' - q = do + s0 dd + (s' - s) d', with
+      |s' - s| <= (D + |s0| rho)/|den'| from the plane equation and |d'_in-plane| <= t + rho);
+      while that is below cand_c the inside test fails: the pair gives neither a hit nor an entry.
     * element clearance ``cand_h[q]`` at the first pair of each element: the smallest over its
       pairs of (a - v).n_g, a = o - s_neg d the start of the segment, or -inf when a pair's exact
       normal is more than ~30 deg from its facet normal (n_e.n_g < SKIP_COS). A hit needs
@@ -702,10 +713,13 @@ def search_candidates_skip(n_cand, cand, cand_tri, cand_c, cand_s, cand_d, cand_
         entry = np.inf
         qe = q + g
         while q < qe:
-            dd = cand_d[q] - r
-            if dd > DOT_EPS and cand_c[q] > (D + cand_s[q] * r) * (1.0 + 1.0 / dd):
-                q += 1
-                continue
+            den = cand_d[q]
+            dd = den - r
+            if dd > DOT_EPS:
+                tan = math.sqrt(max(0.0, 1.0 - den * den)) + r
+                if cand_c[q] > (D + cand_s[q] * r) * (1.0 + tan / dd):
+                    q += 1
+                    continue
             n_test += 1
             u = tri_hit(ox, oy, oz, dx, dy, dz, cand_tri, q, L, s_neg)
             if u > 0.0 and u < best:

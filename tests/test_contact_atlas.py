@@ -94,19 +94,23 @@ def test_pitch_symmetry_is_checked_on_the_meshes(healthy):
 
 def test_atlas_and_skips_match_the_exact_search_healthy(healthy):
     exact, plain, atlas = _datas(healthy)
-    thp, thw = _trajectory(healthy, 0, 1600, 2.6)
+    # small steps over 1.6 pitches (lists reused, then served from the atlas), then large steps
+    # and jumps (cool-downs of exact search that a kept list can end)
+    thp1, thw1 = _trajectory(healthy, 0, 5000, 1.6, gentle=True)
+    thp2, thw2 = _trajectory(healthy, 1, 1500, 2.6)
+    thp, thw = np.r_[thp1, thp2], np.r_[thw1, thw2]
     ref = _run(exact, thp, thw)
     got = _run(atlas, thp, thw)
     rel = _assert_same_contact(ref, got)
     st = cache_stats(atlas)
     print(f"healthy: {int((ref[:, OUT_N_CONTACT] > 0).sum())} calls in contact, max rel diff {rel:.1e}, {st}")
-    assert (ref[:, OUT_N_CONTACT] > 20).sum() > 1000
-    assert st["atlas"] and st["atlas_hits"] > 100
-    # a second pass over the same poses is served from the atlas alone
+    assert (ref[:, OUT_N_CONTACT] > 20).sum() > 4000
+    assert st["atlas"] and st["atlas_hits"] > 100 and st["cached_calls"] > 3000
+    # a second pass over the same poses: the kept lists serve it, few new builds
     b0 = cache_stats(atlas)["builds"]
     again = _run(atlas, thp, thw)
-    assert np.array_equal(again, got)
-    assert cache_stats(atlas)["builds"] - b0 <= 5
+    _assert_same_contact(ref, again)
+    assert cache_stats(atlas)["builds"] - b0 <= 0.2 * b0
 
 
 def test_atlas_is_bit_identical_to_the_cache_without_it(healthy):

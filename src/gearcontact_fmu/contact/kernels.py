@@ -826,7 +826,8 @@ S_START = 17       # first pair in the atlas pool
 S_N = 18           # number of pairs
 N_SNAP = 20
 ATLAS_EPS = 1e-12  # [m] allowance for the congruence of the teeth (measured ~1e-16 m, checked <= 1e-13)
-ATLAS_TRIES = 4    # snapshots checked per lookup (nearest in the two angles first)
+ATLAS_TRIES = 4    # snapshots checked per lookup (nearest in the two angles first) ...
+ATLAS_NEAR = 0.01  # [rad] ... among those within this sum of the two angles' differences
 
 
 @njit(cache=True)
@@ -976,7 +977,7 @@ def _atlas_lookup(theta_b, theta_t, M, period, tbt, cache, atlas_meta, atlas_min
                 sel = s
                 sel_db = db
                 sel_dt = dtt
-        if sel < 0 or sel_m > 4.0 * math.acos(cphi):
+        if sel < 0 or sel_m > ATLAS_NEAR:
             break
         tried[sel] = True
         _rbt_of(M, theta_b + sel_db * pb, theta_t + sel_dt * pt, Rc)
@@ -1078,8 +1079,9 @@ def cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tb
     than its ``minsep``, (iii) the relative rotation is below ``phi_tol``; otherwise it rebuilds
     (:func:`_cache_check`). The motion bounds are exact maxima over boxes (|dR x + dt| is convex
     in x). The result is identical to :func:`search_pair` (the same exact narrow phase on a
-    superset of the hits). Adaptive fallback (no atlas): when a list served fewer than
-    CACHE_MIN_REUSE calls, the next CACHE_COOLDOWN calls use the exact search instead.
+    superset of the hits). Adaptive fallback: when a list served fewer than CACHE_MIN_REUSE
+    calls, the next CACHE_COOLDOWN calls use the exact search instead (with an atlas, a kept list
+    that fits ends the cool-down).
 
     Clearances (:func:`candidate_clearances`, computed at the build): the motion bound of each
     far-check node's near leaves found by check (i) (``ndisp[f]``) lets the narrow phase skip the
@@ -1096,13 +1098,30 @@ def cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tb
     is mapped to the current tooth pairs (:func:`_atlas_activate`) instead of a build. The narrow
     phase runs at the true pose on the mapped pairs: results as without the atlas, bit for bit.
     In a steady run every pitch repeats the previous one and builds stop after the first pitch."""
-    if cache[C_COOL] > 0.0:
-        cache[C_COOL] -= 1.0
-        cache[C_EXACT] += 1.0
-        return search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L,
-                           s_neg, stamp, call, best_u, best_j, line, active, stack)
     periodic = period[1] > 0.0 and atlas_meta.shape[0] > 1
     cphi = math.cos(phi_tol)
+    if cache[C_COOL] > 0.0:
+        cache[C_COOL] -= 1.0
+        if not (periodic and cache[C_NSNAP] > 0.0):
+            cache[C_EXACT] += 1.0
+            return search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt,
+                               L, s_neg, stamp, call, best_u, best_j, line, active, stack)
+        # cool-down with an atlas: a kept list that fits ends it, else the exact search
+        s, sdb, sdt = _atlas_lookup(theta_b, theta_t, M, period, tbt, cache, atlas_meta,
+                                    atlas_minsep, atlas_nbox, atlas_close, b_seg, b_obb, fnode,
+                                    s_neg, delta, cphi, dR, dt, ndisp, Rc)
+        if s < 0:
+            cache[C_EXACT] += 1.0
+            return search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt,
+                               L, s_neg, stamp, call, best_u, best_j, line, active, stack)
+        _atlas_activate(s, sdb, sdt, period, cache, atlas_meta, atlas_pairs, atlas_c, atlas_s,
+                        atlas_d, atlas_h, atlas_minsep, atlas_nbox, atlas_close, b_order, b_inv,
+                        t_order, t_inv, ttri, slot_f, minsep, nbox, close, cand, cand_tri, cand_c,
+                        cand_s, cand_d, cand_h, cand_g, cand_f)
+        cache[C_COOL] = 0.0
+        cache[C_VALID] = 1.0
+        cache[C_SINCE] = 0.0
+        cache[C_AHITS] += 1.0
     valid = cache[C_VALID] != 0.0
     if valid:
         margin = 0.0
@@ -1133,7 +1152,7 @@ def cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tb
                 cache[C_AHITS] += 1.0
                 served = True
         if not served:
-            if (not periodic) and cache[C_VALID] != 0.0 and cache[C_SINCE] < CACHE_MIN_REUSE:
+            if cache[C_VALID] != 0.0 and cache[C_SINCE] < CACHE_MIN_REUSE:
                 # the motion between calls is too large for the margins: exact search for a while
                 cache[C_VALID] = 0.0
                 cache[C_COOL] = CACHE_COOLDOWN - 1

@@ -11,7 +11,7 @@ import pytest
 
 from gearcontact_fmu.contact.engine import (cache_stats, fixed_axis_eval, make_fixed_axis_data,
                                             pitch_symmetry)
-from gearcontact_fmu.gearpair import build_pcm_pair, contact_onset
+from gearcontact_fmu.gearpair import build_pcm_pair, contact_onset, make_pcm_model
 from gearcontact_fmu.mesh_model import N_OUT, OUT_N_CONTACT
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
 
@@ -89,7 +89,10 @@ def test_pitch_symmetry_is_checked_on_the_meshes(healthy):
     mild = build_pcm_pair(GEAR, PCM, RES, health="mild")
     assert pitch_symmetry(mild.bodies[0], Z1) is None                  # the void breaks it
     assert pitch_symmetry(mild.bodies[1], Z2) is not None
-    assert cache_stats(mild.data)["atlas"] is False and cache_stats(healthy.data)["atlas"] is True
+    assert cache_stats(_datas(mild)[2])["atlas"] is False and cache_stats(_datas(healthy)[2])["atlas"] is True
+    # the online model (fidelity pcm) keeps an atlas; the pair's own data (static analyses, maps) not
+    assert cache_stats(make_pcm_model(GEAR, PCM, RES).data)["atlas"] is True
+    assert cache_stats(healthy.data)["atlas"] is False
 
 
 def test_atlas_and_skips_match_the_exact_search_healthy(healthy):

@@ -3,6 +3,7 @@ git revision, side by side (issue 13, goal <= 10 µs).
 
     python benchmarks/bench_pcm_trajectory.py --against REV            # default mesh (0.05 x 2 mm)
     python benchmarks/bench_pcm_trajectory.py --against REV --converged # also 0.025 x 1 mm
+    python benchmarks/bench_pcm_trajectory.py --against REV --only-converged --pitches10 6
     python benchmarks/bench_pcm_trajectory.py                          # this tree only
 
 Per mesh, in a fresh process per tree (taking turns, ``--rounds``): the pair loaded at 50 N·m
@@ -104,12 +105,14 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--against", metavar="REV", help="git revision to compare with (side by side)")
     ap.add_argument("--converged", action="store_true", help="also the 0.025 x 1 mm mesh")
+    ap.add_argument("--only-converged", action="store_true", help="only the 0.025 x 1 mm mesh")
     ap.add_argument("--torque", type=float, default=50.0, help="pinion torque of the static deflection [N·m]")
     ap.add_argument("--pitches", type=float, default=3.0, help="pitches of the 1 µs trajectory (>= 2)")
     ap.add_argument("--pitches10", type=float, default=20.0, help="pitches of the 10 µs trajectory (>= 2)")
     ap.add_argument("--rounds", type=int, default=1)
     args = ap.parse_args(argv)
-    meshes = [(0.05e-3, 2e-3)] + ([(0.025e-3, 1e-3)] if args.converged else [])
+    meshes = ([] if args.only_converged else [(0.05e-3, 2e-3)]) \
+        + ([(0.025e-3, 1e-3)] if args.converged or args.only_converged else [])
     rows = []
     ctx = worktree(args.against) if args.against else None
     wt = ctx.__enter__() if ctx else None

@@ -334,7 +334,7 @@ def make_fixed_axis_data(base_body: PCMBody, target_body: PCMBody, R0_base, R0_t
 
     Candidate cache (temporal coherence, results identical to the exact search): candidate pairs
     are collected with margin ``cache_margin`` [m] (default 20 um; 0 disables the cache) for the
-    base parts within ``cache_far`` (default 0.1 mm, or 10 x a given margin) of the target and
+    base parts within ``cache_far`` (default 0.04 mm, or 10 x a given margin) of the target and
     reused while the relative motion since the collection stays below the margins (see
     :func:`kernels.cached_search`; relative rotation below ``cache_phi`` rad). ``cache_capacity``: candidate pairs (default max(1e5, m_base/2)); on
     overflow the call falls back to the exact search (counted in the cache statistics).

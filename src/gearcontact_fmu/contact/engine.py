@@ -327,7 +327,7 @@ def make_fixed_axis_data(base_body: PCMBody, target_body: PCMBody, R0_base, R0_t
                          cache_margin: float | None = None, cache_far: float | None = None,
                          cache_phi: float = 0.02, cache_capacity: int | None = None,
                          periods: tuple[int, int] | None = None, atlas_snapshots: int = 1024,
-                         atlas_pairs: int = 4_000_000) -> tuple:
+                         atlas_pairs: int | None = None) -> tuple:
     """numba-typable data tuple of :func:`fixed_axis_eval` for a pair rotating about fixed axes
     through the world origin: pose_base = (R0_base @ Rz(theta_base), 0), likewise the target; the
     axes are R0[:, 2]. The tuple owns its work arrays and cache (one tuple per concurrent user).
@@ -343,7 +343,7 @@ def make_fixed_axis_data(base_body: PCMBody, target_body: PCMBody, R0_base, R0_t
     invariant under a turn by one pitch about its axis; :func:`pitch_symmetry` checks it on the
     meshes (rotated copies of one tooth within 1e-13 m, tooth after tooth in the face order), and
     only then the kernel keeps every candidate list it builds (up to ``atlas_snapshots`` lists
-    and ``atlas_pairs`` pairs, then emptied) and serves later pitches from them, mapped to the
+    and ``atlas_pairs`` pairs, default max(4e6, 40 per base triangle), then emptied) and serves later pitches from them, mapped to the
     current tooth pairs (bit-identical results, see :func:`kernels.cached_search`). Faulty pairs
     and mesh files fail the check and use the cache without the atlas.
 
@@ -385,6 +385,10 @@ def make_fixed_axis_data(base_body: PCMBody, target_body: PCMBody, R0_base, R0_t
     if periods is not None and cache_margin > 0:
         sb = pitch_symmetry(base_body, int(periods[0]))
         st = pitch_symmetry(target_body, int(periods[1]))
+        if atlas_pairs is None:
+            # a pitch keeps ~300 lists of ~0.04 pairs per base triangle (measured at 0.05 x 2 and
+            # 0.025 x 1 mm): room for about two pitches
+            atlas_pairs = max(4_000_000, 40 * base_body.n_faces)
         if sb is not None and st is not None and atlas_snapshots > 0 and atlas_pairs > 0:
             period[:] = (sb[0], sb[1], st[0], st[1])
             n_snap, n_pool = int(atlas_snapshots), int(atlas_pairs)

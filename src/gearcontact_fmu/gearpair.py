@@ -39,7 +39,8 @@ class PCMGearPair:
     info: dict = field(default_factory=dict)
 
     def data_with(self, friction: bool, damping: bool) -> tuple:
-        """Kernel data of the same meshes with friction and/or damping switched."""
+        """Kernel data of the same meshes with friction and/or damping switched (no pitch atlas: the
+        contact map, its user, sweeps one pitch and would only fill it)."""
         base, target, r0p, r0w = self.bodies
         return engine.make_fixed_axis_data(base, target, r0p, r0w, self.pcm, friction=friction, damping=damping)
 
@@ -117,7 +118,12 @@ def make_pcm_model(gear_params=None, pcm_params=None, resolution=None, health="h
     pair = build_pcm_pair(gear_params, pcm_params, resolution, health,
                           mesh_files.get("pinion") or None, mesh_files.get("wheel") or None,
                           mesh_units, friction, damping, fault_kwargs=fault_kwargs_of(health, faults))
-    return MeshModel(eval=engine.fixed_axis_eval, data=pair.data, fidelity="pcm", kind="mesh",
+    # the online model runs along a trajectory that repeats pitch after pitch: the kernel keeps its
+    # candidate lists in a pitch atlas when the meshes are rotated copies of one tooth (checked)
+    base, target, r0p, r0w = pair.bodies
+    data = engine.make_fixed_axis_data(base, target, r0p, r0w, pair.pcm, friction=friction, damping=damping,
+                                       periods=(pair.gear.z_pinion, pair.gear.z_wheel))
+    return MeshModel(eval=engine.fixed_axis_eval, data=data, fidelity="pcm", kind="mesh",
                      info={**pair.info, "health": health})
 
 

@@ -23,7 +23,23 @@ normal at the point ``p - u/2 n`` (mid-layer): on the target with +, on the base
 Cost: the search touches only tree nodes near the target (surface-patch oriented boxes), so it
 follows the number of elements within the search length of the contact, not the mesh size. The
 fixed-axis kernel adds a candidate cache (temporal coherence, exact results): see
-:func:`make_fixed_axis_data`.
+:func:`make_fixed_axis_data` and :func:`kernels.cached_search`. Three layers, each exact:
+
+* candidate lists (pairs within 20 um, valid while the motion since their build stays below the
+  margins), rebuilt by a tree traversal (~2-5 ms on the converged bevel pair) when they expire;
+* clearance skips: each list carries, per element and per pair, how far it may move before a hit
+  (or an entry) becomes possible; a call tests only the pairs whose clearance the motion since the
+  build has used up, about the elements in contact (:func:`kernels.candidate_clearances`);
+* the pitch atlas (pairs whose meshes are rotated copies of one tooth, checked on the meshes,
+  :func:`pitch_symmetry`): every list built is kept, and a later pitch, which meets the same
+  geometry with other tooth pairs, is served from the kept lists, renumbered, instead of the tree.
+  In a steady run the traversals stop after the first pitch. Faulty pairs and mesh files fail the
+  check and keep the first two layers.
+
+Measured (benchmarks/bench_pcm_trajectory.py, loaded healthy pair) in docs/GEAR-CONTACT.md. The
+goal of issue 13 (<= 10 us per evaluation along a trajectory) is not reached: the calls in the
+double-contact zone still test ~1-3 k pairs (clearances shrink as a list ages), and a new list is
+mapped every ~20-30 sub-steps of 1 us.
 """
 from __future__ import annotations
 
@@ -38,11 +54,11 @@ from .kernels import fixed_axis_eval  # noqa: F401  (re-exported: the gear stage
 
 __all__ = [
     "PCMBody", "ContactResult", "PenetrationError", "evaluate_pair", "make_fixed_axis_data",
-    "fixed_axis_eval", "rot_z", "cache_stats", "reset_cache",
+    "fixed_axis_eval", "rot_z", "cache_stats", "reset_cache", "clear_atlas", "pitch_symmetry",
 ]
 
 DEFAULT_CACHE_MARGIN = 2e-5   # [m] candidate cache margin of the fixed-axis kernel
-DEFAULT_CACHE_FAR = 1e-4      # [m] far margin of the candidate cache
+DEFAULT_CACHE_FAR = 4e-5      # [m] far margin of the candidate cache (2 x the margin: builds half as costly as 0.1 mm, same reuse)
 FAR_CHECK_NODES = 256         # size of the base-tree cut used by the cache validity check
 
 
@@ -309,24 +325,38 @@ def make_fixed_axis_data(base_body: PCMBody, target_body: PCMBody, R0_base, R0_t
                          pcm: PCMParams = PCMParams(), friction: bool = True,
                          damping: bool = True, search_length: float | None = None,
                          cache_margin: float | None = None, cache_far: float | None = None,
-                         cache_phi: float = 0.02, cache_capacity: int | None = None) -> tuple:
+                         cache_phi: float = 0.02, cache_capacity: int | None = None,
+                         periods: tuple[int, int] | None = None, atlas_snapshots: int = 1024,
+                         atlas_pairs: int | None = None) -> tuple:
     """numba-typable data tuple of :func:`fixed_axis_eval` for a pair rotating about fixed axes
     through the world origin: pose_base = (R0_base @ Rz(theta_base), 0), likewise the target; the
     axes are R0[:, 2]. The tuple owns its work arrays and cache (one tuple per concurrent user).
 
     Candidate cache (temporal coherence, results identical to the exact search): candidate pairs
     are collected with margin ``cache_margin`` [m] (default 20 um; 0 disables the cache) for the
-    base parts within ``cache_far`` (default 0.1 mm, or 10 x a given margin) of the target and
+    base parts within ``cache_far`` (default 0.04 mm, or 10 x a given margin) of the target and
     reused while the relative motion since the collection stays below the margins (see
     :func:`kernels.cached_search`; relative rotation below ``cache_phi`` rad). ``cache_capacity``: candidate pairs (default max(1e5, m_base/2)); on
     overflow the call falls back to the exact search (counted in the cache statistics).
 
+    Pitch atlas: ``periods = (z_base, z_target)`` (tooth counts) declares that each mesh may be
+    invariant under a turn by one pitch about its axis; :func:`pitch_symmetry` checks it on the
+    meshes (rotated copies of one tooth within 1e-13 m, tooth after tooth in the face order), and
+    only then the kernel keeps every candidate list it builds (up to ``atlas_snapshots`` lists
+    and ``atlas_pairs`` pairs, default max(4e6, 40 per base triangle), then emptied) and serves later pitches from them, mapped to the
+    current tooth pairs (bit-identical results, see :func:`kernels.cached_search`). Faulty pairs
+    and mesh files fail the check and use the cache without the atlas.
+
     Layout: ``(b_int, b_seg, b_obb, belem, b_order, t_int, t_box, t_obb, ttri, t_order, M, ab0,
     params, stamp, call, best_u, best_j, line, active, stack, Rbt, tbt, cache, cand, cand_tri,
-    nstamp, icount, fnode, fc, minsep, nbox, close, dR, dt)`` with
+    nstamp, icount, fnode, fc, minsep, nbox, close, dR, dt, ndisp, cand_c, cand_s, cand_d, cand_h,
+    cand_g, cand_f, slot_f, period, b_inv, t_inv, Rc, atlas_meta, atlas_pairs, atlas_c, atlas_s,
+    atlas_d, atlas_h, atlas_minsep, atlas_nbox, atlas_close)`` with
     ``M = R0_target.T @ R0_base``, ``ab0 = M[:, 2]`` (base axis in the target's reference frame),
     ``params`` see :func:`kernels.make_params`, ``cache`` (kernels.N_CACHE,) cache state and
-    statistics (see ``kernels.C_*``), the rest work arrays (see :mod:`.kernels`).
+    statistics (see ``kernels.C_*``), ``period`` = (pitch angle, triangles per tooth) of the base
+    and the target (zeros: no atlas), the rest work arrays (see :mod:`.kernels`). Memory of the
+    atlas: 24 bytes per pair of the pool and ~16 kB per snapshot (allocated, touched as used).
     """
     R0b = np.asarray(R0_base, dtype=np.float64).reshape(3, 3)
     R0t = np.asarray(R0_target, dtype=np.float64).reshape(3, 3)
@@ -350,13 +380,88 @@ def make_fixed_axis_data(base_body: PCMBody, target_body: PCMBody, R0_base, R0_t
     nb = base_body.node_int.shape[0]
     fnode, fc = base_body.far_check_nodes()
     nf = fnode.shape[0]
+    period = np.zeros(4)
+    n_snap, n_pool = 1, 1
+    if periods is not None and cache_margin > 0:
+        sb = pitch_symmetry(base_body, int(periods[0]))
+        st = pitch_symmetry(target_body, int(periods[1]))
+        if atlas_pairs is None:
+            # a pitch keeps ~300 lists of ~0.04 pairs per base triangle (measured at 0.05 x 2 and
+            # 0.025 x 1 mm): room for about two pitches
+            atlas_pairs = max(4_000_000, 40 * base_body.n_faces)
+        if sb is not None and st is not None and atlas_snapshots > 0 and atlas_pairs > 0:
+            period[:] = (sb[0], sb[1], st[0], st[1])
+            n_snap, n_pool = int(atlas_snapshots), int(atlas_pairs)
+    slot_f = np.zeros(base_body.n_faces, dtype=np.int64)      # far-check node of each base slot
+    for f, node in enumerate(fnode):
+        lo = base_body.node_int[node, 2]
+        slot_f[lo:lo + base_body.node_int[node, 3]] = f
     return (base_body.node_int, b_seg, b_obb, base_body.belem, base_body.order,
             target_body.node_int, target_body.node_box, target_body.node_obb, target_body.ttri,
             target_body.order, M, ab0, params) + ws + (
         np.zeros((3, 3)), np.zeros(3), np.zeros(K.N_CACHE), np.zeros((cap, 2), dtype=np.int64),
         np.zeros((cap, 18)), np.zeros(nb, dtype=np.int64), np.zeros(1, dtype=np.int64),
         fnode, fc, np.full(nf, np.inf), np.zeros((nf, 6)), np.zeros(nf, dtype=np.int64),
-        np.zeros((3, 3)), np.zeros(3))
+        np.zeros((3, 3)), np.zeros(3), np.zeros(nf + 1), np.zeros(cap), np.zeros(cap),
+        np.zeros(cap), np.zeros(cap), np.zeros(cap, dtype=np.int64), np.zeros(cap, dtype=np.int64),
+        slot_f,
+        period, _inverse(base_body.order), _inverse(target_body.order), np.zeros((3, 3)),
+        np.zeros((n_snap, K.N_SNAP)), np.zeros((n_pool, 2), dtype=np.int32),
+        np.zeros(n_pool, dtype=np.float32), np.zeros(n_pool, dtype=np.float32),
+        np.zeros(n_pool, dtype=np.float32), np.zeros(n_pool, dtype=np.float32),
+        np.zeros((n_snap, nf)), np.zeros((n_snap, nf, 6)), np.zeros((n_snap, nf), dtype=np.int64))
+
+
+def _inverse(order: np.ndarray) -> np.ndarray:
+    inv = np.empty_like(order)
+    inv[order] = np.arange(order.shape[0])
+    return inv
+
+
+PITCH_TOL = 1e-13      # [m] congruence of the teeth required by the pitch atlas (4x < kernels.ATLAS_EPS)
+PITCH_TOL_NORMAL = 1e-12
+
+
+def pitch_symmetry(body: PCMBody, z: int):
+    """``(phi, shift)`` when turning ``body`` by phi = +-2 pi/z about its z axis maps triangle i
+    onto triangle i + shift (mod m), shift = m/z: every tooth t (triangles t*shift ...) is tooth 0
+    turned by t*phi, vertices and exact points within PITCH_TOL, exact normals within
+    PITCH_TOL_NORMAL (so any two teeth are congruent within 2 PITCH_TOL). Generated healthy gears
+    are built that way; faults, mesh files and other numberings give None."""
+    m = body.n_faces
+    if z < 2 or m % z:
+        return None
+    shift = m // z
+    arrays = (body.tri.reshape(z, shift, 3, 3), body.points.reshape(z, shift, 1, 3),
+              body.normals.reshape(z, shift, 1, 3))
+    for sign in (-1.0, 1.0):
+        phi = sign * 2.0 * np.pi / z
+        ok = True
+        for t in range(1, z):
+            R = rot_z(t * phi)
+            for arr, tol in zip(arrays, (PITCH_TOL, PITCH_TOL, PITCH_TOL_NORMAL)):
+                if np.abs(arr[t] - arr[0] @ R.T).max() > tol:
+                    ok = False
+                    break
+            if not ok:
+                break
+        if ok:
+            return phi, shift
+    return None
+    shift = m // z
+    tri = body.tri
+    idx = (np.arange(m) + shift) % m
+    for sign in (-1.0, 1.0):
+        phi = sign * 2.0 * np.pi / z
+        R = rot_z(phi)
+        if np.abs(tri[idx[:shift]] - tri[:shift] @ R.T).max() > 1e3 * PITCH_TOL:
+            continue          # quick rejection on the first tooth
+        ok = (np.abs(tri[idx] - tri @ R.T).max() <= PITCH_TOL
+              and np.abs(body.points[idx] - body.points @ R.T).max() <= PITCH_TOL
+              and np.abs(body.normals[idx] - body.normals @ R.T).max() <= PITCH_TOL_NORMAL)
+        if ok:
+            return phi, shift
+    return None
 
 
 def cache_stats(data: tuple) -> dict:
@@ -365,6 +470,9 @@ def cache_stats(data: tuple) -> dict:
     return {"builds": int(c[K.C_BUILDS]), "cached_calls": int(c[K.C_CALLS]),
             "overflows": int(c[K.C_OVERFLOW]), "n_candidates": int(c[K.C_NCAND]),
             "exact_calls": int(c[K.C_EXACT]), "near_leaves": int(c[K.C_NNEAR]),
+            "skipped_elements": int(c[K.C_SKIPPED]), "tested_pairs": int(c[K.C_TESTED]),
+            "atlas": bool(data[42][1] > 0), "atlas_snapshots": int(c[K.C_NSNAP]),
+            "atlas_hits": int(c[K.C_AHITS]), "atlas_cleared": int(c[K.C_ACLEAR]),
             "valid": bool(c[K.C_VALID])}
 
 
@@ -372,3 +480,10 @@ def reset_cache(data: tuple) -> None:
     """Invalidate the candidate cache (the next call rebuilds it) and end any cool-down."""
     data[22][K.C_VALID] = 0.0
     data[22][K.C_COOL] = 0.0
+
+
+def clear_atlas(data: tuple) -> None:
+    """Forget the pitch atlas's snapshots (and invalidate the cache)."""
+    reset_cache(data)
+    data[22][K.C_NSNAP] = 0.0
+    data[22][K.C_ATOP] = 0.0

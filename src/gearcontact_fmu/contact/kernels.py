@@ -19,7 +19,16 @@ holds triangle ``order[k]``):
   target rows of ``ttri``; ``nstamp`` (N_base_nodes,) int64, ``icount`` (1,) int64; far-check
   nodes of the base tree ``fnode`` (F,) int64 and ``fc`` (N_base_nodes, 2) int64 (range of
   far-check nodes under each node); ``minsep`` (F,), ``nbox`` (F, 6), ``close`` (F,) int64;
-  ``dR`` (3, 3), ``dt`` (3,) scratch.
+  ``dR`` (3, 3), ``dt`` (3,) scratch; clearances (:func:`candidate_clearances`) ``cand_c``,
+  ``cand_s``, ``cand_d``, ``cand_h`` (C,), ``cand_g``, ``cand_f`` (C,) int64, ``ndisp`` (F + 1,)
+  motion bounds of the far-check nodes' near leaves (last: bound of the line directions' change),
+  ``slot_f`` (m_base,) int64 far-check node of each base slot.
+* pitch atlas (fixed-axis kernel, see :func:`cached_search`): ``period`` (4,) = (base pitch angle,
+  base triangles per tooth, target pitch angle, target triangles per tooth), zeros when off;
+  ``b_inv``/``t_inv`` inverse slot orders; ``Rc`` (3, 3) scratch; snapshots ``atlas_meta`` (S,
+  N_SNAP) (see ``S_*``), pool ``atlas_pairs`` (P, 2) int32 (slots at the build),
+  ``atlas_c``/``atlas_s``/``atlas_d``/``atlas_h`` (P,) float32 (rounded to the safe side),
+  ``atlas_minsep`` (S, F), ``atlas_nbox`` (S, F, 6), ``atlas_close`` (S, F) int64.
 * base workspace (per base body): ``stamp`` (m,) int64, ``call`` (1,) int64, ``best_u`` (m,),
   ``best_j`` (m,) int64 (target slot of the winning hit), ``line`` (m, 7) ``[p', d', s_entry]`` element point
   and inward direction in the target frame, ``active`` (m,) int64 (base slots with a hit),
@@ -78,6 +87,8 @@ BARY_EPS = 1e-9     # tolerance of the inside test (shared edges: the smallest u
 # entered between the base point and the hit (:func:`tri_entry`), i.e. the base point lies inside
 # the target. Candidate collection therefore keeps triangles of both orientations.
 FACING_COS = 0.5
+SKIP_COS = 0.87     # the plane clearance of a candidate counts only if n_exact . n_facet >= this
+SKIP_EPS = 1e-12    # [m] rounding allowance of the clearance skips (see candidate_clearances)
 
 
 def make_params(pcm, search_length=None, friction=True, damping=True, ratio=0.5, s_neg=0.0,
@@ -583,6 +594,158 @@ def search_candidates(n_cand, cand, cand_tri, belem, L, s_neg, Rbt, tbt,
     return n_active
 
 
+@njit(cache=True)
+def candidate_clearances(n, cand, cand_tri, belem, slot_f, Rbt, tbt, L, s_neg, cand_c, cand_s,
+                         cand_d, cand_h, cand_g, cand_f):
+    """Clearances of the candidate pairs ``cand[:n]`` (sorted by base slot) at the current pose,
+    for :func:`search_candidates_skip`. Per pair (k, l), with the line o + s d of element k and
+    triangle l (first vertex v, facet normal n_g, dual edge vectors g1, g2):
+
+    * edge clearance ``cand_c[q]``: how far outside the triangle (in its plane, by the inside
+      test's three edge functions beta, gamma, 1 - beta - gamma, each over its gradient's length)
+      the line meets the plane, at s0 = (v - o).n_g / den, den = d.n_g; ``cand_s[q]`` = |s0|,
+      ``cand_d[q]`` = |den| (-inf / 0 when the line is nearly parallel to the plane). If later o
+      moved by at most D and d by at most rho (|den| - rho > DOT_EPS, so den keeps its sign), the
+      meeting point q = o + s d moved by at most (D + |s0| rho)(1 + (t + rho)/(|den| - rho)),
+      t = sqrt(1 - den^2) the in-plane part of d (q' - q = do + s0 dd + (s' - s) d', with
+      |s' - s| <= (D + |s0| rho)/|den'| from the plane equation and |d'_in-plane| <= t + rho);
+      while that is below cand_c the inside test fails: the pair gives neither a hit nor an entry.
+    * element clearance ``cand_h[q]`` at the first pair of each element: the smallest over its
+      pairs of (a - v).n_g, a = o - s_neg d the start of the segment, or -inf when a pair's exact
+      normal is more than ~30 deg from its facet normal (n_e.n_g < SKIP_COS). A hit needs
+      d.n_e >= FACING_COS, hence d.n_g > 0, and s >= -s_neg, i.e. (v - a).n_g >= 0; so while the
+      segment moved by less than cand_h the element has no hit (its entries then do not matter).
+    * ``cand_g[q]`` the number of pairs of the element and ``cand_f[q]`` its far-check node
+      (whose motion bound applies), at the element's first pair."""
+    r00, r01, r02 = Rbt[0, 0], Rbt[0, 1], Rbt[0, 2]
+    r10, r11, r12 = Rbt[1, 0], Rbt[1, 1], Rbt[1, 2]
+    r20, r21, r22 = Rbt[2, 0], Rbt[2, 1], Rbt[2, 2]
+    t0, t1, t2 = tbt[0], tbt[1], tbt[2]
+    q = 0
+    while q < n:
+        k = cand[q, 0]
+        px, py, pz = belem[k, 0], belem[k, 1], belem[k, 2]
+        nx, ny, nz = belem[k, 3], belem[k, 4], belem[k, 5]
+        ox = r00 * px + r01 * py + r02 * pz + t0
+        oy = r10 * px + r11 * py + r12 * pz + t1
+        oz = r20 * px + r21 * py + r22 * pz + t2
+        dx = -(r00 * nx + r01 * ny + r02 * nz)
+        dy = -(r10 * nx + r11 * ny + r12 * nz)
+        dz = -(r20 * nx + r21 * ny + r22 * nz)
+        ax, ay, az = ox - s_neg * dx, oy - s_neg * dy, oz - s_neg * dz
+        h = np.inf
+        q1 = q
+        while q1 < n and cand[q1, 0] == k:
+            vx, vy, vz = cand_tri[q1, 0], cand_tri[q1, 1], cand_tri[q1, 2]
+            ngx, ngy, ngz = cand_tri[q1, 3], cand_tri[q1, 4], cand_tri[q1, 5]
+            den = dx * ngx + dy * ngy + dz * ngz
+            c = -np.inf
+            s0 = 0.0
+            if abs(den) > 1e-3:
+                s0 = ((vx - ox) * ngx + (vy - oy) * ngy + (vz - oz) * ngz) / den
+                wx = ox + s0 * dx - vx
+                wy = oy + s0 * dy - vy
+                wz = oz + s0 * dz - vz
+                g1x, g1y, g1z = cand_tri[q1, 6], cand_tri[q1, 7], cand_tri[q1, 8]
+                g2x, g2y, g2z = cand_tri[q1, 9], cand_tri[q1, 10], cand_tri[q1, 11]
+                beta = wx * g1x + wy * g1y + wz * g1z
+                gamma = wx * g2x + wy * g2y + wz * g2z
+                ng1 = math.sqrt(g1x * g1x + g1y * g1y + g1z * g1z)
+                ng2 = math.sqrt(g2x * g2x + g2y * g2y + g2z * g2z)
+                sx, sy, sz = g1x + g2x, g1y + g2y, g1z + g2z
+                ns = math.sqrt(sx * sx + sy * sy + sz * sz)
+                if ng1 > 0.0 and ng2 > 0.0 and ns > 0.0:
+                    c = max((-BARY_EPS - beta) / ng1, (-BARY_EPS - gamma) / ng2,
+                            (beta + gamma - 1.0 - BARY_EPS) / ns)
+            cand_c[q1] = c
+            cand_s[q1] = abs(s0)
+            cand_d[q1] = abs(den) if c > -np.inf else 0.0
+            e = -np.inf
+            if ngx * cand_tri[q1, 15] + ngy * cand_tri[q1, 16] + ngz * cand_tri[q1, 17] >= SKIP_COS:
+                e = (ax - vx) * ngx + (ay - vy) * ngy + (az - vz) * ngz
+            if e < h:
+                h = e
+            q1 += 1
+        cand_h[q] = h
+        cand_g[q] = q1 - q
+        cand_f[q] = slot_f[k]
+        q = q1
+
+
+@njit(cache=True)
+def search_candidates_skip(n_cand, cand, cand_tri, cand_c, cand_s, cand_d, cand_h, cand_g,
+                           cand_f, ndisp, rho, fresh, belem, L, s_neg, Rbt, tbt, best_u, best_j,
+                           line, active, stats):
+    """:func:`search_candidates` with the clearances of :func:`candidate_clearances`: ``ndisp[f]``
+    bounds the motion of every segment of far-check node f's near leaves since the list was built
+    (``fresh``: built at this pose, bound 0); an element whose clearance exceeds its node's bound
+    (+ SKIP_EPS for rounding) is skipped, and so is a pair whose edge clearance exceeds the motion
+    of its meeting point (``rho`` bounds the change of the line directions). Skipped
+    elements and pairs would give no hit and no entry: the result is the same, bit for bit.
+    ``stats`` (2,): elements skipped, pairs tested."""
+    r00, r01, r02 = Rbt[0, 0], Rbt[0, 1], Rbt[0, 2]
+    r10, r11, r12 = Rbt[1, 0], Rbt[1, 1], Rbt[1, 2]
+    r20, r21, r22 = Rbt[2, 0], Rbt[2, 1], Rbt[2, 2]
+    t0, t1, t2 = tbt[0], tbt[1], tbt[2]
+    n_active = 0
+    n_skip = 0
+    n_test = 0
+    q = 0
+    while q < n_cand:
+        g = cand_g[q]
+        D = SKIP_EPS if fresh else ndisp[cand_f[q]] + SKIP_EPS
+        r = 0.0 if fresh else rho
+        if cand_h[q] > D:
+            q += g
+            n_skip += 1
+            continue
+        k = cand[q, 0]
+        px, py, pz = belem[k, 0], belem[k, 1], belem[k, 2]
+        nx, ny, nz = belem[k, 3], belem[k, 4], belem[k, 5]
+        ox = r00 * px + r01 * py + r02 * pz + t0
+        oy = r10 * px + r11 * py + r12 * pz + t1
+        oz = r20 * px + r21 * py + r22 * pz + t2
+        dx = -(r00 * nx + r01 * ny + r02 * nz)
+        dy = -(r10 * nx + r11 * ny + r12 * nz)
+        dz = -(r20 * nx + r21 * ny + r22 * nz)
+        best = np.inf
+        bj = -1
+        entry = np.inf
+        qe = q + g
+        while q < qe:
+            den = cand_d[q]
+            dd = den - r
+            if dd > DOT_EPS:
+                tan = math.sqrt(max(0.0, 1.0 - den * den)) + r
+                if cand_c[q] > (D + cand_s[q] * r) * (1.0 + tan / dd):
+                    q += 1
+                    continue
+            n_test += 1
+            u = tri_hit(ox, oy, oz, dx, dy, dz, cand_tri, q, L, s_neg)
+            if u > 0.0 and u < best:
+                best = u
+                bj = cand[q, 1]
+            elif u < 0.0:
+                e = tri_entry(ox, oy, oz, dx, dy, dz, cand_tri, q, L)
+                if e < entry:
+                    entry = e
+            q += 1
+        if bj >= 0 and best < entry:
+            line[k, 0] = ox
+            line[k, 1] = oy
+            line[k, 2] = oz
+            line[k, 3] = dx
+            line[k, 4] = dy
+            line[k, 5] = dz
+            best_u[k] = best
+            best_j[k] = bj
+            active[n_active] = k
+            n_active += 1
+    stats[0] = n_skip
+    stats[1] = n_test
+    return n_active
+
+
 # cache state layout (float64 array of size N_CACHE)
 C_VALID = 0        # 1.0 when the candidate list is valid
 C_RREF = 1         # 9: Rbt at the build
@@ -597,7 +760,15 @@ C_GFAR = 19        # distance bound of the other far-check nodes (checked with t
 C_SINCE = 20       # calls served since the last build
 C_COOL = 21        # remaining calls of exact search after a too short reuse (adaptive fallback)
 C_EXACT = 22       # statistics: calls served by the exact search during cool-downs
-N_CACHE = 24
+C_SKIPPED = 24     # statistics: elements skipped by their clearance (last call)
+C_TESTED = 25      # statistics: candidate pairs tested (last call)
+C_NSNAP = 26       # pitch atlas: number of snapshots
+C_ATOP = 27        # pitch atlas: end of the used part of the pair pool
+C_DB = 28          # base pitches between the current pose and the pose of the list in use
+C_DT = 29          # target pitches, likewise
+C_AHITS = 30       # statistics: lists served from the atlas
+C_ACLEAR = 31      # statistics: times the atlas was full and emptied
+N_CACHE = 32
 CACHE_MIN_REUSE = 8      # a list reused for fewer calls than this triggers a cool-down ...
 CACHE_COOLDOWN = 64      # ... of this many exact-search calls before the next build
 
@@ -643,112 +814,428 @@ def _node_disp(dR, dt, b_seg, b_obb, i, grow, limit):
     return min(d, _max_disp_box(dR, dt, b_obb[i], 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, True, grow))
 
 
+# snapshot metadata layout of the pitch atlas (float64 rows of size N_SNAP)
+S_THB = 0          # base angle of the build
+S_THT = 1          # target angle of the build
+S_RREF = 2         # 9: Rbt at the build
+S_TREF = 11        # 3: tbt at the build
+S_NCLOSE = 14
+S_GFAR = 15
+S_NNEAR = 16
+S_START = 17       # first pair in the atlas pool
+S_N = 18           # number of pairs
+N_SNAP = 20
+ATLAS_EPS = 1e-12  # [m] allowance for the congruence of the teeth (measured ~1e-16 m, checked <= 1e-13)
+ATLAS_TRIES = 4    # snapshots checked per lookup (nearest in the two angles first) ...
+ATLAS_NEAR = 0.01  # [rad] ... among those within this sum of the two angles' differences
+ATLAS_BUILD_EVERY = 2  # during a cool-down with an atlas, every 2nd call builds and keeps a list
+
+
+@njit(cache=True)
+def _f32_down(x):
+    """A float32 not above x (clearances are stored in float32: rounding must not raise them)."""
+    if not (abs(x) < 1e30):
+        return np.float32(x)
+    return np.float32(x - abs(x) * 1e-6 - 1e-15)
+
+
+@njit(cache=True)
+def _rbt_of(M, theta_b, theta_t, R):
+    """R = Rz(-theta_t) M Rz(theta_b), computed as in :func:`fixed_axis_eval`."""
+    cb = math.cos(theta_b)
+    sb = math.sin(theta_b)
+    ct = math.cos(theta_t)
+    st = math.sin(theta_t)
+    for r in range(3):
+        m0 = M[r, 0]
+        m1 = M[r, 1]
+        R[r, 0] = m0 * cb + m1 * sb
+        R[r, 1] = -m0 * sb + m1 * cb
+        R[r, 2] = M[r, 2]
+    for col in range(3):
+        x0 = R[0, col]
+        x1 = R[1, col]
+        R[0, col] = ct * x0 + st * x1
+        R[1, col] = -st * x0 + ct * x1
+
+
+@njit(cache=True)
+def _cache_check(Rc, tc, ref, o, gfar, nclose, close, nbox, minsep, b_seg, b_obb, fnode, s_neg,
+                 delta, cphi, margin, dR, dt, ndisp):
+    """Validity of a candidate list built at the pose ``ref[o:o+9]`` (R), ``ref[o+9:o+12]`` (t)
+    for the pose (Rc, tc): relative rotation below the cache angle, the far group (root box)
+    within ``gfar``, and per close far-check node f its near leaves within ``delta`` and the node
+    within ``minsep[f]`` (all less ``margin``). Writes the near-leaf motion bounds ``ndisp[f]``;
+    returns the largest of them, or -1.0 when the list is not valid."""
+    tr = 0.0
+    for r in range(3):
+        for c in range(3):
+            dR[r, c] = Rc[r, c] - ref[o + 3 * r + c]
+            tr += Rc[r, c] * ref[o + 3 * r + c]
+        dt[r] = tc[r] - ref[o + 9 + r]
+    if 0.5 * (tr - 1.0) < cphi:
+        return -1.0
+    fro = 0.0
+    for r in range(3):
+        for c in range(3):
+            fro += dR[r, c] * dR[r, c]
+    # bound of |dR n| (|n| = 1) for the meeting points of the pair clearances; 1e-11 covers the
+    # teeth's congruence (normals within 2 PITCH_TOL_NORMAL) for lists served from the atlas
+    ndisp[ndisp.shape[0] - 1] = math.sqrt(fro) * (1.0 + 1e-12) + 1e-11
+    # motion bound of the whole base (root box): covers every node whose minsep exceeds it
+    droot = _node_disp(dR, dt, b_seg, b_obb, 0, s_neg, np.inf)
+    if gfar < np.inf and droot + margin >= gfar:
+        if _node_disp(dR, dt, b_seg, b_obb, 0, s_neg, gfar) + margin >= gfar:
+            return -1.0
+    dmax = 0.0
+    for q in range(nclose):
+        f = close[q]
+        if nbox[f, 0] <= nbox[f, 3]:
+            d = _max_disp_box(dR, dt, ref, 0, nbox[f, 0], nbox[f, 1], nbox[f, 2], nbox[f, 3],
+                              nbox[f, 4], nbox[f, 5], False, s_neg)
+            ndisp[f] = d + margin
+            if d + margin >= delta:
+                return -1.0
+            if d > dmax:
+                dmax = d
+        if minsep[f] < np.inf and droot + margin >= minsep[f]:
+            if _node_disp(dR, dt, b_seg, b_obb, fnode[f], s_neg, minsep[f]) + margin >= minsep[f]:
+                return -1.0
+    return dmax
+
+
+@njit(cache=True)
+def _atlas_store(theta_b, theta_t, Rbt, tbt, cache, n, cand, cand_c, cand_s, cand_d, cand_h,
+                 minsep, nbox, close, atlas_meta, atlas_pairs, atlas_c, atlas_s, atlas_d,
+                 atlas_h, atlas_minsep, atlas_nbox, atlas_close):
+    """Store the list just built (pairs in this pose's slots) as a snapshot; when the atlas is
+    full it is emptied first (no eviction policy: a run soon refills what it visits)."""
+    ns = int(cache[C_NSNAP])
+    top = int(cache[C_ATOP])
+    if n > atlas_pairs.shape[0]:
+        return
+    if ns >= atlas_meta.shape[0] or top + n > atlas_pairs.shape[0]:
+        ns = 0
+        top = 0
+        cache[C_ACLEAR] += 1.0
+    row = atlas_meta[ns]
+    row[S_THB] = theta_b
+    row[S_THT] = theta_t
+    for r in range(3):
+        for c in range(3):
+            row[S_RREF + 3 * r + c] = Rbt[r, c]
+        row[S_TREF + r] = tbt[r]
+    nclose = int(cache[C_NCLOSE])
+    row[S_NCLOSE] = nclose
+    row[S_GFAR] = cache[C_GFAR]
+    row[S_NNEAR] = cache[C_NNEAR]
+    row[S_START] = top
+    row[S_N] = n
+    for q in range(n):
+        atlas_pairs[top + q, 0] = cand[q, 0]
+        atlas_pairs[top + q, 1] = cand[q, 1]
+        atlas_c[top + q] = _f32_down(cand_c[q])
+        atlas_s[top + q] = -_f32_down(-cand_s[q])
+        atlas_d[top + q] = _f32_down(cand_d[q])
+        atlas_h[top + q] = _f32_down(cand_h[q])
+    for f in range(minsep.shape[0]):
+        atlas_minsep[ns, f] = minsep[f]
+        for a in range(6):
+            atlas_nbox[ns, f, a] = nbox[f, a]
+    for q in range(nclose):
+        atlas_close[ns, q] = close[q]
+    cache[C_NSNAP] = ns + 1
+    cache[C_ATOP] = top + n
+
+
+@njit(cache=True)
+def _atlas_lookup(theta_b, theta_t, M, period, tbt, cache, atlas_meta, atlas_minsep, atlas_nbox,
+                  atlas_close, b_seg, b_obb, fnode, s_neg, delta, cphi, dR, dt, ndisp, Rc):
+    """A snapshot valid at the current pose shifted by whole pitches (the pose of the same tooth
+    pairs the snapshot was built for): returns (snapshot, base pitches, target pitches), or
+    snapshot -1. Checks the ATLAS_TRIES snapshots nearest in the two shifted angles."""
+    ns = int(cache[C_NSNAP])
+    pb = period[0]
+    pt = period[2]
+    best_s = -1
+    best_db = 0
+    best_dt = 0
+    tried = np.zeros(ns, dtype=np.bool_)
+    for attempt in range(ATLAS_TRIES):
+        sel = -1
+        sel_m = np.inf
+        sel_db = 0
+        sel_dt = 0
+        for s in range(ns):
+            if tried[s]:
+                continue
+            db = int(math.floor((atlas_meta[s, S_THB] - theta_b) / pb + 0.5))
+            dtt = int(math.floor((atlas_meta[s, S_THT] - theta_t) / pt + 0.5))
+            m = (abs(theta_b + db * pb - atlas_meta[s, S_THB])
+                 + abs(theta_t + dtt * pt - atlas_meta[s, S_THT]))
+            if m < sel_m:
+                sel_m = m
+                sel = s
+                sel_db = db
+                sel_dt = dtt
+        if sel < 0 or sel_m > ATLAS_NEAR:
+            break
+        tried[sel] = True
+        _rbt_of(M, theta_b + sel_db * pb, theta_t + sel_dt * pt, Rc)
+        d = _cache_check(Rc, tbt, atlas_meta[sel], S_RREF, atlas_meta[sel, S_GFAR],
+                         int(atlas_meta[sel, S_NCLOSE]), atlas_close[sel], atlas_nbox[sel],
+                         atlas_minsep[sel], b_seg, b_obb, fnode, s_neg, delta, cphi,
+                         ATLAS_EPS, dR, dt, ndisp)
+        if d >= 0.0:
+            best_s = sel
+            best_db = sel_db
+            best_dt = sel_dt
+            break
+    return best_s, best_db, best_dt
+
+
+@njit(cache=True)
+def _atlas_activate(s, db, dtt, period, cache, atlas_meta, atlas_pairs, atlas_c, atlas_s,
+                    atlas_d, atlas_h, atlas_minsep, atlas_nbox, atlas_close, b_order, b_inv,
+                    t_order, t_inv, ttri, slot_f, minsep, nbox, close, cand, cand_tri, cand_c,
+                    cand_s, cand_d, cand_h, cand_g, cand_f):
+    """Make snapshot s the current list, its pairs mapped to the tooth pairs of the current pose
+    (base triangle id + db teeth, target id + dtt teeth), sorted by the mapped base slot. The
+    validity data stay the snapshot's (checked at the shifted pose); ``cand_f`` is the far-check
+    node of the snapshot's element (its motion bound applies)."""
+    row = atlas_meta[s]
+    p0 = int(row[S_START])
+    n = int(row[S_N])
+    mb = b_order.shape[0]
+    mt = t_order.shape[0]
+    shb = ((db * int(period[1])) % mb + mb) % mb
+    sht = ((dtt * int(period[3])) % mt + mt) % mt
+    # element groups of the snapshot and their mapped base slots
+    ng = 0
+    gq = np.empty(n, dtype=np.int64)
+    gk = np.empty(n, dtype=np.int64)
+    q = 0
+    while q < n:
+        k = atlas_pairs[p0 + q, 0]
+        gq[ng] = q
+        gk[ng] = b_inv[(b_order[k] + shb) % mb]
+        ng += 1
+        while q < n and atlas_pairs[p0 + q, 0] == k:
+            q += 1
+    order = np.argsort(gk[:ng])
+    w = 0
+    for gi in range(ng):
+        g = order[gi]
+        q0 = gq[g]
+        q1 = gq[g + 1] if g + 1 < ng else n
+        k_new = gk[g]
+        ks = atlas_pairs[p0 + q0, 0]
+        for q in range(q0, q1):
+            l_new = t_inv[(t_order[atlas_pairs[p0 + q, 1]] + sht) % mt]
+            cand[w, 0] = k_new
+            cand[w, 1] = l_new
+            for a in range(18):
+                cand_tri[w, a] = ttri[l_new, a]
+            cand_c[w] = atlas_c[p0 + q]
+            cand_s[w] = atlas_s[p0 + q]
+            cand_d[w] = atlas_d[p0 + q]
+            w += 1
+        cand_h[w - (q1 - q0)] = atlas_h[p0 + q0]
+        cand_g[w - (q1 - q0)] = q1 - q0
+        cand_f[w - (q1 - q0)] = slot_f[ks]
+    for f in range(minsep.shape[0]):
+        minsep[f] = atlas_minsep[s, f]
+        for a in range(6):
+            nbox[f, a] = atlas_nbox[s, f, a]
+    nclose = int(row[S_NCLOSE])
+    for q in range(nclose):
+        close[q] = atlas_close[s, q]
+    for a in range(12):
+        cache[C_RREF + a] = row[S_RREF + a]
+    cache[C_NCLOSE] = nclose
+    cache[C_GFAR] = row[S_GFAR]
+    cache[C_NNEAR] = row[S_NNEAR]
+    cache[C_NCAND] = n
+    cache[C_DB] = db
+    cache[C_DT] = dtt
+
+
 @njit(cache=True)
 def cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L, s_neg,
                   delta, far, phi_tol, cache, cand, cand_tri, nstamp, icount, fnode, fc, minsep,
-                  nbox, close, dR, dt, stamp, call, best_u, best_j, line, active, stack):
+                  nbox, close, dR, dt, stamp, call, best_u, best_j, line, active, stack,
+                  ndisp, cand_c, cand_s, cand_d, cand_h, cand_g, cand_f, slot_f, theta_b,
+                  theta_t, M, period, b_order, b_inv, t_order, t_inv, Rc, atlas_meta,
+                  atlas_pairs, atlas_c, atlas_s, atlas_d, atlas_h, atlas_minsep, atlas_nbox,
+                  atlas_close):
     """Exact contact search through a candidate cache (temporal coherence).
 
     Build (at the current pose): a traversal with node volumes grown by ``far`` finds the base
     leaves within ``far`` of the target ("near" leaves); for their elements every (element,
     triangle) pair whose penetration segment comes within ``delta`` of the triangle is stored
     (sorted by element, triangle data copied). Every other part of the base is proven farther from
-    the target than a recorded distance, per far-check node f (a cut of the base tree, ~64 nodes):
+    the target than a recorded distance, per far-check node f (a cut of the base tree, ~256 nodes):
     ``minsep[f]``. A later pose reuses the list when, relative to the target, (i) the near leaves
     of every far-check node moved by less than ``delta``, (ii) every far-check node moved by less
-    than its ``minsep``, (iii) the relative rotation is below ``phi_tol`` (candidates keep targets
-    facing within that angle); otherwise it rebuilds. The motion bounds are exact maxima over
-    boxes (|dR x + dt| is convex in x). The result is identical to :func:`search_pair` (the same
-    exact narrow phase on a superset of the hits). Adaptive fallback: when a list served fewer
-    than CACHE_MIN_REUSE calls, the next CACHE_COOLDOWN calls use the exact search instead."""
+    than its ``minsep``, (iii) the relative rotation is below ``phi_tol``; otherwise it rebuilds
+    (:func:`_cache_check`). The motion bounds are exact maxima over boxes (|dR x + dt| is convex
+    in x). The result is identical to :func:`search_pair` (the same exact narrow phase on a
+    superset of the hits). Adaptive fallback: when a list served fewer than CACHE_MIN_REUSE
+    calls, the next CACHE_COOLDOWN calls use the exact search instead (with an atlas, a kept list
+    that fits ends the cool-down, and every ATLAS_BUILD_EVERY-th call builds and keeps one: large
+    steps, 10 us at 500 rpm, fill the atlas in a few pitches at ~1.5x the exact search's cost).
+
+    Clearances (:func:`candidate_clearances`, computed at the build): the motion bound of each
+    far-check node's near leaves found by check (i) (``ndisp[f]``) lets the narrow phase skip the
+    elements and pairs that cannot have a hit or an entry, so a call costs about the elements in
+    contact and their few pairs, not the whole list (:func:`search_candidates_skip`).
+
+    Pitch atlas (``period[1] > 0``: both meshes are invariant under a turn by one pitch, checked
+    by :func:`engine.pitch_symmetry`): every list built is kept as a snapshot (pairs, clearances,
+    validity data, angles). Turning the base by one pitch (angle ``period[0]``) maps the mesh
+    onto itself with triangle ids shifted by ``period[1]`` (target: ``period[2]``, ``period[3]``),
+    so the pose (theta_b + i pb, theta_t + j pt) meets the same geometry as (theta_b, theta_t)
+    with the tooth pairs renumbered. When the list expires, a snapshot whose checks (i)-(iii) pass
+    at the current pose shifted by whole pitches to it (with ATLAS_EPS for the teeth's congruence)
+    is mapped to the current tooth pairs (:func:`_atlas_activate`) instead of a build. The narrow
+    phase runs at the true pose on the mapped pairs: results as without the atlas, bit for bit.
+    In a steady run every pitch repeats the previous one and builds stop after the first pitch."""
+    periodic = period[1] > 0.0 and atlas_meta.shape[0] > 1
+    cphi = math.cos(phi_tol)
     if cache[C_COOL] > 0.0:
         cache[C_COOL] -= 1.0
-        cache[C_EXACT] += 1.0
-        return search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L,
-                           s_neg, stamp, call, best_u, best_j, line, active, stack)
-    valid = cache[C_VALID] != 0.0
-    if valid:
-        tr = 0.0
-        for r in range(3):
-            for c in range(3):
-                dR[r, c] = Rbt[r, c] - cache[C_RREF + 3 * r + c]
-                tr += Rbt[r, c] * cache[C_RREF + 3 * r + c]
-            dt[r] = tbt[r] - cache[C_TREF + r]
-        if 0.5 * (tr - 1.0) < math.cos(phi_tol):
-            valid = False
-        if valid and cache[C_GFAR] < np.inf:
-            if _node_disp(dR, dt, b_seg, b_obb, 0, s_neg, cache[C_GFAR]) >= cache[C_GFAR]:
-                valid = False
-        if valid:
-            for q in range(int(cache[C_NCLOSE])):
-                f = close[q]
-                if nbox[f, 0] <= nbox[f, 3]:
-                    d = _max_disp_box(dR, dt, cache, 0, nbox[f, 0], nbox[f, 1], nbox[f, 2],
-                                      nbox[f, 3], nbox[f, 4], nbox[f, 5], False, s_neg)
-                    if d >= delta:
-                        valid = False
-                        break
-                if minsep[f] < np.inf:
-                    if _node_disp(dR, dt, b_seg, b_obb, fnode[f], s_neg, minsep[f]) >= minsep[f]:
-                        valid = False
-                        break
-    if not valid and cache[C_VALID] != 0.0 and cache[C_SINCE] < CACHE_MIN_REUSE:
-        # the motion between calls is too large for the margins: exact search for a while
-        cache[C_VALID] = 0.0
-        cache[C_COOL] = CACHE_COOLDOWN - 1
-        cache[C_EXACT] += 1.0
-        return search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L,
-                           s_neg, stamp, call, best_u, best_j, line, active, stack)
-    if not valid:
-        cache[C_SINCE] = 0.0
-        nf = fnode.shape[0]
-        for f in range(nf):
-            minsep[f] = np.inf
-            for a in range(3):
-                nbox[f, a] = np.inf
-                nbox[f, 3 + a] = -np.inf
-        n = _traverse(1, b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L,
-                      s_neg, far + s_neg, delta, stamp, call,
-                      best_u, best_j, line, active, stack, cand, nstamp, icount, fc, minsep, nbox)
-        cache[C_BUILDS] += 1.0
-        if n < 0:
-            cache[C_VALID] = 0.0
-            cache[C_OVERFLOW] += 1.0
+        if not periodic:
+            cache[C_EXACT] += 1.0
             return search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt,
                                L, s_neg, stamp, call, best_u, best_j, line, active, stack)
-        # sort the pairs by base slot (stable) and copy the triangle data in that order
-        order = np.argsort(cand[:n, 0], kind="mergesort")
-        tmp = cand[:n].copy()
-        for q in range(n):
-            cand[q, 0] = tmp[order[q], 0]
-            cand[q, 1] = tmp[order[q], 1]
-            l = cand[q, 1]
-            for a in range(18):
-                cand_tri[q, a] = ttri[l, a]
-        cache[C_NNEAR] = icount[0]
-        # far-check nodes checked one by one: those with near leaves or within 16 far; the
-        # others together through the root box against the smallest of their distances
-        nclose = 0
-        gfar = np.inf
-        for f in range(nf):
-            if nbox[f, 0] <= nbox[f, 3] or minsep[f] < 16.0 * far:
-                close[nclose] = f
-                nclose += 1
-            elif minsep[f] < gfar:
-                gfar = minsep[f]
-        cache[C_NCLOSE] = nclose
-        cache[C_GFAR] = gfar
-        cache[C_VALID] = 1.0
-        for r in range(3):
-            for c in range(3):
-                cache[C_RREF + 3 * r + c] = Rbt[r, c]
-            cache[C_TREF + r] = tbt[r]
-        cache[C_NCAND] = n
+        # cool-down with an atlas: a kept list that fits ends it; every ATLAS_BUILD_EVERY-th call
+        # builds (and keeps) a list, so that large steps fill the atlas too; else the exact search
+        s = -1
+        if cache[C_NSNAP] > 0.0:
+            s, sdb, sdt = _atlas_lookup(theta_b, theta_t, M, period, tbt, cache, atlas_meta,
+                                        atlas_minsep, atlas_nbox, atlas_close, b_seg, b_obb,
+                                        fnode, s_neg, delta, cphi, dR, dt, ndisp, Rc)
+        if s >= 0:
+            _atlas_activate(s, sdb, sdt, period, cache, atlas_meta, atlas_pairs, atlas_c,
+                            atlas_s, atlas_d, atlas_h, atlas_minsep, atlas_nbox, atlas_close,
+                            b_order, b_inv, t_order, t_inv, ttri, slot_f, minsep, nbox, close,
+                            cand, cand_tri, cand_c, cand_s, cand_d, cand_h, cand_g, cand_f)
+            cache[C_COOL] = 0.0
+            cache[C_VALID] = 1.0
+            cache[C_SINCE] = 0.0
+            cache[C_AHITS] += 1.0
+        elif int(cache[C_COOL]) % ATLAS_BUILD_EVERY != 0:
+            cache[C_EXACT] += 1.0
+            return search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt,
+                               L, s_neg, stamp, call, best_u, best_j, line, active, stack)
+        else:
+            cache[C_COOL] = 0.0           # a build below
+            cache[C_VALID] = 0.0
+            cache[C_SINCE] = CACHE_MIN_REUSE
+    valid = cache[C_VALID] != 0.0
+    if valid:
+        margin = 0.0
+        if cache[C_DB] != 0.0 or cache[C_DT] != 0.0:
+            _rbt_of(M, theta_b + cache[C_DB] * period[0], theta_t + cache[C_DT] * period[2], Rc)
+            margin = ATLAS_EPS
+        else:
+            for r in range(3):
+                for c in range(3):
+                    Rc[r, c] = Rbt[r, c]
+        d = _cache_check(Rc, tbt, cache, C_RREF, cache[C_GFAR], int(cache[C_NCLOSE]), close, nbox,
+                         minsep, b_seg, b_obb, fnode, s_neg, delta, cphi, margin, dR, dt, ndisp)
+        valid = d >= 0.0
+    fresh = False
+    if not valid:
+        served = False
+        if periodic and cache[C_NSNAP] > 0.0:
+            s, sdb, sdt = _atlas_lookup(theta_b, theta_t, M, period, tbt, cache, atlas_meta,
+                                        atlas_minsep, atlas_nbox, atlas_close, b_seg, b_obb,
+                                        fnode, s_neg, delta, cphi, dR, dt, ndisp, Rc)
+            if s >= 0:
+                _atlas_activate(s, sdb, sdt, period, cache, atlas_meta, atlas_pairs, atlas_c,
+                                atlas_s, atlas_d, atlas_h, atlas_minsep, atlas_nbox, atlas_close,
+                                b_order, b_inv, t_order, t_inv, ttri, slot_f, minsep, nbox, close,
+                                cand, cand_tri, cand_c, cand_s, cand_d, cand_h, cand_g, cand_f)
+                cache[C_VALID] = 1.0
+                cache[C_SINCE] = 0.0
+                cache[C_AHITS] += 1.0
+                served = True
+        if not served:
+            if cache[C_VALID] != 0.0 and cache[C_SINCE] < CACHE_MIN_REUSE:
+                # the motion between calls is too large for the margins: exact search for a while
+                cache[C_VALID] = 0.0
+                cache[C_COOL] = CACHE_COOLDOWN - 1
+                cache[C_EXACT] += 1.0
+                return search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt,
+                                   tbt, L, s_neg, stamp, call, best_u, best_j, line, active,
+                                   stack)
+            cache[C_SINCE] = 0.0
+            cache[C_DB] = 0.0
+            cache[C_DT] = 0.0
+            nf = fnode.shape[0]
+            for f in range(nf):
+                minsep[f] = np.inf
+                for a in range(3):
+                    nbox[f, a] = np.inf
+                    nbox[f, 3 + a] = -np.inf
+            n = _traverse(1, b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L,
+                          s_neg, far + s_neg, delta, stamp, call,
+                          best_u, best_j, line, active, stack, cand, nstamp, icount, fc, minsep,
+                          nbox)
+            cache[C_BUILDS] += 1.0
+            if n < 0:
+                cache[C_VALID] = 0.0
+                cache[C_OVERFLOW] += 1.0
+                return search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt,
+                                   tbt, L, s_neg, stamp, call, best_u, best_j, line, active,
+                                   stack)
+            # sort the pairs by base slot (stable) and copy the triangle data in that order
+            order = np.argsort(cand[:n, 0], kind="mergesort")
+            tmp = cand[:n].copy()
+            for q in range(n):
+                cand[q, 0] = tmp[order[q], 0]
+                cand[q, 1] = tmp[order[q], 1]
+                l = cand[q, 1]
+                for a in range(18):
+                    cand_tri[q, a] = ttri[l, a]
+            candidate_clearances(n, cand, cand_tri, belem, slot_f, Rbt, tbt, L, s_neg, cand_c,
+                                 cand_s, cand_d, cand_h, cand_g, cand_f)
+            cache[C_NNEAR] = icount[0]
+            # far-check nodes checked one by one: those with near leaves or within 16 far; the
+            # others together through the root box against the smallest of their distances
+            nclose = 0
+            gfar = np.inf
+            for f in range(nf):
+                if nbox[f, 0] <= nbox[f, 3] or minsep[f] < 16.0 * far:
+                    close[nclose] = f
+                    nclose += 1
+                elif minsep[f] < gfar:
+                    gfar = minsep[f]
+            cache[C_NCLOSE] = nclose
+            cache[C_GFAR] = gfar
+            cache[C_VALID] = 1.0
+            for r in range(3):
+                for c in range(3):
+                    cache[C_RREF + 3 * r + c] = Rbt[r, c]
+                cache[C_TREF + r] = tbt[r]
+            cache[C_NCAND] = n
+            fresh = True
+            if periodic:
+                _atlas_store(theta_b, theta_t, Rbt, tbt, cache, n, cand, cand_c, cand_s, cand_d,
+                             cand_h, minsep, nbox, close, atlas_meta, atlas_pairs, atlas_c,
+                             atlas_s, atlas_d, atlas_h, atlas_minsep, atlas_nbox, atlas_close)
     else:
         cache[C_CALLS] += 1.0
         cache[C_SINCE] += 1.0
-    return search_candidates(int(cache[C_NCAND]), cand, cand_tri, belem, L, s_neg, Rbt, tbt,
-                             best_u, best_j, line, active)
+    stats = np.zeros(2, dtype=np.int64)
+    n_act = search_candidates_skip(int(cache[C_NCAND]), cand, cand_tri, cand_c, cand_s, cand_d,
+                                   cand_h, cand_g, cand_f, ndisp, ndisp[ndisp.shape[0] - 1],
+                                   fresh, belem, L, s_neg, Rbt, tbt, best_u, best_j, line,
+                                   active, stats)
+    cache[C_SKIPPED] = stats[0]
+    cache[C_TESTED] = stats[1]
+    return n_act
 
 
 # ----------------------------------------------------------------------------------------------
@@ -885,7 +1372,9 @@ def fixed_axis_eval(data, theta_base, theta_target, omega_base, omega_target, ou
     """
     (b_int, b_seg, b_obb, belem, b_order, t_int, t_box, t_obb, ttri, t_order, M, ab0, params,
      stamp, call, best_u, best_j, line, active, stack, Rbt, tbt, cache, cand, cand_tri, nstamp,
-     icount, fnode, fc, minsep, nbox, close, dR, dt) = data
+     icount, fnode, fc, minsep, nbox, close, dR, dt, ndisp, cand_c, cand_s, cand_d, cand_h, cand_g,
+     cand_f, slot_f, period, b_inv, t_inv, Rc, atlas_meta, atlas_pairs, atlas_c, atlas_s, atlas_d,
+     atlas_h, atlas_minsep, atlas_nbox, atlas_close) = data
     # Rbt = Rz(-theta_t) M Rz(theta_b), M = R0_t^T R0_b
     cb = math.cos(theta_base)
     sb = math.sin(theta_base)
@@ -908,7 +1397,11 @@ def fixed_axis_eval(data, theta_base, theta_target, omega_base, omega_target, ou
         n = cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L,
                           s_neg, params[P_DELTA], params[P_FAR], params[P_PHI], cache, cand,
                           cand_tri, nstamp, icount, fnode, fc, minsep, nbox, close, dR, dt, stamp,
-                          call, best_u, best_j, line, active, stack)
+                          call, best_u, best_j, line, active, stack, ndisp, cand_c, cand_s,
+                          cand_d, cand_h, cand_g, cand_f, slot_f, theta_base, theta_target, M,
+                          period, b_order, b_inv, t_order, t_inv, Rc, atlas_meta, atlas_pairs,
+                          atlas_c, atlas_s, atlas_d, atlas_h, atlas_minsep, atlas_nbox,
+                          atlas_close)
     else:
         n = search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L,
                         s_neg, stamp, call, best_u, best_j, line, active, stack)

@@ -116,6 +116,7 @@ def test_atlas_and_skips_match_the_exact_search_healthy(healthy):
     assert cache_stats(atlas)["builds"] - b0 <= 0.2 * b0
 
 
+@pytest.mark.slow     # about 100 s: 5000 calls of the plain cache, one at a time
 def test_atlas_is_bit_identical_to_the_cache_without_it(healthy):
     """The atlas maps cached lists onto other tooth pairs: the same elements, arithmetic and order
     as the cache without it, bit for bit (calls that the plain cache serves by its exact-search

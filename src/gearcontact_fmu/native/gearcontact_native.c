@@ -87,6 +87,7 @@ typedef struct {
     int64_t n_theta, n_a, n_rev, te_zp, te_zw;
     int has_te;
     double dtheta, ratio, w_reg;
+    double inv_dtheta, inv_w_reg;   /* their reciprocals (the ros2 path, see TableData.exact) */
     double *a;          /* (n_a) */
     double *onset;      /* (n_theta, 2) */
     double *values;     /* (n_theta, 2, n_a, N_K): the file's (..., N_CH) in the K_* order */
@@ -118,6 +119,7 @@ static Map *map_load(const char *path, char *why, size_t nwhy) {
         m->n_theta = hdr[0]; m->n_a = hdr[1]; m->n_rev = hdr[3]; m->has_te = hdr[4] != 0;
         m->te_zp = hdr[5]; m->te_zw = hdr[6];
         m->dtheta = sc[0]; m->ratio = sc[1]; m->w_reg = sc[2];
+        m->inv_dtheta = 1.0 / sc[0]; m->inv_w_reg = 1.0 / sc[2];
         ok = hdr[2] == N_CH && m->n_theta > 1 && m->n_a > 1 && m->n_rev >= 1 && m->n_theta < 100000000
              && m->n_a < 100000;
     }
@@ -163,8 +165,19 @@ typedef struct {
     const Map *map;
     const double *values;   /* the map's, or scaled by the tooth compliance */
     const double *a_nodes;
+    const double *inv_da;   /* 1 / (a_nodes[j + 1] - a_nodes[j]) */
     double c_comp, c_exp, u_max, fric_on;
+    /* exact: divide as contact_map.py does (bit for bit the Python); else multiply by the reciprocals.
+     * A doStep is a chain of dependent operations (every evaluation needs the previous solve), and the
+     * divisions on it (the pinion angle modulo 2 pi, the row index, the approach weight, the friction
+     * scale, the accelerations) cost 13-20 cycles each against 4 for a multiplication: measured 12 %
+     * of a doStep. Reciprocals change the results by rounding only; ros2 is not bit-identical to the
+     * Python anyway (its 2 x 2 solve), so it takes them; rk4 keeps the divisions and its bit-identity. */
+    int exact;
 } TableData;
+
+/* x / y, or x times y's reciprocal iy (TableData.exact) */
+#define QUOT(d, x, y, iy) ((d)->exact ? (x) / (y) : (x) * (iy))
 
 /* Python's max(a, b) / min(a, b) for floats */
 static double pmax(double a, double b) { return b > a ? b : a; }
@@ -230,6 +243,8 @@ typedef struct {
     int overrun;                     /* penetration beyond u_max outside the map: status 1 (full only) */
     double pos[OUT_ELASTIC_ENERGY + 1];   /* OUT_TAU_PINION .. OUT_ELASTIC_ENERGY before damping/friction */
     double damp, fric_p, fric_w;     /* damping coefficient (clipped), friction torques at full slip */
+    double a;                        /* the approach (also set in GEO_FREE) */
+    double raw_tp, raw_tw, raw_damp; /* the interpolated torques and damping before their clamps */
     double te_dp, te_dw;             /* maps with manufacturing errors: the offset's slopes */
 } MeshGeo;
 
@@ -249,14 +264,15 @@ HOT void table_geo(const TableData *d, double theta_pinion, double theta_wheel, 
         const double two_pi = 2.0 * M_PI;
         double th;
         if (m->n_rev == 1) {
-            th = theta_pinion - two_pi * ffloor(theta_pinion / two_pi);
+            th = theta_pinion - two_pi * ffloor(QUOT(d, theta_pinion, two_pi, 1.0 / (2.0 * M_PI)));
         } else {
             double period = two_pi * (double)m->n_rev;
             th = ratio * theta_wheel;
-            th = th - period * ffloor(th / period) + s;
-            th = th - period * ffloor(th / period);
+            double iperiod = 1.0 / period;
+            th = th - period * ffloor(QUOT(d, th, period, iperiod)) + s;
+            th = th - period * ffloor(QUOT(d, th, period, iperiod));
         }
-        double x = th / m->dtheta;
+        double x = QUOT(d, th, m->dtheta, m->inv_dtheta);
         int64_t i0 = (int64_t)ffloor(x);
         double b = x - (double)i0;
         if (i0 < 0 || i0 >= n_theta) i0 = pmod(i0, n_theta);     /* Python's i0 % n_theta */
@@ -271,11 +287,12 @@ HOT void table_geo(const TableData *d, double theta_pinion, double theta_wheel, 
     double a;
     if (s >= 0.5 * (g->on_d + g->on_c)) { g->side = 0; a = s - g->on_d; }
     else { g->side = 1; a = g->on_c - s; }
+    g->a = a;
     const double *an = d->a_nodes;
     if (a <= an[0]) { g->state = GEO_FREE; return; }      /* free flight in the backlash */
     g->state = GEO_CONTACT;
     int64_t j = locate_from(an, na, a, j_hint);
-    double w = (a - an[j]) / (an[j + 1] - an[j]);
+    double w = QUOT(d, a - an[j], an[j + 1] - an[j], d->inv_da[j]);
     g->j = j;
     int inside = w <= 1.0;
     double val[N_K];
@@ -291,9 +308,10 @@ HOT void table_geo(const TableData *d, double theta_pinion, double theta_wheel, 
     } else {
         bilinear(d->values, na, g->i0, g->i1, g->side, j, w, g->b, N_K_LEAN, val);
     }
-    p[OUT_TAU_PINION] = val[K_TAU_P];
-    p[OUT_TAU_WHEEL] = val[K_TAU_W];
+    p[OUT_TAU_PINION] = g->raw_tp = val[K_TAU_P];
+    p[OUT_TAU_WHEEL] = g->raw_tw = val[K_TAU_W];
     p[OUT_NORMAL_FORCE] = pmax(val[K_FN], 0.0);
+    g->raw_damp = val[K_DAMP];
     g->damp = pmax(val[K_DAMP], 0.0);
     g->fric_p = val[K_FRIC_P];
     g->fric_w = val[K_FRIC_W];
@@ -346,7 +364,7 @@ HOT void table_vel(const TableData *d, const MeshGeo *g, double omega_pinion, do
     else tau_d = pmax(tau_d, -out[OUT_TAU_PINION]);
     double tau_fp = 0.0, tau_fw = 0.0;
     if (d->fric_on > 0.0) {
-        double scale = pmin(pmax(omega_pinion / d->map->w_reg, -1.0), 1.0);
+        double scale = pmin(pmax(QUOT(d, omega_pinion, d->map->w_reg, d->map->inv_w_reg), -1.0), 1.0);
         tau_fp = scale * g->fric_p;
         tau_fw = scale * g->fric_w;
     }
@@ -441,6 +459,92 @@ HOT void mesh_vel(const TableData *d, const MeshGeo *g, double op, double ow, in
     out[OUT_TAU_WHEEL] = tauw * (1.0 - dw / r);
 }
 
+/* The mesh Jacobian's slopes from the map itself. Within one cell of the map the channels are bilinear in
+ * (pinion-angle row weight b, approach weight w), so at a fixed pinion angle they are linear in the wheel
+ * angle (which moves the approach alone: a = +-(s - onset), s = theta_p - r theta_w); the damping, friction
+ * and power terms are linear in the channels at fixed speeds, and the damping torque is linear in the wheel
+ * speed. So the forward differences of stage.py's Jacobian (a step of fd_angle in the wheel angle, fd_speed
+ * in the wheel speed, towards the deeper contact) equal these slopes up to their own rounding (relative
+ * ~1e-16 / fd ~ 1e-9), as long as the difference step crosses no kink: a cell boundary, the contact onset,
+ * one of the clamps (torque sign, damping >= 0, the expansion damping limit, power >= 0) or the sign of the
+ * approach speed. The slopes cost a few multiplications instead of two mesh evaluations (a sixth of a
+ * doStep); where the step would cross a kink, or for a map with manufacturing errors (the offset moves both
+ * angles), this returns 0 and the caller takes the differences as stage.py does, so the two Jacobians
+ * never differ by more than that rounding.
+ * In: g (the mesh at y, evaluated in full or lean), out0 (its outputs), the speeds, the difference steps
+ * hth, hw. Out: d/d theta_w and d/d omega_w of (tau_pinion, tau_wheel, dissipated power). */
+HOT int mesh_slopes(const TableData *d, const MeshGeo *g, double op, double ow, const double *out0, double hth,
+                    double hw, double *dth, double *dw) {
+    if (d->map->has_te || g->state == GEO_NONFINITE) return 0;
+    const double r = d->map->ratio;
+    const double *an = d->a_nodes;
+    const int64_t na = d->map->n_a, j = g->j;
+    const double dadtw = g->side == 0 ? -r : r;           /* d a / d theta_w */
+    const double a1 = g->a + dadtw * hth;                 /* the approach after the difference step */
+    if (g->state == GEO_FREE) {
+        if (a1 > an[0]) return 0;                         /* the step would touch the flank */
+        for (int k = 0; k < 3; k++) { dth[k] = 0.0; dw[k] = 0.0; }
+        return 1;
+    }
+    if (g->elastic_zero || a1 <= an[0] || a1 < an[j] || (j < na - 2 && a1 >= an[j + 1])) return 0;
+    /* d channel / d a: the bilinear patch's slope in w, times dw/da */
+    const double *r0 = d->values + (((size_t)g->i0 * 2 + (size_t)g->side) * (size_t)na + (size_t)j) * N_K;
+    const double *r1 = d->values + (((size_t)g->i1 * 2 + (size_t)g->side) * (size_t)na + (size_t)j) * N_K;
+    const double bb = g->b, dadw = dadtw * d->inv_da[j];
+    double sl[N_K_LEAN];
+    for (int k = 0; k < N_K_LEAN; k++) {
+        double e0 = r0[N_K + k] - r0[k], e1 = r1[N_K + k] - r1[k];
+        sl[k] = (e0 + bb * (e1 - e0)) * dadw;              /* d channel / d theta_w */
+    }
+    /* the torque-sign clamps and the damping's >= 0: slope 0 where clamped; kink if the step changes that */
+    int side = g->side;
+    double vtp1 = g->raw_tp + sl[K_TAU_P] * hth, vtw1 = g->raw_tw + sl[K_TAU_W] * hth;
+    double vd1 = g->raw_damp + sl[K_DAMP] * hth;
+    int ftp = side == 0 ? g->raw_tp < 0.0 : g->raw_tp > 0.0;     /* free (unclamped) */
+    int ftw = side == 0 ? g->raw_tw > 0.0 : g->raw_tw < 0.0;
+    int fd = g->raw_damp > 0.0;
+    if (ftp != (side == 0 ? vtp1 < 0.0 : vtp1 > 0.0) || ftw != (side == 0 ? vtw1 > 0.0 : vtw1 < 0.0)
+        || fd != (vd1 > 0.0))
+        return 0;
+    double dtp = ftp ? sl[K_TAU_P] : 0.0, dtw = ftw ? sl[K_TAU_W] : 0.0, ddamp = fd ? sl[K_DAMP] : 0.0;
+    /* table_vel's terms */
+    double tp = g->pos[OUT_TAU_PINION];
+    double sdot = op - r * ow, sdot1 = sdot - r * hw;
+    int closing = side == 0 ? sdot > 0.0 : sdot < 0.0;
+    if (closing != (side == 0 ? sdot1 > 0.0 : sdot1 < 0.0)) return 0;
+    double dc = closing ? d->c_comp : d->c_exp;
+    double td = -dc * g->damp * sdot;                          /* the damping torque before its limit */
+    double td_th = -dc * ddamp * sdot, td_w = dc * g->damp * r;
+    /* the limit: side 0 tau_d <= -tau_p, side 1 tau_d >= -tau_p (pmin / pmax as in table_vel) */
+    int lim = side == 0 ? -tp < td : -tp > td;
+    double lth = td + td_th * hth, lth_tp = -(tp + dtp * hth), lw = td + td_w * hw;
+    if (lim != (side == 0 ? lth_tp < lth : lth_tp > lth) || lim != (side == 0 ? -tp < lw : -tp > lw)) return 0;
+    double tau_d = lim ? -tp : td;
+    double dtd_th = lim ? -dtp : td_th, dtd_w = lim ? 0.0 : td_w;
+    double fp_th = 0.0, fw_th = 0.0, tau_fp = 0.0, tau_fw = 0.0;
+    if (d->fric_on > 0.0) {
+        double scale = pmin(pmax(QUOT(d, op, d->map->w_reg, d->map->inv_w_reg), -1.0), 1.0);   /* fixed here */
+        fp_th = scale * sl[K_FRIC_P];
+        fw_th = scale * sl[K_FRIC_W];
+        tau_fp = scale * g->fric_p;
+        tau_fw = scale * g->fric_w;
+    }
+    dth[0] = dtp + dtd_th + fp_th;
+    dth[1] = dtw - r * dtd_th + fw_th;
+    dw[0] = dtd_w;
+    dw[1] = -r * dtd_w;
+    /* dissipated power, max(p, 0) */
+    double pw = -tau_d * sdot - (tau_fp * op + tau_fw * ow);
+    double p_th = -dtd_th * sdot - (fp_th * op + fw_th * ow);
+    double p_w = -dtd_w * sdot + r * tau_d - tau_fw;
+    int pos = pw > 0.0;
+    if (pos != (pw + p_th * hth > 0.0) || pos != (pw + p_w * hw > 0.0)) return 0;
+    dth[2] = pos ? p_th : 0.0;
+    dw[2] = pos ? p_w : 0.0;
+    (void)out0;
+    return 1;
+}
+
 /* the whole evaluation, in full (initialization) */
 static void mesh_eval(const TableData *d, double tp, double tw, double op, double ow, double *out) {
     MeshGeo g = {0};
@@ -461,7 +565,8 @@ enum { S_ROS2, S_RK4 };
 enum { CODE_OK, CODE_MESH_STATUS, CODE_NONFINITE_STATE, CODE_NONFINITE_INPUT };
 
 /* the augmented rhs at y, given the mesh outputs there */
-HOT void rhs_dy(const double *par, const double *u, double t, const double *y, const double *out, double *dy) {
+HOT void rhs_dy(const double *par, int exact, const double *u, double t, const double *y, const double *out,
+            double *dy) {
     double phi_a = u[0] + u[1] * t;
     double phi_b = u[2] + u[3] * t;
     double ka = par[PKA], da = par[PDA], kb = par[PKB], db = par[PDB];
@@ -470,8 +575,8 @@ HOT void rhs_dy(const double *par, const double *u, double t, const double *y, c
     double ra = y[2] - u[1], rb = y[3] - u[3];
     dy[0] = y[2];
     dy[1] = y[3];
-    dy[2] = (ta + out[OUT_TAU_PINION]) / par[PJP];
-    dy[3] = (tb + out[OUT_TAU_WHEEL]) / par[PJW];
+    dy[2] = exact ? (ta + out[OUT_TAU_PINION]) / par[PJP] : (ta + out[OUT_TAU_PINION]) * par[PIJP];
+    dy[3] = exact ? (tb + out[OUT_TAU_WHEEL]) / par[PJW] : (tb + out[OUT_TAU_WHEEL]) * par[PIJW];
     dy[4] = -ta;
     dy[5] = -tb;
     dy[6] = (da * (ra * ra) + db * (rb * rb) + out[OUT_DISSIPATED_POWER]);
@@ -483,7 +588,7 @@ HOT void rhs(const TableData *d, const double *par, const double *u, double t, c
                 double *out, MeshGeo *g, int full) {
     mesh_geo(d, y[0], y[1], NULL, g->j, full, g);
     mesh_vel(d, g, y[2], y[3], full, out);
-    rhs_dy(par, u, t, y, out, dy);
+    rhs_dy(par, d->exact, u, t, y, out, dy);
 }
 
 static double stored(const double *par, const double *u, double t, const double *y, const double *out) {
@@ -508,6 +613,7 @@ static double stored(const double *par, const double *u, double t, const double 
  * and so has W = I - gamma h J: block lower triangular, its 4 x 4 block reduced to 2 x 2 by the angle rows
  * (theta = b + gamma h omega). Only j2*, j3*, j6* and the time derivative ft are stored. */
 typedef struct { double j2[4], j3[4], j6[4], ft[N_X]; } Jac;
+static const int FD_OUT[3] = {OUT_TAU_PINION, OUT_TAU_WHEEL, OUT_DISSIPATED_POWER};
 
 /* J at y, with forward differences of the mesh towards the flank the mesh coordinate is closer to;
  * g0, out0: the mesh at y */
@@ -519,17 +625,19 @@ static void jacobian(const TableData *d, const double *par, const double *u, con
     double hth = sgn * par[PHTH] / r;
     double hw = sgn * par[PHW] / r;
     double ihth = 1.0 / hth, ihw = 1.0 / hw;        /* off the critical path: y alone decides them */
-    MeshGeo gth;
-    double outp[N_OUT];
-    mesh_geo(d, y[0], y[1] + hth, g0, g0->j, 0, &gth);   /* same pinion angle: the map row is reused */
-    mesh_vel(d, &gth, y[2], y[3], 0, outp);
-    double dtp_dthw = (outp[OUT_TAU_PINION] - out0[OUT_TAU_PINION]) * ihth;
-    double dtw_dthw = (outp[OUT_TAU_WHEEL] - out0[OUT_TAU_WHEEL]) * ihth;
-    double dp_dthw = (outp[OUT_DISSIPATED_POWER] - out0[OUT_DISSIPATED_POWER]) * ihth;
-    mesh_vel(d, g0, y[2], y[3] + hw, 0, outp);             /* same angles: the geometry of y */
-    double dtp_dww = (outp[OUT_TAU_PINION] - out0[OUT_TAU_PINION]) * ihw;
-    double dtw_dww = (outp[OUT_TAU_WHEEL] - out0[OUT_TAU_WHEEL]) * ihw;
-    double dp_dww = (outp[OUT_DISSIPATED_POWER] - out0[OUT_DISSIPATED_POWER]) * ihw;
+    double dth[3], dw[3];
+    if (!mesh_slopes(d, g0, y[2], y[3], out0, hth, hw, dth, dw)) {
+        /* a kink within the difference step (or manufacturing errors): stage.py's forward differences */
+        MeshGeo gth;
+        double outp[N_OUT];
+        mesh_geo(d, y[0], y[1] + hth, g0, g0->j, 0, &gth);   /* same pinion angle: the map row is reused */
+        mesh_vel(d, &gth, y[2], y[3], 0, outp);
+        for (int k = 0; k < 3; k++) dth[k] = (outp[FD_OUT[k]] - out0[FD_OUT[k]]) * ihth;
+        mesh_vel(d, g0, y[2], y[3] + hw, 0, outp);             /* same angles: the geometry of y */
+        for (int k = 0; k < 3; k++) dw[k] = (outp[FD_OUT[k]] - out0[FD_OUT[k]]) * ihw;
+    }
+    double dtp_dthw = dth[0], dtw_dthw = dth[1], dp_dthw = dth[2];
+    double dtp_dww = dw[0], dtw_dww = dw[1], dp_dww = dw[2];
     J->j2[0] = (-ka - dtp_dthw * ir) * ijp;
     J->j2[1] = dtp_dthw * ijp;
     J->j2[2] = (-da - dtp_dww * ir) * ijp;
@@ -635,7 +743,7 @@ static int advance(const TableData *d, int scheme, double *x, const double *par,
     double t = 0.0, dt = h;
     mesh_geo(d, y[0], y[1], NULL, 0, 1, g0);
     mesh_vel(d, g0, y[2], y[3], 1, out);
-    rhs_dy(par, u, t, y, out, f0);
+    rhs_dy(par, d->exact, u, t, y, out, f0);
     tally_start(res, in_contact(out), out[OUT_MAX_PENETRATION]);
     int have_jac = 0;
     int checked = 0;            /* y, f0 and out checked since they last changed (a halving changes none) */
@@ -790,6 +898,7 @@ typedef struct {
     int logging_on;
     Map *map;
     double *values_eff, *a_eff;      /* tooth compliance applied (owned; NULL: the map's own) */
+    double *inv_da;                  /* the reciprocal approach intervals of td.a_nodes (owned) */
     /* ---- everything below is the FMU state ---- */
     double r[GC_N_VARS];             /* Real variables by value reference */
     int iv[GC_N_VARS];               /* Integer and Boolean variables */
@@ -940,6 +1049,7 @@ void fmi2FreeInstance(fmi2Component comp) {
     map_free(c->map);
     free(c->values_eff);
     free(c->a_eff);
+    free(c->inv_da);
     free(c);
 }
 
@@ -1027,8 +1137,14 @@ static int build_stage(Inst *c) {
     c->td.c_exp = damping ? r[VR_c_expansion] : 0.0;
     c->td.u_max = r[VR_u_max];
     c->td.fric_on = c->iv[VR_friction] ? 1.0 : 0.0;
+    free(c->inv_da);
+    c->inv_da = (double *)malloc(sizeof(double) * (size_t)(m->n_a - 1));
+    if (!c->inv_da) { fail(c, "initialization failed: out of memory"); return 0; }
+    for (int64_t j = 0; j + 1 < m->n_a; j++) c->inv_da[j] = 1.0 / (c->td.a_nodes[j + 1] - c->td.a_nodes[j]);
+    c->td.inv_da = c->inv_da;
     /* "auto" is ros2 for the table mesh (over-damped stiff contact; GearStage._choose_scheme) */
     c->scheme = c->scheme_sel == SCH_RK4 ? S_RK4 : S_ROS2;
+    c->td.exact = c->scheme == S_RK4;
     double *par = c->par;
     par[PJP] = r[VR_J_pinion]; par[PJW] = r[VR_J_wheel];
     par[PKA] = r[VR_k_a]; par[PDA] = r[VR_d_a]; par[PKB] = r[VR_k_b]; par[PDB] = r[VR_d_b];
@@ -1101,6 +1217,7 @@ fmi2Status fmi2Reset(fmi2Component comp) {
     Inst *c = (Inst *)comp;
     free(c->values_eff); c->values_eff = NULL;
     free(c->a_eff); c->a_eff = NULL;
+    free(c->inv_da); c->inv_da = NULL;
     set_defaults(c);
     return fmi2OK;
 }
@@ -1392,6 +1509,7 @@ fmi2Status fmi2SetFMUstate(fmi2Component comp, fmi2FMUstate state) {
     c->td.map = c->map;
     c->td.values = c->values_eff ? c->values_eff : c->map->values;
     c->td.a_nodes = c->a_eff ? c->a_eff : c->map->a;
+    c->td.inv_da = c->inv_da;
     return fmi2OK;
 }
 

@@ -46,7 +46,8 @@ ap = argparse.ArgumentParser()
 ap.add_argument("--steps", type=int, default=6000)
 ap.add_argument("--rounds", type=int, default=5)
 ap.add_argument("--max-substep", type=float, default=None, help="override the scene's numerics.max_substep_s [s]")
-ap.add_argument("--baseline-c", type=Path, default=None, help="also run a native build compiled from this C source")
+ap.add_argument("--baseline-c", type=Path, action="append", default=[],
+                help="also run a native build compiled from this C source (repeatable)")
 args = ap.parse_args()
 
 H = 1.0 / 12000.0
@@ -73,8 +74,9 @@ def rebuild_from(fmu: Path, c_source: Path, out: Path) -> Path:
     return out
 
 
-if args.baseline_c:
-    fmus["baseline"] = rebuild_from(fmus["native"], args.baseline_c, tmp / "baseline.fmu")
+baselines = {f"baseline{i or ''}": src for i, src in enumerate(args.baseline_c)}
+for name, src in baselines.items():
+    fmus[name] = rebuild_from(fmus["native"], src, tmp / f"{name}.fmu")
 # the call floor's target: a C function that returns at once (the native FMU's fmi2CancelStep)
 _floor_lib = ctypes.CDLL(str(Path(fmpy.extract(str(fmus["native"]))) / "binaries" / "linux64" / "GearContact.so"))
 floor_addr = _floor_lib.fmi2CancelStep
@@ -197,8 +199,7 @@ print(f"net doStep (minus the call floor): native {net['native']:.1f} us, python
 print(f"ratio pythonfmu / native: doStep {best['pythonfmu'][0] / best['native'][0]:.1f}x, "
       f"whole step {best['pythonfmu'][1] / best['native'][1]:.1f}x, net doStep {net['pythonfmu'] / net['native']:.1f}x")
 print(f"largest torque difference, relative to the largest torque: {diff:.3g}")
-if "baseline" in fmus:
-    print(f"baseline ({args.baseline_c}): doStep {best['baseline'][0]:.1f} us, net {net['baseline']:.1f} us; "
-          f"ratio pythonfmu / baseline: doStep {best['pythonfmu'][0] / best['baseline'][0]:.1f}x, "
-          f"net doStep {net['pythonfmu'] / net['baseline']:.1f}x; baseline / native doStep "
-          f"{best['baseline'][0] / best['native'][0]:.2f}x")
+for b, src in baselines.items():
+    print(f"{b} ({src}): doStep {best[b][0]:.1f} us, net {net[b]:.1f} us; "
+          f"ratio pythonfmu / {b}: doStep {best['pythonfmu'][0] / best[b][0]:.1f}x, "
+          f"net doStep {net['pythonfmu'] / net[b]:.1f}x; {b} / native doStep {best[b][0] / best['native'][0]:.2f}x")

@@ -47,6 +47,18 @@
 #define HOT static inline
 #endif
 
+/* LIKELY / UNLIKELY: the common case (ros2, no manufacturing errors, a one-revolution map, the slopes
+ * Jacobian) laid out straight and the rest moved aside. The hot code is then dense: a host's own work
+ * between two doSteps (a Python master's interpreter) evicts it from the instruction cache, and every
+ * line of it fetched again stalls the chain */
+#if defined(__GNUC__) || defined(__clang__)
+#define LIKELY(c) __builtin_expect(!!(c), 1)
+#define UNLIKELY(c) __builtin_expect(!!(c), 0)
+#else
+#define LIKELY(c) (c)
+#define UNLIKELY(c) (c)
+#endif
+
 /* one variable of the model description (the table GC_VARS, indexed by value reference, is generated) */
 typedef struct {
     const char *name;
@@ -177,7 +189,7 @@ typedef struct {
 } TableData;
 
 /* x / y, or x times y's reciprocal iy (TableData.exact) */
-#define QUOT(d, x, y, iy) ((d)->exact ? (x) / (y) : (x) * (iy))
+#define QUOT(d, x, y, iy) (UNLIKELY((d)->exact) ? (x) / (y) : (x) * (iy))
 
 /* Python's max(a, b) / min(a, b) for floats */
 static double pmax(double a, double b) { return b > a ? b : a; }
@@ -236,6 +248,7 @@ typedef struct {
     int has_row;                     /* the row below was computed (the angles were finite) */
     double tp;                       /* the pinion angle of that row */
     int64_t i0, i1;                  /* pinion-angle rows and weight b, onset of the drive/coast flank */
+    double q;                        /* whole turns of the pinion (one-revolution map) */
     double b, on_d, on_c;
     int side;                        /* 0: drive flank, 1: coast flank */
     int64_t j;                       /* approach interval (where the next search starts) */
@@ -253,18 +266,30 @@ HOT void table_geo(const TableData *d, double theta_pinion, double theta_wheel, 
     const Map *m = d->map;
     const int64_t na = m->n_a, n_theta = m->n_theta;
     const double ratio = m->ratio;
+    /* g's previous row (if any) predicts this one's: see below */
+    const int hint = g->has_row;
+    const double q_hint = g->q;
+    const int64_t i_hint = g->i0;
     g->j = j_hint;
     g->has_row = 0;
     if (!(isfinite(theta_pinion) && isfinite(theta_wheel))) { g->state = GEO_NONFINITE; return; }
     double s = theta_pinion - ratio * theta_wheel;
-    if (row && row->has_row && m->n_rev == 1 && row->tp == theta_pinion) {
+    if (row && row->has_row && LIKELY(m->n_rev == 1) && row->tp == theta_pinion) {
         /* one-revolution map: the row is a function of the pinion angle alone */
-        g->i0 = row->i0; g->i1 = row->i1; g->b = row->b; g->on_d = row->on_d; g->on_c = row->on_c;
+        g->i0 = row->i0; g->i1 = row->i1; g->b = row->b; g->on_d = row->on_d; g->on_c = row->on_c; g->q = row->q;
     } else {
         const double two_pi = 2.0 * M_PI;
         double th;
-        if (m->n_rev == 1) {
-            th = theta_pinion - two_pi * ffloor(QUOT(d, theta_pinion, two_pi, 1.0 / (2.0 * M_PI)));
+        /* The two floors below (the turns, the row) are predicted from g's previous evaluation: the pinion
+         * turns by a small fraction of a row per sub-step, so the previous value is floor's result unless
+         * the test fails (then floor it is). The same value either way; but the test is a branch the
+         * processor predicts and speculates past, while floor is a chain of conversions that the row's
+         * loads, and all that follows, would wait for. */
+        if (LIKELY(m->n_rev == 1)) {
+            double v = QUOT(d, theta_pinion, two_pi, 1.0 / (2.0 * M_PI));
+            double q = LIKELY(hint && v >= q_hint && v < q_hint + 1.0) ? q_hint : ffloor(v);
+            g->q = q;
+            th = theta_pinion - two_pi * q;
         } else {
             double period = two_pi * (double)m->n_rev;
             th = ratio * theta_wheel;
@@ -273,7 +298,7 @@ HOT void table_geo(const TableData *d, double theta_pinion, double theta_wheel, 
             th = th - period * ffloor(QUOT(d, th, period, iperiod));
         }
         double x = QUOT(d, th, m->dtheta, m->inv_dtheta);
-        int64_t i0 = (int64_t)ffloor(x);
+        int64_t i0 = LIKELY(hint && x >= (double)i_hint && x < (double)(i_hint + 1)) ? i_hint : (int64_t)ffloor(x);
         double b = x - (double)i0;
         if (i0 < 0 || i0 >= n_theta) i0 = pmod(i0, n_theta);     /* Python's i0 % n_theta */
         int64_t i1 = i0 + 1 == n_theta ? 0 : i0 + 1;
@@ -440,7 +465,7 @@ static void te_offset(const Map *mp, double theta_pinion, double theta_wheel, do
  * approach search starts */
 HOT void mesh_geo(const TableData *d, double tp, double tw, const MeshGeo *row, int64_t j_hint, int full,
                      MeshGeo *g) {
-    if (!d->map->has_te) { table_geo(d, tp, tw, row, j_hint, full, g); return; }
+    if (LIKELY(!d->map->has_te)) { table_geo(d, tp, tw, row, j_hint, full, g); return; }
     double r = d->map->te_p[P_RATIO];
     double de, dp, dw;
     te_offset(d->map, tp, tw, &de, &dp, &dw);
@@ -450,7 +475,7 @@ HOT void mesh_geo(const TableData *d, double tp, double tw, const MeshGeo *row, 
 }
 
 HOT void mesh_vel(const TableData *d, const MeshGeo *g, double op, double ow, int full, double *out) {
-    if (!d->map->has_te) { table_vel(d, g, op, ow, full, out); return; }
+    if (LIKELY(!d->map->has_te)) { table_vel(d, g, op, ow, full, out); return; }
     double r = d->map->te_p[P_RATIO];
     double dp = g->te_dp, dw = g->te_dw;
     table_vel(d, g, op, ow - (dp * op + dw * ow) / r, full, out);
@@ -475,7 +500,7 @@ HOT void mesh_vel(const TableData *d, const MeshGeo *g, double op, double ow, in
  * hth, hw. Out: d/d theta_w and d/d omega_w of (tau_pinion, tau_wheel, dissipated power). */
 HOT int mesh_slopes(const TableData *d, const MeshGeo *g, double op, double ow, const double *out0, double hth,
                     double hw, double *dth, double *dw) {
-    if (d->map->has_te || g->state == GEO_NONFINITE) return 0;
+    if (UNLIKELY(d->map->has_te || g->state == GEO_NONFINITE)) return 0;
     const double r = d->map->ratio;
     const double *an = d->a_nodes;
     const int64_t na = d->map->n_a, j = g->j;
@@ -545,6 +570,47 @@ HOT int mesh_slopes(const TableData *d, const MeshGeo *g, double op, double ow, 
     return 1;
 }
 
+/* Prefetching the map lines a doStep will read. Why: the map is large (the example's: 720 pinion-angle rows
+ * x 2 flanks x 48 approach nodes x 12 channels, 6.6 MB), and between two doSteps the host (our Python
+ * master: its interpreter) evicts it from the nearer caches. Inside a doStep the evaluations form a chain
+ * (each needs the previous solve), so every miss stalls it in turn: the onsets, then the approach nodes,
+ * then the channels. Here, at the start of the doStep, the rows the pinion will cross in it (from its
+ * angle and speed), the flank and approach interval the last doStep ended in (hint; side < 0: both
+ * flanks) and the nodes around it are requested at once, so that the misses overlap. Only a hint to the
+ * processor: no result depends on it. */
+#if defined(__GNUC__) || defined(__clang__)
+#define PREFETCH(p) __builtin_prefetch((const void *)(p))
+#else
+#define PREFETCH(p) ((void)(p))
+#endif
+static void map_prefetch(const TableData *d, double tp, double op, double H, int64_t j, int side) {
+    const Map *m = d->map;
+    if (!(isfinite(tp) && isfinite(op))) return;
+    const int64_t na = m->n_a, n_theta = m->n_theta;
+    double period = 2.0 * M_PI * (double)m->n_rev;
+    double th = tp - period * floor(tp / period);
+    int64_t i = (int64_t)(th * m->inv_dtheta);
+    double rows = fabs(op) * H * m->inv_dtheta;                /* rows crossed in the step */
+    int n_rows = rows < 2.0 ? (int)rows + 2 : 4;               /* i0 and i1, and those crossed (<= 4) */
+    int64_t di = op >= 0.0 ? 1 : -1;
+    if (j < 1) j = 1;
+    if (j > na - 3) j = na - 3;
+    for (int64_t q = 0; q < na * 8; q += 64) {                 /* the approach nodes, their reciprocal gaps */
+        PREFETCH((const char *)d->a_nodes + q);
+        PREFETCH((const char *)d->inv_da + q);
+    }
+    for (int r = 0; r < n_rows; r++) {
+        int64_t row = pmod(i + di * r, n_theta);
+        PREFETCH(m->onset + 2 * row);
+        for (int sd = 0; sd < 2; sd++) {
+            if (side >= 0 && sd != side) continue;
+            const char *lo = (const char *)(d->values + (((size_t)row * 2 + (size_t)sd) * (size_t)na + (size_t)(j - 1)) * N_K);
+            for (int q = 0; q < 4 * N_K * 8; q += 64) PREFETCH(lo + q);   /* nodes j - 1 .. j + 2 */
+            PREFETCH(lo + 4 * N_K * 8 - 1);
+        }
+    }
+}
+
 /* the whole evaluation, in full (initialization) */
 static void mesh_eval(const TableData *d, double tp, double tw, double op, double ow, double *out) {
     MeshGeo g = {0};
@@ -575,8 +641,8 @@ HOT void rhs_dy(const double *par, int exact, const double *u, double t, const d
     double ra = y[2] - u[1], rb = y[3] - u[3];
     dy[0] = y[2];
     dy[1] = y[3];
-    dy[2] = exact ? (ta + out[OUT_TAU_PINION]) / par[PJP] : (ta + out[OUT_TAU_PINION]) * par[PIJP];
-    dy[3] = exact ? (tb + out[OUT_TAU_WHEEL]) / par[PJW] : (tb + out[OUT_TAU_WHEEL]) * par[PIJW];
+    dy[2] = UNLIKELY(exact) ? (ta + out[OUT_TAU_PINION]) / par[PJP] : (ta + out[OUT_TAU_PINION]) * par[PIJP];
+    dy[3] = UNLIKELY(exact) ? (tb + out[OUT_TAU_WHEEL]) / par[PJW] : (tb + out[OUT_TAU_WHEEL]) * par[PIJW];
     dy[4] = -ta;
     dy[5] = -tb;
     dy[6] = (da * (ra * ra) + db * (rb * rb) + out[OUT_DISSIPATED_POWER]);
@@ -626,9 +692,10 @@ static void jacobian(const TableData *d, const double *par, const double *u, con
     double hw = sgn * par[PHW] / r;
     double ihth = 1.0 / hth, ihw = 1.0 / hw;        /* off the critical path: y alone decides them */
     double dth[3], dw[3];
-    if (!mesh_slopes(d, g0, y[2], y[3], out0, hth, hw, dth, dw)) {
+    if (UNLIKELY(!mesh_slopes(d, g0, y[2], y[3], out0, hth, hw, dth, dw))) {
         /* a kink within the difference step (or manufacturing errors): stage.py's forward differences */
         MeshGeo gth;
+        gth.has_row = 0;
         double outp[N_OUT];
         mesh_geo(d, y[0], y[1] + hth, g0, g0->j, 0, &gth);   /* same pinion angle: the map row is reused */
         mesh_vel(d, &gth, y[2], y[3], 0, outp);
@@ -722,7 +789,7 @@ static int finite_n(const double *y, int n) {
 
 /* stage._advance_py, stage mode: advance x over [0, H] with n_sub sub-steps; returns a CODE_* */
 static int advance(const TableData *d, int scheme, double *x, const double *par, const double *u, double H,
-                   int64_t n_sub, double *out, double *res) {
+                   int64_t n_sub, double *out, double *res, int64_t *hint_j, int *hint_side) {
     res[RTF] = 0.0;
     res[RDET] = 0.0;
     if (!finite_n(u, 4)) return CODE_NONFINITE_INPUT;
@@ -738,10 +805,11 @@ static int advance(const TableData *d, int scheme, double *x, const double *par,
     /* the mesh geometry at y (g0), at the candidate step end (gn), at a stage (gs) */
     MeshGeo geo[3];
     MeshGeo *g0 = &geo[0], *gn = &geo[1], *gs = &geo[2];
-    g0->j = 0;
+    for (int k = 0; k < 3; k++) { geo[k].j = 0; geo[k].has_row = 0; }
     double h_min = h / 64.0;
     double t = 0.0, dt = h;
-    mesh_geo(d, y[0], y[1], NULL, 0, 1, g0);
+    map_prefetch(d, y[0], y[2], H, *hint_j, *hint_side);
+    mesh_geo(d, y[0], y[1], NULL, *hint_j, 1, g0);
     mesh_vel(d, g0, y[2], y[3], 1, out);
     rhs_dy(par, d->exact, u, t, y, out, f0);
     tally_start(res, in_contact(out), out[OUT_MAX_PENETRATION]);
@@ -765,7 +833,7 @@ static int advance(const TableData *d, int scheme, double *x, const double *par,
         int c0 = in_contact(out);
         int changed;
         gs->j = g0->j;
-        if (scheme == S_ROS2) {
+        if (LIKELY(scheme == S_ROS2)) {
             if (!have_jac) {
                 jacobian(d, par, u, y, g0, out, &J);
                 have_jac = 1;
@@ -810,6 +878,8 @@ static int advance(const TableData *d, int scheme, double *x, const double *par,
         checked = 0;
         if (dt < h) dt = pmin(2.0 * dt, h);
     }
+    *hint_j = g0->j;
+    *hint_side = g0->state == GEO_CONTACT ? g0->side : -1;
     res[RTA] = y[4] / H;
     res[RTB] = y[5] / H;
     res[RES] = stored(par, u, H, y, out);
@@ -899,6 +969,8 @@ typedef struct {
     Map *map;
     double *values_eff, *a_eff;      /* tooth compliance applied (owned; NULL: the map's own) */
     double *inv_da;                  /* the reciprocal approach intervals of td.a_nodes (owned) */
+    int64_t pf_j;                    /* where the last doStep ended in the map (map_prefetch's hint) */
+    int pf_side;
     /* ---- everything below is the FMU state ---- */
     double r[GC_N_VARS];             /* Real variables by value reference */
     int iv[GC_N_VARS];               /* Integer and Boolean variables */
@@ -972,6 +1044,8 @@ static void set_defaults(Inst *c) {
         c->r[i] = GC_VARS[i].real_start;
         c->iv[i] = GC_VARS[i].int_start;
     }
+    c->pf_j = 0;
+    c->pf_side = -1;
     c->scheme_sel = SCH_AUTO;
     c->output_sel = OT_PREDICTED;
     c->initial_sel = IS_INPUTS;
@@ -1247,7 +1321,7 @@ static int stage_step(Inst *c, double t, double H) {
     double da_ = x[0] - phi_a, db_ = x[1] - phi_b;
     double e0 = 0.5 * par[PJP] * (x[2] * x[2]) + 0.5 * par[PJW] * (x[3] * x[3]) + 0.5 * par[PKA] * (da_ * da_)
                 + 0.5 * par[PKB] * (db_ * db_) + c->out[OUT_ELASTIC_ENERGY];
-    int code = advance(&c->td, c->scheme, c->x, par, u, H, n_sub, c->out, c->res);
+    int code = advance(&c->td, c->scheme, c->x, par, u, H, n_sub, c->out, c->res, &c->pf_j, &c->pf_side);
     if (code != CODE_OK) {
         double tf = t + c->res[RTF];
         if (code == CODE_NONFINITE_INPUT)

@@ -191,8 +191,8 @@ typedef struct {
     /* exact: divide as contact_map.py does (bit for bit the Python); else multiply by the reciprocals.
      * A doStep is a chain of dependent operations (every evaluation needs the previous solve), and the
      * divisions on it (the pinion angle modulo 2 pi, the row index, the approach weight, the friction
-     * scale, the accelerations) cost 13-20 cycles each against 4 for a multiplication: measured 12 %
-     * of a doStep. Reciprocals change the results by rounding only; ros2 is not bit-identical to the
+     * scale, the accelerations) cost 13-20 cycles each against 4 for a multiplication: measured about
+     * 10 % of a doStep. Reciprocals change the results by rounding only; ros2 is not bit-identical to the
      * Python anyway (its 2 x 2 solve), so it takes them; rk4 keeps the divisions and its bit-identity. */
     int exact;
 } TableData;
@@ -690,7 +690,8 @@ static double stored(const double *par, const double *u, double t, const double 
 typedef struct { double j2[4], j3[4], j6[4], ft[N_X]; } Jac;
 static const int FD_OUT[3] = {OUT_TAU_PINION, OUT_TAU_WHEEL, OUT_DISSIPATED_POWER};
 
-/* J at y, with forward differences of the mesh towards the flank the mesh coordinate is closer to;
+/* J at y: the mesh part from the map cell's slopes (mesh_slopes), or, where the difference step would cross
+ * a kink, stage.py's forward differences of the mesh towards the flank the mesh coordinate is closer to;
  * g0, out0: the mesh at y */
 static void jacobian(const TableData *d, const double *par, const double *u, const double *y, const MeshGeo *g0,
                      const double *out0, Jac *J) {

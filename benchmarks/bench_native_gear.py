@@ -18,13 +18,19 @@ native FMU's fmi2CancelStep; the extra arguments are ignored under the C calling
 like doStep. "net" is doStep minus that floor: what the FMU itself costs, i.e. what a C host pays.
 
     python benchmarks/bench_native_gear.py [--steps 6000] [--rounds 5] [--max-substep 1e-5]   # ~30 s
+    python benchmarks/bench_native_gear.py --baseline-c OLD.c    # also a native build from another C source
+
+--baseline-c compiles the same FMU (map, header) from another version of gearcontact_native.c and runs it
+in the same rounds as "baseline": old and new builds side by side, as the machine's load varies.
 """
 import argparse
 import ctypes
 import functools
 import math
 import tempfile
+import subprocess
 import time
+import zipfile
 from pathlib import Path
 
 import fmpy
@@ -32,7 +38,7 @@ import numpy as np
 from fmpy.fmi2 import FMU2Slave
 
 from drivetrain.fmubuild import build_all
-from drivetrain.nativebuild import _probe_slave, build_native_gear, gear_parameters
+from drivetrain.nativebuild import C_SOURCE, MODEL, _probe_slave, build_native_gear, compile_command, gear_parameters
 from drivetrain.scenario import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -40,6 +46,8 @@ ap = argparse.ArgumentParser()
 ap.add_argument("--steps", type=int, default=6000)
 ap.add_argument("--rounds", type=int, default=5)
 ap.add_argument("--max-substep", type=float, default=None, help="override the scene's numerics.max_substep_s [s]")
+ap.add_argument("--baseline-c", type=Path, action="append", default=[],
+                help="also run a native build compiled from this C source (repeatable)")
 args = ap.parse_args()
 
 H = 1.0 / 12000.0
@@ -50,6 +58,25 @@ if args.max_substep:
     gear["max_substep"] = args.max_substep
 fmus = {"native": build_native_gear(gear, tmp / "native" / "GearContact.fmu"),
         "pythonfmu": build_all(tmp / "py", only=["GearContact"])[0]}
+
+
+def rebuild_from(fmu: Path, c_source: Path, out: Path) -> Path:
+    """fmu with its binary compiled from c_source instead (same map, header and model description)."""
+    d = out.with_suffix("")
+    with zipfile.ZipFile(fmu) as z:
+        z.extractall(d)
+    (d / "sources" / C_SOURCE).write_bytes(c_source.read_bytes())
+    subprocess.run(compile_command(d / "sources", d / "binaries" / "linux64" / f"{MODEL}.so"), check=True)
+    with zipfile.ZipFile(out, "w") as z:
+        for f in sorted(d.rglob("*")):
+            if f.is_file():
+                z.write(f, f.relative_to(d).as_posix())
+    return out
+
+
+baselines = {f"baseline{i or ''}": src for i, src in enumerate(args.baseline_c)}
+for name, src in baselines.items():
+    fmus[name] = rebuild_from(fmus["native"], src, tmp / f"{name}.fmu")
 # the call floor's target: a C function that returns at once (the native FMU's fmi2CancelStep)
 _floor_lib = ctypes.CDLL(str(Path(fmpy.extract(str(fmus["native"]))) / "binaries" / "linux64" / "GearContact.so"))
 floor_addr = _floor_lib.fmi2CancelStep
@@ -172,3 +199,7 @@ print(f"net doStep (minus the call floor): native {net['native']:.1f} us, python
 print(f"ratio pythonfmu / native: doStep {best['pythonfmu'][0] / best['native'][0]:.1f}x, "
       f"whole step {best['pythonfmu'][1] / best['native'][1]:.1f}x, net doStep {net['pythonfmu'] / net['native']:.1f}x")
 print(f"largest torque difference, relative to the largest torque: {diff:.3g}")
+for b, src in baselines.items():
+    print(f"{b} ({src}): doStep {best[b][0]:.1f} us, net {net[b]:.1f} us; "
+          f"ratio pythonfmu / {b}: doStep {best['pythonfmu'][0] / best[b][0]:.1f}x, "
+          f"net doStep {net['pythonfmu'] / net[b]:.1f}x; {b} / native doStep {best[b][0] / best['native'][0]:.2f}x")

@@ -135,11 +135,14 @@ def _rel(a, b):
 
 # How close the native FMU's outputs are to the pythonfmu FMU's (relative to each output's largest
 # magnitude). The native ros2 solves its linear systems by the Jacobian's structure (a 2 x 2 system) where
-# the Python factors the dense 7 x 7 W: the same solution up to rounding, not bit for bit (the mesh model,
-# rhs and rk4 still are). Measured over 1200 steps (the cases below): coupling torques <= 3e-11, energies
-# <= 1.3e-10; the instantaneous mesh outputs, whose relative sensitivity to the absolute angles' rounding
-# is ~1e9 (a penetration of ~1e-5 rad out of angles of ~10 rad), <= 5.5e-10, and n_contact <= 3.6e-9 with
-# manufacturing errors (78 separations). Counters: identical.
+# the Python factors the dense 7 x 7 W, takes the mesh Jacobian from the map cell's slopes where the Python
+# takes forward differences (equal up to the differences' rounding; the differences where the step crosses
+# a kink) and multiplies by reciprocals where the Python divides: the same solution up to rounding, not bit
+# for bit (rk4 still is: it keeps the divisions). Measured over 1200 steps (the cases below): coupling
+# torques <= 5e-11, energies <= 2e-10; the instantaneous mesh outputs, whose relative sensitivity to the
+# absolute angles' rounding is ~1e9 (a penetration of ~1e-5 rad out of angles of ~10 rad), <= 3e-9, and
+# n_contact <= 7e-9; with manufacturing errors (slow test) torques <= 1.6e-10, energies <= 5.3e-10, mesh
+# outputs <= 6.6e-9. Counters: identical.
 TOL = 1e-9
 TOL_MESH = 3e-8
 MESH_OUTPUTS = ("mesh_torque_pinion", "mesh_torque_wheel", "n_contact", "max_penetration")

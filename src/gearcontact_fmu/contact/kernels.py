@@ -547,54 +547,6 @@ def search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt,
 
 
 @njit(cache=True)
-def search_candidates(n_cand, cand, cand_tri, belem, L, s_neg, Rbt, tbt,
-                      best_u, best_j, line, active):
-    """Exact narrow phase over the cached candidate pairs (sorted by base slot, triangle data
-    copied to ``cand_tri`` in the same order); same outputs as :func:`search_pair`."""
-    r00, r01, r02 = Rbt[0, 0], Rbt[0, 1], Rbt[0, 2]
-    r10, r11, r12 = Rbt[1, 0], Rbt[1, 1], Rbt[1, 2]
-    r20, r21, r22 = Rbt[2, 0], Rbt[2, 1], Rbt[2, 2]
-    t0, t1, t2 = tbt[0], tbt[1], tbt[2]
-    n_active = 0
-    q = 0
-    while q < n_cand:
-        k = cand[q, 0]
-        px, py, pz = belem[k, 0], belem[k, 1], belem[k, 2]
-        nx, ny, nz = belem[k, 3], belem[k, 4], belem[k, 5]
-        ox = r00 * px + r01 * py + r02 * pz + t0
-        oy = r10 * px + r11 * py + r12 * pz + t1
-        oz = r20 * px + r21 * py + r22 * pz + t2
-        dx = -(r00 * nx + r01 * ny + r02 * nz)
-        dy = -(r10 * nx + r11 * ny + r12 * nz)
-        dz = -(r20 * nx + r21 * ny + r22 * nz)
-        best = np.inf
-        bj = -1
-        entry = np.inf
-        while q < n_cand and cand[q, 0] == k:
-            u = tri_hit(ox, oy, oz, dx, dy, dz, cand_tri, q, L, s_neg)
-            if u > 0.0 and u < best:
-                best = u
-                bj = cand[q, 1]
-            elif u < 0.0:
-                e = tri_entry(ox, oy, oz, dx, dy, dz, cand_tri, q, L)
-                if e < entry:
-                    entry = e
-            q += 1
-        if bj >= 0 and best < entry:
-            line[k, 0] = ox
-            line[k, 1] = oy
-            line[k, 2] = oz
-            line[k, 3] = dx
-            line[k, 4] = dy
-            line[k, 5] = dz
-            best_u[k] = best
-            best_j[k] = bj
-            active[n_active] = k
-            n_active += 1
-    return n_active
-
-
-@njit(cache=True)
 def candidate_clearances(n, cand, cand_tri, belem, slot_f, Rbt, tbt, L, s_neg, cand_c, cand_s,
                          cand_d, cand_h, cand_g, cand_f):
     """Clearances of the candidate pairs ``cand[:n]`` (sorted by base slot) at the current pose,
@@ -676,7 +628,9 @@ def candidate_clearances(n, cand, cand_tri, belem, slot_f, Rbt, tbt, L, s_neg, c
 def search_candidates_skip(n_cand, cand, cand_tri, cand_c, cand_s, cand_d, cand_h, cand_g,
                            cand_f, ndisp, rho, fresh, belem, L, s_neg, Rbt, tbt, best_u, best_j,
                            line, active, stats):
-    """:func:`search_candidates` with the clearances of :func:`candidate_clearances`: ``ndisp[f]``
+    """Exact narrow phase over the cached candidate pairs (sorted by base slot, triangle data copied
+    to ``cand_tri`` in the same order; same outputs as :func:`search_pair`), with the clearances of
+    :func:`candidate_clearances`: ``ndisp[f]``
     bounds the motion of every segment of far-check node f's near leaves since the list was built
     (``fresh``: built at this pose, bound 0); an element whose clearance exceeds its node's bound
     (+ SKIP_EPS for rounding) is skipped, and so is a pair whose edge clearance exceeds the motion

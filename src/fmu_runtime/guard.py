@@ -229,7 +229,7 @@ def _install_state_machine(slave, ref, model: str) -> None:
                 why = "before fmi2ExitInitializationMode"
             else:
                 why = (f"but the previous step ended at t = {t_next:.12g} s (communication points must follow "
-                       f"each other; this FMU cannot roll back)")
+                       f"each other; to go back, restore an FMU state)")
             msg = f"{model}: fmi2DoStep at t = {current_time:.12g} s {why}; the instance is now in its error state"
             if s._failed is None:
                 enter_error_state(s, msg)

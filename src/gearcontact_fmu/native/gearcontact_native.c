@@ -1370,7 +1370,7 @@ fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real t, fmi2Real H, fmi2Boolean no
         if (c->phase == PH_TERMINATED) snprintf(why, sizeof why, "after fmi2Terminate");
         else if (c->phase != PH_STEP) snprintf(why, sizeof why, "before fmi2ExitInitializationMode");
         else snprintf(why, sizeof why, "but the previous step ended at t = %.12g s (communication points must "
-                      "follow each other; this FMU cannot roll back)", c->t_next);
+                      "follow each other; to go back, restore an FMU state)", c->t_next);
         if (c->failed)
             logf_(c, fmi2Error, "logStatusError", "GearContact: fmi2DoStep at t = %.12g s %s; the instance is now "
                   "in its error state", t, why);

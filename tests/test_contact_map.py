@@ -326,3 +326,41 @@ def test_a_wheel_mesh_file_alone_spans_the_pairing_period(tmp_path):
     m = cm.compute_map(pair, MapGrid(points_per_pitch=2, s_points=6, max_torque=120.0))
     assert m.info["pinion_revolutions"] == 4 and m.info["blocks_computed"] == 60
     assert m.info["tiled_from_block"] is None
+
+
+def test_seed_maps_are_what_a_build_gives():
+    """The maps shipped in gearcontact_fmu/data/seed_maps stand in for a build: each must carry the key
+    the current code gives its configuration (else it is stale and silently unused) and hold what a
+    fresh build computes (here, on this machine)."""
+    from gearcontact_fmu import contact_map as cm
+
+    configs = cm.seed_configurations()
+    expected = {cm.seed_path(c).name for c in configs}
+    shipped = {p.name for p in cm.SEED_DIR.glob("contactmap-*.npz")}
+    assert shipped == expected, (
+        f"seed maps {sorted(shipped)} do not match the current cache keys {sorted(expected)} (the map code "
+        "or a default changed): run python -c 'from gearcontact_fmu.contact_map import refresh_seed_maps; "
+        "refresh_seed_maps()'")
+    for config in configs:
+        seed = cm.load_map(cm.seed_path(config), config["gear"], config["pcm"], config["grid"])
+        fresh = get_map(config["gear"], config["pcm"], config["resolution"], config["health"],
+                        grid=config["grid"], use_cache=False)
+        for name in ("theta", "a", "onset", "values"):
+            a, b = getattr(seed, name), getattr(fresh, name)
+            scale = float(np.max(np.abs(b))) or 1.0
+            assert np.max(np.abs(a - b)) <= 1e-12 * scale, f"{name}: the seed map differs from a fresh build"
+        timing = {"build_seconds"}
+        assert ({k: v for k, v in seed.info.items() if k not in timing}
+                == {k: v for k, v in fresh.info.items() if k in seed.info and k not in timing})
+
+
+def test_a_cache_miss_of_a_seed_configuration_takes_the_shipped_map(tmp_path, monkeypatch):
+    from gearcontact_fmu import contact_map as cm
+
+    monkeypatch.setenv("BEVEL_CACHE_DIR", str(tmp_path))
+    config = cm.seed_configurations()[0]
+    got = get_map(config["gear"], config["pcm"], config["resolution"], config["health"], grid=config["grid"],
+                  build=False)                          # only from the cache: None unless the seed came in
+    assert got is not None and got.info["from_cache"]
+    cached = tmp_path / cm.seed_path(config).name
+    assert cached.read_bytes() == cm.seed_path(config).read_bytes()

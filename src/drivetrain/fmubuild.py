@@ -46,7 +46,8 @@ PACKAGES = ("gearcontact_fmu", "drivetrain", "fmu_runtime")
 #: hand-written slave scripts (the GearContact shell); the drivetrain component slaves are rendered
 #: from fmu_runtime.slave_template, one per model of drivetrain.fmishell.DESCRIPTIONS
 SLAVE_DIRS = (SRC_ROOT / "gearcontact_fmu" / "slaves",)
-_IGNORE = shutil.ignore_patterns("__pycache__", "*.pyc", "*.pyo", "*.nbi", "*.nbc", "*.egg-info", ".*")
+_IGNORE = shutil.ignore_patterns("__pycache__", "*.pyc", "*.pyo", "*.nbi", "*.nbc", "*.egg-info", ".*",
+                                 "seed_maps")    # contact maps shipped for the user's cache, not for the FMU
 
 # SI base-unit exponents (kg, m, s, A, K, mol, cd, rad) of the units used in the project
 UNIT_DEFS: dict[str, dict[str, int]] = {

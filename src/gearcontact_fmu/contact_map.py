@@ -22,13 +22,18 @@ The approach grid is dense near the onset and covers ``max_torque`` on each flan
 beyond u_max there sets the error status.
 
 The map is cached on disk keyed by a hash of geometry, PCM parameters, resolution, health, mesh files
-and grid (``$BEVEL_CACHE_DIR`` or ``~/.cache/bevel-drivetrain``).
+and grid (``$BEVEL_CACHE_DIR`` or ``~/.cache/bevel-drivetrain``). The package ships the maps of the rig's
+healthy gear at the default resolution and grid (``gearcontact_fmu/data/seed_maps``, the same files a
+build writes, checked bit for bit against a fresh build by ``tests/test_contact_map.py``): a cache miss
+for one of them copies it into the cache instead of building it, so a first run of a healthy scene pays
+neither the map build nor the contact kernels' compilation (about a minute on 2 cores).
 """
 from __future__ import annotations
 
 import hashlib
 import math
 import os
+import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -51,6 +56,10 @@ MAP_VERSION = 6
 CH_TAU_P, CH_TAU_W, CH_N, CH_AREA, CH_PEAK, CH_PEN, CH_FN, CH_EEL, CH_DAMP, CH_FRIC_P, CH_FRIC_W = range(11)
 N_CH = 11
 SIDE_DRIVE, SIDE_COAST = 0, 1
+
+
+#: maps shipped with the package (file names as in the cache); see the module docstring
+SEED_DIR = Path(__file__).resolve().parent / "data" / "seed_maps"
 
 
 def cache_dir() -> Path:
@@ -412,6 +421,12 @@ def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
         return cm
 
     problem = None
+    seed = SEED_DIR / path.name
+    if use_cache and not path.exists() and seed.exists():
+        # a shipped map (the same bytes a build writes): copied in, then read and checked like any cached map
+        tmp = Path(str(path) + f".tmp{os.getpid()}")
+        shutil.copyfile(seed, tmp)
+        os.replace(tmp, path)
     if use_cache and path.exists():
         try:
             return cached()
@@ -442,6 +457,36 @@ def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
     if problem:
         cmap.info["cache_problem"] = problem
     return cmap
+
+
+def seed_configurations() -> list[dict]:
+    """The configurations whose maps ship in SEED_DIR: the rig's healthy gear at the default parameters,
+    resolution and grid (the example scene and every healthy scene that keeps the defaults)."""
+    return [dict(gear=BevelGearParams(), pcm=PCMParams(), resolution=MeshResolution(), health="healthy",
+                 grid=MapGrid())]
+
+
+def seed_path(config: dict) -> Path:
+    """Where the shipped map of a seed configuration is (named by its cache key)."""
+    key = cache_key(config["gear"], config["pcm"], config["resolution"], config["health"], {}, config["grid"])
+    return SEED_DIR / f"contactmap-{key}.npz"
+
+
+def refresh_seed_maps() -> list[Path]:
+    """Build the seed maps afresh (no cache) and write them to SEED_DIR, removing stale ones (a
+    maintainer's step after a change of the map code or of a default: MAP_VERSION, the key)."""
+    SEED_DIR.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for config in seed_configurations():
+        cmap = _build_map(config["gear"], config["pcm"], config["resolution"], config["health"], {}, "mm",
+                          config["grid"], None)
+        path = seed_path(config)
+        save_map(cmap, path)
+        paths.append(path)
+    for old in SEED_DIR.glob("contactmap-*.npz"):
+        if old not in paths:
+            old.unlink()
+    return paths
 
 
 def make_table_data(cmap: ContactMap, friction: bool = True, damping: bool = True, compliance: float = 1.0) -> tuple:

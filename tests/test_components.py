@@ -235,3 +235,24 @@ def test_set_inputs_takes_the_fmu_inputs_in_order():
     for model, (cls, _) in COMPONENTS.items():
         names = list(inspect.signature(cls.set_inputs).parameters)[1:]
         assert names == fmishell.port_inputs(model), model
+
+
+def test_every_parameter_is_declared_once_with_unit_and_description():
+    """A component's parameter field carries its unit and description (the FMU's modelDescription reads
+    them from there); a Real parameter has a unit, an Integer or String one none."""
+    import dataclasses
+
+    from drivetrain import components as C
+    from drivetrain import fmishell
+
+    for model, (_, pcls) in C.COMPONENTS.items():
+        defaults = pcls()
+        for f in dataclasses.fields(pcls):
+            assert C.parameter_description(f), f"{model}.{f.name}: no description"
+            value = getattr(defaults, f.name)
+            unit = C.parameter_unit(f)
+            if isinstance(value, float):
+                assert unit, f"{model}.{f.name}: a Real parameter without a unit"
+            else:
+                assert unit is None, f"{model}.{f.name}: {type(value).__name__} parameter with unit {unit}"
+            assert fmishell.variable_descriptions(model)[f.name] == C.parameter_description(f)

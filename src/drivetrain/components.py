@@ -576,8 +576,43 @@ def _rig_default(model: str, name: str):
     return rig.default_parameters(model)[name]
 
 
-def _d(model, name):
-    return field(default_factory=lambda: _rig_default(model, name))
+# Each FMU parameter is declared once, as a field of its component's parameter dataclass: name, type,
+# default, unit and description (the field's metadata). The FMU shell registers its parameters from these
+# fields and drivetrain.fmubuild writes their units and descriptions into the modelDescription.
+
+def _d(model: str, name: str, unit: str | None, description: str):
+    """A parameter whose default is the rig's (drivetrain.rig, read when an instance is made)."""
+    return field(default_factory=lambda: _rig_default(model, name),
+                 metadata={"unit": unit, "description": description})
+
+
+def _v(default, unit: str | None, description: str):
+    """A parameter with a fixed default."""
+    return field(default=default, metadata={"unit": unit, "description": description})
+
+
+def parameter_unit(f) -> str | None:
+    """The unit a parameter field declares (None: dimensionless count, option or text)."""
+    return f.metadata.get("unit")
+
+
+def parameter_description(f) -> str:
+    return f.metadata.get("description", "")
+
+
+# parameters every line model has, declared once
+def _max_substep():
+    return _v(1e-5, "s", "largest internal sub-step; sub-steps per communication step = ceil(H / max_substep)")
+
+
+def _output_torque():
+    return _v("mean", None, "what the spring-side flange torque carries: mean (over the step) | end (value at "
+                            "the step end)")
+
+
+def _energy_correction():
+    return _v(1, None, "1: energy-conserving correction of the spring-side flange torque (returns the measured "
+                       "work mismatch of the cut over 10 ms); 0: off")
 
 
 @dataclass
@@ -592,23 +627,26 @@ class FlexibleShaftParams:
     (1: J_e/6 [[2,1],[1,2]]; the port element stays lumped); the half element at the flange_b end
     belongs to the body across the port (the assembler adds J_shaft/(2 n) to the upper gearbox)."""
 
-    J_a: float = _d("FlexibleShaft", "J_a")
-    k_t: float = _d("FlexibleShaft", "k_t")
-    d_t: float = _d("FlexibleShaft", "d_t")
-    J_b: float = _d("FlexibleShaft", "J_b")
-    k_c: float = _d("FlexibleShaft", "k_c")
-    d_c: float = _d("FlexibleShaft", "d_c")
-    k_shaft: float = _d("FlexibleShaft", "k_shaft")
-    d_shaft: float = _d("FlexibleShaft", "d_shaft")
-    J_shaft: float = _d("FlexibleShaft", "J_shaft")
-    n_elements: int = 4
-    mass_model: int = 0
-    max_substep: float = 1e-5
-    output_torque: str = "mean"     # what the spring-side flange torque carries: "mean" | "end"
-    energy_correction: int = 1      # 1: energy-conserving correction of the flange_b torque (coupling.py)
-    phi0: float = 0.0
-    w0: float = 0.0
-    tau0: float = 0.0
+    J_a: float = _d("FlexibleShaft", "J_a", "kg.m2", "inertia of transducer hub A (flange_a side)")
+    k_t: float = _d("FlexibleShaft", "k_t", "N.m/rad", "torsional stiffness of the transducer section")
+    d_t: float = _d("FlexibleShaft", "d_t", "N.m.s/rad", "damping of the transducer section")
+    J_b: float = _d("FlexibleShaft", "J_b", "kg.m2", "inertia of transducer hub B")
+    k_c: float = _d("FlexibleShaft", "k_c", "N.m/rad",
+                    "stiffness of the stiff coupling between hub B and the thin shaft (<= 0: rigid)")
+    d_c: float = _d("FlexibleShaft", "d_c", "N.m.s/rad", "damping of the stiff coupling")
+    k_shaft: float = _d("FlexibleShaft", "k_shaft", "N.m/rad", "torsional stiffness of the whole thin shaft")
+    d_shaft: float = _d("FlexibleShaft", "d_shaft", "N.m.s/rad", "damping of the whole thin shaft")
+    J_shaft: float = _d("FlexibleShaft", "J_shaft", "kg.m2",
+                        "inertia of the whole thin shaft (distributed over its elements)")
+    n_elements: int = _v(4, None, "number of equal shaft elements")
+    mass_model: int = _v(0, None, "element inertia: 0 = lumped (J_e/2 at each end), 1 = consistent "
+                                  "(J_e/6 [[2,1],[1,2]])")
+    max_substep: float = _max_substep()
+    output_torque: str = _output_torque()
+    energy_correction: int = _energy_correction()
+    phi0: float = _v(0.0, "rad", "initial angle of the line (all nodes, before twist)")
+    w0: float = _v(0.0, "rad/s", "initial speed of the line")
+    tau0: float = _v(0.0, "N.m", "initial torque through the line (sets the initial twist of every spring)")
 
 
 @dataclass
@@ -619,17 +657,20 @@ class UpperTransmissionParams:
     flanges inertia side. ``J_sensor``: inertia of the body upstream of the drive-shaft transducer
     section (rigid shafts: the transducer sits inside this body; its torque is tau_a - J_sensor alpha)."""
 
-    J_in: float = _d("UpperTransmission", "J_in")
-    J_out: float = _d("UpperTransmission", "J_out")
-    ratio: float = 3.0
-    loss_c: float = _d("UpperTransmission", "loss_c")
-    loss_Tc: float = _d("UpperTransmission", "loss_Tc")
-    loss_wc: float = _d("UpperTransmission", "loss_wc")
-    loss_a: float = _d("UpperTransmission", "loss_a")
-    J_sensor: float = 0.0
-    max_substep: float = 1e-5
-    phi0: float = 0.0
-    w0: float = 0.0
+    J_in: float = _d("UpperTransmission", "J_in", "kg.m2",
+                     "inertia on the input (drive) shaft, the drive-line parts lumped into it")
+    J_out: float = _d("UpperTransmission", "J_out", "kg.m2", "inertia on the output (middle) shaft")
+    ratio: float = _v(3.0, "1", "transmission ratio input speed / output speed (3 for the rig's upper gearbox)")
+    loss_c: float = _d("UpperTransmission", "loss_c", "N.m.s/rad", "loss law: viscous coefficient on the input shaft")
+    loss_Tc: float = _d("UpperTransmission", "loss_Tc", "N.m", "loss law: Coulomb torque level")
+    loss_wc: float = _d("UpperTransmission", "loss_wc", "rad/s",
+                        "loss law: speed below which the Coulomb torque is regularised")
+    loss_a: float = _d("UpperTransmission", "loss_a", "1", "loss law: load-dependent share of the transmitted torque")
+    J_sensor: float = _v(0.0, "kg.m2", "inertia upstream of the drive-shaft transducer section (rigid shafts: the "
+                                       "transducer sits inside this body); 0 = none")
+    max_substep: float = _max_substep()
+    phi0: float = _v(0.0, "rad", "initial angle of the input shaft")
+    w0: float = _v(0.0, "rad/s", "initial speed of the input shaft")
 
 
 @dataclass
@@ -646,37 +687,43 @@ class MotorLoadParams:
     regularised below load_w_reg so that it brakes but never drives), 1 "viscous" (the paper: a
     viscous torque equal to the setting at load_w_nom)."""
 
-    J_motor: float = _d("MotorLoad", "J_motor")
-    c_motor: float = _d("MotorLoad", "c_motor")
-    k_c1: float = _d("MotorLoad", "k_c1")
-    d_c1: float = _d("MotorLoad", "d_c1")
-    J_flywheel: float = _d("MotorLoad", "J_flywheel")
-    k_c2: float = _d("MotorLoad", "k_c2")
-    d_c2: float = _d("MotorLoad", "d_c2")
-    Kp: float = 0.1
-    Ti: float = 0.4
-    Ni: float = 0.9
-    tau_max: float = 10.0
-    J_load: float = _d("MotorLoad", "J_load")
-    J_load_motor: float = 0.0
-    ratio_pg: float = 8.0
-    pg_c: float = _d("MotorLoad", "pg_c")
-    pg_Tc: float = _d("MotorLoad", "pg_Tc")
-    pg_wc: float = _d("MotorLoad", "pg_wc")
-    pg_a: float = _d("MotorLoad", "pg_a")
-    load_mode: int = 0
-    load_w_reg: float = 0.05
-    load_w_nom: float = 1.0
-    speed_profile: str = ""
-    load_profile: str = ""
-    max_substep: float = 1e-5
-    output_torque: str = "mean"     # what the spring-side flange torque carries: "mean" | "end"
-    energy_correction: int = 1      # 1: energy-conserving correction of the drive torque (coupling.py)
-    phi0_motor: float = 0.0
-    w0: float = 0.0
-    tau0: float = 0.0
-    phi0_load: float = 0.0
-    w0_load: float = 0.0
+    J_motor: float = _d("MotorLoad", "J_motor", "kg.m2", "drive motor rotor inertia")
+    c_motor: float = _d("MotorLoad", "c_motor", "N.m.s/rad", "drive motor bearing viscous loss")
+    k_c1: float = _d("MotorLoad", "k_c1", "N.m/rad", "stiffness of elastomer coupling C1 (motor - drive flywheel)")
+    d_c1: float = _d("MotorLoad", "d_c1", "N.m.s/rad", "damping of coupling C1")
+    J_flywheel: float = _d("MotorLoad", "J_flywheel", "kg.m2", "drive flywheel inertia")
+    k_c2: float = _d("MotorLoad", "k_c2", "N.m/rad",
+                     "stiffness of elastomer coupling C2 (drive flywheel - flange drive; the port spring)")
+    d_c2: float = _d("MotorLoad", "d_c2", "N.m.s/rad", "damping of coupling C2")
+    Kp: float = _v(0.1, "N.m.s/rad", "speed controller proportional gain")
+    Ti: float = _v(0.4, "s", "speed controller integral time")
+    Ni: float = _v(0.9, "1", "anti-windup gain of the controller (LimPID back-calculation)")
+    tau_max: float = _v(10.0, "N.m", "drive motor torque limit")
+    J_load: float = _d("MotorLoad", "J_load", "kg.m2",
+                       "propeller-shaft side inertia (flywheel / propeller mass), propeller-shaft frame")
+    J_load_motor: float = _v(0.0, "kg.m2", "load motor rotor inertia (referred through ratio_pg^2)")
+    ratio_pg: float = _v(8.0, "1", "planetary gearbox ratio load motor speed / propeller-shaft speed (8 on the rig)")
+    pg_c: float = _d("MotorLoad", "pg_c", "N.m.s/rad", "planetary loss law: viscous coefficient")
+    pg_Tc: float = _d("MotorLoad", "pg_Tc", "N.m", "planetary loss law: Coulomb torque level")
+    pg_wc: float = _d("MotorLoad", "pg_wc", "rad/s", "planetary loss law: regularisation speed")
+    pg_a: float = _d("MotorLoad", "pg_a", "1", "planetary loss law: load-dependent share")
+    load_mode: int = _v(0, None, "load motor law: 0 = torque setting (the rig; regularised below load_w_reg so "
+                                 "that it brakes but never drives), 1 = viscous torque equal to the setting at "
+                                 "load_w_nom (the paper)")
+    load_w_reg: float = _v(0.05, "rad/s", "load_mode 0: speed below which the load torque is regularised")
+    load_w_nom: float = _v(1.0, "rad/s", "load_mode 1: speed at which the viscous load equals the setting")
+    speed_profile: str = _v("", None, "drive speed reference over time as 't0:v0; t1:v1; ...' [s:rpm], linear "
+                                      "between points; empty = the speed_ref_rpm input")
+    load_profile: str = _v("", None, "load torque setting over time as 't0:v0; t1:v1; ...' [s:N.m]; empty = the "
+                                     "load_torque input")
+    max_substep: float = _max_substep()
+    output_torque: str = _output_torque()
+    energy_correction: int = _energy_correction()
+    phi0_motor: float = _v(0.0, "rad", "initial angle of the drive motor")
+    w0: float = _v(0.0, "rad/s", "initial speed of the drive side")
+    tau0: float = _v(0.0, "N.m", "initial torque through the drive couplings (sets their initial twist)")
+    phi0_load: float = _v(0.0, "rad", "initial angle of the load body")
+    w0_load: float = _v(0.0, "rad/s", "initial speed of the load body")
 
 
 def params_from(cls, values: dict | None = None, **kw):

@@ -50,36 +50,66 @@ EXTRA_INPUTS = {
 INPUT_PROFILES = {
     "MotorLoad": {"speed_ref_rpm": "speed_profile", "load_torque": "load_profile"},
 }
-OUTPUTS = {
-    "FlexibleShaft": ("flange_b_tau_mean", "torque_sensor", "shaft_torque", "hub_b_phi", "hub_b_w",
-                      "coupling_energy_error"),
-    "UpperTransmission": ("torque_sensor", "loss_torque"),
-    "MotorLoad": ("drive_tau_mean", "motor_phi", "motor_w", "flywheel_phi", "flywheel_w", "motor_torque",
-                  "load_motor_torque", "load_motor_w", "coupling_torque", "coupling_energy_error"),
+#: per model: its own outputs, each declared once: name -> (unit, description); then the energies every
+#: drivetrain FMU has (ENERGY). Parameters are declared in the component's parameter dataclass (name,
+#: default, unit, description: drivetrain.components); the flange variables follow from the port kinds.
+OWN_OUTPUTS = {
+    "FlexibleShaft": {
+        "flange_b_tau_mean": ("N.m", "exact mean over the last step of the torque at flange_b"),
+        "torque_sensor": ("N.m", "drive-shaft torque transducer reading (the section between its hubs)"),
+        "shaft_torque": ("N.m", "torque in the thin shaft at its flange_b end"),
+        "hub_b_phi": ("rad", "angle of transducer hub B"),
+        "hub_b_w": ("rad/s", "speed of transducer hub B"),
+        "coupling_energy_error": ("J", "work mismatch of the spring-side cut since t = 0 not yet corrected "
+                                       "(energy audit)"),
+    },
+    "UpperTransmission": {
+        "torque_sensor": ("N.m", "drive-shaft transducer torque (rigid shafts: flange_a torque minus J_sensor "
+                                 "acceleration)"),
+        "loss_torque": ("N.m", "loss torque of the gearbox on the input shaft"),
+    },
+    "MotorLoad": {
+        "drive_tau_mean": ("N.m", "exact mean over the last step of the torque at flange drive"),
+        "motor_phi": ("rad", "drive motor angle (encoder 1)"),
+        "motor_w": ("rad/s", "drive motor speed"),
+        "flywheel_phi": ("rad", "drive flywheel angle"),
+        "flywheel_w": ("rad/s", "drive flywheel speed"),
+        "motor_torque": ("N.m", "drive motor air-gap torque"),
+        "load_motor_torque": ("N.m", "load motor torque at the propeller shaft"),
+        "load_motor_w": ("rad/s", "load motor speed"),
+        "coupling_torque": ("N.m", "torque in coupling C1"),
+        "coupling_energy_error": ("J", "work mismatch of the spring-side cut since t = 0 not yet corrected "
+                                       "(energy audit)"),
+    },
 }
-ENERGY = ("energy_stored", "energy_dissipated", "energy_supplied")
-
-UNITS = {
-    "J_a": "kg.m2", "J_b": "kg.m2", "J_shaft": "kg.m2", "J_in": "kg.m2", "J_out": "kg.m2", "J_sensor": "kg.m2",
-    "J_motor": "kg.m2", "J_flywheel": "kg.m2", "J_load": "kg.m2", "J_load_motor": "kg.m2",
-    "k_t": "N.m/rad", "k_c": "N.m/rad", "k_shaft": "N.m/rad", "k_c1": "N.m/rad", "k_c2": "N.m/rad",
-    "d_t": "N.m.s/rad", "d_c": "N.m.s/rad", "d_shaft": "N.m.s/rad", "d_c1": "N.m.s/rad", "d_c2": "N.m.s/rad",
-    "c_motor": "N.m.s/rad", "loss_c": "N.m.s/rad", "pg_c": "N.m.s/rad", "Kp": "N.m.s/rad",
-    "loss_Tc": "N.m", "pg_Tc": "N.m", "tau_max": "N.m", "tau0": "N.m",
-    "loss_wc": "rad/s", "pg_wc": "rad/s", "load_w_reg": "rad/s", "load_w_nom": "rad/s", "w0": "rad/s",
-    "w0_load": "rad/s", "phi0": "rad", "phi0_motor": "rad", "phi0_load": "rad",
-    "loss_a": "1", "pg_a": "1", "ratio": "1", "ratio_pg": "1", "Ni": "1",
-    "Ti": "s", "max_substep": "s",
-    "speed_ref_rpm": "rpm", "load_torque": "N.m",
-    "torque_sensor": "N.m", "shaft_torque": "N.m", "loss_torque": "N.m", "motor_torque": "N.m",
-    "load_motor_torque": "N.m", "coupling_torque": "N.m", "flange_b_tau_mean": "N.m", "drive_tau_mean": "N.m",
-    "motor_phi": "rad", "flywheel_phi": "rad", "hub_b_phi": "rad", "motor_w": "rad/s", "flywheel_w": "rad/s",
-    "hub_b_w": "rad/s", "load_motor_w": "rad/s",
-    "energy_stored": "J", "energy_dissipated": "J", "energy_supplied": "J", "coupling_energy_error": "J",
+#: per model: its extra inputs (beside the flange inputs): name -> (unit, description)
+OWN_INPUTS = {
+    "FlexibleShaft": {},
+    "UpperTransmission": {},
+    "MotorLoad": {
+        "speed_ref_rpm": ("rpm", "drive motor speed reference"),
+        "load_torque": ("N.m", "load motor torque setting (at the load motor; times ratio_pg at the propeller "
+                               "shaft)"),
+    },
 }
-for _m, _ports in PORTS.items():
-    for _p in _ports:
-        UNITS.update({f"{_p}_phi": "rad", f"{_p}_w": "rad/s", f"{_p}_tau": "N.m"})
+ENERGY = {
+    "energy_stored": ("J", "kinetic and elastic energy inside the FMU"),
+    "energy_dissipated": ("J", "energy dissipated inside the FMU since t = 0 (dampers, losses)"),
+    "energy_supplied": ("J", "work done by sources inside the FMU since t = 0 (motors)"),
+}
+OUTPUTS = {model: tuple(table) for model, table in OWN_OUTPUTS.items()}
+EXTRA_INPUTS = {model: tuple(table) for model, table in OWN_INPUTS.items()}
+#: the ``error`` output of every FMU (fmu_runtime.guard)
+ERROR_DESCRIPTION = "empty while the instance works; after a failure, why it failed (every Real output is then NaN)"
+_FLANGE_UNITS = ("rad", "rad/s", "N.m")
+_FLANGE_DESCRIPTIONS = {
+    SPRING: ("angle of the body connected to flange {p} (input, spring side)",
+             "speed of the body connected to flange {p} (input, spring side)",
+             "torque flange {p} applies to the connected body (output, spring side)"),
+    INERTIA: ("angle of the body at flange {p} (output, inertia side)",
+              "speed of the body at flange {p} (output, inertia side)",
+              "torque the connected neighbour applies at flange {p} (input, inertia side)"),
+}
 
 DESCRIPTIONS = {
     "FlexibleShaft": ("Drive-shaft line of the azimuth-thruster rig: transducer hubs, stiff coupling and the thin "
@@ -93,119 +123,42 @@ DESCRIPTIONS = {
 }
 
 
-#: what every variable of the drivetrain FMUs means (modelDescription ``description``, written by
-#: drivetrain.fmubuild); option values are listed. Per model: the common entries, then its own.
-_COMMON_DESCRIPTIONS = {
-    "max_substep": "largest internal sub-step; sub-steps per communication step = ceil(H / max_substep)",
-    "energy_correction": "1: energy-conserving correction of the spring-side flange torque (returns the measured "
-                         "work mismatch of the cut over 10 ms); 0: off",
-    "output_torque": "what the spring-side flange torque carries: mean (over the step) | end (value at the step end)",
-    "torque_sensor": "drive-shaft torque transducer reading (the section between its hubs)",
-    "coupling_energy_error": "work mismatch of the spring-side cut since t = 0 not yet corrected (energy audit)",
-    "energy_stored": "kinetic and elastic energy inside the FMU",
-    "energy_dissipated": "energy dissipated inside the FMU since t = 0 (dampers, losses)",
-    "energy_supplied": "work done by sources inside the FMU since t = 0 (motors)",
-    "error": "empty while the instance works; after a failure, why it failed (every Real output is then NaN)",
-}
-_FLANGE_DESCRIPTIONS = {
-    SPRING: ("angle of the body connected to flange {p} (input, spring side)",
-               "speed of the body connected to flange {p} (input, spring side)",
-               "torque flange {p} applies to the connected body (output, spring side)"),
-    INERTIA: ("angle of the body at flange {p} (output, inertia side)",
-                "speed of the body at flange {p} (output, inertia side)",
-                "torque the connected neighbour applies at flange {p} (input, inertia side)"),
-}
-_MODEL_DESCRIPTIONS = {
-    "FlexibleShaft": {
-        "J_a": "inertia of transducer hub A (flange_a side)",
-        "k_t": "torsional stiffness of the transducer section",
-        "d_t": "damping of the transducer section",
-        "J_b": "inertia of transducer hub B",
-        "k_c": "stiffness of the stiff coupling between hub B and the thin shaft (<= 0: rigid)",
-        "d_c": "damping of the stiff coupling",
-        "k_shaft": "torsional stiffness of the whole thin shaft",
-        "d_shaft": "damping of the whole thin shaft",
-        "J_shaft": "inertia of the whole thin shaft (distributed over its elements)",
-        "n_elements": "number of equal shaft elements",
-        "mass_model": "element inertia: 0 = lumped (J_e/2 at each end), 1 = consistent (J_e/6 [[2,1],[1,2]])",
-        "phi0": "initial angle of the line (all nodes, before twist)",
-        "w0": "initial speed of the line",
-        "tau0": "initial torque through the line (sets the initial twist of every spring)",
-        "flange_b_tau_mean": "exact mean over the last step of the torque at flange_b",
-        "shaft_torque": "torque in the thin shaft at its flange_b end",
-        "hub_b_phi": "angle of transducer hub B",
-        "hub_b_w": "speed of transducer hub B",
-    },
-    "UpperTransmission": {
-        "J_in": "inertia on the input (drive) shaft, the drive-line parts lumped into it",
-        "J_out": "inertia on the output (middle) shaft",
-        "ratio": "transmission ratio input speed / output speed (3 for the rig's upper gearbox)",
-        "loss_c": "loss law: viscous coefficient on the input shaft",
-        "loss_Tc": "loss law: Coulomb torque level",
-        "loss_wc": "loss law: speed below which the Coulomb torque is regularised",
-        "loss_a": "loss law: load-dependent share of the transmitted torque",
-        "J_sensor": "inertia upstream of the drive-shaft transducer section (rigid shafts: the transducer sits "
-                    "inside this body); 0 = none",
-        "phi0": "initial angle of the input shaft",
-        "w0": "initial speed of the input shaft",
-        "loss_torque": "loss torque of the gearbox on the input shaft",
-        "torque_sensor": "drive-shaft transducer torque (rigid shafts: flange_a torque minus J_sensor acceleration)",
-    },
-    "MotorLoad": {
-        "J_motor": "drive motor rotor inertia",
-        "c_motor": "drive motor bearing viscous loss",
-        "k_c1": "stiffness of elastomer coupling C1 (motor - drive flywheel)",
-        "d_c1": "damping of coupling C1",
-        "J_flywheel": "drive flywheel inertia",
-        "k_c2": "stiffness of elastomer coupling C2 (drive flywheel - flange drive; the port spring)",
-        "d_c2": "damping of coupling C2",
-        "Kp": "speed controller proportional gain",
-        "Ti": "speed controller integral time",
-        "Ni": "anti-windup gain of the controller (LimPID back-calculation)",
-        "tau_max": "drive motor torque limit",
-        "J_load": "propeller-shaft side inertia (flywheel / propeller mass), propeller-shaft frame",
-        "J_load_motor": "load motor rotor inertia (referred through ratio_pg^2)",
-        "ratio_pg": "planetary gearbox ratio load motor speed / propeller-shaft speed (8 on the rig)",
-        "pg_c": "planetary loss law: viscous coefficient",
-        "pg_Tc": "planetary loss law: Coulomb torque level",
-        "pg_wc": "planetary loss law: regularisation speed",
-        "pg_a": "planetary loss law: load-dependent share",
-        "load_mode": "load motor law: 0 = torque setting (the rig; regularised below load_w_reg so that it brakes "
-                     "but never drives), 1 = viscous torque equal to the setting at load_w_nom (the paper)",
-        "load_w_reg": "load_mode 0: speed below which the load torque is regularised",
-        "load_w_nom": "load_mode 1: speed at which the viscous load equals the setting",
-        "speed_profile": "drive speed reference over time as 't0:v0; t1:v1; ...' [s:rpm], linear between points; "
-                         "empty = the speed_ref_rpm input",
-        "load_profile": "load torque setting over time as 't0:v0; t1:v1; ...' [s:N.m]; empty = the load_torque input",
-        "phi0_motor": "initial angle of the drive motor",
-        "w0": "initial speed of the drive side",
-        "tau0": "initial torque through the drive couplings (sets their initial twist)",
-        "phi0_load": "initial angle of the load body",
-        "w0_load": "initial speed of the load body",
-        "speed_ref_rpm": "drive motor speed reference",
-        "load_torque": "load motor torque setting (at the load motor; times ratio_pg at the propeller shaft)",
-        "drive_tau_mean": "exact mean over the last step of the torque at flange drive",
-        "motor_phi": "drive motor angle (encoder 1)",
-        "motor_w": "drive motor speed",
-        "flywheel_phi": "drive flywheel angle",
-        "flywheel_w": "drive flywheel speed",
-        "motor_torque": "drive motor air-gap torque",
-        "load_motor_torque": "load motor torque at the propeller shaft",
-        "load_motor_w": "load motor speed",
-        "coupling_torque": "torque in coupling C1",
-    },
-}
+def variable_table(model: str) -> dict:
+    """Every variable of a drivetrain FMU but ``error``: name -> (unit or None, description), from the
+    declarations (parameter fields, flanges by port kind, own inputs and outputs, energies)."""
+    _, pcls = C.COMPONENTS[model]
+    out = {f.name: (C.parameter_unit(f), C.parameter_description(f)) for f in dataclasses.fields(pcls)}
+    for p, kind in PORTS[model].items():
+        for suffix, unit, text in zip(("_phi", "_w", "_tau"), _FLANGE_UNITS, _FLANGE_DESCRIPTIONS[kind]):
+            out[p + suffix] = (unit, text.format(p=p))
+    out.update(OWN_INPUTS[model])
+    out.update(OWN_OUTPUTS[model])
+    out.update(ENERGY)
+    return out
+
+
+def _units() -> dict:
+    units: dict[str, str] = {}
+    for model in C.COMPONENTS:
+        for name, (unit, _) in variable_table(model).items():
+            if unit is None:
+                continue
+            if units.setdefault(name, unit) != unit:
+                raise ValueError(f"variable {name} has unit {units[name]} in one drivetrain FMU and {unit} in "
+                                 f"{model}: one name, one unit")
+    return units
+
+
+#: variable name -> unit, over all drivetrain FMUs (a name has one unit in every FMU that has it)
+UNITS = _units()
 
 
 def variable_descriptions(model: str) -> dict:
-    """Variable name -> description of a drivetrain FMU (its flanges, the common entries, its own)."""
-    out = {}
-    for p, kind in PORTS[model].items():
-        for suffix, text in zip(("_phi", "_w", "_tau"), _FLANGE_DESCRIPTIONS[kind]):
-            out[p + suffix] = text.format(p=p)
-    out.update(_COMMON_DESCRIPTIONS)
-    out.update(_MODEL_DESCRIPTIONS[model])
+    """Variable name -> description of a drivetrain FMU (modelDescription ``description``)."""
+    out = {name: text for name, (_, text) in variable_table(model).items()}
+    out["error"] = ERROR_DESCRIPTION
     return out
+
 
 def port_inputs(model: str) -> list[str]:
     out = []

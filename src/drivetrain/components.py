@@ -45,7 +45,7 @@ from numba import njit
 from drivetrain import rig
 from drivetrain.errors import ComponentError  # noqa: F401  (re-exported)
 from drivetrain.system import INERTIA, SPRING
-from gearcontact_fmu.coupling import EnergyCorrection
+from gearcontact_fmu.coupling import EnergyCorrection, correct_port
 from gearcontact_fmu.params import CODE_NONFINITE_INPUT, CODE_NONFINITE_STATE, CODE_OK, checked_substeps, substeps
 
 RPM = 2.0 * math.pi / 60.0
@@ -95,7 +95,7 @@ def _thomas(a, b, rhs, x, cp, dp):
 
 
 @njit(cache=True)
-def line_step(H, n_sub, fp, ip, st, out, wk):
+def line_step(H, n_sub, fp, ip, st, out, wk, cs):
     """Advance a LineModel over [0, H] (time relative to the step start). Arguments are packed into
     few arrays (a numba call unboxes every array argument: ~0.3 us each), laid out by LineModel:
 
@@ -112,7 +112,9 @@ def line_step(H, n_sub, fp, ip, st, out, wk):
         energy), tau_mean[P] (step mean of the spring-port torques), work_out[P] (work out through each
         port over the step), el_mean[n] (step mean of the element torques), tau_out[P] (spring-port
         torque output: the mean or the end value).
-    wk: work space of at least 7 n + 2 L + 2 floats."""
+    wk: work space of at least 7 n + 2 L + 2 floats.
+    cs: the energy-correction state of the spring-side ports, one row each in port order
+        (gearcontact_fmu.coupling.correct_port corrects tau_out of each after the step)."""
     n = ip[0]
     npt = ip[1]
     nl = ip[2]
@@ -296,6 +298,13 @@ def line_step(H, n_sub, fp, ip, st, out, wk):
                                  + fp[o_pc + q] * (r * st[s_om + j] - w))
             else:
                 out[o_to + q] = out[o_ti + q]
+    # ---- energy-conserving correction of the spring-side outputs (gearcontact_fmu.coupling) -----------
+    i = 0
+    for q in range(npt):
+        if ip[o_pk + q] == 1:
+            out[o_to + q] = correct_port(cs, i, H, fp[o_u0 + q], fp[o_u1 + q], out[o_ti + q], out[o_to + q],
+                                         fp[o_pr + q] * st[s_th + ip[o_pn + q]])
+            i += 1
     return CODE_OK
 
 
@@ -450,7 +459,7 @@ class LineModel:
             raise ComponentError(problem)
         self.wref[0] = wref0
         self.wref[1] = wref1
-        code = line_step(float(H), n_sub, self.fp, self.ip, self.st, self.out, self.wk)
+        code = line_step(float(H), n_sub, self.fp, self.ip, self.st, self.out, self.wk, self.correction.cs)
         if code == CODE_NONFINITE_INPUT:
             vals = {p.name: (float(self.p_u0[i]), float(self.p_u1[i])) for i, p in enumerate(self.ports)}
             raise ComponentError(f"non-finite input at t = {t:.9g} s: ports {vals}, speed reference "
@@ -459,13 +468,6 @@ class LineModel:
             raise ComponentError(f"non-finite state at t = {t:.9g} s; check the parameters")
         self.last_H = H
         self.n_sub_last = n_sub
-        sp = self.spring_ports
-        if sp:
-            tau = self.correction.apply([self.p_u0[q] for q in sp], [self.p_u1[q] for q in sp], H,
-                                        [self.tau_mean[q] for q in sp], [self.tau_out[q] for q in sp],
-                                        [self.p_ratio[q] * self.th[self.p_node[q]] for q in sp])
-            for i, q in enumerate(sp):
-                self.tau_out[q] = tau[i]
         return code
 
     def start_ports(self) -> None:
@@ -860,19 +862,25 @@ class FlexibleShaft:
             self.line.tau_mean[1])
         self.shaft_torque = float(self.line.tau_mean[1])
 
+    #: the outputs every step changes, in the order of step_outputs
+    STEP_OUTPUTS = ("flange_a_phi", "flange_a_w", "flange_b_tau", "flange_b_tau_mean", "torque_sensor",
+                    "shaft_torque", "hub_b_phi", "hub_b_w", "energy_dissipated", "energy_supplied")
+
+    def step_outputs(self) -> tuple:
+        """The values of STEP_OUTPUTS (Python floats), read by the FMU shell after every step."""
+        ln = self.line
+        phi, w = ln.flange("flange_a")
+        return (phi, w, float(ln.tau_out[1]), float(ln.tau_mean[1]), self.torque_sensor, self.shaft_torque,
+                float(ln.th[self.i_hub_b]), float(ln.om[self.i_hub_b]), ln.energy_dissipated, ln.energy_supplied)
+
     def outputs(self, energy: bool = True) -> dict:
         """Output values by FMU variable name. ``energy=False``: the outputs of ``LAZY_OUTPUTS``
         (``energy_stored``, ``coupling_energy_error``, ``loss_torque``) are left out (the FMU shell
         computes them when a host reads them, drivetrain.fmishell)."""
-        phi, w = self.line.flange("flange_a")
-        return {"flange_a_phi": phi, "flange_a_w": w, "flange_b_tau": float(self.line.tau_out[1]),
-                "flange_b_tau_mean": float(self.line.tau_mean[1]),
-                "torque_sensor": self.torque_sensor, "shaft_torque": self.shaft_torque,
-                "hub_b_phi": float(self.line.th[self.i_hub_b]), "hub_b_w": float(self.line.om[self.i_hub_b]),
-                **({"coupling_energy_error": self.line.coupling_energy_error,
-                    "energy_stored": self.line.stored_energy()} if energy else {}),
-                "energy_dissipated": self.line.energy_dissipated,
-                "energy_supplied": self.line.energy_supplied}
+        out = dict(zip(self.STEP_OUTPUTS, self.step_outputs()))
+        if energy:
+            out.update(coupling_energy_error=self.line.coupling_energy_error, energy_stored=self.line.stored_energy())
+        return out
 
 
 class UpperTransmission:
@@ -925,17 +933,25 @@ class UpperTransmission:
         w, T_c, w_c = self._loss_at
         return float(loss_torque(w, 0.0, self.p.loss_c, T_c, w_c, 0.0))
 
+    #: the outputs every step changes, in the order of step_outputs
+    STEP_OUTPUTS = ("flange_a_phi", "flange_a_w", "flange_b_phi", "flange_b_w", "torque_sensor",
+                    "energy_dissipated", "energy_supplied")
+
+    def step_outputs(self) -> tuple:
+        """The values of STEP_OUTPUTS (Python floats), read by the FMU shell after every step."""
+        ln = self.line
+        pa, wa = ln.flange("flange_a")
+        pb, wb = ln.flange("flange_b")
+        return pa, wa, pb, wb, self.torque_sensor, ln.energy_dissipated, ln.energy_supplied
+
     def outputs(self, energy: bool = True) -> dict:
         """Output values by FMU variable name. ``energy=False``: the outputs of ``LAZY_OUTPUTS``
         (``energy_stored``, ``coupling_energy_error``, ``loss_torque``) are left out (the FMU shell
         computes them when a host reads them, drivetrain.fmishell)."""
-        pa, wa = self.line.flange("flange_a")
-        pb, wb = self.line.flange("flange_b")
-        return {"flange_a_phi": pa, "flange_a_w": wa, "flange_b_phi": pb, "flange_b_w": wb,
-                "torque_sensor": self.torque_sensor,
-                **({"loss_torque": self.loss_torque, "energy_stored": self.line.stored_energy()} if energy else {}),
-                "energy_dissipated": self.line.energy_dissipated,
-                "energy_supplied": self.line.energy_supplied}
+        out = dict(zip(self.STEP_OUTPUTS, self.step_outputs()))
+        if energy:
+            out.update(loss_torque=self.loss_torque, energy_stored=self.line.stored_energy())
+        return out
 
 
 class MotorLoad:
@@ -1024,23 +1040,28 @@ class MotorLoad:
         self.motor_torque = self.line.motor_torque
         self.load_motor_torque = self.line.source_torque / self.p.ratio_pg
 
+    #: the outputs every step changes, in the order of step_outputs
+    STEP_OUTPUTS = ("load_phi", "load_w", "drive_tau", "drive_tau_mean", "motor_phi", "motor_w", "flywheel_phi",
+                    "flywheel_w", "motor_torque", "load_motor_torque", "load_motor_w", "coupling_torque",
+                    "energy_dissipated", "energy_supplied")
+
+    def step_outputs(self) -> tuple:
+        """The values of STEP_OUTPUTS (Python floats), read by the FMU shell after every step."""
+        ln = self.line
+        pl, wl = ln.flange("load")
+        th, om = ln.th, ln.om
+        return (pl, wl, float(ln.tau_out[0]), float(ln.tau_mean[0]), float(th[0]), float(om[0]), float(th[1]),
+                float(om[1]), self.motor_torque, self.load_motor_torque, self.p.ratio_pg * wl,
+                float(ln.el_mean[0]), ln.energy_dissipated, ln.energy_supplied)
+
     def outputs(self, energy: bool = True) -> dict:
         """Output values by FMU variable name. ``energy=False``: the outputs of ``LAZY_OUTPUTS``
         (``energy_stored``, ``coupling_energy_error``, ``loss_torque``) are left out (the FMU shell
         computes them when a host reads them, drivetrain.fmishell)."""
-        ln = self.line
-        pl, wl = ln.flange("load")
-        return {"load_phi": pl, "load_w": wl, "drive_tau": float(ln.tau_out[0]),
-                "drive_tau_mean": float(ln.tau_mean[0]),
-                "motor_phi": float(ln.th[0]), "motor_w": float(ln.om[0]),
-                "flywheel_phi": float(ln.th[1]), "flywheel_w": float(ln.om[1]),
-                "motor_torque": self.motor_torque, "load_motor_torque": self.load_motor_torque,
-                "load_motor_w": self.p.ratio_pg * wl,
-                "coupling_torque": float(ln.el_mean[0]),
-                **({"coupling_energy_error": ln.coupling_energy_error,
-                    "energy_stored": ln.stored_energy()} if energy else {}),
-                "energy_dissipated": ln.energy_dissipated,
-                "energy_supplied": ln.energy_supplied}
+        out = dict(zip(self.STEP_OUTPUTS, self.step_outputs()))
+        if energy:
+            out.update(coupling_energy_error=self.line.coupling_energy_error, energy_stored=self.line.stored_energy())
+        return out
 
 
 COMPONENTS = {"FlexibleShaft": (FlexibleShaft, FlexibleShaftParams),

@@ -288,21 +288,28 @@ def _apply_inputs(slave):
 
 
 def _publish(slave, initial: bool = False):
-    if initial:
-        # spring-side torques before the first step: the port springs against the current inputs
-        slave._comp.line.start_ports()
-    out = slave._comp.outputs(energy=initial)
-    if initial:
-        ln = slave._comp.line
-        out["energy_stored"] = ln.stored_energy({p.name: ln.p_u0[ln.port_index[p.name]]
-                                                 for p in ln.ports if p.kind == SPRING})
-        slave._lazy_pending = False
-    else:
-        slave._lazy_pending = True       # LAZY_OUTPUTS: computed when read
+    if not initial:
+        # every step: the component's STEP_OUTPUTS as a tuple (LAZY_OUTPUTS are computed when read)
+        comp = slave._comp
+        values = tuple(map(float, comp.step_outputs()))
+        if not all(map(math.isfinite, values)):
+            bad = {n: v for n, v in zip(comp.STEP_OUTPUTS, values) if not math.isfinite(v)}
+            raise C.ComponentError(f"the step produced non-finite outputs {bad} (inputs far out of range?)")
+        slave._lazy_pending = True
+        for name, v in zip(comp.STEP_OUTPUTS, values):
+            setattr(slave, name, v)
+        return
+    # before the first step: the spring-side torques are the port springs against the current inputs
+    ln = slave._comp.line
+    ln.start_ports()
+    out = slave._comp.outputs(energy=True)
+    out["energy_stored"] = ln.stored_energy({p.name: ln.p_u0[ln.port_index[p.name]]
+                                             for p in ln.ports if p.kind == SPRING})
+    slave._lazy_pending = False
     values = {name: float(out[name]) for name in slave._outputs if name in out}
     if not all(map(math.isfinite, values.values())):
         bad = {n: v for n, v in values.items() if not math.isfinite(v)}
-        raise C.ComponentError(f"the step produced non-finite outputs {bad} (inputs far out of range?)")
+        raise C.ComponentError(f"the initial outputs are not finite: {bad} (check the parameters and start values)")
     for name, v in values.items():
         setattr(slave, name, v)
 

@@ -48,6 +48,9 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+from numba import njit
+
 #: time constant of the correction [s]: the mismatch is returned at a rate of H / TIME_CONSTANT_S per step
 TIME_CONSTANT_S = 0.01
 #: regularisation of the division by the expected displacement [rad]
@@ -58,90 +61,110 @@ CAP_REL = 0.1
 CAP_FLOOR_NM = 0.05
 
 
-class EnergyCorrection:
-    """The correction state of spring-side ports with port-spring stiffnesses ``k_ports`` (plain
-    floats: called once per step). ``mismatch_J``: the measured cumulative work mismatch per port
-    (tracked also when the correction is disabled: the cut's share of the energy residual)."""
+# the correction state of one port: a row of a float64 array (several ports: one row each)
+CS_K = 0              # port-spring stiffness [N m/rad]
+CS_ENABLED = 1        # 1.0: correct; 0.0: only measure the mismatch
+CS_STARTED = 2        # 1.0 after the first call (the first call has no step before it to measure)
+CS_MISMATCH = 3       # cumulative measured work mismatch E [J]
+CS_HELD_BEFORE = 4    # output held during the step measured next
+CS_HELD_LAST = 5      # output of the last call
+CS_C_LAST = 6         # correction in the last output
+CS_PHI = 7            # flange angle input of the last call
+CS_PHI_END = 8        # extrapolated flange angle at the end of the last step
+CS_X = 9              # the port spring's inner angle at the end of the last step
+CS_WORK = 10          # work the port accounted over the last step
+N_CS = 11
 
-    __slots__ = ("n", "k", "enabled", "mismatch_J", "_held_before", "_held_last", "_c_last", "_phi",
-                 "_phi_end", "_x", "_work", "_started")
+
+@njit(cache=True)
+def correct_port(cs, q, H, phi_q, w_q, tm_q, base_q, x_q):
+    """One port's call per step (row ``q`` of the state ``cs``), after the port's step with the flange
+    inputs ``phi_q``, ``w_q`` over ``H``: ``tm_q`` the step mean the port accounted its work with,
+    ``base_q`` its uncorrected output, ``x_q`` the port spring's inner angle at the step end. Returns the
+    output to hand to the master.
+
+    The mismatch of the step before, measured now: the work the neighbour received,
+    tau_held (phi - phi_prev), minus the work the port accounted, H tau_mean w, plus the jump of the
+    port-spring energy between the extrapolated flange angle the step ended with and the actual one this
+    step starts from (the port's stored energy is reported at the extrapolated angle). Called from Python
+    (EnergyCorrection.apply) and from the drivetrain's line kernel: one implementation."""
+    g = H / TIME_CONSTANT_S if H < TIME_CONSTANT_S else 1.0
+    eps2 = EPS_RAD * EPS_RAD
+    if cs[q, CS_STARTED] != 0.0:
+        dphi = phi_q - cs[q, CS_PHI]
+        a = cs[q, CS_X] - phi_q
+        b = cs[q, CS_X] - cs[q, CS_PHI_END]
+        jump = 0.5 * cs[q, CS_K] * (a * a - b * b)
+        cs[q, CS_MISMATCH] += cs[q, CS_HELD_BEFORE] * dphi - cs[q, CS_WORK] + jump
+    c = 0.0
+    if cs[q, CS_ENABLED] != 0.0:
+        d = w_q * H
+        c = -g * (cs[q, CS_MISMATCH] + cs[q, CS_C_LAST] * d) * d / (d * d + eps2)
+        cap = CAP_REL * max(abs(tm_q), CAP_FLOOR_NM)
+        if c > cap:
+            c = cap
+        elif c < -cap:
+            c = -cap
+        if not math.isfinite(c):
+            c = 0.0
+    o = base_q + c
+    cs[q, CS_HELD_BEFORE] = cs[q, CS_HELD_LAST]
+    cs[q, CS_HELD_LAST] = o
+    cs[q, CS_C_LAST] = c
+    cs[q, CS_PHI] = phi_q
+    cs[q, CS_PHI_END] = phi_q + w_q * H
+    cs[q, CS_X] = x_q
+    cs[q, CS_WORK] = H * tm_q * w_q
+    cs[q, CS_STARTED] = 1.0
+    return o
+
+
+def correction_state(k_ports, enabled: bool, tau_initial=None) -> np.ndarray:
+    """A fresh state array for ports with port-spring stiffnesses ``k_ports``; ``tau_initial``: the
+    torques the ports return before the first step (held over step 0)."""
+    cs = np.zeros((len(k_ports), N_CS))
+    cs[:, CS_K] = [float(v) for v in k_ports]
+    cs[:, CS_ENABLED] = 1.0 if enabled else 0.0
+    if tau_initial is not None:
+        cs[:, CS_HELD_LAST] = [float(v) for v in tau_initial]
+    return cs
+
+
+class EnergyCorrection:
+    """The correction state of spring-side ports with port-spring stiffnesses ``k_ports``: one row per
+    port of the array ``cs`` (CS_* columns), advanced by :func:`correct_port`. ``mismatch_J``: the
+    measured cumulative work mismatch per port (tracked also when the correction is disabled: the cut's
+    share of the energy residual)."""
+
+    __slots__ = ("n", "enabled", "cs")
 
     def __init__(self, k_ports, enabled: bool = True):
-        self.k = [float(v) for v in k_ports]
-        self.n = len(self.k)
+        self.n = len(k_ports)
         self.enabled = bool(enabled)
-        self.reset([0.0] * self.n)
+        self.cs = correction_state(k_ports, self.enabled)
 
     def reset(self, tau_initial) -> None:
         """Start over; ``tau_initial``: the torques the ports return before the first step (held over
         step 0)."""
-        n = self.n
-        self.mismatch_J = [0.0] * n           # cumulative measured work mismatch E
-        self._held_before = [0.0] * n         # output held during the step measured next
-        self._held_last = [float(v) for v in tau_initial]
-        self._c_last = [0.0] * n
-        self._phi = [0.0] * n
-        self._phi_end = [0.0] * n
-        self._x = [0.0] * n
-        self._work = [0.0] * n
-        self._started = False
+        self.cs[...] = correction_state(self.cs[:, CS_K], self.enabled, tau_initial)
+
+    @property
+    def mismatch_J(self) -> list[float]:
+        return self.cs[:, CS_MISMATCH].tolist()
 
     def get_state(self) -> dict:
         """A copy of the correction state (for FMU state get/set)."""
-        return {n: (list(v) if isinstance(v, list) else v)
-                for n in self.__slots__ if n not in ("n", "k", "enabled") for v in (getattr(self, n),)}
+        return {"cs": self.cs.copy()}
 
     def set_state(self, state: dict) -> None:
-        for n, v in state.items():
-            setattr(self, n, list(v) if isinstance(v, list) else v)
+        self.cs[...] = state["cs"]
 
     def apply(self, phi, w, H: float, tau_mean, tau_base, x_end) -> list[float]:
         """One call per step, after the port's step with the flange inputs ``phi``, ``w`` (sequences,
         one per port) over ``H``: ``tau_mean`` the step means the port accounted its work with,
         ``tau_base`` the uncorrected outputs, ``x_end`` the port springs' inner angles at the step end.
-        Returns the outputs to hand to the master.
-
-        The mismatch of the step before, measured now: the work the neighbour received,
-        tau_held (phi - phi_prev), minus the work the port accounted, H tau_mean w, plus the jump of the
-        port-spring energy between the extrapolated flange angle the step ended with and the actual
-        one this step starts from (the port's stored energy is reported at the extrapolated angle)."""
-        n = self.n
-        out = [0.0] * n
-        # the per-port lists as locals (one attribute lookup per call, not per use); same arithmetic
-        k, mismatch, held_before, held_last = self.k, self.mismatch_J, self._held_before, self._held_last
-        c_last, phi_prev, phi_end, x_prev, work = self._c_last, self._phi, self._phi_end, self._x, self._work
-        started, enabled = self._started, self.enabled
-        g = H / TIME_CONSTANT_S if H < TIME_CONSTANT_S else 1.0
-        eps2 = EPS_RAD * EPS_RAD
-        for q in range(n):
-            phi_q = float(phi[q])
-            w_q = float(w[q])
-            tm_q = float(tau_mean[q])
-            if started:
-                dphi = phi_q - phi_prev[q]
-                a = x_prev[q] - phi_q
-                b = x_prev[q] - phi_end[q]
-                jump = 0.5 * k[q] * (a * a - b * b)
-                mismatch[q] += held_before[q] * dphi - work[q] + jump
-            c = 0.0
-            if enabled:
-                d = w_q * H
-                c = -g * (mismatch[q] + c_last[q] * d) * d / (d * d + eps2)
-                cap = CAP_REL * max(abs(tm_q), CAP_FLOOR_NM)
-                if c > cap:
-                    c = cap
-                elif c < -cap:
-                    c = -cap
-                if not math.isfinite(c):
-                    c = 0.0
-            o = float(tau_base[q]) + c
-            out[q] = o
-            held_before[q] = held_last[q]
-            held_last[q] = o
-            c_last[q] = c
-            phi_prev[q] = phi_q
-            phi_end[q] = phi_q + w_q * H
-            x_prev[q] = float(x_end[q])
-            work[q] = H * tm_q * w_q
-        self._started = True
-        return out
+        Returns the outputs to hand to the master (:func:`correct_port` per port)."""
+        cs = self.cs
+        H = float(H)
+        return [correct_port(cs, q, H, float(phi[q]), float(w[q]), float(tau_mean[q]), float(tau_base[q]),
+                             float(x_end[q])) for q in range(self.n)]

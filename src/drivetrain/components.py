@@ -767,7 +767,30 @@ def profile_string(profile) -> str:
 # The three components
 # ------------------------------------------------------------------------------------------------
 
-class FlexibleShaft:
+class _LineComponent:
+    """What the three components share: a LineModel ``line``, outputs by FMU variable name."""
+
+    STEP_OUTPUTS: tuple = ()       #: the outputs every step changes, in the order of step_outputs()
+    line: LineModel
+
+    def step_outputs(self) -> tuple:
+        raise NotImplementedError
+
+    def lazy_outputs(self) -> dict:
+        """The outputs the FMU shell computes only when a host reads them (fmishell.LAZY_OUTPUTS)."""
+        return {"coupling_energy_error": self.line.coupling_energy_error, "energy_stored": self.line.stored_energy()}
+
+    def outputs(self, energy: bool = True) -> dict:
+        """Output values by FMU variable name. ``energy=False``: the lazy outputs (``energy_stored``,
+        ``coupling_energy_error``, ``loss_torque``) are left out (the FMU shell computes them when a host
+        reads them, drivetrain.fmishell)."""
+        out = dict(zip(self.STEP_OUTPUTS, self.step_outputs()))
+        if energy:
+            out.update(self.lazy_outputs())
+        return out
+
+
+class FlexibleShaft(_LineComponent):
     """Drive-shaft line (see FlexibleShaftParams). Ports ``flange_a`` (inertia), ``flange_b`` (spring)."""
 
     model = "FlexibleShaft"
@@ -873,17 +896,9 @@ class FlexibleShaft:
         return (phi, w, float(ln.tau_out[1]), float(ln.tau_mean[1]), self.torque_sensor, self.shaft_torque,
                 float(ln.th[self.i_hub_b]), float(ln.om[self.i_hub_b]), ln.energy_dissipated, ln.energy_supplied)
 
-    def outputs(self, energy: bool = True) -> dict:
-        """Output values by FMU variable name. ``energy=False``: the outputs of ``LAZY_OUTPUTS``
-        (``energy_stored``, ``coupling_energy_error``, ``loss_torque``) are left out (the FMU shell
-        computes them when a host reads them, drivetrain.fmishell)."""
-        out = dict(zip(self.STEP_OUTPUTS, self.step_outputs()))
-        if energy:
-            out.update(coupling_energy_error=self.line.coupling_energy_error, energy_stored=self.line.stored_energy())
-        return out
 
 
-class UpperTransmission:
+class UpperTransmission(_LineComponent):
     """Rigid 3:1 body with two inertia-side flanges and the calibrated loss (UpperTransmissionParams)."""
 
     model = "UpperTransmission"
@@ -944,17 +959,11 @@ class UpperTransmission:
         pb, wb = ln.flange("flange_b")
         return pa, wa, pb, wb, self.torque_sensor, ln.energy_dissipated, ln.energy_supplied
 
-    def outputs(self, energy: bool = True) -> dict:
-        """Output values by FMU variable name. ``energy=False``: the outputs of ``LAZY_OUTPUTS``
-        (``energy_stored``, ``coupling_energy_error``, ``loss_torque``) are left out (the FMU shell
-        computes them when a host reads them, drivetrain.fmishell)."""
-        out = dict(zip(self.STEP_OUTPUTS, self.step_outputs()))
-        if energy:
-            out.update(loss_torque=self.loss_torque, energy_stored=self.line.stored_energy())
-        return out
+    def lazy_outputs(self) -> dict:
+        return {"loss_torque": self.loss_torque, "energy_stored": self.line.stored_energy()}
 
 
-class MotorLoad:
+class MotorLoad(_LineComponent):
     """Drive motor + C1 + flywheel (flange ``drive``, spring side: C2) and the load side (flange
     ``load``, inertia side) with the planetary and the load motor (MotorLoadParams)."""
 
@@ -1054,14 +1063,6 @@ class MotorLoad:
                 float(om[1]), self.motor_torque, self.load_motor_torque, self.p.ratio_pg * wl,
                 float(ln.el_mean[0]), ln.energy_dissipated, ln.energy_supplied)
 
-    def outputs(self, energy: bool = True) -> dict:
-        """Output values by FMU variable name. ``energy=False``: the outputs of ``LAZY_OUTPUTS``
-        (``energy_stored``, ``coupling_energy_error``, ``loss_torque``) are left out (the FMU shell
-        computes them when a host reads them, drivetrain.fmishell)."""
-        out = dict(zip(self.STEP_OUTPUTS, self.step_outputs()))
-        if energy:
-            out.update(coupling_energy_error=self.line.coupling_energy_error, energy_stored=self.line.stored_energy())
-        return out
 
 
 COMPONENTS = {"FlexibleShaft": (FlexibleShaft, FlexibleShaftParams),

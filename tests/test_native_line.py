@@ -358,6 +358,32 @@ def test_fmu_state_rollback_is_bit_identical(native, model):
     s.freeFMUstate(state)
 
 
+@pytest.mark.parametrize("model", MODELS)
+def test_hostile_calls(native, model):
+    """The hostile FMI calls of tests/test_fmu_hostile.py: the same outcomes and log texts as the pythonfmu
+    FMUs."""
+    import json
+    import os
+    import sys
+
+    from test_fmu_hostile import EXPECT, NO_STRINGS, SCRIPT
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    r = subprocess.run([sys.executable, "-c", SCRIPT, str(native[model])], capture_output=True, text=True,
+                       timeout=300, env=env)
+    done = {rec["case"]: rec for rec in map(json.loads, filter(None, r.stdout.splitlines())) if "case" in rec}
+    assert set(done) == set(EXPECT), (r.returncode, r.stderr[-2000:])
+    for case, (outcomes, text) in EXPECT.items():
+        rec = done[case]
+        if rec["outcomes"] == ["n/a"]:
+            assert model in NO_STRINGS and "string" in case
+            continue
+        assert rec["outcomes"] == outcomes, (case, rec)
+        assert text is None or any(text in line for line in rec["log"]), (case, rec["log"])
+        if outcomes.count("refused") == 0:
+            assert not any(line.startswith("[error]") for line in rec["log"]), (case, rec["log"])
+
+
 # ---- the system --------------------------------------------------------------------------------------------
 
 def test_example_system_with_all_four_native_fmus(native, pyfmu_dir, tmp_path):

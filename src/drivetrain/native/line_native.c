@@ -38,6 +38,13 @@
 #define M_PI 3.14159265358979323846
 #endif
 
+/* helpers one of the three models does not call */
+#if defined(__GNUC__) || defined(__clang__)
+#define MAYBE_UNUSED __attribute__((unused))
+#else
+#define MAYBE_UNUSED
+#endif
+
 typedef struct {
     const char *name;
     const char *type;            /* "Real" | "Integer" | "String" */
@@ -281,7 +288,7 @@ typedef struct { int64_t n; double *t, *v; } Profile;
 static void profile_free(Profile *p) { free(p->t); free(p->v); p->t = p->v = NULL; p->n = 0; }
 
 /* np.interp(x, t, v) for a scalar x (numpy's arr_interp: left/right held, the slope form, the NaN fallbacks) */
-static double interp(const Profile *p, double x) {
+MAYBE_UNUSED static double interp(const Profile *p, double x) {
     const double *xp = p->t, *fp = p->v;
     int64_t n = p->n;
     if (n == 1) return fp[0];               /* numpy: left, right and the value are fp[0] */
@@ -322,7 +329,7 @@ static int pyfloat_parse(const char *s, size_t len, double *out) {
 }
 
 /* components.parse_profile: 0 and a message in why on a bad text; n = 0 for an empty text */
-static int profile_parse(const char *text, Profile *p, char *why, size_t nwhy) {
+MAYBE_UNUSED static int profile_parse(const char *text, Profile *p, char *why, size_t nwhy) {
     profile_free(p);
     const char *ws = " \t\n\r\f\v";
     size_t a = 0, b = strlen(text);
@@ -601,7 +608,7 @@ static int line_init(Inst *c, const double *J, const double *k, const double *cv
 }
 
 /* LineModel.set_state */
-static void line_set_state(Inst *c, const double *th, const double *om, double pi_x) {
+MAYBE_UNUSED static void line_set_state(Inst *c, const double *th, const double *om, double pi_x) {
     for (int64_t i = 0; i < c->ln.n; i++) {
         LN_TH(c)[i] = th[i];
         LN_OM(c)[i] = om[i];
@@ -668,7 +675,7 @@ static void line_start_ports(Inst *c) {
     correction_reset(&c->ln.corr, tau0);
 }
 
-static double line_coupling_energy_error(const Inst *c) {
+MAYBE_UNUSED static double line_coupling_energy_error(const Inst *c) {
     double s = 0.0;
     for (int q = 0; q < c->ln.corr.n; q++) s = s + c->ln.corr.mismatch[q];
     return s;

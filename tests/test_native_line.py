@@ -384,6 +384,37 @@ def test_hostile_calls(native, model):
             assert not any(line.startswith("[error]") for line in rec["log"]), (case, rec["log"])
 
 
+# ---- building, caching, the command line -------------------------------------------------------------------
+
+def test_native_fmus_are_cached_and_a_non_table_gear_keeps_its_pythonfmu(tmp_path):
+    """drivetrain run --native's cache: the three line FMUs once, found again by their fingerprints; a scene
+    whose gear is not fidelity table gets the three and a note (and build-native refuses it)."""
+    from drivetrain.nativeline import native_fmus
+    from drivetrain.scenario import load_scene
+
+    if shutil.which("gcc") is None:
+        pytest.skip("gcc not installed")
+    scene = load_scene(EXAMPLE, ["time.duration_s=0.1", "effects.mesh_contact=analytic"])
+    paths, note = native_fmus(scene, tmp_path)
+    assert set(paths) == set(MODELS)
+    assert "fidelity 'analytic'" in note and "uses the pythonfmu GearContact" in note
+    stamps = {m: p.stat().st_mtime_ns for m, p in paths.items()}
+    again, _ = native_fmus(scene, tmp_path)
+    assert again == paths and {m: p.stat().st_mtime_ns for m, p in again.items()} == stamps
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in paths.values())
+
+
+def test_cli_refusals(tmp_path, capsys):
+    from drivetrain.cli import main
+
+    rc = main(["build-native", str(EXAMPLE), "--set", "effects.mesh_contact=analytic", "--out", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert rc == 2 and "implements fidelity 'table', mode 'stage' only" in err and "Traceback" not in err
+    rc = main(["run", str(EXAMPLE), "--native", "--backend", "inprocess", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--native runs native FMUs through FMI" in err
+
+
 # ---- the system --------------------------------------------------------------------------------------------
 
 def test_example_system_with_all_four_native_fmus(native, pyfmu_dir, tmp_path):

@@ -120,6 +120,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if problems:
         print("error: " + "\n  ".join(problems), file=sys.stderr)
         return 2
+    if args.native and args.backend != "fmi":
+        print("error: --native runs native FMUs through FMI: it needs --backend fmi (the default), not "
+              f"{args.backend!r}", file=sys.stderr)
+        return 2
     if args.native:
         # the four models' native FMUs (built once, cached in fmus/native); an explicit --fmu wins
         from drivetrain.nativeline import native_fmus

@@ -84,6 +84,7 @@ def _port_names(model: str) -> list[str]:
 
 def write_header(model: str, rows: list[dict], guid: str, path: Path) -> None:
     """line_build.h: the model selector, the LN_VARS table (by value reference), the VR_* names, the constants."""
+    from drivetrain.components import RPM
     from gearcontact_fmu import coupling
     from gearcontact_fmu.params import CODE_NONFINITE_INPUT, CODE_NONFINITE_STATE, MAX_SUBSTEPS_PER_STEP
 
@@ -101,6 +102,7 @@ def write_header(model: str, rows: list[dict], guid: str, path: Path) -> None:
              f"#define LN_EPS_RAD {_c_double(coupling.EPS_RAD)}",
              f"#define LN_CAP_REL {_c_double(coupling.CAP_REL)}",
              f"#define LN_CAP_FLOOR_NM {_c_double(coupling.CAP_FLOOR_NM)}",
+             f"#define LN_RPM {_c_double(RPM)}",
              f"#define LN_PORT_NAMES {{{', '.join(_c_string(p) for p in ports)}}}", "",
              "enum {"]
     lines += [f"    VR_{r['name']} = {r['vr']}," for r in rows]

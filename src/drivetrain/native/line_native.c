@@ -923,7 +923,7 @@ static void comp_outputs(Inst *c, double *o) {
 
 #elif LN_MODEL == LN_MOTOR_LOAD
 /* ---- MotorLoad ---- */
-static const double RPM = 2.0 * M_PI / 60.0;
+static const double RPM = LN_RPM;                 /* components.RPM, rad/s per rpm */
 
 static void set_load_level(Inst *c, double T_set) {
     double T_prop = R(ratio_pg) * T_set;

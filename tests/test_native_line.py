@@ -288,7 +288,8 @@ def test_nan_input_is_an_error_status_nan_outputs_and_an_error_text(native, pyfm
 
 BAD = [("FlexibleShaft", {"J_a": 0.0}, "J_a must be > 0"),
        ("FlexibleShaft", {"n_elements": 0}, "n_elements must be >= 1, got 0"),
-       ("FlexibleShaft", {"output_torque": "predicted"}, "output_torque must be one of ('mean', 'end'), got 'predicted'"),
+       ("FlexibleShaft", {"output_torque": "predicted"},
+        "output_torque must be one of ('mean', 'end'), got 'predicted'"),
        ("FlexibleShaft", {"d_t": -1.0}, "c must be finite and >= 0, got [-1.0, "),
        ("UpperTransmission", {"ratio": -3.0}, "ratio must be > 0 and J_in, J_out >= 0"),
        ("MotorLoad", {"speed_profile": "0:0; 1:abc"}, "could not convert string to float: 'abc'"),

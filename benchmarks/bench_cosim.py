@@ -3,11 +3,14 @@
 1. Scene benchmark (default: the severe-fault scene at 1500 rpm, 1.31 N·m, 20 s, ``table`` fidelity):
    real-time factor of the co-simulated run (fmi backend: FMUs through fmpy), and the ratio of its
    stepping-loop time to the same components stepped in-process without FMI (inprocess backend).
+   ``--native``: also (c) all four models as native FMUs (drivetrain.nativeline, built once and cached in
+   FMU_DIR/native) through FMI, and the ratios native-FMI / in-process and native-FMI / pythonfmu-FMI.
 2. ``--overhead``: the master's per-step cost with N small pythonfmu FMUs (a chain of inertias and
    springs), fmi vs in-process, and the cost of the FMI calls themselves.
 
     python benchmarks/bench_cosim.py                      # 20 s severe scene, both backends
     python benchmarks/bench_cosim.py --duration 2         # shorter
+    python benchmarks/bench_cosim.py --native             # + the four native FMUs through FMI
     python benchmarks/bench_cosim.py --overhead           # master overhead only (no drivetrain needed)
     python benchmarks/bench_cosim.py --against REV        # this tree vs git revision REV, side by side
 
@@ -29,7 +32,7 @@ DEFAULT_SCENE = ROOT / "scenarios" / "hard" / "missing_tooth_1500rpm.toml"
 
 
 def scene_benchmark(scene_path: Path, duration: float | None, overrides: list[str], backends: list[str],
-                    fmu_dir: str) -> None:
+                    fmu_dir: str, native: bool = False) -> None:
     from drivetrain.run import assemble_scene, run_scene
     from drivetrain.scenario import load_scene
 
@@ -44,13 +47,22 @@ def scene_benchmark(scene_path: Path, duration: float | None, overrides: list[st
     print(f"system: {len(spec.components)} FMUs ({', '.join(c.name + ':' + c.model for c in spec.components)}), "
           f"{len(spec.connections)} connections, H = {spec.comm_step:.6g} s")
     results = {}
-    for backend in backends:
+    runs = [(b, b, None) for b in backends]
+    if native:
+        from drivetrain.nativeline import native_fmus
+
+        paths, note = native_fmus(scene, Path(fmu_dir) / "native", log=lambda m: print("  " + m))
+        if note:
+            print(f"  note: {note}")
+        runs.append(("native", "fmi", paths))
+    for label, backend, fmu_paths in runs:
         t0 = time.perf_counter()
-        res = run_scene(scene, None, backend=backend, progress=True, fmu_dir=fmu_dir, spec=spec, plots=False)
+        res = run_scene(scene, None, backend=backend, progress=True, fmu_dir=fmu_dir, spec=spec, plots=False,
+                        fmu_paths=fmu_paths)
         wall = time.perf_counter() - t0
         s = res.summary
-        results[backend] = s
-        print(f"  {backend:9s}: wall {wall:8.2f} s  loop {s['loop_time_s']:8.2f} s  "
+        results[label] = s
+        print(f"  {label:9s}: wall {wall:8.2f} s  loop {s['loop_time_s']:8.2f} s  "
               f"{s['us_per_step']:8.1f} us/step  loop RTF {s['sim_time_s'] / s['loop_time_s']:6.3f}  "
               f"energy residual {s['energy_residual']:.2e}")
     if "fmi" in results and "inprocess" in results:
@@ -58,6 +70,14 @@ def scene_benchmark(scene_path: Path, duration: float | None, overrides: list[st
         print(f"  ratio co-simulated / in-process (stepping loop): {a['loop_time_s'] / b['loop_time_s']:.3f}"
               f"   (whole run: {a['wall_time_s'] / b['wall_time_s']:.3f})   goal <= 1.15")
         print(f"  loop real-time factor of the co-simulated run: {a['sim_time_s'] / a['loop_time_s']:.3f}   goal >= 2")
+    if "native" in results:
+        n = results["native"]
+        print(f"  loop real-time factor of the native FMUs through FMI: {n['sim_time_s'] / n['loop_time_s']:.3f}   "
+              f"goal >= 2")
+        for other, label in (("inprocess", "in-process"), ("fmi", "pythonfmu-FMI")):
+            if other in results:
+                print(f"  ratio native-FMI / {label} (stepping loop): "
+                      f"{n['loop_time_s'] / results[other]['loop_time_s']:.3f}")
 
 
 _MEASURE = r"""
@@ -153,6 +173,7 @@ def main(argv=None) -> int:
     ap.add_argument("--set", action="append", default=[], help="scene override key=value")
     ap.add_argument("--backends", nargs="+", default=["fmi", "inprocess"])
     ap.add_argument("--fmu-dir", default=str(ROOT / "fmus"))
+    ap.add_argument("--native", action="store_true", help="also run the four native FMUs through FMI")
     ap.add_argument("--overhead", action="store_true", help="only the master overhead table (test FMUs)")
     ap.add_argument("--against", metavar="REV", help="compare with git revision REV, side by side")
     ap.add_argument("--rounds", type=int, default=2, help="rounds of --against (default 2)")
@@ -163,7 +184,7 @@ def main(argv=None) -> int:
     if args.overhead:
         overhead_benchmark()
         return 0
-    scene_benchmark(Path(args.scene), args.duration, args.set, args.backends, args.fmu_dir)
+    scene_benchmark(Path(args.scene), args.duration, args.set, args.backends, args.fmu_dir, native=args.native)
     return 0
 
 

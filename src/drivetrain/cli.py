@@ -72,6 +72,24 @@ def _cmd_build_native_gear(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_build_native(args: argparse.Namespace) -> int:
+    from drivetrain.errors import ConfigurationError, ScenarioError
+    from drivetrain.nativeline import build_native_fmus
+    from drivetrain.scenario import load_scene
+
+    try:
+        scene = load_scene(args.scene, args.set or (), case=args.case)
+        paths = build_native_fmus(scene, args.out, log=lambda m: print(m, file=sys.stderr))
+    except (ScenarioError, ConfigurationError) as exc:
+        return _scene_errors(exc)
+    except OSError as exc:
+        print(f"error: cannot write the FMUs: {exc}", file=sys.stderr)
+        return 2
+    for model, path in paths.items():
+        print(f"wrote {path}: native {model}")
+    return 0
+
+
 _FORCE_HELP = ("run even when the run is predicted to take more than 10x its simulated time (and over 10 min), "
                "or its contact model longer than numerics.max_contact_hours")
 
@@ -102,6 +120,22 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if problems:
         print("error: " + "\n  ".join(problems), file=sys.stderr)
         return 2
+    if args.native and args.backend != "fmi":
+        print("error: --native runs native FMUs through FMI: it needs --backend fmi (the default), not "
+              f"{args.backend!r}", file=sys.stderr)
+        return 2
+    if args.native:
+        # the four models' native FMUs (built once, cached in fmus/native); an explicit --fmu wins
+        from drivetrain.nativeline import native_fmus
+
+        try:
+            native, note = native_fmus(scene, Path(args.fmu_dir) / "native",
+                                       log=None if args.quiet else (lambda m: print(m, file=sys.stderr)))
+        except ConfigurationError as exc:
+            return _scene_errors(exc)
+        if note:
+            print(f"--native: {note}", file=sys.stderr)
+        fmu_paths = {**native, **fmu_paths}
     try:
         res = run_scene(scene, out, backend=args.backend, progress=not args.quiet, fmu_dir=args.fmu_dir,
                         plots=False if args.no_plots else None, force=args.force, fmu_paths=fmu_paths or None)
@@ -536,6 +570,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fmu", action="append", metavar="MODEL=PATH",
                    help="use this FMU file for a model instead of the one in --fmu-dir, e.g. "
                         "GearContact=fmus/native/GearContact.fmu (drivetrain build-native-gear; repeatable)")
+    p.add_argument("--native", action="store_true",
+                   help="Python-free FMUs for all four models (built once and cached in FMU_DIR/native; a gear of "
+                        "another fidelity than table keeps its pythonfmu FMU, with a message; docs/FMU.md)")
     p.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no report")
     p.add_argument("--force", action="store_true", help=_FORCE_HELP)
@@ -552,6 +589,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="fmus/native/GearContact.fmu",
                    help="the FMU file (default: fmus/native/GearContact.fmu)")
     p.set_defaults(func=_cmd_build_native_gear)
+
+    p = sub.add_parser("build-native", help="the scene's four FMUs (GearContact at fidelity table, FlexibleShaft, "
+                       "UpperTransmission, MotorLoad) as native FMUs: compiled C, no Python needed (docs/FMU.md)")
+    p.add_argument("scene", help="scene file (.toml); a grid file needs --case")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a scene key (repeatable)")
+    p.add_argument("--case", default=None, help="with a grid file: the name of the case")
+    p.add_argument("--out", default="fmus/native", help="the directory of the FMUs (default: fmus/native)")
+    p.set_defaults(func=_cmd_build_native)
 
     p = sub.add_parser("export-ssp", help="the scene's system (FMUs, connections, assembled parameters, "
                        "experiment) as an SSP 1.0 archive for other FMI tools")

@@ -43,6 +43,8 @@ from drivetrain.errors import NativeBuildError
 NATIVE_DIR = Path(gearcontact_fmu.__file__).resolve().parent / "native"
 SLAVE_SCRIPT = Path(gearcontact_fmu.__file__).resolve().parent / "slaves" / "GearContact.py"
 C_SOURCE = "gearcontact_native.c"
+#: the coupling correction, shared with the native line FMUs (drivetrain.nativeline)
+SHARED_HEADER = "coupling_correction.h"
 BUILD_HEADER = "gearcontact_build.h"
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 MAP_RESOURCE = "contact_map.bin"
@@ -331,8 +333,10 @@ def build_native_gear(parameters: dict | None = None, out: str | Path = "fmus/na
         h = hashlib.sha256((res / MAP_RESOURCE).read_bytes())
         h.update(repr([(r["name"], r["type"], r["start"], r["role"]) for r in rows]).encode())
         h.update((NATIVE_DIR / C_SOURCE).read_bytes())
+        h.update((NATIVE_DIR / SHARED_HEADER).read_bytes())
         guid = "{" + str(uuid.UUID(h.hexdigest()[:32])) + "}"
         shutil.copy2(NATIVE_DIR / C_SOURCE, src / C_SOURCE)
+        shutil.copy2(NATIVE_DIR / SHARED_HEADER, src / SHARED_HEADER)
         for name in FMI_HEADERS:
             shutil.copy2(fmi_header_dir() / name, src / name)
         write_header(rows, guid, src / BUILD_HEADER)

@@ -6,6 +6,7 @@
  *   2. table_eval and the manufacturing-error offset   (gearcontact_fmu/contact_map.py, manufacturing.py)
  *   3. the stage integrator: ros2 / rk4, sub-step halving, counters   (gearcontact_fmu/stage.py)
  *   4. the energy-conserving coupling correction                      (gearcontact_fmu/coupling.py)
+ *      (coupling_correction.h, shared with the native drivetrain line FMUs)
  *   5. the FMI 2.0 shell: variables, states, errors, FMU state get/set/serialize.
  * The numerics follow the Python code operation by operation (same order, no FMA contraction:
  * compile with -ffp-contract=off), so the two agree to rounding: with scheme rk4 the mesh model, the rhs,
@@ -909,55 +910,12 @@ static int advance(const TableData *d, int scheme, double *x, const double *par,
 /* 4. Energy-conserving coupling correction (coupling.EnergyCorrection, two ports)                 */
 /* ============================================================================================== */
 
-typedef struct {
-    double k[2], mismatch[2], held_before[2], held_last[2], c_last[2], phi[2], phi_end[2], x[2], work[2];
-    int started, enabled;
-} Correction;
-
-static void correction_reset(Correction *c, double ta, double tb) {
-    for (int q = 0; q < 2; q++) {
-        c->mismatch[q] = 0.0; c->held_before[q] = 0.0; c->c_last[q] = 0.0;
-        c->phi[q] = 0.0; c->phi_end[q] = 0.0; c->x[q] = 0.0; c->work[q] = 0.0;
-    }
-    c->held_last[0] = ta;
-    c->held_last[1] = tb;
-    c->started = 0;
-}
-
-static void correction_apply(Correction *c, const double *phi, const double *w, double H, const double *tau_mean,
-                             const double *tau_base, const double *x_end, double *out) {
-    double g = H < GC_TIME_CONSTANT_S ? H / GC_TIME_CONSTANT_S : 1.0;
-    double eps2 = GC_EPS_RAD * GC_EPS_RAD;
-    for (int q = 0; q < 2; q++) {
-        double phi_q = phi[q], w_q = w[q], tm_q = tau_mean[q];
-        if (c->started) {
-            double dphi = phi_q - c->phi[q];
-            double a = c->x[q] - phi_q;
-            double b = c->x[q] - c->phi_end[q];
-            double jump = 0.5 * c->k[q] * (a * a - b * b);
-            c->mismatch[q] += c->held_before[q] * dphi - c->work[q] + jump;
-        }
-        double cc = 0.0;
-        if (c->enabled) {
-            double dd = w_q * H;
-            cc = -g * (c->mismatch[q] + c->c_last[q] * dd) * dd / (dd * dd + eps2);
-            double cap = GC_CAP_REL * pmax(fabs(tm_q), GC_CAP_FLOOR_NM);
-            if (cc > cap) cc = cap;
-            else if (cc < -cap) cc = -cap;
-            if (!isfinite(cc)) cc = 0.0;
-        }
-        double o = tau_base[q] + cc;
-        out[q] = o;
-        c->held_before[q] = c->held_last[q];
-        c->held_last[q] = o;
-        c->c_last[q] = cc;
-        c->phi[q] = phi_q;
-        c->phi_end[q] = phi_q + w_q * H;
-        c->x[q] = x_end[q];
-        c->work[q] = H * tm_q * w_q;
-    }
-    c->started = 1;
-}
+/* shared with the native drivetrain line FMUs (drivetrain/native/line_native.c): one copy of the C */
+#define CC_TIME_CONSTANT_S GC_TIME_CONSTANT_S
+#define CC_EPS_RAD GC_EPS_RAD
+#define CC_CAP_REL GC_CAP_REL
+#define CC_CAP_FLOOR_NM GC_CAP_FLOOR_NM
+#include "coupling_correction.h"
 
 /* ============================================================================================== */
 /* 5. FMI 2.0 shell                                                                                */
@@ -1234,6 +1192,7 @@ static int build_stage(Inst *c) {
     par[PKA] = r[VR_k_a]; par[PDA] = r[VR_d_a]; par[PKB] = r[VR_k_b]; par[PDB] = r[VR_d_b];
     par[PR] = m->ratio; par[PHTH] = GC_FD_ANGLE; par[PHW] = GC_FD_SPEED;
     par[PIJP] = 1.0 / par[PJP]; par[PIJW] = 1.0 / par[PJW]; par[PIR] = 1.0 / par[PR];
+    c->corr.n = 2;
     c->corr.k[0] = r[VR_k_a];
     c->corr.k[1] = r[VR_k_b];
     c->corr.enabled = c->iv[VR_energy_correction] != 0;
@@ -1268,7 +1227,7 @@ static int build_stage(Inst *c) {
     double ke = 0.5 * par[PJP] * (x[2] * x[2]) + 0.5 * par[PJW] * (x[3] * x[3]);
     double a = x[0] - u[0], b = x[1] - u[2];
     c->energy_stored = ke + 0.5 * par[PKA] * (a * a) + 0.5 * par[PKB] * (b * b) + c->out[OUT_ELASTIC_ENERGY];
-    correction_reset(&c->corr, c->tau[0], c->tau[1]);
+    correction_reset(&c->corr, c->tau);
     /* GearStage.reset_counters */
     c->res[RDTMIN] = INFINITY;
     c->res[RNREF] = 0.0; c->res[RNSUB] = 0.0; c->res[RTSEP] = 0.0; c->res[RNSEP] = 0.0;

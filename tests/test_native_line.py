@@ -1,0 +1,452 @@
+"""The Python-free FlexibleShaft, UpperTransmission and MotorLoad (drivetrain.nativeline): model description,
+no libpython, agreement with the pythonfmu FMUs (bit for bit), errors, FMU state rollback, the system swap.
+
+Each FMU is built once per module (native: ~1 s each; the pythonfmu ones through drivetrain.cosim.ensure_fmus)."""
+import math
+import shutil
+import subprocess
+import zipfile
+from pathlib import Path
+from xml.etree import ElementTree as ET
+
+import numpy as np
+import pytest
+
+fmpy = pytest.importorskip("fmpy")
+from fmpy.fmi1 import FMICallException  # noqa: E402
+from fmpy.fmi2 import FMU2Slave  # noqa: E402
+
+from drivetrain import fmishell  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE = ROOT / "scenarios" / "example.toml"
+MODELS = ("FlexibleShaft", "UpperTransmission", "MotorLoad")
+H = 1.0 / 12000.0
+N_STEPS = 400
+_KEEP = []           # pythonfmu instances stay loaded until exit (docs/FMU.md)
+_EXTRACTED = {}
+
+
+@pytest.fixture(scope="module")
+def native(tmp_path_factory):
+    if shutil.which("gcc") is None:
+        pytest.skip("gcc not installed")
+    from drivetrain.nativeline import build_native_line
+
+    d = tmp_path_factory.mktemp("native_line")
+    return {m: build_native_line(m, d / f"{m}.fmu") for m in MODELS}
+
+
+@pytest.fixture(scope="module")
+def pyfmu_dir(tmp_path_factory):
+    from drivetrain.cosim import ensure_fmus
+
+    d = tmp_path_factory.mktemp("pyfmus_line")
+    ensure_fmus([*MODELS, "GearContact"], d)
+    return d
+
+
+@pytest.fixture(scope="module")
+def pyfmu(pyfmu_dir):
+    return {m: pyfmu_dir / f"{m}.fmu" for m in MODELS}
+
+
+def _extract_once(path):
+    """One extraction per FMU and process (pythonfmu imports the slave module by name)."""
+    key = str(path)
+    if key not in _EXTRACTED:
+        _EXTRACTED[key] = fmpy.extract(str(path))
+    return _EXTRACTED[key]
+
+
+def _open(path, params=None, name="x"):
+    """An instance (log lines in ``s.log_lines()``) and its variables by name; parameters set before
+    initialization."""
+    from drivetrain.cosim.slaves import FmiCallbacks
+
+    md = fmpy.read_model_description(str(path))
+    s = FMU2Slave(guid=md.guid, unzipDirectory=_extract_once(path), modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName=name)
+    cbs = FmiCallbacks()
+    s.instantiate(callbacks=cbs.struct, loggingOn=True)
+    s.log_lines = lambda: _drain(cbs, name)
+    _KEEP.append((s, cbs))
+    vr = {v.name: v for v in md.modelVariables}
+    _set(s, vr, params or {})
+    return s, vr
+
+
+def _drain(cbs, name) -> str:
+    log = cbs.logs.get(name)
+    if log is None:
+        return ""
+    text = "\n".join(log.lines)
+    log.lines.clear()
+    return text
+
+
+def _set(s, vr, params):
+    for k, v in params.items():
+        t, ref = vr[k].type, [vr[k].valueReference]
+        if t == "Real":
+            s.setReal(ref, [float(v)])
+        elif t == "Integer":
+            s.setInteger(ref, [int(v)])
+        else:
+            s.setString(ref, [str(v)])
+
+
+def _inputs(model, t):
+    """Every input of the model at t (fmishell.port_inputs order): ramps and sines, a few hundred steps."""
+    s1, s2 = math.sin(2 * math.pi * 70.0 * t), math.sin(2 * math.pi * 23.0 * t + 0.4)
+    if model == "FlexibleShaft":
+        w = 100.0 + 400.0 * t + 5.0 * s1
+        phi = 100.0 * t + 200.0 * t * t - 5.0 / (2 * math.pi * 70.0) * (math.cos(2 * math.pi * 70.0 * t) - 1.0)
+        return [2.0 + 30.0 * t + 1.5 * s2, phi, w]
+    if model == "UpperTransmission":
+        return [3.0 + 40.0 * t + 2.0 * s1, -(6.0 + 90.0 * t + 3.0 * s2)]
+    w = 20.0 + 1500.0 * t + 3.0 * s2
+    phi = 20.0 * t + 750.0 * t * t
+    return [phi, w, -(1.0 + 20.0 * t + 0.5 * s1), 200.0 + 3.0e4 * t + 50.0 * s2, 0.5 + 10.0 * t + 0.3 * s1]
+
+
+def _outputs(vr):
+    return [n for n, v in vr.items() if v.causality == "output" and v.type == "Real"]
+
+
+def _drive(s, vr, model, n, t0=0.0, init=True, init_params=None):
+    """Initialize (inputs at t0; ``init_params`` set in initialization mode), then n steps; rows of every
+    Real output (the initial values first when init)."""
+    names = fmishell.port_inputs(model)
+    vin = [vr[k].valueReference for k in names]
+    vout = [vr[k].valueReference for k in _outputs(vr)]
+    rows = []
+    if init:
+        s.setupExperiment(startTime=t0)
+        s.enterInitializationMode()
+        if init_params:
+            _set(s, vr, init_params)
+        s.setReal(vin, _inputs(model, t0))
+        rows.append(s.getReal(vout))
+        s.exitInitializationMode()
+        rows.append(s.getReal(vout))
+    for k in range(n):
+        t = t0 + k * H
+        s.setReal(vin, _inputs(model, t))
+        s.doStep(t, H)
+        rows.append(s.getReal(vout))
+    return np.array(rows)
+
+
+def _rel(a, b):
+    """Largest difference of each column relative to the column's largest magnitude."""
+    scale = np.maximum(np.max(np.abs(b), axis=0), 1e-300)
+    return np.max(np.abs(a - b), axis=0) / scale
+
+
+def _md(path):
+    with zipfile.ZipFile(path) as z:
+        return ET.fromstring(z.read("modelDescription.xml")), z.namelist()
+
+
+# ---- the model description ---------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("model", MODELS)
+def test_validates_and_declares_like_the_pythonfmu(native, pyfmu, model):
+    from fmpy.validation import validate_fmu
+
+    path = native[model]
+    assert validate_fmu(str(path)) == []
+    root, names = _md(path)
+    cs = root.find("CoSimulation")
+    assert cs.get("needsExecutionTool") == "false"
+    assert cs.get("canGetAndSetFMUstate") == "true" and cs.get("canSerializeFMUstate") == "true"
+    assert {"sources/line_native.c", "sources/coupling_correction.h", "sources/line_build.h",
+            "sources/fmi2Functions.h", f"binaries/linux64/{model}.so"} <= set(names)
+    assert not any(n.endswith(".py") for n in names)
+    proot, _ = _md(pyfmu[model])
+
+    def sig(r):
+        out = {}
+        for sv in r.find("ModelVariables"):
+            t = sv[0]
+            start = t.get("start")
+            if t.tag in ("Real", "Integer") and start is not None:
+                start = float(start)
+            out[sv.get("name")] = (sv.get("valueReference"), sv.get("causality"), sv.get("variability"),
+                                   sv.get("initial"), t.tag, t.get("unit"), start, sv.get("description"))
+        return out
+
+    a, b = sig(root), sig(proot)
+    assert a == b
+    assert "error" in a and "energy_stored" in a and "energy_supplied" in a
+    assert ("loss_torque" if model == "UpperTransmission" else "coupling_energy_error") in a
+
+
+def test_binary_has_no_libpython(native, tmp_path):
+    if shutil.which("ldd") is None:
+        pytest.skip("ldd not available")
+    for model, path in native.items():
+        with zipfile.ZipFile(path) as z:
+            z.extract(f"binaries/linux64/{model}.so", tmp_path)
+        out = subprocess.run(["ldd", str(tmp_path / f"binaries/linux64/{model}.so")], capture_output=True,
+                             text=True, check=True).stdout
+        assert "libc.so" in out and "python" not in out.lower(), out
+        libs = {ln.split()[0] for ln in out.splitlines() if ln.strip()}
+        assert {x.split(".so")[0] for x in libs} <= {"linux-vdso", "libm", "libc", "/lib64/ld-linux-x86-64"}, libs
+
+
+# ---- agreement with the pythonfmu FMUs ---------------------------------------------------------------------
+
+CASES = {
+    "FlexibleShaft": {
+        "defaults": {},
+        "consistent_rigid_coupling_end": {"mass_model": 1, "k_c": 0.0, "n_elements": 6, "output_torque": "end",
+                                          "energy_correction": 0, "tau0": 1.5, "w0": 100.0, "phi0": 0.2},
+        "no_transducer": {"k_t": -1.0, "n_elements": 1, "max_substep": 3e-6, "d_shaft": 0.02},
+    },
+    "UpperTransmission": {
+        "defaults": {},
+        "sensor_and_ratio": {"J_sensor": 2e-3, "ratio": 2.5, "loss_wc": 0.0, "loss_a": 0.05, "w0": 5.0,
+                             "phi0": 1.0, "max_substep": 3e-6},
+    },
+    "MotorLoad": {
+        "defaults": {},
+        "viscous_profiles_limit_end": {"load_mode": 1, "speed_profile": "0:0; 0.01:1500, 0.02 : 1200",
+                                       "load_profile": "0:1; 0.02:3", "tau_max": 2.0, "output_torque": "end",
+                                       "energy_correction": 0, "J_load_motor": 1e-4, "w0": 10.0, "tau0": 0.3,
+                                       "load_w_nom": 50.0},
+        "torque_load_limit": {"tau_max": 0.4, "Kp": 0.5, "pg_wc": 0.0, "load_w_reg": 0.0, "w0_load": 3.0},
+    },
+}
+#: outputs numpy computes in the Python (agreement to rounding, see below)
+ROUNDING = ("energy_stored", "loss_torque")
+PARAMS = [(m, c) for m in MODELS for c in CASES[m]]
+
+
+@pytest.mark.parametrize("model, case", PARAMS, ids=[f"{m}-{c}" for m, c in PARAMS])
+def test_matches_the_pythonfmu_bit_for_bit(native, pyfmu, model, case):
+    """Driven by the same inputs (and, for one instance, the parameters set in initialization mode, where the
+    pythonfmu FMU builds again), every Real output at every step is the pythonfmu FMU's, bit for bit: the
+    kernel and the bookkeeping run the same operations in the same order (and gcc and numba's LLVM do not
+    contract to FMA). Two outputs are computed by numpy in the Python, by libm here, and agree to rounding
+    (<= 1e-12 relative): energy_stored (numpy's dot, BLAS: its summation order may differ; measured:
+    identical) and UpperTransmission's loss_torque (np.tanh, numpy's own SIMD tanh, against libm's tanh the
+    kernel uses in both; measured: <= 2.0e-16)."""
+    params = CASES[model][case]
+    a = _drive(*_open(native[model], params), model, N_STEPS)
+    b = _drive(*_open(pyfmu[model], params), model, N_STEPS)
+    s, vr = _open(native[model])
+    c = _drive(s, vr, model, N_STEPS, init_params=params)           # the parameters set in initialization mode
+    names = _outputs(vr)
+    assert np.all(np.isfinite(a)) and np.all(np.isfinite(b))
+    rel = dict(zip(names, _rel(a, b)))
+    assert max(rel.values()) <= 1e-12, rel
+    exact = [i for i, n in enumerate(names) if n not in ROUNDING]
+    assert np.array_equal(a[:, exact], b[:, exact]), {n: v for n, v in rel.items() if v}
+    assert np.array_equal(a[1:], c[1:])
+    if case == "torque_load_limit" or case == "viscous_profiles_limit_end":
+        tm = b[2:, names.index("motor_torque")]
+        assert np.max(np.abs(tm)) == pytest.approx(params["tau_max"]), "the torque limit was hit"
+
+
+@pytest.mark.parametrize("model, name", [("FlexibleShaft", "J_a"), ("UpperTransmission", "loss_c"),
+                                         ("MotorLoad", "k_c2")])
+def test_the_comparison_sees_a_wrong_parameter(native, pyfmu, model, name):
+    """The comparison has teeth: one parameter off by 1e-9 relative in one FMU breaks it."""
+    from drivetrain.components import COMPONENTS
+
+    default = getattr(COMPONENTS[model][1](), name)
+    a = _drive(*_open(native[model]), model, N_STEPS)
+    b = _drive(*_open(pyfmu[model], {name: default * (1 + 1e-9)}), model, N_STEPS)
+    assert max(_rel(a, b)) > 1e-11
+
+
+# ---- errors ------------------------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("model", MODELS)
+def test_nan_input_is_an_error_status_nan_outputs_and_an_error_text(native, pyfmu, model):
+    errors = []
+    name = fmishell.port_inputs(model)[-1]
+    for path in (pyfmu[model], native[model]):
+        s, vr = _open(path)
+        _drive(s, vr, model, 10)
+        s.setReal([vr[name].valueReference], [float("nan")])
+        with pytest.raises(FMICallException) as exc:
+            s.doStep(10 * H, H)
+        assert exc.value.status == 2                               # fmi2Discard
+        errors.append(s.getString([vr["error"].valueReference])[0].decode())
+        out = s.getReal([vr[n].valueReference for n in _outputs(vr)])
+        assert all(math.isnan(v) for v in out)
+        with pytest.raises(FMICallException):
+            s.doStep(11 * H, H)
+    assert errors[0] == errors[1]
+    assert errors[1] == (f"{model}: do_step at t = 0.000833333333 s failed: non-finite input at t = "
+                         f"0.000833333333 s: {{'{name}': nan}}")
+    assert f"{model} is in the error state: {errors[1]}" in s.log_lines()
+
+
+BAD = [("FlexibleShaft", {"J_a": 0.0}, "J_a must be > 0"),
+       ("FlexibleShaft", {"n_elements": 0}, "n_elements must be >= 1, got 0"),
+       ("FlexibleShaft", {"output_torque": "predicted"},
+        "output_torque must be one of ('mean', 'end'), got 'predicted'"),
+       ("FlexibleShaft", {"d_t": -1.0}, "c must be finite and >= 0, got [-1.0, "),
+       ("UpperTransmission", {"ratio": -3.0}, "ratio must be > 0 and J_in, J_out >= 0"),
+       ("MotorLoad", {"speed_profile": "0:0; 1:abc"}, "could not convert string to float: 'abc'"),
+       ("MotorLoad", {"load_profile": "0:1; 0:2"}, "profile '0:1; 0:2': expected 't0:v0; t1:v1; ...' with "
+                                                    "increasing times"),
+       ("MotorLoad", {"load_mode": 2}, "load_mode must be 0 (torque) or 1 (viscous), got 2"),
+       ("MotorLoad", {"Ti": 0.0}, "motor: Kp, Ti, Ni must be > 0 and tau_max >= 0")]
+
+
+@pytest.mark.parametrize("model, params, text", BAD, ids=[f"{m}-{next(iter(p))}" for m, p, _ in BAD])
+def test_a_bad_parameter_is_an_error_message_not_a_crash(native, pyfmu, model, params, text):
+    """Set before initialization or in it: the same message as the pythonfmu FMU (initialization failed:
+    ValueError: ...), NaN outputs, the first step refused."""
+    errors = []
+    for path in (pyfmu[model], native[model]):
+        for when in ("before", "in"):
+            s, vr = _open(path, params if when == "before" else None)
+            s.setupExperiment(startTime=0.0)
+            s.enterInitializationMode()
+            if when == "in":
+                _set(s, vr, params)
+                s.getReal([vr[_outputs(vr)[0]].valueReference])           # refresh: rebuilt here
+            s.exitInitializationMode()
+            with pytest.raises(FMICallException):
+                s.doStep(0.0, H)
+            errors.append(s.getString([vr["error"].valueReference])[0].decode())
+            assert math.isnan(s.getReal([vr[_outputs(vr)[0]].valueReference])[0])
+    assert len(set(errors)) == 1, errors
+    assert errors[0].startswith(f"{model}: initialization failed: ValueError: ") and text in errors[0], errors
+
+
+def test_parameters_set_in_initialization_mode_reach_the_outputs_read_there(native, pyfmu):
+    """Outputs read in initialization mode follow the parameters set there (the model is built again)."""
+    for path in (native["FlexibleShaft"], pyfmu["FlexibleShaft"]):
+        s, vr = _open(path)
+        s.setupExperiment(startTime=0.0)
+        s.enterInitializationMode()
+        get = lambda n: s.getReal([vr[n].valueReference])[0]  # noqa: E731
+        assert get("flange_a_w") == 0.0
+        _set(s, vr, {"w0": 12.5, "tau0": 2.0})
+        assert get("flange_a_w") == 12.5 and get("torque_sensor") == 2.0
+
+
+def test_time_jumps_are_refused_with_the_gear_wording(native):
+    s, vr = _open(native["UpperTransmission"])
+    _drive(s, vr, "UpperTransmission", 3)
+    with pytest.raises(FMICallException):
+        s.doStep(5.0, H)
+    text = s.log_lines()
+    assert ("UpperTransmission: fmi2DoStep at t = 5 s but the previous step ended at t = 0.00025 s (communication "
+            "points must follow each other; to go back, restore an FMU state); the instance is now in its error "
+            "state") in text
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_fmu_state_rollback_is_bit_identical(native, model):
+    s, vr = _open(native[model], CASES[model][list(CASES[model])[-1]])
+    _drive(s, vr, model, 100)
+    state = s.getFMUstate()
+    blob = s.serializeFMUstate(state)
+    first = _drive(s, vr, model, 60, t0=100 * H, init=False)
+    s.setFMUstate(state)
+    again = _drive(s, vr, model, 60, t0=100 * H, init=False)
+    assert np.array_equal(first, again)
+    s.setFMUstate(s.deSerializeFMUstate(blob))
+    assert np.array_equal(first, _drive(s, vr, model, 60, t0=100 * H, init=False))
+    s.freeFMUstate(state)
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_hostile_calls(native, model):
+    """The hostile FMI calls of tests/test_fmu_hostile.py: the same outcomes and log texts as the pythonfmu
+    FMUs."""
+    import json
+    import os
+    import sys
+
+    from test_fmu_hostile import EXPECT, NO_STRINGS, SCRIPT
+
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    r = subprocess.run([sys.executable, "-c", SCRIPT, str(native[model])], capture_output=True, text=True,
+                       timeout=300, env=env)
+    done = {rec["case"]: rec for rec in map(json.loads, filter(None, r.stdout.splitlines())) if "case" in rec}
+    assert set(done) == set(EXPECT), (r.returncode, r.stderr[-2000:])
+    for case, (outcomes, text) in EXPECT.items():
+        rec = done[case]
+        if rec["outcomes"] == ["n/a"]:
+            assert model in NO_STRINGS and "string" in case
+            continue
+        assert rec["outcomes"] == outcomes, (case, rec)
+        assert text is None or any(text in line for line in rec["log"]), (case, rec["log"])
+        if outcomes.count("refused") == 0:
+            assert not any(line.startswith("[error]") for line in rec["log"]), (case, rec["log"])
+
+
+# ---- building, caching, the command line -------------------------------------------------------------------
+
+def test_native_fmus_are_cached_and_a_non_table_gear_keeps_its_pythonfmu(tmp_path):
+    """drivetrain run --native's cache: the three line FMUs once, found again by their fingerprints; a scene
+    whose gear is not fidelity table gets the three and a note (and build-native refuses it)."""
+    from drivetrain.nativeline import native_fmus
+    from drivetrain.scenario import load_scene
+
+    if shutil.which("gcc") is None:
+        pytest.skip("gcc not installed")
+    scene = load_scene(EXAMPLE, ["time.duration_s=0.1", "effects.mesh_contact=analytic"])
+    paths, note = native_fmus(scene, tmp_path)
+    assert set(paths) == set(MODELS)
+    assert "fidelity 'analytic'" in note and "uses the pythonfmu GearContact" in note
+    stamps = {m: p.stat().st_mtime_ns for m, p in paths.items()}
+    again, _ = native_fmus(scene, tmp_path)
+    assert again == paths and {m: p.stat().st_mtime_ns for m, p in again.items()} == stamps
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in paths.values())
+
+
+def test_cli_refusals(tmp_path, capsys):
+    from drivetrain.cli import main
+
+    rc = main(["build-native", str(EXAMPLE), "--set", "effects.mesh_contact=analytic", "--out", str(tmp_path)])
+    err = capsys.readouterr().err
+    assert rc == 2 and "implements fidelity 'table', mode 'stage' only" in err and "Traceback" not in err
+    rc = main(["run", str(EXAMPLE), "--native", "--backend", "inprocess", "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "--native runs native FMUs through FMI" in err
+
+
+# ---- the system --------------------------------------------------------------------------------------------
+
+def test_example_system_with_all_four_native_fmus(native, pyfmu_dir, tmp_path):
+    """0.5 s of the example scene through our master: all four FMUs native (the gear: build_native_gear) against
+    the pythonfmu FMUs; every recorded torque within 1e-9 relative (the native gear agrees to rounding;
+    measured over 1 s: <= 2.3e-10), and with the three native line FMUs alone the very same run."""
+    from drivetrain.cosim import simulate
+    from drivetrain.nativebuild import build_native_gear, gear_parameters
+    from drivetrain.run import assemble_scene
+    from drivetrain.scenario import load_scene
+
+    scene = load_scene(EXAMPLE, ["time.duration_s=0.5"])
+    spec = assemble_scene(scene)
+    gear = build_native_gear(gear_parameters(scene), tmp_path / "GearContact.fmu")
+    paths = {**native, "GearContact": gear}
+    rec = ["gear.flange_a_tau", "gear.flange_b_tau", "drive_shaft.flange_a_tau", "drive_shaft.flange_b_tau",
+           "motors.drive_tau", "motors.load_tau", "upper.flange_a_tau", "upper.flange_b_tau",
+           "motors.motor_torque", "drive_shaft.torque_sensor", "upper.torque_sensor", "motors.coupling_torque"]
+    models = {c.name: c.model for c in spec.components}
+    rec = [r for r in rec if r.split(".")[0] in models]
+    assert len({models[r.split(".")[0]] for r in rec}) == 4, (rec, models)
+    nat = simulate(spec, 0.5, 3000.0, rec, fmu_dir=pyfmu_dir, fmu_paths=paths, keep_raw=True)
+    ref = simulate(spec, 0.5, 3000.0, rec, fmu_dir=pyfmu_dir, keep_raw=True)
+    lines = simulate(spec, 0.5, 3000.0, rec, fmu_dir=pyfmu_dir, fmu_paths=native, keep_raw=True)
+    used = {Path(f["path"]) for f in nat.fmus}
+    assert set(paths.values()) <= used, used
+    worst = {}
+    for name in rec:
+        a, b = nat.raw[name], ref.raw[name]
+        assert len(a) == len(b) and len(a) > 1000
+        worst[name] = float(np.max(np.abs(a - b)) / np.max(np.abs(b)))
+        # the three native line FMUs with the pythonfmu gear: the pythonfmu system's run, bit for bit
+        assert np.array_equal(lines.raw[name], b), name
+    assert max(worst.values()) <= 1e-9, worst

@@ -795,7 +795,7 @@ def _f32_down(x):
 
 @njit(cache=True)
 def _rbt_of(M, theta_b, theta_t, R):
-    """R = Rz(-theta_t) M Rz(theta_b), computed as in :func:`fixed_axis_eval`."""
+    """R = Rz(-theta_t) M Rz(theta_b): the base's pose in the target's frame (fixed axes)."""
     cb = math.cos(theta_b)
     sb = math.sin(theta_b)
     ct = math.cos(theta_t)
@@ -1329,22 +1329,9 @@ def fixed_axis_eval(data, theta_base, theta_target, omega_base, omega_target, ou
      icount, fnode, fc, minsep, nbox, close, dR, dt, ndisp, cand_c, cand_s, cand_d, cand_h, cand_g,
      cand_f, slot_f, period, b_inv, t_inv, Rc, atlas_meta, atlas_pairs, atlas_c, atlas_s, atlas_d,
      atlas_h, atlas_minsep, atlas_nbox, atlas_close) = data
-    # Rbt = Rz(-theta_t) M Rz(theta_b), M = R0_t^T R0_b
-    cb = math.cos(theta_base)
-    sb = math.sin(theta_base)
+    _rbt_of(M, theta_base, theta_target, Rbt)       # Rbt = Rz(-theta_t) M Rz(theta_b), M = R0_t^T R0_b
     ct = math.cos(theta_target)
     st = math.sin(theta_target)
-    for r in range(3):
-        m0 = M[r, 0]
-        m1 = M[r, 1]
-        Rbt[r, 0] = m0 * cb + m1 * sb
-        Rbt[r, 1] = -m0 * sb + m1 * cb
-        Rbt[r, 2] = M[r, 2]
-    for col in range(3):
-        x0 = Rbt[0, col]
-        x1 = Rbt[1, col]
-        Rbt[0, col] = ct * x0 + st * x1
-        Rbt[1, col] = -st * x0 + ct * x1
     L = params[P_L]
     s_neg = params[P_SNEG]
     if params[P_DELTA] > 0.0:

@@ -413,7 +413,7 @@ def test_cli_refusals(tmp_path, capsys):
     assert rc == 2 and "implements fidelity 'table', mode 'stage' only" in err and "Traceback" not in err
     rc = main(["run", str(EXAMPLE), "--native", "--backend", "inprocess", "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
-    assert rc == 2 and "--native runs native FMUs through FMI" in err
+    assert rc == 2 and "runs compiled FMUs through FMI: not with --backend 'inprocess'" in err
 
 
 # ---- the system --------------------------------------------------------------------------------------------
@@ -450,3 +450,41 @@ def test_example_system_with_all_four_native_fmus(native, pyfmu_dir, tmp_path):
         # the three native line FMUs with the pythonfmu gear: the pythonfmu system's run, bit for bit
         assert np.array_equal(lines.raw[name], b), name
     assert max(worst.values()) <= 1e-9, worst
+
+
+def test_backend_native_builds_one_gear_per_map_and_runs_like_fmi(pyfmu_dir, tmp_path):
+    """run_scene(backend="native") (drivetrain run --native, and every many-run command's --backend native):
+    two operating points of one gear share one native GearContact (its cache key is what shapes the map, the
+    start state is set per run), and the run gives the pythonfmu run's torques."""
+    from drivetrain.run import run_scene
+    from drivetrain.scenario import load_scene
+
+    if shutil.which("gcc") is None:
+        pytest.skip("gcc not installed")
+    over = ["time.duration_s=0.2", "time.settle_s=0.1"]
+    a = load_scene(EXAMPLE, over)
+    b = load_scene(EXAMPLE, over + ["operating_point.drive_speed_rpm=900", "operating_point.load_torque_Nm=0.8"])
+    fmu_dir = tmp_path / "fmus"
+    ra = run_scene(a, None, backend="native", progress=False, fmu_dir=fmu_dir, plots=False)
+    rb = run_scene(b, None, backend="native", progress=False, fmu_dir=fmu_dir, plots=False)
+    gears = sorted((fmu_dir / "native").glob("GearContact-*.fmu"))
+    assert len(gears) == 1, gears
+    assert ra.summary["backend"] == "native" and ra.summary["time_breakdown_s"]["native_build"] > 0
+    assert rb.summary["time_breakdown_s"]["native_build"] < ra.summary["time_breakdown_s"]["native_build"]
+    for scene, res in ((a, ra), (b, rb)):
+        ref = run_scene(scene, None, backend="fmi", progress=False, fmu_dir=pyfmu_dir, plots=False)
+        for name, st in ref.summary["torque"].items():
+            for key in ("mean", "std", "max"):
+                assert res.summary["torque"][name][key] == pytest.approx(st[key], rel=1e-9, abs=1e-12), (name, key)
+
+
+def test_backend_native_without_a_compiler_runs_on_the_pythonfmu_fmus_and_says_so(pyfmu_dir, monkeypatch):
+    from drivetrain.run import run_scene
+    from drivetrain.scenario import load_scene
+
+    monkeypatch.setenv("CC", "no-such-compiler-cc")
+    scene = load_scene(EXAMPLE, ["time.duration_s=0.05", "time.settle_s=0.01"])
+    res = run_scene(scene, None, backend="native", progress=False, fmu_dir=pyfmu_dir, plots=False)
+    assert res.summary["backend"] == "fmi"
+    assert any("'no-such-compiler-cc' not found" in w and "uses the pythonfmu FMUs" in w
+               for w in res.summary["warnings"]), res.summary["warnings"]

@@ -12,6 +12,8 @@ import os
 import sys
 from pathlib import Path
 
+from drivetrain.system import BACKENDS
+
 
 def _cmd_build_fmus(args: argparse.Namespace) -> int:
     from drivetrain.fmubuild import build_all
@@ -120,22 +122,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if problems:
         print("error: " + "\n  ".join(problems), file=sys.stderr)
         return 2
-    if args.native and args.backend != "fmi":
-        print("error: --native runs native FMUs through FMI: it needs --backend fmi (the default), not "
-              f"{args.backend!r}", file=sys.stderr)
-        return 2
     if args.native:
-        # the four models' native FMUs (built once, cached in fmus/native); an explicit --fmu wins
-        from drivetrain.nativeline import native_fmus
-
-        try:
-            native, note = native_fmus(scene, Path(args.fmu_dir) / "native",
-                                       log=None if args.quiet else (lambda m: print(m, file=sys.stderr)))
-        except ConfigurationError as exc:
-            return _scene_errors(exc)
-        if note:
-            print(f"--native: {note}", file=sys.stderr)
-        fmu_paths = {**native, **fmu_paths}
+        if args.backend not in ("fmi", "native"):
+            print("error: --native (= --backend native) runs compiled FMUs through FMI: not with --backend "
+                  f"{args.backend!r}", file=sys.stderr)
+            return 2
+        args.backend = "native"
     try:
         res = run_scene(scene, out, backend=args.backend, progress=not args.quiet, fmu_dir=args.fmu_dir,
                         plots=False if args.no_plots else None, force=args.force, fmu_paths=fmu_paths or None)
@@ -161,7 +153,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         tb = s["time_breakdown_s"]
         print(f"{scene.name}: {s['sim_time_s']:g} s simulated in {s['wall_time_s']:.3g} s: co-simulation loop "
               f"{tb['loop']:.3g} s (real-time factor {s['real_time_factor']:.3g}, {s['us_per_step']:.1f} us/step, "
-              f"{s['n_fmus']} FMUs), FMU setup {tb['fmu_setup']:.3g} s (builds, maps, initialisation), "
+              f"{s['n_fmus']} FMUs), FMU setup {tb['fmu_setup'] + tb['native_build']:.3g} s (builds, maps, "
+              f"initialisation), "
               f"assembly {tb['assemble_and_check']:.3g} s, post-processing {tb['postprocess']:.3g} s")
         for name, st in s["torque"].items():
             print(f"  {name}: mean {st['mean']:.4g} N·m, RMS {st['rms']:.4g} N·m")
@@ -523,7 +516,7 @@ def _add_execution_options(p: argparse.ArgumentParser,
     p.add_argument("--workers", type=_positive_int, default=None, help=workers_help)
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="Dask scheduler address (tcp://host:8786); default: local process pool")
-    p.add_argument("--backend", choices=("fmi", "inprocess"), default="fmi")
+    p.add_argument("--backend", choices=BACKENDS, default="fmi")
     p.add_argument("--fmu-dir", default="fmus")
 
 
@@ -564,15 +557,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="override a scene key, e.g. --set time.duration_s=0.5 (repeatable)")
     p.add_argument("--out", default=None, help="output directory (default: out/<scene name>)")
     p.add_argument("--case", default=None, help="with a grid file: the name of the case to run")
-    p.add_argument("--backend", choices=("fmi", "inprocess"), default="fmi",
+    p.add_argument("--backend", choices=BACKENDS, default="fmi",
                    help="fmi: FMUs through fmpy (default); inprocess: the same slave classes without FMI")
     p.add_argument("--fmu-dir", default="fmus", help="where the FMUs are (built on demand; default: fmus)")
     p.add_argument("--fmu", action="append", metavar="MODEL=PATH",
                    help="use this FMU file for a model instead of the one in --fmu-dir, e.g. "
                         "GearContact=fmus/native/GearContact.fmu (drivetrain build-native-gear; repeatable)")
     p.add_argument("--native", action="store_true",
-                   help="Python-free FMUs for all four models (built once and cached in FMU_DIR/native; a gear of "
-                        "another fidelity than table keeps its pythonfmu FMU, with a message; docs/FMU.md)")
+                   help="the same as --backend native: Python-free FMUs for all four models (built once and cached "
+                        "in FMU_DIR/native; a gear of another fidelity than table keeps its pythonfmu FMU, with a "
+                        "message; docs/FMU.md)")
     p.add_argument("--no-plots", action="store_true", help="do not write PNG plots")
     p.add_argument("--quiet", action="store_true", help="no progress bar, no report")
     p.add_argument("--force", action="store_true", help=_FORCE_HELP)
@@ -713,7 +707,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--fidelities", default=None, metavar="LIST",
                    help="comma-separated mesh_contact fidelities the random scenes may use (default: all)")
     p.add_argument("--paper-grid", default=None, metavar="TOML", help="the paper grid (default: scenarios/paper/paper.toml)")
-    p.add_argument("--backend", choices=("fmi", "inprocess"), default="fmi")
+    p.add_argument("--backend", choices=BACKENDS, default="fmi")
     p.add_argument("--fmu-dir", default="fmus")
     p.add_argument("--only", nargs="*", default=None, metavar="PATTERN",
                    help="run only the cases whose name matches (e.g. rnd_s0_0042 'paper_severe_*')")

@@ -82,7 +82,7 @@ SUMMARY_TREE: dict = {
     "name": "str", "status": "str", "failure": "any", "description": "str", "source": "str",
     "overrides": "any", "backend": "str", "wall_time_s": "num", "sim_time_s": "num",
     "requested_sim_time_s": "num", "real_time_factor": "num", "real_time_factor_wall": "num",
-    "time_breakdown_s": {"assemble_and_check": "num", "fmu_setup": "num", "loop": "num", "postprocess": "num"},
+    "time_breakdown_s": {"assemble_and_check": "num", "native_build": "num", "fmu_setup": "num", "loop": "num", "postprocess": "num"},
     "loop_time_s": "num", "loop_cpu_time_s": "num", "us_per_step": "num",
     "us_per_step_steady": "num", "n_steps": "int", "comm_step_s": "num", "sample_rate_Hz": "num",
     "settle_s": "num", "n_fmus": "int",

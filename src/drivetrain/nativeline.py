@@ -20,12 +20,15 @@ hash plus its parameters (and the contact-map code).
 """
 from __future__ import annotations
 
+import concurrent.futures
+import functools
 import hashlib
 import json
 import os
 import shutil
 import subprocess
 import tempfile
+import time
 import uuid
 import zipfile
 from pathlib import Path
@@ -173,6 +176,11 @@ def compile_command(src_dir: Path, out: Path, cc: str = "gcc") -> list[str]:
             f"-I{src_dir}", str(src_dir / C_SOURCE), "-o", str(out), "-lm"]
 
 
+def toolchain_problems(cc: str | None = None) -> list[str]:
+    """Why native FMUs cannot be compiled here (no C compiler, another platform); empty when they can."""
+    return _check_toolchain(cc or os.environ.get("CC", "gcc"))
+
+
 def _check_toolchain(cc: str) -> list[str]:
     import platform
 
@@ -271,12 +279,19 @@ def _gear_fingerprint(parameters: dict) -> str:
     return h.hexdigest()
 
 
-def scene_gear(scene) -> tuple[dict | None, str | None]:
-    """(the scene's GearContact parameters, None) if it has a gear of fidelity table; (None, why not) else."""
+def scene_gear(scene, spec=None) -> tuple[dict | None, str | None]:
+    """(the GearContact parameters of ``spec``, or of the scene as assembled, None) if it has a gear of
+    fidelity table; (None, why not) else."""
     from drivetrain.nativebuild import gear_parameters
 
     try:
-        params = gear_parameters(scene)
+        if spec is None:
+            params = gear_parameters(scene)
+        else:
+            gears = [c for c in spec.components if c.model == "GearContact"]
+            if not gears:
+                return None, "the system has no GearContact component"
+            params = dict(gears[0].parameters)
     except NativeBuildError as exc:
         return None, str(exc)
     fid = str(params.get("fidelity", "table")).strip().lower()
@@ -285,6 +300,15 @@ def scene_gear(scene) -> tuple[dict | None, str | None]:
         return None, (f"the scene's GearContact has fidelity {fid!r}, mode {mode!r}: the native GearContact "
                       f"implements fidelity 'table', mode 'stage' only")
     return params, None
+
+
+def build_fixed(parameters: dict) -> dict:
+    """The GearContact parameters a native build fixes (what shapes the contact map): the cache key. The
+    others stay settable in the FMU (a host, our master included, sets them per run), so one build serves
+    every operating point of a gear."""
+    from drivetrain.nativebuild import IGNORED_PARAMETERS, RUNTIME_PARAMETERS
+
+    return {k: v for k, v in parameters.items() if k not in RUNTIME_PARAMETERS and k not in IGNORED_PARAMETERS}
 
 
 def build_native_fmus(scene, out_dir: str | Path, *, log: Callable[[str], None] | None = None) -> dict[str, Path]:
@@ -301,31 +325,38 @@ def build_native_fmus(scene, out_dir: str | Path, *, log: Callable[[str], None] 
     return paths
 
 
-def native_fmus(scene, cache_dir: str | Path = CACHE_DIR, *,
-                log: Callable[[str], None] | None = None) -> tuple[dict[str, Path], str | None]:
-    """The native FMUs for a run of ``scene``, built once and kept in ``cache_dir`` under names holding their
-    fingerprints (``<Model>-<hash>.fmu``; the gear's includes its parameters). Returns ({model: path}, note):
-    the note (None if all four are native) says why the gear is not (it is not fidelity table: the run keeps
-    the pythonfmu GearContact)."""
+def native_fmus(scene, cache_dir: str | Path = CACHE_DIR, *, log: Callable[[str], None] | None = None,
+                spec=None) -> tuple[dict[str, Path], str | None]:
+    """The native FMUs for a run of ``scene`` (or of ``spec``, its assembled system), built once and kept in
+    ``cache_dir`` under names holding their fingerprints (``<Model>-<hash>.fmu``; the gear's includes the
+    parameters that shape its contact map, :func:`build_fixed`). Returns ({model: path}, note): the note
+    (None if all four are native) says why the gear is not (it is not fidelity table: the run keeps the
+    pythonfmu GearContact). ``log``: one line when something was built."""
     from drivetrain.nativebuild import build_native_gear
 
     cache_dir = Path(cache_dir)
     cc = os.environ.get("CC", "gcc")
-    paths = {}
+    builds = {}                    # model -> (path, build function or None when cached)
     for model in MODELS:
         path = cache_dir / f"{model}-{line_fingerprint(model, cc)[:16]}.fmu"
-        if not path.is_file():
-            build_native_line(model, path, cc=cc, log=log)
-        elif log:
-            log(f"native {model}: {path} (cached)")
-        paths[model] = path
-    gear, why = scene_gear(scene)
+        builds[model] = (path, None if path.is_file() else functools.partial(build_native_line, model, path, cc=cc))
+    gear, why = scene_gear(scene, spec)
+    if gear is not None:
+        fixed = build_fixed(gear)
+        path = cache_dir / f"GearContact-{_gear_fingerprint(fixed)[:16]}.fmu"
+        builds["GearContact"] = (path, None if path.is_file() else
+                                 functools.partial(build_native_gear, fixed, path))
+    todo = {m: b for m, (_, b) in builds.items() if b is not None}
+    if todo:
+        t0 = time.perf_counter()
+        # the compilers run side by side (each build writes its own file, atomically)
+        with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, min(len(todo), os.cpu_count() or 1))) as ex:
+            for future in [ex.submit(b) for b in todo.values()]:
+                future.result()
+        if log:
+            log(f"native FMUs: built {', '.join(todo)} into {cache_dir} in {time.perf_counter() - t0:.1f} s "
+                "(kept for later runs)")
+    paths = {model: path for model, (path, _) in builds.items()}
     if gear is None:
         return paths, why + "; the run uses the pythonfmu GearContact"
-    path = cache_dir / f"GearContact-{_gear_fingerprint(gear)[:16]}.fmu"
-    if not path.is_file():
-        build_native_gear(gear, path, log=log)
-    elif log:
-        log(f"native GearContact: {path} (cached)")
-    paths["GearContact"] = path
     return paths, None

@@ -28,7 +28,7 @@ from drivetrain.cosim import CosimResult, Master
 from drivetrain.errors import ConfigurationError, CosimError, RunFailedError  # noqa: F401  (re-exported)
 from drivetrain.scenario import RIG_SENSORS, TORQUE_SENSORS, Scene
 from drivetrain.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies, stats, to_db
-from drivetrain.system import SystemSpec
+from drivetrain.system import BACKENDS, SystemSpec
 from gearcontact_fmu.fault_specs import FaultGeometryError
 
 #: messages for the user (progress, warnings); the CLI passes its own ``log``, a library caller sees them
@@ -272,8 +272,27 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
 
     final = [f"{c.name}.{v}" for c in spec.components if c.model == GEAR_MODEL for v in GEAR_FINAL_VARS]
     final += [f"{c.name}.{COUPLING_VAR}" for c in spec.components]
+    t_native = _time.perf_counter()
+    if backend not in BACKENDS:
+        raise ConfigurationError([f"backend {backend!r}: expected one of {', '.join(BACKENDS)}"])
+    if backend == "native":
+        # compiled FMUs (built once, kept in <fmu_dir>/native) through FMI; an explicit fmu_paths entry wins.
+        # Without a compiler the run still happens, on the pythonfmu FMUs, and says so.
+        from drivetrain.nativeline import native_fmus, toolchain_problems
+
+        missing = toolchain_problems()
+        if missing:
+            note = f"{'; '.join(missing)}: the run uses the pythonfmu FMUs (backend fmi)"
+            backend = "fmi"
+        else:
+            native, note = native_fmus(scene, Path(fmu_dir) / "native", log=log, spec=spec)
+            fmu_paths = {**native, **(fmu_paths or {})}
+        if note:
+            warnings.append(f"backend native: {note}")
+            log(f"warning: backend native: {note}")
+    master_backend = "fmi" if backend == "native" else backend
     t_master = _time.perf_counter()
-    master = Master(spec, fmu_dir=fmu_dir, backend=backend, fmu_paths=fmu_paths, build=build, log=log)
+    master = Master(spec, fmu_dir=fmu_dir, backend=master_backend, fmu_paths=fmu_paths, build=build, log=log)
     failed: CosimError | None = None
     try:
         res = master.run(scene.time.duration_s, scene.time.sample_rate_Hz, record,
@@ -357,7 +376,8 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
         "real_time_factor_wall": res.sim_time_s / wall if wall > 0 else None,
         "loop_time_s": res.loop_time_s,
         "loop_cpu_time_s": res.loop_cpu_time_s,
-        "time_breakdown_s": {"assemble_and_check": t_master - t0, "fmu_setup": res.setup_time_s,
+        "time_breakdown_s": {"assemble_and_check": t_native - t0, "native_build": t_master - t_native,
+                             "fmu_setup": res.setup_time_s,
                              "loop": res.loop_time_s,
                              "postprocess": max(0.0, wall - (t_master - t0) - res.setup_time_s - res.loop_time_s)},
         "us_per_step": res.us_per_step,

@@ -404,6 +404,14 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
         ensure_fmus(needed, fmu_dir, build=True, log=log or (lambda m: None))
     if prepare:
         prepare_caches(all_specs, fmu_dir, fmu_paths, log=log)
+    if backend == "native" and fmu_paths is None:
+        # compiled once here (one gear build per contact map), found in the cache by every worker (without a
+        # compiler each run falls back to the pythonfmu FMUs and says so)
+        from drivetrain.nativeline import native_fmus, toolchain_problems
+
+        if not toolchain_problems():
+            for s, sp in zip(scenes, all_specs):
+                native_fmus(s, Path(fmu_dir) / "native", spec=sp, log=log)
     # records of the other cases of the same sweep from an earlier invocation (--only)
     kept: list[dict] = []
     if grid_names:

@@ -18,6 +18,11 @@ from dataclasses import dataclass, field
 SPRING = "spring"
 INERTIA = "inertia"
 
+#: how a system runs: "fmi" (the pythonfmu FMUs through FMI, fmpy), "inprocess" (the same slave classes
+#: called directly, no FMI), "native" (compiled FMUs through FMI: drivetrain.nativeline; a gear that is not
+#: fidelity table keeps its pythonfmu FMU)
+BACKENDS = ("fmi", "inprocess", "native")
+
 
 def steps_per_output(comm_step: float, output_rate_Hz: float) -> tuple[int, str | None]:
     """The one rule tying the communication step to the output rate: H divides the output period.

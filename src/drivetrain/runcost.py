@@ -32,8 +32,9 @@ from dataclasses import dataclass, field
 from drivetrain.scenario import default_of
 from gearcontact_fmu.params import substeps
 
-#: wall seconds per communication step of the master (loop overhead without the mesh model)
-STEP_S = {"fmi": 2.0e-4, "inprocess": 1.2e-4}
+#: wall seconds per communication step of the master (loop overhead without the mesh model; native: the
+#: whole step, measured 25-35 us on 2 cores; its gear sub-steps cost less than SUBSTEP_S says: an upper bound)
+STEP_S = {"fmi": 2.0e-4, "inprocess": 1.2e-4, "native": 4.0e-5}
 #: wall seconds per gear-stage sub-step, by mesh model (pcm: default mesh, including its refinements)
 SUBSTEP_S = {"pcm": 2.0e-3, "table": 1.5e-6, "analytic": 1.5e-6, "ideal": 0.0}
 #: refuse a run predicted to take more than this many times its simulated time ...

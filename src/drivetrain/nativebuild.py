@@ -108,10 +108,9 @@ def _table_arrays(slave, parameters: dict) -> dict:
     for name, value in {**parameters, **NEUTRAL}.items():
         setattr(slave, name, value)
     try:
-        slave._build()
+        model = slave._build(stage=False)
     except Exception as exc:  # noqa: BLE001 - every builder error becomes a refusal with its message
         raise NativeBuildError([f"the contact map cannot be built: {type(exc).__name__}: {exc}"]) from None
-    model = slave._stage.model
     data, te = model.data, None
     if len(data) == 2:                         # manufacturing.with_errors: (inner data, offset data)
         data, te = data

@@ -931,8 +931,17 @@ def make_stage(fidelity: str = "analytic", gear_params=None, pcm_params=None, re
     ratio)."""
     gear_params = gear_params or BevelGearParams()
     sp = stage_params or StageParams()
+    model = stage_mesh_model(fidelity, gear_params, pcm_params, resolution, health, mesh_files, sp, **kw)
+    return GearStage(model, gear_params.z_wheel / gear_params.z_pinion, sp)
+
+
+def stage_mesh_model(fidelity: str = "analytic", gear_params=None, pcm_params=None, resolution=None,
+                     health: str = "healthy", mesh_files=None, stage_params: StageParams | None = None,
+                     **kw) -> MeshModel:
+    """The mesh model :func:`make_stage` puts in its stage (nothing of the stage's kernels compiled: what
+    drivetrain.nativebuild needs)."""
+    sp = stage_params or StageParams()
     kw.setdefault("J_pinion", sp.J_pinion)
     kw.setdefault("J_wheel", sp.J_wheel)
-    model = make_mesh_model(fidelity, gear_params, pcm_params, resolution, health=health,
-                            mesh_files=mesh_files, **kw)
-    return GearStage(model, gear_params.z_wheel / gear_params.z_pinion, sp)
+    return make_mesh_model(fidelity, gear_params or BevelGearParams(), pcm_params, resolution, health=health,
+                           mesh_files=mesh_files, **kw)

@@ -340,9 +340,11 @@ class GearContact(Fmi2Slave):
         """Enter the error state (fmu_runtime.guard.enter_error_state; NAN_ON_FAILURE become NaN)."""
         enter_error_state(self, msg)
 
-    def _build(self):
+    def _build(self, stage: bool = True):
+        """Build the stage from the parameters; ``stage=False``: return its mesh model only (the native
+        builder's map, drivetrain.nativebuild: the stage's kernels are not compiled)."""
         from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCMParams
-        from gearcontact_fmu.stage import StageParams, make_stage
+        from gearcontact_fmu.stage import StageParams, make_stage, stage_mesh_model
 
         gear = BevelGearParams(
             z_pinion=int(self.z_pinion), z_wheel=int(self.z_wheel), module=self.module,
@@ -376,6 +378,9 @@ class GearContact(Fmi2Slave):
             kw["tooth_compliance"] = float(self.tooth_compliance)
         if str(self.manufacturing_errors).strip():      # the ideal mesh refuses them (no mesh coordinate)
             kw["manufacturing_errors"] = str(self.manufacturing_errors)
+        if not stage:
+            return stage_mesh_model(self.fidelity, gear, pcm, res, health=self.health,
+                                    mesh_files=mesh_files or None, stage_params=sp, **kw)
         self._stage = make_stage(self.fidelity, gear, pcm, res, health=self.health,
                                  mesh_files=mesh_files or None, stage_params=sp, **kw)
 

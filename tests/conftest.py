@@ -30,3 +30,10 @@ def pytest_unconfigure(config):
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(_EXIT["status"])
+
+
+@pytest.fixture(scope="session")
+def drivetrain_fmu_dir(tmp_path_factory):
+    """A private FMU directory shared by the tests that run scenes through the master (built on demand once
+    per session), so that tests never rewrite the shared fmus/."""
+    return tmp_path_factory.mktemp("fmus_session")

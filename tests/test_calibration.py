@@ -4,8 +4,6 @@ that the simulated means equal the steady-state balance used for the fit."""
 import csv
 import json
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,7 +13,6 @@ from drivetrain import rig
 from drivetrain.assemble import assemble
 from drivetrain.scenario import default_scene
 
-sys.path.insert(0, str(Path(__file__).parent))
 
 
 def _measured():
@@ -84,31 +81,36 @@ def test_calibrate_command_writes_a_file_the_assembler_takes(tmp_path, capsys):
     assert main(["calibrate", str(tmp_path / "missing.csv"), "--out", str(out)]) == 2
 
 
-def _time_domain_means(speed, load, duration=1.0, settle=0.6):
-    from _drivetrain_loop import Loop
+def _time_domain_means(fmu_dir, speed, load, duration=1.0, settle=0.6):
+    """Mean sensor torques after ``settle`` of a plain run through the master (in-process backend), every
+    communication step (the internal-rate records), and the assembler's steady state."""
+    from drivetrain.cosim import simulate
 
     sc = default_scene(effects__mesh_contact="ideal", operating_point__drive_speed_rpm=speed,
                        operating_point__load_torque_Nm=load)
     spec = assemble(sc)
     sens = spec.metadata["sensors"]
-    t, r = Loop(spec).run(duration, [sens["drive_shaft_torque"], sens["propeller_shaft_torque"]])
+    names = [sens["drive_shaft_torque"], sens["propeller_shaft_torque"]]
+    res = simulate(spec, duration, round(1.0 / spec.comm_step), names, backend="inprocess", fmu_dir=fmu_dir,
+                   keep_raw=True, progress=False)
+    t, r = res.raw["time"], res.raw
     m = t >= settle
     ss = spec.metadata["steady_state"]
     return (float(np.mean(r[sens["drive_shaft_torque"]][m])), float(np.mean(r[sens["propeller_shaft_torque"]][m])),
             ss["T_dsh"], ss["T_psh"])
 
 
-def test_time_domain_mean_equals_steady_state():
-    td, tp, sd, sp = _time_domain_means(1500.0, 1.31)
+def test_time_domain_mean_equals_steady_state(drivetrain_fmu_dir):
+    td, tp, sd, sp = _time_domain_means(drivetrain_fmu_dir, 1500.0, 1.31)
     assert td == pytest.approx(sd, rel=2e-3)
     assert tp == pytest.approx(sp, rel=2e-3)
 
 
 @pytest.mark.slow
-def test_time_domain_means_at_all_18_points_within_5_percent():
+def test_time_domain_means_at_all_18_points_within_5_percent(drivetrain_fmu_dir):
     d = _measured()
     for TL, TD, TP, n in zip(d["T_load_Nm"], d["T_DSH_Nm"], d["T_PSH_Nm"], d["n_DSH_rpm"]):
-        td, tp, _, _ = _time_domain_means(float(n), float(TL), duration=2.0, settle=1.0)
+        td, tp, _, _ = _time_domain_means(drivetrain_fmu_dir, float(n), float(TL), duration=2.0, settle=1.0)
         assert abs(td / TD - 1) < 0.05 and abs(tp / TP - 1) < 0.05, (TL, n, td, TD, tp, TP)
 
 

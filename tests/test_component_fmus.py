@@ -187,3 +187,72 @@ def test_master_runs_the_rigid_ideal_scene_through_fmi(fmus, tmp_path):
     assert res.energy["relative_residual"] < 1e-3
     enc = res.signals[sens["enc3"]]
     assert enc[-1] > enc[0]                              # the middle shaft turns forward
+
+
+#: a start per node for each model (node order: LineModel.node_names) and the outputs that show the nodes
+NODE_START = {
+    "FlexibleShaft": ({"k_c": 0.0, "n_elements": 2},
+                      [0.1, 0.098, 0.095], [10.0, 11.0, 9.0], ("flange_a", "hub_b")),
+    "UpperTransmission": ({}, [0.3], [-4.0], ("flange_a",)),
+    "MotorLoad": ({"w0": 5.0, "tau0": 0.2}, [0.2, 0.19, -0.01], [6.0, 5.5, 0.4], ("motor", "flywheel", "load")),
+}
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_node_start_parameters_give_the_state_asked(fmus, model):
+    """node_phi_start / node_w_start: after initialization every node is at the angle and speed asked (the
+    nodes an output shows directly; all of them through energy_stored: kinetic + springs + the port spring
+    against the flange input), with the inputs the host passed."""
+    params, phi, w, shown = NODE_START[model]
+    inst = Instance(str(fmus[model]), f"node_start_{model}")
+    try:
+        ints = {k: v for k, v in params.items() if isinstance(v, int)}
+        inst.fmu.setInteger([inst.vr[k] for k in ints], list(ints.values()))
+        inst.set(**{k: v for k, v in params.items() if k not in ints})
+        strings = {"node_phi_start": ", ".join(repr(x) for x in phi), "node_w_start": ",".join(repr(x) for x in w)}
+        inst.fmu.setString([inst.vr[k] for k in strings], list(strings.values()))
+        inst.fmu.enterInitializationMode()
+        ins = {n: 0.0 for n in fmishell.port_inputs(model)}
+        spring = [p for p, kind in fmishell.PORTS[model].items() if kind == "spring"]
+        for p in spring:
+            ins[f"{p}_phi"] = 0.05
+        inst.set(**ins)
+        inst.fmu.exitInitializationMode()
+        comp = make_component(model, params)
+        names = comp.line.node_names
+        assert len(names) == len(phi)
+        for body in shown:
+            node = {"flange_a": 0, "hub_b": 1, "motor": 0, "flywheel": 1, "load": 2}[body]
+            assert inst.get(f"{body}_phi", f"{body}_w") == [phi[node], w[node]], body
+        # every node: the stored energy at the start
+        ln = comp.line
+        J, k = np.asarray(ln.J), np.asarray(ln.k[: ln.n - 1])
+        th, om = np.array(phi), np.array(w)
+        e = 0.5 * np.sum(J * om * om) + np.sum(np.asarray(ln.Mo[: ln.n - 1]) * om[:-1] * om[1:])
+        e += 0.5 * np.sum(k * np.diff(th) ** 2)
+        for p in spring:
+            q = ln.port_index[p]
+            port = ln.ports[q]
+            e += 0.5 * port.k * (port.ratio * th[port.node] - 0.05) ** 2
+        assert inst.get("energy_stored")[0] == pytest.approx(e, rel=1e-12)
+        inst.fmu.doStep(0.0, H)                                    # and it steps from there
+        assert np.all(np.isfinite(inst.get(f"{shown[0]}_phi", f"{shown[0]}_w")))
+    finally:
+        inst.close()
+
+
+def test_a_wrong_node_start_is_an_initialization_error_with_the_nodes(fmus):
+    from fmpy.fmi1 import FMICallException
+
+    inst = Instance(str(fmus["MotorLoad"]), "node_start_bad")
+    try:
+        inst.fmu.setString([inst.vr["node_w_start"]], ["1, 2"])
+        inst.fmu.enterInitializationMode()
+        inst.fmu.exitInitializationMode()
+        with pytest.raises(FMICallException):
+            inst.fmu.doStep(0.0, H)
+        err = inst.fmu.getString([inst.vr["error"]])[0].decode()
+        assert err == ("MotorLoad: initialization failed: ValueError: node_w_start: got 2 values, expected 3 "
+                       "comma-separated values, one per node (motor, flywheel, load)")
+    finally:
+        inst.close()

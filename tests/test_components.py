@@ -274,3 +274,47 @@ def test_step_outputs_and_lazy_outputs_cover_every_output_once():
         comp = cls(pcls())
         assert set(comp.outputs()) == outputs, model
         assert all(type(v) is float for v in comp.step_outputs()), model
+
+
+@pytest.mark.parametrize("model", ["FlexibleShaft", "UpperTransmission", "MotorLoad"])
+def test_node_start_parameters(model):
+    """node_phi_start / node_w_start: the start state asked, node by node (the other start parameters still
+    set the rest: the PI integrator, the initial sensor torques); the default start written out as node
+    values steps bit for bit like the default (empty) start."""
+    base = {"w0": 150.0, "tau0": 0.4, "phi0": 0.3} if model != "MotorLoad" else {
+        "w0": 150.0, "w0_load": 12.5, "tau0": 0.4, "phi0_motor": 0.3, "phi0_load": -0.1}
+    if model == "UpperTransmission":
+        del base["tau0"]
+    ref = make_component(model, base)
+    n = ref.line.n
+    phi = np.linspace(0.5, -0.25, n)
+    w = np.linspace(-3.0, 7.0, n)
+    comp = make_component(model, {**base, "node_phi_start": ", ".join(map(repr, phi.tolist())),
+                                  "node_w_start": ",".join(map(repr, w.tolist()))})
+    assert comp.line.th.tolist() == phi.tolist() and comp.line.om.tolist() == w.tolist()
+    assert comp.line.pi_x[0] == ref.line.pi_x[0]
+    only_w = make_component(model, {**base, "node_w_start": ",".join(map(repr, w.tolist()))})
+    assert only_w.line.th.tolist() == ref.line.th.tolist() and only_w.line.om.tolist() == w.tolist()
+    # the default start, written out: the same steps bit for bit
+    same = make_component(model, {**base, "node_phi_start": ", ".join(map(repr, ref.line.th.tolist())),
+                                  "node_w_start": ", ".join(map(repr, ref.line.om.tolist()))})
+    rng_a, rng_b = np.random.default_rng(3), np.random.default_rng(3)
+    for k in range(50):
+        _random_drive(ref, rng_a, k * H, H)
+        _random_drive(same, rng_b, k * H, H)
+        ref.step(k * H, H)
+        same.step(k * H, H)
+    assert ref.outputs() == same.outputs()
+
+
+def test_node_start_errors_name_the_parameter_the_count_and_the_nodes():
+    with pytest.raises(ValueError, match=r"^node_phi_start: got 2 values, expected 3 comma-separated values, one "
+                                         r"per node \(motor, flywheel, load\)$"):
+        make_component("MotorLoad", {"node_phi_start": "1, 2"})
+    with pytest.raises(ValueError, match=r"^node_w_start: value 1 of 1 \('fast'\) is not a finite number; expected 1 "
+                                         r"comma-separated values, one per node \(n0\)$"):
+        make_component("UpperTransmission", {"node_w_start": "fast"})
+    for bad in ("inf, 0, 0, 0, 0, 0", "0, 0, 0, 0, 0, ", "0;0;0;0;0;0"):
+        with pytest.raises(ValueError, match=r"node_phi_start: .*\(hub_a, hub_b, shaft_0, shaft_1, shaft_2, shaft_3\)"):
+            make_component("FlexibleShaft", {"node_phi_start": bad})
+    assert make_component("MotorLoad", {"node_phi_start": "  "}).node_phi_start is None     # blank = empty

@@ -204,11 +204,14 @@ CASES = {
         "consistent_rigid_coupling_end": {"mass_model": 1, "k_c": 0.0, "n_elements": 6, "output_torque": "end",
                                           "energy_correction": 0, "tau0": 1.5, "w0": 100.0, "phi0": 0.2},
         "no_transducer": {"k_t": -1.0, "n_elements": 1, "max_substep": 3e-6, "d_shaft": 0.02},
+        "node_start": {"k_c": 0.0, "n_elements": 3, "tau0": 0.7,
+                       "node_phi_start": "0.01, -0.02,0.03 , 1e-3", "node_w_start": "1, 2, -3.5, 0"},
     },
     "UpperTransmission": {
         "defaults": {},
         "sensor_and_ratio": {"J_sensor": 2e-3, "ratio": 2.5, "loss_wc": 0.0, "loss_a": 0.05, "w0": 5.0,
                              "phi0": 1.0, "max_substep": 3e-6},
+        "node_start": {"node_phi_start": " 0.25 ", "node_w_start": "-7.5"},
     },
     "MotorLoad": {
         "defaults": {},
@@ -217,6 +220,7 @@ CASES = {
                                        "energy_correction": 0, "J_load_motor": 1e-4, "w0": 10.0, "tau0": 0.3,
                                        "load_w_nom": 50.0},
         "torque_load_limit": {"tau_max": 0.4, "Kp": 0.5, "pg_wc": 0.0, "load_w_reg": 0.0, "w0_load": 3.0},
+        "node_start": {"w0": 10.0, "tau0": 0.3, "node_phi_start": "0.1, 0.05, -0.2", "node_w_start": "11, 9.5, 0.8"},
     },
 }
 #: outputs numpy computes in the Python (agreement to rounding, see below)
@@ -296,7 +300,18 @@ BAD = [("FlexibleShaft", {"J_a": 0.0}, "J_a must be > 0"),
        ("MotorLoad", {"load_profile": "0:1; 0:2"}, "profile '0:1; 0:2': expected 't0:v0; t1:v1; ...' with "
                                                     "increasing times"),
        ("MotorLoad", {"load_mode": 2}, "load_mode must be 0 (torque) or 1 (viscous), got 2"),
-       ("MotorLoad", {"Ti": 0.0}, "motor: Kp, Ti, Ni must be > 0 and tau_max >= 0")]
+       ("MotorLoad", {"Ti": 0.0}, "motor: Kp, Ti, Ni must be > 0 and tau_max >= 0"),
+       ("MotorLoad", {"node_phi_start": "1, 2"}, "node_phi_start: got 2 values, expected 3 comma-separated values, "
+                                                 "one per node (motor, flywheel, load)"),
+       ("MotorLoad", {"node_w_start": "1, x, 3"}, "node_w_start: value 2 of 3 ('x') is not a finite number; expected "
+                                                  "3 comma-separated values, one per node (motor, flywheel, load)"),
+       ("FlexibleShaft", {"node_w_start": "0, 0, nan, 0, 0, 0"},
+        "node_w_start: value 3 of 6 ('nan') is not a finite number; expected 6 comma-separated values, one per node "
+        "(hub_a, hub_b, shaft_0, shaft_1, shaft_2, shaft_3)"),
+       ("FlexibleShaft", {"k_c": 0.0, "n_elements": 2, "node_phi_start": "1,2,3,4"},
+        "node_phi_start: got 4 values, expected 3 comma-separated values, one per node (hub_a, hub_b, shaft_1)"),
+       ("UpperTransmission", {"node_phi_start": "1,"}, "node_phi_start: got 2 values, expected 1 comma-separated "
+                                                       "values, one per node (n0)")]
 
 
 @pytest.mark.parametrize("model, params, text", BAD, ids=[f"{m}-{next(iter(p))}" for m, p, _ in BAD])

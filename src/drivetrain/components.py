@@ -617,6 +617,38 @@ def _energy_correction():
                        "work mismatch of the cut over 10 ms); 0: off")
 
 
+def _node_start(state: str, unit: str):
+    """node_phi_start / node_w_start: a start value per node of the component's chain (one place)."""
+    return _v("", None, f"start {state} [{unit}] of every node of the chain as comma-separated numbers in the "
+                        "node order (LineModel.node_names, docs/FMU.md); empty = the start from the other start "
+                        "parameters")
+
+
+def parse_node_values(text: str, name: str, node_names) -> np.ndarray | None:
+    """A node start parameter (``node_phi_start``, ``node_w_start``): comma-separated numbers, one per node
+    in the order ``node_names`` -> array, or None for an empty text. ValueError naming the parameter, the
+    count expected and the nodes for a wrong count, a non-number or a non-finite value (the native FMUs
+    give the same message, drivetrain/native/line_native.c)."""
+    text = (text or "").strip()
+    if not text:
+        return None
+    names = list(node_names)
+    want = (f"expected {len(names)} comma-separated values, one per node ({', '.join(names)})")
+    parts = [x.strip() for x in text.split(",")]
+    if len(parts) != len(names):
+        raise ValueError(f"{name}: got {len(parts)} values, {want}")
+    out = np.empty(len(parts))
+    for i, part in enumerate(parts):
+        try:
+            v = float(part)
+        except ValueError:
+            v = math.nan
+        if not math.isfinite(v):
+            raise ValueError(f"{name}: value {i + 1} of {len(names)} ('{part}') is not a finite number; {want}")
+        out[i] = v
+    return out
+
+
 @dataclass
 class FlexibleShaftParams:
     """The drive-shaft line from the elastomer coupling C2 to the upper gearbox (docs/DRIVETRAIN.md):
@@ -649,6 +681,8 @@ class FlexibleShaftParams:
     phi0: float = _v(0.0, "rad", "initial angle of the line (all nodes, before twist)")
     w0: float = _v(0.0, "rad/s", "initial speed of the line")
     tau0: float = _v(0.0, "N.m", "initial torque through the line (sets the initial twist of every spring)")
+    node_phi_start: str = _node_start("angle", "rad")
+    node_w_start: str = _node_start("speed", "rad/s")
 
 
 @dataclass
@@ -673,6 +707,8 @@ class UpperTransmissionParams:
     max_substep: float = _max_substep()
     phi0: float = _v(0.0, "rad", "initial angle of the input shaft")
     w0: float = _v(0.0, "rad/s", "initial speed of the input shaft")
+    node_phi_start: str = _node_start("angle", "rad")
+    node_w_start: str = _node_start("speed", "rad/s")
 
 
 @dataclass
@@ -726,6 +762,8 @@ class MotorLoadParams:
     tau0: float = _v(0.0, "N.m", "initial torque through the drive couplings (sets their initial twist)")
     phi0_load: float = _v(0.0, "rad", "initial angle of the load body")
     w0_load: float = _v(0.0, "rad/s", "initial speed of the load body")
+    node_phi_start: str = _node_start("angle", "rad")
+    node_w_start: str = _node_start("speed", "rad/s")
 
 
 def params_from(cls, values: dict | None = None, **kw):
@@ -775,6 +813,18 @@ class _LineComponent:
 
     def step_outputs(self) -> tuple:
         raise NotImplementedError
+
+    def _parse_node_start(self) -> None:
+        """The node start parameters (node_phi_start, node_w_start) checked and parsed once, at the build."""
+        names = self.line.node_names
+        self.node_phi_start = parse_node_values(self.p.node_phi_start, "node_phi_start", names)
+        self.node_w_start = parse_node_values(self.p.node_w_start, "node_w_start", names)
+
+    def _node_start(self, th, om):
+        """(th, om) with the node start parameters in place of the given start, where set."""
+        th = th if self.node_phi_start is None else self.node_phi_start.copy()
+        om = om if self.node_w_start is None else self.node_w_start.copy()
+        return th, om
 
     def lazy_outputs(self) -> dict:
         """The outputs the FMU shell computes only when a host reads them (fmishell.LAZY_OUTPUTS)."""
@@ -857,6 +907,7 @@ class FlexibleShaft(_LineComponent):
                               output_torque=p.output_torque, Mo=Mo, node_names=names,
                               energy_correction=bool(p.energy_correction))
         self.sensor_element = 0 if p.k_t > 0 else -1
+        self._parse_node_start()
         self.initialize()
 
     def compliance_to_port(self) -> float:
@@ -870,7 +921,7 @@ class FlexibleShaft(_LineComponent):
         th[0] = p.phi0
         for i in range(1, self.line.n):
             th[i] = th[i - 1] - p.tau0 / self.line.k[i - 1]
-        self.line.set_state(th, np.full(self.line.n, p.w0))
+        self.line.set_state(*self._node_start(th, np.full(self.line.n, p.w0)))
         self.torque_sensor = float(p.tau0) if self.sensor_element >= 0 else float(p.tau0)
         self.shaft_torque = float(p.tau0)
 
@@ -916,10 +967,11 @@ class UpperTransmission(_LineComponent):
         ports = [Port("flange_a", 0, kind["flange_a"], 1.0), Port("flange_b", 0, kind["flange_b"], 1.0 / p.ratio)]
         laws = [Law("loss", 0, p.loss_c, p.loss_Tc, p.loss_wc if p.loss_wc > 0 else 1.0, p.loss_a)]
         self.line = LineModel([Jtot], [], [], None, ports, laws, max_substep=p.max_substep)
+        self._parse_node_start()
         self.initialize()
 
     def initialize(self):
-        self.line.set_state([self.p.phi0], [self.p.w0])
+        self.line.set_state(*self._node_start([self.p.phi0], [self.p.w0]))
         self.torque_sensor = 0.0
         self._loss_at = None           # (w, loss level) at the end of the last step: loss_torque when read
         self._tau_a = 0.0
@@ -994,6 +1046,7 @@ class MotorLoad(_LineComponent):
         self.load_profile = parse_profile(p.load_profile)
         self.speed_ref_rpm = p.w0 / RPM
         self.load_torque = 0.0
+        self._parse_node_start()
         self.initialize()
 
     # steady state of the drive side for a through torque tau0 at speed w0
@@ -1003,8 +1056,9 @@ class MotorLoad(_LineComponent):
             self.load_torque = float(load_torque)
         th = np.array([p.phi0_motor, p.phi0_motor - p.tau0 / p.k_c1, p.phi0_load])
         om = np.array([p.w0, p.w0, p.w0_load])
+        # the PI integrator holds the motor torque of the parameters' start (tau0 at w0), node start or not
         Tm = p.tau0 + p.c_motor * p.w0
-        self.line.set_state(th, om, Tm / p.Kp)
+        self.line.set_state(*self._node_start(th, om), Tm / p.Kp)
         self.motor_torque = Tm
         self.load_motor_torque = self.load_torque
         self._set_load_level(self.load_torque)

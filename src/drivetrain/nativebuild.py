@@ -76,9 +76,11 @@ def _probe_slave():
 
 def gear_parameters(scene) -> dict:
     """The GearContact parameters of a scene (component "gear" as assembled)."""
-    from drivetrain.run import assemble_scene
+    # the assembler itself, not drivetrain.run.assemble_scene: drivetrain.run imports drivetrain.nativeline,
+    # which imports this module (no import cycle, tests/test_architecture.py)
+    from drivetrain.assemble import assemble
 
-    spec = assemble_scene(scene)
+    spec = assemble(scene)
     gears = [c for c in spec.components if c.model == MODEL]
     if not gears:
         raise NativeBuildError([f"scene {scene.name!r} has no {MODEL} component (effects.mesh_contact = "

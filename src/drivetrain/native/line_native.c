@@ -386,6 +386,62 @@ MAYBE_UNUSED static int profile_parse(const char *text, Profile *p, char *why, s
     return 1;
 }
 
+/* components.parse_node_values: a node start parameter (node_phi_start, node_w_start), comma-separated numbers,
+ * one per node. 1: out[0..n) filled (set = 1) or an empty text (set = 0); 0: a message in why (the Python's).
+ * node_name(i, buf, nbuf) writes the name of node i (LineModel.node_names). */
+typedef void (*NodeNameFn)(const void *c, int64_t i, char *buf, size_t nbuf);
+
+static void node_list(const void *c, NodeNameFn node_name, int64_t n, char *buf, size_t nbuf) {
+    size_t len = 0;
+    buf[0] = 0;
+    for (int64_t i = 0; i < n && len + 1 < nbuf; i++) {
+        char nm[64];
+        node_name(c, i, nm, sizeof nm);
+        int w = snprintf(buf + len, nbuf - len, "%s%s", i ? ", " : "", nm);
+        if (w < 0) break;
+        len += (size_t)w;
+    }
+}
+
+MAYBE_UNUSED static int node_values_parse(const void *c, const char *text, const char *name, int64_t n,
+                                          NodeNameFn node_name, double *out, int *set, char *why, size_t nwhy) {
+    const char *ws = " \t\n\r\f\v";
+    *set = 0;
+    size_t a = 0, b = strlen(text);
+    while (a < b && strchr(ws, text[a])) a++;
+    while (b > a && strchr(ws, text[b - 1])) b--;
+    if (a == b) return 1;
+    char names[1024];
+    node_list(c, node_name, n, names, sizeof names);
+    int64_t count = 1;
+    for (size_t i = a; i < b; i++) if (text[i] == ',') count++;
+    if (count != n) {
+        snprintf(why, nwhy, "ValueError: %s: got %lld values, expected %lld comma-separated values, one per node (%s)",
+                 name, (long long)count, (long long)n, names);
+        return 0;
+    }
+    int64_t k = 0;
+    size_t i = a;
+    while (i <= b && k < n) {
+        size_t e = i;
+        while (e < b && text[e] != ',') e++;
+        size_t s0 = i, s1 = e;
+        while (s0 < s1 && strchr(ws, text[s0])) s0++;
+        while (s1 > s0 && strchr(ws, text[s1 - 1])) s1--;
+        double v;
+        if (!pyfloat_parse(text + s0, s1 - s0, &v) || !isfinite(v)) {
+            snprintf(why, nwhy, "ValueError: %s: value %lld of %lld ('%.*s') is not a finite number; expected %lld "
+                     "comma-separated values, one per node (%s)", name, (long long)(k + 1), (long long)n,
+                     (int)(s1 - s0), text + s0, (long long)n, names);
+            return 0;
+        }
+        out[k++] = v;
+        i = e + 1;
+    }
+    *set = 1;
+    return 1;
+}
+
 /* The packed arrays of a LineModel (components.LineModel: fp, ip, st, out, wk) and its Python-side state */
 typedef struct {
     int64_t n, P, L;
@@ -740,10 +796,28 @@ static int line_step_checked(Inst *c, double t, double H, double wref0, double w
 #define R(name) (c->r[VR_##name])
 #define I(name) (c->iv[VR_##name])
 
+/* the node start parameters (components._LineComponent._node_start): th, om replaced where set */
+static int node_start(Inst *c, NodeNameFn node_name, double *th, double *om, char *why, size_t nwhy) {
+    int set;
+    if (!node_values_parse(c, var_string(c, VR_node_phi_start), "node_phi_start", c->ln.n, node_name, th, &set, why,
+                           nwhy))
+        return 0;
+    return node_values_parse(c, var_string(c, VR_node_w_start), "node_w_start", c->ln.n, node_name, om, &set, why,
+                             nwhy);
+}
+
 #if LN_MODEL == LN_FLEXIBLE_SHAFT
 /* ---- FlexibleShaft ---- */
+/* FlexibleShaft's node names: hub_a, hub_b (k_t > 0), shaft_0 (k_c > 0), shaft_1 ... */
+static void node_name(const void *cv, int64_t i, char *buf, size_t nbuf) {
+    const Inst *c = (const Inst *)cv;
+    int64_t base = R(k_t) > 0 ? 2 : 1;
+    if (i == 0) snprintf(buf, nbuf, "hub_a");
+    else if (i < base) snprintf(buf, nbuf, "hub_b");
+    else snprintf(buf, nbuf, "shaft_%lld", (long long)(R(k_c) > 0 ? i - base : i - base + 1));
+}
+
 static int comp_initialize(Inst *c, char *why, size_t nwhy) {
-    (void)why; (void)nwhy;
     int64_t n = c->ln.n;
     double *th = LN_TH(c), *om = LN_OM(c);           /* LineModel.set_state, in place */
     th[0] = R(phi0);
@@ -752,6 +826,7 @@ static int comp_initialize(Inst *c, char *why, size_t nwhy) {
         om[i] = R(w0);
         c->st[2 * n + 1 + i] = 0.0;
     }
+    if (!node_start(c, node_name, th, om, why, nwhy)) return 0;
     LN_PI(c)[0] = 0.0;
     LN_ENERGY(c)[0] = 0.0;
     LN_ENERGY(c)[1] = 0.0;
@@ -858,9 +933,14 @@ static const int SPRING_OUTPUT_VRS[] = {VR_flange_b_tau, VR_flange_b_tau_mean};
 
 #elif LN_MODEL == LN_UPPER_TRANSMISSION
 /* ---- UpperTransmission ---- */
+static void node_name(const void *cv, int64_t i, char *buf, size_t nbuf) {
+    (void)cv;
+    snprintf(buf, nbuf, "n%lld", (long long)i);      /* LineModel's default node names */
+}
+
 static int comp_initialize(Inst *c, char *why, size_t nwhy) {
-    (void)why; (void)nwhy;
     double th[1] = {R(phi0)}, om[1] = {R(w0)};
+    if (!node_start(c, node_name, th, om, why, nwhy)) return 0;
     line_set_state(c, th, om, 0.0);
     c->torque_sensor = 0.0;
     c->loss_at = 0;
@@ -937,11 +1017,21 @@ static void set_load_level(Inst *c, double T_set) {
     }
 }
 
-/* MotorLoad.initialize(load_torque) (has_load: the argument given) */
+static void node_name(const void *cv, int64_t i, char *buf, size_t nbuf) {
+    static const char *names[3] = {"motor", "flywheel", "load"};
+    (void)cv;
+    snprintf(buf, nbuf, "%s", i >= 0 && i < 3 ? names[i] : "?");
+}
+
+/* MotorLoad.initialize(load_torque) (has_load: the argument given); the node start parameters were checked at
+ * the build (comp_build) */
 static void comp_initialize_load(Inst *c, int has_load, double load_torque) {
     if (has_load) c->load_torque = load_torque;
     double th[3] = {R(phi0_motor), R(phi0_motor) - R(tau0) / R(k_c1), R(phi0_load)};
     double om[3] = {R(w0), R(w0), R(w0_load)};
+    char why[1536];
+    (void)node_start(c, node_name, th, om, why, sizeof why);
+    /* the PI integrator holds the motor torque of the parameters' start (tau0 at w0), node start or not */
     double Tm = R(tau0) + R(c_motor) * R(w0);
     line_set_state(c, th, om, Tm / R(Kp));
     c->motor_torque = Tm;
@@ -970,6 +1060,8 @@ static int comp_build(Inst *c, char *why, size_t nwhy) {
         return 0;
     if (!profile_parse(var_string(c, VR_speed_profile), &c->speed_profile, why, nwhy)) return 0;
     if (!profile_parse(var_string(c, VR_load_profile), &c->load_profile, why, nwhy)) return 0;
+    double th_chk[3], om_chk[3];
+    if (!node_start(c, node_name, th_chk, om_chk, why, nwhy)) return 0;
     c->speed_ref_rpm = R(w0) / RPM;
     c->load_torque = 0.0;
     comp_initialize_load(c, 0, 0.0);

@@ -44,7 +44,8 @@ NATIVE_DIR = Path(gearcontact_fmu.__file__).resolve().parent / "native"
 SLAVE_SCRIPT = Path(gearcontact_fmu.__file__).resolve().parent / "slaves" / "GearContact.py"
 C_SOURCE = "gearcontact_native.c"
 #: the coupling correction, shared with the native line FMUs (drivetrain.nativeline)
-SHARED_HEADER = "coupling_correction.h"
+#: C headers every native FMU compiles (in gearcontact_fmu/native, shipped in each FMU's sources/)
+SHARED_HEADERS = ("coupling_correction.h",)
 BUILD_HEADER = "gearcontact_build.h"
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 MAP_RESOURCE = "contact_map.bin"
@@ -237,25 +238,26 @@ def xml_start(r: dict) -> str:
     return str(s)
 
 
-def model_description(slave, rows: list[dict], guid: str) -> bytes:
-    """modelDescription.xml of the native FMU: the slave's variables (same names, types and value
-    references), units and descriptions (drivetrain.fmubuild's post-processing)."""
+def native_model_description(model: str, slave, rows: list[dict], guid: str, *, c_source: str, note: str,
+                             tool: str, descriptions: dict, real_start=repr) -> bytes:
+    """modelDescription.xml of a native FMU: the pythonfmu slave's variables (same names, types and value
+    references), units and ``descriptions`` (drivetrain.fmubuild's post-processing), the C source, ``note``
+    after the slave's description, ``real_start`` formatting the Real start values."""
     from drivetrain.fmubuild import edit_model_description
 
     cls = type(slave)
     de = cls.default_experiment
     root = ET.Element("fmiModelDescription", {
-        "fmiVersion": "2.0", "modelName": MODEL, "guid": guid,
-        "description": cls.description + " Native build: fidelity table, mode stage, compiled C (no Python).",
-        "author": cls.author, "version": str(cls.version), "generationTool": "bevel-drivetrain nativebuild",
+        "fmiVersion": "2.0", "modelName": model, "guid": guid, "description": cls.description + note,
+        "author": cls.author, "version": str(cls.version), "generationTool": tool,
         "variableNamingConvention": "flat", "numberOfEventIndicators": "0"})
     cs = ET.SubElement(root, "CoSimulation", {
-        "modelIdentifier": MODEL, "needsExecutionTool": "false", "canHandleVariableCommunicationStepSize": "true",
+        "modelIdentifier": model, "needsExecutionTool": "false", "canHandleVariableCommunicationStepSize": "true",
         "canInterpolateInputs": "false", "canBeInstantiatedOnlyOncePerProcess": "false",
         "canNotUseMemoryManagementFunctions": "true", "canGetAndSetFMUstate": "true",
         "canSerializeFMUstate": "true", "providesDirectionalDerivative": "false"})
     files = ET.SubElement(cs, "SourceFiles")
-    ET.SubElement(files, "File", name=C_SOURCE)
+    ET.SubElement(files, "File", name=c_source)
     cats = ET.SubElement(root, "LogCategories")
     ET.SubElement(cats, "Category", name="logStatusError", description="errors: the cause of a refused call or step")
     ET.SubElement(cats, "Category", name="logAll", description="information (with debug logging on)")
@@ -271,19 +273,33 @@ def model_description(slave, rows: list[dict], guid: str) -> bytes:
         if r["causality"] == "output":
             attrs["initial"] = "exact"
         sv = ET.SubElement(mv, "ScalarVariable", attrs)
-        ET.SubElement(sv, r["type"], start=xml_start(r))
+        start = real_start(float(r["start"])) if r["type"] == "Real" else xml_start(r)
+        ET.SubElement(sv, r["type"], start=start)
     ms = ET.SubElement(root, "ModelStructure")
     outs = ET.SubElement(ms, "Outputs")
     for i, r in enumerate(rows):
         if r["causality"] == "output":
             ET.SubElement(outs, "Unknown", index=str(i + 1))
-    descriptions = {}
-    for r in rows:
-        text = cls.variable_descriptions.get(r["name"], "")
-        descriptions[r["name"]] = text + (FIXED_NOTE if r["role"] == "fixed" else
-                                          IGNORED_NOTE if r["role"] == "ignored" else "")
     return edit_model_description(ET.tostring(root, encoding="UTF-8", xml_declaration=True), cls.units, {},
                                   descriptions)
+
+
+def model_description(slave, rows: list[dict], guid: str) -> bytes:
+    """modelDescription.xml of the native GearContact (the fixed and ignored parameters say so)."""
+    notes = {"fixed": FIXED_NOTE, "ignored": IGNORED_NOTE}
+    descriptions = {r["name"]: type(slave).variable_descriptions.get(r["name"], "") + notes.get(r["role"], "")
+                    for r in rows}
+    return native_model_description(MODEL, slave, rows, guid, c_source=C_SOURCE, tool="bevel-drivetrain nativebuild",
+                                    note=" Native build: fidelity table, mode stage, compiled C (no Python).",
+                                    descriptions=descriptions)
+
+
+def copy_shared_sources(src: Path) -> None:
+    """Into a native FMU's sources/: the shared headers and the FMI 2.0 headers."""
+    for name in SHARED_HEADERS:
+        shutil.copy2(NATIVE_DIR / name, src / name)
+    for name in FMI_HEADERS:
+        shutil.copy2(fmi_header_dir() / name, src / name)
 
 
 def fmi_header_dir() -> Path:
@@ -293,10 +309,10 @@ def fmi_header_dir() -> Path:
     return Path(fmpy.__file__).resolve().parent / "c-code"
 
 
-def compile_command(src_dir: Path, out: Path, cc: str = "gcc") -> list[str]:
-    """The compiler call (the same one documented for other platforms in docs/FMU.md)."""
+def compile_command(src_dir: Path, out: Path, cc: str = "gcc", source: str = C_SOURCE) -> list[str]:
+    """The compiler call of every native FMU (the one documented for other platforms in docs/FMU.md)."""
     return [cc, "-O3", "-fPIC", "-shared", "-std=c99", "-ffp-contract=off", "-fvisibility=hidden",
-            f"-I{src_dir}", str(src_dir / C_SOURCE), "-o", str(out), "-lm"]
+            f"-I{src_dir}", str(src_dir / source), "-o", str(out), "-lm"]
 
 
 def build_native_gear(parameters: dict | None = None, out: str | Path = "fmus/native/GearContact.fmu", *,
@@ -334,12 +350,11 @@ def build_native_gear(parameters: dict | None = None, out: str | Path = "fmus/na
         h = hashlib.sha256((res / MAP_RESOURCE).read_bytes())
         h.update(repr([(r["name"], r["type"], r["start"], r["role"]) for r in rows]).encode())
         h.update((NATIVE_DIR / C_SOURCE).read_bytes())
-        h.update((NATIVE_DIR / SHARED_HEADER).read_bytes())
+        for name in SHARED_HEADERS:
+            h.update((NATIVE_DIR / name).read_bytes())
         guid = "{" + str(uuid.UUID(h.hexdigest()[:32])) + "}"
         shutil.copy2(NATIVE_DIR / C_SOURCE, src / C_SOURCE)
-        shutil.copy2(NATIVE_DIR / SHARED_HEADER, src / SHARED_HEADER)
-        for name in FMI_HEADERS:
-            shutil.copy2(fmi_header_dir() / name, src / name)
+        copy_shared_sources(src)
         write_header(rows, guid, src / BUILD_HEADER)
         (tmp / "modelDescription.xml").write_bytes(model_description(slave, rows, guid))
         cmd = compile_command(src, bind / f"{MODEL}.so", cc)

@@ -33,20 +33,20 @@ import uuid
 import zipfile
 from pathlib import Path
 from typing import Callable
-from xml.etree import ElementTree as ET
 
 import drivetrain
 import gearcontact_fmu
 from drivetrain.errors import NativeBuildError
-from drivetrain.nativebuild import FMI_HEADERS, c_double, c_string, xml_start, fmi_header_dir
+from drivetrain.nativebuild import NATIVE_DIR as SHARED_DIR
+from drivetrain.nativebuild import SHARED_HEADERS, c_double, c_string, copy_shared_sources
+from drivetrain.nativebuild import compile_command as native_compile_command
+from drivetrain.nativebuild import native_model_description
 
 MODELS = ("FlexibleShaft", "UpperTransmission", "MotorLoad")
 #: the model selector of line_native.c (LN_MODEL)
 MODEL_CODES = {"FlexibleShaft": 1, "UpperTransmission": 2, "MotorLoad": 3}
 NATIVE_DIR = Path(drivetrain.__file__).resolve().parent / "native"
-SHARED_DIR = Path(gearcontact_fmu.__file__).resolve().parent / "native"
 C_SOURCE = "line_native.c"
-SHARED_HEADER = "coupling_correction.h"
 BUILD_HEADER = "line_build.h"
 #: the default cache of native FMUs (drivetrain run --native)
 CACHE_DIR = Path("fmus") / "native"
@@ -125,55 +125,18 @@ def write_header(model: str, rows: list[dict], guid: str, path: Path) -> None:
 
 def model_description(model: str, slave, rows: list[dict], guid: str) -> bytes:
     """modelDescription.xml: the slave's variables (names, value references, types, causality, variability,
-    initial, start), units and descriptions (drivetrain.fmubuild's post-processing)."""
-    from drivetrain.fmubuild import edit_model_description
-
-    cls = type(slave)
-    de = cls.default_experiment
-    root = ET.Element("fmiModelDescription", {
-        "fmiVersion": "2.0", "modelName": model, "guid": guid,
-        "description": cls.description + " Native build: compiled C (no Python).",
-        "author": cls.author, "version": str(cls.version), "generationTool": "bevel-drivetrain nativeline",
-        "variableNamingConvention": "flat", "numberOfEventIndicators": "0"})
-    cs = ET.SubElement(root, "CoSimulation", {
-        "modelIdentifier": model, "needsExecutionTool": "false", "canHandleVariableCommunicationStepSize": "true",
-        "canInterpolateInputs": "false", "canBeInstantiatedOnlyOncePerProcess": "false",
-        "canNotUseMemoryManagementFunctions": "true", "canGetAndSetFMUstate": "true",
-        "canSerializeFMUstate": "true", "providesDirectionalDerivative": "false"})
-    files = ET.SubElement(cs, "SourceFiles")
-    ET.SubElement(files, "File", name=C_SOURCE)
-    cats = ET.SubElement(root, "LogCategories")
-    ET.SubElement(cats, "Category", name="logStatusError", description="errors: the cause of a refused call or step")
-    ET.SubElement(cats, "Category", name="logAll", description="information (with debug logging on)")
-    ET.SubElement(root, "DefaultExperiment", startTime=repr(float(de.start_time)), stopTime=repr(float(de.stop_time)),
-                  stepSize=repr(float(de.step_size)))
-    mv = ET.SubElement(root, "ModelVariables")
-    for r in rows:
-        attrs = {"name": r["name"], "valueReference": str(r["vr"]), "causality": r["causality"]}
-        if r["causality"] == "parameter":
-            attrs["variability"] = "fixed"
-        elif r["type"] != "Real":
-            attrs["variability"] = "discrete"
-        if r["causality"] == "output":
-            attrs["initial"] = "exact"
-        sv = ET.SubElement(mv, "ScalarVariable", attrs)
-        # Real starts as pythonfmu writes them (f"{x:.16g}"), so the two FMUs declare the same; the value the
-        # instance starts from is the exact default in both (the C table holds it to the bit)
-        start = format(float(r["start"]), ".16g") if r["type"] == "Real" else xml_start(r)
-        ET.SubElement(sv, r["type"], start=start)
-    ms = ET.SubElement(root, "ModelStructure")
-    outs = ET.SubElement(ms, "Outputs")
-    for i, r in enumerate(rows):
-        if r["causality"] == "output":
-            ET.SubElement(outs, "Unknown", index=str(i + 1))
-    return edit_model_description(ET.tostring(root, encoding="UTF-8", xml_declaration=True), cls.units, {},
-                                  dict(cls.variable_descriptions))
+    initial, start), units and descriptions. Real starts as pythonfmu writes them (f"{x:.16g}"), so the two
+    FMUs declare the same; the value the instance starts from is the exact default in both (the C table
+    holds it to the bit)."""
+    return native_model_description(model, slave, rows, guid, c_source=C_SOURCE, note=" Native build: compiled C "
+                                    "(no Python).", tool="bevel-drivetrain nativeline",
+                                    descriptions=dict(type(slave).variable_descriptions),
+                                    real_start=lambda x: format(x, ".16g"))
 
 
 def compile_command(src_dir: Path, out: Path, cc: str = "gcc") -> list[str]:
-    """The compiler call (the one documented for other platforms in docs/FMU.md)."""
-    return [cc, "-O3", "-fPIC", "-shared", "-std=c99", "-ffp-contract=off", "-fvisibility=hidden",
-            f"-I{src_dir}", str(src_dir / C_SOURCE), "-o", str(out), "-lm"]
+    """The compiler call of every native FMU (nativebuild.compile_command) for line_native.c."""
+    return native_compile_command(src_dir, out, cc, C_SOURCE)
 
 
 def toolchain_problems(cc: str | None = None) -> list[str]:
@@ -199,7 +162,7 @@ def _fingerprint(model: str, rows: list[dict], cc: str) -> str:
     h.update(model.encode())
     h.update(repr([(r["vr"], r["name"], r["type"], r["causality"], r["start"]) for r in rows]).encode())
     h.update(repr(_port_names(model)).encode())
-    for f in (NATIVE_DIR / C_SOURCE, SHARED_DIR / SHARED_HEADER, Path(__file__)):
+    for f in (NATIVE_DIR / C_SOURCE, *(SHARED_DIR / name for name in SHARED_HEADERS), Path(__file__)):
         h.update(f.read_bytes())
     h.update(" ".join(compile_command(Path("src"), Path("out"), cc)).encode())
     return h.hexdigest()
@@ -232,9 +195,7 @@ def build_native_line(model: str, out: str | Path | None = None, *, cc: str | No
         for d in (src, bind):
             d.mkdir(parents=True)
         shutil.copy2(NATIVE_DIR / C_SOURCE, src / C_SOURCE)
-        shutil.copy2(SHARED_DIR / SHARED_HEADER, src / SHARED_HEADER)
-        for name in FMI_HEADERS:
-            shutil.copy2(fmi_header_dir() / name, src / name)
+        copy_shared_sources(src)
         write_header(model, rows, guid, src / BUILD_HEADER)
         (tmp / "modelDescription.xml").write_bytes(model_description(model, slave, rows, guid))
         cmd = compile_command(src, bind / f"{model}.so", cc)

@@ -35,61 +35,54 @@ def _scene_errors(exc: BaseException) -> int:
     return 2
 
 
-def _cmd_export_ssp(args: argparse.Namespace) -> int:
+def _write_from_scene(args: argparse.Namespace, write, what: str) -> int:
+    """The export and build commands: load the scene of ``args``, ``write(scene, log)`` returns the lines
+    to print; a scene or system refusal exits 2 with its problems, a file system error 2 naming ``what``."""
     from drivetrain.errors import ConfigurationError, ScenarioError
     from drivetrain.scenario import load_scene
-    from drivetrain.ssp import export_ssp
 
     try:
         scene = load_scene(args.scene, args.set or (), case=args.case)
-    except ScenarioError as exc:
-        return _scene_errors(exc)
-    try:
-        path = export_ssp(scene, args.out or f"{scene.name}.ssp", fmu_dir=args.fmu_dir,
-                          log=lambda m: print(m, file=sys.stderr))
-    except ConfigurationError as exc:
+        lines = write(scene, lambda m: print(m, file=sys.stderr))
+    except (ScenarioError, ConfigurationError) as exc:
         return _scene_errors(exc)
     except OSError as exc:
-        print(f"error: cannot write the archive: {exc}", file=sys.stderr)
+        print(f"error: cannot write {what}: {exc}", file=sys.stderr)
         return 2
-    print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB): {scene.name}, stop time {scene.time.duration_s:g} s")
+    for line in lines:
+        print(line)
     return 0
+
+
+def _cmd_export_ssp(args: argparse.Namespace) -> int:
+    from drivetrain.ssp import export_ssp
+
+    def write(scene, log):
+        path = export_ssp(scene, args.out or f"{scene.name}.ssp", fmu_dir=args.fmu_dir, log=log)
+        return [f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB): {scene.name}, stop time "
+                f"{scene.time.duration_s:g} s"]
+
+    return _write_from_scene(args, write, "the archive")
 
 
 def _cmd_build_native_gear(args: argparse.Namespace) -> int:
-    from drivetrain.errors import ConfigurationError, ScenarioError
     from drivetrain.nativebuild import build_native_gear, gear_parameters
-    from drivetrain.scenario import load_scene
 
-    try:
-        scene = load_scene(args.scene, args.set or (), case=args.case)
-        params = gear_parameters(scene)
-        path = build_native_gear(params, args.out, log=lambda m: print(m, file=sys.stderr))
-    except (ScenarioError, ConfigurationError) as exc:
-        return _scene_errors(exc)
-    except OSError as exc:
-        print(f"error: cannot write the FMU: {exc}", file=sys.stderr)
-        return 2
-    print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB): native GearContact of {scene.name} (table, stage)")
-    return 0
+    def write(scene, log):
+        path = build_native_gear(gear_parameters(scene), args.out, log=log)
+        return [f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB): native GearContact of {scene.name} (table, stage)"]
+
+    return _write_from_scene(args, write, "the FMU")
 
 
 def _cmd_build_native(args: argparse.Namespace) -> int:
-    from drivetrain.errors import ConfigurationError, ScenarioError
     from drivetrain.nativeline import build_native_fmus
-    from drivetrain.scenario import load_scene
 
-    try:
-        scene = load_scene(args.scene, args.set or (), case=args.case)
-        paths = build_native_fmus(scene, args.out, log=lambda m: print(m, file=sys.stderr))
-    except (ScenarioError, ConfigurationError) as exc:
-        return _scene_errors(exc)
-    except OSError as exc:
-        print(f"error: cannot write the FMUs: {exc}", file=sys.stderr)
-        return 2
-    for model, path in paths.items():
-        print(f"wrote {path}: native {model}")
-    return 0
+    def write(scene, log):
+        paths = build_native_fmus(scene, args.out, log=log)
+        return [f"wrote {path}: native {model}" for model, path in paths.items()]
+
+    return _write_from_scene(args, write, "the FMUs")
 
 
 _FORCE_HELP = ("run even when the run is predicted to take more than 10x its simulated time (and over 10 min), "

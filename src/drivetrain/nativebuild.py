@@ -294,6 +294,32 @@ def model_description(slave, rows: list[dict], guid: str) -> bytes:
                                     descriptions=descriptions)
 
 
+def compile_and_pack(tmp: Path, model: str, source: str, cc: str, out: Path, log, about_html: str) -> None:
+    """The last steps of every native build, in the FMU's directory tree ``tmp`` (sources/ and
+    modelDescription.xml written): compile binaries/linux64/<model>.so, write documentation/index.html
+    (``about_html``, then how to compile the sources elsewhere) and zip the tree to ``out`` (written to a
+    part file first, then renamed: never half an FMU)."""
+    cmd = compile_command(tmp / "sources", tmp / "binaries" / "linux64" / f"{model}.so", cc, source)
+    if log:
+        log(" ".join(cmd))
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise NativeBuildError([f"compiling the native {model} failed ({' '.join(cmd)}):\n{proc.stderr}"])
+    (tmp / "documentation").mkdir()
+    (tmp / "documentation" / "index.html").write_text(
+        f"<html><body><h1>{model} (native)</h1><p>{about_html}</p><p>The sources (<code>sources/</code>) compile "
+        "on other platforms with "
+        f"<code>cc -O3 -fPIC -shared -std=c99 -ffp-contract=off -I. {source} -o {model}.so -lm</code>."
+        "</p></body></html>\n")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    part = out.with_name(out.name + f".{os.getpid()}.part")
+    with zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as z:
+        for f in sorted(tmp.rglob("*")):
+            if f.is_file():
+                z.write(f, f.relative_to(tmp).as_posix())
+    os.replace(part, out)
+
+
 def copy_shared_sources(src: Path) -> None:
     """Into a native FMU's sources/: the shared headers and the FMI 2.0 headers."""
     for name in SHARED_HEADERS:
@@ -357,26 +383,9 @@ def build_native_gear(parameters: dict | None = None, out: str | Path = "fmus/na
         copy_shared_sources(src)
         write_header(rows, guid, src / BUILD_HEADER)
         (tmp / "modelDescription.xml").write_bytes(model_description(slave, rows, guid))
-        cmd = compile_command(src, bind / f"{MODEL}.so", cc)
-        if log:
-            log(" ".join(cmd))
-        proc = subprocess.run(cmd, capture_output=True, text=True)
-        if proc.returncode != 0:
-            raise NativeBuildError([f"compiling the native GearContact failed ({' '.join(cmd)}):\n{proc.stderr}"])
-        (tmp / "documentation").mkdir()
-        (tmp / "documentation" / "index.html").write_text(
-            "<html><body><h1>GearContact (native)</h1><p>Lower bevel gear stage, fidelity table, mode stage, "
-            "compiled C: no Python needed. The contact map is <code>resources/contact_map.bin</code>; the "
-            "sources (<code>sources/</code>) compile on other platforms with "
-            "<code>cc -O3 -fPIC -shared -std=c99 -ffp-contract=off -I. gearcontact_native.c -o GearContact.so -lm</code>."
-            "</p></body></html>\n")
-        out.parent.mkdir(parents=True, exist_ok=True)
-        part = out.with_name(out.name + f".{os.getpid()}.part")
-        with zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as z:
-            for f in sorted(tmp.rglob("*")):
-                if f.is_file():
-                    z.write(f, f.relative_to(tmp).as_posix())
-        os.replace(part, out)
+        compile_and_pack(tmp, MODEL, C_SOURCE, cc, out, log,
+                         "Lower bevel gear stage, fidelity table, mode stage, compiled C: no Python needed. The "
+                         "contact map is <code>resources/contact_map.bin</code>.")
     if log:
         info = arrays["info"]
         log(f"wrote {out}: map {arrays['values'].shape[0]} x {arrays['values'].shape[2]} nodes "

@@ -26,11 +26,9 @@ import hashlib
 import json
 import os
 import shutil
-import subprocess
 import tempfile
 import time
 import uuid
-import zipfile
 from pathlib import Path
 from typing import Callable
 
@@ -38,7 +36,7 @@ import drivetrain
 import gearcontact_fmu
 from drivetrain.errors import NativeBuildError
 from drivetrain.nativebuild import NATIVE_DIR as SHARED_DIR
-from drivetrain.nativebuild import SHARED_HEADERS, c_double, c_string, copy_shared_sources
+from drivetrain.nativebuild import SHARED_HEADERS, c_double, c_string, compile_and_pack, copy_shared_sources
 from drivetrain.nativebuild import compile_command as native_compile_command
 from drivetrain.nativebuild import native_model_description
 
@@ -198,26 +196,9 @@ def build_native_line(model: str, out: str | Path | None = None, *, cc: str | No
         copy_shared_sources(src)
         write_header(model, rows, guid, src / BUILD_HEADER)
         (tmp / "modelDescription.xml").write_bytes(model_description(model, slave, rows, guid))
-        cmd = compile_command(src, bind / f"{model}.so", cc)
-        if log:
-            log(" ".join(cmd))
-        proc = subprocess.run(cmd, capture_output=True, text=True)
-        if proc.returncode != 0:
-            raise NativeBuildError([f"compiling the native {model} failed ({' '.join(cmd)}):\n{proc.stderr}"])
-        (tmp / "documentation").mkdir()
-        (tmp / "documentation" / "index.html").write_text(
-            f"<html><body><h1>{model} (native)</h1><p>{type(slave).description}</p><p>Compiled C: no Python "
-            "needed; every parameter settable before and in initialization mode. The sources "
-            "(<code>sources/</code>) compile on other platforms with "
-            f"<code>cc -O3 -fPIC -shared -std=c99 -ffp-contract=off -I. {C_SOURCE} -o {model}.so -lm</code>."
-            "</p></body></html>\n")
-        out.parent.mkdir(parents=True, exist_ok=True)
-        part = out.with_name(out.name + f".{os.getpid()}.part")
-        with zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as z:
-            for f in sorted(tmp.rglob("*")):
-                if f.is_file():
-                    z.write(f, f.relative_to(tmp).as_posix())
-        os.replace(part, out)
+        compile_and_pack(tmp, model, C_SOURCE, cc, out, log,
+                         f"{type(slave).description}</p><p>Compiled C: no Python needed; every parameter settable "
+                         "before and in initialization mode.")
     if log:
         log(f"wrote {out}: native {model}")
     return out

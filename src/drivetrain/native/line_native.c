@@ -1098,19 +1098,13 @@ static void lazy_outputs(Inst *c, double *o, const double *phi_at) {
 /* ============================================================================================== */
 
 static void set_defaults(Inst *c) {
+    shell_defaults(c);
     for (int i = 0; i < LN_N_VARS; i++) {
-        c->r[i] = LN_VARS[i].real_start;
-        c->iv[i] = LN_VARS[i].int_start;
         free(c->sv[i]);
         c->sv[i] = NULL;
     }
-    c->phase = PH_INSTANTIATED;
-    c->failed = 0;
-    c->failmsg[0] = 0;
     c->built = 0;
     c->dirty = 0;
-    c->have_t_next = 0;
-    c->last_ok = 0.0;
     profile_free(&c->speed_profile);
     profile_free(&c->load_profile);
 }

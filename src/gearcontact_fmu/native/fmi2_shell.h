@@ -93,6 +93,19 @@ static void fail(Inst *c, const char *fmt, ...) {
 
 /* ---- life cycle ---- */
 
+/* the shell's part of fmi2Instantiate / fmi2Reset: the variables' start values, no error, no step yet */
+static void shell_defaults(Inst *c) {
+    for (int i = 0; i < SHELL_N_VARS; i++) {
+        c->r[i] = SHELL_VARS[i].real_start;
+        c->iv[i] = SHELL_VARS[i].int_start;
+    }
+    c->phase = PH_INSTANTIATED;
+    c->failed = 0;
+    c->failmsg[0] = 0;
+    c->have_t_next = 0;
+    c->last_ok = 0.0;
+}
+
 /* fmi2Instantiate's checks: the new instance (name, callbacks, logging set), or NULL (logged) */
 static Inst *shell_instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
                                const fmi2CallbackFunctions *functions, fmi2Boolean loggingOn) {

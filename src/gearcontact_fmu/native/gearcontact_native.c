@@ -967,10 +967,7 @@ typedef struct {
 #include "fmi2_shell.h"     /* the FMI 2.0 shell shared with the native line FMUs (fmi2Get/Set*, errors, ...) */
 
 static void set_defaults(Inst *c) {
-    for (int i = 0; i < GC_N_VARS; i++) {
-        c->r[i] = GC_VARS[i].real_start;
-        c->iv[i] = GC_VARS[i].int_start;
-    }
+    shell_defaults(c);
     c->pf_j = 0;
     c->pf_side = -1;
     c->scheme_sel = SCH_AUTO;
@@ -981,12 +978,7 @@ static void set_defaults(Inst *c) {
         if (strcmp(GC_VARS[VR_output_torque].string_start, OUTPUT_NAMES[k]) == 0) c->output_sel = k;
         if (k < 2 && strcmp(GC_VARS[VR_initial_state].string_start, INITIAL_NAMES[k]) == 0) c->initial_sel = k;
     }
-    c->phase = PH_INSTANTIATED;
-    c->failed = 0;
-    c->failmsg[0] = 0;
     c->t0 = 0.0;
-    c->have_t_next = 0;
-    c->last_ok = 0.0;
     c->built = 0;
     memset(c->x, 0, sizeof c->x);
     memset(c->out, 0, sizeof c->out);

@@ -45,7 +45,7 @@ SLAVE_SCRIPT = Path(gearcontact_fmu.__file__).resolve().parent / "slaves" / "Gea
 C_SOURCE = "gearcontact_native.c"
 #: the coupling correction, shared with the native line FMUs (drivetrain.nativeline)
 #: C headers every native FMU compiles (in gearcontact_fmu/native, shipped in each FMU's sources/)
-SHARED_HEADERS = ("coupling_correction.h",)
+SHARED_HEADERS = ("coupling_correction.h", "fmi2_shell.h")
 BUILD_HEADER = "gearcontact_build.h"
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 MAP_RESOURCE = "contact_map.bin"

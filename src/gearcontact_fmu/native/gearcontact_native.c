@@ -7,7 +7,9 @@
  *   3. the stage integrator: ros2 / rk4, sub-step halving, counters   (gearcontact_fmu/stage.py)
  *   4. the energy-conserving coupling correction                      (gearcontact_fmu/coupling.py)
  *      (coupling_correction.h, shared with the native drivetrain line FMUs)
- *   5. the FMI 2.0 shell: variables, states, errors, FMU state get/set/serialize.
+ *   5. the FMI 2.0 shell: variables, states, errors, FMU state get/set/serialize (fmi2_shell.h, shared
+ *      with the native drivetrain line FMUs, with this file's hooks: the counters, the selections, the
+ *      parameters fixed by the build).
  * The numerics follow the Python code operation by operation (same order, no FMA contraction:
  * compile with -ffp-contract=off), so the two agree to rounding: with scheme rk4 the mesh model, the rhs,
  * the integrator and the bookkeeping bit for bit. ros2 agrees to rounding only (measured: coupling torques
@@ -921,13 +923,20 @@ static int advance(const TableData *d, int scheme, double *x, const double *par,
 /* 5. FMI 2.0 shell                                                                                */
 /* ============================================================================================== */
 
-enum { PH_INSTANTIATED, PH_INIT, PH_STEP, PH_TERMINATED };
 enum { OT_PREDICTED, OT_MEAN, OT_END };
 enum { SCH_AUTO, SCH_ROS2, SCH_RK4 };
 enum { IS_INPUTS, IS_PARAMETERS };
 static const char *SCHEME_NAMES[] = {"auto", "ros2", "rk4"};
 static const char *OUTPUT_NAMES[] = {"predicted", "mean", "end"};
 static const char *INITIAL_NAMES[] = {"inputs", "parameters"};   /* GearContact.INITIAL_STATES */
+
+#define SHELL_MODEL_NAME "GearContact"
+#define SHELL_GUID GC_GUID
+#define SHELL_VAR GcVar
+#define SHELL_VARS GC_VARS
+#define SHELL_N_VARS GC_N_VARS
+#define SHELL_MSG_MAX 1024
+#define SHELL_NAN_ON_FAILURE(i) (GC_VARS[i].nan_on_failure)
 
 typedef struct {
     /* ---- identity and resources (kept by fmi2SetFMUstate) ---- */
@@ -944,7 +953,7 @@ typedef struct {
     int iv[GC_N_VARS];               /* Integer and Boolean variables */
     int scheme_sel, output_sel, initial_sel;
     int phase, failed;
-    char failmsg[1024];
+    char failmsg[SHELL_MSG_MAX];
     double t0, t_next, last_ok;
     int have_t_next;
     TableData td;
@@ -955,63 +964,10 @@ typedef struct {
     int built;                       /* initialized (the stage exists) */
 } Inst;
 
-/* a double as Python's repr prints it (for messages): nan, inf, the shortest round-trip %g, with ".0"
- * on integral values */
-typedef struct { char s[40]; } PyFloat;
-static PyFloat pyfloat(double x) {
-    PyFloat f;
-    if (isnan(x)) { snprintf(f.s, sizeof f.s, "nan"); return f; }
-    if (isinf(x)) { snprintf(f.s, sizeof f.s, x > 0 ? "inf" : "-inf"); return f; }
-    for (int prec = 1; prec <= 17; prec++) {
-        snprintf(f.s, sizeof f.s, "%.*g", prec, x);
-        if (strtod(f.s, NULL) == x) break;
-    }
-    if (!strpbrk(f.s, ".en")) strcat(f.s, ".0");
-    return f;
-}
-
-/* log: the message is handed to the host's logger as a printf format, so every '%' is doubled */
-static void logf_(Inst *c, fmi2Status st, const char *cat, const char *fmt, ...) {
-    if (!c || !c->cb.logger) return;
-    if (st == fmi2OK && !c->logging_on) return;
-    char buf[2048], esc[4200];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(buf, sizeof buf, fmt, ap);
-    va_end(ap);
-    size_t k = 0;
-    for (const char *p = buf; *p && k < sizeof esc - 3; p++) {
-        if (*p == '%') esc[k++] = '%';
-        esc[k++] = *p;
-    }
-    esc[k] = 0;
-    c->cb.logger(c->cb.componentEnvironment, c->name, st, cat, esc);
-}
-
-/* the instance enters its error state (fmu_runtime.guard.enter_error_state): every later doStep is
- * refused, the output "error" holds the message, the outputs a host would pass on become NaN */
-static void fail(Inst *c, const char *fmt, ...) {
-    char buf[1024];
-    va_list ap;
-    va_start(ap, fmt);
-    vsnprintf(buf, sizeof buf, fmt, ap);
-    va_end(ap);
-    c->failed = 1;
-    snprintf(c->failmsg, sizeof c->failmsg, "%s", buf);
-    for (int i = 0; i < GC_N_VARS; i++)
-        if (GC_VARS[i].nan_on_failure) c->r[i] = NAN;
-    logf_(c, fmi2Error, "logStatusError", "%s", buf);
-}
-
-static const GcVar *var_of(fmi2ValueReference vr) {
-    return vr < GC_N_VARS ? &GC_VARS[vr] : NULL;
-}
+#include "fmi2_shell.h"     /* the FMI 2.0 shell shared with the native line FMUs (fmi2Get/Set*, errors, ...) */
 
 static void set_defaults(Inst *c) {
-    for (int i = 0; i < GC_N_VARS; i++) {
-        c->r[i] = GC_VARS[i].real_start;
-        c->iv[i] = GC_VARS[i].int_start;
-    }
+    shell_defaults(c);
     c->pf_j = 0;
     c->pf_side = -1;
     c->scheme_sel = SCH_AUTO;
@@ -1022,12 +978,7 @@ static void set_defaults(Inst *c) {
         if (strcmp(GC_VARS[VR_output_torque].string_start, OUTPUT_NAMES[k]) == 0) c->output_sel = k;
         if (k < 2 && strcmp(GC_VARS[VR_initial_state].string_start, INITIAL_NAMES[k]) == 0) c->initial_sel = k;
     }
-    c->phase = PH_INSTANTIATED;
-    c->failed = 0;
-    c->failmsg[0] = 0;
     c->t0 = 0.0;
-    c->have_t_next = 0;
-    c->last_ok = 0.0;
     c->built = 0;
     memset(c->x, 0, sizeof c->x);
     memset(c->out, 0, sizeof c->out);
@@ -1038,23 +989,8 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
                               fmi2String fmuResourceLocation, const fmi2CallbackFunctions *functions,
                               fmi2Boolean visible, fmi2Boolean loggingOn) {
     (void)visible;
-    if (!functions) return NULL;
-    Inst *c = (Inst *)calloc(1, sizeof(Inst));
+    Inst *c = shell_instantiate(instanceName, fmuType, fmuGUID, functions, loggingOn);
     if (!c) return NULL;
-    c->cb = *functions;
-    c->logging_on = loggingOn;
-    snprintf(c->name, sizeof c->name, "%s", instanceName ? instanceName : "GearContact");
-    if (fmuType != fmi2CoSimulation) {
-        logf_(c, fmi2Error, "logStatusError", "GearContact (native): only co-simulation is supported");
-        free(c);
-        return NULL;
-    }
-    if (fmuGUID && fmuGUID[0] && strcmp(fmuGUID, GC_GUID) != 0) {
-        logf_(c, fmi2Error, "logStatusError", "GearContact (native): GUID %s does not match this binary's %s "
-              "(modelDescription.xml and binary from different builds)", fmuGUID, GC_GUID);
-        free(c);
-        return NULL;
-    }
     /* resource location: a file URI (file:///dir, file:/dir, file://localhost/dir), %XX decoded */
     char path[4096];
     const char *loc = fmuResourceLocation ? fmuResourceLocation : "";
@@ -1093,15 +1029,6 @@ void fmi2FreeInstance(fmi2Component comp) {
     free(c->a_eff);
     free(c->inv_da);
     free(c);
-}
-
-const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
-const char *fmi2GetVersion(void) { return fmi2Version; }
-
-fmi2Status fmi2SetDebugLogging(fmi2Component comp, fmi2Boolean loggingOn, size_t n, const fmi2String cats[]) {
-    (void)n; (void)cats;
-    ((Inst *)comp)->logging_on = loggingOn;
-    return fmi2OK;
 }
 
 fmi2Status fmi2SetupExperiment(fmi2Component comp, fmi2Boolean toleranceDefined, fmi2Real tolerance,
@@ -1251,11 +1178,6 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component comp) {
     return fmi2OK;     /* like the pythonfmu slave: a failed initialization makes the first doStep fail */
 }
 
-fmi2Status fmi2Terminate(fmi2Component comp) {
-    ((Inst *)comp)->phase = PH_TERMINATED;
-    return fmi2OK;
-}
-
 fmi2Status fmi2Reset(fmi2Component comp) {
     Inst *c = (Inst *)comp;
     free(c->values_eff); c->values_eff = NULL;
@@ -1323,33 +1245,12 @@ static int stage_step(Inst *c, double t, double H) {
 fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real t, fmi2Real H, fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
     (void)noSetFMUStatePriorToCurrentPoint;
     Inst *c = (Inst *)comp;
-    if (c->phase != PH_STEP || (c->have_t_next && !c->failed
-                                && fabs(t - c->t_next) > 1e-3 * H + 1e-12 * fabs(c->t_next))) {
-        char why[256];
-        if (c->phase == PH_TERMINATED) snprintf(why, sizeof why, "after fmi2Terminate");
-        else if (c->phase != PH_STEP) snprintf(why, sizeof why, "before fmi2ExitInitializationMode");
-        else snprintf(why, sizeof why, "but the previous step ended at t = %.12g s (communication points must "
-                      "follow each other; to go back, restore an FMU state)", c->t_next);
-        if (c->failed)
-            logf_(c, fmi2Error, "logStatusError", "GearContact: fmi2DoStep at t = %.12g s %s; the instance is now "
-                  "in its error state", t, why);
-        else
-            fail(c, "GearContact: fmi2DoStep at t = %.12g s %s; the instance is now in its error state", t, why);
-        return fmi2Discard;
-    }
-    if (c->failed) {
-        logf_(c, fmi2Error, "logStatusError", "GearContact is in the error state: %s", c->failmsg);
-        return fmi2Discard;
-    }
+    if (shell_step_refused(c, t, H)) return fmi2Discard;
     if (!stage_step(c, t, H)) return fmi2Discard;
     publish(c);
-    c->t_next = t + H;
-    c->have_t_next = 1;
-    c->last_ok = t + H;
+    shell_step_done(c, t, H);
     return fmi2OK;
 }
-
-fmi2Status fmi2CancelStep(fmi2Component comp) { (void)comp; return fmi2Error; }
 
 /* ---- variable access ---- */
 
@@ -1368,72 +1269,18 @@ static double counter(const Inst *c, fmi2ValueReference vr) {
     }
 }
 
-static fmi2Status bad_vr(Inst *c, const char *call, fmi2ValueReference vr, const char *type) {
-    const GcVar *v = var_of(vr);
-    fail(c, "GearContact: %s with value references that are not %s variables of this FMU: %u (%s%s%s); the "
-         "instance is now in its error state", call, type, vr, v ? v->type : "no such variable", v ? " " : "",
-         v ? v->name : "");
-    return fmi2Error;
+/* the shell's hooks (fmi2_shell.h) */
+static void shell_before_get_real(Inst *c) { (void)c; }
+
+static double shell_get_real(const Inst *c, const GcVar *v, fmi2ValueReference vr) {
+    return v->is_counter ? counter(c, vr) : c->r[vr];
 }
 
-#define CHECK_VR(call, want)                                                                   \
-    const GcVar *v = var_of(vr[i]);                                                            \
-    if (!v || strcmp(v->type, want) != 0) return bad_vr(c, call, vr[i], want);
-
-fmi2Status fmi2GetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]) {
-    Inst *c = (Inst *)comp;
-    for (size_t i = 0; i < nvr; i++) {
-        CHECK_VR("fmi2GetReal", "Real")
-        value[i] = v->is_counter ? counter(c, vr[i]) : c->r[vr[i]];
-    }
-    return fmi2OK;
-}
-
-fmi2Status fmi2GetInteger(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[]) {
-    Inst *c = (Inst *)comp;
-    for (size_t i = 0; i < nvr; i++) {
-        CHECK_VR("fmi2GetInteger", "Integer")
-        value[i] = c->iv[vr[i]];
-    }
-    return fmi2OK;
-}
-
-fmi2Status fmi2GetBoolean(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, fmi2Boolean value[]) {
-    Inst *c = (Inst *)comp;
-    for (size_t i = 0; i < nvr; i++) {
-        CHECK_VR("fmi2GetBoolean", "Boolean")
-        value[i] = c->iv[vr[i]] ? fmi2True : fmi2False;
-    }
-    return fmi2OK;
-}
-
-fmi2Status fmi2GetString(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, fmi2String value[]) {
-    Inst *c = (Inst *)comp;
-    for (size_t i = 0; i < nvr; i++) {
-        CHECK_VR("fmi2GetString", "String")
-        if (vr[i] == VR_scheme) value[i] = SCHEME_NAMES[c->scheme_sel];
-        else if (vr[i] == VR_output_torque) value[i] = OUTPUT_NAMES[c->output_sel];
-        else if (vr[i] == VR_initial_state) value[i] = INITIAL_NAMES[c->initial_sel];
-        else if (vr[i] == VR_error) value[i] = c->failed ? c->failmsg : "";
-        else value[i] = v->string_start;
-    }
-    return fmi2OK;
-}
-
-/* a parameter may be set before fmi2ExitInitializationMode only; inputs at any time */
-static int settable_now(Inst *c, const GcVar *v, const char *call) {
-    if (v->is_input) return 1;
-    if (!v->is_parameter) {
-        fail(c, "GearContact: %s of %s: an output cannot be set; the instance is now in its error state", call, v->name);
-        return 0;
-    }
-    if (c->phase == PH_STEP || c->phase == PH_TERMINATED) {
-        fail(c, "GearContact: %s of %s after initialization: fixed parameters can only be set before "
-             "fmi2ExitInitializationMode (FMI 2.0; the value would not take effect); the instance is now in its "
-             "error state", call, v->name);
-        return 0;
-    }
-    return 1;
+static const char *shell_get_string(const Inst *c, const GcVar *v, fmi2ValueReference vr) {
+    if (vr == VR_scheme) return SCHEME_NAMES[c->scheme_sel];
+    if (vr == VR_output_torque) return OUTPUT_NAMES[c->output_sel];
+    if (vr == VR_initial_state) return INITIAL_NAMES[c->initial_sel];
+    return v->string_start;
 }
 
 /* the shortest %g form that reads back as x (Python's repr) */
@@ -1452,71 +1299,44 @@ static fmi2Status refuse_fixed(Inst *c, const GcVar *v, const char *value, const
     return fmi2Error;
 }
 
-fmi2Status fmi2SetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]) {
-    Inst *c = (Inst *)comp;
-    for (size_t i = 0; i < nvr; i++) {
-        CHECK_VR("fmi2SetReal", "Real")
-        if (!settable_now(c, v, "fmi2SetReal")) return fmi2Error;
-        if (v->fixed_by_build && !(value[i] == v->real_start)) {
-            char a[40], b[40];
-            return refuse_fixed(c, v, shortest(a, sizeof a, value[i]), shortest(b, sizeof b, v->real_start));
-        }
-        c->r[vr[i]] = value[i];
+/* a parameter fixed by the build: only its built value is accepted */
+static fmi2Status shell_accept_real(Inst *c, const GcVar *v, double x) {
+    if (v->fixed_by_build && !(x == v->real_start)) {
+        char a[40], b[40];
+        return refuse_fixed(c, v, shortest(a, sizeof a, x), shortest(b, sizeof b, v->real_start));
     }
     return fmi2OK;
 }
 
-fmi2Status fmi2SetInteger(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, const fmi2Integer value[]) {
-    Inst *c = (Inst *)comp;
-    for (size_t i = 0; i < nvr; i++) {
-        CHECK_VR("fmi2SetInteger", "Integer")
-        if (!settable_now(c, v, "fmi2SetInteger")) return fmi2Error;
-        if (v->fixed_by_build && value[i] != v->int_start) {
-            char a[24], b[24];
-            snprintf(a, sizeof a, "%d", (int)value[i]);
-            snprintf(b, sizeof b, "%d", v->int_start);
-            return refuse_fixed(c, v, a, b);
-        }
-        c->iv[vr[i]] = value[i];
+static fmi2Status shell_accept_integer(Inst *c, const GcVar *v, int x) {
+    if (v->fixed_by_build && x != v->int_start) {
+        char a[24], b[24];
+        snprintf(a, sizeof a, "%d", (int)x);
+        snprintf(b, sizeof b, "%d", v->int_start);
+        return refuse_fixed(c, v, a, b);
     }
     return fmi2OK;
 }
 
-fmi2Status fmi2SetBoolean(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, const fmi2Boolean value[]) {
-    Inst *c = (Inst *)comp;
-    for (size_t i = 0; i < nvr; i++) {
-        CHECK_VR("fmi2SetBoolean", "Boolean")
-        if (!settable_now(c, v, "fmi2SetBoolean")) return fmi2Error;
-        c->iv[vr[i]] = value[i] ? 1 : 0;
-    }
-    return fmi2OK;
-}
-
-fmi2Status fmi2SetString(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, const fmi2String value[]) {
-    Inst *c = (Inst *)comp;
-    for (size_t i = 0; i < nvr; i++) {
-        CHECK_VR("fmi2SetString", "String")
-        if (!settable_now(c, v, "fmi2SetString")) return fmi2Error;
-        const char *s = value[i] ? value[i] : "";
-        if (vr[i] == VR_scheme || vr[i] == VR_output_torque || vr[i] == VR_initial_state) {
-            const char **names = vr[i] == VR_scheme ? SCHEME_NAMES : vr[i] == VR_output_torque ? OUTPUT_NAMES
-                                                                                               : INITIAL_NAMES;
-            int n_names = vr[i] == VR_initial_state ? 2 : 3;
-            int found = -1;
-            for (int k = 0; k < n_names; k++)
-                if (strcmp(s, names[k]) == 0) found = k;
-            if (found < 0) {
-                fail(c, "GearContact: %s must be one of %s | %s%s%s, got '%s'", v->name, names[0], names[1],
-                     n_names == 3 ? " | " : "", n_names == 3 ? names[2] : "", s);
-                return fmi2Error;
-            }
-            if (vr[i] == VR_scheme) c->scheme_sel = found;
-            else if (vr[i] == VR_output_torque) c->output_sel = found;
-            else c->initial_sel = found;
-        } else if (strcmp(s, v->string_start) != 0) {
-            /* fidelity, mode, health, faults, manufacturing errors, mesh files: what the map was built from */
-            return refuse_fixed(c, v, s, v->string_start);
+/* the three selections; every other String parameter is fixed by the build */
+static fmi2Status shell_set_string(Inst *c, const GcVar *v, fmi2ValueReference vr, const char *s) {
+    if (vr == VR_scheme || vr == VR_output_torque || vr == VR_initial_state) {
+        const char **names = vr == VR_scheme ? SCHEME_NAMES : vr == VR_output_torque ? OUTPUT_NAMES : INITIAL_NAMES;
+        int n_names = vr == VR_initial_state ? 2 : 3;
+        int found = -1;
+        for (int k = 0; k < n_names; k++)
+            if (strcmp(s, names[k]) == 0) found = k;
+        if (found < 0) {
+            fail(c, "GearContact: %s must be one of %s | %s%s%s, got '%s'", v->name, names[0], names[1],
+                 n_names == 3 ? " | " : "", n_names == 3 ? names[2] : "", s);
+            return fmi2Error;
         }
+        if (vr == VR_scheme) c->scheme_sel = found;
+        else if (vr == VR_output_torque) c->output_sel = found;
+        else c->initial_sel = found;
+    } else if (strcmp(s, v->string_start) != 0) {
+        /* fidelity, mode, health, faults, manufacturing errors, mesh files: what the map was built from */
+        return refuse_fixed(c, v, s, v->string_start);
     }
     return fmi2OK;
 }
@@ -1556,12 +1376,6 @@ fmi2Status fmi2SetFMUstate(fmi2Component comp, fmi2FMUstate state) {
     return fmi2OK;
 }
 
-fmi2Status fmi2FreeFMUstate(fmi2Component comp, fmi2FMUstate *state) {
-    (void)comp;
-    if (state && *state) { free(*state); *state = NULL; }
-    return fmi2OK;
-}
-
 fmi2Status fmi2SerializedFMUstateSize(fmi2Component comp, fmi2FMUstate state, size_t *size) {
     (void)comp; (void)state;
     *size = sizeof(StateHead) + STATE_BYTES;
@@ -1586,55 +1400,4 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component comp, const fmi2Byte bytes[], s
     memcpy(s, bytes, size);
     *state = s;
     return fmi2OK;
-}
-
-/* ---- not provided (declared so in modelDescription.xml) ---- */
-
-fmi2Status fmi2GetDirectionalDerivative(fmi2Component comp, const fmi2ValueReference u[], size_t nu,
-                                        const fmi2ValueReference z[], size_t nz, const fmi2Real du[], fmi2Real dz[]) {
-    (void)u; (void)nu; (void)z; (void)nz; (void)du; (void)dz;
-    logf_((Inst *)comp, fmi2Error, "logStatusError", "GearContact: no directional derivatives");
-    return fmi2Error;
-}
-
-fmi2Status fmi2SetRealInputDerivatives(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
-                                       const fmi2Integer order[], const fmi2Real value[]) {
-    (void)vr; (void)nvr; (void)order; (void)value;
-    logf_((Inst *)comp, fmi2Error, "logStatusError", "GearContact: no input derivatives");
-    return fmi2Error;
-}
-
-fmi2Status fmi2GetRealOutputDerivatives(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
-                                        const fmi2Integer order[], fmi2Real value[]) {
-    (void)vr; (void)nvr; (void)order; (void)value;
-    logf_((Inst *)comp, fmi2Error, "logStatusError", "GearContact: no output derivatives");
-    return fmi2Error;
-}
-
-fmi2Status fmi2GetStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Status *value) {
-    (void)comp; (void)s;
-    *value = fmi2OK;
-    return fmi2OK;
-}
-
-fmi2Status fmi2GetRealStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Real *value) {
-    Inst *c = (Inst *)comp;
-    if (s == fmi2LastSuccessfulTime) { *value = c->last_ok; return fmi2OK; }
-    return fmi2Discard;
-}
-
-fmi2Status fmi2GetIntegerStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Integer *value) {
-    (void)comp; (void)s; (void)value;
-    return fmi2Discard;
-}
-
-fmi2Status fmi2GetBooleanStatus(fmi2Component comp, const fmi2StatusKind s, fmi2Boolean *value) {
-    Inst *c = (Inst *)comp;
-    if (s == fmi2Terminated) { *value = c->failed ? fmi2True : fmi2False; return fmi2OK; }
-    return fmi2Discard;
-}
-
-fmi2Status fmi2GetStringStatus(fmi2Component comp, const fmi2StatusKind s, fmi2String *value) {
-    (void)comp; (void)s; (void)value;
-    return fmi2Discard;
 }

@@ -148,6 +148,16 @@ def write_map_resource(arrays: dict, path: Path) -> None:
         f.write(b"GCNEND\0\0")
 
 
+def coupling_defines() -> list[str]:
+    """The constants of coupling_correction.h (from gearcontact_fmu.coupling), for a generated build header."""
+    from gearcontact_fmu import coupling
+
+    return [f"#define CC_TIME_CONSTANT_S {c_double(coupling.TIME_CONSTANT_S)}",
+            f"#define CC_EPS_RAD {c_double(coupling.EPS_RAD)}",
+            f"#define CC_CAP_REL {c_double(coupling.CAP_REL)}",
+            f"#define CC_CAP_FLOOR_NM {c_double(coupling.CAP_FLOOR_NM)}"]
+
+
 def c_string(text: str) -> str:
     out = []
     for b in str(text).encode("utf-8"):
@@ -191,7 +201,7 @@ def _variables(slave, parameters: dict) -> list[dict]:
 
 def write_header(rows: list[dict], guid: str, path: Path) -> None:
     """gearcontact_build.h: the GC_VARS table (by value reference), the VR_* names and the constants."""
-    from gearcontact_fmu import coupling, manufacturing, stage
+    from gearcontact_fmu import manufacturing, stage
     from gearcontact_fmu.params import MAX_SUBSTEPS_PER_STEP
 
     sp = stage.StageParams()
@@ -204,10 +214,7 @@ def write_header(rows: list[dict], guid: str, path: Path) -> None:
              f"#define GC_GAMMA {c_double(stage.GAMMA)}",
              f"#define GC_FD_ANGLE {c_double(sp.fd_angle)}",
              f"#define GC_FD_SPEED {c_double(sp.fd_speed)}",
-             f"#define GC_TIME_CONSTANT_S {c_double(coupling.TIME_CONSTANT_S)}",
-             f"#define GC_EPS_RAD {c_double(coupling.EPS_RAD)}",
-             f"#define GC_CAP_REL {c_double(coupling.CAP_REL)}",
-             f"#define GC_CAP_FLOOR_NM {c_double(coupling.CAP_FLOOR_NM)}",
+             *coupling_defines(),
              f"#define GC_MFG_CENTRE {c_double(manufacturing.CENTRE)}", "",
              "enum {"]
     lines += [f"    VR_{r['name']} = {r['vr']}," for r in rows]

@@ -36,7 +36,7 @@ import drivetrain
 import gearcontact_fmu
 from drivetrain.errors import NativeBuildError
 from drivetrain.nativebuild import NATIVE_DIR as SHARED_DIR
-from drivetrain.nativebuild import SHARED_HEADERS, c_double, c_string, compile_and_pack, copy_shared_sources
+from drivetrain.nativebuild import SHARED_HEADERS, c_double, c_string, compile_and_pack, copy_shared_sources, coupling_defines
 from drivetrain.nativebuild import compile_command as native_compile_command
 from drivetrain.nativebuild import native_model_description
 
@@ -86,7 +86,6 @@ def _port_names(model: str) -> list[str]:
 def write_header(model: str, rows: list[dict], guid: str, path: Path) -> None:
     """line_build.h: the model selector, the LN_VARS table (by value reference), the VR_* names, the constants."""
     from drivetrain.components import RPM
-    from gearcontact_fmu import coupling
     from gearcontact_fmu.params import CODE_NONFINITE_INPUT, CODE_NONFINITE_STATE, MAX_SUBSTEPS_PER_STEP
 
     ports = _port_names(model)
@@ -99,10 +98,7 @@ def write_header(model: str, rows: list[dict], guid: str, path: Path) -> None:
              f"#define LN_MAX_SUBSTEPS_PER_STEP {int(MAX_SUBSTEPS_PER_STEP)}",
              f"#define LN_CODE_NONFINITE_INPUT {int(CODE_NONFINITE_INPUT)}",
              f"#define LN_CODE_NONFINITE_STATE {int(CODE_NONFINITE_STATE)}",
-             f"#define LN_TIME_CONSTANT_S {c_double(coupling.TIME_CONSTANT_S)}",
-             f"#define LN_EPS_RAD {c_double(coupling.EPS_RAD)}",
-             f"#define LN_CAP_REL {c_double(coupling.CAP_REL)}",
-             f"#define LN_CAP_FLOOR_NM {c_double(coupling.CAP_FLOOR_NM)}",
+             *coupling_defines(),
              f"#define LN_RPM {c_double(RPM)}",
              f"#define LN_PORT_NAMES {{{', '.join(c_string(p) for p in ports)}}}", "",
              "enum {"]

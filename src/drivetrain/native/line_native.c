@@ -63,11 +63,7 @@ typedef struct {
 
 #include "line_build.h"
 
-#define CC_TIME_CONSTANT_S LN_TIME_CONSTANT_S
-#define CC_EPS_RAD LN_EPS_RAD
-#define CC_CAP_REL LN_CAP_REL
-#define CC_CAP_FLOOR_NM LN_CAP_FLOOR_NM
-#include "coupling_correction.h"
+#include "coupling_correction.h"         /* its CC_* constants come with line_build.h */
 
 /* ============================================================================================== */
 /* 1. The kernel (components.line_step)                                                            */

@@ -913,11 +913,7 @@ static int advance(const TableData *d, int scheme, double *x, const double *par,
 /* ============================================================================================== */
 
 /* shared with the native drivetrain line FMUs (drivetrain/native/line_native.c): one copy of the C */
-#define CC_TIME_CONSTANT_S GC_TIME_CONSTANT_S
-#define CC_EPS_RAD GC_EPS_RAD
-#define CC_CAP_REL GC_CAP_REL
-#define CC_CAP_FLOOR_NM GC_CAP_FLOOR_NM
-#include "coupling_correction.h"
+#include "coupling_correction.h"         /* its CC_* constants come with gearcontact_build.h */
 
 /* ============================================================================================== */
 /* 5. FMI 2.0 shell                                                                                */

@@ -148,6 +148,20 @@ def write_map_resource(arrays: dict, path: Path) -> None:
         f.write(b"GCNEND\0\0")
 
 
+def vr_enum(rows: list[dict]) -> list[str]:
+    """The VR_<name> value references of a generated build header."""
+    return ["enum {", *(f"    VR_{r['name']} = {r['vr']}," for r in rows), "};"]
+
+
+def start_literals(r: dict) -> tuple[str, str, str]:
+    """A variable's start as the C literals of its table row: (real, integer, string)."""
+    s = r["start"]
+    real = c_double(s) if r["type"] == "Real" else "0.0"
+    integer = str(int(bool(s)) if r["type"] == "Boolean" else int(s)) if r["type"] in ("Integer", "Boolean") else "0"
+    string = c_string(s) if r["type"] == "String" else '""'
+    return real, integer, string
+
+
 def coupling_defines() -> list[str]:
     """The constants of coupling_correction.h (from gearcontact_fmu.coupling), for a generated build header."""
     from gearcontact_fmu import coupling
@@ -215,17 +229,12 @@ def write_header(rows: list[dict], guid: str, path: Path) -> None:
              f"#define GC_FD_ANGLE {c_double(sp.fd_angle)}",
              f"#define GC_FD_SPEED {c_double(sp.fd_speed)}",
              *coupling_defines(),
-             f"#define GC_MFG_CENTRE {c_double(manufacturing.CENTRE)}", "",
-             "enum {"]
-    lines += [f"    VR_{r['name']} = {r['vr']}," for r in rows]
-    lines += ["};", "", "static const GcVar GC_VARS[GC_N_VARS] = {",
+             f"#define GC_MFG_CENTRE {c_double(manufacturing.CENTRE)}", "", *vr_enum(rows)]
+    lines += ["", "static const GcVar GC_VARS[GC_N_VARS] = {",
               "    /* name, type, is_input, is_parameter, is_counter, nan_on_failure, fixed_by_build, real, int, "
               "string start */"]
     for r in rows:
-        s = r["start"]
-        real = c_double(s) if r["type"] == "Real" else "0.0"
-        integer = str(int(bool(s)) if r["type"] == "Boolean" else int(s)) if r["type"] in ("Integer", "Boolean") else "0"
-        string = c_string(s) if r["type"] == "String" else "\"\""
+        real, integer, string = start_literals(r)
         lines.append(f"    {{{c_string(r['name'])}, \"{r['type']}\", {int(r['causality'] == 'input')}, "
                      f"{int(r['causality'] == 'parameter')}, {int(r['counter'])}, {int(r['nan_on_failure'])}, "
                      f"{int(r['role'] == 'fixed')}, "

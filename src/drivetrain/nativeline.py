@@ -36,7 +36,8 @@ import drivetrain
 import gearcontact_fmu
 from drivetrain.errors import NativeBuildError
 from drivetrain.nativebuild import NATIVE_DIR as SHARED_DIR
-from drivetrain.nativebuild import SHARED_HEADERS, c_double, c_string, compile_and_pack, copy_shared_sources, coupling_defines
+from drivetrain.nativebuild import (SHARED_HEADERS, c_double, c_string, compile_and_pack, copy_shared_sources,
+                                   coupling_defines, start_literals, vr_enum)
 from drivetrain.nativebuild import compile_command as native_compile_command
 from drivetrain.nativebuild import native_model_description
 
@@ -100,16 +101,11 @@ def write_header(model: str, rows: list[dict], guid: str, path: Path) -> None:
              f"#define LN_CODE_NONFINITE_STATE {int(CODE_NONFINITE_STATE)}",
              *coupling_defines(),
              f"#define LN_RPM {c_double(RPM)}",
-             f"#define LN_PORT_NAMES {{{', '.join(c_string(p) for p in ports)}}}", "",
-             "enum {"]
-    lines += [f"    VR_{r['name']} = {r['vr']}," for r in rows]
-    lines += ["};", "", "static const LnVar LN_VARS[LN_N_VARS] = {",
+             f"#define LN_PORT_NAMES {{{', '.join(c_string(p) for p in ports)}}}", "", *vr_enum(rows)]
+    lines += ["", "static const LnVar LN_VARS[LN_N_VARS] = {",
               "    /* name, type, is_input, is_parameter, is_output, real, int, string start */"]
     for r in rows:
-        s = r["start"]
-        real = c_double(s) if r["type"] == "Real" else "0.0"
-        integer = str(int(s)) if r["type"] == "Integer" else "0"
-        string = c_string(s) if r["type"] == "String" else "\"\""
+        real, integer, string = start_literals(r)
         lines.append(f"    {{{c_string(r['name'])}, \"{r['type']}\", {int(r['causality'] == 'input')}, "
                      f"{int(r['causality'] == 'parameter')}, {int(r['causality'] == 'output')}, "
                      f"{real}, {integer}, {string}}},")

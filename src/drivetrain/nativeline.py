@@ -2,18 +2,19 @@
 native FMUs of a whole scene (docs/FMU.md, "Python-free drivetrain FMUs").
 
 ``build_native_line(model, out)`` writes one FMU: the C port of the model (``drivetrain/native/line_native.c``
-with the coupling correction it shares with the native GearContact,
-``gearcontact_fmu/native/coupling_correction.h``), compiled with gcc, with ``sources/`` so that other
+with the coupling correction and the FMI shell it shares with the native GearContact,
+``gearcontact_fmu/native/coupling_correction.h`` and ``fmi2_shell.h``), compiled with gcc, with ``sources/`` so that other
 platforms can compile it. Nothing is retyped here: the variables (names, value references, types,
 causality, start values), units and descriptions are read from the pythonfmu slave of the model (the one
 ``drivetrain.fmubuild`` builds), the port names from the component, the constants from the Python modules.
 
 Unlike the native GearContact (its contact map is computed from the scene's gear, so it is built per
-scene), these FMUs do not depend on the scene: every parameter stays settable. One build serves every
+contact map), these FMUs do not depend on the scene: every parameter stays settable. One build serves every
 scene; :func:`native_fmus` keeps them in a cache directory (default ``fmus/native``) under a name that holds
 a hash of what the FMU is made of (the C sources, the generated variable table, the compiler call), so a
 second run finds them and a changed source builds anew. The GearContact there is keyed by the same kind of
-hash plus its parameters (and the contact-map code).
+hash plus the parameters that shape its contact map (:func:`build_fixed`) and the contact-map code; the
+others are set per run, so the operating points of one gear share one build.
 
 ``build_native_fmus(scene, out_dir)``: the four native FMUs of a scene into a directory (the CLI's
 ``drivetrain build-native SCENE --out DIR``); the gear must be of fidelity ``table``.

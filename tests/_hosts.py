@@ -37,9 +37,9 @@ def schedule(scene, spec) -> tuple[float, int, int]:
     return H, round(scene.time.duration_s / H), round(1.0 / scene.time.sample_rate_Hz / H)
 
 
-def master_torques(scene, out_dir, fmu_dir) -> dict[str, np.ndarray]:
+def master_torques(scene, out_dir, fmu_dir, backend: str = "fmi") -> dict[str, np.ndarray]:
     """Our master's torque transducers over the scene, without the initial sample."""
-    res = run_scene(scene, out_dir, progress=False, fmu_dir=fmu_dir)
+    res = run_scene(scene, out_dir, backend, progress=False, fmu_dir=fmu_dir)
     signals = read_hdf5(res.files["signals"])["signals"]
     return {k: np.asarray(signals[k])[1:] for k in TORQUES}
 

@@ -230,3 +230,34 @@ def test_outputs_read_in_initialization_mode_follow_parameters_set_there(fmu_dir
     after = _start(fmus, spec, names, params_after_enter=True)
     assert after == before
     assert after["drive_shaft.flange_b_tau"] == pytest.approx(1.9016, rel=1e-3)
+
+
+@pytest.mark.hosts
+def test_the_native_system_runs_in_ecos_and_in_a_container_as_in_our_master(fmu_dir, tmp_path):
+    """The compiled FMUs (export-ssp --native, export_container(native=True)): Ecos and an FMU container
+    without any Python inside, against our master on the same FMUs (backend native)."""
+    if shutil.which("gcc") is None:
+        pytest.skip("gcc not installed")
+    scene = load_scene(EXAMPLE, SHORT)
+    spec = assemble_scene(scene)
+    ours = master_torques(scene, tmp_path / "ours", fmu_dir, backend="native")
+    H, n, every = schedule(scene, spec)
+    ran = 0
+    if importlib.util.find_spec("ecospy") is not None and shutil.which("unzip") is not None:
+        from drivetrain.ssp import export_ssp
+
+        path = export_ssp(scene, tmp_path / "system.ssp", fmu_dir=fmu_dir, spec=spec, native=True)
+        got = run_host(_ECOS, path, repr(H), n, every, json.dumps(torque_refs(scene)), "motors::motor_w",
+                       tmpdir=tmp_path)
+        assert_matches(got["signals"], ours)
+        ran += 1
+    if importlib.util.find_spec("fmu_manipulation_toolbox") is not None:
+        from drivetrain.container import export_container
+
+        path = export_container(scene, tmp_path / "NativeSystem.fmu", fmu_dir=fmu_dir, spec=spec, native=True)
+        names = list(TORQUES)
+        got = run_host(_CONTAINER, path, repr(H), n, json.dumps(names))
+        assert_matches({k: np.asarray(v)[every - 1::every] for k, v in got.items()}, ours)
+        ran += 1
+    if not ran:
+        pytest.skip("neither ecospy (with unzip) nor fmu-manipulation-toolbox is installed")

@@ -167,3 +167,27 @@ def test_the_ssp_runs_in_libcosim_as_in_our_master(overrides, fmu_dir, tmp_path)
     theirs = run_host(_LIBCOSIM, path, repr(H), n, every, json.dumps(torque_refs(scene)))
     assert all(len(v) == n // every for v in theirs.values())
     assert_matches(theirs, ours)
+
+
+@pytest.mark.hosts
+def test_the_native_ssp_runs_in_libcosim_as_in_our_master(fmu_dir, tmp_path):
+    """export-ssp --native: the archive of compiled FMUs (no Python in the host) in libcosim, against our
+    master on the same native FMUs (backend native)."""
+    pytest.importorskip("libcosimpy")
+    import shutil
+    import zipfile
+
+    if shutil.which("gcc") is None:
+        pytest.skip("gcc not installed")
+    scene = load_scene(EXAMPLE, SHORT)
+    spec = assemble_scene(scene)
+    path = export_ssp(scene, tmp_path / "system.ssp", fmu_dir=fmu_dir, spec=spec, native=True)
+    with zipfile.ZipFile(path) as z:
+        for name in (n for n in z.namelist() if n.endswith(".fmu")):
+            with zipfile.ZipFile(z.open(name)) as f:
+                assert 'needsExecutionTool="false"' in f.read("modelDescription.xml").decode(), name
+    ours = master_torques(scene, tmp_path / "ours", fmu_dir, backend="native")
+    H, n, every = schedule(scene, spec)
+    theirs = run_host(_LIBCOSIM, path, repr(H), n, every, json.dumps(torque_refs(scene)))
+    assert all(len(v) == n // every for v in theirs.values())
+    assert_matches(theirs, ours)

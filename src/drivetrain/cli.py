@@ -58,7 +58,7 @@ def _cmd_export_ssp(args: argparse.Namespace) -> int:
     from drivetrain.ssp import export_ssp
 
     def write(scene, log):
-        path = export_ssp(scene, args.out or f"{scene.name}.ssp", fmu_dir=args.fmu_dir, log=log)
+        path = export_ssp(scene, args.out or f"{scene.name}.ssp", fmu_dir=args.fmu_dir, log=log, native=args.native)
         return [f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB): {scene.name}, stop time "
                 f"{scene.time.duration_s:g} s"]
 
@@ -592,6 +592,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--case", default=None, help="with a grid file: the name of the case to export")
     p.add_argument("--out", default=None, help="the archive (default: <scene name>.ssp)")
     p.add_argument("--fmu-dir", default="fmus", help="where the FMUs are (built on demand; default: fmus)")
+    p.add_argument("--native", action="store_true",
+                   help="the compiled FMUs (no Python needed in the host; built once in FMU_DIR/native; a gear "
+                        "of another fidelity than table keeps its pythonfmu FMU, with a message)")
     p.set_defaults(func=_cmd_export_ssp)
 
     p = sub.add_parser("eigen", help="natural frequencies of the assembled, linearised drivetrain")

@@ -84,12 +84,13 @@ def container_outputs(scene, outputs: dict | None = None) -> dict[str, tuple[str
 
 
 def export_container(scene, path: str | Path, fmu_dir: str | Path = "fmus", spec: SystemSpec | None = None,
-                     outputs: dict | None = None, build: bool = True, log=None) -> Path:
+                     outputs: dict | None = None, build: bool = True, log=None, native: bool = False) -> Path:
     """Write the scene's assembled system as one FMU container at ``path`` (module docstring). The
     embedded FMUs come from ``fmu_dir`` (built when missing or stale); ``outputs`` adds container
     outputs (name -> "instance.variable") to the sensors. Raises ConfigurationError naming every problem
     (a time profile no parameter carries, a variable an FMU does not have, a start value the container
-    cannot hold, the toolbox not installed); nothing is written then."""
+    cannot hold, the toolbox not installed); nothing is written then. ``native``: the compiled FMUs
+    (ssp.system_fmus): a container without Python in it."""
     path = Path(path)
     if path.suffix != ".fmu":
         raise ConfigurationError([f"{path}: an FMU container's name ends in .fmu"])
@@ -101,7 +102,7 @@ def export_container(scene, path: str | Path, fmu_dir: str | Path = "fmus", spec
     except ImportError as exc:
         raise ConfigurationError([f"FMU Manipulation Toolbox is not installed ({exc}): "
                                   "pip install fmu-manipulation-toolbox"]) from None
-    spec, fmus, descriptions, problems = system_fmus(scene, fmu_dir, spec, build, log)
+    spec, fmus, descriptions, problems = system_fmus(scene, fmu_dir, spec, build, log, native)
     instances = {c.name: c.model for c in spec.components}
     exposed = container_outputs(scene, outputs)
     for name, (inst, var) in exposed.items():

@@ -175,28 +175,45 @@ def ssd_text(spec: SystemSpec, name: str, stop_time_s: float, descriptions: dict
             '</ssd:SystemStructureDescription>\n')
 
 
-def system_fmus(scene, fmu_dir, spec: SystemSpec | None = None, build: bool = True, log=None):
+def system_fmus(scene, fmu_dir, spec: SystemSpec | None = None, build: bool = True, log=None,
+                native: bool = False):
     """What an export of the scene's system starts from: the assembled spec (given or assembled here),
     its FMUs (built when missing or stale), each model's variables (name -> (type, causality)) and
-    every problem of binding the spec to them (:func:`system_problems`)."""
+    every problem of binding the spec to them (:func:`system_problems`). ``native``: the compiled FMUs
+    (drivetrain.nativeline, kept in ``<fmu_dir>/native``) wherever there is one; a gear that is not
+    fidelity table keeps its pythonfmu FMU (``log`` says so); no C compiler is a ConfigurationError."""
     if spec is None:
         spec = assemble_scene(scene)
-    models = [c.model for c in spec.components]
-    fmus = ensure_fmus(models, fmu_dir, build=build, log=log)
+    models = list(dict.fromkeys(c.model for c in spec.components))
+    fmus = {}
+    if native:
+        from drivetrain.nativeline import native_fmus, toolchain_problems
+
+        missing = toolchain_problems()
+        if missing:
+            raise ConfigurationError([f"native FMUs: {m}" for m in missing])
+        built, note = native_fmus(scene, Path(fmu_dir) / "native", log=log, spec=spec)
+        if note and log:
+            log(f"native FMUs: {note}")
+        fmus = {m: p for m, p in built.items() if m in models}
+    rest = [m for m in models if m not in fmus]
+    if rest:
+        fmus.update(ensure_fmus(rest, fmu_dir, build=build, log=log))
     descriptions = {m: fmu_variables(fmus[m]) for m in dict.fromkeys(models)}
     return spec, fmus, descriptions, system_problems(spec, descriptions)
 
 
 def export_ssp(scene, path: str | Path, fmu_dir: str | Path = "fmus", spec: SystemSpec | None = None,
-               build: bool = True, log=None) -> Path:
+               build: bool = True, log=None, native: bool = False) -> Path:
     """Write the scene's assembled system as an SSP 1.0 archive at ``path`` (module docstring). The
-    FMUs come from ``fmu_dir`` (built when missing or stale). Raises ConfigurationError naming every
+    FMUs come from ``fmu_dir`` (built when missing or stale); ``native``: the compiled FMUs (a host then
+    needs no Python, :func:`system_fmus`). Raises ConfigurationError naming every
     problem (a time profile, a parameter the FMU does not have); nothing is written then. The archive
     is written to a temporary name and renamed, so a failed export leaves no partial file."""
     path = Path(path)
     if path.suffix != ".ssp":
         raise ConfigurationError([f"{path}: an SSP archive's name ends in .ssp"])
-    spec, fmus, descriptions, problems = system_fmus(scene, fmu_dir, spec, build, log)
+    spec, fmus, descriptions, problems = system_fmus(scene, fmu_dir, spec, build, log, native)
     if problems:
         raise ConfigurationError(problems)
     ssd = ssd_text(spec, scene.name, scene.time.duration_s, descriptions)

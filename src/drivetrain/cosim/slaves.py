@@ -226,6 +226,10 @@ class FmiSlave(Slave):
         self.set_fn = functools.partial(sr, c, self._vin, ctypes.c_size_t(n_in), uptr) if n_in else None
         self.step_fn = functools.partial(ds, c)
         self.get_fn = functools.partial(gr, c, self._vout, ctypes.c_size_t(n_out), yptr) if n_out else None
+        # the same calls for the C stepping loop (drivetrain.cosim.stepper): addresses and counts
+        self.raw_calls = (self.c, addr(self._sr), addr(self._ds), addr(self._gr), ctypes.addressof(self._vin),
+                          n_in, u.ctypes.data + 8 * u_off, ctypes.addressof(self._vout), n_out,
+                          y.ctypes.data + 8 * y_off)
 
     def teardown(self):
         errors = []

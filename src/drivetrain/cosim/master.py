@@ -51,6 +51,7 @@ from drivetrain.cosim.energy import energy_audit, energy_unavailable
 from drivetrain.cosim.fmus import FMUInfo, ensure_fmus, load_fmu_info
 from drivetrain.cosim.plan import ExchangePlan, check_comm_step, check_system, is_profile, split_ref
 from drivetrain.cosim.slaves import FmiCallbacks, FmiSlave, InprocSlave, Slave
+from drivetrain.cosim.stepper import CALLS, Stepper, load_stepper
 from drivetrain.errors import FMI_STATUS, ConfigurationError, CosimError
 from drivetrain.signals import decimate
 from drivetrain.system import SystemSpec
@@ -330,6 +331,28 @@ class Master:
 
                 bar = tqdm(total=n_steps, unit="step", unit_scale=True, desc=f"co-sim {T:g} s",
                            mininterval=0.5, leave=False)
+            # the C loop (drivetrain.cosim.stepper) for compiled-FMI slaves; else this Python loop
+            stepper = None
+            if all(isinstance(s, FmiSlave) for s in slaves):
+                fn = load_stepper()
+                if fn is not None:
+                    stepper = Stepper(fn, slaves, H, y, u, gather, ext_idx, ext_table, rec, ny)
+
+            def finish_step(kk: int, i: int, call: int, st: int):
+                # the C loop stopped at a non-zero status: raise as the Python loop does (>= 2), or for
+                # a warning do the rest of step kk here, the same calls in the same order
+                t = kk * H
+                self._status(slaves[i], CALLS[call], st, t + H if call == 2 else t)
+                for j in range(i, nc):
+                    for c in range(call + 1 if j == i else 0, 3):
+                        fn = calls[j][c]
+                        if fn is None:
+                            continue
+                        st = fn(t, H, 1) if c == 1 else fn()
+                        if st:
+                            self._status(slaves[j], CALLS[c], st, t + H if c == 2 else t)
+                rec[kk + 1] = y_rec
+
             chunk = 4096
             t_loop0 = time.perf_counter()
             cpu_loop0 = time.process_time()
@@ -348,7 +371,15 @@ class Master:
                             snap_steps.pop(0)
                         if snap_steps:
                             k_end = min(k_end, snap_steps[0])
-                    for kk in range(k, k_end):
+                    kk = k
+                    while stepper is not None and kk < k_end:
+                        hit = stepper.run(kk, k_end)       # None: the chunk is done
+                        if hit is None:
+                            break
+                        kk = hit[0]
+                        finish_step(*hit)
+                        kk += 1
+                    for kk in range(k, k_end if stepper is None else k):
                         t = kk * H
                         if has_ext:
                             y[ext_idx] = ext_table[kk]

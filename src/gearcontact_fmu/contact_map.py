@@ -44,6 +44,7 @@ from numba import njit
 from gearcontact_fmu import geometry
 from gearcontact_fmu.contact import engine
 from gearcontact_fmu.fault_specs import normalised_spec
+from gearcontact_fmu.locks import cache_dir  # noqa: F401  (the maps' cache; re-exported)
 from gearcontact_fmu.gearpair import build_pcm_pair, contact_onset, fault_kwargs_of, static_deflection
 from gearcontact_fmu.mesh_model import (N_OUT, OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY,
                                         OUT_MAX_PENETRATION, OUT_N_CONTACT, OUT_NORMAL_FORCE, OUT_PEAK_PRESSURE,
@@ -62,10 +63,6 @@ SIDE_DRIVE, SIDE_COAST = 0, 1
 SEED_DIR = Path(__file__).resolve().parent / "data" / "seed_maps"
 
 
-def cache_dir() -> Path:
-    d = Path(os.environ.get("BEVEL_CACHE_DIR", Path.home() / ".cache" / "bevel-drivetrain"))
-    d.mkdir(parents=True, exist_ok=True)
-    return d
 
 
 def _file_digest(path) -> str:

@@ -44,8 +44,7 @@ def compile_command(src: Path, out: Path, cc: str = "gcc") -> list[str]:
 
 def library_path() -> Path | None:
     """The compiled stepper in the cache, built now if missing; None if it cannot be built."""
-    from gearcontact_fmu.contact_map import cache_dir
-    from gearcontact_fmu.locks import file_lock
+    from gearcontact_fmu.locks import cache_dir, file_lock
 
     cc = shutil.which(os.environ.get("CC", "gcc"))
     if cc is None:

@@ -19,6 +19,8 @@ import pytest
 fmpy = pytest.importorskip("fmpy")
 from fmpy.fmi1 import FMICallException  # noqa: E402
 from fmpy.fmi2 import FMU2Slave  # noqa: E402
+from _fmi_instances import KEEP, open_instance  # noqa: E402
+from _fmi_instances import set_values as _set  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
@@ -28,7 +30,7 @@ COMPARED = ("flange_a_tau", "flange_b_tau", "flange_a_tau_mean", "flange_b_tau_m
             "mesh_torque_wheel", "n_contact", "max_penetration", "pinion_phi", "wheel_w", "energy_stored",
             "energy_dissipated", "coupling_energy_error", "peak_penetration", "min_substep", "n_substeps",
             "n_refinements", "separated_time", "n_separations")
-_KEEP = []   # pythonfmu instances stay loaded until exit (docs/FMU.md)
+_KEEP = KEEP   # pythonfmu instances stay loaded until exit (docs/FMU.md)
 
 needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc not installed")
 
@@ -62,44 +64,8 @@ def pyfmu(tmp_path_factory):
 
 
 def _open(path, params, name="gear"):
-    """An instance whose log messages land in ``s.log_lines`` (the master's logger routes: fmpy's one
-    logger proxy is shared by the whole process, and a test before this one may have pointed it
-    elsewhere, so printing through fmpy's default callbacks is not reliable; see drivetrain.cosim.slaves)."""
-    from drivetrain.cosim.slaves import FmiCallbacks
-
-    md = fmpy.read_model_description(str(path))
-    s = FMU2Slave(guid=md.guid, unzipDirectory=fmpy.extract(str(path)), modelIdentifier="GearContact",
-                  instanceName=name)
-    cbs = FmiCallbacks()
-    s.instantiate(callbacks=cbs.struct, loggingOn=True)
-    s.log_lines = lambda: _drain(cbs, name)
-    _KEEP.append((s, cbs))
-    vr = {v.name: v for v in md.modelVariables}
-    _set(s, vr, params)
-    return s, vr
-
-
-def _drain(cbs, name) -> str:
-    """The instance's log messages since the last call, one per line."""
-    log = cbs.logs.get(name)
-    if log is None:
-        return ""
-    text = "\n".join(log.lines)
-    log.lines.clear()
-    return text
-
-
-def _set(s, vr, params):
-    for k, v in params.items():
-        t, ref = vr[k].type, [vr[k].valueReference]
-        if t == "Real":
-            s.setReal(ref, [float(v)])
-        elif t == "Integer":
-            s.setInteger(ref, [int(v)])
-        elif t == "Boolean":
-            s.setBoolean(ref, [bool(v)])
-        else:
-            s.setString(ref, [str(v)])
+    """An instance (log lines in ``s.log_lines()``, tests/_fmi_instances.py) and its variables by name."""
+    return open_instance(path, params, name)
 
 
 def _inputs(t):

@@ -14,7 +14,8 @@ import pytest
 
 fmpy = pytest.importorskip("fmpy")
 from fmpy.fmi1 import FMICallException  # noqa: E402
-from fmpy.fmi2 import FMU2Slave  # noqa: E402
+from _fmi_instances import KEEP, open_instance  # noqa: E402
+from _fmi_instances import set_values as _set  # noqa: E402
 
 from drivetrain import fmishell  # noqa: E402
 
@@ -23,7 +24,7 @@ EXAMPLE = ROOT / "scenarios" / "example.toml"
 MODELS = ("FlexibleShaft", "UpperTransmission", "MotorLoad")
 H = 1.0 / 12000.0
 N_STEPS = 400
-_KEEP = []           # pythonfmu instances stay loaded until exit (docs/FMU.md)
+_KEEP = KEEP           # pythonfmu instances stay loaded until exit (docs/FMU.md)
 _EXTRACTED = {}
 
 
@@ -62,38 +63,7 @@ def _extract_once(path):
 def _open(path, params=None, name="x"):
     """An instance (log lines in ``s.log_lines()``) and its variables by name; parameters set before
     initialization."""
-    from drivetrain.cosim.slaves import FmiCallbacks
-
-    md = fmpy.read_model_description(str(path))
-    s = FMU2Slave(guid=md.guid, unzipDirectory=_extract_once(path), modelIdentifier=md.coSimulation.modelIdentifier,
-                  instanceName=name)
-    cbs = FmiCallbacks()
-    s.instantiate(callbacks=cbs.struct, loggingOn=True)
-    s.log_lines = lambda: _drain(cbs, name)
-    _KEEP.append((s, cbs))
-    vr = {v.name: v for v in md.modelVariables}
-    _set(s, vr, params or {})
-    return s, vr
-
-
-def _drain(cbs, name) -> str:
-    log = cbs.logs.get(name)
-    if log is None:
-        return ""
-    text = "\n".join(log.lines)
-    log.lines.clear()
-    return text
-
-
-def _set(s, vr, params):
-    for k, v in params.items():
-        t, ref = vr[k].type, [vr[k].valueReference]
-        if t == "Real":
-            s.setReal(ref, [float(v)])
-        elif t == "Integer":
-            s.setInteger(ref, [int(v)])
-        else:
-            s.setString(ref, [str(v)])
+    return open_instance(path, params, name, _extract_once(path))
 
 
 def _inputs(model, t):

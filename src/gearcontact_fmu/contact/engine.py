@@ -27,9 +27,12 @@ fixed-axis kernel adds a candidate cache (temporal coherence, exact results): se
 
 * candidate lists (pairs within 20 um, valid while the motion since their build stays below the
   margins), rebuilt by a tree traversal (~2-5 ms on the converged bevel pair) when they expire;
-* clearance skips: each list carries, per element and per pair, how far it may move before a hit
-  (or an entry) becomes possible; a call tests only the pairs whose clearance the motion since the
-  build has used up, about the elements in contact (:func:`kernels.candidate_clearances`);
+* skip thresholds: each list carries, per element and per pair, how far it may move before a hit
+  (or an entry) becomes possible; running sums of per-call motion bounds say how far it moved,
+  and a call tests only the pairs whose threshold the sum has reached, about the elements in
+  contact and their near neighbours. A tested pair gets a new threshold from its clearance at
+  that pose (re-anchored), so the thresholds do not age with the list
+  (:func:`kernels.search_candidates_skip`); the same sums prove the list valid most calls;
 * the pitch atlas (pairs whose meshes are rotated copies of one tooth, checked on the meshes,
   :func:`pitch_symmetry`): every list built is kept, and a later pitch, which meets the same
   geometry with other tooth pairs, is served from the kept lists, renumbered, instead of the tree.
@@ -37,9 +40,9 @@ fixed-axis kernel adds a candidate cache (temporal coherence, exact results): se
   check and keep the first two layers.
 
 Measured (benchmarks/bench_pcm_trajectory.py, loaded healthy pair) in docs/GEAR-CONTACT.md. The
-goal of issue 13 (<= 10 us per evaluation along a trajectory) is not reached: the calls in the
-double-contact zone still test ~1-3 k pairs (clearances shrink as a list ages), and a new list is
-mapped every ~20-30 sub-steps of 1 us.
+goal of issue 13 (<= 10 us per evaluation along a trajectory) is not reached: a call still tests
+~1.5 pairs per element in contact (the hit itself, entries, the nearest neighbours) plus the
+validity sums, and a kept list is mapped (renumbered, sorted) every ~30 sub-steps of 1 us.
 """
 from __future__ import annotations
 
@@ -348,10 +351,11 @@ def make_fixed_axis_data(base_body: PCMBody, target_body: PCMBody, R0_base, R0_t
     and mesh files fail the check and use the cache without the atlas.
 
     Layout: ``(b_int, b_seg, b_obb, belem, b_order, t_int, t_box, t_obb, ttri, t_order, M, ab0,
-    params, stamp, call, best_u, best_j, line, active, stack, Rbt, tbt, cache, cand, cand_tri,
-    nstamp, icount, fnode, fc, minsep, nbox, close, dR, dt, ndisp, cand_c, cand_s, cand_d, cand_h,
+    params, stamp, call, best_u, best_j, line, active, stack, Rbt, tbt, cache, cand, nstamp,
+    icount, fnode, fc, minsep, nbox, close, dR, dt, ndisp, cand_c, cand_s, cand_d, cand_h,
     cand_g, cand_f, slot_f, period, b_inv, t_inv, Rc, atlas_meta, atlas_pairs, atlas_c, atlas_s,
-    atlas_d, atlas_h, atlas_minsep, atlas_nbox, atlas_close)`` with
+    atlas_d, atlas_h, atlas_minsep, atlas_nbox, atlas_close, cand_x, elem_q, elem_x, elem_hit, atlas_x, nsum)``
+    with
     ``M = R0_target.T @ R0_base``, ``ab0 = M[:, 2]`` (base axis in the target's reference frame),
     ``params`` see :func:`kernels.make_params`, ``cache`` (kernels.N_CACHE,) cache state and
     statistics (see ``kernels.C_*``), ``period`` = (pitch angle, triangles per tooth) of the base
@@ -400,7 +404,7 @@ def make_fixed_axis_data(base_body: PCMBody, target_body: PCMBody, R0_base, R0_t
             target_body.node_int, target_body.node_box, target_body.node_obb, target_body.ttri,
             target_body.order, M, ab0, params) + ws + (
         np.zeros((3, 3)), np.zeros(3), np.zeros(K.N_CACHE), np.zeros((cap, 2), dtype=np.int64),
-        np.zeros((cap, 18)), np.zeros(nb, dtype=np.int64), np.zeros(1, dtype=np.int64),
+        np.zeros(nb, dtype=np.int64), np.zeros(1, dtype=np.int64),
         fnode, fc, np.full(nf, np.inf), np.zeros((nf, 6)), np.zeros(nf, dtype=np.int64),
         np.zeros((3, 3)), np.zeros(3), np.zeros(nf + 1), np.zeros(cap), np.zeros(cap),
         np.zeros(cap), np.zeros(cap), np.zeros(cap, dtype=np.int64), np.zeros(cap, dtype=np.int64),
@@ -409,7 +413,9 @@ def make_fixed_axis_data(base_body: PCMBody, target_body: PCMBody, R0_base, R0_t
         np.zeros((n_snap, K.N_SNAP)), np.zeros((n_pool, 2), dtype=np.int32),
         np.zeros(n_pool, dtype=np.float32), np.zeros(n_pool, dtype=np.float32),
         np.zeros(n_pool, dtype=np.float32), np.zeros(n_pool, dtype=np.float32),
-        np.zeros((n_snap, nf)), np.zeros((n_snap, nf, 6)), np.zeros((n_snap, nf), dtype=np.int64))
+        np.zeros((n_snap, nf)), np.zeros((n_snap, nf, 6)), np.zeros((n_snap, nf), dtype=np.int64),
+        np.zeros(cap), np.zeros(cap, dtype=np.int64), np.zeros(cap), np.zeros(cap, dtype=np.bool_),
+        np.zeros(n_pool, dtype=np.float32), np.zeros(nf))
 
 
 def _inverse(order: np.ndarray) -> np.ndarray:
@@ -471,7 +477,9 @@ def cache_stats(data: tuple) -> dict:
             "overflows": int(c[K.C_OVERFLOW]), "n_candidates": int(c[K.C_NCAND]),
             "exact_calls": int(c[K.C_EXACT]), "near_leaves": int(c[K.C_NNEAR]),
             "skipped_elements": int(c[K.C_SKIPPED]), "tested_pairs": int(c[K.C_TESTED]),
-            "atlas": bool(data[42][1] > 0), "atlas_snapshots": int(c[K.C_NSNAP]),
+            "visited_elements": int(c[K.C_VISITED]), "tested_pairs_total": int(c[K.C_TESTED_ALL]),
+            "reanchored_total": int(c[K.C_RETESTS_ALL]),
+            "atlas": bool(data[41][1] > 0), "atlas_snapshots": int(c[K.C_NSNAP]),
             "atlas_hits": int(c[K.C_AHITS]), "atlas_cleared": int(c[K.C_ACLEAR]),
             "valid": bool(c[K.C_VALID])}
 

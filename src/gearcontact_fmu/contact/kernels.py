@@ -15,19 +15,21 @@ holds triangle ``order[k]``):
   penetration-line segments ``[p, p - L n]`` (see :func:`bvh.refit_segment_boxes`).
 * ``params`` (N_PARAMS,): see the ``P_*`` indices.
 * candidate cache (fixed-axis kernel): ``cache`` (N_CACHE,) state (see ``C_*``), ``cand`` (C, 2)
-  int64 candidate pairs (base slot, target slot) sorted by base slot, ``cand_tri`` (C, 18) their
-  target rows of ``ttri``; ``nstamp`` (N_base_nodes,) int64, ``icount`` (1,) int64; far-check
+  int64 candidate pairs (base slot, target slot) sorted by base slot; ``nstamp`` (N_base_nodes,) int64, ``icount`` (1,) int64; far-check
   nodes of the base tree ``fnode`` (F,) int64 and ``fc`` (N_base_nodes, 2) int64 (range of
   far-check nodes under each node); ``minsep`` (F,), ``nbox`` (F, 6), ``close`` (F,) int64;
   ``dR`` (3, 3), ``dt`` (3,) scratch; clearances (:func:`candidate_clearances`) ``cand_c``,
   ``cand_s``, ``cand_d``, ``cand_h`` (C,), ``cand_g``, ``cand_f`` (C,) int64, ``ndisp`` (F + 1,)
   motion bounds of the far-check nodes' near leaves (last: bound of the line directions' change),
-  ``slot_f`` (m_base,) int64 far-check node of each base slot.
+  ``slot_f`` (m_base,) int64 far-check node of each base slot; skip thresholds
+  (:func:`search_candidates_skip`) ``cand_x`` (C,) per pair, ``elem_q`` (C,) int64 first pair,
+  ``elem_x`` (C,) threshold and ``elem_hit`` (C,) bool per element of the list.
 * pitch atlas (fixed-axis kernel, see :func:`cached_search`): ``period`` (4,) = (base pitch angle,
   base triangles per tooth, target pitch angle, target triangles per tooth), zeros when off;
   ``b_inv``/``t_inv`` inverse slot orders; ``Rc`` (3, 3) scratch; snapshots ``atlas_meta`` (S,
   N_SNAP) (see ``S_*``), pool ``atlas_pairs`` (P, 2) int32 (slots at the build),
-  ``atlas_c``/``atlas_s``/``atlas_d``/``atlas_h`` (P,) float32 (rounded to the safe side),
+  ``atlas_c``/``atlas_s``/``atlas_d``/``atlas_h``/``atlas_x`` (P,) float32 (rounded to the safe
+  side; ``atlas_x`` the pair's skip allowance for a turn up to R_SNAP + R_LIFE),
   ``atlas_minsep`` (S, F), ``atlas_nbox`` (S, F, 6), ``atlas_close`` (S, F) int64.
 * base workspace (per base body): ``stamp`` (m,) int64, ``call`` (1,) int64, ``best_u`` (m,),
   ``best_j`` (m,) int64 (target slot of the winning hit), ``line`` (m, 7) ``[p', d', s_entry]`` element point
@@ -547,7 +549,7 @@ def search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt,
 
 
 @njit(cache=True)
-def candidate_clearances(n, cand, cand_tri, belem, slot_f, Rbt, tbt, L, s_neg, cand_c, cand_s,
+def candidate_clearances(n, cand, ttri, belem, slot_f, Rbt, tbt, L, s_neg, cand_c, cand_s,
                          cand_d, cand_h, cand_g, cand_f):
     """Clearances of the candidate pairs ``cand[:n]`` (sorted by base slot) at the current pose,
     for :func:`search_candidates_skip`. Per pair (k, l), with the line o + s d of element k and
@@ -588,8 +590,9 @@ def candidate_clearances(n, cand, cand_tri, belem, slot_f, Rbt, tbt, L, s_neg, c
         h = np.inf
         q1 = q
         while q1 < n and cand[q1, 0] == k:
-            vx, vy, vz = cand_tri[q1, 0], cand_tri[q1, 1], cand_tri[q1, 2]
-            ngx, ngy, ngz = cand_tri[q1, 3], cand_tri[q1, 4], cand_tri[q1, 5]
+            l = cand[q1, 1]
+            vx, vy, vz = ttri[l, 0], ttri[l, 1], ttri[l, 2]
+            ngx, ngy, ngz = ttri[l, 3], ttri[l, 4], ttri[l, 5]
             den = dx * ngx + dy * ngy + dz * ngz
             c = -np.inf
             s0 = 0.0
@@ -598,8 +601,8 @@ def candidate_clearances(n, cand, cand_tri, belem, slot_f, Rbt, tbt, L, s_neg, c
                 wx = ox + s0 * dx - vx
                 wy = oy + s0 * dy - vy
                 wz = oz + s0 * dz - vz
-                g1x, g1y, g1z = cand_tri[q1, 6], cand_tri[q1, 7], cand_tri[q1, 8]
-                g2x, g2y, g2z = cand_tri[q1, 9], cand_tri[q1, 10], cand_tri[q1, 11]
+                g1x, g1y, g1z = ttri[l, 6], ttri[l, 7], ttri[l, 8]
+                g2x, g2y, g2z = ttri[l, 9], ttri[l, 10], ttri[l, 11]
                 beta = wx * g1x + wy * g1y + wz * g1z
                 gamma = wx * g2x + wy * g2y + wz * g2z
                 ng1 = math.sqrt(g1x * g1x + g1y * g1y + g1z * g1z)
@@ -613,7 +616,7 @@ def candidate_clearances(n, cand, cand_tri, belem, slot_f, Rbt, tbt, L, s_neg, c
             cand_s[q1] = abs(s0)
             cand_d[q1] = abs(den) if c > -np.inf else 0.0
             e = -np.inf
-            if ngx * cand_tri[q1, 15] + ngy * cand_tri[q1, 16] + ngz * cand_tri[q1, 17] >= SKIP_COS:
+            if ngx * ttri[l, 15] + ngy * ttri[l, 16] + ngz * ttri[l, 17] >= SKIP_COS:
                 e = (ax - vx) * ngx + (ay - vy) * ngy + (az - vz) * ngz
             if e < h:
                 h = e
@@ -624,19 +627,117 @@ def candidate_clearances(n, cand, cand_tri, belem, slot_f, Rbt, tbt, L, s_neg, c
         q = q1
 
 
+R_LIFE = 2.5e-3     # [rad] largest turn of the line directions (|dR|_F summed over the calls) for
+                    # which the skip thresholds hold; beyond it they are set again (init_thresholds)
+REANCHOR_LIFE = 8.0  # lists that live this many calls (on average, or this one so far) re-anchor
+                     # the thresholds of the pairs they test
+R_SNAP = 2e-3       # [rad] turn between a kept list's pose and the pose it is served at, up to
+                    # which its stored allowances (atlas_x) apply; beyond, they are computed
+
+
 @njit(cache=True)
-def search_candidates_skip(n_cand, cand, cand_tri, cand_c, cand_s, cand_d, cand_h, cand_g,
-                           cand_f, ndisp, rho, fresh, belem, L, s_neg, Rbt, tbt, best_u, best_j,
-                           line, active, stats):
-    """Exact narrow phase over the cached candidate pairs (sorted by base slot, triangle data copied
-    to ``cand_tri`` in the same order; same outputs as :func:`search_pair`), with the clearances of
-    :func:`candidate_clearances`: ``ndisp[f]``
-    bounds the motion of every segment of far-check node f's near leaves since the list was built
-    (``fresh``: built at this pose, bound 0); an element whose clearance exceeds its node's bound
-    (+ SKIP_EPS for rounding) is skipped, and so is a pair whose edge clearance exceeds the motion
-    of its meeting point (``rho`` bounds the change of the line directions). Skipped
-    elements and pairs would give no hit and no entry: the result is the same, bit for bit.
-    ``stats`` (2,): elements skipped, pairs tested."""
+def _allowance(c, s0, den, r):
+    """Largest motion D of a segment for which a pair with edge clearance ``c`` (line meeting the
+    plane at |s0|, |den| = |d.n_g|, see :func:`candidate_clearances`) stays outside its triangle
+    while the line directions turn by at most ``r``: (D + |s0| r)(1 + (t + r)/(|den| - r)) < c,
+    t = sqrt(1 - den^2); -inf when none (den may change sign, or no clearance)."""
+    dd = den - r
+    if not (dd > DOT_EPS and c > -np.inf):
+        return -np.inf
+    return c / (1.0 + (math.sqrt(max(0.0, 1.0 - den * den)) + r) / dd) - s0 * r
+
+
+@njit(cache=True)
+def _retest_threshold(ox, oy, oz, dx, dy, dz, ttri, l, sum_d):
+    """Skip threshold of a pair tested at this pose without a hit: the pair cannot hit or enter
+    while the running motion sum stays below it (:func:`search_candidates_skip`). The larger of
+    two allowances from this pose: the edge clearance (:func:`_allowance`, with R_LIFE), and the
+    gap (o - v_e).n_e by which the origin stands in front of the element's exact tangent plane
+    (point v_e, normal n_e; fixed in the target frame) when the line meets the plane from the
+    front with a margin of R_LIFE: while o moved by less, u = (v_e - o).n_e / (d.n_e) is not
+    positive (or d.n_e < FACING_COS): no hit; and den keeps its sign: no entry."""
+    ngx, ngy, ngz = ttri[l, 3], ttri[l, 4], ttri[l, 5]
+    den = dx * ngx + dy * ngy + dz * ngz
+    if not abs(den) > 1e-3:
+        return -np.inf
+    vx, vy, vz = ttri[l, 0], ttri[l, 1], ttri[l, 2]
+    s0 = ((vx - ox) * ngx + (vy - oy) * ngy + (vz - oz) * ngz) / den
+    wx = ox + s0 * dx - vx
+    wy = oy + s0 * dy - vy
+    wz = oz + s0 * dz - vz
+    g1x, g1y, g1z = ttri[l, 6], ttri[l, 7], ttri[l, 8]
+    g2x, g2y, g2z = ttri[l, 9], ttri[l, 10], ttri[l, 11]
+    beta = wx * g1x + wy * g1y + wz * g1z
+    gamma = wx * g2x + wy * g2y + wz * g2z
+    ng1 = math.sqrt(g1x * g1x + g1y * g1y + g1z * g1z)
+    ng2 = math.sqrt(g2x * g2x + g2y * g2y + g2z * g2z)
+    sx, sy, sz = g1x + g2x, g1y + g2y, g1z + g2z
+    ns = math.sqrt(sx * sx + sy * sy + sz * sz)
+    w = -np.inf
+    if ng1 > 0.0 and ng2 > 0.0 and ns > 0.0:
+        c = max((-BARY_EPS - beta) / ng1, (-BARY_EPS - gamma) / ng2,
+                (beta + gamma - 1.0 - BARY_EPS) / ns)
+        w = _allowance(c, abs(s0), abs(den), R_LIFE)
+    if den - R_LIFE > DOT_EPS:
+        gap = ((ox - ttri[l, 12]) * ttri[l, 15] + (oy - ttri[l, 13]) * ttri[l, 16]
+               + (oz - ttri[l, 14]) * ttri[l, 17])
+        if gap > w:
+            w = gap
+    return sum_d + w
+
+
+@njit(cache=True)
+def init_thresholds(n_cand, cand_c, cand_s, cand_d, cand_h, cand_g, cand_f, ndisp, fresh,
+                    cand_x, elem_q, elem_x, elem_hit):
+    """Skip thresholds of a list just set (built at this pose, ``fresh``, or served from the atlas):
+    per pair ``cand_x[q]``, per element ``elem_x[i]`` (its first pair ``elem_q[i]``, in base-slot
+    order), in units of the running motion sum, which starts at 0 (:func:`search_candidates_skip`).
+    From the list's clearances at its own pose (:func:`candidate_clearances`): the allowance less
+    the motion since that pose (``ndisp[f]`` for the near leaves of far-check node f, the turn
+    ``ndisp[-1]``; 0 when fresh). Returns the number of elements."""
+    r = R_LIFE if fresh else ndisp[ndisp.shape[0] - 1] + R_LIFE
+    ne = 0
+    q = 0
+    while q < n_cand:
+        g = cand_g[q]
+        d0 = 0.0 if fresh else ndisp[cand_f[q]]
+        xm = np.inf
+        for q1 in range(q, q + g):
+            x = _allowance(cand_c[q1], cand_s[q1], cand_d[q1], r) - d0
+            cand_x[q1] = x
+            if x < xm:
+                xm = x
+        elem_q[ne] = q
+        elem_x[ne] = max(cand_h[q] - d0, xm)
+        elem_hit[ne] = False
+        ne += 1
+        q += g
+    return ne
+
+
+@njit(cache=True)
+def search_candidates_skip(n_elem, elem_q, elem_x, elem_hit, cand, ttri, cand_x, cand_g, cand_f,
+                           nsum, reanchor, belem,
+                           L, s_neg, Rbt, tbt, best_u, best_j, line, active, stats):
+    """Exact narrow phase over the cached candidate pairs (sorted by base slot; same outputs as
+    :func:`search_pair`), skipping what cannot hit or enter. ``nsum[f]`` is the running sum of the
+    per-call motion bounds of far-check node f's near leaves since the list was set
+    (:func:`_advance_motion`): by the triangle inequality the motion between two calls is at most
+    the difference of their sums. Every element and pair carries a threshold in these units (the
+    sum of its element's node ``cand_f``): while the sum + SKIP_EPS stays below it the pair
+    cannot hit or enter, and below the element's threshold none of its pairs can, or its segment
+    cannot reach any plane it could hit (element clearance, :func:`candidate_clearances`). A
+    skipped element or pair would give no hit and no entry: the result is the same, bit for bit.
+
+    With ``reanchor`` the thresholds follow the run: a pair tested without a hit gets a new one
+    from its clearances at this pose (:func:`_retest_threshold`), a pair with a hit -inf (tested
+    again next call); without, a tested pair keeps its threshold (still valid; for lists that
+    live too few calls to use new ones). A visited element gets the larger of its clearance at
+    this pose (skipped when it had a hit at its last visit: then it is <= 0) and its pairs'
+    smallest threshold. So along a trajectory a pair is tested again only when the motion since
+    its last test could have closed its gap: a call costs about the elements in contact and
+    their near neighbours, not the list's size or age. ``stats`` (4,): elements skipped, pairs
+    tested, thresholds re-anchored, elements visited."""
     r00, r01, r02 = Rbt[0, 0], Rbt[0, 1], Rbt[0, 2]
     r10, r11, r12 = Rbt[1, 0], Rbt[1, 1], Rbt[1, 2]
     r20, r21, r22 = Rbt[2, 0], Rbt[2, 1], Rbt[2, 2]
@@ -644,13 +745,11 @@ def search_candidates_skip(n_cand, cand, cand_tri, cand_c, cand_s, cand_d, cand_
     n_active = 0
     n_skip = 0
     n_test = 0
-    q = 0
-    while q < n_cand:
-        g = cand_g[q]
-        D = SKIP_EPS if fresh else ndisp[cand_f[q]] + SKIP_EPS
-        r = 0.0 if fresh else rho
-        if cand_h[q] > D:
-            q += g
+    for i in range(n_elem):
+        q = elem_q[i]
+        sum_d = nsum[cand_f[q]]
+        now = sum_d + SKIP_EPS
+        if now < elem_x[i]:
             n_skip += 1
             continue
         k = cand[q, 0]
@@ -662,28 +761,55 @@ def search_candidates_skip(n_cand, cand, cand_tri, cand_c, cand_s, cand_d, cand_
         dx = -(r00 * nx + r01 * ny + r02 * nz)
         dy = -(r10 * nx + r11 * ny + r12 * nz)
         dz = -(r20 * nx + r21 * ny + r22 * nz)
+        ax, ay, az = ox - s_neg * dx, oy - s_neg * dy, oz - s_neg * dz
         best = np.inf
         bj = -1
         entry = np.inf
-        qe = q + g
+        # element clearance at this pose, unless the element had a hit at its last visit (then it
+        # is <= 0: the hit pair's plane is behind the segment start, or its normals disagree)
+        h = -np.inf if elem_hit[i] else np.inf
+        xm = np.inf
+        qe = q + cand_g[q]
         while q < qe:
-            den = cand_d[q]
-            dd = den - r
-            if dd > DOT_EPS:
-                tan = math.sqrt(max(0.0, 1.0 - den * den)) + r
-                if cand_c[q] > (D + cand_s[q] * r) * (1.0 + tan / dd):
-                    q += 1
-                    continue
+            l = cand[q, 1]
+            if h > -np.inf:
+                ngx, ngy, ngz = ttri[l, 3], ttri[l, 4], ttri[l, 5]
+                if ngx * ttri[l, 15] + ngy * ttri[l, 16] + ngz * ttri[l, 17] >= SKIP_COS:
+                    e = ((ax - ttri[l, 0]) * ngx + (ay - ttri[l, 1]) * ngy
+                         + (az - ttri[l, 2]) * ngz)
+                    if e < h:
+                        h = e
+                else:
+                    h = -np.inf
+            if now < cand_x[q]:
+                if cand_x[q] < xm:
+                    xm = cand_x[q]
+                q += 1
+                continue
             n_test += 1
-            u = tri_hit(ox, oy, oz, dx, dy, dz, cand_tri, q, L, s_neg)
-            if u > 0.0 and u < best:
-                best = u
-                bj = cand[q, 1]
-            elif u < 0.0:
-                e = tri_entry(ox, oy, oz, dx, dy, dz, cand_tri, q, L)
+            u = tri_hit(ox, oy, oz, dx, dy, dz, ttri, l, L, s_neg)
+            x = -np.inf
+            if u > 0.0:
+                if u < best:
+                    best = u
+                    bj = l
+            else:
+                e = tri_entry(ox, oy, oz, dx, dy, dz, ttri, l, L)
                 if e < entry:
                     entry = e
+                # a threshold from this pose, or the one the pair had (still valid)
+                if reanchor:
+                    x = _retest_threshold(ox, oy, oz, dx, dy, dz, ttri, l, sum_d)
+                    stats[2] += 1
+                else:
+                    x = cand_x[q]
+            cand_x[q] = x
+            if x < xm:
+                xm = x
             q += 1
+        elem_x[i] = max(sum_d + h, xm)
+        elem_hit[i] = bj >= 0
+        stats[3] += 1
         if bj >= 0 and best < entry:
             line[k, 0] = ox
             line[k, 1] = oy
@@ -722,7 +848,21 @@ C_DB = 28          # base pitches between the current pose and the pose of the l
 C_DT = 29          # target pitches, likewise
 C_AHITS = 30       # statistics: lists served from the atlas
 C_ACLEAR = 31      # statistics: times the atlas was full and emptied
-N_CACHE = 32
+C_SUMD = 32        # running sum of the per-call motion bounds of the near leaves since the list was set
+C_SUMR = 33        # running sum of the per-call bounds of the line directions' turn, likewise
+C_PREV = 34        # 12: the pose (R, t; shifted by the list's pitches) of the previous call
+C_NELEM = 52       # elements of the list (search_candidates_skip)
+C_SUMROOT = 53     # running sum of the per-call motion bounds of the whole base
+C_D0 = 54          # largest near-leaf motion bound since the list's pose when the sums started
+C_R0 = 55          # bound of the turn since the list's pose when the sums started
+C_ROOT0 = 56       # bound of the whole base's motion since the list's pose when the sums started
+C_SEP0 = 57        # smallest distance the list's far checks allow (minsep of its close nodes, gfar)
+C_RETESTS = 58     # statistics: thresholds computed at the pose (last call)
+C_VISITED = 59     # statistics: elements visited (last call)
+C_LIFE = 60        # calls a list serves, exponential average over the lists set
+C_TESTED_ALL = 61  # statistics: candidate pairs tested, all calls
+C_RETESTS_ALL = 62  # statistics: thresholds re-anchored, all calls
+N_CACHE = 63
 CACHE_MIN_REUSE = 8      # a list reused for fewer calls than this triggers a cool-down ...
 CACHE_COOLDOWN = 64      # ... of this many exact-search calls before the next build
 
@@ -861,7 +1001,7 @@ def _cache_check(Rc, tc, ref, o, gfar, nclose, close, nbox, minsep, b_seg, b_obb
 @njit(cache=True)
 def _atlas_store(theta_b, theta_t, Rbt, tbt, cache, n, cand, cand_c, cand_s, cand_d, cand_h,
                  minsep, nbox, close, atlas_meta, atlas_pairs, atlas_c, atlas_s, atlas_d,
-                 atlas_h, atlas_minsep, atlas_nbox, atlas_close):
+                 atlas_h, atlas_x, atlas_minsep, atlas_nbox, atlas_close):
     """Store the list just built (pairs in this pose's slots) as a snapshot; when the atlas is
     full it is emptied first (no eviction policy: a run soon refills what it visits)."""
     ns = int(cache[C_NSNAP])
@@ -892,6 +1032,7 @@ def _atlas_store(theta_b, theta_t, Rbt, tbt, cache, n, cand, cand_c, cand_s, can
         atlas_s[top + q] = -_f32_down(-cand_s[q])
         atlas_d[top + q] = _f32_down(cand_d[q])
         atlas_h[top + q] = _f32_down(cand_h[q])
+        atlas_x[top + q] = _f32_down(_allowance(cand_c[q], cand_s[q], cand_d[q], R_SNAP + R_LIFE))
     for f in range(minsep.shape[0]):
         atlas_minsep[ns, f] = minsep[f]
         for a in range(6):
@@ -950,13 +1091,15 @@ def _atlas_lookup(theta_b, theta_t, M, period, tbt, cache, atlas_meta, atlas_min
 
 @njit(cache=True)
 def _atlas_activate(s, db, dtt, period, cache, atlas_meta, atlas_pairs, atlas_c, atlas_s,
-                    atlas_d, atlas_h, atlas_minsep, atlas_nbox, atlas_close, b_order, b_inv,
-                    t_order, t_inv, ttri, slot_f, minsep, nbox, close, cand, cand_tri, cand_c,
-                    cand_s, cand_d, cand_h, cand_g, cand_f):
+                    atlas_d, atlas_h, atlas_x, atlas_minsep, atlas_nbox, atlas_close, b_order,
+                    b_inv, t_order, t_inv, slot_f, minsep, nbox, close, cand, cand_c, cand_s,
+                    cand_d, cand_h, cand_g, cand_f, ndisp, cand_x, elem_q, elem_x, elem_hit):
     """Make snapshot s the current list, its pairs mapped to the tooth pairs of the current pose
     (base triangle id + db teeth, target id + dtt teeth), sorted by the mapped base slot. The
-    validity data stay the snapshot's (checked at the shifted pose); ``cand_f`` is the far-check
-    node of the snapshot's element (its motion bound applies)."""
+    validity data stay the snapshot's (checked at the shifted pose, which left the motion bounds
+    since the snapshot's pose in ``ndisp``); ``cand_f`` is the far-check node of the snapshot's
+    element (its motion bound applies). Sets the skip thresholds as :func:`init_thresholds` does,
+    from the stored allowances when the turn since the snapshot's pose is within R_SNAP."""
     row = atlas_meta[s]
     p0 = int(row[S_START])
     n = int(row[S_N])
@@ -977,26 +1120,40 @@ def _atlas_activate(s, db, dtt, period, cache, atlas_meta, atlas_pairs, atlas_c,
         while q < n and atlas_pairs[p0 + q, 0] == k:
             q += 1
     order = np.argsort(gk[:ng])
+    rho0 = ndisp[ndisp.shape[0] - 1]
+    stored = rho0 <= R_SNAP
     w = 0
     for gi in range(ng):
         g = order[gi]
         q0 = gq[g]
         q1 = gq[g + 1] if g + 1 < ng else n
         k_new = gk[g]
-        ks = atlas_pairs[p0 + q0, 0]
+        f = slot_f[atlas_pairs[p0 + q0, 0]]
+        d0 = ndisp[f]
+        xm = np.inf
+        w0 = w
         for q in range(q0, q1):
             l_new = t_inv[(t_order[atlas_pairs[p0 + q, 1]] + sht) % mt]
             cand[w, 0] = k_new
             cand[w, 1] = l_new
-            for a in range(18):
-                cand_tri[w, a] = ttri[l_new, a]
             cand_c[w] = atlas_c[p0 + q]
             cand_s[w] = atlas_s[p0 + q]
             cand_d[w] = atlas_d[p0 + q]
+            if stored:
+                x = atlas_x[p0 + q] - d0
+            else:
+                x = _allowance(cand_c[w], cand_s[w], cand_d[w], rho0 + R_LIFE) - d0
+            cand_x[w] = x
+            if x < xm:
+                xm = x
             w += 1
-        cand_h[w - (q1 - q0)] = atlas_h[p0 + q0]
-        cand_g[w - (q1 - q0)] = q1 - q0
-        cand_f[w - (q1 - q0)] = slot_f[ks]
+        cand_h[w0] = atlas_h[p0 + q0]
+        cand_g[w0] = q1 - q0
+        cand_f[w0] = f
+        elem_q[gi] = w0
+        elem_x[gi] = max(cand_h[w0] - d0, xm)
+        elem_hit[gi] = False
+    cache[C_NELEM] = ng
     for f in range(minsep.shape[0]):
         minsep[f] = atlas_minsep[s, f]
         for a in range(6):
@@ -1015,19 +1172,145 @@ def _atlas_activate(s, db, dtt, period, cache, atlas_meta, atlas_pairs, atlas_c,
 
 
 @njit(cache=True)
+def _atlas_serve(theta_b, theta_t, M, period, tbt, cache, atlas_meta, atlas_pairs, atlas_c,
+                 atlas_s, atlas_d, atlas_h, atlas_x, atlas_minsep, atlas_nbox, atlas_close, b_seg,
+                 b_obb, fnode, s_neg, delta, cphi, dR, dt, ndisp, Rc, b_order, b_inv, t_order,
+                 t_inv, slot_f, minsep, nbox, close, cand, cand_c, cand_s, cand_d, cand_h, cand_g,
+                 cand_f, cand_x, elem_q, elem_x, elem_hit):
+    """A kept list that fits the current pose (:func:`_atlas_lookup`) made the current list
+    (:func:`_atlas_activate`); False when none fits."""
+    if cache[C_NSNAP] <= 0.0:
+        return False
+    s, sdb, sdt = _atlas_lookup(theta_b, theta_t, M, period, tbt, cache, atlas_meta,
+                                atlas_minsep, atlas_nbox, atlas_close, b_seg, b_obb, fnode, s_neg,
+                                delta, cphi, dR, dt, ndisp, Rc)
+    if s < 0:
+        return False
+    _atlas_activate(s, sdb, sdt, period, cache, atlas_meta, atlas_pairs, atlas_c, atlas_s,
+                    atlas_d, atlas_h, atlas_x, atlas_minsep, atlas_nbox, atlas_close, b_order,
+                    b_inv, t_order, t_inv, slot_f, minsep, nbox, close, cand, cand_c, cand_s,
+                    cand_d, cand_h, cand_g, cand_f, ndisp, cand_x, elem_q, elem_x, elem_hit)
+    cache[C_VALID] = 1.0
+    cache[C_SINCE] = 0.0
+    cache[C_AHITS] += 1.0
+    return True
+
+
+@njit(cache=True)
+def _shifted_pose(theta_b, theta_t, M, period, Rbt, cache, Rc):
+    """Rc = the base's pose in the target frame with both angles shifted by the list's pitches
+    (``cache[C_DB]``, ``cache[C_DT]``): the pose of the teeth the list's data were made for."""
+    if cache[C_DB] != 0.0 or cache[C_DT] != 0.0:
+        _rbt_of(M, theta_b + cache[C_DB] * period[0], theta_t + cache[C_DT] * period[2], Rc)
+    else:
+        for r in range(3):
+            for c in range(3):
+                Rc[r, c] = Rbt[r, c]
+
+
+@njit(cache=True)
+def _start_motion(Rc, tbt, fresh, s_neg, b_seg, b_obb, cache, nbox, minsep, close, ndisp, nsum,
+                  dR, dt):
+    """Running motion sums of a list (re)started at this call (pose ``Rc``, shifted): zero (per
+    far-check node with near leaves ``nsum[f]``, the whole base, the turn), the pose kept for the
+    next call, and what :func:`_valid_by_sums` needs: the near-leaf bounds and the turn since the
+    list's pose (this call's check, ``ndisp``; 0 when ``fresh``; the largest of the former is
+    kept as ``cache[C_D0]`` and each stays in ``ndisp``), the whole base's bound since it, and
+    the smallest distance its far checks allow (``minsep``, the far group's ``C_GFAR``)."""
+    d0 = 0.0
+    sep = cache[C_GFAR]
+    for q in range(int(cache[C_NCLOSE])):
+        f = close[q]
+        nsum[f] = 0.0
+        if fresh:
+            ndisp[f] = 0.0
+        if nbox[f, 0] <= nbox[f, 3] and ndisp[f] > d0:
+            d0 = ndisp[f]
+        if minsep[f] < sep:
+            sep = minsep[f]
+    root = 0.0
+    if not fresh:
+        for r in range(3):
+            for c in range(3):
+                dR[r, c] = Rc[r, c] - cache[C_RREF + 3 * r + c]
+            dt[r] = tbt[r] - cache[C_TREF + r]
+        root = _node_disp(dR, dt, b_seg, b_obb, 0, s_neg, np.inf)
+    cache[C_D0] = d0
+    cache[C_R0] = 0.0 if fresh else ndisp[ndisp.shape[0] - 1]
+    cache[C_ROOT0] = root
+    cache[C_SEP0] = sep
+    cache[C_SUMD] = d0
+    cache[C_SUMR] = 0.0
+    cache[C_SUMROOT] = 0.0
+    for r in range(3):
+        for c in range(3):
+            cache[C_PREV + 3 * r + c] = Rc[r, c]
+        cache[C_PREV + 9 + r] = tbt[r]
+
+
+@njit(cache=True)
+def _advance_motion(Rc, tbt, s_neg, b_seg, b_obb, cache, nbox, close, ndisp, nsum, dR, dt):
+    """Add the motion since the previous call to the running sums: per far-check node f with near
+    leaves the largest |dR x + dt| over their box to ``nsum[f]``; over the whole base to
+    ``cache[C_SUMROOT]``; |dR|_F (a bound of the turn of every direction) to ``cache[C_SUMR]``.
+    ``cache[C_SUMD]`` becomes the largest ndisp[f] + nsum[f] (a bound of the near leaves' motion
+    since the list's pose). The poses are shifted by the list's pitches (the teeth the list was
+    made for): a fixed isometry away from the true poses, so the same motion."""
+    fro = 0.0
+    for r in range(3):
+        for c in range(3):
+            dR[r, c] = Rc[r, c] - cache[C_PREV + 3 * r + c]
+            fro += dR[r, c] * dR[r, c]
+        dt[r] = tbt[r] - cache[C_PREV + 9 + r]
+    dmax = 0.0
+    for q in range(int(cache[C_NCLOSE])):
+        f = close[q]
+        if nbox[f, 0] <= nbox[f, 3]:
+            d = _max_disp_box(dR, dt, cache, 0, nbox[f, 0], nbox[f, 1], nbox[f, 2], nbox[f, 3],
+                              nbox[f, 4], nbox[f, 5], False, s_neg)
+            nsum[f] += d * (1.0 + 1e-12) + SKIP_EPS
+            if ndisp[f] + nsum[f] > dmax:
+                dmax = ndisp[f] + nsum[f]
+    cache[C_SUMD] = dmax
+    cache[C_SUMROOT] += _node_disp(dR, dt, b_seg, b_obb, 0, s_neg, np.inf) * (1.0 + 1e-12) \
+        + SKIP_EPS
+    cache[C_SUMR] += math.sqrt(fro) * (1.0 + 1e-12) + 1e-15
+    for r in range(3):
+        for c in range(3):
+            cache[C_PREV + 3 * r + c] = Rc[r, c]
+        cache[C_PREV + 9 + r] = tbt[r]
+
+
+@njit(cache=True)
+def _valid_by_sums(cache, delta, margin, phi_tol):
+    """True when the running sums alone prove what :func:`_cache_check` checks (the triangle
+    inequality: the motion since the list's pose is at most the bound at the sums' start plus
+    the sums since): near leaves within ``delta`` (``cache[C_SUMD]``, see :func:`_advance_motion`),
+    the whole base within the smallest far-check distance, and the turn below ``phi_tol``
+    (|R1 - R2|_F = 2 sqrt(2) sin(angle / 2)). False means "not proven": the full check decides."""
+    if cache[C_SUMD] + margin >= delta:
+        return False
+    if cache[C_ROOT0] + cache[C_SUMROOT] + margin >= cache[C_SEP0]:
+        return False
+    lim = 2.0 * math.sqrt(2.0) * math.sin(0.5 * phi_tol) * (1.0 - 1e-9)
+    return cache[C_R0] + cache[C_SUMR] < lim
+
+
+@njit(cache=True)
 def cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L, s_neg,
-                  delta, far, phi_tol, cache, cand, cand_tri, nstamp, icount, fnode, fc, minsep,
+                  delta, far, phi_tol, cache, cand, nstamp, icount, fnode, fc, minsep,
                   nbox, close, dR, dt, stamp, call, best_u, best_j, line, active, stack,
-                  ndisp, cand_c, cand_s, cand_d, cand_h, cand_g, cand_f, slot_f, theta_b,
+                  ndisp, cand_c, cand_s, cand_d, cand_h, cand_g,
+                  cand_f, slot_f, theta_b,
                   theta_t, M, period, b_order, b_inv, t_order, t_inv, Rc, atlas_meta,
                   atlas_pairs, atlas_c, atlas_s, atlas_d, atlas_h, atlas_minsep, atlas_nbox,
-                  atlas_close):
+                  atlas_close, cand_x, elem_q, elem_x, elem_hit, atlas_x, nsum):
     """Exact contact search through a candidate cache (temporal coherence).
 
     Build (at the current pose): a traversal with node volumes grown by ``far`` finds the base
     leaves within ``far`` of the target ("near" leaves); for their elements every (element,
     triangle) pair whose penetration segment comes within ``delta`` of the triangle is stored
-    (sorted by element, triangle data copied). Every other part of the base is proven farther from
+    (sorted by element). Every other part of the base is proven farther from
     the target than a recorded distance, per far-check node f (a cut of the base tree, ~256 nodes):
     ``minsep[f]``. A later pose reuses the list when, relative to the target, (i) the near leaves
     of every far-check node moved by less than ``delta``, (ii) every far-check node moved by less
@@ -1039,10 +1322,14 @@ def cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tb
     that fits ends the cool-down, and every ATLAS_BUILD_EVERY-th call builds and keeps one: large
     steps, 10 us at 500 rpm, fill the atlas in a few pitches at ~1.5x the exact search's cost).
 
-    Clearances (:func:`candidate_clearances`, computed at the build): the motion bound of each
-    far-check node's near leaves found by check (i) (``ndisp[f]``) lets the narrow phase skip the
-    elements and pairs that cannot have a hit or an entry, so a call costs about the elements in
-    contact and their few pairs, not the whole list (:func:`search_candidates_skip`).
+    Clearances and skip thresholds (:func:`candidate_clearances` at the build,
+    :func:`init_thresholds`): each element and pair gets the motion its clearance allows, less
+    the motion since the list's pose. From then on, running sums of per-call motion bounds (per
+    far-check node, :func:`_advance_motion`) measure the motion since; the narrow phase skips the
+    elements and pairs whose threshold the sum has not reached, and a pair it tests gets a new
+    threshold from its clearances at this pose (:func:`search_candidates_skip`). So a call costs
+    about the elements in contact and their near neighbours, not the list's size or age. The
+    same sums prove check (i)-(iii) most calls without the per-node check (:func:`_valid_by_sums`).
 
     Pitch atlas (``period[1] > 0``: both meshes are invariant under a turn by one pitch, checked
     by :func:`engine.pitch_symmetry`): every list built is kept as a snapshot (pairs, clearances,
@@ -1056,6 +1343,10 @@ def cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tb
     In a steady run every pitch repeats the previous one and builds stop after the first pitch."""
     periodic = period[1] > 0.0 and atlas_meta.shape[0] > 1
     cphi = math.cos(phi_tol)
+    prev_life = cache[C_SINCE] if cache[C_VALID] != 0.0 else 0.0
+    set_list = False    # a list was set at this call (the atlas sets its thresholds)
+    init = False        # thresholds to set from the list's clearances (a build, or a restart)
+    fresh = False
     if cache[C_COOL] > 0.0:
         cache[C_COOL] -= 1.0
         if not periodic:
@@ -1064,20 +1355,14 @@ def cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tb
                                L, s_neg, stamp, call, best_u, best_j, line, active, stack)
         # cool-down with an atlas: a kept list that fits ends it; every ATLAS_BUILD_EVERY-th call
         # builds (and keeps) a list, so that large steps fill the atlas too; else the exact search
-        s = -1
-        if cache[C_NSNAP] > 0.0:
-            s, sdb, sdt = _atlas_lookup(theta_b, theta_t, M, period, tbt, cache, atlas_meta,
-                                        atlas_minsep, atlas_nbox, atlas_close, b_seg, b_obb,
-                                        fnode, s_neg, delta, cphi, dR, dt, ndisp, Rc)
-        if s >= 0:
-            _atlas_activate(s, sdb, sdt, period, cache, atlas_meta, atlas_pairs, atlas_c,
-                            atlas_s, atlas_d, atlas_h, atlas_minsep, atlas_nbox, atlas_close,
-                            b_order, b_inv, t_order, t_inv, ttri, slot_f, minsep, nbox, close,
-                            cand, cand_tri, cand_c, cand_s, cand_d, cand_h, cand_g, cand_f)
+        if _atlas_serve(theta_b, theta_t, M, period, tbt, cache, atlas_meta, atlas_pairs,
+                        atlas_c, atlas_s, atlas_d, atlas_h, atlas_x, atlas_minsep, atlas_nbox,
+                        atlas_close, b_seg, b_obb, fnode, s_neg, delta, cphi, dR, dt, ndisp, Rc,
+                        b_order, b_inv, t_order, t_inv, slot_f, minsep, nbox, close, cand,
+                        cand_c, cand_s, cand_d, cand_h, cand_g, cand_f, cand_x, elem_q, elem_x,
+                        elem_hit):
             cache[C_COOL] = 0.0
-            cache[C_VALID] = 1.0
-            cache[C_SINCE] = 0.0
-            cache[C_AHITS] += 1.0
+            set_list = True
         elif int(cache[C_COOL]) % ATLAS_BUILD_EVERY != 0:
             cache[C_EXACT] += 1.0
             return search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt,
@@ -1086,36 +1371,28 @@ def cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tb
             cache[C_COOL] = 0.0           # a build below
             cache[C_VALID] = 0.0
             cache[C_SINCE] = CACHE_MIN_REUSE
-    valid = cache[C_VALID] != 0.0
+    valid = cache[C_VALID] != 0.0 and not set_list
     if valid:
-        margin = 0.0
-        if cache[C_DB] != 0.0 or cache[C_DT] != 0.0:
-            _rbt_of(M, theta_b + cache[C_DB] * period[0], theta_t + cache[C_DT] * period[2], Rc)
-            margin = ATLAS_EPS
-        else:
-            for r in range(3):
-                for c in range(3):
-                    Rc[r, c] = Rbt[r, c]
-        d = _cache_check(Rc, tbt, cache, C_RREF, cache[C_GFAR], int(cache[C_NCLOSE]), close, nbox,
-                         minsep, b_seg, b_obb, fnode, s_neg, delta, cphi, margin, dR, dt, ndisp)
-        valid = d >= 0.0
-    fresh = False
-    if not valid:
-        served = False
-        if periodic and cache[C_NSNAP] > 0.0:
-            s, sdb, sdt = _atlas_lookup(theta_b, theta_t, M, period, tbt, cache, atlas_meta,
-                                        atlas_minsep, atlas_nbox, atlas_close, b_seg, b_obb,
-                                        fnode, s_neg, delta, cphi, dR, dt, ndisp, Rc)
-            if s >= 0:
-                _atlas_activate(s, sdb, sdt, period, cache, atlas_meta, atlas_pairs, atlas_c,
-                                atlas_s, atlas_d, atlas_h, atlas_minsep, atlas_nbox, atlas_close,
-                                b_order, b_inv, t_order, t_inv, ttri, slot_f, minsep, nbox, close,
-                                cand, cand_tri, cand_c, cand_s, cand_d, cand_h, cand_g, cand_f)
-                cache[C_VALID] = 1.0
-                cache[C_SINCE] = 0.0
-                cache[C_AHITS] += 1.0
-                served = True
-        if not served:
+        _shifted_pose(theta_b, theta_t, M, period, Rbt, cache, Rc)
+        margin = ATLAS_EPS if (cache[C_DB] != 0.0 or cache[C_DT] != 0.0) else 0.0
+        _advance_motion(Rc, tbt, s_neg, b_seg, b_obb, cache, nbox, close, ndisp, nsum, dR, dt)
+        # the turn since the thresholds were set may exceed what they allow for: the same list
+        # then gets them set again from its own pose (with the bounds of the full check)
+        init = cache[C_SUMR] > R_LIFE
+        if init or not _valid_by_sums(cache, delta, margin, phi_tol):
+            d = _cache_check(Rc, tbt, cache, C_RREF, cache[C_GFAR], int(cache[C_NCLOSE]), close,
+                             nbox, minsep, b_seg, b_obb, fnode, s_neg, delta, cphi, margin, dR,
+                             dt, ndisp)
+            valid = d >= 0.0
+            init = init and valid
+    if not valid and not set_list:
+        set_list = periodic and _atlas_serve(
+            theta_b, theta_t, M, period, tbt, cache, atlas_meta, atlas_pairs, atlas_c, atlas_s,
+            atlas_d, atlas_h, atlas_x, atlas_minsep, atlas_nbox, atlas_close, b_seg, b_obb, fnode,
+            s_neg, delta, cphi, dR, dt, ndisp, Rc, b_order, b_inv, t_order, t_inv, slot_f,
+            minsep, nbox, close, cand, cand_c, cand_s, cand_d, cand_h, cand_g, cand_f, cand_x,
+            elem_q, elem_x, elem_hit)
+        if not set_list:
             if cache[C_VALID] != 0.0 and cache[C_SINCE] < CACHE_MIN_REUSE:
                 # the motion between calls is too large for the margins: exact search for a while
                 cache[C_VALID] = 0.0
@@ -1144,16 +1421,13 @@ def cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tb
                 return search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt,
                                    tbt, L, s_neg, stamp, call, best_u, best_j, line, active,
                                    stack)
-            # sort the pairs by base slot (stable) and copy the triangle data in that order
+            # sort the pairs by base slot (stable)
             order = np.argsort(cand[:n, 0], kind="mergesort")
             tmp = cand[:n].copy()
             for q in range(n):
                 cand[q, 0] = tmp[order[q], 0]
                 cand[q, 1] = tmp[order[q], 1]
-                l = cand[q, 1]
-                for a in range(18):
-                    cand_tri[q, a] = ttri[l, a]
-            candidate_clearances(n, cand, cand_tri, belem, slot_f, Rbt, tbt, L, s_neg, cand_c,
+            candidate_clearances(n, cand, ttri, belem, slot_f, Rbt, tbt, L, s_neg, cand_c,
                                  cand_s, cand_d, cand_h, cand_g, cand_f)
             cache[C_NNEAR] = icount[0]
             # far-check nodes checked one by one: those with near leaves or within 16 far; the
@@ -1175,20 +1449,40 @@ def cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tb
                 cache[C_TREF + r] = tbt[r]
             cache[C_NCAND] = n
             fresh = True
+            set_list = True
+            init = True
             if periodic:
                 _atlas_store(theta_b, theta_t, Rbt, tbt, cache, n, cand, cand_c, cand_s, cand_d,
                              cand_h, minsep, nbox, close, atlas_meta, atlas_pairs, atlas_c,
-                             atlas_s, atlas_d, atlas_h, atlas_minsep, atlas_nbox, atlas_close)
+                             atlas_s, atlas_d, atlas_h, atlas_x, atlas_minsep, atlas_nbox,
+                             atlas_close)
     else:
         cache[C_CALLS] += 1.0
         cache[C_SINCE] += 1.0
-    stats = np.zeros(2, dtype=np.int64)
-    n_act = search_candidates_skip(int(cache[C_NCAND]), cand, cand_tri, cand_c, cand_s, cand_d,
-                                   cand_h, cand_g, cand_f, ndisp, ndisp[ndisp.shape[0] - 1],
-                                   fresh, belem, L, s_neg, Rbt, tbt, best_u, best_j, line,
-                                   active, stats)
+    if set_list or init:
+        if set_list:
+            # lifetime of the lists (calls served, exponential average): re-anchoring pays
+            # only when a list lives long enough to use the thresholds
+            life = cache[C_LIFE]
+            cache[C_LIFE] = prev_life if life == 0.0 else 0.75 * life + 0.25 * prev_life
+            _shifted_pose(theta_b, theta_t, M, period, Rbt, cache, Rc)
+        _start_motion(Rc, tbt, fresh, s_neg, b_seg, b_obb, cache, nbox, minsep, close, ndisp, nsum,
+                      dR, dt)
+        if init:
+            cache[C_NELEM] = init_thresholds(int(cache[C_NCAND]), cand_c, cand_s, cand_d, cand_h,
+                                             cand_g, cand_f, ndisp, fresh, cand_x, elem_q,
+                                             elem_x, elem_hit)
+    stats = np.zeros(4, dtype=np.int64)
+    n_act = search_candidates_skip(int(cache[C_NELEM]), elem_q, elem_x, elem_hit, cand, ttri,
+                                   cand_x, cand_g, cand_f, nsum,
+                                   max(cache[C_LIFE], cache[C_SINCE]) >= REANCHOR_LIFE, belem,
+                                   L, s_neg, Rbt, tbt, best_u, best_j, line, active, stats)
     cache[C_SKIPPED] = stats[0]
     cache[C_TESTED] = stats[1]
+    cache[C_RETESTS] = stats[2]
+    cache[C_VISITED] = stats[3]
+    cache[C_TESTED_ALL] += stats[1]
+    cache[C_RETESTS_ALL] += stats[2]
     return n_act
 
 
@@ -1325,10 +1619,10 @@ def fixed_axis_eval(data, theta_base, theta_target, omega_base, omega_target, ou
     about its axis, out[2..8] diagnostics, out[9] status (1 = penetration beyond u_max).
     """
     (b_int, b_seg, b_obb, belem, b_order, t_int, t_box, t_obb, ttri, t_order, M, ab0, params,
-     stamp, call, best_u, best_j, line, active, stack, Rbt, tbt, cache, cand, cand_tri, nstamp,
+     stamp, call, best_u, best_j, line, active, stack, Rbt, tbt, cache, cand, nstamp,
      icount, fnode, fc, minsep, nbox, close, dR, dt, ndisp, cand_c, cand_s, cand_d, cand_h, cand_g,
      cand_f, slot_f, period, b_inv, t_inv, Rc, atlas_meta, atlas_pairs, atlas_c, atlas_s, atlas_d,
-     atlas_h, atlas_minsep, atlas_nbox, atlas_close) = data
+     atlas_h, atlas_minsep, atlas_nbox, atlas_close, cand_x, elem_q, elem_x, elem_hit, atlas_x, nsum) = data
     _rbt_of(M, theta_base, theta_target, Rbt)       # Rbt = Rz(-theta_t) M Rz(theta_b), M = R0_t^T R0_b
     ct = math.cos(theta_target)
     st = math.sin(theta_target)
@@ -1337,12 +1631,13 @@ def fixed_axis_eval(data, theta_base, theta_target, omega_base, omega_target, ou
     if params[P_DELTA] > 0.0:
         n = cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L,
                           s_neg, params[P_DELTA], params[P_FAR], params[P_PHI], cache, cand,
-                          cand_tri, nstamp, icount, fnode, fc, minsep, nbox, close, dR, dt, stamp,
+                          nstamp, icount, fnode, fc, minsep, nbox, close, dR, dt, stamp,
                           call, best_u, best_j, line, active, stack, ndisp, cand_c, cand_s,
-                          cand_d, cand_h, cand_g, cand_f, slot_f, theta_base, theta_target, M,
+                          cand_d, cand_h, cand_g, cand_f,
+                          slot_f, theta_base, theta_target, M,
                           period, b_order, b_inv, t_order, t_inv, Rc, atlas_meta, atlas_pairs,
                           atlas_c, atlas_s, atlas_d, atlas_h, atlas_minsep, atlas_nbox,
-                          atlas_close)
+                          atlas_close, cand_x, elem_q, elem_x, elem_hit, atlas_x, nsum)
     else:
         n = search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L,
                         s_neg, stamp, call, best_u, best_j, line, active, stack)

@@ -454,20 +454,6 @@ def pitch_symmetry(body: PCMBody, z: int):
         if ok:
             return phi, shift
     return None
-    shift = m // z
-    tri = body.tri
-    idx = (np.arange(m) + shift) % m
-    for sign in (-1.0, 1.0):
-        phi = sign * 2.0 * np.pi / z
-        R = rot_z(phi)
-        if np.abs(tri[idx[:shift]] - tri[:shift] @ R.T).max() > 1e3 * PITCH_TOL:
-            continue          # quick rejection on the first tooth
-        ok = (np.abs(tri[idx] - tri @ R.T).max() <= PITCH_TOL
-              and np.abs(body.points[idx] - body.points @ R.T).max() <= PITCH_TOL
-              and np.abs(body.normals[idx] - body.normals @ R.T).max() <= PITCH_TOL_NORMAL)
-        if ok:
-            return phi, shift
-    return None
 
 
 def cache_stats(data: tuple) -> dict:

@@ -717,10 +717,13 @@ def init_thresholds(n_cand, cand_c, cand_s, cand_d, cand_h, cand_g, cand_f, ndis
 
 @njit(cache=True)
 def search_candidates_skip(n_elem, elem_q, elem_x, elem_hit, cand, ttri, cand_x, cand_g, cand_f,
-                           nsum, reanchor, belem,
+                           nsum, reanchor, cand_c, cand_s, cand_d, cand_h, ndisp, rho, belem,
                            L, s_neg, Rbt, tbt, best_u, best_j, line, active, stats):
     """Exact narrow phase over the cached candidate pairs (sorted by base slot; same outputs as
-    :func:`search_pair`), skipping what cannot hit or enter. ``nsum[f]`` is the running sum of the
+    :func:`search_pair`), skipping what cannot hit or enter (the criteria below, and as a second
+    chance for what they do not skip, the list's own clearances ``cand_c``, ``cand_s``,
+    ``cand_d``, ``cand_h`` against the motion since the list's pose, ``ndisp[f]`` at the sums'
+    start + ``nsum[f]``, and the turn since it, ``rho``). ``nsum[f]`` is the running sum of the
     per-call motion bounds of far-check node f's near leaves since the list was set
     (:func:`_advance_motion`): by the triangle inequality the motion between two calls is at most
     the difference of their sums. Every element and pair carries a threshold in these units (the
@@ -747,9 +750,16 @@ def search_candidates_skip(n_elem, elem_q, elem_x, elem_hit, cand, ttri, cand_x,
     n_test = 0
     for i in range(n_elem):
         q = elem_q[i]
-        sum_d = nsum[cand_f[q]]
+        f = cand_f[q]
+        sum_d = nsum[f]
         now = sum_d + SKIP_EPS
         if now < elem_x[i]:
+            n_skip += 1
+            continue
+        # second chance: the list's own clearances against the motion since its pose (the bound
+        # at the sums' start plus the sum), with the turn since it (the thresholds assume more)
+        dref = ndisp[f] + sum_d + SKIP_EPS
+        if cand_h[q] > dref:
             n_skip += 1
             continue
         k = cand[q, 0]
@@ -782,6 +792,14 @@ def search_candidates_skip(n_elem, elem_q, elem_x, elem_hit, cand, ttri, cand_x,
                 else:
                     h = -np.inf
             if now < cand_x[q]:
+                if cand_x[q] < xm:
+                    xm = cand_x[q]
+                q += 1
+                continue
+            den = cand_d[q]
+            dd = den - rho
+            if dd > DOT_EPS and cand_c[q] > (dref + cand_s[q] * rho) * (
+                    1.0 + (math.sqrt(max(0.0, 1.0 - den * den)) + rho) / dd):
                 if cand_x[q] < xm:
                     xm = cand_x[q]
                 q += 1
@@ -1475,7 +1493,9 @@ def cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tb
     stats = np.zeros(4, dtype=np.int64)
     n_act = search_candidates_skip(int(cache[C_NELEM]), elem_q, elem_x, elem_hit, cand, ttri,
                                    cand_x, cand_g, cand_f, nsum,
-                                   max(cache[C_LIFE], cache[C_SINCE]) >= REANCHOR_LIFE, belem,
+                                   max(cache[C_LIFE], cache[C_SINCE]) >= REANCHOR_LIFE, cand_c,
+                                   cand_s, cand_d, cand_h, ndisp,
+                                   cache[C_R0] + cache[C_SUMR] + 1e-11, belem,
                                    L, s_neg, Rbt, tbt, best_u, best_j, line, active, stats)
     cache[C_SKIPPED] = stats[0]
     cache[C_TESTED] = stats[1]

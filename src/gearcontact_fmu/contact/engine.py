@@ -354,7 +354,7 @@ def make_fixed_axis_data(base_body: PCMBody, target_body: PCMBody, R0_base, R0_t
     params, stamp, call, best_u, best_j, line, active, stack, Rbt, tbt, cache, cand, nstamp,
     icount, fnode, fc, minsep, nbox, close, dR, dt, ndisp, cand_c, cand_s, cand_d, cand_h,
     cand_g, cand_f, slot_f, period, b_inv, t_inv, Rc, atlas_meta, atlas_pairs, atlas_c, atlas_s,
-    atlas_d, atlas_h, atlas_minsep, atlas_nbox, atlas_close, cand_x, elem_q, elem_x, elem_hit, atlas_x, nsum)``
+    atlas_d, atlas_h, atlas_minsep, atlas_nbox, atlas_close, cand_x, elem_q, elem_x, elem_hit, atlas_x, nsum, nd0)``
     with
     ``M = R0_target.T @ R0_base``, ``ab0 = M[:, 2]`` (base axis in the target's reference frame),
     ``params`` see :func:`kernels.make_params`, ``cache`` (kernels.N_CACHE,) cache state and
@@ -415,7 +415,7 @@ def make_fixed_axis_data(base_body: PCMBody, target_body: PCMBody, R0_base, R0_t
         np.zeros(n_pool, dtype=np.float32), np.zeros(n_pool, dtype=np.float32),
         np.zeros((n_snap, nf)), np.zeros((n_snap, nf, 6)), np.zeros((n_snap, nf), dtype=np.int64),
         np.zeros(cap), np.zeros(cap, dtype=np.int64), np.zeros(cap), np.zeros(cap, dtype=np.bool_),
-        np.zeros(n_pool, dtype=np.float32), np.zeros(nf))
+        np.zeros(n_pool, dtype=np.float32), np.zeros(nf), np.zeros(nf))
 
 
 def _inverse(order: np.ndarray) -> np.ndarray:

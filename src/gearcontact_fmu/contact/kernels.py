@@ -717,12 +717,12 @@ def init_thresholds(n_cand, cand_c, cand_s, cand_d, cand_h, cand_g, cand_f, ndis
 
 @njit(cache=True)
 def search_candidates_skip(n_elem, elem_q, elem_x, elem_hit, cand, ttri, cand_x, cand_g, cand_f,
-                           nsum, reanchor, cand_c, cand_s, cand_d, cand_h, ndisp, rho, belem,
+                           nsum, reanchor, cand_c, cand_s, cand_d, cand_h, nd0, rho, belem,
                            L, s_neg, Rbt, tbt, best_u, best_j, line, active, stats):
     """Exact narrow phase over the cached candidate pairs (sorted by base slot; same outputs as
     :func:`search_pair`), skipping what cannot hit or enter (the criteria below, and as a second
     chance for what they do not skip, the list's own clearances ``cand_c``, ``cand_s``,
-    ``cand_d``, ``cand_h`` against the motion since the list's pose, ``ndisp[f]`` at the sums'
+    ``cand_d``, ``cand_h`` against the motion since the list's pose, ``nd0[f]`` at the sums'
     start + ``nsum[f]``, and the turn since it, ``rho``). ``nsum[f]`` is the running sum of the
     per-call motion bounds of far-check node f's near leaves since the list was set
     (:func:`_advance_motion`): by the triangle inequality the motion between two calls is at most
@@ -732,12 +732,13 @@ def search_candidates_skip(n_elem, elem_q, elem_x, elem_hit, cand, ttri, cand_x,
     cannot reach any plane it could hit (element clearance, :func:`candidate_clearances`). A
     skipped element or pair would give no hit and no entry: the result is the same, bit for bit.
 
-    With ``reanchor`` the thresholds follow the run: a pair tested without a hit gets a new one
-    from its clearances at this pose (:func:`_retest_threshold`), a pair with a hit -inf (tested
-    again next call); without, a tested pair keeps its threshold (still valid; for lists that
-    live too few calls to use new ones). A visited element gets the larger of its clearance at
+    With ``reanchor`` (running sums) the thresholds follow the run: a pair tested without a hit
+    gets a new one from its clearances at this pose (:func:`_retest_threshold`), a pair with a
+    hit -inf (tested again next call), and a visited element the larger of its clearance at
     this pose (skipped when it had a hit at its last visit: then it is <= 0) and its pairs'
-    smallest threshold. So along a trajectory a pair is tested again only when the motion since
+    smallest threshold. Without (direct bounds, for lists that live too few calls to use new
+    thresholds; a difference of direct bounds bounds no motion) a tested pair keeps its
+    threshold, a hit gets -inf, and an element its pairs' smallest. So along a trajectory a pair is tested again only when the motion since
     its last test could have closed its gap: a call costs about the elements in contact and
     their near neighbours, not the list's size or age. ``stats`` (4,): elements skipped, pairs
     tested, thresholds re-anchored, elements visited."""
@@ -758,7 +759,7 @@ def search_candidates_skip(n_elem, elem_q, elem_x, elem_hit, cand, ttri, cand_x,
             continue
         # second chance: the list's own clearances against the motion since its pose (the bound
         # at the sums' start plus the sum), with the turn since it (the thresholds assume more)
-        dref = ndisp[f] + sum_d + SKIP_EPS
+        dref = nd0[f] + sum_d + SKIP_EPS
         if cand_h[q] > dref:
             n_skip += 1
             continue
@@ -777,7 +778,7 @@ def search_candidates_skip(n_elem, elem_q, elem_x, elem_hit, cand, ttri, cand_x,
         entry = np.inf
         # element clearance at this pose, unless the element had a hit at its last visit (then it
         # is <= 0: the hit pair's plane is behind the segment start, or its normals disagree)
-        h = -np.inf if elem_hit[i] else np.inf
+        h = -np.inf if (elem_hit[i] or not reanchor) else np.inf
         xm = np.inf
         qe = q + cand_g[q]
         while q < qe:
@@ -825,7 +826,7 @@ def search_candidates_skip(n_elem, elem_q, elem_x, elem_hit, cand, ttri, cand_x,
             if x < xm:
                 xm = x
             q += 1
-        elem_x[i] = max(sum_d + h, xm)
+        elem_x[i] = max(sum_d + h, xm) if reanchor else xm
         elem_hit[i] = bj >= 0
         stats[3] += 1
         if bj >= 0 and best < entry:
@@ -880,7 +881,8 @@ C_VISITED = 59     # statistics: elements visited (last call)
 C_LIFE = 60        # calls a list serves, exponential average over the lists set
 C_TESTED_ALL = 61  # statistics: candidate pairs tested, all calls
 C_RETESTS_ALL = 62  # statistics: thresholds re-anchored, all calls
-N_CACHE = 63
+C_SUMS = 63        # 1.0: the list keeps running sums and re-anchors; 0.0: direct bounds (short lives)
+N_CACHE = 64
 CACHE_MIN_REUSE = 8      # a list reused for fewer calls than this triggers a cool-down ...
 CACHE_COOLDOWN = 64      # ... of this many exact-search calls before the next build
 
@@ -1227,13 +1229,13 @@ def _shifted_pose(theta_b, theta_t, M, period, Rbt, cache, Rc):
 
 
 @njit(cache=True)
-def _start_motion(Rc, tbt, fresh, s_neg, b_seg, b_obb, cache, nbox, minsep, close, ndisp, nsum,
-                  dR, dt):
+def _start_motion(Rc, tbt, fresh, s_neg, b_seg, b_obb, cache, nbox, minsep, close, ndisp, nd0,
+                  nsum, dR, dt):
     """Running motion sums of a list (re)started at this call (pose ``Rc``, shifted): zero (per
     far-check node with near leaves ``nsum[f]``, the whole base, the turn), the pose kept for the
     next call, and what :func:`_valid_by_sums` needs: the near-leaf bounds and the turn since the
     list's pose (this call's check, ``ndisp``; 0 when ``fresh``; the largest of the former is
-    kept as ``cache[C_D0]`` and each stays in ``ndisp``), the whole base's bound since it, and
+    kept as ``cache[C_D0]`` and each as ``nd0[f]``), the whole base's bound since it, and
     the smallest distance its far checks allow (``minsep``, the far group's ``C_GFAR``)."""
     d0 = 0.0
     sep = cache[C_GFAR]
@@ -1242,6 +1244,7 @@ def _start_motion(Rc, tbt, fresh, s_neg, b_seg, b_obb, cache, nbox, minsep, clos
         nsum[f] = 0.0
         if fresh:
             ndisp[f] = 0.0
+        nd0[f] = ndisp[f]
         if nbox[f, 0] <= nbox[f, 3] and ndisp[f] > d0:
             d0 = ndisp[f]
         if minsep[f] < sep:
@@ -1315,6 +1318,19 @@ def _valid_by_sums(cache, delta, margin, phi_tol):
 
 
 @njit(cache=True)
+def _direct_sums(cache, nbox, close, ndisp, nd0, nsum):
+    """For a list without running sums: the motion since the sums' start bounded by the full
+    check's direct bounds since the list's pose (``ndisp``) less those at the start (``nd0``), so
+    that the thresholds (:func:`init_thresholds`: allowance less the start bound) compare as the
+    list's own clearances against the direct bound; the turn likewise."""
+    for q in range(int(cache[C_NCLOSE])):
+        f = close[q]
+        if nbox[f, 0] <= nbox[f, 3]:
+            nsum[f] = ndisp[f] - nd0[f]
+    cache[C_SUMR] = ndisp[ndisp.shape[0] - 1] - cache[C_R0]
+
+
+@njit(cache=True)
 def cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L, s_neg,
                   delta, far, phi_tol, cache, cand, nstamp, icount, fnode, fc, minsep,
                   nbox, close, dR, dt, stamp, call, best_u, best_j, line, active, stack,
@@ -1322,7 +1338,7 @@ def cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tb
                   cand_f, slot_f, theta_b,
                   theta_t, M, period, b_order, b_inv, t_order, t_inv, Rc, atlas_meta,
                   atlas_pairs, atlas_c, atlas_s, atlas_d, atlas_h, atlas_minsep, atlas_nbox,
-                  atlas_close, cand_x, elem_q, elem_x, elem_hit, atlas_x, nsum):
+                  atlas_close, cand_x, elem_q, elem_x, elem_hit, atlas_x, nsum, nd0):
     """Exact contact search through a candidate cache (temporal coherence).
 
     Build (at the current pose): a traversal with node volumes grown by ``far`` finds the base
@@ -1393,16 +1409,28 @@ def cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tb
     if valid:
         _shifted_pose(theta_b, theta_t, M, period, Rbt, cache, Rc)
         margin = ATLAS_EPS if (cache[C_DB] != 0.0 or cache[C_DT] != 0.0) else 0.0
-        _advance_motion(Rc, tbt, s_neg, b_seg, b_obb, cache, nbox, close, ndisp, nsum, dR, dt)
-        # the turn since the thresholds were set may exceed what they allow for: the same list
-        # then gets them set again from its own pose (with the bounds of the full check)
-        init = cache[C_SUMR] > R_LIFE
-        if init or not _valid_by_sums(cache, delta, margin, phi_tol):
+        if cache[C_SUMS] != 0.0:
+            _advance_motion(Rc, tbt, s_neg, b_seg, b_obb, cache, nbox, close, ndisp, nsum, dR,
+                            dt)
+            # the turn since the thresholds were set may exceed what they allow for: the same
+            # list then gets them set again from its own pose (with the bounds of the full check)
+            init = cache[C_SUMR] > R_LIFE
+            if init or not _valid_by_sums(cache, delta, margin, phi_tol):
+                d = _cache_check(Rc, tbt, cache, C_RREF, cache[C_GFAR], int(cache[C_NCLOSE]),
+                                 close, nbox, minsep, b_seg, b_obb, fnode, s_neg, delta, cphi,
+                                 margin, dR, dt, ndisp)
+                valid = d >= 0.0
+                init = init and valid
+        else:
+            # a short-lived list: the full check every call, its direct bounds as the "sums";
+            # once it has lived REANCHOR_LIFE calls it switches to running sums (a restart)
             d = _cache_check(Rc, tbt, cache, C_RREF, cache[C_GFAR], int(cache[C_NCLOSE]), close,
                              nbox, minsep, b_seg, b_obb, fnode, s_neg, delta, cphi, margin, dR,
                              dt, ndisp)
             valid = d >= 0.0
-            init = init and valid
+            if valid:
+                _direct_sums(cache, nbox, close, ndisp, nd0, nsum)
+                init = cache[C_SINCE] + 1.0 >= REANCHOR_LIFE
     if not valid and not set_list:
         set_list = periodic and _atlas_serve(
             theta_b, theta_t, M, period, tbt, cache, atlas_meta, atlas_pairs, atlas_c, atlas_s,
@@ -1484,17 +1512,18 @@ def cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tb
             life = cache[C_LIFE]
             cache[C_LIFE] = prev_life if life == 0.0 else 0.75 * life + 0.25 * prev_life
             _shifted_pose(theta_b, theta_t, M, period, Rbt, cache, Rc)
-        _start_motion(Rc, tbt, fresh, s_neg, b_seg, b_obb, cache, nbox, minsep, close, ndisp, nsum,
-                      dR, dt)
+        _start_motion(Rc, tbt, fresh, s_neg, b_seg, b_obb, cache, nbox, minsep, close, ndisp, nd0,
+                      nsum, dR, dt)
+        # running sums (and re-anchored thresholds) for lists that live long enough to use them
+        cache[C_SUMS] = 1.0 if (init and not set_list) or cache[C_LIFE] >= REANCHOR_LIFE else 0.0
         if init:
             cache[C_NELEM] = init_thresholds(int(cache[C_NCAND]), cand_c, cand_s, cand_d, cand_h,
                                              cand_g, cand_f, ndisp, fresh, cand_x, elem_q,
                                              elem_x, elem_hit)
     stats = np.zeros(4, dtype=np.int64)
     n_act = search_candidates_skip(int(cache[C_NELEM]), elem_q, elem_x, elem_hit, cand, ttri,
-                                   cand_x, cand_g, cand_f, nsum,
-                                   max(cache[C_LIFE], cache[C_SINCE]) >= REANCHOR_LIFE, cand_c,
-                                   cand_s, cand_d, cand_h, ndisp,
+                                   cand_x, cand_g, cand_f, nsum, cache[C_SUMS] != 0.0, cand_c,
+                                   cand_s, cand_d, cand_h, nd0,
                                    cache[C_R0] + cache[C_SUMR] + 1e-11, belem,
                                    L, s_neg, Rbt, tbt, best_u, best_j, line, active, stats)
     cache[C_SKIPPED] = stats[0]
@@ -1642,7 +1671,8 @@ def fixed_axis_eval(data, theta_base, theta_target, omega_base, omega_target, ou
      stamp, call, best_u, best_j, line, active, stack, Rbt, tbt, cache, cand, nstamp,
      icount, fnode, fc, minsep, nbox, close, dR, dt, ndisp, cand_c, cand_s, cand_d, cand_h, cand_g,
      cand_f, slot_f, period, b_inv, t_inv, Rc, atlas_meta, atlas_pairs, atlas_c, atlas_s, atlas_d,
-     atlas_h, atlas_minsep, atlas_nbox, atlas_close, cand_x, elem_q, elem_x, elem_hit, atlas_x, nsum) = data
+     atlas_h, atlas_minsep, atlas_nbox, atlas_close, cand_x, elem_q, elem_x, elem_hit, atlas_x, nsum,
+     nd0) = data
     _rbt_of(M, theta_base, theta_target, Rbt)       # Rbt = Rz(-theta_t) M Rz(theta_b), M = R0_t^T R0_b
     ct = math.cos(theta_target)
     st = math.sin(theta_target)
@@ -1657,7 +1687,7 @@ def fixed_axis_eval(data, theta_base, theta_target, omega_base, omega_target, ou
                           slot_f, theta_base, theta_target, M,
                           period, b_order, b_inv, t_order, t_inv, Rc, atlas_meta, atlas_pairs,
                           atlas_c, atlas_s, atlas_d, atlas_h, atlas_minsep, atlas_nbox,
-                          atlas_close, cand_x, elem_q, elem_x, elem_hit, atlas_x, nsum)
+                          atlas_close, cand_x, elem_q, elem_x, elem_hit, atlas_x, nsum, nd0)
     else:
         n = search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L,
                         s_neg, stamp, call, best_u, best_j, line, active, stack)

@@ -549,6 +549,36 @@ def search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt,
 
 
 @njit(cache=True)
+def edge_clearance(ox, oy, oz, dx, dy, dz, ttri, l):
+    """(c, s0, den) of the line o + s d and triangle slot l (first vertex v, facet normal n_g, dual
+    edge vectors g1, g2): den = d.n_g, the line meets the plane at s0 = (v - o).n_g / den, and c
+    is how far outside the triangle (in its plane, by the inside test's three edge functions
+    beta, gamma, 1 - beta - gamma, each over its gradient's length) it meets it; c = -inf (and
+    s0 = 0) when the line is nearly parallel to the plane (|den| <= 1e-3)."""
+    ngx, ngy, ngz = ttri[l, 3], ttri[l, 4], ttri[l, 5]
+    den = dx * ngx + dy * ngy + dz * ngz
+    if not abs(den) > 1e-3:
+        return -np.inf, 0.0, den
+    vx, vy, vz = ttri[l, 0], ttri[l, 1], ttri[l, 2]
+    s0 = ((vx - ox) * ngx + (vy - oy) * ngy + (vz - oz) * ngz) / den
+    wx = ox + s0 * dx - vx
+    wy = oy + s0 * dy - vy
+    wz = oz + s0 * dz - vz
+    g1x, g1y, g1z = ttri[l, 6], ttri[l, 7], ttri[l, 8]
+    g2x, g2y, g2z = ttri[l, 9], ttri[l, 10], ttri[l, 11]
+    beta = wx * g1x + wy * g1y + wz * g1z
+    gamma = wx * g2x + wy * g2y + wz * g2z
+    ng1 = math.sqrt(g1x * g1x + g1y * g1y + g1z * g1z)
+    ng2 = math.sqrt(g2x * g2x + g2y * g2y + g2z * g2z)
+    sx, sy, sz = g1x + g2x, g1y + g2y, g1z + g2z
+    ns = math.sqrt(sx * sx + sy * sy + sz * sz)
+    if not (ng1 > 0.0 and ng2 > 0.0 and ns > 0.0):
+        return -np.inf, s0, den
+    return max((-BARY_EPS - beta) / ng1, (-BARY_EPS - gamma) / ng2,
+               (beta + gamma - 1.0 - BARY_EPS) / ns), s0, den
+
+
+@njit(cache=True)
 def candidate_clearances(n, cand, ttri, belem, slot_f, Rbt, tbt, L, s_neg, cand_c, cand_s,
                          cand_d, cand_h, cand_g, cand_f):
     """Clearances of the candidate pairs ``cand[:n]`` (sorted by base slot) at the current pose,
@@ -593,25 +623,7 @@ def candidate_clearances(n, cand, ttri, belem, slot_f, Rbt, tbt, L, s_neg, cand_
             l = cand[q1, 1]
             vx, vy, vz = ttri[l, 0], ttri[l, 1], ttri[l, 2]
             ngx, ngy, ngz = ttri[l, 3], ttri[l, 4], ttri[l, 5]
-            den = dx * ngx + dy * ngy + dz * ngz
-            c = -np.inf
-            s0 = 0.0
-            if abs(den) > 1e-3:
-                s0 = ((vx - ox) * ngx + (vy - oy) * ngy + (vz - oz) * ngz) / den
-                wx = ox + s0 * dx - vx
-                wy = oy + s0 * dy - vy
-                wz = oz + s0 * dz - vz
-                g1x, g1y, g1z = ttri[l, 6], ttri[l, 7], ttri[l, 8]
-                g2x, g2y, g2z = ttri[l, 9], ttri[l, 10], ttri[l, 11]
-                beta = wx * g1x + wy * g1y + wz * g1z
-                gamma = wx * g2x + wy * g2y + wz * g2z
-                ng1 = math.sqrt(g1x * g1x + g1y * g1y + g1z * g1z)
-                ng2 = math.sqrt(g2x * g2x + g2y * g2y + g2z * g2z)
-                sx, sy, sz = g1x + g2x, g1y + g2y, g1z + g2z
-                ns = math.sqrt(sx * sx + sy * sy + sz * sz)
-                if ng1 > 0.0 and ng2 > 0.0 and ns > 0.0:
-                    c = max((-BARY_EPS - beta) / ng1, (-BARY_EPS - gamma) / ng2,
-                            (beta + gamma - 1.0 - BARY_EPS) / ns)
+            c, s0, den = edge_clearance(ox, oy, oz, dx, dy, dz, ttri, l)
             cand_c[q1] = c
             cand_s[q1] = abs(s0)
             cand_d[q1] = abs(den) if c > -np.inf else 0.0
@@ -656,28 +668,8 @@ def _retest_threshold(ox, oy, oz, dx, dy, dz, ttri, l, sum_d):
     (point v_e, normal n_e; fixed in the target frame) when the line meets the plane from the
     front with a margin of R_LIFE: while o moved by less, u = (v_e - o).n_e / (d.n_e) is not
     positive (or d.n_e < FACING_COS): no hit; and den keeps its sign: no entry."""
-    ngx, ngy, ngz = ttri[l, 3], ttri[l, 4], ttri[l, 5]
-    den = dx * ngx + dy * ngy + dz * ngz
-    if not abs(den) > 1e-3:
-        return -np.inf
-    vx, vy, vz = ttri[l, 0], ttri[l, 1], ttri[l, 2]
-    s0 = ((vx - ox) * ngx + (vy - oy) * ngy + (vz - oz) * ngz) / den
-    wx = ox + s0 * dx - vx
-    wy = oy + s0 * dy - vy
-    wz = oz + s0 * dz - vz
-    g1x, g1y, g1z = ttri[l, 6], ttri[l, 7], ttri[l, 8]
-    g2x, g2y, g2z = ttri[l, 9], ttri[l, 10], ttri[l, 11]
-    beta = wx * g1x + wy * g1y + wz * g1z
-    gamma = wx * g2x + wy * g2y + wz * g2z
-    ng1 = math.sqrt(g1x * g1x + g1y * g1y + g1z * g1z)
-    ng2 = math.sqrt(g2x * g2x + g2y * g2y + g2z * g2z)
-    sx, sy, sz = g1x + g2x, g1y + g2y, g1z + g2z
-    ns = math.sqrt(sx * sx + sy * sy + sz * sz)
-    w = -np.inf
-    if ng1 > 0.0 and ng2 > 0.0 and ns > 0.0:
-        c = max((-BARY_EPS - beta) / ng1, (-BARY_EPS - gamma) / ng2,
-                (beta + gamma - 1.0 - BARY_EPS) / ns)
-        w = _allowance(c, abs(s0), abs(den), R_LIFE)
+    c, s0, den = edge_clearance(ox, oy, oz, dx, dy, dz, ttri, l)
+    w = _allowance(c, abs(s0), abs(den), R_LIFE)
     if den - R_LIFE > DOT_EPS:
         gap = ((ox - ttri[l, 12]) * ttri[l, 15] + (oy - ttri[l, 13]) * ttri[l, 16]
                + (oz - ttri[l, 14]) * ttri[l, 17])

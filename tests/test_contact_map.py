@@ -170,10 +170,14 @@ def test_missing_tooth_window_is_tabulated_as_early_engagement(cache):
     """In the no-contact window of a missing tooth the pinion runs ahead and the next tooth first
     touches at its tip, much further on than the nominal onset. The map must hold that onset and the
     response beyond it, matching the online engine there (a map that only covers the nominal range
-    meets the next tooth by extrapolation: violent, unphysical impacts)."""
+    meets the next tooth by extrapolation: violent, unphysical impacts). The map here is coarser than the
+    module's (0.2 mm mesh, 8 rows per pitch: the window row is a node row either way): a third of the build
+    time for the same early onset (0.34 mm beyond the nominal one, measured with both)."""
     pitch = 2 * math.pi / GEAR.z_pinion
-    cmap = get_map(GEAR, PCM, RES, health="severe", grid=GRID)
-    pair = build_pcm_pair(GEAR, PCM, RES, health="severe")
+    res = MeshResolution(profile=0.2e-3, face=3e-3)
+    grid = MapGrid(points_per_pitch=8, s_points=24, max_torque=120.0)
+    cmap = get_map(GEAR, PCM, res, health="severe", grid=grid)
+    pair = build_pcm_pair(GEAR, PCM, res, health="severe")
     i_win = int(round((2 * math.pi - 0.25 * pitch) / (cmap.theta[1] - cmap.theta[0])))
     th = float(cmap.theta[i_win])
     nominal = cmap.info["onset_drive"]

@@ -109,25 +109,32 @@ def test_mesh_convergence_face_and_finest():
     assert abs(ks[1] - ks[0]) / ks[1] < 0.02
 
 
-def test_missing_tooth_no_contact_window():
-    pair = build_pcm_pair(GEAR, PCM, MeshResolution(profile=0.05e-3, face=2e-3), health="severe")
+FINE = MeshResolution(profile=0.05e-3, face=2e-3)
+
+
+@pytest.fixture(scope="module")
+def fine_healthy_pair():
+    """The whole healthy pair at 0.05 mm (the reference of the two fault tests below; ~3 s to build)."""
+    return build_pcm_pair(GEAR, PCM, FINE)
+
+
+def test_missing_tooth_no_contact_window(fine_healthy_pair):
+    pair = build_pcm_pair(GEAR, PCM, FINE, health="severe")
     thetas, mask, windows = no_contact_windows(pair, torque=5.0, n=1500)
     print("\n windows (start rad, length in pitches):", windows)
     assert len(windows) == 1
     assert 0.3 <= windows[0][1] <= 0.55
     # and the healthy pair is always in contact
-    healthy = build_pcm_pair(GEAR, PCM, MeshResolution(profile=0.05e-3, face=2e-3))
-    _, mask_h, windows_h = no_contact_windows(healthy, torque=5.0, n=300)
+    _, mask_h, windows_h = no_contact_windows(fine_healthy_pair, torque=5.0, n=300)
     assert windows_h == [] and mask_h.all()
 
 
-def test_void_changes_stiffness_on_affected_tooth_only():
+def test_void_changes_stiffness_on_affected_tooth_only(fine_healthy_pair):
     """Tooth 0 is in mesh for theta in about [-0.8, +0.7] pitch (contact ratio ~1.5) and carries alone
     in about [-0.5, 0] pitch (the missing-tooth window): the void on its drive flank (at the pitch
     cone) must soften the mesh there and change nothing while tooth 0 is out of mesh."""
-    res = MeshResolution(profile=0.05e-3, face=2e-3)
-    healthy = build_pcm_pair(GEAR, PCM, res)
-    mild = build_pcm_pair(GEAR, PCM, res, health="mild")
+    healthy = fine_healthy_pair
+    mild = build_pcm_pair(GEAR, PCM, FINE, health="mild")
     th = np.linspace(-1.6 * PITCH, 1.6 * PITCH, 33)
     kh = static_transmission_error(healthy, th, 50.0)["k_torsional"]
     km = static_transmission_error(mild, th, 50.0)["k_torsional"]

@@ -220,12 +220,14 @@ def _check_example_output(out):
 
 
 @pytest.mark.skipif(not HAVE_ASSEMBLER, reason="drivetrain.assemble not available yet")
-def test_cli_run_example_fast_fidelity(tmp_path):
-    """The example through the command line (analytic mesh: no contact map to build)."""
+def test_cli_run_example_fast_fidelity(tmp_path, capsys):
+    """The example through the command line (analytic mesh: no contact map to build), in this process
+    (`drivetrain.cli.main`; the console entry point in a fresh process: the slow test below and
+    tests/test_sweep_resume.py)."""
     out = tmp_path / "tmp"
-    r = _run_cli([str(EXAMPLE), "--set", "time.duration_s=0.5", "--set", "effects.mesh_contact=analytic",
-                  "--out", str(out)], tmp_path)
-    assert r.returncode == 0, r.stderr
+    rc = main(["run", str(EXAMPLE), "--set", "time.duration_s=0.5", "--set", "effects.mesh_contact=analytic",
+               "--out", str(out), "--fmu-dir", str(tmp_path / "fmus"), "--quiet"])
+    assert rc == 0, capsys.readouterr().err
     s = _check_example_output(out)
     assert [f["fidelity"] for f in s["fmus"] if f["name"] == "gear"] == ["analytic"]
 

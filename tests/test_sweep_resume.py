@@ -55,16 +55,30 @@ def _journal(out):
     return (out / JOURNAL).read_bytes()
 
 
+class _InThisProcess:
+    """An executor that runs each case in this process when it is submitted."""
+
+    def submit(self, fn, case):
+        import concurrent.futures as cf
+
+        fut = cf.Future()
+        fut.set_result(fn(case))
+        return fut
+
+
 @pytest.fixture(scope="module")
 def full_sweep(tmp_path_factory):
-    """The grid run uninterrupted (the reference of the killed sweep, and the sweep the dataset test
-    truncates): (grid file, FMU directory, sweep directory)."""
+    """The grid run uninterrupted, in this process (the reference of the killed sweep, whose runs are in
+    worker processes, and the sweep the dataset test truncates): (grid file, FMU directory, sweep directory)."""
+    from drivetrain.scenario import load_scenes
+    from drivetrain.sweep import run_sweep
+
     d = tmp_path_factory.mktemp("sweep_resume")
     grid = d / "kill.toml"
     grid.write_text(GRID)
     fmu_dir, full = d / "fmus", d / "full"
-    r = subprocess.run(_sweep(grid, full, fmu_dir), cwd=ROOT, capture_output=True, text=True, timeout=900)
-    assert r.returncode == 0, r.stderr[-2000:]
+    man = run_sweep(load_scenes(grid), full, executor=_InThisProcess(), fmu_dir=fmu_dir, progress=False)
+    assert man["complete"] and [r["status"] for r in man["runs"]] == ["ok"] * 6, man["runs"]
     return grid, fmu_dir, full
 
 

@@ -294,22 +294,23 @@ def test_wheel_fault_map_follows_the_wheel_not_the_pinion(cache):
 
 
 def test_sliding_pit_has_no_blind_spot():
-    """A 1 mm wheel pit slid across one 2 mm face-row interval of the pinion in 0.25 mm steps (the
+    """A 1 mm wheel pit slid across one 2 mm face-row interval of the pinion in 0.5 mm steps (the
     sliding-pit study of benchmarks/sliding_pit.py, coarse profile): the peak torque deviation never
     drops to zero and varies smoothly (physics: the load along the face changes slowly). Without the
     pinion's extra face rows the same study shows zeros between rows (measured: 0.000 % at 11.5 and
-    13.5 mm, 5 % at 11.25 mm)."""
+    13.5 mm, 5 % at 11.25 mm; 11.5 mm is one of the positions here). With the rows, in 0.25 mm steps:
+    1.59-1.71 %, neighbours within 1 % of the median; in 0.5 mm steps within 2 %."""
     import importlib.util
 
     root = Path(__file__).resolve().parents[1]
     spec = importlib.util.spec_from_file_location("sliding_pit", root / "benchmarks" / "sliding_pit.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    rows = mod.study("wheel", radius_mm=0.5, depth_mm=0.1, step_mm=0.25, lo_mm=11.0, hi_mm=13.0,
+    rows = mod.study("wheel", radius_mm=0.5, depth_mm=0.1, step_mm=0.5, lo_mm=11.0, hi_mm=13.0,
                      res=MeshResolution(profile=0.3e-3, face=2e-3))
     devs = np.array([d for _, d in rows])
     print("\n sliding pit, peak torque deviation [%]:", np.round(100 * devs, 3).tolist())
-    assert len(devs) == 9
+    assert [p for p, _ in rows] == pytest.approx([11.0, 11.5, 12.0, 12.5, 13.0])
     assert devs.min() > 0.5 * np.median(devs) and devs.min() > 1e-3
     assert np.max(np.abs(np.diff(devs))) < 0.2 * np.median(devs)
 

@@ -230,11 +230,13 @@ def test_map_computed_by_pitch_equals_every_row_computed(health, tooth, member):
     """The map computes one healthy pitch block and only the blocks where a faulty tooth is in mesh,
     tiling the rest. Oracle: every row tabulated by the engine. The fault sits on another tooth than
     the default, so a wrong engagement window would show. A wheel fault spans the tooth-pairing period
-    (4 pinion revolutions), a pinion fault one revolution."""
+    (4 pinion revolutions), a pinion fault one revolution. Two rows per pitch (the least the grid takes): the
+    blocks and the tiling are what is checked; the faulty rows still differ by 1.2 % (mild) to 59 % (severe)
+    of the largest torque from the healthy ones, measured."""
     from gearcontact_fmu import contact_map as cm
 
     res = MeshResolution(profile=0.3e-3, face=3e-3)
-    grid = MapGrid(points_per_pitch=4 if member == "pinion" else 2, s_points=10, max_torque=120.0)
+    grid = MapGrid(points_per_pitch=2, s_points=10, max_torque=120.0)
     kw = ({"tooth": tooth} if member == "pinion" else
           {"faults": [{"kind": "void", "member": "wheel", "tooth": tooth, "depth_mm": 0.3}]})
     pair = build_pcm_pair(GEAR, PCM, res, health=health, fault_kwargs=kw)
@@ -257,7 +259,7 @@ def test_healthy_map_computes_one_pitch():
     from gearcontact_fmu import contact_map as cm
 
     res = MeshResolution(profile=0.3e-3, face=3e-3)
-    grid = MapGrid(points_per_pitch=4, s_points=10, max_torque=120.0)
+    grid = MapGrid(points_per_pitch=2, s_points=10, max_torque=120.0)
     pair = build_pcm_pair(GEAR, PCM, res)
     fast = cm.compute_map(pair, grid)
     assert fast.info["blocks_computed"] == 1 and fast.info["rows_computed"] == grid.points_per_pitch

@@ -120,8 +120,8 @@ def test_a_damaged_cache_file_is_named_and_rebuilt(cache):
     aside and rebuilds the same map."""
     from gearcontact_fmu.contact_map import ContactMapFileError, cache_dir, cache_key, content_digest, load_map
 
-    grid, res = MapGrid(points_per_pitch=2, s_points=8, max_torque=120.0), MeshResolution(profile=0.3e-3, face=3e-3)
-    cmap = get_map(GEAR, PCM, res, grid=grid)                           # a coarse map: cheap to rebuild
+    grid, res = MapGrid(points_per_pitch=2, s_points=8, max_torque=120.0), MeshResolution(profile=0.5e-3, face=5e-3)
+    cmap = get_map(GEAR, PCM, res, grid=grid)                           # a coarse map: 0.25 s to rebuild
     path = cache_dir() / f"contactmap-{cache_key(GEAR, PCM, res, 'healthy', None, grid)}.npz"
     good = path.read_bytes()
     try:

@@ -400,6 +400,50 @@ def test_native_fmus_are_cached_and_a_non_table_gear_keeps_its_pythonfmu(tmp_pat
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in paths.values())
 
 
+def test_fingerprints_are_computed_once_per_process_and_anew_for_an_edited_source(native_example, native_cache_dir,
+                                                                                   tmp_path, monkeypatch):
+    """native_fmus asks for the four fingerprints on every run (sweeps, tests): the process computes each once
+    (the value a fresh computation gives), again for other inputs (compiler, the gear's fixed parameters) and
+    when a file it hashes changes; an operating point of the same gear is the same gear key."""
+    import os
+
+    import drivetrain.nativeline as NL
+    from drivetrain.scenario import load_scene
+
+    monkeypatch.setattr(NL, "_FINGERPRINTS", {})
+    computed = []
+    line_now, gear_now = NL._line_fingerprint_now, NL._gear_fingerprint_now
+    monkeypatch.setattr(NL, "_line_fingerprint_now", lambda m, cc: computed.append(m) or line_now(m, cc))
+    monkeypatch.setattr(NL, "_gear_fingerprint_now", lambda *a: computed.append("GearContact") or gear_now(*a))
+    cc = os.environ.get("CC", "gcc")
+
+    paths, _ = NL.native_fmus(load_scene(EXAMPLE), native_cache_dir)
+    assert paths == native_example and sorted(computed) == sorted([*MODELS, "GearContact"])
+    for m in MODELS:
+        assert paths[m].name == f"{m}-{line_now(m, cc)[:16]}.fmu"
+    other_point = load_scene(EXAMPLE, ["operating_point.drive_speed_rpm=900", "operating_point.load_torque_Nm=0.8"])
+    for scene in (load_scene(EXAMPLE), other_point):
+        assert NL.native_fmus(scene, native_cache_dir)[0] == paths
+    assert len(computed) == 4                                   # nothing computed again
+    fixed = NL.build_fixed(NL.scene_gear(load_scene(EXAMPLE))[0])
+    assert NL._gear_fingerprint({**fixed, "z_pinion": 16}) != NL._gear_fingerprint(fixed)
+    assert NL.line_fingerprint("MotorLoad", "no-such-cc") != NL.line_fingerprint("MotorLoad", cc)
+    assert computed[4:] == ["GearContact", "MotorLoad"]
+
+    # the same sources elsewhere: computed again (other files), the same value; an edited source: another
+    src = tmp_path / "native"
+    src.mkdir()
+    (src / NL.C_SOURCE).write_bytes((NL.NATIVE_DIR / NL.C_SOURCE).read_bytes())
+    monkeypatch.setattr(NL, "NATIVE_DIR", src)
+    before = NL.line_fingerprint("MotorLoad", cc)
+    assert len(computed) == 7 and paths["MotorLoad"].name == f"MotorLoad-{before[:16]}.fmu"
+    assert NL.line_fingerprint("MotorLoad", cc) == before and len(computed) == 7
+    with open(src / NL.C_SOURCE, "a") as f:
+        f.write("/* edited */\n")
+    edited = NL.line_fingerprint("MotorLoad", cc)
+    assert edited != before and NL.line_fingerprint("MotorLoad", cc) == edited and len(computed) == 8
+
+
 def test_cli_refusals(tmp_path, capsys):
     from drivetrain.cli import main
 

@@ -37,3 +37,11 @@ def drivetrain_fmu_dir(tmp_path_factory):
     """A private FMU directory shared by the tests that run scenes through the master (built on demand once
     per session), so that tests never rewrite the shared fmus/."""
     return tmp_path_factory.mktemp("fmus_session")
+
+
+@pytest.fixture(scope="session")
+def native_cache_dir(tmp_path_factory):
+    """A private cache of native FMUs (drivetrain.nativeline.native_fmus) shared by the tests that run
+    native FMUs without testing their build or its cache: each build (the example's gear: ~5 s) happens
+    once per session. Tests of the build and the cache use a directory of their own."""
+    return tmp_path_factory.mktemp("native_session")

@@ -57,9 +57,10 @@ def test_a_too_fine_element_size_is_refused_before_the_mesh_is_built():
 
 def test_an_online_mesh_file_over_budget_is_refused_with_the_table_way_out(tmp_path):
     """A pinion file at the default resolution, online PCM for 20 s, with a budget of 6 minutes: refused,
-    naming the file, the measured estimate and the cheaper table fidelity."""
+    naming the file, the measured estimate and the cheaper table fidelity. (A binary STL: written in 0.03 s
+    and read in 0.35 s, against 2 s and 1.2 s for the ASCII form of the same 105 300 triangles.)"""
     P = BevelGearParams()
-    save_mesh(geometry.build_gear_mesh(P, "pinion", MeshResolution()), tmp_path / "p.stl", units="mm")
+    save_mesh(geometry.build_gear_mesh(P, "pinion", MeshResolution()), tmp_path / "p.stl", units="mm", binary=True)
     scene = load_scene(EXAMPLE, overrides=["time.duration_s=20", "gear.health=mesh",
                                            f"gear.pinion_mesh={tmp_path / 'p.stl'}",
                                            "effects.mesh_contact=pcm", "numerics.max_contact_hours=0.1"])

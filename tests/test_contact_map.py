@@ -120,8 +120,8 @@ def test_a_damaged_cache_file_is_named_and_rebuilt(cache):
     aside and rebuilds the same map."""
     from gearcontact_fmu.contact_map import ContactMapFileError, cache_dir, cache_key, content_digest, load_map
 
-    grid, res = MapGrid(points_per_pitch=2, s_points=8, max_torque=120.0), MeshResolution(profile=0.3e-3, face=3e-3)
-    cmap = get_map(GEAR, PCM, res, grid=grid)                           # a coarse map: cheap to rebuild
+    grid, res = MapGrid(points_per_pitch=2, s_points=8, max_torque=120.0), MeshResolution(profile=0.5e-3, face=5e-3)
+    cmap = get_map(GEAR, PCM, res, grid=grid)                           # a coarse map: 0.25 s to rebuild
     path = cache_dir() / f"contactmap-{cache_key(GEAR, PCM, res, 'healthy', None, grid)}.npz"
     good = path.read_bytes()
     try:
@@ -170,10 +170,14 @@ def test_missing_tooth_window_is_tabulated_as_early_engagement(cache):
     """In the no-contact window of a missing tooth the pinion runs ahead and the next tooth first
     touches at its tip, much further on than the nominal onset. The map must hold that onset and the
     response beyond it, matching the online engine there (a map that only covers the nominal range
-    meets the next tooth by extrapolation: violent, unphysical impacts)."""
+    meets the next tooth by extrapolation: violent, unphysical impacts). The map here is coarser than the
+    module's (0.2 mm mesh, 8 rows per pitch: the window row is a node row either way): a third of the build
+    time for the same early onset (0.34 mm beyond the nominal one, measured with both)."""
     pitch = 2 * math.pi / GEAR.z_pinion
-    cmap = get_map(GEAR, PCM, RES, health="severe", grid=GRID)
-    pair = build_pcm_pair(GEAR, PCM, RES, health="severe")
+    res = MeshResolution(profile=0.2e-3, face=3e-3)
+    grid = MapGrid(points_per_pitch=8, s_points=24, max_torque=120.0)
+    cmap = get_map(GEAR, PCM, res, health="severe", grid=grid)
+    pair = build_pcm_pair(GEAR, PCM, res, health="severe")
     i_win = int(round((2 * math.pi - 0.25 * pitch) / (cmap.theta[1] - cmap.theta[0])))
     th = float(cmap.theta[i_win])
     nominal = cmap.info["onset_drive"]
@@ -226,11 +230,13 @@ def test_map_computed_by_pitch_equals_every_row_computed(health, tooth, member):
     """The map computes one healthy pitch block and only the blocks where a faulty tooth is in mesh,
     tiling the rest. Oracle: every row tabulated by the engine. The fault sits on another tooth than
     the default, so a wrong engagement window would show. A wheel fault spans the tooth-pairing period
-    (4 pinion revolutions), a pinion fault one revolution."""
+    (4 pinion revolutions), a pinion fault one revolution. Two rows per pitch (the least the grid takes): the
+    blocks and the tiling are what is checked; the faulty rows still differ by 1.2 % (mild) to 59 % (severe)
+    of the largest torque from the healthy ones, measured."""
     from gearcontact_fmu import contact_map as cm
 
     res = MeshResolution(profile=0.3e-3, face=3e-3)
-    grid = MapGrid(points_per_pitch=4 if member == "pinion" else 2, s_points=10, max_torque=120.0)
+    grid = MapGrid(points_per_pitch=2, s_points=10, max_torque=120.0)
     kw = ({"tooth": tooth} if member == "pinion" else
           {"faults": [{"kind": "void", "member": "wheel", "tooth": tooth, "depth_mm": 0.3}]})
     pair = build_pcm_pair(GEAR, PCM, res, health=health, fault_kwargs=kw)
@@ -253,7 +259,7 @@ def test_healthy_map_computes_one_pitch():
     from gearcontact_fmu import contact_map as cm
 
     res = MeshResolution(profile=0.3e-3, face=3e-3)
-    grid = MapGrid(points_per_pitch=4, s_points=10, max_torque=120.0)
+    grid = MapGrid(points_per_pitch=2, s_points=10, max_torque=120.0)
     pair = build_pcm_pair(GEAR, PCM, res)
     fast = cm.compute_map(pair, grid)
     assert fast.info["blocks_computed"] == 1 and fast.info["rows_computed"] == grid.points_per_pitch
@@ -290,22 +296,23 @@ def test_wheel_fault_map_follows_the_wheel_not_the_pinion(cache):
 
 
 def test_sliding_pit_has_no_blind_spot():
-    """A 1 mm wheel pit slid across one 2 mm face-row interval of the pinion in 0.25 mm steps (the
+    """A 1 mm wheel pit slid across one 2 mm face-row interval of the pinion in 0.5 mm steps (the
     sliding-pit study of benchmarks/sliding_pit.py, coarse profile): the peak torque deviation never
     drops to zero and varies smoothly (physics: the load along the face changes slowly). Without the
     pinion's extra face rows the same study shows zeros between rows (measured: 0.000 % at 11.5 and
-    13.5 mm, 5 % at 11.25 mm)."""
+    13.5 mm, 5 % at 11.25 mm; 11.5 mm is one of the positions here). With the rows, in 0.25 mm steps:
+    1.59-1.71 %, neighbours within 1 % of the median; in 0.5 mm steps within 2 %."""
     import importlib.util
 
     root = Path(__file__).resolve().parents[1]
     spec = importlib.util.spec_from_file_location("sliding_pit", root / "benchmarks" / "sliding_pit.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
-    rows = mod.study("wheel", radius_mm=0.5, depth_mm=0.1, step_mm=0.25, lo_mm=11.0, hi_mm=13.0,
+    rows = mod.study("wheel", radius_mm=0.5, depth_mm=0.1, step_mm=0.5, lo_mm=11.0, hi_mm=13.0,
                      res=MeshResolution(profile=0.3e-3, face=2e-3))
     devs = np.array([d for _, d in rows])
     print("\n sliding pit, peak torque deviation [%]:", np.round(100 * devs, 3).tolist())
-    assert len(devs) == 9
+    assert [p for p, _ in rows] == pytest.approx([11.0, 11.5, 12.0, 12.5, 13.0])
     assert devs.min() > 0.5 * np.median(devs) and devs.min() > 1e-3
     assert np.max(np.abs(np.diff(devs))) < 0.2 * np.median(devs)
 
@@ -323,7 +330,8 @@ def test_a_wheel_mesh_file_alone_spans_the_pairing_period(tmp_path):
     f = tmp_path / "wheel.obj"
     save_mesh(faults.missing_tooth(G.build_gear_mesh(GEAR, "wheel", res), 21), f)
     pair = build_pcm_pair(GEAR, PCM, res, health="mesh", wheel_mesh_file=str(f))
-    m = cm.compute_map(pair, MapGrid(points_per_pitch=2, s_points=6, max_torque=120.0))
+    # the smallest grid: what is checked is which blocks are computed, not the values
+    m = cm.compute_map(pair, MapGrid(points_per_pitch=2, s_points=2, max_torque=120.0))
     assert m.info["pinion_revolutions"] == 4 and m.info["blocks_computed"] == 60
     assert m.info["tiled_from_block"] is None
 

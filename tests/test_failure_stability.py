@@ -266,10 +266,12 @@ def test_stability_counters_defined_for_the_ideal_gear(fmu_dir):
 @needs_assembler
 def test_missing_tooth_at_low_load_separates(fmu_dir):
     """Severe fault (missing pinion tooth) at 0.12 N·m over more than one pinion revolution (500 rpm on the
-    middle shaft: 0.12 s): the teeth lose contact while running (online PCM at a coarse mesh: no map)."""
+    middle shaft: 0.12 s): the teeth lose contact while running (online PCM at a coarse mesh: no map; the
+    separation is the missing tooth's, not the mesh's: measured at 0.4 mm 15 separations, 6.8 % of the window
+    separated; at 0.2 mm 19 and 6.4 %, at 2.5x the cost)."""
     scene = load_scene(EXAMPLE, ["time.duration_s=0.15", "time.settle_s=0.01", "gear.health=severe",
                                  "operating_point.load_torque_Nm=0.12", "effects.mesh_contact=pcm",
-                                 "effects.shaft_flexibility=rigid", "numerics.profile_element_mm=0.2"] + QUIET)
+                                 "effects.shaft_flexibility=rigid", "numerics.profile_element_mm=0.4"] + QUIET)
     st = run_scene(scene, None, progress=False, fmu_dir=fmu_dir).summary["stability"]
     r = st["rattle"]
     assert r["separated"] is True and r["n_separations"] >= 1

@@ -212,20 +212,18 @@ def test_a_wheel_pit_refines_every_pinion_tooth_at_its_cone_distance():
 
 def _depth_below_flank(g, tooth, side, V, n=20000):
     """Depth of points below the exact healthy flank (root part and involute) along its normal, and that
-    normal: the nearest point of the flank's curve on the unit sphere (the teeth are cones through the
-    apex). Independent of the fault code: analytic geometry only."""
+    normal: the nearest of n points of the flank's curve on the unit sphere (the teeth are cones through the
+    apex), found by a k-d tree (exact nearest neighbour: the same points as a brute-force argmin, measured
+    on every fault family, a hundred times faster). Independent of the fault code: analytic geometry only."""
+    from scipy.spatial import cKDTree
+
     s = np.linspace(0.0, g.L_radial + g.L_inv, n)
     U, N = G.flank_point_normal(g, side, s, 1.0, tooth=tooth)
     rho = np.linalg.norm(V, axis=1)
     u = V / rho[:, None]
-    d = np.empty(len(V))
-    nrm = np.empty((len(V), 3))
-    for i0 in range(0, len(V), 500):
-        uu = u[i0:i0 + 500]
-        j = np.argmin(((uu[:, None, :] - U[None]) ** 2).sum(-1), axis=1)
-        d[i0:i0 + 500] = -np.einsum("ij,ij->i", uu - U[j], N[j]) * rho[i0:i0 + 500]
-        nrm[i0:i0 + 500] = N[j]
-    return d, nrm
+    _, j = cKDTree(U).query(u)
+    d = -np.einsum("ij,ij->i", u - U[j], N[j]) * rho
+    return d, N[j]
 
 
 def _removed_volume(p, g, tooth, side):

@@ -136,54 +136,69 @@ def test_gear_starts_right_when_the_host_passes_nothing(fmus, assembled):
     assert max(abs(r[1]) for r in nothing) > 5 * peak    # the start-up spike the parameters prevent
 
 
-@pytest.mark.parametrize("model", ["GearContact", "MotorLoad", "FlexibleShaft", "UpperTransmission"])
-def test_rollback_repeats_bit_for_bit(fmus, assembled, model):
+ROLLBACK_MODELS = ("GearContact", "MotorLoad", "FlexibleShaft", "UpperTransmission")
+
+
+@pytest.fixture(scope="module")
+def rollbacks(fmus, assembled):
+    """The rollback case of every model, one subprocess for the four (no instance fails or is freed: the
+    crash the subprocesses guard against needs both): {model: {"same", "moved", "n"}}."""
+    names = {"GearContact": "gear", "MotorLoad": "motors", "FlexibleShaft": "drive_shaft",
+             "UpperTransmission": "upper"}
+    cases = {}
+    for model in ROLLBACK_MODELS:
+        params = {k: v for k, v in assembled[names[model]].items() if not isinstance(v, list)}
+        # flange angle and speed at t = 0 per spring-side port (the gear's as assembled: its mesh must not
+        # be forced beyond u_max)
+        base = {"flange_a": (params.get("pinion_phi_start", 0.0), params.get("pinion_w_start", 50.0)),
+                "flange_b": (params.get("wheel_phi_start", 0.0), params.get("wheel_w_start", 50.0))}
+        cases[model] = {"path": fmus[model], "params": params, "base": base}
+    return _run(f"""
+        def rollback(path, params, base):
+            f, v = open_fmu(path, "x")
+            set_values(f, v, params)
+            inputs = [n for n, var in v.items() if var.causality == "input" and var.type == "Real"]
+            outs = real_outputs(v)
+            f.setupExperiment(startTime=0.0)
+            f.enterInitializationMode()
+            f.exitInitializationMode()
+            H = 1.0 / 12000.0
+            def step(k):
+                # smooth, distinct inputs per step (angles grow with their speeds, torques oscillate)
+                vals = {{}}
+                for i, n in enumerate(inputs):
+                    phi0, w0 = base.get(n.rsplit("_", 1)[0], (0.0, 50.0))
+                    if n.endswith("_phi"):
+                        vals[n] = phi0 + w0 * k * H + 1e-5 * math.sin(0.3 * k + i)
+                    elif n.endswith("_w"):
+                        vals[n] = w0 * (1.0 + 0.01 * math.cos(0.3 * k + i))
+                    elif n.endswith("_tau"):
+                        vals[n] = -1.0 + 0.5 * math.sin(0.2 * k + i)
+                set_values(f, v, vals)
+                f.doStep(k * H, H)
+                return reals(f, v, outs)
+            for k in range(30):
+                step(k)
+            s = f.getFMUstate()
+            first = [step(k) for k in range(30, 60)]
+            f.setFMUstate(s)
+            again = [step(k) for k in range(30, 60)]
+            f.setFMUstate(s)                      # the snapshot stays usable
+            third = [step(k) for k in range(30, 35)]
+            f.freeFMUstate(s)
+            return {{"same": first == again and first[:5] == third, "moved": first[0] != first[-1], "n": len(outs)}}
+        cases = json.loads({json.dumps(cases)!r})
+        print(json.dumps({{m: rollback(c["path"], c["params"], {{k: tuple(x) for k, x in c["base"].items()}})
+                          for m, c in cases.items()}}))
+    """)
+
+
+@pytest.mark.parametrize("model", ROLLBACK_MODELS)
+def test_rollback_repeats_bit_for_bit(rollbacks, model):
     """fmi2GetFMUstate after 30 steps, 30 more steps, fmi2SetFMUstate, the same 30 steps again: every
     Real output identical. A state that missed anything that changes (the PI integrator, the energy
     correction, the sub-step counters, ...) would differ."""
-    name = {"GearContact": "gear", "MotorLoad": "motors", "FlexibleShaft": "drive_shaft",
-            "UpperTransmission": "upper"}[model]
-    params = {k: v for k, v in assembled[name].items() if not isinstance(v, list)}
-    # flange angle and speed at t = 0 per spring-side port (the gear's as assembled: its mesh must not
-    # be forced beyond u_max)
-    base = {"flange_a": (params.get("pinion_phi_start", 0.0), params.get("pinion_w_start", 50.0)),
-            "flange_b": (params.get("wheel_phi_start", 0.0), params.get("wheel_w_start", 50.0))}
-    out = _run(f"""
-        f, v = open_fmu({fmus[model]!r}, "x")
-        set_values(f, v, json.loads({json.dumps(params)!r}))
-        base = json.loads({json.dumps(base)!r})
-        inputs = [n for n, var in v.items() if var.causality == "input" and var.type == "Real"]
-        outs = real_outputs(v)
-        f.setupExperiment(startTime=0.0)
-        f.enterInitializationMode()
-        f.exitInitializationMode()
-        H = 1.0 / 12000.0
-        def step(k):
-            # smooth, distinct inputs per step (angles grow with their speeds, torques oscillate)
-            vals = {{}}
-            for i, n in enumerate(inputs):
-                phi0, w0 = base.get(n.rsplit("_", 1)[0], (0.0, 50.0))
-                if n.endswith("_phi"):
-                    vals[n] = phi0 + w0 * k * H + 1e-5 * math.sin(0.3 * k + i)
-                elif n.endswith("_w"):
-                    vals[n] = w0 * (1.0 + 0.01 * math.cos(0.3 * k + i))
-                elif n.endswith("_tau"):
-                    vals[n] = -1.0 + 0.5 * math.sin(0.2 * k + i)
-            set_values(f, v, vals)
-            f.doStep(k * H, H)
-            return reals(f, v, outs)
-        for k in range(30):
-            step(k)
-        s = f.getFMUstate()
-        first = [step(k) for k in range(30, 60)]
-        f.setFMUstate(s)
-        again = [step(k) for k in range(30, 60)]
-        f.setFMUstate(s)                      # the snapshot stays usable
-        third = [step(k) for k in range(30, 35)]
-        f.freeFMUstate(s)
-        print(json.dumps({{"same": first == again and first[:5] == third,
-                          "moved": first[0] != first[-1], "n": len(outs)}}))
-    """)
+    out = rollbacks[model]
     assert out["moved"] and out["n"] >= 5
     assert out["same"], model
 

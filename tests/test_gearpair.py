@@ -45,10 +45,16 @@ def converged_pair():
     return sector_pair(0.05)
 
 
-def test_static_te_and_stiffness_at_three_loads(converged_pair):
+@pytest.fixture(scope="module")
+def stiffness(converged_pair):
+    """mean_stiffness of the converged pair at 10, 50 and 100 N·m (50 N·m: the ISO 6336 comparison too)."""
+    return {torque: mean_stiffness(converged_pair, torque) for torque in (10.0, 50.0, 100.0)}
+
+
+def test_static_te_and_stiffness_at_three_loads(stiffness):
     rows = []
     for torque in (10.0, 50.0, 100.0):
-        r = mean_stiffness(converged_pair, torque)
+        r = stiffness[torque]
         k = per_face_width(r["k_mesh"])
         rows.append((torque, r["te"].mean() * 1e6, np.ptp(r["te"]) * 1e6, k.mean(), k.max() / k.min()))
     print("\n torque  TE mean  TE p-p  k_mean        double/single")
@@ -64,13 +70,13 @@ def test_static_te_and_stiffness_at_three_loads(converged_pair):
     assert all(1.2 < r[4] < 2.5 for r in rows)
 
 
-def test_stiffness_vs_iso6336(converged_pair):
+def test_stiffness_vs_iso6336(stiffness):
     """PCM with rigid teeth on 0.5 mm elastic layers is stiffer than ISO 6336 (which includes tooth
     bending and body deflection). The ratio is the documented calibration gap."""
     from gearcontact_fmu.analytic import iso6336_stiffness
 
     iso = iso6336_stiffness(GEAR)
-    r = mean_stiffness(converged_pair, 50.0)
+    r = stiffness[50.0]
     k_pcm = per_face_width(r["k_mesh"]).mean()
     ratio = k_pcm / iso["c_gamma"]
     print(f"\n PCM {k_pcm:.1f} vs ISO 6336 c_gamma {iso['c_gamma']:.1f} N/(mm·µm): ratio {ratio:.2f}")
@@ -109,25 +115,32 @@ def test_mesh_convergence_face_and_finest():
     assert abs(ks[1] - ks[0]) / ks[1] < 0.02
 
 
-def test_missing_tooth_no_contact_window():
-    pair = build_pcm_pair(GEAR, PCM, MeshResolution(profile=0.05e-3, face=2e-3), health="severe")
+FINE = MeshResolution(profile=0.05e-3, face=2e-3)
+
+
+@pytest.fixture(scope="module")
+def fine_healthy_pair():
+    """The whole healthy pair at 0.05 mm (the reference of the two fault tests below; ~3 s to build)."""
+    return build_pcm_pair(GEAR, PCM, FINE)
+
+
+def test_missing_tooth_no_contact_window(fine_healthy_pair):
+    pair = build_pcm_pair(GEAR, PCM, FINE, health="severe")
     thetas, mask, windows = no_contact_windows(pair, torque=5.0, n=1500)
     print("\n windows (start rad, length in pitches):", windows)
     assert len(windows) == 1
     assert 0.3 <= windows[0][1] <= 0.55
     # and the healthy pair is always in contact
-    healthy = build_pcm_pair(GEAR, PCM, MeshResolution(profile=0.05e-3, face=2e-3))
-    _, mask_h, windows_h = no_contact_windows(healthy, torque=5.0, n=300)
+    _, mask_h, windows_h = no_contact_windows(fine_healthy_pair, torque=5.0, n=300)
     assert windows_h == [] and mask_h.all()
 
 
-def test_void_changes_stiffness_on_affected_tooth_only():
+def test_void_changes_stiffness_on_affected_tooth_only(fine_healthy_pair):
     """Tooth 0 is in mesh for theta in about [-0.8, +0.7] pitch (contact ratio ~1.5) and carries alone
     in about [-0.5, 0] pitch (the missing-tooth window): the void on its drive flank (at the pitch
     cone) must soften the mesh there and change nothing while tooth 0 is out of mesh."""
-    res = MeshResolution(profile=0.05e-3, face=2e-3)
-    healthy = build_pcm_pair(GEAR, PCM, res)
-    mild = build_pcm_pair(GEAR, PCM, res, health="mild")
+    healthy = fine_healthy_pair
+    mild = build_pcm_pair(GEAR, PCM, FINE, health="mild")
     th = np.linspace(-1.6 * PITCH, 1.6 * PITCH, 33)
     kh = static_transmission_error(healthy, th, 50.0)["k_torsional"]
     km = static_transmission_error(mild, th, 50.0)["k_torsional"]

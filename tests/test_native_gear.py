@@ -231,6 +231,35 @@ def test_fmu_state_rollback_is_bit_identical(native, gear):
     s.freeFMUstate(state)
 
 
+def test_the_map_is_the_one_the_slave_steps_with(gear):
+    """The native build and the pythonfmu slave translate the GearContact parameters with one function
+    (gearcontact_fmu.fmu_parameters): the map (and manufacturing offset) the build writes is the one the
+    slave's stage evaluates, for the example's gear and for a coarse faulty gear with pitch errors."""
+    from drivetrain.nativebuild import NEUTRAL, _probe_slave, _table_arrays
+    from gearcontact_fmu.manufacturing_specs import draw_errors
+    from gearcontact_fmu.params import BevelGearParams
+
+    other = {"fidelity": "table", "health": "mild", "profile_element_size": 0.5e-3, "face_element_size": 5e-3,
+             "map_points_per_pitch": 2, "map_approach_points": 6,
+             "manufacturing_errors": json.dumps(draw_errors(BevelGearParams(), 6, seed=2).to_dict())}
+    maps = []
+    for params in (gear, other):
+        arrays = _table_arrays(_probe_slave(), params)
+        slave = _probe_slave()
+        for name, value in {**params, **NEUTRAL}.items():
+            setattr(slave, name, value)
+        slave._build()
+        data, te = slave._stage.model.data, None
+        if arrays["te"] is not None:
+            data, te = data
+            assert all(np.array_equal(x, y) for x, y in zip(arrays["te"], te))
+        for key, i in (("values", 0), ("a", 1), ("onset", 2)):
+            assert np.array_equal(arrays[key], data[i]), key
+        assert (arrays["dtheta"], arrays["ratio"], arrays["w_reg"], arrays["n_rev"]) == (data[3], data[4], data[9],
+                                                                                         data[10])
+        maps.append((arrays["values"].shape, te is not None))
+    assert maps[0] != maps[1] and maps[1][1]          # the second build took its own parameters
+
 def test_build_fixed_parameters_are_refused(native, gear):
     s, vr = _open(native, gear)
     _set(s, vr, {"module": 3.0e-3, "health": "healthy", "map_points_per_pitch": 48})   # the built values

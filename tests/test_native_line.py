@@ -1,7 +1,8 @@
 """The Python-free FlexibleShaft, UpperTransmission and MotorLoad (drivetrain.nativeline): model description,
 no libpython, agreement with the pythonfmu FMUs (bit for bit), errors, FMU state rollback, the system swap.
 
-Each FMU is built once per module (native: ~1 s each; the pythonfmu ones through drivetrain.cosim.ensure_fmus)."""
+The native FMUs of the example are built once per session (native_fmus into conftest's native_cache_dir,
+shared with test_stepper); the pythonfmu ones once per module through drivetrain.cosim.ensure_fmus."""
 import math
 import shutil
 import subprocess
@@ -29,13 +30,22 @@ _EXTRACTED = {}
 
 
 @pytest.fixture(scope="module")
-def native(tmp_path_factory):
+def native_example(native_cache_dir):
+    """The four native FMUs of the example scene (native_fmus: build_native_line for the three line models,
+    build_native_gear for the gear's map), from the session's cache of native builds."""
     if shutil.which("gcc") is None:
         pytest.skip("gcc not installed")
-    from drivetrain.nativeline import build_native_line
+    from drivetrain.nativeline import native_fmus
+    from drivetrain.scenario import load_scene
 
-    d = tmp_path_factory.mktemp("native_line")
-    return {m: build_native_line(m, d / f"{m}.fmu") for m in MODELS}
+    paths, note = native_fmus(load_scene(EXAMPLE), native_cache_dir)
+    assert note is None and set(paths) == {*MODELS, "GearContact"}, (paths, note)
+    return paths
+
+
+@pytest.fixture(scope="module")
+def native(native_example):
+    return {m: native_example[m] for m in MODELS}
 
 
 @pytest.fixture(scope="module")
@@ -390,6 +400,50 @@ def test_native_fmus_are_cached_and_a_non_table_gear_keeps_its_pythonfmu(tmp_pat
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(p.name for p in paths.values())
 
 
+def test_fingerprints_are_computed_once_per_process_and_anew_for_an_edited_source(native_example, native_cache_dir,
+                                                                                   tmp_path, monkeypatch):
+    """native_fmus asks for the four fingerprints on every run (sweeps, tests): the process computes each once
+    (the value a fresh computation gives), again for other inputs (compiler, the gear's fixed parameters) and
+    when a file it hashes changes; an operating point of the same gear is the same gear key."""
+    import os
+
+    import drivetrain.nativeline as NL
+    from drivetrain.scenario import load_scene
+
+    monkeypatch.setattr(NL, "_FINGERPRINTS", {})
+    computed = []
+    line_now, gear_now = NL._line_fingerprint_now, NL._gear_fingerprint_now
+    monkeypatch.setattr(NL, "_line_fingerprint_now", lambda m, cc: computed.append(m) or line_now(m, cc))
+    monkeypatch.setattr(NL, "_gear_fingerprint_now", lambda *a: computed.append("GearContact") or gear_now(*a))
+    cc = os.environ.get("CC", "gcc")
+
+    paths, _ = NL.native_fmus(load_scene(EXAMPLE), native_cache_dir)
+    assert paths == native_example and sorted(computed) == sorted([*MODELS, "GearContact"])
+    for m in MODELS:
+        assert paths[m].name == f"{m}-{line_now(m, cc)[:16]}.fmu"
+    other_point = load_scene(EXAMPLE, ["operating_point.drive_speed_rpm=900", "operating_point.load_torque_Nm=0.8"])
+    for scene in (load_scene(EXAMPLE), other_point):
+        assert NL.native_fmus(scene, native_cache_dir)[0] == paths
+    assert len(computed) == 4                                   # nothing computed again
+    fixed = NL.build_fixed(NL.scene_gear(load_scene(EXAMPLE))[0])
+    assert NL._gear_fingerprint({**fixed, "z_pinion": 16}) != NL._gear_fingerprint(fixed)
+    assert NL.line_fingerprint("MotorLoad", "no-such-cc") != NL.line_fingerprint("MotorLoad", cc)
+    assert computed[4:] == ["GearContact", "MotorLoad"]
+
+    # the same sources elsewhere: computed again (other files), the same value; an edited source: another
+    src = tmp_path / "native"
+    src.mkdir()
+    (src / NL.C_SOURCE).write_bytes((NL.NATIVE_DIR / NL.C_SOURCE).read_bytes())
+    monkeypatch.setattr(NL, "NATIVE_DIR", src)
+    before = NL.line_fingerprint("MotorLoad", cc)
+    assert len(computed) == 7 and paths["MotorLoad"].name == f"MotorLoad-{before[:16]}.fmu"
+    assert NL.line_fingerprint("MotorLoad", cc) == before and len(computed) == 7
+    with open(src / NL.C_SOURCE, "a") as f:
+        f.write("/* edited */\n")
+    edited = NL.line_fingerprint("MotorLoad", cc)
+    assert edited != before and NL.line_fingerprint("MotorLoad", cc) == edited and len(computed) == 8
+
+
 def test_cli_refusals(tmp_path, capsys):
     from drivetrain.cli import main
 
@@ -403,19 +457,18 @@ def test_cli_refusals(tmp_path, capsys):
 
 # ---- the system --------------------------------------------------------------------------------------------
 
-def test_example_system_with_all_four_native_fmus(native, pyfmu_dir, tmp_path):
-    """0.5 s of the example scene through our master: all four FMUs native (the gear: build_native_gear) against
-    the pythonfmu FMUs; every recorded torque within 1e-9 relative (the native gear agrees to rounding;
-    measured over 1 s: <= 2.3e-10), and with the three native line FMUs alone the very same run."""
+def test_example_system_with_all_four_native_fmus(native, native_example, pyfmu_dir):
+    """0.5 s of the example scene through our master: all four FMUs native (the gear: build_native_gear of the
+    parameters that shape its map, as backend native builds it; the master sets the others) against the
+    pythonfmu FMUs; every recorded torque within 1e-9 relative (the native gear agrees to rounding; measured
+    over 1 s: <= 2.3e-10), and with the three native line FMUs alone the very same run."""
     from drivetrain.cosim import simulate
-    from drivetrain.nativebuild import build_native_gear, gear_parameters
     from drivetrain.run import assemble_scene
     from drivetrain.scenario import load_scene
 
     scene = load_scene(EXAMPLE, ["time.duration_s=0.5"])
     spec = assemble_scene(scene)
-    gear = build_native_gear(gear_parameters(scene), tmp_path / "GearContact.fmu")
-    paths = {**native, "GearContact": gear}
+    paths = {**native, "GearContact": native_example["GearContact"]}
     rec = ["gear.flange_a_tau", "gear.flange_b_tau", "drive_shaft.flange_a_tau", "drive_shaft.flange_b_tau",
            "motors.drive_tau", "motors.load_tau", "upper.flange_a_tau", "upper.flange_b_tau",
            "motors.motor_torque", "drive_shaft.torque_sensor", "upper.torque_sensor", "motors.coupling_torque"]

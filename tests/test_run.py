@@ -129,10 +129,26 @@ class _OneThenKill:
         return fut
 
 
+class _InThisProcess:
+    """An executor that runs each case in this process when it is submitted (the sweep's bookkeeping without
+    a process pool; test_sweep_local_processes runs the pool)."""
+
+    def submit(self, fn, case):
+        import concurrent.futures as cf
+
+        fut = cf.Future()
+        try:
+            fut.set_result(fn(case))
+        except BaseException as exc:  # noqa: BLE001 - handed to the sweep as a worker's failure would be
+            fut.set_exception(exc)
+        return fut
+
+
 def test_sweep_loses_no_work(tmp_path, fmus):
     """Issue 11: the manifest was written only at the end (a kill left none), --skip-existing reused runs
     made with other settings and dropped their metrics, --only overwrote the whole sweep's manifest,
-    plots were written for scenes that said outputs.plots = false."""
+    plots were written for scenes that said outputs.plots = false. (The cases run in this process:
+    what is checked is the sweep's bookkeeping, not its process pool.)"""
     from drivetrain.sweep import run_sweep
 
     def scenes(load=1.31):
@@ -148,16 +164,17 @@ def test_sweep_loses_no_work(tmp_path, fmus):
     assert m["complete"] is False and [r["name"] for r in m["runs"]] == ["toy0"]      # kept what finished
     assert m["runs"][0]["torque_mean"]["drive_shaft_torque"] > 0
 
-    man = run_sweep(scenes(), out, workers=2, skip_existing=True, **kw)
+    here = _InThisProcess()
+    man = run_sweep(scenes(), out, executor=here, skip_existing=True, **kw)
     assert man["complete"] and [r.get("skipped", False) for r in man["runs"]] == [True, False]
     assert man["runs"][0]["torque_mean"] == m["runs"][0]["torque_mean"]         # the reused run keeps its metrics
     assert not list(out.rglob("*.png"))                                         # outputs.plots = false holds
 
-    man = run_sweep(scenes(load=0.71), out, workers=2, skip_existing=True, **kw)   # toy1 changed
+    man = run_sweep(scenes(load=0.71), out, executor=here, skip_existing=True, **kw)   # toy1 changed
     assert [r.get("skipped", False) for r in man["runs"]] == [True, False]
     assert "changed" in man["runs"][1]["rerun_reason"]
 
-    man = run_sweep(scenes(load=0.71)[1:], out, workers=1, grid_names=["toy0", "toy1"], **kw)  # like --only toy1
+    man = run_sweep(scenes(load=0.71)[1:], out, executor=here, grid_names=["toy0", "toy1"], **kw)  # like --only toy1
     assert [r["name"] for r in man["runs"]] == ["toy0", "toy1"]
 
 
@@ -203,12 +220,14 @@ def _check_example_output(out):
 
 
 @pytest.mark.skipif(not HAVE_ASSEMBLER, reason="drivetrain.assemble not available yet")
-def test_cli_run_example_fast_fidelity(tmp_path):
-    """The example through the command line (analytic mesh: no contact map to build)."""
+def test_cli_run_example_fast_fidelity(tmp_path, capsys):
+    """The example through the command line (analytic mesh: no contact map to build), in this process
+    (`drivetrain.cli.main`; the console entry point in a fresh process: the slow test below and
+    tests/test_sweep_resume.py)."""
     out = tmp_path / "tmp"
-    r = _run_cli([str(EXAMPLE), "--set", "time.duration_s=0.5", "--set", "effects.mesh_contact=analytic",
-                  "--out", str(out)], tmp_path)
-    assert r.returncode == 0, r.stderr
+    rc = main(["run", str(EXAMPLE), "--set", "time.duration_s=0.5", "--set", "effects.mesh_contact=analytic",
+               "--out", str(out), "--fmu-dir", str(tmp_path / "fmus"), "--quiet"])
+    assert rc == 0, capsys.readouterr().err
     s = _check_example_output(out)
     assert [f["fidelity"] for f in s["fmus"] if f["name"] == "gear"] == ["analytic"]
 

@@ -113,21 +113,26 @@ def test_what_ssp_cannot_say_is_refused_and_nothing_is_written(tmp_path, fmu_dir
     assert list(tmp_path.iterdir()) == []
 
 
-def test_cli_export_ssp(tmp_path, fmu_dir):
+def test_cli_export_ssp(tmp_path, fmu_dir, capsys):
+    """`python -m drivetrain export-ssp` in a fresh process; its two refusals through the same entry point
+    (drivetrain.cli.main) in this process (exit status 2, the reason on stderr, no traceback)."""
+    from drivetrain.cli import main
+
     out = tmp_path / "sys.ssp"
     r = subprocess.run([sys.executable, "-m", "drivetrain", "export-ssp", str(EXAMPLE), "--set", "time.duration_s=0.5",
                         "--out", str(out), "--fmu-dir", str(fmu_dir)], capture_output=True, text=True, cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert out.is_file() and "wrote" in r.stdout
-    bad = subprocess.run([sys.executable, "-m", "drivetrain", "export-ssp", str(EXAMPLE), "--out", str(tmp_path / "r.zip"),
-                          "--fmu-dir", str(fmu_dir)], capture_output=True, text=True, cwd=tmp_path)
-    assert bad.returncode == 2 and "ends in .ssp" in bad.stderr and "Traceback" not in bad.stderr
+    capsys.readouterr()
+    rc = main(["export-ssp", str(EXAMPLE), "--out", str(tmp_path / "r.zip"), "--fmu-dir", str(fmu_dir)])
+    err = capsys.readouterr().err
+    assert rc == 2 and "ends in .ssp" in err and "Traceback" not in err
     blocked = tmp_path / "a_file"
     blocked.write_text("")
-    nowhere = subprocess.run([sys.executable, "-m", "drivetrain", "export-ssp", str(EXAMPLE), "--out",
-                              str(blocked / "sys.ssp"), "--fmu-dir", str(fmu_dir)], capture_output=True, text=True,
-                             cwd=tmp_path)
-    assert nowhere.returncode == 2 and "cannot write" in nowhere.stderr and "Traceback" not in nowhere.stderr
+    rc = main(["export-ssp", str(EXAMPLE), "--out", str(blocked / "sys.ssp"), "--fmu-dir", str(fmu_dir)])
+    err = capsys.readouterr().err
+    assert rc == 2 and "cannot write" in err and "Traceback" not in err
+    assert not (tmp_path / "r.zip").exists() and not (blocked / "sys.ssp").exists()
 
 
 _LIBCOSIM = textwrap.dedent("""

@@ -88,11 +88,11 @@ def test_example_pythonfmu_bit_identical(example, drivetrain_fmu_dir, monkeypatc
     assert_raw_identical(a.raw, b.raw)
 
 
-def test_example_native_bit_identical(example, tmp_path_factory, drivetrain_fmu_dir, monkeypatch, spy):
+def test_example_native_bit_identical(example, native_cache_dir, drivetrain_fmu_dir, monkeypatch, spy):
     from drivetrain.nativeline import native_fmus
 
     scene, spec = example
-    paths, note = native_fmus(scene, tmp_path_factory.mktemp("stepper_native"), spec=spec)
+    paths, note = native_fmus(scene, native_cache_dir, spec=spec)
     assert note is None, note
     a, b = both(monkeypatch, spy, lambda: simulate(spec, 0.4, 3000.0, fmu_dir=drivetrain_fmu_dir,
                                                    fmu_paths=paths, keep_raw=True))

@@ -55,13 +55,36 @@ def _journal(out):
     return (out / JOURNAL).read_bytes()
 
 
-def test_a_killed_sweep_resumes_without_loss_or_duplicates(tmp_path):
-    grid = tmp_path / "kill.toml"
+class _InThisProcess:
+    """An executor that runs each case in this process when it is submitted."""
+
+    def submit(self, fn, case):
+        import concurrent.futures as cf
+
+        fut = cf.Future()
+        fut.set_result(fn(case))
+        return fut
+
+
+@pytest.fixture(scope="module")
+def full_sweep(tmp_path_factory):
+    """The grid run uninterrupted, in this process (the reference of the killed sweep, whose runs are in
+    worker processes, and the sweep the dataset test truncates): (grid file, FMU directory, sweep directory)."""
+    from drivetrain.scenario import load_scenes
+    from drivetrain.sweep import run_sweep
+
+    d = tmp_path_factory.mktemp("sweep_resume")
+    grid = d / "kill.toml"
     grid.write_text(GRID)
-    fmu_dir = tmp_path / "fmus"
-    full, killed = tmp_path / "full", tmp_path / "killed"
-    r = subprocess.run(_sweep(grid, full, fmu_dir), cwd=ROOT, capture_output=True, text=True, timeout=900)
-    assert r.returncode == 0, r.stderr[-2000:]
+    fmu_dir, full = d / "fmus", d / "full"
+    man = run_sweep(load_scenes(grid), full, executor=_InThisProcess(), fmu_dir=fmu_dir, progress=False)
+    assert man["complete"] and [r["status"] for r in man["runs"]] == ["ok"] * 6, man["runs"]
+    return grid, fmu_dir, full
+
+
+def test_a_killed_sweep_resumes_without_loss_or_duplicates(tmp_path, full_sweep):
+    grid, fmu_dir, full = full_sweep
+    killed = tmp_path / "killed"
 
     p = subprocess.Popen(_sweep(grid, killed, fmu_dir), cwd=ROOT, stdout=subprocess.DEVNULL,
                          stderr=subprocess.DEVNULL, start_new_session=True)
@@ -104,20 +127,22 @@ def test_read_runs_skips_a_torn_line_and_prefers_the_journal(tmp_path):
         read_runs(tmp_path / "nothing")
 
 
-def test_a_dataset_of_a_killed_sweep_has_its_journaled_runs(tmp_path):
-    """The dataset export reads the journal: a run that finished after the last manifest write is in it."""
+def test_a_dataset_of_a_killed_sweep_has_its_journaled_runs(tmp_path, full_sweep):
+    """The dataset export reads the journal: a run that finished after the last manifest write is in it
+    (a copy of the uninterrupted sweep, its manifest cut back to the first run)."""
+    import shutil
+
     from drivetrain.dataset import collect
 
-    grid = tmp_path / "kill.toml"
-    grid.write_text(GRID.replace("[0.12, 0.4, 0.71, 1.0, 1.31, 1.6]", "[0.12, 0.4]"))
     out = tmp_path / "sweep"
-    r = subprocess.run(_sweep(grid, out, tmp_path / "fmus"), cwd=ROOT, capture_output=True, text=True, timeout=900)
-    assert r.returncode == 0, r.stderr[-2000:]
+    shutil.copytree(full_sweep[2], out)
     m = json.loads((out / "manifest.json").read_text())
+    names = [x["name"] for x in m["runs"]]
+    assert len(names) == 6 and m["complete"] is True
     m["runs"] = m["runs"][:1]                         # as if killed before the manifest caught up
     m["complete"] = False
     (out / "manifest.json").write_text(json.dumps(m))
-    assert sorted(x["name"] for x in collect(out)) == ["kill_0.12Nm", "kill_0.4Nm"]
+    assert sorted(x["name"] for x in collect(out)) == sorted(names)
 
 
 def test_the_fingerprint_covers_version_sources_and_given_fmus(tmp_path, monkeypatch):

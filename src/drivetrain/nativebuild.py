@@ -5,9 +5,10 @@ GearContact".
 ``build_native_gear(parameters, out)`` takes the GearContact parameters (the dict ``drivetrain.assemble``
 produces for component "gear", or any subset; the rest take the pythonfmu slave's defaults) and
 
-1. builds the contact map exactly as the pythonfmu slave does (its own ``_build``, so the same cache,
-   fault parsing and manufacturing errors), with friction, contact damping and tooth compliance in
-   their neutral state (the C model applies those at initialization: they stay settable);
+1. builds the contact map exactly as the pythonfmu slave does (``gearcontact_fmu.fmu_parameters``, the
+   translation of the FMU's parameters the slave builds its stage with: the same cache, fault parsing and
+   manufacturing errors), with friction, contact damping and tooth compliance in their neutral state (the
+   C model applies those at initialization: they stay settable);
 2. writes the map (and the manufacturing-error offset, if any) to ``resources/contact_map.bin``;
 3. writes ``gearcontact_build.h``: value references (the same as the pythonfmu FMU's), start values,
    the parameters fixed by the build, and the model constants (from the Python modules);
@@ -67,8 +68,8 @@ IGNORED_NOTE = " [not used at fidelity table]"
 
 
 def _probe_slave():
-    """An instance of the pythonfmu GearContact slave (its variables, defaults, units, descriptions and
-    map builder); nothing of pythonfmu's export library is loaded."""
+    """An instance of the pythonfmu GearContact slave (its variables, defaults, units and descriptions);
+    nothing of pythonfmu's export library is loaded."""
     from drivetrain.fmubuild import slave_class
 
     cls = slave_class(SLAVE_SCRIPT)
@@ -107,11 +108,13 @@ def _check(slave, parameters: dict) -> list[str]:
 
 
 def _table_arrays(slave, parameters: dict) -> dict:
-    """The map and offset arrays of the table model the slave builds from these parameters."""
-    for name, value in {**parameters, **NEUTRAL}.items():
-        setattr(slave, name, value)
+    """The map and offset arrays of the table model the slave builds from these parameters (the slave's
+    defaults for the others; gearcontact_fmu.fmu_parameters.build_mesh_model, the slave's own translation)."""
+    from gearcontact_fmu.fmu_parameters import build_mesh_model
+
+    values = {v.name: getattr(slave, v.name) for v in slave.vars.values() if v.causality.name == "parameter"}
     try:
-        model = slave._build(stage=False)
+        model = build_mesh_model({**values, **parameters, **NEUTRAL})
     except Exception as exc:  # noqa: BLE001 - every builder error becomes a refusal with its message
         raise NativeBuildError([f"the contact map cannot be built: {type(exc).__name__}: {exc}"]) from None
     data, te = model.data, None

@@ -14,7 +14,9 @@ scene; :func:`native_fmus` keeps them in a cache directory (default ``fmus/nativ
 a hash of what the FMU is made of (the C sources, the generated variable table, the compiler call), so a
 second run finds them and a changed source builds anew. The GearContact there is keyed by the same kind of
 hash plus the parameters that shape its contact map (:func:`build_fixed`) and the contact-map code; the
-others are set per run, so the operating points of one gear share one build.
+others are set per run, so the operating points of one gear share one build. A process computes each
+fingerprint once (``_FINGERPRINTS``: by inputs and by the size and time of every file hashed, so an edited
+source is hashed anew), however many runs ask for it.
 
 ``build_native_fmus(scene, out_dir)``: the four native FMUs of a scene into a directory (the CLI's
 ``drivetrain build-native SCENE --out DIR``); the gear must be of fidelity ``table``.
@@ -147,22 +149,57 @@ def _check_toolchain(cc: str) -> list[str]:
     return problems
 
 
+def _line_sources() -> list[Path]:
+    """The files a line FMU's fingerprint hashes: its C source, the shared headers, this module."""
+    return [NATIVE_DIR / C_SOURCE, *(SHARED_DIR / name for name in SHARED_HEADERS), Path(__file__)]
+
+
 def _fingerprint(model: str, rows: list[dict], cc: str) -> str:
     """The hash of what the FMU is made of: the C sources, the variable table, the ports, the compiler call."""
     h = hashlib.sha256()
     h.update(model.encode())
     h.update(repr([(r["vr"], r["name"], r["type"], r["causality"], r["start"]) for r in rows]).encode())
     h.update(repr(_port_names(model)).encode())
-    for f in (NATIVE_DIR / C_SOURCE, *(SHARED_DIR / name for name in SHARED_HEADERS), Path(__file__)):
+    for f in _line_sources():
         h.update(f.read_bytes())
     h.update(" ".join(compile_command(Path("src"), Path("out"), cc)).encode())
     return h.hexdigest()
 
 
-def line_fingerprint(model: str, cc: str | None = None) -> str:
-    """The cache key of the native ``model`` (see the module docstring)."""
-    cc = cc or os.environ.get("CC", "gcc")
+#: The fingerprints computed in this process (native_fmus asks for all four on every run: a sweep or a test
+#: session asks for the same ones many times). Keyed by everything a fingerprint is computed from that can
+#: change while the process runs: the model or the gear's fixed parameters, the compiler, and the path, size
+#: and modification time of every file it hashes (an edited source is another key, so it is hashed anew).
+#: The variable table and the ports come from the modules loaded in the process, fixed for its life.
+_FINGERPRINTS: dict[tuple, str] = {}
+
+
+def _file_stamps(files) -> tuple:
+    """(path, size, modification time in ns) of each file, in order."""
+    stamps = []
+    for f in files:
+        st = os.stat(f)
+        stamps.append((str(f), st.st_size, st.st_mtime_ns))
+    return tuple(stamps)
+
+
+def _memo(key: tuple, compute: Callable[[], str]) -> str:
+    fp = _FINGERPRINTS.get(key)
+    if fp is None:
+        fp = _FINGERPRINTS[key] = compute()
+    return fp
+
+
+def _line_fingerprint_now(model: str, cc: str) -> str:
+    """The fingerprint of the native ``model``, computed (probes the pythonfmu slave)."""
     return _fingerprint(model, variables(_probe_slave(model)), cc)
+
+
+def line_fingerprint(model: str, cc: str | None = None) -> str:
+    """The cache key of the native ``model`` (see the module docstring); computed once per process for the
+    same model, compiler and source files (:data:`_FINGERPRINTS`)."""
+    cc = cc or os.environ.get("CC", "gcc")
+    return _memo(("line", model, cc, _file_stamps(_line_sources())), lambda: _line_fingerprint_now(model, cc))
 
 
 def build_native_line(model: str, out: str | Path | None = None, *, cc: str | None = None,
@@ -201,17 +238,32 @@ def build_native_line(model: str, out: str | Path | None = None, *, cc: str | No
 # The native FMUs of a scene
 # ------------------------------------------------------------------------------------------------
 
+def _gear_sources() -> tuple[Path, list[Path], Path]:
+    """The files a native GearContact's fingerprint hashes: (the gearcontact_fmu package directory, its
+    Python and C sources in order, drivetrain/nativebuild.py)."""
+    pkg = Path(gearcontact_fmu.__file__).resolve().parent
+    files = [f for f in sorted(pkg.rglob("*")) if f.suffix in (".py", ".c", ".h") and "__pycache__" not in f.parts]
+    return pkg, files, Path(__file__).with_name("nativebuild.py")
+
+
+def _gear_fingerprint_now(text: str, pkg: Path, files: list[Path], builder: Path) -> str:
+    """The fingerprint of a native GearContact, computed: ``text`` its parameters as JSON, then every source."""
+    h = hashlib.sha256(text.encode())
+    for f in files:
+        h.update(f.relative_to(pkg).as_posix().encode())
+        h.update(f.read_bytes())
+    h.update(builder.read_bytes())
+    return h.hexdigest()
+
+
 def _gear_fingerprint(parameters: dict) -> str:
     """The cache key of a native GearContact: its parameters, the C sources, the builder and the contact-map
-    code (the map is computed at the build)."""
-    h = hashlib.sha256(json.dumps(parameters, sort_keys=True, default=str).encode())
-    pkg = Path(gearcontact_fmu.__file__).resolve().parent
-    for f in sorted(pkg.rglob("*")):
-        if f.suffix in (".py", ".c", ".h") and "__pycache__" not in f.parts:
-            h.update(f.relative_to(pkg).as_posix().encode())
-            h.update(f.read_bytes())
-    h.update(Path(__file__).with_name("nativebuild.py").read_bytes())
-    return h.hexdigest()
+    code (the map is computed at the build); computed once per process for the same parameters and source
+    files (:data:`_FINGERPRINTS`)."""
+    text = json.dumps(parameters, sort_keys=True, default=str)
+    pkg, files, builder = _gear_sources()
+    return _memo(("gear", text, _file_stamps([*files, builder])),
+                 lambda: _gear_fingerprint_now(text, pkg, files, builder))
 
 
 def scene_gear(scene, spec=None) -> tuple[dict | None, str | None]:

@@ -1,8 +1,9 @@
 """GearContact: FMI 2.0 co-simulation FMU of the lower bevel gear stage (pythonfmu slave).
 
 A thin shell over :mod:`gearcontact_fmu.stage`: the mesh model (fidelity pcm/table/analytic/ideal) is
-built once in ``exit_initialization_mode`` from the parameters, then every ``do_step`` advances the
-stage over the communication step. Both flanges are spring side (ARCHITECTURE.md): inputs
+built once in ``exit_initialization_mode`` from the parameters (``gearcontact_fmu.fmu_parameters.build_stage``,
+the translation the native build shares), then every ``do_step`` advances the stage over the
+communication step. Both flanges are spring side (ARCHITECTURE.md): inputs
 ``flange_*_phi`` [rad], ``flange_*_w`` [rad/s], outputs ``flange_*_tau`` [N.m]. See docs/FMU.md.
 
 Errors (non-finite input, penetration beyond u_max, any exception) never propagate into the host:
@@ -340,69 +341,16 @@ class GearContact(Fmi2Slave):
         """Enter the error state (fmu_runtime.guard.enter_error_state; NAN_ON_FAILURE become NaN)."""
         enter_error_state(self, msg)
 
-    def _build(self, stage: bool = True):
-        """Build the stage from the parameters; ``stage=False``: return its mesh model only (the native
-        builder's map, drivetrain.nativebuild: the stage's kernels are not compiled)."""
-        from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCMParams
-        from gearcontact_fmu.stage import StageParams, make_stage, stage_mesh_model
+    def _build(self):
+        """Build the stage from the parameters (gearcontact_fmu.fmu_parameters.build_stage: the native
+        builder, drivetrain.nativebuild, takes its contact map from the same translation)."""
+        from gearcontact_fmu.fmu_parameters import build_stage
 
-        gear = BevelGearParams(
-            z_pinion=int(self.z_pinion), z_wheel=int(self.z_wheel), module=self.module,
-            pressure_angle=self.pressure_angle, shaft_angle=self.shaft_angle, face_width=self.face_width,
-            x_pinion=self.x_pinion, addendum_coefficient=self.addendum_coefficient,
-            dedendum_coefficient=self.dedendum_coefficient, backlash=self.backlash,
-            tip_radius=self.tip_radius)
-        pcm = PCMParams(E=self.E, nu=self.nu, layer_depth=self.layer_depth, c_compression=self.c_compression,
-                        c_expansion=self.c_expansion, transformation_depth=self.transformation_depth,
-                        mu=self.mu, v_friction=self.v_friction, u_max=self.u_max)
-        res = MeshResolution(profile=self.profile_element_size, face=self.face_element_size)
-        sp = StageParams(J_pinion=self.J_pinion, J_wheel=self.J_wheel, k_a=self.k_a, d_a=self.d_a,
-                         k_b=self.k_b, d_b=self.d_b, max_substep=self.max_substep, scheme=self.scheme,
-                         mode=self.mode, output_torque=self.output_torque,
-                         energy_correction=bool(self.energy_correction))
-        mesh_files = {k: v for k, v in (("pinion", self.pinion_mesh_file), ("wheel", self.wheel_mesh_file)) if v}
-        kw = {}
-        fidelity = self.fidelity.strip().lower()
-        friction, damping = bool(self.friction), bool(self.contact_damping)
-        if fidelity == "analytic":
-            # the analytic reference takes its friction from mu (the PCM constant) as well
-            kw = dict(damping_ratio=self.mesh_damping_ratio if damping else 0.0, mesh_phase=self.mesh_phase,
-                      mu=self.mu if friction else 0.0)
-        elif fidelity in ("pcm", "table"):
-            kw = dict(friction=friction, damping=damping, mesh_units=str(self.mesh_units).strip(),
-                      faults=self._fault_specs())
-            if fidelity == "table":
-                kw["grid"] = MapGrid(points_per_pitch=int(self.map_points_per_pitch),
-                                     s_points=int(self.map_approach_points))
-        if float(self.tooth_compliance) != 1.0:          # table only: pcm and ideal refuse it
-            kw["tooth_compliance"] = float(self.tooth_compliance)
-        if str(self.manufacturing_errors).strip():      # the ideal mesh refuses them (no mesh coordinate)
-            kw["manufacturing_errors"] = str(self.manufacturing_errors)
-        if not stage:
-            return stage_mesh_model(self.fidelity, gear, pcm, res, health=self.health,
-                                    mesh_files=mesh_files or None, stage_params=sp, **kw)
-        self._stage = make_stage(self.fidelity, gear, pcm, res, health=self.health,
-                                 mesh_files=mesh_files or None, stage_params=sp, **kw)
+        self._stage = build_stage(self._parameter_values())
 
-    def _fault_specs(self) -> list:
-        """The ``faults`` parameter (JSON), checked: every problem named at once."""
-        import json
-
-        from gearcontact_fmu.fault_specs import fault_spec_problems
-
-        try:
-            specs = json.loads(str(self.faults) or "[]")
-        except ValueError as exc:
-            raise ValueError(f"parameter faults is not JSON ({exc})") from None
-        if not isinstance(specs, list):
-            raise ValueError("parameter faults must be a JSON list of fault specifications")
-        problems = [f"faults[{i}].{k} = {v!r}: expected {e}" for i, spec in enumerate(specs)
-                    for k, v, e in fault_spec_problems(spec, int(self.z_pinion), int(self.z_wheel))]
-        if problems:
-            raise ValueError("; ".join(problems))
-        if str(self.health).strip() == "faults" and not specs:
-            raise ValueError('health = "faults" needs at least one fault in the faults parameter')
-        return specs
+    def _parameter_values(self) -> dict:
+        """Every parameter's current value, by name."""
+        return {v.name: getattr(self, v.name) for v in VARIABLES if v.causality == PARAMETER}
 
     def _publish(self):
         st = self._stage

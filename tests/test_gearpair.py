@@ -11,7 +11,6 @@ import math
 import numpy as np
 import pytest
 
-from gearcontact_fmu import geometry
 from gearcontact_fmu.gearpair import (build_pcm_pair, no_contact_windows, static_transmission_error)
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
 

@@ -859,22 +859,21 @@ C_DB = 28          # base pitches between the current pose and the pose of the l
 C_DT = 29          # target pitches, likewise
 C_AHITS = 30       # statistics: lists served from the atlas
 C_ACLEAR = 31      # statistics: times the atlas was full and emptied
-C_SUMD = 32        # running sum of the per-call motion bounds of the near leaves since the list was set
-C_SUMR = 33        # running sum of the per-call bounds of the line directions' turn, likewise
+C_SUMD = 32        # largest bound of a list's near-leaf motion since its pose (nd0[f] + nsum[f])
+C_SUMR = 33        # running sum of the per-call bounds of the line directions' turn
 C_PREV = 34        # 12: the pose (R, t; shifted by the list's pitches) of the previous call
-C_NELEM = 52       # elements of the list (search_candidates_skip)
-C_SUMROOT = 53     # running sum of the per-call motion bounds of the whole base
-C_D0 = 54          # largest near-leaf motion bound since the list's pose when the sums started
-C_R0 = 55          # bound of the turn since the list's pose when the sums started
-C_ROOT0 = 56       # bound of the whole base's motion since the list's pose when the sums started
-C_SEP0 = 57        # smallest distance the list's far checks allow (minsep of its close nodes, gfar)
-C_RETESTS = 58     # statistics: thresholds computed at the pose (last call)
-C_VISITED = 59     # statistics: elements visited (last call)
-C_LIFE = 60        # calls a list serves, exponential average over the lists set
-C_TESTED_ALL = 61  # statistics: candidate pairs tested, all calls
-C_RETESTS_ALL = 62  # statistics: thresholds re-anchored, all calls
-C_SUMS = 63        # 1.0: the list keeps running sums and re-anchors; 0.0: direct bounds (short lives)
-N_CACHE = 64
+C_NELEM = 46       # elements of the list (search_candidates_skip)
+C_SUMROOT = 47     # running sum of the per-call motion bounds of the whole base
+C_R0 = 48          # bound of the turn since the list's pose when the sums started
+C_ROOT0 = 49       # bound of the whole base's motion since the list's pose when the sums started
+C_SEP0 = 50        # smallest distance the list's far checks allow (minsep of its close nodes, gfar)
+C_RETESTS = 51     # statistics: thresholds computed at the pose (last call)
+C_VISITED = 52     # statistics: elements visited (last call)
+C_LIFE = 53        # calls a list serves, exponential average over the lists set
+C_TESTED_ALL = 54  # statistics: candidate pairs tested, all calls
+C_RETESTS_ALL = 55  # statistics: thresholds re-anchored, all calls
+C_SUMS = 56        # 1.0: the list keeps running sums and re-anchors; 0.0: direct bounds (short lives)
+N_CACHE = 57
 CACHE_MIN_REUSE = 8      # a list reused for fewer calls than this triggers a cool-down ...
 CACHE_COOLDOWN = 64      # ... of this many exact-search calls before the next build
 
@@ -1221,24 +1220,31 @@ def _shifted_pose(theta_b, theta_t, M, period, Rbt, cache, Rc):
 
 
 @njit(cache=True)
+def _keep_pose(Rc, tbt, cache):
+    """The pose of this call (shifted), for the next call's motion bounds."""
+    for r in range(3):
+        for c in range(3):
+            cache[C_PREV + 3 * r + c] = Rc[r, c]
+        cache[C_PREV + 9 + r] = tbt[r]
+
+
+@njit(cache=True)
 def _start_motion(Rc, tbt, fresh, s_neg, b_seg, b_obb, cache, nbox, minsep, close, ndisp, nd0,
                   nsum, dR, dt):
     """Running motion sums of a list (re)started at this call (pose ``Rc``, shifted): zero (per
     far-check node with near leaves ``nsum[f]``, the whole base, the turn), the pose kept for the
     next call, and what :func:`_valid_by_sums` needs: the near-leaf bounds and the turn since the
-    list's pose (this call's check, ``ndisp``; 0 when ``fresh``; the largest of the former is
-    kept as ``cache[C_D0]`` and each as ``nd0[f]``), the whole base's bound since it, and
-    the smallest distance its far checks allow (``minsep``, the far group's ``C_GFAR``)."""
+    list's pose (this call's check, ``ndisp``; 0 when ``fresh``; each kept as ``nd0[f]``, the
+    largest as the start of ``cache[C_SUMD]``), the whole base's bound since it, and the
+    smallest distance its far checks allow (``minsep``, the far group's ``C_GFAR``)."""
     d0 = 0.0
     sep = cache[C_GFAR]
     for q in range(int(cache[C_NCLOSE])):
         f = close[q]
         nsum[f] = 0.0
-        if fresh:
-            ndisp[f] = 0.0
-        nd0[f] = ndisp[f]
-        if nbox[f, 0] <= nbox[f, 3] and ndisp[f] > d0:
-            d0 = ndisp[f]
+        nd0[f] = 0.0 if fresh else ndisp[f]
+        if nbox[f, 0] <= nbox[f, 3] and nd0[f] > d0:
+            d0 = nd0[f]
         if minsep[f] < sep:
             sep = minsep[f]
     root = 0.0
@@ -1248,25 +1254,21 @@ def _start_motion(Rc, tbt, fresh, s_neg, b_seg, b_obb, cache, nbox, minsep, clos
                 dR[r, c] = Rc[r, c] - cache[C_RREF + 3 * r + c]
             dt[r] = tbt[r] - cache[C_TREF + r]
         root = _node_disp(dR, dt, b_seg, b_obb, 0, s_neg, np.inf)
-    cache[C_D0] = d0
     cache[C_R0] = 0.0 if fresh else ndisp[ndisp.shape[0] - 1]
     cache[C_ROOT0] = root
     cache[C_SEP0] = sep
     cache[C_SUMD] = d0
     cache[C_SUMR] = 0.0
     cache[C_SUMROOT] = 0.0
-    for r in range(3):
-        for c in range(3):
-            cache[C_PREV + 3 * r + c] = Rc[r, c]
-        cache[C_PREV + 9 + r] = tbt[r]
+    _keep_pose(Rc, tbt, cache)
 
 
 @njit(cache=True)
-def _advance_motion(Rc, tbt, s_neg, b_seg, b_obb, cache, nbox, close, ndisp, nsum, dR, dt):
+def _advance_motion(Rc, tbt, s_neg, b_seg, b_obb, cache, nbox, close, nd0, nsum, dR, dt):
     """Add the motion since the previous call to the running sums: per far-check node f with near
     leaves the largest |dR x + dt| over their box to ``nsum[f]``; over the whole base to
     ``cache[C_SUMROOT]``; |dR|_F (a bound of the turn of every direction) to ``cache[C_SUMR]``.
-    ``cache[C_SUMD]`` becomes the largest ndisp[f] + nsum[f] (a bound of the near leaves' motion
+    ``cache[C_SUMD]`` becomes the largest nd0[f] + nsum[f] (a bound of the near leaves' motion
     since the list's pose). The poses are shifted by the list's pitches (the teeth the list was
     made for): a fixed isometry away from the true poses, so the same motion."""
     fro = 0.0
@@ -1282,16 +1284,13 @@ def _advance_motion(Rc, tbt, s_neg, b_seg, b_obb, cache, nbox, close, ndisp, nsu
             d = _max_disp_box(dR, dt, cache, 0, nbox[f, 0], nbox[f, 1], nbox[f, 2], nbox[f, 3],
                               nbox[f, 4], nbox[f, 5], False, s_neg)
             nsum[f] += d * (1.0 + 1e-12) + SKIP_EPS
-            if ndisp[f] + nsum[f] > dmax:
-                dmax = ndisp[f] + nsum[f]
+            if nd0[f] + nsum[f] > dmax:
+                dmax = nd0[f] + nsum[f]
     cache[C_SUMD] = dmax
     cache[C_SUMROOT] += _node_disp(dR, dt, b_seg, b_obb, 0, s_neg, np.inf) * (1.0 + 1e-12) \
         + SKIP_EPS
     cache[C_SUMR] += math.sqrt(fro) * (1.0 + 1e-12) + 1e-15
-    for r in range(3):
-        for c in range(3):
-            cache[C_PREV + 3 * r + c] = Rc[r, c]
-        cache[C_PREV + 9 + r] = tbt[r]
+    _keep_pose(Rc, tbt, cache)
 
 
 @njit(cache=True)
@@ -1402,8 +1401,7 @@ def cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tb
         _shifted_pose(theta_b, theta_t, M, period, Rbt, cache, Rc)
         margin = ATLAS_EPS if (cache[C_DB] != 0.0 or cache[C_DT] != 0.0) else 0.0
         if cache[C_SUMS] != 0.0:
-            _advance_motion(Rc, tbt, s_neg, b_seg, b_obb, cache, nbox, close, ndisp, nsum, dR,
-                            dt)
+            _advance_motion(Rc, tbt, s_neg, b_seg, b_obb, cache, nbox, close, nd0, nsum, dR, dt)
             # the turn since the thresholds were set may exceed what they allow for: the same
             # list then gets them set again from its own pose (with the bounds of the full check)
             init = cache[C_SUMR] > R_LIFE

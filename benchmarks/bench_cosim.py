@@ -3,7 +3,7 @@
 1. Scene benchmark (default: the severe-fault scene at 1500 rpm, 1.31 N·m, 20 s, ``table`` fidelity):
    real-time factor of the co-simulated run (fmi backend: FMUs through fmpy), and the ratio of its
    stepping-loop time to the same components stepped in-process without FMI (inprocess backend).
-   ``--native``: also (c) all four models as native FMUs (drivetrain.nativeline, built once and cached in
+   ``--native``: also (c) all four models as native FMUs (drivetrain.cosim.native_line, built once and cached in
    FMU_DIR/native) through FMI, and the ratios native-FMI / in-process and native-FMI / pythonfmu-FMI.
 2. ``--overhead``: the master's per-step cost with N small pythonfmu FMUs (a chain of inertias and
    springs), fmi vs in-process, and the cost of the FMI calls themselves.
@@ -33,8 +33,8 @@ DEFAULT_SCENE = ROOT / "scenarios" / "hard" / "missing_tooth_1500rpm.toml"
 
 def scene_benchmark(scene_path: Path, duration: float | None, overrides: list[str], backends: list[str],
                     fmu_dir: str, native: bool = False) -> None:
-    from drivetrain.run import assemble_scene, run_scene
-    from drivetrain.scenario import load_scene
+    from drivetrain.run.runner import assemble_scene, run_scene
+    from drivetrain.scene.load import load_scene
 
     ov = list(overrides)
     if duration is not None:
@@ -49,9 +49,9 @@ def scene_benchmark(scene_path: Path, duration: float | None, overrides: list[st
     results = {}
     runs = [(b, b, None) for b in backends]
     if native:
-        from drivetrain.nativeline import native_fmus
+        from drivetrain.cosim.native_line import native_fmus
 
-        paths, note = native_fmus(scene, Path(fmu_dir) / "native", log=lambda m: print("  " + m))
+        paths, note = native_fmus(spec, Path(fmu_dir) / "native", log=lambda m: print("  " + m))
         if note:
             print(f"  note: {note}")
         runs.append(("native", "fmi", paths))
@@ -82,8 +82,12 @@ def scene_benchmark(scene_path: Path, duration: float | None, overrides: list[st
 
 _MEASURE = r"""
 import json, sys
-from drivetrain.run import run_scene
-from drivetrain.scenario import load_scene
+try:                                   # the layout since issue 32 (wings), else the flat one before it
+    from drivetrain.run.runner import run_scene
+    from drivetrain.scene.load import load_scene
+except ImportError:
+    from drivetrain.run import run_scene
+    from drivetrain.scenario import load_scene
 scene_path, sets, backends, fmu_dir = sys.argv[1], json.loads(sys.argv[2]), json.loads(sys.argv[3]), sys.argv[4]
 quiet = lambda m: None
 warm = load_scene(scene_path, sets + ["time.duration_s=0.05", "time.settle_s=0.01"])

@@ -37,9 +37,10 @@ import fmpy
 import numpy as np
 from fmpy.fmi2 import FMU2Slave
 
-from drivetrain.fmubuild import build_all
-from drivetrain.nativebuild import C_SOURCE, MODEL, _probe_slave, build_native_gear, compile_command, gear_parameters
-from drivetrain.scenario import load_scene
+from drivetrain.cosim.build import build_all
+from drivetrain.cosim.native_gear import C_SOURCE, MODEL, _probe_slave, build_native_gear, compile_command
+from drivetrain.run.assemble import gear_parameters
+from drivetrain.scene.load import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 ap = argparse.ArgumentParser()

@@ -10,8 +10,8 @@ import statistics
 import time
 from pathlib import Path
 
-from drivetrain.run import run_scene
-from drivetrain.scenario import load_scene
+from drivetrain.run.runner import run_scene
+from drivetrain.scene.load import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 ap = argparse.ArgumentParser()

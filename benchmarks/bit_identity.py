@@ -37,9 +37,14 @@ _RUNNER = r"""
 import hashlib, json, sys, tempfile
 from pathlib import Path
 import numpy as np
-from drivetrain.scenario import load_scene
-from drivetrain.run import run_scene
-from drivetrain.outputs import read_hdf5
+try:                                   # the layout since issue 32 (wings), else the flat one before it
+    from drivetrain.scene.load import load_scene
+    from drivetrain.run.runner import run_scene
+    from drivetrain.run.outputs import read_hdf5
+except ImportError:
+    from drivetrain.scenario import load_scene
+    from drivetrain.run import run_scene
+    from drivetrain.outputs import read_hdf5
 cases = json.loads(sys.argv[1]); root = Path(sys.argv[2]); fmu_dir = sys.argv[3]
 out = {}
 for name, (scene_file, sets, backend) in cases.items():

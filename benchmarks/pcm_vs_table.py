@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from drivetrain.run import run_scene
-from drivetrain.scenario import load_scene
+from drivetrain.run.runner import run_scene
+from drivetrain.scene.load import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "scenarios" / "hard" / "missing_tooth_1500rpm.toml"

@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivetrain.assemble import sensor_map
-from drivetrain.outputs import read_hdf5
-from drivetrain.run import run_scene
+from drivetrain.run.assemble import sensor_map
+from drivetrain.run.outputs import read_hdf5
+from drivetrain.run.runner import run_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "scenarios" / "example.toml"

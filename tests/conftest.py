@@ -41,7 +41,7 @@ def drivetrain_fmu_dir(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def native_cache_dir(tmp_path_factory):
-    """A private cache of native FMUs (drivetrain.nativeline.native_fmus) shared by the tests that run
+    """A private cache of native FMUs (drivetrain.cosim.native_line.native_fmus) shared by the tests that run
     native FMUs without testing their build or its cache: each build (the example's gear: ~5 s) happens
     once per session. Tests of the build and the cache use a directory of their own."""
     return tmp_path_factory.mktemp("native_session")

@@ -1,4 +1,4 @@
-"""The accuracy-cost study's metrics and choices (drivetrain.accuracy), against closed-form signals, and
+"""The accuracy-cost study's metrics and choices (drivetrain.run.accuracy), against closed-form signals, and
 ``--tolerance`` end to end on a short scene."""
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivetrain import accuracy as A
-from drivetrain import accuracy_study as S
-from drivetrain import runcost
-from drivetrain.scenario import load_scene
-from drivetrain.signals import characteristic_frequencies
+from drivetrain.run import accuracy as A
+from drivetrain.campaigns import accuracy_study as S
+from drivetrain.run import cost as runcost
+from drivetrain.scene.load import load_scene
+from drivetrain.rig.signals import characteristic_frequencies
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
@@ -140,7 +140,7 @@ def test_the_chosen_setting_meets_the_tolerance_against_the_reference():
     """On a short scene, the setting chosen for 5 % agrees with the reference settings' run within 5 % on
     mean torques and fluctuation and 5 dB at f_GMF (slow: the reference's converged-mesh contact map is
     built once, ~1-2 min on a cold cache)."""
-    from drivetrain.run import run_scene
+    from drivetrain.run.runner import run_scene
 
     T = 5.0
     choice = A.choose(load_scene(EXAMPLE), T)

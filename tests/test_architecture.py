@@ -3,7 +3,7 @@
 - The module import graph of src/, with imports inside functions counted, has no cycle.
 - The pure library of the pair (gearcontact_fmu outside slaves/) never imports drivetrain, pythonfmu,
   the CLI or plotting.
-- Only the command line (drivetrain.cli) and the plotting module (drivetrain.outputs) print.
+- Only the command line (drivetrain.cli) and the plotting module (drivetrain.run.outputs) print.
 """
 import ast
 from pathlib import Path
@@ -80,7 +80,7 @@ def test_pure_library_imports_no_host_side():
 
 
 def test_only_the_cli_and_the_plots_print():
-    allowed = {"drivetrain.cli", "drivetrain.outputs"}
+    allowed = {"drivetrain.cli", "drivetrain.run.outputs"}
     found = []
     for m, p in _modules().items():
         if m in allowed:
@@ -89,3 +89,167 @@ def test_only_the_cli_and_the_plots_print():
             if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "print":
                 found.append(f"{m}:{node.lineno}")
     assert not found, "print() outside the CLI: " + ", ".join(found)
+
+
+# ------------------------------------------------------------------------------------------------
+# the wings of drivetrain (docs/ARCHITECTURE.md): each imports only its own wing and those below it
+# ------------------------------------------------------------------------------------------------
+#: bottom up; a wing may import any wing of a lower rank (the same rank: not each other)
+WING_RANK = {
+    "errors": 0, "system": 0,
+    "rig": 1,
+    "models": 2, "scene": 2,
+    "cosim": 3,
+    "run": 4,
+    "campaigns": 5, "interop": 5,
+    "cli": 6, "pytest_plugin": 6, "master": 6, "__main__": 7,
+}
+
+
+def _wing(module: str) -> str | None:
+    parts = module.split(".")
+    if parts[0] != "drivetrain" or len(parts) == 1:
+        return None                      # the other packages, and drivetrain/__init__ (its version only)
+    return parts[1]
+
+
+def test_the_wings_import_downwards_only():
+    mods = _modules()
+    wings = {_wing(m) for m in mods} - {None}
+    assert wings == set(WING_RANK), f"wings not ranked in this test: {sorted(wings ^ set(WING_RANK))}"
+    bad = []
+    for m, p in mods.items():
+        a = _wing(m)
+        if a is None:
+            continue
+        for n in _imports(m, p, mods):
+            b = _wing(n)
+            if b is not None and b != a and WING_RANK[b] >= WING_RANK[a]:
+                bad.append(f"{m} ({a}, rank {WING_RANK[a]}) imports {n} ({b}, rank {WING_RANK[b]})")
+    assert not bad, "imports against the wings' order:\n" + "\n".join(bad)
+
+
+def test_drivetrain_has_no_flat_room():
+    """Only the vocabulary (errors, system) and the entry points live at the package's top."""
+    top = sorted(p.name for p in (SRC / "drivetrain").glob("*.py"))
+    assert top == ["__init__.py", "__main__.py", "cli.py", "errors.py", "master.py", "pytest_plugin.py",
+                   "system.py"], top
+
+
+# ------------------------------------------------------------------------------------------------
+# functions a reader can hold, records with names
+# ------------------------------------------------------------------------------------------------
+MAX_FUNCTION_LINES = 120
+MAX_POSITIONAL = 12
+
+
+def _functions(tree):
+    for node in ast.walk(tree):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            yield node
+
+
+def _is_kernel(node, source: str) -> bool:
+    """An @njit/@jit function, or one the module compiles with njit(name)/jit(name)."""
+    for d in node.decorator_list:
+        f = d.func if isinstance(d, ast.Call) else d
+        name = f.attr if isinstance(f, ast.Attribute) else getattr(f, "id", "")
+        if name in ("njit", "jit"):
+            return True
+    return f"njit({node.name}" in source or f"jit({node.name}" in source
+
+
+def test_no_function_over_120_lines_but_kernels_that_say_why():
+    long = []
+    for m, p in _modules().items():
+        source = p.read_text()
+        for fn in _functions(ast.parse(source)):
+            n = fn.end_lineno - fn.lineno + 1
+            if n <= MAX_FUNCTION_LINES:
+                continue
+            doc = ast.get_docstring(fn) or ""
+            if _is_kernel(fn, source) and "Long kernel:" in doc:
+                continue
+            long.append(f"{m}.{fn.name}: {n} lines")
+    assert not long, ("functions over 120 lines (a numba kernel may stay long when its docstring says why, "
+                      "'Long kernel: ...'):\n" + "\n".join(long))
+
+
+def test_no_wide_positional_record_crosses_a_module():
+    """A record of more than 12 fields travels with names: no tuple of more than 12 values is returned or
+    unpacked, and no call passes more than 12 positional arguments to a function of another module."""
+    mods = _modules()
+    found = []
+    for m, p in mods.items():
+        tree = ast.parse(p.read_text())
+        imported = set()                 # names bound by from-imports of src modules, and module aliases
+        for node in ast.walk(tree):
+            if isinstance(node, ast.ImportFrom) and (node.level or (node.module or "").split(".")[0] in
+                                                     ("drivetrain", "gearcontact_fmu", "fmu_runtime")):
+                imported.update(a.asname or a.name for a in node.names)
+            elif isinstance(node, ast.Import):
+                imported.update((a.asname or a.name).split(".")[0] for a in node.names
+                                if a.name.split(".")[0] in ("drivetrain", "gearcontact_fmu", "fmu_runtime"))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Return) and isinstance(node.value, ast.Tuple) \
+                    and len(node.value.elts) > MAX_POSITIONAL:
+                found.append(f"{m}:{node.lineno}: returns a {len(node.value.elts)}-tuple")
+            if isinstance(node, (ast.Assign, ast.For)):
+                targets = node.targets if isinstance(node, ast.Assign) else [node.target]
+                for t in targets:
+                    if isinstance(t, (ast.Tuple, ast.List)) and len(t.elts) > MAX_POSITIONAL:
+                        found.append(f"{m}:{node.lineno}: unpacks {len(t.elts)} values")
+            if isinstance(node, ast.Call) and len(node.args) > MAX_POSITIONAL:
+                f = node.func
+                root = f
+                while isinstance(root, ast.Attribute):
+                    root = root.value
+                if isinstance(root, ast.Name) and root.id in imported:
+                    found.append(f"{m}:{node.lineno}: passes {len(node.args)} positional arguments to "
+                                 f"{ast.unparse(f)}")
+    assert not found, "wide positional records:\n" + "\n".join(found)
+
+
+# ------------------------------------------------------------------------------------------------
+# what an FMU bundles: derived from the imports
+# ------------------------------------------------------------------------------------------------
+def _copy_packages(tmp_path):
+    import shutil
+
+    dirs = {}
+    for pkg in ("drivetrain", "gearcontact_fmu", "fmu_runtime"):
+        dirs[pkg] = tmp_path / pkg
+        shutil.copytree(SRC / pkg, dirs[pkg], ignore=shutil.ignore_patterns("__pycache__", "*.nbi", "*.nbc",
+                                                                            "seed_maps"))
+    return dirs
+
+
+def test_fmus_run_the_models_and_the_pure_library_only():
+    from drivetrain.cosim.bundle import fmu_modules
+
+    dirs = {pkg: SRC / pkg for pkg in ("drivetrain", "gearcontact_fmu", "fmu_runtime")}
+    inside = fmu_modules(dirs)
+    assert {"drivetrain.models.fmishell", "drivetrain.models.components", "drivetrain.rig.data",
+            "drivetrain.system", "drivetrain.errors", "gearcontact_fmu.stage", "gearcontact_fmu.slaves.GearContact",
+            "fmu_runtime.guard"} <= inside
+    host_only = {m for m in _modules() if m.startswith("drivetrain") and m not in inside}
+    for m in ("drivetrain.cli", "drivetrain.cosim.master", "drivetrain.cosim", "drivetrain.campaigns.validation",
+              "drivetrain.run.runner", "drivetrain.scene.load", "drivetrain.interop.ssp"):
+        assert m in host_only, m
+
+
+def test_editing_a_host_only_module_marks_no_fmu_stale(tmp_path, monkeypatch):
+    """The staleness hash covers what runs inside an FMU: an edit of the master, the validation, the CLI
+    or a scene module leaves it as it is; an edit of a model the FMUs run changes it."""
+    from drivetrain.cosim import fmus
+
+    dirs = _copy_packages(tmp_path)
+    monkeypatch.setattr(fmus, "_package_dirs", lambda: dirs)
+    before = fmus.sources_hash()
+    for rel in ("cosim/master.py", "campaigns/validation.py", "cli.py", "scene/load.py", "run/runner.py"):
+        f = dirs["drivetrain"] / rel
+        f.write_text(f.read_text() + "\n# an edit\n")
+    assert fmus.sources_hash() == before
+    f = dirs["drivetrain"] / "models" / "components.py"
+    f.write_text(f.read_text() + "\n# an edit\n")
+    assert fmus.sources_hash() != before

@@ -1,4 +1,4 @@
-"""Loss calibration (drivetrain.calibrate): the healthy mean torques at the 18 measured operating points,
+"""Loss calibration (drivetrain.campaigns.calibrate): the healthy mean torques at the 18 measured operating points,
 recovery of known parameters from a synthetic table, the calibrate command, and a time-domain check
 that the simulated means equal the steady-state balance used for the fit."""
 import csv
@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from drivetrain import calibrate as CAL
-from drivetrain import rig
-from drivetrain.assemble import assemble
-from drivetrain.scenario import default_scene
+from drivetrain.campaigns import calibrate as CAL
+from drivetrain.rig import data as rig
+from drivetrain.run.assemble import assemble
+from drivetrain.scene.load import default_scene
 
 
 

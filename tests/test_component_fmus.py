@@ -1,5 +1,5 @@
 """The component FMUs (drivetrain/slaves: FlexibleShaft, UpperTransmission, MotorLoad): they build with
-drivetrain.fmubuild, pass fmpy's validation, carry units and causalities as documented, behave like the
+drivetrain.cosim.build, pass fmpy's validation, carry units and causalities as documented, behave like the
 component classes, turn a NaN input into an FMI error (never a crash), and run under the master."""
 from pathlib import Path
 
@@ -10,8 +10,8 @@ fmpy = pytest.importorskip("fmpy")
 from fmpy import extract, read_model_description  # noqa: E402
 from fmpy.fmi2 import FMU2Slave  # noqa: E402
 
-from drivetrain import fmishell  # noqa: E402
-from drivetrain.components import make_component  # noqa: E402
+from drivetrain.models import fmishell  # noqa: E402
+from drivetrain.models.components import make_component  # noqa: E402
 
 MODELS = ("FlexibleShaft", "UpperTransmission", "MotorLoad")
 H = 1.0 / 12000.0
@@ -19,7 +19,7 @@ H = 1.0 / 12000.0
 
 @pytest.fixture(scope="module")
 def fmus(tmp_path_factory):
-    fmubuild = pytest.importorskip("drivetrain.fmubuild")
+    fmubuild = pytest.importorskip("drivetrain.cosim.build")
     out = tmp_path_factory.mktemp("component_fmus")
     paths = fmubuild.build_all(out, only=list(MODELS))
     return {Path(p).stem: Path(p) for p in paths}
@@ -169,9 +169,9 @@ def test_master_runs_the_rigid_ideal_scene_through_fmi(fmus, tmp_path):
     the mean torques settle on the steady state and the energy audit closes. (Slow-marked: the master
     frees its instances, which with pythonfmu 0.7.0 can crash the process at exit; see Instance.close.)"""
     master = pytest.importorskip("drivetrain.cosim")
-    from drivetrain.assemble import assemble
-    from drivetrain.fmubuild import build_all
-    from drivetrain.scenario import default_scene
+    from drivetrain.run.assemble import assemble
+    from drivetrain.cosim.build import build_all
+    from drivetrain.scene.load import default_scene
 
     gear = build_all(tmp_path, only=["GearContact"])[0]
     spec = assemble(default_scene(effects__shaft_flexibility="rigid", effects__mesh_contact="ideal"))

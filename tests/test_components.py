@@ -1,12 +1,12 @@
-"""Component physics (drivetrain.components): shaft twist, PI controller, planetary, energy balance."""
+"""Component physics (drivetrain.models.components): shaft twist, PI controller, planetary, energy balance."""
 import math
 
 import numpy as np
 import pytest
 
-from drivetrain import components as C
+from drivetrain.models import components as C
 from drivetrain.system import SPRING
-from drivetrain.components import (ComponentError, FlexibleShaft, FlexibleShaftParams, MotorLoad, MotorLoadParams,
+from drivetrain.models.components import (ComponentError, FlexibleShaft, FlexibleShaftParams, MotorLoad, MotorLoadParams,
                                    UpperTransmission, UpperTransmissionParams, loss_torque, make_component)
 
 H = 1.0 / 12000.0
@@ -53,7 +53,7 @@ def test_shaft_transducer_torque_and_twist_with_couplings():
 def test_shaft_element_count_changes_only_high_modes():
     """The line clamped at flange_b: its in-band mode (hubs on the thin shaft, ~490 Hz) hardly moves
     with the element count; the next one (transducer between the hubs) is above the 1.5 kHz band."""
-    from drivetrain.eigen import component_block
+    from drivetrain.models.eigen import component_block
     from scipy.linalg import eigh
 
     freqs = []
@@ -229,8 +229,8 @@ def test_set_inputs_takes_the_fmu_inputs_in_order():
     angle)."""
     import inspect
 
-    from drivetrain import fmishell
-    from drivetrain.components import COMPONENTS
+    from drivetrain.models import fmishell
+    from drivetrain.models.components import COMPONENTS
 
     for model, (cls, _) in COMPONENTS.items():
         names = list(inspect.signature(cls.set_inputs).parameters)[1:]
@@ -242,8 +242,8 @@ def test_every_parameter_is_declared_once_with_unit_and_description():
     them from there); a Real parameter has a unit, an Integer or String one none."""
     import dataclasses
 
-    from drivetrain import components as C
-    from drivetrain import fmishell
+    from drivetrain.models import components as C
+    from drivetrain.models import fmishell
 
     for model, (_, pcls) in C.COMPONENTS.items():
         defaults = pcls()
@@ -261,8 +261,8 @@ def test_every_parameter_is_declared_once_with_unit_and_description():
 def test_step_outputs_and_lazy_outputs_cover_every_output_once():
     """The shell publishes STEP_OUTPUTS after every step and computes LAZY_OUTPUTS when read: together
     they are the FMU's outputs (but the flange torques a spring side returns are among the step's)."""
-    from drivetrain import components as C
-    from drivetrain import fmishell
+    from drivetrain.models import components as C
+    from drivetrain.models import fmishell
 
     for model, (cls, pcls) in C.COMPONENTS.items():
         outputs = set(fmishell.port_outputs(model))

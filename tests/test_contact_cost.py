@@ -10,10 +10,10 @@ import time
 import pytest
 from test_scene_effects import EXAMPLE, SHORT
 
-from drivetrain.assemble import assemble
+from drivetrain.run.assemble import assemble
 from drivetrain.errors import ConfigurationError, ScenarioError
-from drivetrain.run import run_scene
-from drivetrain.scenario import load_scene
+from drivetrain.run.runner import run_scene
+from drivetrain.scene.load import load_scene
 from gearcontact_fmu import cost, geometry
 from gearcontact_fmu.meshes import save_mesh
 from gearcontact_fmu.params import BevelGearParams, MeshResolution
@@ -70,7 +70,7 @@ def test_an_online_mesh_file_over_budget_is_refused_with_the_table_way_out(tmp_p
     assert "p.stl" in msg and "online PCM" in msg and 'mesh_contact = "table"' in msg
     assert "max_contact_hours = 0.1 h" in msg
     # the same file within budget passes the check and is reported
-    from drivetrain import stability
+    from drivetrain.models import stability
 
     spec = assemble(load_scene(EXAMPLE, overrides=["time.duration_s=0.01", "gear.health=mesh",
                                                    f"gear.pinion_mesh={tmp_path / 'p.stl'}",
@@ -89,7 +89,7 @@ def test_the_budget_key_is_validated():
 def test_the_estimate_predicts_an_online_run(tmp_path):
     """The probe's loop estimate of a 0.1 s online-PCM run at a user mesh is within a factor 2 of the
     loop time the run measures (the probe follows the pair at the run's speed and sub-step)."""
-    from drivetrain import stability
+    from drivetrain.models import stability
 
     P = BevelGearParams()
     save_mesh(geometry.build_gear_mesh(P, "pinion", MeshResolution()), tmp_path / "p.stl", units="mm")

@@ -10,14 +10,14 @@ import pytest
 
 from _cosim_test_fmus import build_test_fmus
 from drivetrain.cli import main
-from drivetrain.outputs import read_hdf5
-from drivetrain.scenario import load_scene
+from drivetrain.run.outputs import read_hdf5
+from drivetrain.scene.load import load_scene
 from test_run import EXAMPLE, toy_spec
 
 
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory):
-    from drivetrain.sweep import run_sweep
+    from drivetrain.campaigns.sweep import run_sweep
 
     fmus = build_test_fmus(tmp_path_factory.mktemp("mtfmus_ds"))
     out = tmp_path_factory.mktemp("ds") / "sw"
@@ -84,8 +84,8 @@ def test_not_a_sweep_directory(tmp_path, capsys):
 
 
 def test_faults_become_label_columns():
-    from drivetrain.dataset import run_labels
-    from drivetrain.scenario import resolve
+    from drivetrain.campaigns.dataset import run_labels
+    from drivetrain.scene.load import resolve
 
     scene = resolve({"gear": {"health": "faults", "faults": [{"kind": "pit", "member": "wheel", "tooth": 38},
                                                             {"kind": "missing_tooth", "tooth": 3}]}}).to_dict()

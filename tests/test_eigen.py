@@ -1,4 +1,4 @@
-"""Natural frequencies (drivetrain.eigen): the public model as an independent oracle, the calibrated
+"""Natural frequencies (drivetrain.models.eigen): the public model as an independent oracle, the calibrated
 24 Hz, and a simulated ring-down of the assembled components against the eigenvalue."""
 import math
 from pathlib import Path
@@ -7,9 +7,11 @@ import numpy as np
 import pytest
 from scipy.linalg import eigh
 
-from drivetrain import eigen, rig
-from drivetrain.assemble import assemble
-from drivetrain.scenario import default_scene
+from drivetrain.models import eigen
+
+from drivetrain.rig import data as rig
+from drivetrain.run.assemble import assemble
+from drivetrain.scene.load import default_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -86,11 +88,11 @@ def _fit_damped_sine(t, y, f0):
 
 def _start_from_vector(spec, labels, x, v):
     """Set the spec's start parameters so that every node starts at x (angles) and v (speeds) over ``labels``
-    ("component.node", drivetrain.eigen): node_phi_start / node_w_start of the line models, and the gear's
+    ("component.node", drivetrain.models.eigen): node_phi_start / node_w_start of the line models, and the gear's
     initial_state "parameters" (the ideal gear's one body "pinion+wheel" in the pinion frame, the wheel at
     pinion / ratio) with the port twists from the bodies' angles on both sides (as
-    drivetrain.assemble.gear_start_state: the connected component built from its parameters, read back)."""
-    from drivetrain.components import COMPONENTS, make_component
+    drivetrain.run.assemble.gear_start_state: the connected component built from its parameters, read back)."""
+    from drivetrain.models.components import COMPONENTS, make_component
     from gearcontact_fmu.params import BevelGearParams
 
     idx = {lbl: i for i, lbl in enumerate(labels)}

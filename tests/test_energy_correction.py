@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from drivetrain.cosim import load_fmu_info, simulate
-from drivetrain.run import assemble_scene
-from drivetrain.scenario import load_scene
+from drivetrain.run.runner import assemble_scene
+from drivetrain.scene.load import load_scene
 
 SCENE = Path(__file__).resolve().parent / "scenes" / "standstill_reversed_load.toml"
 SPRING_SIDE = {"motors": "MotorLoad", "drive_shaft": "FlexibleShaft", "gear": "GearContact"}

@@ -12,9 +12,9 @@ from xml.etree import ElementTree as ET
 import numpy as np
 import pytest
 
-from drivetrain import expect as X
+from drivetrain.scene import expect as X
 from drivetrain.cli import main
-from drivetrain.scenario import ScenarioError, load_scene, load_scenes
+from drivetrain.scene.load import ScenarioError, load_scene, load_scenes
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -51,7 +51,7 @@ def fmu_dir(tmp_path_factory):
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory, fmu_dir):
     """One tiny run (scene, CaseRun) reused by the evaluation tests."""
-    from drivetrain.check import run_case
+    from drivetrain.campaigns.check import run_case
 
     d = tmp_path_factory.mktemp("tinyrun")
     scene = load_scene(tiny(d))
@@ -172,7 +172,7 @@ def test_summary_tree_covers_every_summary_value(tiny_run):
 
 
 def test_evaluate_holds_and_off_by_5_percent_fails(tiny_run, tmp_path):
-    from drivetrain.check import check_run
+    from drivetrain.campaigns.check import check_run
 
     scene, run = tiny_run
     mean = run.summary["torque"]["propeller_shaft_torque"]["mean"]
@@ -226,7 +226,7 @@ def test_cli_check_exit_codes_and_table(tmp_path, fmu_dir, capsys):
 
 
 def test_baseline_then_changed_parameter_moves(tmp_path, fmu_dir, capsys):
-    from drivetrain.baseline import read_baseline
+    from drivetrain.campaigns.baseline import read_baseline
 
     scene = tiny(tmp_path, name="base")                       # no [expect]: the baseline alone
     assert _cli(["baseline", str(scene)], fmu_dir, None) == 0

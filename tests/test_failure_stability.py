@@ -12,15 +12,15 @@ from _cosim_test_fmus import build_test_fmus
 import drivetrain.cosim as M
 from drivetrain.cli import main
 from drivetrain.cosim import CosimError, simulate
-from drivetrain.outputs import read_hdf5
-from drivetrain.run import RunFailedError, run_scene
-from drivetrain.scenario import load_scene
+from drivetrain.run.outputs import read_hdf5
+from drivetrain.run.runner import RunFailedError, run_scene
+from drivetrain.scene.load import load_scene
 from drivetrain.system import ComponentSpec, Connection, SystemSpec
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
-HAVE_ASSEMBLER = importlib.util.find_spec("drivetrain.assemble") is not None
-needs_assembler = pytest.mark.skipif(not HAVE_ASSEMBLER, reason="drivetrain.assemble not available")
+HAVE_ASSEMBLER = importlib.util.find_spec("drivetrain.run.assemble") is not None
+needs_assembler = pytest.mark.skipif(not HAVE_ASSEMBLER, reason="drivetrain.run.assemble not available")
 QUIET = ["outputs.plots=false", "outputs.aalto_csv=false"]
 STABILITY_KEYS = ("gear", "time_s", "max_penetration_m", "u_max_m", "max_penetration_rel_umax", "min_substep_s",
                   "max_substep_s", "n_substeps", "n_refinements", "energy_residual", "rattle")
@@ -151,7 +151,7 @@ def _failing_gear_scene(duration=0.3, extra=()):
 def _failing_gear_spec(scene, u_max=5e-7):
     """The assembled system with the gear's u_max between the penetration at 0.12 N·m and at 1.31 N·m: the
     analytic mesh enters its error state during the load step (deterministic, about t = 0.065 s)."""
-    from drivetrain.run import assemble_scene
+    from drivetrain.run.runner import assemble_scene
 
     spec = assemble_scene(scene)
     gear = next(c for c in spec.components if c.model == "GearContact")
@@ -161,7 +161,7 @@ def _failing_gear_spec(scene, u_max=5e-7):
 
 @needs_assembler
 def test_cli_gear_failure_exit_code_and_partial_files(tmp_path, fmu_dir, monkeypatch, capsys):
-    import drivetrain.run as R
+    import drivetrain.run.runner as R
 
     scene = _failing_gear_scene()
     spec = _failing_gear_spec(scene)
@@ -201,7 +201,7 @@ def test_cli_gear_failure_exit_code_and_partial_files(tmp_path, fmu_dir, monkeyp
 
 @needs_assembler
 def test_sweep_records_failed_and_good_runs(tmp_path, fmu_dir):
-    from drivetrain.sweep import run_sweep
+    from drivetrain.campaigns.sweep import run_sweep
 
     bad = _failing_gear_scene(duration=0.2, extra=["scenario.name=bad"])
     good = load_scene(EXAMPLE, ["time.duration_s=0.1", "effects.mesh_contact=analytic",

@@ -124,8 +124,8 @@ def test_a_fault_that_does_not_fit_refuses_the_run_naming_it():
     from test_scene_effects import EXAMPLE
 
     from drivetrain.errors import ConfigurationError
-    from drivetrain.run import run_scene
-    from drivetrain.scenario import load_scene
+    from drivetrain.run.runner import run_scene
+    from drivetrain.scene.load import load_scene
 
     scene = load_scene(EXAMPLE, overrides=['gear.health="faults"', "time.duration_s=0.01", "time.settle_s=0",
                                            'gear.faults=[{kind="void", tooth=2, position_mm=-1.5}]'])

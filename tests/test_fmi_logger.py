@@ -15,7 +15,7 @@ pytest.importorskip("fmpy")
 
 @pytest.fixture(scope="module")
 def shaft_fmu(tmp_path_factory):
-    fmubuild = pytest.importorskip("drivetrain.fmubuild")
+    fmubuild = pytest.importorskip("drivetrain.cosim.build")
     (path,) = fmubuild.build_all(tmp_path_factory.mktemp("logger_fmu"), only=["FlexibleShaft"])
     return path
 
@@ -25,7 +25,7 @@ import gc, os, sys
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 from fmpy.fmi1 import FMICallException
-from drivetrain import fmishell
+from drivetrain.models import fmishell
 from drivetrain.cosim.slaves import FmiCallbacks
 
 PATH = sys.argv[1]

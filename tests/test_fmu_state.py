@@ -66,7 +66,7 @@ def _run(body: str, timeout=240):
 
 @pytest.fixture(scope="module")
 def fmus(tmp_path_factory):
-    from drivetrain.fmubuild import build_all
+    from drivetrain.cosim.build import build_all
 
     out = tmp_path_factory.mktemp("fmus")
     return {p.stem: str(p) for p in build_all(out)}
@@ -75,8 +75,8 @@ def fmus(tmp_path_factory):
 @pytest.fixture(scope="module")
 def assembled():
     """The example scene's assembled parameters; the gear analytic (no contact map: fast)."""
-    from drivetrain.run import assemble_scene
-    from drivetrain.scenario import load_scene
+    from drivetrain.run.runner import assemble_scene
+    from drivetrain.scene.load import load_scene
 
     spec = assemble_scene(load_scene(EXAMPLE))
     params = {c.name: dict(c.parameters) for c in spec.components}

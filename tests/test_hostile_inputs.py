@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from drivetrain.cli import main
-from drivetrain.rig import MEASURED_CSV as MEASURED
+from drivetrain.rig.data import MEASURED_CSV as MEASURED
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -66,8 +66,8 @@ def test_a_costly_scene_is_refused_before_it_runs_unless_forced(tmp_path, capsys
 def test_runcost_predicts_the_default_scene_cheap_and_online_pcm_costly():
     """The default 20 s scene runs in a few times its simulated time; 20 s of online PCM takes hours
     (measured here: 0.05 s in 19.5 s of loop) and is refused; 0.05 s of it is below the floor."""
-    from drivetrain import runcost
-    from drivetrain.scenario import load_scene
+    from drivetrain.run import cost as runcost
+    from drivetrain.scene.load import load_scene
 
     example = ROOT / "scenarios" / "example.toml"
     default = load_scene(example)
@@ -87,10 +87,10 @@ def test_runcost_predicts_the_default_scene_cheap_and_online_pcm_costly():
 def test_force_runs_a_refused_scene_and_says_so(monkeypatch):
     """With the limit lowered so that a 0.02 s run is 'too costly': refused without force, run with it,
     and the summary carries the forced prediction as a warning."""
-    from drivetrain import runcost
+    from drivetrain.run import cost as runcost
     from drivetrain.errors import ConfigurationError
-    from drivetrain.run import run_scene
-    from drivetrain.scenario import load_scene
+    from drivetrain.run.runner import run_scene
+    from drivetrain.scene.load import load_scene
 
     monkeypatch.setattr(runcost, "REFUSE_FACTOR", 1e-6)
     monkeypatch.setattr(runcost, "REFUSE_FLOOR_S", 0.0)
@@ -123,7 +123,7 @@ def test_a_huge_communication_step_is_refused_not_computed():
     """One step of 1000 s blocked an FMU for 27 s; now it is refused at once with the reason."""
     import time
 
-    from drivetrain.components import ComponentError, make_component
+    from drivetrain.models.components import ComponentError, make_component
     from gearcontact_fmu.stage import StageError, make_stage
 
     t0 = time.perf_counter()
@@ -163,7 +163,7 @@ _LEGITIMATE = {("scenario.description", '"a/b"'), ("scenario.description", '".."
 
 
 def _scene_key_cases():
-    from drivetrain.scenario import SCHEMA
+    from drivetrain.scene.load import SCHEMA
 
     for sec, keys in SCHEMA.items():
         if sec in ("expect", "check"):
@@ -175,7 +175,7 @@ def _scene_key_cases():
 
 @pytest.mark.parametrize("key, value", list(_scene_key_cases()))
 def test_scene_key_with_a_hostile_value(tmp_path, monkeypatch, key, value):
-    from drivetrain.scenario import ScenarioError, load_scene
+    from drivetrain.scene.load import ScenarioError, load_scene
 
     monkeypatch.chdir(tmp_path)
     example = ROOT / "scenarios" / "example.toml"

@@ -2,7 +2,7 @@
 
 - the ``drivetrain export-ssp`` archive in Ecos (``pip install ecospy``; its library needs Debian's
   libtbb12 and the unzip command), and
-- the four FMUs in an FMU container (``drivetrain.container``, FMU Manipulation Toolbox) run by fmpy,
+- the four FMUs in an FMU container (``drivetrain.interop.container``, FMU Manipulation Toolbox) run by fmpy,
 
 each against our master on the example scene over 0.5 s, steady and on a start-up ramp: mean and RMS
 of the drive-shaft and propeller-shaft torque transducers within 1e-4 relative. Ecos sets the
@@ -23,8 +23,8 @@ import numpy as np
 import pytest
 from _hosts import EXAMPLE, SHORT, TORQUES, assert_matches, master_torques, run_host, schedule, torque_refs
 
-from drivetrain.run import assemble_scene
-from drivetrain.scenario import load_scene
+from drivetrain.run.runner import assemble_scene
+from drivetrain.scene.load import load_scene
 
 
 @pytest.fixture(scope="module")
@@ -85,7 +85,7 @@ def test_the_ssp_runs_in_ecos_as_in_our_master(system, fmu_dir, tmp_path):
     _installed("ecospy", "ecospy")
     if shutil.which("unzip") is None:
         pytest.skip("Ecos extracts the archive with the unzip command, not found (apt-get install unzip)")
-    from drivetrain.ssp import export_ssp
+    from drivetrain.interop.ssp import export_ssp
 
     scene, spec, ours = system
     path = export_ssp(scene, tmp_path / "system.ssp", fmu_dir=fmu_dir, spec=spec)
@@ -111,7 +111,7 @@ _CONTAINER = textwrap.dedent("""
 @pytest.mark.hosts
 def test_the_fmus_run_in_an_fmu_container_as_in_our_master(system, fmu_dir, tmp_path):
     _installed("fmu_manipulation_toolbox", "fmu-manipulation-toolbox")
-    from drivetrain.container import export_container
+    from drivetrain.interop.container import export_container
 
     scene, spec, ours = system
     path = export_container(scene, tmp_path / "system.fmu", fmu_dir=fmu_dir, spec=spec)
@@ -132,8 +132,8 @@ def test_the_fmus_run_in_an_fmu_container_as_in_our_master(system, fmu_dir, tmp_
 
 
 def test_container_start_values_are_written_without_spaces():
-    from drivetrain.components import parse_profile
-    from drivetrain.container import _spaceless
+    from drivetrain.models.components import parse_profile
+    from drivetrain.interop.container import _spaceless
 
     assert _spaceless("m.fidelity", "table") == "table"
     profile = "0.0:0.0; 0.3:1500.0"
@@ -147,7 +147,7 @@ def test_container_start_values_are_written_without_spaces():
 
 
 def test_container_names_are_checked_first(tmp_path):
-    from drivetrain.container import export_container
+    from drivetrain.interop.container import export_container
     from drivetrain.errors import ConfigurationError
 
     scene = load_scene(EXAMPLE, SHORT)
@@ -159,7 +159,7 @@ def test_container_names_are_checked_first(tmp_path):
 
 
 def test_container_initializes_every_spring_side_after_its_inertia_sides():
-    from drivetrain.container import initialization_order
+    from drivetrain.interop.container import initialization_order
 
     spec = assemble_scene(load_scene(EXAMPLE, SHORT))
     order = initialization_order(spec)
@@ -176,7 +176,7 @@ def _start(fmus, spec, names, params_after_enter: bool) -> dict:
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave
 
-    from drivetrain.ssp import bound_values, system_connections
+    from drivetrain.interop.ssp import bound_values, system_connections
 
     comps = {c.name: c for c in spec.components if c.name in names}
     slaves, refs = {}, {}
@@ -244,7 +244,7 @@ def test_the_native_system_runs_in_ecos_and_in_a_container_as_in_our_master(fmu_
     H, n, every = schedule(scene, spec)
     ran = 0
     if importlib.util.find_spec("ecospy") is not None and shutil.which("unzip") is not None:
-        from drivetrain.ssp import export_ssp
+        from drivetrain.interop.ssp import export_ssp
 
         path = export_ssp(scene, tmp_path / "system.ssp", fmu_dir=fmu_dir, spec=spec, native=True)
         got = run_host(_ECOS, path, repr(H), n, every, json.dumps(torque_refs(scene)), "motors::motor_w",
@@ -252,7 +252,7 @@ def test_the_native_system_runs_in_ecos_and_in_a_container_as_in_our_master(fmu_
         assert_matches(got["signals"], ours)
         ran += 1
     if importlib.util.find_spec("fmu_manipulation_toolbox") is not None:
-        from drivetrain.container import export_container
+        from drivetrain.interop.container import export_container
 
         path = export_container(scene, tmp_path / "NativeSystem.fmu", fmu_dir=fmu_dir, spec=spec, native=True)
         names = list(TORQUES)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy import signal as sig
 
-from drivetrain.instruments import RIG_SAMPLE_RATE_HZ, Instruments, encoder, measure, torque_transducer
+from drivetrain.rig.instruments import RIG_SAMPLE_RATE_HZ, Instruments, encoder, measure, torque_transducer
 
 FS = RIG_SAMPLE_RATE_HZ
 
@@ -71,8 +71,8 @@ def test_a_run_with_rig_sensors(tmp_path):
     is bit-identical to a run that never heard of them."""
     from test_scene_effects import EXAMPLE, SHORT
 
-    from drivetrain.run import run_scene
-    from drivetrain.scenario import load_scene
+    from drivetrain.run.runner import run_scene
+    from drivetrain.scene.load import load_scene
 
     runs = {}
     for s in ("ideal", "rig"):

@@ -214,8 +214,8 @@ def runs_with_and_without(tmp_path_factory):
     the steady state), with the default errors (grade 6, seed 0) through the FMUs, and without them."""
     from test_scene_effects import EXAMPLE
 
-    from drivetrain.run import run_scene
-    from drivetrain.scenario import load_scene
+    from drivetrain.run.runner import run_scene
+    from drivetrain.scene.load import load_scene
 
     fmus = tmp_path_factory.mktemp("fmus_mfg")
     short = ["time.duration_s=3.5", "time.settle_s=0.5", "outputs.plots=false", "outputs.aalto_csv=false"]
@@ -232,7 +232,7 @@ def test_a_run_with_errors_shows_the_shaft_orders(runs_with_and_without, sensor,
     """The paper's healthy spectra have clear peaks at f_PSH and f_DSH: with the errors each shaft order
     stands >= 20 dB over the local floor (between the f_PSH lines); without them it is numerical noise,
     below 1e-3 of the peak with errors."""
-    from drivetrain.signals import amplitude_near, amplitude_spectrum, local_floor
+    from drivetrain.rig.signals import amplitude_near, amplitude_spectrum, local_floor
 
     peaks = {}
     for on, res in runs_with_and_without.items():
@@ -252,9 +252,9 @@ def test_a_run_with_errors_shows_the_shaft_orders(runs_with_and_without, sensor,
 def test_scene_keys_draw_from_the_seed_and_refuse_the_ideal_gear():
     from test_scene_effects import EXAMPLE
 
-    from drivetrain.assemble import manufacturing_errors
+    from drivetrain.run.assemble import manufacturing_errors
     from drivetrain.errors import ScenarioError
-    from drivetrain.scenario import load_scene
+    from drivetrain.scene.load import load_scene
 
     on = ["effects.manufacturing_errors=true"]
     a = manufacturing_errors(load_scene(EXAMPLE, overrides=on))

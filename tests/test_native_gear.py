@@ -1,4 +1,4 @@
-"""The Python-free GearContact (fidelity table, drivetrain.nativebuild): model description, no libpython,
+"""The Python-free GearContact (fidelity table, drivetrain.cosim.native_gear): model description, no libpython,
 agreement with the pythonfmu GearContact, FMU state rollback, refusals, the C host, the system swap.
 
 Both FMUs are built once per module from the example scene's gear (its 48 x 48 contact map comes from
@@ -36,8 +36,8 @@ needs_gcc = pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc not inst
 
 
 def _scene_gear(overrides=()):
-    from drivetrain.nativebuild import gear_parameters
-    from drivetrain.scenario import load_scene
+    from drivetrain.run.assemble import gear_parameters
+    from drivetrain.scene.load import load_scene
 
     return gear_parameters(load_scene(EXAMPLE, ["time.duration_s=1", *overrides]))
 
@@ -51,14 +51,14 @@ def gear():
 def native(tmp_path_factory, gear):
     if shutil.which("gcc") is None:
         pytest.skip("gcc not installed")
-    from drivetrain.nativebuild import build_native_gear
+    from drivetrain.cosim.native_gear import build_native_gear
 
     return build_native_gear(gear, tmp_path_factory.mktemp("native") / "GearContact.fmu")
 
 
 @pytest.fixture(scope="module")
 def pyfmu(tmp_path_factory):
-    from drivetrain.fmubuild import build_all
+    from drivetrain.cosim.build import build_all
 
     return build_all(tmp_path_factory.mktemp("pyfmus"), only=["GearContact"])[0]
 
@@ -235,7 +235,7 @@ def test_the_map_is_the_one_the_slave_steps_with(gear):
     """The native build and the pythonfmu slave translate the GearContact parameters with one function
     (gearcontact_fmu.fmu_parameters): the map (and manufacturing offset) the build writes is the one the
     slave's stage evaluates, for the example's gear and for a coarse faulty gear with pitch errors."""
-    from drivetrain.nativebuild import NEUTRAL, _probe_slave, _table_arrays
+    from drivetrain.cosim.native_gear import NEUTRAL, _probe_slave, _table_arrays
     from gearcontact_fmu.manufacturing_specs import draw_errors
     from gearcontact_fmu.params import BevelGearParams
 
@@ -353,7 +353,7 @@ def test_cli_refuses_with_a_message(tmp_path, capsys):
 def test_manufacturing_errors_match(tmp_path, pyfmu):
     """A map with manufacturing errors baked in (the offset is in the resource), tooth compliance set at
     run time: the same outputs as the pythonfmu GearContact."""
-    from drivetrain.nativebuild import build_native_gear
+    from drivetrain.cosim.native_gear import build_native_gear
 
     gear = _scene_gear(["effects.manufacturing_errors=true", "effects.tooth_compliance=true"])
     assert json.loads(gear["manufacturing_errors"])["pinion_position_um"]
@@ -369,8 +369,8 @@ def test_example_system_with_the_native_gear(native, tmp_path):
     one (Master's fmu_paths), every recorded torque within 1e-6 relative (measured: <= 2.7e-11; the native
     ros2 agrees to rounding, not bit for bit, see TOL)."""
     from drivetrain.cosim import simulate
-    from drivetrain.run import assemble_scene
-    from drivetrain.scenario import load_scene
+    from drivetrain.run.runner import assemble_scene
+    from drivetrain.scene.load import load_scene
 
     spec = assemble_scene(load_scene(EXAMPLE, ["time.duration_s=1"]))
     rec = ["gear.flange_a_tau", "gear.flange_b_tau", "gear.flange_a_tau_mean", "gear.flange_b_tau_mean",

@@ -1,4 +1,4 @@
-"""The Python-free FlexibleShaft, UpperTransmission and MotorLoad (drivetrain.nativeline): model description,
+"""The Python-free FlexibleShaft, UpperTransmission and MotorLoad (drivetrain.cosim.native_line): model description,
 no libpython, agreement with the pythonfmu FMUs (bit for bit), errors, FMU state rollback, the system swap.
 
 The native FMUs of the example are built once per session (native_fmus into conftest's native_cache_dir,
@@ -18,7 +18,7 @@ from fmpy.fmi1 import FMICallException  # noqa: E402
 from _fmi_instances import KEEP, open_instance  # noqa: E402
 from _fmi_instances import set_values as _set  # noqa: E402
 
-from drivetrain import fmishell  # noqa: E402
+from drivetrain.models import fmishell  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
@@ -35,10 +35,11 @@ def native_example(native_cache_dir):
     build_native_gear for the gear's map), from the session's cache of native builds."""
     if shutil.which("gcc") is None:
         pytest.skip("gcc not installed")
-    from drivetrain.nativeline import native_fmus
-    from drivetrain.scenario import load_scene
+    from drivetrain.cosim.native_line import native_fmus
+    from drivetrain.run.runner import assemble_scene
+    from drivetrain.scene.load import load_scene
 
-    paths, note = native_fmus(load_scene(EXAMPLE), native_cache_dir)
+    paths, note = native_fmus(assemble_scene(load_scene(EXAMPLE)), native_cache_dir)
     assert note is None and set(paths) == {*MODELS, "GearContact"}, (paths, note)
     return paths
 
@@ -238,7 +239,7 @@ def test_matches_the_pythonfmu_bit_for_bit(native, pyfmu, model, case):
                                          ("MotorLoad", "k_c2")])
 def test_the_comparison_sees_a_wrong_parameter(native, pyfmu, model, name):
     """The comparison has teeth: one parameter off by 1e-9 relative in one FMU breaks it."""
-    from drivetrain.components import COMPONENTS
+    from drivetrain.models.components import COMPONENTS
 
     default = getattr(COMPONENTS[model][1](), name)
     a = _drive(*_open(native[model]), model, N_STEPS)
@@ -385,12 +386,13 @@ def test_hostile_calls(native, model):
 def test_native_fmus_are_cached_and_a_non_table_gear_keeps_its_pythonfmu(tmp_path):
     """drivetrain run --native's cache: the three line FMUs once, found again by their fingerprints; a scene
     whose gear is not fidelity table gets the three and a note (and build-native refuses it)."""
-    from drivetrain.nativeline import native_fmus
-    from drivetrain.scenario import load_scene
+    from drivetrain.cosim.native_line import native_fmus
+    from drivetrain.run.runner import assemble_scene
+    from drivetrain.scene.load import load_scene
 
     if shutil.which("gcc") is None:
         pytest.skip("gcc not installed")
-    scene = load_scene(EXAMPLE, ["time.duration_s=0.1", "effects.mesh_contact=analytic"])
+    scene = assemble_scene(load_scene(EXAMPLE, ["time.duration_s=0.1", "effects.mesh_contact=analytic"]))
     paths, note = native_fmus(scene, tmp_path)
     assert set(paths) == set(MODELS)
     assert "fidelity 'analytic'" in note and "uses the pythonfmu GearContact" in note
@@ -407,8 +409,9 @@ def test_fingerprints_are_computed_once_per_process_and_anew_for_an_edited_sourc
     when a file it hashes changes; an operating point of the same gear is the same gear key."""
     import os
 
-    import drivetrain.nativeline as NL
-    from drivetrain.scenario import load_scene
+    import drivetrain.cosim.native_line as NL
+    from drivetrain.run.runner import assemble_scene
+    from drivetrain.scene.load import load_scene
 
     monkeypatch.setattr(NL, "_FINGERPRINTS", {})
     computed = []
@@ -417,15 +420,15 @@ def test_fingerprints_are_computed_once_per_process_and_anew_for_an_edited_sourc
     monkeypatch.setattr(NL, "_gear_fingerprint_now", lambda *a: computed.append("GearContact") or gear_now(*a))
     cc = os.environ.get("CC", "gcc")
 
-    paths, _ = NL.native_fmus(load_scene(EXAMPLE), native_cache_dir)
+    paths, _ = NL.native_fmus(assemble_scene(load_scene(EXAMPLE)), native_cache_dir)
     assert paths == native_example and sorted(computed) == sorted([*MODELS, "GearContact"])
     for m in MODELS:
         assert paths[m].name == f"{m}-{line_now(m, cc)[:16]}.fmu"
     other_point = load_scene(EXAMPLE, ["operating_point.drive_speed_rpm=900", "operating_point.load_torque_Nm=0.8"])
     for scene in (load_scene(EXAMPLE), other_point):
-        assert NL.native_fmus(scene, native_cache_dir)[0] == paths
+        assert NL.native_fmus(assemble_scene(scene), native_cache_dir)[0] == paths
     assert len(computed) == 4                                   # nothing computed again
-    fixed = NL.build_fixed(NL.scene_gear(load_scene(EXAMPLE))[0])
+    fixed = NL.build_fixed(NL.system_gear(assemble_scene(load_scene(EXAMPLE)))[0])
     assert NL._gear_fingerprint({**fixed, "z_pinion": 16}) != NL._gear_fingerprint(fixed)
     assert NL.line_fingerprint("MotorLoad", "no-such-cc") != NL.line_fingerprint("MotorLoad", cc)
     assert computed[4:] == ["GearContact", "MotorLoad"]
@@ -463,8 +466,8 @@ def test_example_system_with_all_four_native_fmus(native, native_example, pyfmu_
     pythonfmu FMUs; every recorded torque within 1e-9 relative (the native gear agrees to rounding; measured
     over 1 s: <= 2.3e-10), and with the three native line FMUs alone the very same run."""
     from drivetrain.cosim import simulate
-    from drivetrain.run import assemble_scene
-    from drivetrain.scenario import load_scene
+    from drivetrain.run.runner import assemble_scene
+    from drivetrain.scene.load import load_scene
 
     scene = load_scene(EXAMPLE, ["time.duration_s=0.5"])
     spec = assemble_scene(scene)
@@ -494,8 +497,8 @@ def test_backend_native_builds_one_gear_per_map_and_runs_like_fmi(pyfmu_dir, tmp
     """run_scene(backend="native") (drivetrain run --native, and every many-run command's --backend native):
     two operating points of one gear share one native GearContact (its cache key is what shapes the map, the
     start state is set per run), and the run gives the pythonfmu run's torques."""
-    from drivetrain.run import run_scene
-    from drivetrain.scenario import load_scene
+    from drivetrain.run.runner import run_scene
+    from drivetrain.scene.load import load_scene
 
     if shutil.which("gcc") is None:
         pytest.skip("gcc not installed")
@@ -517,8 +520,8 @@ def test_backend_native_builds_one_gear_per_map_and_runs_like_fmi(pyfmu_dir, tmp
 
 
 def test_backend_native_without_a_compiler_runs_on_the_pythonfmu_fmus_and_says_so(pyfmu_dir, monkeypatch):
-    from drivetrain.run import run_scene
-    from drivetrain.scenario import load_scene
+    from drivetrain.run.runner import run_scene
+    from drivetrain.scene.load import load_scene
 
     monkeypatch.setenv("CC", "no-such-compiler-cc")
     scene = load_scene(EXAMPLE, ["time.duration_s=0.05", "time.settle_s=0.01"])

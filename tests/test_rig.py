@@ -1,13 +1,15 @@
-"""Lumping and partition of the public model (drivetrain.rig), and the stability check of every cut."""
+"""Lumping and partition of the public model (drivetrain.rig.data), and the stability check of every cut."""
 import dataclasses
 import math
 
 import numpy as np
 import pytest
 
-from drivetrain import rig, stability
-from drivetrain.assemble import assemble
-from drivetrain.scenario import default_scene
+from drivetrain.rig import data as rig
+
+from drivetrain.models import stability
+from drivetrain.run.assemble import assemble
+from drivetrain.scene.load import default_scene
 
 H12 = 1.0 / 12000.0
 

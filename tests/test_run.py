@@ -11,14 +11,14 @@ import pytest
 
 from _cosim_test_fmus import build_test_fmus
 from drivetrain.cli import main
-from drivetrain.outputs import AALTO_COLUMNS, read_hdf5
-from drivetrain.run import SUMMARY_KEYS, run_scene
-from drivetrain.scenario import load_scene, load_scenes
+from drivetrain.run.outputs import AALTO_COLUMNS, read_hdf5
+from drivetrain.run.runner import SUMMARY_KEYS, run_scene
+from drivetrain.scene.load import load_scene, load_scenes
 from drivetrain.system import ComponentSpec, Connection, SystemSpec
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
-HAVE_ASSEMBLER = importlib.util.find_spec("drivetrain.assemble") is not None
+HAVE_ASSEMBLER = importlib.util.find_spec("drivetrain.run.assemble") is not None
 
 
 @pytest.fixture(scope="module")
@@ -92,7 +92,7 @@ def test_cli_refuses_malformed_scene_before_running(tmp_path, capsys):
 
 
 def test_sweep_local_processes(tmp_path, fmus):
-    from drivetrain.sweep import run_sweep
+    from drivetrain.campaigns.sweep import run_sweep
 
     scenes = [load_scene(EXAMPLE, ["time.duration_s=0.2", f"scenario.name=toy{i}", f"operating_point.load_torque_Nm={v}"])
               for i, v in enumerate((0.12, 1.31))]
@@ -149,7 +149,7 @@ def test_sweep_loses_no_work(tmp_path, fmus):
     made with other settings and dropped their metrics, --only overwrote the whole sweep's manifest,
     plots were written for scenes that said outputs.plots = false. (The cases run in this process:
     what is checked is the sweep's bookkeeping, not its process pool.)"""
-    from drivetrain.sweep import run_sweep
+    from drivetrain.campaigns.sweep import run_sweep
 
     def scenes(load=1.31):
         return [load_scene(EXAMPLE, ["time.duration_s=0.2", f"scenario.name=toy{i}", "outputs.plots=false",
@@ -180,7 +180,7 @@ def test_sweep_loses_no_work(tmp_path, fmus):
 
 def test_sweep_refuses_an_unwritable_out_before_running(tmp_path, fmus):
     from drivetrain.cosim import ConfigurationError
-    from drivetrain.sweep import run_sweep
+    from drivetrain.campaigns.sweep import run_sweep
 
     blocker = tmp_path / "file"
     blocker.write_text("not a directory")
@@ -219,7 +219,7 @@ def _check_example_output(out):
     return s
 
 
-@pytest.mark.skipif(not HAVE_ASSEMBLER, reason="drivetrain.assemble not available yet")
+@pytest.mark.skipif(not HAVE_ASSEMBLER, reason="drivetrain.run.assemble not available yet")
 def test_cli_run_example_fast_fidelity(tmp_path, capsys):
     """The example through the command line (analytic mesh: no contact map to build), in this process
     (`drivetrain.cli.main`; the console entry point in a fresh process: the slow test below and
@@ -233,7 +233,7 @@ def test_cli_run_example_fast_fidelity(tmp_path, capsys):
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not HAVE_ASSEMBLER, reason="drivetrain.assemble not available yet")
+@pytest.mark.skipif(not HAVE_ASSEMBLER, reason="drivetrain.run.assemble not available yet")
 def test_cli_run_example_as_shipped(tmp_path):
     """Exactly `drivetrain run scenarios/example.toml --set time.duration_s=0.5 --out tmp` (table fidelity:
     the first run builds the contact map, which takes long; later runs use the disk cache)."""
@@ -245,7 +245,7 @@ def test_cli_run_example_as_shipped(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not HAVE_ASSEMBLER, reason="drivetrain.assemble not available yet")
+@pytest.mark.skipif(not HAVE_ASSEMBLER, reason="drivetrain.run.assemble not available yet")
 def test_hard_scenes_finite(tmp_path, fmu_dir):
     for f in sorted((ROOT / "scenarios" / "hard").glob("*.toml")):
         scene = load_scenes(f)[0]
@@ -256,12 +256,12 @@ def test_hard_scenes_finite(tmp_path, fmu_dir):
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not HAVE_ASSEMBLER, reason="drivetrain.assemble not available yet")
+@pytest.mark.skipif(not HAVE_ASSEMBLER, reason="drivetrain.run.assemble not available yet")
 def test_paper_sweep_short_on_dask(tmp_path, fmu_dir):
     """All 54 paper scenes (shortened to 1 s) through a Dask LocalCluster executor."""
     from distributed import LocalCluster
 
-    from drivetrain.sweep import run_sweep
+    from drivetrain.campaigns.sweep import run_sweep
 
     scenes = load_scenes(ROOT / "scenarios" / "paper" / "paper.toml",
                          ["time.duration_s=1.0", "time.settle_s=0.5"])
@@ -272,7 +272,7 @@ def test_paper_sweep_short_on_dask(tmp_path, fmu_dir):
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not HAVE_ASSEMBLER, reason="drivetrain.assemble not available yet")
+@pytest.mark.skipif(not HAVE_ASSEMBLER, reason="drivetrain.run.assemble not available yet")
 def test_severe_scene_20s_step_halving_and_energy(tmp_path, fmu_dir):
     """The 20 s severe-fault scene at 1500 rpm, 1.31 N·m: halving H changes mean torques < 0.5 % and
     torque RMS < 2 %; the energy residual is < 1 % of the energy through the drivetrain."""
@@ -290,7 +290,7 @@ def test_severe_scene_20s_step_halving_and_energy(tmp_path, fmu_dir):
 
 
 @pytest.mark.slow
-@pytest.mark.skipif(not HAVE_ASSEMBLER, reason="drivetrain.assemble not available yet")
+@pytest.mark.skipif(not HAVE_ASSEMBLER, reason="drivetrain.run.assemble not available yet")
 @pytest.mark.parametrize("rpm", [500.0, 1500.0])
 def test_severe_fault_raises_first_sidebands(tmp_path, fmu_dir, rpm):
     """Spectra from the summary: f_GMF ± f_MSH rise by > 10 dB from healthy to severe at 1.31 N·m."""
@@ -319,8 +319,8 @@ def test_an_inprocess_run_leaves_pythonfmu_as_installed(tmp_path):
         import os, sys
         sys.path.insert(0, {str(Path(__file__).parent)!r})
         from pathlib import Path
-        from drivetrain.run import run_scene
-        from drivetrain.scenario import load_scene
+        from drivetrain.run.runner import run_scene
+        from drivetrain.scene.load import load_scene
         scene = load_scene({str(EXAMPLE)!r}, ["time.duration_s=0.02", "time.settle_s=0.005",
                                               "effects.mesh_contact=ideal", "outputs.plots=false"])
         run_scene(scene, None, backend="inprocess", progress=False, log=lambda m: None)

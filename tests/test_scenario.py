@@ -1,10 +1,10 @@
-"""Scene files: validation, overrides, grid expansion, shipped scenes (drivetrain.scenario)."""
+"""Scene files: validation, overrides, grid expansion, shipped scenes (drivetrain.scene.load)."""
 import itertools
 from pathlib import Path
 
 import pytest
 
-from drivetrain.scenario import (SCHEMA, ScenarioError, all_keys, load_scene, load_scenes, parse_override, resolve,
+from drivetrain.scene.load import (SCHEMA, ScenarioError, all_keys, load_scene, load_scenes, parse_override, resolve,
                                  scene_from_dict)
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -317,7 +317,7 @@ def test_a_sample_rate_that_would_stretch_the_run_is_refused():
 def test_grid_draws_random_faults_reproducibly(tmp_path):
     """[sweep.draw]: n cases per axes combination, each with faults drawn from the templates with the
     seed; the draws are in the resolved scenes (the run's labels) and the same on every load."""
-    from drivetrain.sweep import labels
+    from drivetrain.campaigns.sweep import labels
 
     text = """
 [scenario]

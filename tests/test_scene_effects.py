@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivetrain.assemble import assemble
-from drivetrain.run import run_scene
-from drivetrain.scenario import load_scene
+from drivetrain.run.assemble import assemble
+from drivetrain.run.runner import run_scene
+from drivetrain.scene.load import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
@@ -55,8 +55,8 @@ def test_ideal_gear_rigid_shafts_loads_no_contact_engine_and_no_shaft(tmp_path):
     """Run the scene in a fresh process (the FMUs run inside it) and look at what got imported."""
     code = f"""
 import sys, json
-from drivetrain.run import run_scene
-from drivetrain.scenario import load_scene
+from drivetrain.run.runner import run_scene
+from drivetrain.scene.load import load_scene
 scene = load_scene({str(EXAMPLE)!r}, overrides={SHORT!r} + ["effects.mesh_contact=ideal",
                     "effects.shaft_flexibility=rigid"])
 res = run_scene(scene, out_dir=None, progress=False, fmu_dir={str(tmp_path / 'fmus')!r})
@@ -128,7 +128,7 @@ def test_map_grid_and_integrator_reach_the_gear():
     """numerics.map_points_per_pitch / map_approach_points reach the GearContact parameters and the map
     that is built from them (nodes per pitch x teeth along the angle, nodes along the approach);
     numerics.mesh_integrator reaches the stage's scheme; a grid outside 2..4096 is refused by name."""
-    from drivetrain.stability import contact_inputs
+    from drivetrain.models.stability import contact_inputs
     from gearcontact_fmu.contact_map import get_map
     from gearcontact_fmu.params import MapGrid
 

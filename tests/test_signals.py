@@ -1,8 +1,8 @@
-"""Anti-alias decimation, spectra and characteristic frequencies (drivetrain.signals)."""
+"""Anti-alias decimation, spectra and characteristic frequencies (drivetrain.rig.signals)."""
 import numpy as np
 import pytest
 
-from drivetrain.signals import (amplitude_near, amplitude_spectrum, characteristic_frequencies, decimate,
+from drivetrain.rig.signals import (amplitude_near, amplitude_spectrum, characteristic_frequencies, decimate,
                                 decimation_factor, peak_frequency, to_db)
 
 

@@ -1,4 +1,4 @@
-"""`drivetrain export-ssp`: the scene's system as an SSP 1.0 archive (drivetrain.ssp).
+"""`drivetrain export-ssp`: the scene's system as an SSP 1.0 archive (drivetrain.interop.ssp).
 
 Structure against the assembled system (every connection, every parameter value and FMU byte for
 byte), refusals, and - marked ``hosts``, skipped when libcosimpy is not installed - the archive run in
@@ -17,9 +17,9 @@ import pytest
 from _hosts import assert_matches, master_torques, run_host, schedule, torque_refs
 
 from drivetrain.errors import ConfigurationError
-from drivetrain.run import assemble_scene
-from drivetrain.scenario import load_scene
-from drivetrain.ssp import PARAMETER_SET, SSD_NAME, export_ssp, system_connections
+from drivetrain.run.runner import assemble_scene
+from drivetrain.scene.load import load_scene
+from drivetrain.interop.ssp import PARAMETER_SET, SSD_NAME, export_ssp, system_connections
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
@@ -94,7 +94,7 @@ def test_time_profiles_go_to_the_parameters_that_carry_them(tmp_path, fmu_dir):
         ssv = ET.fromstring(z.read("resources/motors.ssv"))
     got = {p.get("name"): _value(p) for p in ssv.findall("ssv:Parameters/ssv:Parameter", NS)}
     assert "speed_ref_rpm" not in got and "load_torque" not in got
-    from drivetrain.components import parse_profile
+    from drivetrain.models.components import parse_profile
 
     for name, want in (("speed_profile", [[0.0, 0.0], [0.2, 1500.0]]), ("load_profile", [[0.0, 0.5], [0.3, 1.31]])):
         t, v = parse_profile(got[name])                  # read back as the FMU reads it

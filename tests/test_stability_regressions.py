@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivetrain.run import run_scene
-from drivetrain.scenario import load_scene
+from drivetrain.run.runner import run_scene
+from drivetrain.scene.load import load_scene
 
 SCENES = Path(__file__).resolve().parent / "scenes"
 ROOT = Path(__file__).resolve().parents[1]

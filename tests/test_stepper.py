@@ -73,8 +73,8 @@ def toy_spec(fail_at_s=-1.0, fail_mode=1):
 
 @pytest.fixture(scope="module")
 def example():
-    from drivetrain.run import assemble_scene
-    from drivetrain.scenario import load_scene
+    from drivetrain.run.runner import assemble_scene
+    from drivetrain.scene.load import load_scene
 
     scene = load_scene(EXAMPLE, ["time.duration_s=0.4", "time.settle_s=0.1"])
     return scene, assemble_scene(scene)
@@ -89,10 +89,10 @@ def test_example_pythonfmu_bit_identical(example, drivetrain_fmu_dir, monkeypatc
 
 
 def test_example_native_bit_identical(example, native_cache_dir, drivetrain_fmu_dir, monkeypatch, spy):
-    from drivetrain.nativeline import native_fmus
+    from drivetrain.cosim.native_line import native_fmus
 
     scene, spec = example
-    paths, note = native_fmus(scene, native_cache_dir, spec=spec)
+    paths, note = native_fmus(spec, native_cache_dir)
     assert note is None, note
     a, b = both(monkeypatch, spy, lambda: simulate(spec, 0.4, 3000.0, fmu_dir=drivetrain_fmu_dir,
                                                    fmu_paths=paths, keep_raw=True))

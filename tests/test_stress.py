@@ -1,4 +1,4 @@
-"""The stress campaign (drivetrain.stress, `drivetrain stress`): the seeded scene distribution, the
+"""The stress campaign (drivetrain.campaigns.stress, `drivetrain stress`): the seeded scene distribution, the
 judging of runs and halving pairs, the class table, and one tiny end-to-end campaign."""
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from drivetrain import stress as S
+from drivetrain.campaigns import stress as S
 from drivetrain.cli import main
-from drivetrain.scenario import FIDELITIES, SHAFT_MODELS
+from drivetrain.scene.load import FIDELITIES, SHAFT_MODELS
 
 N = 200
 

@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivetrain.outputs import read_hdf5
-from drivetrain.sweep import JOURNAL, read_runs
+from drivetrain.run.outputs import read_hdf5
+from drivetrain.campaigns.sweep import JOURNAL, read_runs
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -70,8 +70,8 @@ class _InThisProcess:
 def full_sweep(tmp_path_factory):
     """The grid run uninterrupted, in this process (the reference of the killed sweep, whose runs are in
     worker processes, and the sweep the dataset test truncates): (grid file, FMU directory, sweep directory)."""
-    from drivetrain.scenario import load_scenes
-    from drivetrain.sweep import run_sweep
+    from drivetrain.scene.load import load_scenes
+    from drivetrain.campaigns.sweep import run_sweep
 
     d = tmp_path_factory.mktemp("sweep_resume")
     grid = d / "kill.toml"
@@ -132,7 +132,7 @@ def test_a_dataset_of_a_killed_sweep_has_its_journaled_runs(tmp_path, full_sweep
     (a copy of the uninterrupted sweep, its manifest cut back to the first run)."""
     import shutil
 
-    from drivetrain.dataset import collect
+    from drivetrain.campaigns.dataset import collect
 
     out = tmp_path / "sweep"
     shutil.copytree(full_sweep[2], out)
@@ -148,8 +148,8 @@ def test_a_dataset_of_a_killed_sweep_has_its_journaled_runs(tmp_path, full_sweep
 def test_the_fingerprint_covers_version_sources_and_given_fmus(tmp_path, monkeypatch):
     """--resume reuses a run only if it would compute the same: a swapped-in FMU file (same path, other
     content) or another project version is another computation."""
-    import drivetrain.sweep as S
-    from drivetrain.scenario import load_scene
+    import drivetrain.campaigns.sweep as S
+    from drivetrain.scene.load import load_scene
 
     scene = load_scene(ROOT / "scenarios" / "example.toml")
     fmu = tmp_path / "GearContact.fmu"

@@ -66,9 +66,9 @@ def test_elastic_energy_is_the_work_of_the_torque(models):
 def test_scene_and_fmu_plumbing():
     from test_scene_effects import EXAMPLE
 
-    from drivetrain.assemble import assemble
+    from drivetrain.run.assemble import assemble
     from drivetrain.errors import ScenarioError
-    from drivetrain.scenario import load_scene
+    from drivetrain.scene.load import load_scene
 
     on = ["effects.tooth_compliance=true"]
     gear = [c for c in assemble(load_scene(EXAMPLE, overrides=on), check=False).components

@@ -7,11 +7,11 @@ from pathlib import Path
 
 import pytest
 
-from drivetrain import stability
+from drivetrain.models import stability
 from drivetrain.cli import main
 from drivetrain.cosim import ConfigurationError
-from drivetrain.run import assemble_scene, run_scene
-from drivetrain.scenario import load_scene
+from drivetrain.run.runner import assemble_scene, run_scene
+from drivetrain.scene.load import load_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
@@ -40,7 +40,7 @@ def test_u_max_below_the_static_penetration_is_refused_before_any_step(tmp_path)
 
 
 def test_static_contact_is_reported_with_the_default_u_max():
-    from drivetrain import rig
+    from drivetrain.rig import data as rig
 
     spec = assemble_scene(load_scene(EXAMPLE, ["time.duration_s=0.1"]))
     (rep,) = stability.check_contact_range(spec)

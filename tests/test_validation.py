@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivetrain import validation as V
-from drivetrain.outputs import write_hdf5
+from drivetrain.campaigns import validation as V
+from drivetrain.run.outputs import write_hdf5
 
 FS = 3000.0
 F = {"f_DSH": 25.0, "f_MSH": 25.0 / 3, "f_PSH": 25.0 / 12, "f_GMF": 125.0}

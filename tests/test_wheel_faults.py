@@ -15,9 +15,9 @@ import h5py
 import numpy as np
 import pytest
 
-from drivetrain.run import run_scene
-from drivetrain.scenario import resolve
-from drivetrain.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies, to_db
+from drivetrain.run.runner import run_scene
+from drivetrain.scene.load import resolve
+from drivetrain.rig.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies, to_db
 
 pytest.importorskip("fmpy")
 

@@ -16,7 +16,7 @@ from drivetrain.system import BACKENDS
 
 
 def _cmd_build_fmus(args: argparse.Namespace) -> int:
-    from drivetrain.fmubuild import build_all
+    from drivetrain.cosim.build import build_all
 
     paths = build_all(args.out, only=args.only)
     for p in paths:
@@ -39,7 +39,7 @@ def _write_from_scene(args: argparse.Namespace, write, what: str) -> int:
     """The export and build commands: load the scene of ``args``, ``write(scene, log)`` returns the lines
     to print; a scene or system refusal exits 2 with its problems, a file system error 2 naming ``what``."""
     from drivetrain.errors import ConfigurationError, ScenarioError
-    from drivetrain.scenario import load_scene
+    from drivetrain.scene.load import load_scene
 
     try:
         scene = load_scene(args.scene, args.set or (), case=args.case)
@@ -55,7 +55,7 @@ def _write_from_scene(args: argparse.Namespace, write, what: str) -> int:
 
 
 def _cmd_export_ssp(args: argparse.Namespace) -> int:
-    from drivetrain.ssp import export_ssp
+    from drivetrain.interop.ssp import export_ssp
 
     def write(scene, log):
         path = export_ssp(scene, args.out or f"{scene.name}.ssp", fmu_dir=args.fmu_dir, log=log, native=args.native)
@@ -66,7 +66,8 @@ def _cmd_export_ssp(args: argparse.Namespace) -> int:
 
 
 def _cmd_build_native_gear(args: argparse.Namespace) -> int:
-    from drivetrain.nativebuild import build_native_gear, gear_parameters
+    from drivetrain.cosim.native_gear import build_native_gear
+    from drivetrain.run.assemble import gear_parameters
 
     def write(scene, log):
         path = build_native_gear(gear_parameters(scene), args.out, log=log)
@@ -76,10 +77,11 @@ def _cmd_build_native_gear(args: argparse.Namespace) -> int:
 
 
 def _cmd_build_native(args: argparse.Namespace) -> int:
-    from drivetrain.nativeline import build_native_fmus
+    from drivetrain.cosim.native_line import build_native_fmus
+    from drivetrain.run.runner import assemble_scene
 
     def write(scene, log):
-        paths = build_native_fmus(scene, args.out, log=log)
+        paths = build_native_fmus(assemble_scene(scene), args.out, log=log)
         return [f"wrote {path}: native {model}" for model, path in paths.items()]
 
     return _write_from_scene(args, write, "the FMUs")
@@ -91,7 +93,7 @@ _FORCE_HELP = ("run even when the run is predicted to take more than 10x its sim
 
 def _cmd_run(args: argparse.Namespace) -> int:
     from drivetrain.cosim import ConfigurationError, CosimError
-    from drivetrain.scenario import ScenarioError, load_scene
+    from drivetrain.scene.load import ScenarioError, load_scene
 
     overrides = list(args.set or ())
     if args.tolerance is not None:
@@ -101,7 +103,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     except ScenarioError as exc:
         return _scene_errors(exc)
     out = args.out or f"out/{scene.name}"
-    from drivetrain.run import RunFailedError, run_scene
+    from drivetrain.run.runner import RunFailedError, run_scene
 
     fmu_paths, problems = {}, []
     for item in args.fmu or ():
@@ -175,10 +177,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
 def _cmd_eigen(args: argparse.Namespace) -> int:
     """``drivetrain eigen SCENE``: the natural frequencies of the scene's assembled drivetrain and the
     stability of every cut."""
-    from drivetrain.assemble import assemble
-    from drivetrain.eigen import describe_modes
-    from drivetrain.scenario import ScenarioError, load_scene
-    from drivetrain.stability import check_cuts
+    from drivetrain.run.assemble import assemble
+    from drivetrain.models.eigen import describe_modes
+    from drivetrain.scene.load import ScenarioError, load_scene
+    from drivetrain.models.stability import check_cuts
 
     try:
         scene = load_scene(args.scene, overrides=list(args.set or ()))
@@ -210,8 +212,8 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     ``assemble(scene, calibration=FILE)`` or the environment variable DRIVETRAIN_CALIBRATION). The
     coupling-stiffness factor is kept from the current calibration. ``--regenerate``: rewrite the shipped
     data/calibration.json (losses from the shipped table, then the coupling factor for 24 Hz)."""
-    from drivetrain import calibrate as C
-    from drivetrain import rig
+    from drivetrain.campaigns import calibrate as C
+    from drivetrain.rig import data as rig
 
     if args.regenerate:
         r = C.regenerate_shipped()
@@ -250,7 +252,7 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
 
 def _cmd_sweep(args: argparse.Namespace) -> int:
     from drivetrain.cosim import ConfigurationError
-    from drivetrain.scenario import ScenarioError, load_scenes
+    from drivetrain.scene.load import ScenarioError, load_scenes
 
     try:
         scenes = [s for path in args.scenes for s in load_scenes(path, args.set or ())]
@@ -261,7 +263,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         import fnmatch
 
         scenes = [s for s in scenes if any(fnmatch.fnmatch(s.name, pat) for pat in args.only)]
-    from drivetrain.sweep import run_sweep
+    from drivetrain.campaigns.sweep import run_sweep
 
     try:
         manifest = run_sweep(scenes, args.out, workers=args.workers, address=args.scheduler,
@@ -290,10 +292,10 @@ def _command_line(subcommand: str) -> str:
 def _cmd_validate(args: argparse.Namespace) -> int:
     import time
 
-    from drivetrain import validation as V
+    from drivetrain.campaigns import validation as V
     from drivetrain.cosim import ConfigurationError
-    from drivetrain.scenario import ScenarioError
-    from drivetrain.sweep import run_sweep
+    from drivetrain.scene.load import ScenarioError
+    from drivetrain.campaigns.sweep import run_sweep
 
     t0 = time.perf_counter()
     base = Path(args.scene) if args.scene else Path(__file__).resolve().parents[2] / "scenarios" / "example.toml"
@@ -342,10 +344,10 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 def _cmd_accuracy_cost(args: argparse.Namespace) -> int:
     import time
 
-    from drivetrain import accuracy_study as S
-    from drivetrain.accuracy import RESULTS_FILE, STUDY_DURATION_S, STUDY_SETTLE_S
+    from drivetrain.campaigns import accuracy_study as S
+    from drivetrain.run.accuracy import RESULTS_FILE, STUDY_DURATION_S, STUDY_SETTLE_S
     from drivetrain.cosim import ConfigurationError
-    from drivetrain.outputs import jsonable
+    from drivetrain.run.outputs import jsonable
 
     t0 = time.perf_counter()
     command = _command_line("accuracy-cost")
@@ -383,7 +385,7 @@ def _cmd_accuracy_cost(args: argparse.Namespace) -> int:
 
 
 def _cmd_dataset(args: argparse.Namespace) -> int:
-    from drivetrain.dataset import DatasetError, export
+    from drivetrain.campaigns.dataset import DatasetError, export
 
     try:
         path = export(args.sweep_dir, args.format, args.out)
@@ -418,8 +420,8 @@ def _stress_command(args: argparse.Namespace) -> str:
 
 def _cmd_stress(args: argparse.Namespace) -> int:
     from drivetrain.cosim import ConfigurationError
-    from drivetrain.scenario import ScenarioError
-    from drivetrain.stress import regenerate_report, run_stress
+    from drivetrain.scene.load import ScenarioError
+    from drivetrain.campaigns.stress import regenerate_report, run_stress
 
     log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
     out = Path(args.out)
@@ -452,10 +454,10 @@ def _cmd_stress(args: argparse.Namespace) -> int:
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
-    """Run scenes and check them against their [expect] section and baseline (drivetrain.check)."""
-    from drivetrain.check import CheckReport, check_scenes, format_table, select
+    """Run scenes and check them against their [expect] section and baseline (drivetrain.campaigns.check)."""
+    from drivetrain.campaigns.check import CheckReport, check_scenes, format_table, select
     from drivetrain.cosim import ConfigurationError
-    from drivetrain.scenario import ScenarioError, load_scenes
+    from drivetrain.scene.load import ScenarioError, load_scenes
 
     try:
         files = [(path, select(load_scenes(path, args.set or ()), args.only)) for path in args.scenes]
@@ -480,10 +482,10 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
 
 def _cmd_baseline(args: argparse.Namespace) -> int:
-    """Run scenes and store their compact references (drivetrain.check.baseline_file)."""
-    from drivetrain.check import baseline_file
+    """Run scenes and store their compact references (drivetrain.campaigns.check.baseline_file)."""
+    from drivetrain.campaigns.check import baseline_file
     from drivetrain.cosim import ConfigurationError
-    from drivetrain.scenario import ScenarioError
+    from drivetrain.scene.load import ScenarioError
 
     log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
     bad = 0

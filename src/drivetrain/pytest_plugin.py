@@ -5,9 +5,9 @@ installed ``pytest scenarios/ --junitxml=report.xml`` collects every ``*.toml`` 
 paths that has an ``[expect]`` section (or ``[sweep.expect]`` tables), or a baseline file: one item per
 scene, one per case of a grid file (``paper.toml::paper_severe_1500rpm_1.31Nm``). Each item runs its
 scene in the test process (pytest-xdist spreads items over workers) and checks it like
-``drivetrain check`` (:mod:`drivetrain.check`); a failure lists every failing metric with expected,
+``drivetrain check`` (:mod:`drivetrain.campaigns.check`); a failure lists every failing metric with expected,
 actual and tolerance, and writes a plot against the baseline. Items of long scenes carry the ``slow``
-marker (``[check] slow``, or the duration rule of :func:`drivetrain.expect.is_slow`), so the usual
+marker (``[check] slow``, or the duration rule of :func:`drivetrain.scene.expect.is_slow`), so the usual
 ``-m 'not slow'`` selection applies. Other ``.toml`` files (pyproject.toml, scenes without checks) are
 not collected; ``pytest -p no:drivetrain`` or ``--no-drivetrain-scenes`` switches the plugin off.
 
@@ -48,8 +48,8 @@ def pytest_configure(config):
 
 def _wants_scene(path: Path) -> bool:
     """A scene file with something to check: [expect], [sweep.expect] or a baseline file."""
-    from drivetrain.baseline import baseline_path
-    from drivetrain.scenario import ScenarioError, read_toml
+    from drivetrain.campaigns.baseline import baseline_path
+    from drivetrain.scene.load import ScenarioError, read_toml
 
     try:
         raw = read_toml(path)
@@ -77,8 +77,8 @@ class SceneFile(pytest.File):
     """A scene or grid file: one item per case."""
 
     def collect(self):
-        from drivetrain.expect import is_slow
-        from drivetrain.scenario import load_scenes
+        from drivetrain.scene.expect import is_slow
+        from drivetrain.scene.load import load_scenes
 
         scenes = load_scenes(self.path, self.config.getoption("drivetrain_set") or ())
         self._scenes = scenes
@@ -93,7 +93,7 @@ class SceneFile(pytest.File):
     def baseline(self):
         """(baseline file, {case: Entry}), read once per file (per process)."""
         if not hasattr(self, "_baseline"):
-            from drivetrain.check import load_baseline_for
+            from drivetrain.campaigns.check import load_baseline_for
 
             self._baseline = load_baseline_for(self.path, self._scenes,
                                                self.config.getoption("drivetrain_baseline_dir"))
@@ -128,7 +128,7 @@ class SceneItem(pytest.Item):
         return Path(tempfile.mkdtemp(prefix=f"drivetrain-{self.scene.name}-"))
 
     def runtest(self):
-        from drivetrain.check import check_run, run_case
+        from drivetrain.campaigns.check import check_run, run_case
 
         bp, cases = self.parent.baseline()
         run = run_case(self.scene, None, fmu_dir=self._fmu_dir(),

@@ -4,12 +4,12 @@
   escaping (user text is never a printf format) and the value-reference guard (FMI 2.0 error
   semantics for unknown value references).
 - ``slave_template``: the one template the drivetrain component slaves (FlexibleShaft,
-  UpperTransmission, MotorLoad) are generated from at build time (``drivetrain.fmubuild``).
+  UpperTransmission, MotorLoad) are generated from at build time (``drivetrain.cosim.build``).
 - :func:`check_runtime`: the first thing a slave script does after finding its packages: it names
   a missing Python package where a host shows it.
 
 The physics packages (``gearcontact_fmu``, ``drivetrain``'s models) never import pythonfmu; only the
-FMU shells (``gearcontact_fmu/slaves/GearContact.py``, ``drivetrain.fmishell``) and this package do.
+FMU shells (``gearcontact_fmu/slaves/GearContact.py``, ``drivetrain.models.fmishell``) and this package do.
 """
 import importlib.util
 import sys

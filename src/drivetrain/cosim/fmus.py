@@ -2,7 +2,7 @@
 
 - ``ensure_fmus(models, fmu_dir)``: the paths of the models' FMUs; a missing FMU, or one built from other
   package sources than the current ones (``sources_hash``: SHA-256 of the sources that run inside FMUs,
-  recorded per model in ``<fmu_dir>/.sources-hash.json``), is (re)built with ``drivetrain.fmubuild``
+  recorded per model in ``<fmu_dir>/.sources-hash.json``), is (re)built with ``drivetrain.cosim.build``
   under a file lock, and the stamp is written (``record_built``, the one writer of the stamp).
 - ``extracted_dir(path)``: ``fmpy.extract`` once per FMU file and process, under a private root.
 - ``load_fmu_info(path)``: the model description as plain data (``FMUInfo``, ``VarInfo``).
@@ -23,6 +23,7 @@ from typing import Any, Callable, Sequence
 import drivetrain
 import fmu_runtime
 import gearcontact_fmu
+from drivetrain.cosim.bundle import fmu_files
 from drivetrain.errors import ConfigurationError
 from gearcontact_fmu.locks import file_lock
 
@@ -31,15 +32,6 @@ PORT_UNITS = {"phi": "rad", "w": "rad/s", "tau": "N.m"}
 #: the energy counters every FMU of the project reports (the audit's inputs)
 ENERGY_VARS = ("energy_supplied", "energy_stored", "energy_dissipated")
 _UNIT_SYNONYMS = {"N·m": "N.m", "Nm": "N.m", "N*m": "N.m", "N m": "N.m", "rad.s-1": "rad/s", "1/s": "1/s"}
-
-#: Modules and sub-packages of the packages that never run inside an FMU (excluded from the staleness hash).
-HOST_ONLY_MODULES = {
-    "drivetrain": {"cli.py", "master.py", "run.py", "sweep.py", "outputs.py", "signals.py", "scenario.py",
-                   "assemble.py", "eigen.py", "calibrate.py", "fmubuild.py", "stress.py", "expect.py",
-                   "baseline.py", "check.py", "pytest_plugin.py", "dataset.py", "stability.py", "nativebuild.py",
-                   "cosim"},
-    "gearcontact_fmu": set(),
-}
 
 
 @dataclass(frozen=True)
@@ -146,12 +138,12 @@ def _package_dirs() -> dict[str, Path]:
 @functools.lru_cache(maxsize=1)
 def _sources_hash_cached(stamp: tuple) -> str:
     h = hashlib.sha256()
-    for pkg, d in sorted(_package_dirs().items()):
+    dirs = _package_dirs()
+    fmu_side = set(fmu_files(dirs))
+    for pkg, d in sorted(dirs.items()):
         for f in sorted(d.rglob("*.py")):
             rel = f.relative_to(d)
-            if len(rel.parts) == 1 and rel.name in HOST_ONLY_MODULES.get(pkg, ()):
-                continue
-            if "__pycache__" in rel.parts:
+            if f not in fmu_side:          # host-only (cosim.bundle: derived from the imports)
                 continue
             h.update(f"{pkg}/{rel.as_posix()}\0".encode())
             h.update(f.read_bytes())
@@ -160,7 +152,7 @@ def _sources_hash_cached(stamp: tuple) -> str:
 
 
 def sources_hash() -> str:
-    """SHA-256 of the package sources that end up in (and run inside) the FMUs."""
+    """SHA-256 of the package sources that run inside the FMUs (:func:`drivetrain.cosim.bundle.fmu_modules`)."""
     stamp = []
     for pkg, d in sorted(_package_dirs().items()):
         for f in sorted(d.rglob("*.py")):
@@ -206,13 +198,13 @@ def ensure_fmus(models: Sequence[str], fmu_dir: Path | str = "fmus", build: bool
             if todo:
                 current = sources_hash()
                 try:
-                    from drivetrain.fmubuild import build_all
+                    from drivetrain.cosim.build import build_all
                 except ImportError as exc:
                     missing = [m for m in todo if not (fmu_dir / f"{m}.fmu").is_file()]
                     if missing:
                         raise ConfigurationError(
                             [f"FMU {fmu_dir / (m + '.fmu')} is missing and cannot be built "
-                             f"(drivetrain.fmubuild unavailable: {exc})" for m in missing]) from None
+                             f"(drivetrain.cosim.build unavailable: {exc})" for m in missing]) from None
                     if log:
                         log(f"FMUs {todo} may be stale; cannot rebuild ({exc}); using them as they are")
                 else:

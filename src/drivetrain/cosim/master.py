@@ -5,7 +5,7 @@ What it does, in order (see ``docs/MASTER.md``):
 1. **Resolve FMUs** for the models in the :class:`~drivetrain.system.SystemSpec` (``fmus/<Model>.fmu``).
    A missing FMU, or one built from other package sources than the current ones (a SHA-256 of the
    package sources, recorded per model in ``<fmu_dir>/.sources-hash.json``), is (re)built with
-   ``drivetrain.fmubuild.build_all`` under a file lock.
+   ``drivetrain.cosim.build.build_all`` under a file lock.
 2. **Check** everything from the model descriptions, before instantiating: every connection joins a
    spring-side port (inputs ``phi``, ``w``; output ``tau``) to an inertia-side port (input ``tau``;
    outputs ``phi``, ``w``) with identical, expected units (rad, rad/s, N.m); parameters exist, are
@@ -25,7 +25,7 @@ What it does, in order (see ``docs/MASTER.md``):
    :class:`CosimResult` of the completed part (``status "failed"``, ``failure``: time, FMU, function,
    cause, and every FMU's outputs read after the failure, each read guarded).
 5. **Decimate** the recorded channels to the output rate (zero-phase anti-alias low-pass, see
-   :mod:`drivetrain.signals`; after a failure the whole output samples before it) and run the
+   :mod:`drivetrain.rig.signals`; after a failure the whole output samples before it) and run the
    **energy audit** (marked unavailable for a failed run). Variables asked for with ``final=`` (e.g.
    cumulative counters) are read once after the last step (and at a failure).
 6. **Tear down** every instance (terminate unless the FMU failed fatally, freeInstance), also on errors.
@@ -53,7 +53,7 @@ from drivetrain.cosim.plan import ExchangePlan, check_comm_step, check_system, i
 from drivetrain.cosim.slaves import FmiCallbacks, FmiSlave, InprocSlave, Slave
 from drivetrain.cosim.stepper import CALLS, Stepper, load_stepper
 from drivetrain.errors import FMI_STATUS, ConfigurationError, CosimError
-from drivetrain.signals import decimate
+from drivetrain.rig.signals import decimate
 from drivetrain.system import SystemSpec
 
 #: messages for the user (progress, warnings); the CLI passes its own ``log``, a library caller sees them
@@ -167,7 +167,7 @@ class Master:
     fmu_dir : where ``<Model>.fmu`` live and are built on demand (default ``fmus``).
     backend : ``"fmi"`` (fmpy FMU2Slave) or ``"inprocess"`` (the same slave classes without FMI).
     fmu_paths : explicit ``{model: path}``; these are used as they are (no building).
-    build : build missing/stale FMUs with ``drivetrain.fmubuild.build_all``.
+    build : build missing/stale FMUs with ``drivetrain.cosim.build.build_all``.
     """
 
     def __init__(self, spec: SystemSpec, fmu_dir: str | Path = "fmus", backend: str = "fmi",

@@ -2,7 +2,7 @@
  *
  * A C port of the Python model behind the pythonfmu GearContact FMU, for the table fidelity in stage
  * mode (docs/FMU.md, "A Python-free GearContact"):
- *   1. the contact map, read from resources/contact_map.bin (written by drivetrain.nativebuild);
+ *   1. the contact map, read from resources/contact_map.bin (written by drivetrain.cosim.native_gear);
  *   2. table_eval and the manufacturing-error offset   (gearcontact_fmu/contact_map.py, manufacturing.py)
  *   3. the stage integrator: ros2 / rk4, sub-step halving, counters   (gearcontact_fmu/stage.py)
  *   4. the energy-conserving coupling correction                      (gearcontact_fmu/coupling.py)

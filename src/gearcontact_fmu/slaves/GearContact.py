@@ -221,9 +221,9 @@ class GearContact(Fmi2Slave):
     author = "bevel-drivetrain"
     version = gearcontact_fmu.__version__
     default_experiment = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=DEFAULT_COMM_STEP_S)
-    can_get_and_set_fmu_state = True   # read by drivetrain.fmubuild (canGetAndSetFMUstate)
+    can_get_and_set_fmu_state = True   # read by drivetrain.cosim.build (canGetAndSetFMUstate)
 
-    # read by drivetrain.fmubuild and nativebuild (modelDescription units and descriptions)
+    # read by drivetrain.cosim.build and nativebuild (modelDescription units and descriptions)
     units = {v.name: v.unit for v in VARIABLES if v.unit}
     variable_descriptions = {v.name: v.description for v in VARIABLES}
 
@@ -343,7 +343,7 @@ class GearContact(Fmi2Slave):
 
     def _build(self):
         """Build the stage from the parameters (gearcontact_fmu.fmu_parameters.build_stage: the native
-        builder, drivetrain.nativebuild, takes its contact map from the same translation)."""
+        builder, drivetrain.cosim.native_gear, takes its contact map from the same translation)."""
         from gearcontact_fmu.fmu_parameters import build_stage
 
         self._stage = build_stage(self._parameter_values())

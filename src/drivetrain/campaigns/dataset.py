@@ -1,0 +1,186 @@
+"""A labelled dataset from a sweep directory: every run's signals with its labels, in one file set.
+
+``drivetrain dataset SWEEP_DIR --format parquet|hdf5|aalto [--out PATH]`` reads the sweep's
+records (``manifest.json``, with the journal ``manifest.jsonl`` of a killed sweep) and each listed run's ``signals.h5`` (completed runs, and the completed part of
+failed runs, marked by ``status``) and writes:
+
+- ``parquet``: one table, one row per sample: ``run``, ``time_s``, one column per channel (NaN where a
+  run did not record it), and the run's labels repeated on every row (pyarrow; dictionary-encoded, so
+  the repetition costs little). ``pandas.read_parquet("dataset.parquet")``.
+- ``hdf5``: ``/labels/<label>`` (one entry per run, in run order; strings UTF-8) and
+  ``/runs/<run>/time`` and ``/runs/<run>/<channel>`` (unit in the dataset's ``unit`` attribute).
+  ``h5py.File("dataset.h5")``.
+- ``aalto``: a directory with ``<run>.csv`` in the Aalto Gear Fault Dataset layout (time, enc1..enc5,
+  Torq1, Torq2) and ``labels.csv`` (one row per run). ``pandas.read_csv("labels.csv")``.
+
+Labels of a run: ``run``, ``status``, ``failure_time_s``, ``energy_residual`` and every key of its
+resolved scene as ``section.key`` (operating point, gear health and fault mesh files, effects,
+numerics, time; lists such as speed profiles as JSON text), so a label names the setting exactly as a
+scene file does.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drivetrain.errors import DatasetError  # noqa: F401  (re-exported)
+from drivetrain.run.outputs import read_hdf5, write_aalto_csv
+from drivetrain.campaigns.sweep import read_runs
+
+FORMATS = ("parquet", "hdf5", "aalto")
+DEFAULT_NAMES = {"parquet": "dataset.parquet", "hdf5": "dataset.h5", "aalto": "dataset_aalto"}
+
+
+def _label_value(v: Any):
+    if v is None or isinstance(v, (bool, int, float, str)):
+        return v
+    return json.dumps(v, sort_keys=True, default=str)
+
+
+def run_labels(name: str, record: dict, scene: dict, summary: dict | None) -> dict:
+    """The labels of one run (see the module docstring)."""
+    labels: dict[str, Any] = {"run": name, "status": record.get("status", "ok"),
+                              "failure_time_s": record.get("failure_time_s"),
+                              "energy_residual": record.get("energy_residual")}
+    for section, keys in sorted(scene.items()):
+        if section in ("expect", "check") or not isinstance(keys, dict):
+            continue
+        for key, value in sorted(keys.items()):
+            labels[f"{section}.{key}"] = _label_value(value)
+    # each fault of health = "faults" also as columns of its own: fault0.kind, fault0.member, fault0.tooth, ...
+    for i, fault in enumerate((scene.get("gear") or {}).get("faults") or []):
+        for key, value in fault.items():
+            labels[f"fault{i}.{key}"] = _label_value(value)
+    return labels
+
+
+def collect(sweep_dir: Path | str) -> list[dict]:
+    """[{"name", "labels", "time", "signals", "units"}] of every run of the sweep that wrote signals."""
+
+    d = Path(sweep_dir)
+    try:
+        records = read_runs(d)           # the manifest, with the journal's runs of a killed sweep
+    except OSError as exc:
+        raise DatasetError(f"{d}: no readable manifest.json or manifest.jsonl ({exc}); is it a sweep "
+                           "directory?") from None
+    runs = []
+    for rec in records:
+        name = rec.get("name")
+        sig = d / str(name) / "signals.h5"
+        if not name or not sig.is_file():
+            continue
+        try:
+            h = read_hdf5(sig)
+        except Exception as exc:  # noqa: BLE001 - name the file, whatever h5py says
+            raise DatasetError(f"{sig}: unreadable ({type(exc).__name__}: {exc})") from None
+        scene = (h.get("scene") or {}).get("scene") or h.get("scene") or {}
+        summary = json.loads(h["attrs"]["summary_json"]) if "summary_json" in h["attrs"] else None
+        runs.append({"name": name, "labels": run_labels(name, rec, scene, summary), "time": h["time"],
+                     "signals": h["signals"], "units": h["units"]})
+    if not runs:
+        raise DatasetError(f"{d}: the manifest lists no run with signals")
+    return runs
+
+
+def _label_columns(runs: list[dict]) -> list[str]:
+    cols: list[str] = []
+    for r in runs:
+        cols += [k for k in r["labels"] if k not in cols]
+    return cols
+
+
+def write_parquet(runs: list[dict], path: Path) -> Path:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    channels = sorted({c for r in runs for c in r["signals"]})
+    label_cols = _label_columns(runs)
+    tables = []
+    for r in runs:
+        n = len(r["time"])
+        cols = {"run": pa.array([r["name"]] * n).dictionary_encode(), "time_s": pa.array(r["time"])}
+        for c in channels:
+            x = r["signals"].get(c)
+            cols[c] = pa.array(np.asarray(x, dtype=float) if x is not None else np.full(n, np.nan))
+        for k in label_cols:
+            if k == "run":
+                continue
+            v = r["labels"].get(k)
+            arr = pa.array([v] * n) if v is not None else pa.nulls(n)
+            cols[f"label.{k}" if k in channels or k in ("time_s",) else k] = arr
+        tables.append(pa.table(cols))
+    table = pa.concat_tables(tables, promote_options="default")
+    units = {c: next((r["units"].get(c, "") for r in runs if c in r["units"]), "") for c in channels}
+    table = table.replace_schema_metadata({"drivetrain.units": json.dumps(units),
+                                           "drivetrain.labels": json.dumps(label_cols)})
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    pq.write_table(table, tmp)
+    tmp.replace(path)
+    return path
+
+
+def write_hdf5(runs: list[dict], path: Path) -> Path:
+    import h5py
+
+    label_cols = _label_columns(runs)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    with h5py.File(tmp, "w") as f:
+        f.attrs["format"] = "drivetrain-dataset/1"
+        f.attrs["runs"] = json.dumps([r["name"] for r in runs])
+        lab = f.create_group("labels")
+        for k in label_cols:
+            vals = [r["labels"].get(k) for r in runs]
+            if all(isinstance(v, (int, float)) and not isinstance(v, bool) or v is None for v in vals) and \
+                    any(v is not None for v in vals):
+                lab.create_dataset(k, data=np.array([np.nan if v is None else float(v) for v in vals]))
+            elif all(isinstance(v, bool) for v in vals):
+                lab.create_dataset(k, data=np.array(vals, dtype=bool))
+            else:
+                lab.create_dataset(k, data=["" if v is None else str(v) for v in vals],
+                                   dtype=h5py.string_dtype("utf-8"))
+        grp = f.create_group("runs")
+        for r in runs:
+            g = grp.create_group(r["name"])
+            g.create_dataset("time", data=r["time"])
+            for c, x in r["signals"].items():
+                ds = g.create_dataset(c, data=x)
+                ds.attrs["unit"] = r["units"].get(c, "")
+    tmp.replace(path)
+    return path
+
+
+def write_aalto(runs: list[dict], path: Path) -> Path:
+    import csv
+
+
+    path.mkdir(parents=True, exist_ok=True)
+    label_cols = _label_columns(runs)
+    for r in runs:
+        write_aalto_csv(path / f"{r['name']}.csv", r["time"], r["signals"])
+    with open(path / "labels.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=label_cols)
+        w.writeheader()
+        for r in runs:
+            w.writerow({k: r["labels"].get(k) for k in label_cols})
+    return path
+
+
+WRITERS = {"parquet": write_parquet, "hdf5": write_hdf5, "aalto": write_aalto}
+
+
+def export(sweep_dir: Path | str, fmt: str = "parquet", out: Path | str | None = None) -> Path:
+    """Write the dataset of a sweep directory; returns the written path."""
+    if fmt not in WRITERS:
+        raise DatasetError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
+    runs = collect(sweep_dir)
+    path = Path(out) if out else Path(sweep_dir) / DEFAULT_NAMES[fmt]
+    return WRITERS[fmt](runs, path)
+
+
+__all__ = ["FORMATS", "DatasetError", "collect", "export", "run_labels", "write_parquet", "write_hdf5",
+           "write_aalto"]

@@ -1,0 +1,497 @@
+"""Sweeps: many scenes in parallel, one result directory (one HDF5) per run plus a manifest.
+
+One picklable ``simulate(case)`` function runs a case in whatever process it lands in. FMUs are never
+pickled: each worker process extracts and loads them once (the master's per-process caches) and reuses
+them for every case it runs. The executor is a local ``concurrent.futures.ProcessPoolExecutor`` by
+default, or ``distributed.Client(address).get_executor()`` when a Dask scheduler address is given; the
+same function runs unchanged on both. Before any case is dispatched the parent assembles every scene
+(the workers run exactly these SystemSpecs), builds missing or stale FMUs once, and prepares the disk
+caches that component initialisation would build (contact maps of ``table`` gears: Dask workers are
+daemonic processes and cannot start the map builder's process pool). Never do several processes write one HDF5: each run writes its own directory.
+
+Manifest: ``<out>/manifest.json`` (full) and ``<out>/manifest.csv`` (one row per run: name, status,
+paths, wall time, real-time factor, mean torques, energy residual, the swept scene values, failure time
+and FMU, the main stability numbers). Every record has ``status`` ("ok" | "failed") and, when the run got
+as far as stepping, ``stability`` (= its summary's stability block). A run whose FMU failed mid-run
+wrote its partial files: its record has ``status = "failed"``, ``error``, ``failure_time_s``,
+``failed_fmu``, ``failure_cause``, ``failure`` (time_s, component, model, function, status, cause),
+``partial = true`` and the paths ``signals``/``summary``; the sweep
+goes on with the other runs.
+
+Nothing is lost to a kill: each finished run's record is appended to the journal
+``<out>/manifest.jsonl`` the moment it ends (one JSON line, one ``write`` on an append-only file, then
+``fsync``: a kill leaves whole lines, at most a torn last one, which readers skip). The full manifest is
+rewritten atomically (temporary file + rename) at the start, at most every ``MANIFEST_EVERY_S`` while
+runs finish, and at the end, with ``complete = false`` until the last run: a sweep of thousands of runs
+does not rewrite a growing manifest after each one. :func:`read_runs` gives every record of a sweep
+directory, the manifest's updated by the journal's, so a killed sweep's last runs are never missing
+(the dataset export and ``--only``/``--resume`` read it).
+
+Each run directory holds ``case.json``: the resolved scene and the fingerprint of scene, project
+version, model sources and any explicitly given FMU files. ``skip_existing`` reuses a finished run only
+when that fingerprint matches (otherwise it runs again and says why), and a reused run keeps its
+metrics in the manifest.
+``grid_names`` (all cases of the sweep, of which ``scenes`` may be a selection, e.g. ``--only``): records
+of other cases already in the manifest are kept, not dropped. A run directory is cleared of earlier
+outputs before its run writes.
+"""
+from __future__ import annotations
+
+import concurrent.futures as cf
+import csv
+import functools
+import json
+import logging
+import os
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+from drivetrain import __version__
+
+from drivetrain.run import cost as runcost
+from drivetrain.cosim import ConfigurationError
+from drivetrain.cosim import simulate as simulate_system
+from drivetrain.cosim import sources_hash
+from drivetrain.run.outputs import jsonable
+from drivetrain.run.runner import RunFailedError, assemble_scene, run_scene
+from drivetrain.scene.load import Scene, resolve
+from drivetrain.system import SystemSpec
+from gearcontact_fmu.params import file_sha256
+
+#: messages for the user (progress, warnings); the CLI passes its own ``log``, a library caller sees them
+#: through Python logging (on stderr when logging is not configured)
+_LOG = logging.getLogger(__name__)
+
+
+def make_case(scene: Scene, out_dir: Path, *, backend: str = "fmi", fmu_dir: str | Path = "fmus",
+              plots: bool | None = None, spec=None, fmu_paths: dict | None = None, force: bool = False) -> dict:
+    """A picklable description of one run (the scene as plain data, not the Scene object). ``plots``:
+    None = as the scene says (``outputs.plots``), False = never."""
+    return {
+        "name": scene.name,
+        "scene": scene.to_dict(),
+        "source": str(scene.source) if scene.source else None,
+        "overrides": list(scene.overrides),
+        "out_dir": str(out_dir),
+        "backend": backend,
+        "fmu_dir": str(Path(fmu_dir).resolve()),
+        "plots": plots,
+        "fingerprint": fingerprint(scene, fmu_paths),
+        "spec": spec,
+        "fmu_paths": {k: str(v) for k, v in (fmu_paths or {}).items()} or None,
+        "force": bool(force),
+    }
+
+
+def labels(scene: dict) -> dict:
+    """The labels of a run for dataset users: the gear's health and its faults (each with every default
+    filled in, random draws included), from the resolved scene."""
+    gear = scene.get("gear", {})
+    return {"health": gear.get("health"), "faults": list(gear.get("faults") or [])}
+
+
+#: files a run writes into its directory (cleared before the run, so nothing stale stays beside it)
+RUN_OUTPUTS = ("signals.h5", "summary.json", "sensors.csv", "case.json")
+
+
+def fingerprint(scene: Scene, fmu_paths: dict | None = None) -> str:
+    """Identity of what a run computes: the resolved scene, the project version, the sources of the models
+    and FMUs, and the content of explicitly given FMUs (a swapped-in FMU is another computation)."""
+    import hashlib
+
+    text = json.dumps(jsonable(scene.to_dict()), sort_keys=True, default=str)
+    h = hashlib.sha256(f"{text}|{__version__}|{sources_hash()}".encode())
+    for model, path in sorted((fmu_paths or {}).items()):
+        st = os.stat(path)
+        h.update(f"|{model}:{_content_digest(str(path), st.st_mtime_ns, st.st_size)}".encode())
+    return h.hexdigest()[:24]
+
+
+@functools.lru_cache(maxsize=64)
+def _content_digest(path: str, mtime_ns: int, size: int) -> str:
+    """SHA-256 of a file, once per (path, modification time, size) in a process."""
+    return file_sha256(path)
+
+
+def _clear_run_dir(d: Path) -> None:
+    for name in RUN_OUTPUTS:
+        (d / name).unlink(missing_ok=True)
+    for png in d.glob("*.png"):
+        png.unlink()
+
+
+def _scene_of(case: dict) -> Scene:
+    base = Path(case["source"]).parent if case.get("source") else Path.cwd()
+    sc = resolve(case["scene"], base_dir=base, source=case.get("source"), overrides=tuple(case.get("overrides", ())))
+    return sc
+
+
+def _summary_fields(s: dict) -> dict:
+    """The manifest fields a run's summary gives (ok or failed)."""
+    return {
+        "wall_time_s": s["wall_time_s"], "sim_time_s": s["sim_time_s"],
+        "real_time_factor": s["real_time_factor"], "us_per_step": s["us_per_step"],
+        "energy_residual": s["energy_residual"],
+        "torque_mean": {k: v["mean"] for k, v in s["torque"].items()},
+        "torque_rms": {k: v["rms"] for k, v in s["torque"].items()},
+        "warnings": s["warnings"],
+        "stability": s.get("stability"),
+    }
+
+
+def simulate(case: dict) -> dict:
+    """Run one case in this process; never raises (errors are reported in the returned record)."""
+
+    t0 = time.perf_counter()
+    rec: dict[str, Any] = {"name": case["name"], "out_dir": case["out_dir"], "pid": os.getpid(),
+                           "labels": labels(case["scene"])}
+    try:
+        scene = _scene_of(case)
+        d = Path(case["out_dir"])
+        d.mkdir(parents=True, exist_ok=True)
+        _clear_run_dir(d)
+        (d / "case.json").write_text(json.dumps({"name": case["name"], "fingerprint": case.get("fingerprint"),
+                                                 "scene": case["scene"], "source": case.get("source"),
+                                                 "overrides": case.get("overrides", [])}, indent=1, default=str))
+        plots = case.get("plots")
+        res = run_scene(scene, case["out_dir"], backend=case.get("backend", "fmi"), progress=False,
+                        fmu_dir=case.get("fmu_dir", "fmus"), spec=case.get("spec"),
+                        fmu_paths=case.get("fmu_paths"), plots=None if plots is None else bool(plots),
+                        build=False, log=lambda m: None, force=bool(case.get("force")))
+        rec.update({
+            "status": "ok",
+            "signals": str(Path(case["out_dir"]) / "signals.h5"),
+            "summary": str(Path(case["out_dir"]) / "summary.json"),
+            **_summary_fields(res.summary),
+        })
+    except RunFailedError as exc:
+        # an FMU failed mid-run: the completed part was written; record where and why
+        s = exc.result.summary
+        f = s.get("failure") or {}
+        files = exc.result.files or {}
+        rec.update({
+            "status": "failed", "error": f"{type(exc).__name__}: {exc}", "partial": True,
+            "failure_time_s": f.get("time_s"), "failed_fmu": f.get("component"),
+            "failed_model": f.get("model"), "failure_cause": f.get("cause"),
+            "failure": {k: f.get(k) for k in ("time_s", "component", "model", "function", "status", "cause")},
+            "signals": files.get("signals"), "summary": files.get("summary"),
+            **_summary_fields(s),
+        })
+    except Exception as exc:
+        rec.update({"status": "failed", "error": f"{type(exc).__name__}: {exc}",
+                    "traceback": traceback.format_exc(limit=8)})
+        if hasattr(exc, "component") and hasattr(exc, "time"):     # a CosimError before the first step
+            rec.update({"failure_time_s": exc.time, "failed_fmu": exc.component, "partial": False})
+    rec["elapsed_s"] = time.perf_counter() - t0
+    return rec
+
+
+def _executor(workers: int | None, address: str | None):
+    if address:
+        from distributed import Client
+
+        client = Client(address)
+        return client.get_executor(), client
+    import multiprocessing as mp
+
+    workers = workers or os.cpu_count() or 1
+    return cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")), None
+
+
+def _specs_of(scenes: list[Scene], specs: dict | None) -> list:
+    return [(specs or {}).get(s.name) or assemble_scene(s) for s in scenes]
+
+
+#: component parameter values whose initialisation builds a disk cache worth preparing in the parent
+CACHED_FIDELITIES = ("table",)
+
+
+def prepare_caches(specs: list, fmu_dir: str | Path = "fmus", fmu_paths: dict | None = None,
+                   log=None) -> int:
+    """Initialise once, in this (non-daemonic) process, every distinct component configuration whose
+    initialisation builds a disk cache (GearContact ``fidelity = "table"``: the contact map), so that
+    worker processes only read caches. Dask worker processes are daemonic and cannot start the map
+    builder's process pool. Returns the number of configurations prepared; failures are left to the runs
+    (they report them with the FMU's log)."""
+
+    seen, todo = set(), []
+    for spec in specs:
+        for c in spec.components:
+            if c.parameters.get("fidelity") in CACHED_FIDELITIES:
+                key = json.dumps({"model": c.model, "p": c.parameters}, sort_keys=True, default=str)
+                if key not in seen:
+                    seen.add(key)
+                    todo.append((c, spec.comm_step))
+    for comp, H in todo:
+        if log:
+            log(f"preparing {comp.model} ({comp.name}: fidelity {comp.parameters.get('fidelity')}, "
+                f"health {comp.parameters.get('health', '?')})")
+        one = SystemSpec(components=[comp], connections=[], comm_step=H)
+        try:
+            simulate_system(one, H, 1.0 / H, backend="inprocess", fmu_dir=fmu_dir, fmu_paths=fmu_paths, build=False,
+                            progress=False)
+        except Exception as exc:  # the run of the case will report it properly
+            if log:
+                log(f"  preparation failed ({type(exc).__name__}); the runs will report it")
+    return len(todo)
+
+
+MANIFEST_COLUMNS = ["name", "status", "health", "drive_speed_rpm", "load_torque_Nm", "mesh_contact",
+                    "shaft_flexibility", "wall_time_s", "real_time_factor", "energy_residual",
+                    "mean_drive_shaft_torque", "mean_propeller_shaft_torque", "failure_time_s", "failed_fmu",
+                    "max_penetration_rel_umax", "min_substep_s", "n_refinements", "n_separations",
+                    "separated_fraction", "signals", "summary", "error"]
+
+
+def _check_writable(out: Path) -> None:
+    """Refuse an output directory that cannot be written before any run (not after all of them)."""
+
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / f".write-test-{os.getpid()}"
+        probe.write_text("")
+        probe.unlink()
+    except OSError as exc:
+        raise ConfigurationError(f"output directory {out}: not writable ({exc.strerror or exc})") from None
+
+
+def _reuse(scene: Scene, d: Path, fp: str) -> tuple[dict | None, str]:
+    """The manifest record of a finished run in ``d`` when it computed the same thing (fingerprint), else
+    (None, why it runs again)."""
+    try:
+        case = json.loads((d / "case.json").read_text())
+        old = json.loads((d / "summary.json").read_text())
+    except (OSError, ValueError):
+        return None, "no finished run with a case.json there"
+    if case.get("fingerprint") != fp:
+        return None, "the scene or the model sources changed since that run"
+    rec = {"name": scene.name, "labels": labels(scene.to_dict()), "status": old.get("status", "ok"),
+           "skipped": True, "out_dir": str(d),
+           "signals": str(d / "signals.h5"), "summary": str(d / "summary.json")}
+    try:
+        rec.update(_summary_fields(old))
+    except (KeyError, TypeError):
+        return None, "its summary.json is incomplete"
+    if old.get("failure"):
+        f = old["failure"]
+        rec.update(failure_time_s=f.get("time_s"), failed_fmu=f.get("component"), failure_cause=f.get("cause"),
+                   partial=True)
+    return rec, ""
+
+
+#: the append-only journal of finished runs, beside manifest.json
+JOURNAL = "manifest.jsonl"
+#: while runs finish, manifest.json/csv are rewritten at most this often [s] (the journal: every run)
+MANIFEST_EVERY_S = 30.0
+
+
+def _journal_line(rec: dict) -> bytes:
+    return (json.dumps(jsonable(rec), separators=(",", ":")) + "\n").encode("utf-8")
+
+
+def _append_journal(out: Path, rec: dict) -> None:
+    """One record, one write on an append-only file, then fsync: a kill leaves whole lines."""
+    fd = os.open(out / JOURNAL, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        os.write(fd, _journal_line(rec))
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _start_journal(out: Path, records: list[dict]) -> None:
+    """A new journal for this invocation holding the records it starts from (atomic replace)."""
+    tmp = out / f".{JOURNAL}.{os.getpid()}"
+    tmp.write_bytes(b"".join(_journal_line(r) for r in records))
+    os.replace(tmp, out / JOURNAL)
+
+
+def read_runs(out_dir: str | Path) -> list[dict]:
+    """Every run record of a sweep directory: those of manifest.json, then the journal's (a later record
+    of a name replaces an earlier one; a torn last line of a killed sweep is skipped). In manifest
+    order, the journal's new names after. Raises OSError when the directory has neither file."""
+    out = Path(out_dir)
+    by_name: dict[str, dict] = {}
+    found = False
+    try:
+        for r in json.loads((out / "manifest.json").read_text()).get("runs", []):
+            if isinstance(r, dict) and r.get("name"):
+                by_name[r["name"]] = r
+        found = True
+    except (OSError, ValueError, AttributeError):
+        pass
+    try:
+        lines = (out / JOURNAL).read_bytes().splitlines()
+        found = True
+    except OSError:
+        lines = []
+    for ln in lines:
+        try:
+            r = json.loads(ln)
+        except ValueError:
+            continue                     # a line torn by a kill
+        if isinstance(r, dict) and r.get("name"):
+            by_name[r["name"]] = r
+    if not found:
+        raise OSError(f"{out}: neither manifest.json nor {JOURNAL}")
+    return list(by_name.values())
+
+
+def _write_manifest(out: Path, runs: list[dict], meta: dict, complete: bool) -> dict:
+    """manifest.json and manifest.csv, each written to a temporary file and renamed (a kill never
+    leaves a half-written manifest)."""
+
+    manifest = {"path": str(out / "manifest.json"), "n_runs": len(runs), "complete": complete, **meta,
+                "runs": runs}
+    tmp = out / f".manifest.json.{os.getpid()}"
+    tmp.write_text(json.dumps(jsonable(manifest), indent=1))
+    os.replace(tmp, out / "manifest.json")
+    tmp = out / f".manifest.csv.{os.getpid()}"
+    with open(tmp, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=MANIFEST_COLUMNS, extrasaction="ignore")
+        w.writeheader()
+        for r in runs:
+            row = dict(r)
+            tm = r.get("torque_mean") or {}
+            row["mean_drive_shaft_torque"] = tm.get("drive_shaft_torque")
+            row["mean_propeller_shaft_torque"] = tm.get("propeller_shaft_torque")
+            st = r.get("stability") or {}
+            rattle = st.get("rattle") or {}
+            for k in ("max_penetration_rel_umax", "min_substep_s", "n_refinements"):
+                row[k] = st.get(k)
+            row["n_separations"] = rattle.get("n_separations")
+            row["separated_fraction"] = rattle.get("separated_fraction")
+            w.writerow(row)
+    os.replace(tmp, out / "manifest.csv")
+    return manifest
+
+
+def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None = None, address: str | None = None,
+              backend: str = "fmi", fmu_dir: str | Path = "fmus", skip_existing: bool = False,
+              plots: bool | None = None, progress: bool = True, specs: dict[str, Any] | None = None,
+              fmu_paths: dict | None = None, executor=None, prepare: bool = True,
+              grid_names: list[str] | None = None, force: bool = False) -> dict:
+    """Run every scene; returns the manifest (written to out_dir/manifest.json and .csv after every
+    finished run, ``complete`` once all are done).
+
+    ``workers``: local processes (default: CPU count); ``address``: Dask scheduler (then Dask's executor);
+    ``executor``: any concurrent.futures-style executor to use instead. ``specs``: {scene name: SystemSpec}
+    to bypass the assembler (tests); ``fmu_paths``: explicit FMUs (no building). ``prepare``: build the
+    components' disk caches (contact maps) in this process first (:func:`prepare_caches`). ``plots``:
+    None = as each scene says, False = none. ``skip_existing``: reuse finished runs of the same
+    fingerprint. ``grid_names``: every case name of the sweep when ``scenes`` is a selection of it; the
+    manifest keeps the earlier records of the others. A case predicted to cost far more than its
+    simulated time (:mod:`drivetrain.run.cost`) is refused, with every other such case, before anything
+    runs; ``force`` runs them anyway.
+    """
+    out = Path(out_dir)
+    names = [s.name for s in scenes]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise ConfigurationError(f"scene names must be unique in a sweep: {', '.join(dup)}")
+    if not force:
+        too_costly = [f"{s.name}: {why}" for s in scenes
+                      if (why := runcost.refusal(s, runcost.predict(s, backend))) is not None]
+        if too_costly:
+            raise ConfigurationError(too_costly)
+    _check_writable(out)
+    log = _LOG.warning if progress else None
+    all_specs = _specs_of(scenes, specs)
+    if fmu_paths is None:
+        from drivetrain.cosim import ensure_fmus
+
+        needed = list(dict.fromkeys(c.model for sp in all_specs for c in sp.components))
+        ensure_fmus(needed, fmu_dir, build=True, log=log or (lambda m: None))
+    if prepare:
+        prepare_caches(all_specs, fmu_dir, fmu_paths, log=log)
+    if backend == "native" and fmu_paths is None:
+        # compiled once here (one gear build per contact map), found in the cache by every worker (without a
+        # compiler each run falls back to the pythonfmu FMUs and says so)
+        from drivetrain.cosim.native_line import native_fmus, toolchain_problems
+
+        if not toolchain_problems():
+            for s, sp in zip(scenes, all_specs):
+                native_fmus(sp, Path(fmu_dir) / "native", log=log)
+    # records of the other cases of the same sweep from an earlier invocation (--only)
+    kept: list[dict] = []
+    if grid_names:
+        others = set(grid_names) - set(names)
+        try:
+            old = read_runs(out)
+        except OSError:
+            old = []
+        kept = [r for r in old if r.get("name") in others]
+    order = {n: i for i, n in enumerate(grid_names or names)}
+    by_name = {s.name: s for s in scenes}
+    cases, runs = [], []
+    for s, sp in zip(scenes, all_specs):
+        d = out / s.name
+        case = make_case(s, d, backend=backend, fmu_dir=fmu_dir, plots=plots, spec=sp, fmu_paths=fmu_paths,
+                         force=force)
+        if skip_existing:
+            prev, why = _reuse(s, d, case["fingerprint"])
+            if prev is not None:
+                runs.append(prev)
+                continue
+            case["rerun_reason"] = why
+        cases.append(case)
+    t0 = time.perf_counter()
+    meta = {"executor": "dask" if address else ("custom" if executor is not None else "local processes"),
+            "backend": backend}
+
+    def annotate(r):
+        s = by_name.get(r["name"])
+        if s is not None:
+            r.update(drive_speed_rpm=s.operating_point.final_speed_rpm, load_torque_Nm=s.operating_point.load_torque_Nm,
+                     health=s.gear.health, mesh_contact=s.effects.mesh_contact,
+                     shaft_flexibility=s.effects.shaft_flexibility)
+        return r
+
+    def write(complete):
+        allr = sorted(kept + runs, key=lambda r: order.get(r["name"], len(order)))
+        return _write_manifest(out, allr, {**meta, "wall_time_s": time.perf_counter() - t0}, complete)
+
+    runs = [annotate(r) for r in runs]          # the reused ones
+    _start_journal(out, kept + runs)
+    write(not cases)
+    last_write = time.monotonic()
+    client = None
+    own = executor is None
+    if cases:
+        if own:
+            executor, client = _executor(workers, address)
+        try:
+            futures = {executor.submit(simulate, c): c for c in cases}
+            bar = None
+            if progress:
+                from tqdm import tqdm
+
+                bar = tqdm(total=len(futures), unit="run", desc="sweep")
+            for fut in cf.as_completed(futures):
+                rec = fut.result()
+                if futures[fut].get("rerun_reason"):
+                    rec["rerun_reason"] = futures[fut]["rerun_reason"]
+                rec = annotate(rec)
+                _append_journal(out, rec)
+                runs.append(rec)
+                if time.monotonic() - last_write >= MANIFEST_EVERY_S:
+                    write(False)
+                    last_write = time.monotonic()
+                if bar is not None:
+                    bar.update(1)
+            if bar is not None:
+                bar.close()
+        except BaseException:
+            write(False)           # interrupted (Ctrl-C, an executor that died): the manifest catches up
+            raise
+        finally:
+            if own:
+                executor.shutdown(wait=True)
+            if client is not None:
+                client.close()
+    return write(True)
+
+
+__all__ = ["simulate", "run_sweep", "make_case", "prepare_caches", "read_runs"]

@@ -1,0 +1,399 @@
+"""A Python-free GearContact FMU for the ``table`` fidelity: the contact map as a binary resource and the
+stage compiled from C (``gearcontact_fmu/native/gearcontact_native.c``), docs/FMU.md "A Python-free
+GearContact".
+
+``build_native_gear(parameters, out)`` takes the GearContact parameters (the dict ``drivetrain.run.assemble``
+produces for component "gear", or any subset; the rest take the pythonfmu slave's defaults) and
+
+1. builds the contact map exactly as the pythonfmu slave does (``gearcontact_fmu.fmu_parameters``, the
+   translation of the FMU's parameters the slave builds its stage with: the same cache, fault parsing and
+   manufacturing errors), with friction, contact damping and tooth compliance in their neutral state (the
+   C model applies those at initialization: they stay settable);
+2. writes the map (and the manufacturing-error offset, if any) to ``resources/contact_map.bin``;
+3. writes ``gearcontact_build.h``: value references (the same as the pythonfmu FMU's), start values,
+   the parameters fixed by the build, and the model constants (from the Python modules);
+4. writes ``modelDescription.xml`` (the slave's variables, units and descriptions);
+5. compiles ``binaries/linux64/GearContact.so`` with gcc (no Python) and zips the FMU with its
+   ``sources/`` so other platforms can compile it.
+
+Parameters the map depends on (geometry, PCM constants, resolution, health, faults, mesh files, map
+grid, manufacturing errors, u_max) are fixed by the build: the FMU declares the built value as start
+and refuses another one with fmi2Error and a message.
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import platform
+import shutil
+import struct
+import subprocess
+import tempfile
+import uuid
+import zipfile
+from pathlib import Path
+from typing import Callable
+from xml.etree import ElementTree as ET
+
+import numpy as np
+
+import gearcontact_fmu
+from drivetrain.errors import NativeBuildError
+
+NATIVE_DIR = Path(gearcontact_fmu.__file__).resolve().parent / "native"
+SLAVE_SCRIPT = Path(gearcontact_fmu.__file__).resolve().parent / "slaves" / "GearContact.py"
+C_SOURCE = "gearcontact_native.c"
+#: the coupling correction, shared with the native line FMUs (drivetrain.cosim.native_line)
+#: C headers every native FMU compiles (in gearcontact_fmu/native, shipped in each FMU's sources/)
+SHARED_HEADERS = ("coupling_correction.h", "fmi2_shell.h")
+BUILD_HEADER = "gearcontact_build.h"
+FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
+MAP_RESOURCE = "contact_map.bin"
+MODEL = "GearContact"
+
+#: parameters the C model reads at initialization: settable as in the pythonfmu GearContact
+RUNTIME_PARAMETERS = frozenset({
+    "J_pinion", "J_wheel", "k_a", "d_a", "k_b", "d_b", "max_substep", "scheme", "output_torque",
+    "energy_correction", "friction", "contact_damping", "tooth_compliance", "c_compression", "c_expansion",
+    "initial_state", "pinion_phi_start", "pinion_w_start", "wheel_phi_start", "wheel_w_start", "twist_a_start",
+    "twist_b_start"})
+#: accepted and not used, as by the pythonfmu GearContact at fidelity table (analytic mesh only)
+IGNORED_PARAMETERS = frozenset({"mesh_damping_ratio", "mesh_phase"})
+#: neutral values of the runtime parameters that act on the map's data, used when the map is built
+NEUTRAL = {"friction": True, "contact_damping": True, "tooth_compliance": 1.0}
+
+FIXED_NOTE = " [fixed by this native build: the contact map was computed with it; another value is refused]"
+IGNORED_NOTE = " [not used at fidelity table]"
+
+
+def _probe_slave():
+    """An instance of the pythonfmu GearContact slave (its variables, defaults, units and descriptions);
+    nothing of pythonfmu's export library is loaded."""
+    from drivetrain.cosim.build import slave_class
+
+    cls = slave_class(SLAVE_SCRIPT)
+    return cls(instance_name="native-build", resources=tempfile.gettempdir())
+
+
+def _check(slave, parameters: dict) -> list[str]:
+    problems = []
+    known = {v.name: v for v in slave.vars.values()}
+    for name in parameters:
+        if name not in known:
+            problems.append(f"parameter {name!r}: not a {MODEL} parameter")
+        elif known[name].causality.name != "parameter":
+            problems.append(f"parameter {name!r}: is an {known[name].causality.name}, not a parameter")
+    fid = str(parameters.get("fidelity", slave.fidelity)).strip().lower()
+    if fid != "table":
+        problems.append(f"fidelity = {fid!r}: the native GearContact implements fidelity 'table' only")
+    mode = str(parameters.get("mode", slave.mode)).strip().lower()
+    if mode != "stage":
+        problems.append(f"mode = {mode!r}: the native GearContact implements mode 'stage' only")
+    return problems
+
+
+def _table_arrays(slave, parameters: dict) -> dict:
+    """The map and offset arrays of the table model the slave builds from these parameters (the slave's
+    defaults for the others; gearcontact_fmu.fmu_parameters.build_mesh_model, the slave's own translation)."""
+    from gearcontact_fmu.fmu_parameters import build_mesh_model
+
+    values = {v.name: getattr(slave, v.name) for v in slave.vars.values() if v.causality.name == "parameter"}
+    try:
+        model = build_mesh_model({**values, **parameters, **NEUTRAL})
+    except Exception as exc:  # noqa: BLE001 - every builder error becomes a refusal with its message
+        raise NativeBuildError([f"the contact map cannot be built: {type(exc).__name__}: {exc}"]) from None
+    data, te = model.data, None
+    if len(data) == 2:                         # manufacturing.with_errors: (inner data, offset data)
+        data, te = data
+    values, a, onset, dtheta, ratio, _cc, _ce, _umax, _fric, w_reg, n_rev = data
+    return {"values": np.ascontiguousarray(values, dtype="<f8"), "a": np.ascontiguousarray(a, dtype="<f8"),
+            "onset": np.ascontiguousarray(onset, dtype="<f8"), "dtheta": float(dtheta), "ratio": float(ratio),
+            "w_reg": float(w_reg), "n_rev": int(n_rev), "te": te, "info": dict(model.info)}
+
+
+def write_map_resource(arrays: dict, path: Path) -> None:
+    """The binary map read by the C model (little-endian int64 and IEEE 754 doubles): magic, header
+    (n_theta, n_a, n_ch, n_rev, has_offset, z_pinion, z_wheel of the offset), dtheta, ratio, w_reg, the
+    approach nodes, the onsets, the values, optionally the offset (parameters, pinion, wheel), end mark."""
+    values, te = arrays["values"], arrays["te"]
+    n_theta, sides, n_a, n_ch = values.shape
+    assert sides == 2 and arrays["onset"].shape == (n_theta, 2)
+    pin = whl = None
+    if te is not None:
+        p, pin, whl = (np.ascontiguousarray(x, dtype="<f8") for x in te)
+    with open(path, "wb") as f:
+        f.write(b"GCNMAP1\0")
+        f.write(struct.pack("<7q", n_theta, n_a, n_ch, arrays["n_rev"], int(te is not None),
+                            0 if te is None else len(pin), 0 if te is None else len(whl)))
+        f.write(struct.pack("<3d", arrays["dtheta"], arrays["ratio"], arrays["w_reg"]))
+        f.write(arrays["a"].tobytes())
+        f.write(arrays["onset"].tobytes())
+        f.write(values.tobytes())
+        if te is not None:
+            f.write(p.tobytes())
+            f.write(pin.tobytes())
+            f.write(whl.tobytes())
+        f.write(b"GCNEND\0\0")
+
+
+def vr_enum(rows: list[dict]) -> list[str]:
+    """The VR_<name> value references of a generated build header."""
+    return ["enum {", *(f"    VR_{r['name']} = {r['vr']}," for r in rows), "};"]
+
+
+def start_literals(r: dict) -> tuple[str, str, str]:
+    """A variable's start as the C literals of its table row: (real, integer, string)."""
+    s = r["start"]
+    real = c_double(s) if r["type"] == "Real" else "0.0"
+    integer = str(int(bool(s)) if r["type"] == "Boolean" else int(s)) if r["type"] in ("Integer", "Boolean") else "0"
+    string = c_string(s) if r["type"] == "String" else '""'
+    return real, integer, string
+
+
+def coupling_defines() -> list[str]:
+    """The constants of coupling_correction.h (from gearcontact_fmu.coupling), for a generated build header."""
+    from gearcontact_fmu import coupling
+
+    return [f"#define CC_TIME_CONSTANT_S {c_double(coupling.TIME_CONSTANT_S)}",
+            f"#define CC_EPS_RAD {c_double(coupling.EPS_RAD)}",
+            f"#define CC_CAP_REL {c_double(coupling.CAP_REL)}",
+            f"#define CC_CAP_FLOOR_NM {c_double(coupling.CAP_FLOOR_NM)}"]
+
+
+def c_string(text: str) -> str:
+    out = []
+    for b in str(text).encode("utf-8"):
+        ch = chr(b)
+        if ch in '\\"?':
+            out.append("\\" + ch)
+        elif 0x20 <= b < 0x7F:
+            out.append(ch)
+        else:
+            out.append(f"\\{b:03o}")
+    return '"' + "".join(out) + '"'
+
+
+def c_double(x: float) -> str:
+    x = float(x)
+    if not math.isfinite(x):
+        raise NativeBuildError([f"non-finite value {x!r} cannot be a start value"])
+    return f"{x.hex()} /* {x!r} */"
+
+
+def _variables(slave, parameters: dict) -> list[dict]:
+    """Every variable of the slave with its value reference, type, causality, start and role."""
+    rows = []
+    counters = set(slave.STABILITY)
+    nan_on_failure = set(getattr(slave, "NAN_ON_FAILURE", ()))
+    for vr, v in sorted(slave.vars.items()):
+        kind = type(v).__name__
+        causality = v.causality.name
+        if v.name in counters:
+            start = 0.0
+        else:
+            start = parameters.get(v.name, getattr(slave, v.name))
+        role = "runtime"
+        if causality == "parameter":
+            role = ("runtime" if v.name in RUNTIME_PARAMETERS else
+                    "ignored" if v.name in IGNORED_PARAMETERS else "fixed")
+        rows.append({"vr": vr, "name": v.name, "type": kind, "causality": causality, "start": start,
+                     "role": role, "counter": v.name in counters, "nan_on_failure": v.name in nan_on_failure})
+    return rows
+
+
+def write_header(rows: list[dict], guid: str, path: Path) -> None:
+    """gearcontact_build.h: the GC_VARS table (by value reference), the VR_* names and the constants."""
+    from gearcontact_fmu import manufacturing, stage
+    from gearcontact_fmu.params import MAX_SUBSTEPS_PER_STEP
+
+    sp = stage.StageParams()
+    assert [r["vr"] for r in rows] == list(range(len(rows))), "value references must be 0..n-1"
+    lines = ["/* generated by drivetrain.cosim.native_gear: do not edit (one build of the native GearContact) */",
+             "#ifndef GEARCONTACT_BUILD_H", "#define GEARCONTACT_BUILD_H", "",
+             f"#define GC_GUID {c_string(guid)}",
+             f"#define GC_N_VARS {len(rows)}",
+             f"#define GC_MAX_SUBSTEPS_PER_STEP {int(MAX_SUBSTEPS_PER_STEP)}",
+             f"#define GC_GAMMA {c_double(stage.GAMMA)}",
+             f"#define GC_FD_ANGLE {c_double(sp.fd_angle)}",
+             f"#define GC_FD_SPEED {c_double(sp.fd_speed)}",
+             *coupling_defines(),
+             f"#define GC_MFG_CENTRE {c_double(manufacturing.CENTRE)}", "", *vr_enum(rows)]
+    lines += ["", "static const GcVar GC_VARS[GC_N_VARS] = {",
+              "    /* name, type, is_input, is_parameter, is_counter, nan_on_failure, fixed_by_build, real, int, "
+              "string start */"]
+    for r in rows:
+        real, integer, string = start_literals(r)
+        lines.append(f"    {{{c_string(r['name'])}, \"{r['type']}\", {int(r['causality'] == 'input')}, "
+                     f"{int(r['causality'] == 'parameter')}, {int(r['counter'])}, {int(r['nan_on_failure'])}, "
+                     f"{int(r['role'] == 'fixed')}, "
+                     f"{real}, {integer}, {string}}},")
+    lines += ["};", "", "#endif", ""]
+    path.write_text("\n".join(lines))
+
+
+def xml_start(r: dict) -> str:
+    s = r["start"]
+    if r["type"] == "Real":
+        return repr(float(s))
+    if r["type"] == "Boolean":
+        return "true" if s else "false"
+    if r["type"] == "Integer":
+        return str(int(s))
+    return str(s)
+
+
+def native_model_description(model: str, slave, rows: list[dict], guid: str, *, c_source: str, note: str,
+                             tool: str, descriptions: dict, real_start=repr) -> bytes:
+    """modelDescription.xml of a native FMU: the pythonfmu slave's variables (same names, types and value
+    references), units and ``descriptions`` (drivetrain.cosim.build's post-processing), the C source, ``note``
+    after the slave's description, ``real_start`` formatting the Real start values."""
+    from drivetrain.cosim.build import edit_model_description
+
+    cls = type(slave)
+    de = cls.default_experiment
+    root = ET.Element("fmiModelDescription", {
+        "fmiVersion": "2.0", "modelName": model, "guid": guid, "description": cls.description + note,
+        "author": cls.author, "version": str(cls.version), "generationTool": tool,
+        "variableNamingConvention": "flat", "numberOfEventIndicators": "0"})
+    cs = ET.SubElement(root, "CoSimulation", {
+        "modelIdentifier": model, "needsExecutionTool": "false", "canHandleVariableCommunicationStepSize": "true",
+        "canInterpolateInputs": "false", "canBeInstantiatedOnlyOncePerProcess": "false",
+        "canNotUseMemoryManagementFunctions": "true", "canGetAndSetFMUstate": "true",
+        "canSerializeFMUstate": "true", "providesDirectionalDerivative": "false"})
+    files = ET.SubElement(cs, "SourceFiles")
+    ET.SubElement(files, "File", name=c_source)
+    cats = ET.SubElement(root, "LogCategories")
+    ET.SubElement(cats, "Category", name="logStatusError", description="errors: the cause of a refused call or step")
+    ET.SubElement(cats, "Category", name="logAll", description="information (with debug logging on)")
+    ET.SubElement(root, "DefaultExperiment", startTime=repr(float(de.start_time)), stopTime=repr(float(de.stop_time)),
+                  stepSize=repr(float(de.step_size)))
+    mv = ET.SubElement(root, "ModelVariables")
+    for r in rows:
+        attrs = {"name": r["name"], "valueReference": str(r["vr"]), "causality": r["causality"]}
+        if r["causality"] == "parameter":
+            attrs["variability"] = "fixed"
+        elif r["type"] != "Real":
+            attrs["variability"] = "discrete"
+        if r["causality"] == "output":
+            attrs["initial"] = "exact"
+        sv = ET.SubElement(mv, "ScalarVariable", attrs)
+        start = real_start(float(r["start"])) if r["type"] == "Real" else xml_start(r)
+        ET.SubElement(sv, r["type"], start=start)
+    ms = ET.SubElement(root, "ModelStructure")
+    outs = ET.SubElement(ms, "Outputs")
+    for i, r in enumerate(rows):
+        if r["causality"] == "output":
+            ET.SubElement(outs, "Unknown", index=str(i + 1))
+    return edit_model_description(ET.tostring(root, encoding="UTF-8", xml_declaration=True), cls.units, {},
+                                  descriptions)
+
+
+def model_description(slave, rows: list[dict], guid: str) -> bytes:
+    """modelDescription.xml of the native GearContact (the fixed and ignored parameters say so)."""
+    notes = {"fixed": FIXED_NOTE, "ignored": IGNORED_NOTE}
+    descriptions = {r["name"]: type(slave).variable_descriptions.get(r["name"], "") + notes.get(r["role"], "")
+                    for r in rows}
+    return native_model_description(MODEL, slave, rows, guid, c_source=C_SOURCE, tool="bevel-drivetrain nativebuild",
+                                    note=" Native build: fidelity table, mode stage, compiled C (no Python).",
+                                    descriptions=descriptions)
+
+
+def compile_and_pack(tmp: Path, model: str, source: str, cc: str, out: Path, log, about_html: str) -> None:
+    """The last steps of every native build, in the FMU's directory tree ``tmp`` (sources/ and
+    modelDescription.xml written): compile binaries/linux64/<model>.so, write documentation/index.html
+    (``about_html``, then how to compile the sources elsewhere) and zip the tree to ``out`` (written to a
+    part file first, then renamed: never half an FMU)."""
+    cmd = compile_command(tmp / "sources", tmp / "binaries" / "linux64" / f"{model}.so", cc, source)
+    if log:
+        log(" ".join(cmd))
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    if proc.returncode != 0:
+        raise NativeBuildError([f"compiling the native {model} failed ({' '.join(cmd)}):\n{proc.stderr}"])
+    (tmp / "documentation").mkdir()
+    (tmp / "documentation" / "index.html").write_text(
+        f"<html><body><h1>{model} (native)</h1><p>{about_html}</p><p>The sources (<code>sources/</code>) compile "
+        "on other platforms with "
+        f"<code>cc -O3 -fPIC -shared -std=c99 -ffp-contract=off -I. {source} -o {model}.so -lm</code>."
+        "</p></body></html>\n")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    part = out.with_name(out.name + f".{os.getpid()}.part")
+    with zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as z:
+        for f in sorted(tmp.rglob("*")):
+            if f.is_file():
+                z.write(f, f.relative_to(tmp).as_posix())
+    os.replace(part, out)
+
+
+def copy_shared_sources(src: Path) -> None:
+    """Into a native FMU's sources/: the shared headers and the FMI 2.0 headers."""
+    for name in SHARED_HEADERS:
+        shutil.copy2(NATIVE_DIR / name, src / name)
+    for name in FMI_HEADERS:
+        shutil.copy2(fmi_header_dir() / name, src / name)
+
+
+def fmi_header_dir() -> Path:
+    """fmpy's copy of the FMI 2.0 headers."""
+    import fmpy
+
+    return Path(fmpy.__file__).resolve().parent / "c-code"
+
+
+def compile_command(src_dir: Path, out: Path, cc: str = "gcc", source: str = C_SOURCE) -> list[str]:
+    """The compiler call of every native FMU (the one documented for other platforms in docs/FMU.md)."""
+    return [cc, "-O3", "-fPIC", "-shared", "-std=c99", "-ffp-contract=off", "-fvisibility=hidden",
+            f"-I{src_dir}", str(src_dir / source), "-o", str(out), "-lm"]
+
+
+def build_native_gear(parameters: dict | None = None, out: str | Path = "fmus/native/GearContact.fmu", *,
+                      cc: str | None = None, log: Callable[[str], None] | None = None) -> Path:
+    """Build the native GearContact FMU for these GearContact parameters; returns its path.
+    Refusals (fidelity other than table, unknown parameters, a map that cannot be built, no compiler)
+    raise NativeBuildError (a ConfigurationError) with every problem."""
+    parameters = dict(parameters or {})
+    parameters.setdefault("fidelity", "table")
+    out = Path(out)
+    if out.suffix != ".fmu":
+        raise NativeBuildError([f"--out {out}: the FMU file name must end in .fmu"])
+    cc = cc or os.environ.get("CC", "gcc")
+    slave = _probe_slave()
+    problems = _check(slave, parameters)
+    if shutil.which(cc) is None:
+        problems.append(f"C compiler {cc!r} not found (set CC or install gcc)")
+    if platform.system() != "Linux" or platform.machine() not in ("x86_64", "AMD64"):
+        problems.append(f"the builder compiles binaries/linux64 only (this is {platform.system()} "
+                        f"{platform.machine()}); compile the FMU's sources/ by hand (docs/FMU.md)")
+    if problems:
+        raise NativeBuildError(problems)
+    if log:
+        log("contact map (from the cache or built) ...")
+    arrays = _table_arrays(slave, parameters)
+    rows = _variables(_probe_slave(), parameters)
+    with tempfile.TemporaryDirectory(prefix="native_gear_") as tmp:
+        tmp = Path(tmp)
+        src = tmp / "sources"
+        res = tmp / "resources"
+        bind = tmp / "binaries" / "linux64"
+        for d in (src, res, bind):
+            d.mkdir(parents=True)
+        write_map_resource(arrays, res / MAP_RESOURCE)
+        h = hashlib.sha256((res / MAP_RESOURCE).read_bytes())
+        h.update(repr([(r["name"], r["type"], r["start"], r["role"]) for r in rows]).encode())
+        h.update((NATIVE_DIR / C_SOURCE).read_bytes())
+        for name in SHARED_HEADERS:
+            h.update((NATIVE_DIR / name).read_bytes())
+        guid = "{" + str(uuid.UUID(h.hexdigest()[:32])) + "}"
+        shutil.copy2(NATIVE_DIR / C_SOURCE, src / C_SOURCE)
+        copy_shared_sources(src)
+        write_header(rows, guid, src / BUILD_HEADER)
+        (tmp / "modelDescription.xml").write_bytes(model_description(slave, rows, guid))
+        compile_and_pack(tmp, MODEL, C_SOURCE, cc, out, log,
+                         "Lower bevel gear stage, fidelity table, mode stage, compiled C: no Python needed. The "
+                         "contact map is <code>resources/contact_map.bin</code>.")
+    if log:
+        info = arrays["info"]
+        log(f"wrote {out}: map {arrays['values'].shape[0]} x {arrays['values'].shape[2]} nodes "
+            f"({'from the cache' if info.get('from_cache') else 'built'}), "
+            f"{'with' if arrays['te'] is not None else 'no'} manufacturing errors")
+    return out

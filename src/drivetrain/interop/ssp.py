@@ -1,0 +1,233 @@
+"""A scene's system as an SSP 1.0 archive, so that another FMI tool rebuilds the system our master runs.
+
+What: ``export_ssp(scene, path)`` writes one ``.ssp`` (a zip) holding
+
+* ``SystemStructure.ssd``: one component per FMU of the assembled system (instance names as in our
+  master: motors, drive_shaft, upper, gear), a connector for every connected variable and the
+  connections of each flange (inertia side phi, w -> spring side; spring side tau -> inertia side),
+  the default experiment (0 .. the scene's duration) and the communication step (OpenModelica's
+  FixedStepMaster annotation; libcosim takes its step from the caller: pass the same one);
+* ``resources/<Model>.fmu``: the FMUs, as built from this checkout;
+* ``resources/<instance>.ssv``: the assembled, calibrated parameter values of each instance and its
+  constant inputs (speed reference, load torque), one parameter set per component, all with the same
+  set name.
+
+Why this shape: it is the subset of SSP 1.0 that fmpy, OMSimulator, libcosim and Ecos read alike
+(docs/FMU.md): version 1.0, component-to-component connections only, connectors only for connected or
+bound variables, parameters in per-component .ssv files. Variable types come from each FMU's own model
+description, so a parameter is written as the type the FMU declares.
+
+Time profiles (a speed ramp, a load step): our master feeds them as inputs, SSP 1.0 has no signal
+table every host reads. MotorLoad carries them itself (``speed_profile``, ``load_profile``:
+fmishell.INPUT_PROFILES), so they are written as those parameters; a profile on an input without such a
+parameter is refused. The drive speed reference then moves linearly inside a step instead of being held
+from the step start (the load setting is read at the step start either way): a lag of half a step
+on a ramp. The master's own bookkeeping (energy audit, output sampling, rig instruments) is not part of
+the system: another host gives the FMUs' outputs as they are.
+"""
+from __future__ import annotations
+
+import math
+import zipfile
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+from fmpy import read_model_description
+
+from drivetrain.cosim.fmus import ensure_fmus
+from drivetrain.cosim.plan import is_profile
+from drivetrain.errors import ConfigurationError
+from drivetrain.models.fmishell import INPUT_PROFILES
+from drivetrain.run.runner import assemble_scene
+from drivetrain.system import SystemSpec
+
+SSD_NAME = "SystemStructure.ssd"
+PARAMETER_SET = "parameters"
+_NS = ('xmlns:ssd="http://ssp-standard.org/SSP1/SystemStructureDescription" '
+       'xmlns:ssc="http://ssp-standard.org/SSP1/SystemStructureCommon" '
+       'xmlns:ssv="http://ssp-standard.org/SSP1/SystemStructureParameterValues" '
+       'xmlns:oms="https://raw.githubusercontent.com/OpenModelica/OMSimulator/master/schema/oms.xsd"')
+_SSV_TYPE = {"Real": "Real", "Integer": "Integer", "Enumeration": "Integer", "Boolean": "Boolean",
+             "String": "String"}
+
+
+def value_text(vtype: str, value) -> str:
+    if vtype == "Real":
+        v = float(value)
+        if not math.isfinite(v):
+            raise ValueError(f"not a finite number: {value!r}")
+        return repr(v)
+    if vtype in ("Integer", "Enumeration"):
+        return str(int(value))
+    if vtype == "Boolean":
+        return "true" if bool(value) else "false"
+    return str(value)
+
+
+def system_connections(spec: SystemSpec) -> list[tuple[str, str, str, str]]:
+    """Every variable connection (from instance, from variable, to instance, to variable) of the flanges."""
+    out = []
+    for c in spec.connections:
+        s_comp, s_port = c.spring.split(".", 1)
+        i_comp, i_port = c.inertia.split(".", 1)
+        out += [(i_comp, f"{i_port}_phi", s_comp, f"{s_port}_phi"),
+                (i_comp, f"{i_port}_w", s_comp, f"{s_port}_w"),
+                (s_comp, f"{s_port}_tau", i_comp, f"{i_port}_tau")]
+    return out
+
+
+def profile_text(points) -> str:
+    """A time profile [[t, v], ...] as the FMU's profile parameter text 't0:v0; t1:v1; ...'."""
+    return "; ".join(f"{float(t)!r}:{float(v)!r}" for t, v in points)
+
+
+def bound_values(component) -> dict:
+    """The values an instance's parameter set binds: its parameters and constant inputs, and each time
+    profile on an input as the parameter that carries it (fmishell.INPUT_PROFILES)."""
+    out = dict(component.parameters)
+    carriers = INPUT_PROFILES.get(component.model, {})
+    for name, value in component.inputs.items():
+        if is_profile(value) and name in carriers:
+            out[carriers[name]] = profile_text(value)
+        else:
+            out[name] = value
+    return out
+
+
+def system_problems(spec: SystemSpec, descriptions: dict) -> list[str]:
+    problems = []
+    for c in spec.components:
+        md = descriptions[c.model]
+        for name, value in bound_values(c).items():
+            if is_profile(value):
+                problems.append(f"{c.name}.{name} is a time profile and {c.model} has no parameter that carries "
+                                "it: SSP 1.0 has no input signal every host reads")
+            elif name not in md:
+                problems.append(f"{c.name}.{name}: not a variable of {c.model}.fmu")
+    for a, va, b, vb in system_connections(spec):
+        for inst, var in ((a, va), (b, vb)):
+            model = next((c.model for c in spec.components if c.name == inst), None)
+            if model is None or var not in descriptions[model]:
+                problems.append(f"connection {a}.{va} -> {b}.{vb}: {inst}.{var} does not exist")
+    return problems
+
+
+def fmu_variables(fmu_path: Path) -> dict:
+    """name -> (type, causality) from an FMU's model description."""
+    md = read_model_description(str(fmu_path))
+    return {v.name: (v.type, v.causality) for v in md.modelVariables}
+
+
+def ssv_text(component, variables: dict) -> str:
+    """The parameter set of one instance: its parameters and constant inputs, typed as its FMU declares."""
+    rows = []
+    for name, value in bound_values(component).items():
+        vtype = variables[name][0]
+        try:
+            text = value_text(vtype, value)
+        except (TypeError, ValueError) as exc:
+            raise ConfigurationError([f"{component.name}.{name} = {value!r}: {exc}"]) from None
+        rows.append(f'    <ssv:Parameter name={quoteattr(name)}>\n'
+                    f'      <ssv:{_SSV_TYPE[vtype]} value={quoteattr(text)}/>\n'
+                    f'    </ssv:Parameter>')
+    return ('<?xml version="1.0" encoding="UTF-8"?>\n'
+            '<ssv:ParameterSet xmlns:ssv="http://ssp-standard.org/SSP1/SystemStructureParameterValues" '
+            f'version="1.0" name="{PARAMETER_SET}">\n  <ssv:Parameters>\n' + "\n".join(rows)
+            + "\n  </ssv:Parameters>\n</ssv:ParameterSet>\n")
+
+
+def ssd_text(spec: SystemSpec, name: str, stop_time_s: float, descriptions: dict) -> str:
+    """The system structure: components with their connectors and parameter bindings, connections,
+    the fixed communication step and the default experiment."""
+    links = system_connections(spec)
+    connected: dict[str, list[str]] = {c.name: [] for c in spec.components}
+    for a, va, b, vb in links:
+        connected[a].append(va)
+        connected[b].append(vb)
+    elements = []
+    for c in spec.components:
+        md = descriptions[c.model]
+        conns = []
+        for var in sorted(connected[c.name]):
+            vtype, causality = md[var]               # the kind the FMU itself declares
+            conns.append(f'          <ssd:Connector name={quoteattr(var)} kind="{causality}">'
+                         f'<ssc:{_SSV_TYPE[vtype]}/></ssd:Connector>')
+        elements.append(
+            f'      <ssd:Component name={quoteattr(c.name)} type="application/x-fmu-sharedlibrary" '
+            f'source="resources/{c.model}.fmu">\n        <ssd:Connectors>\n' + "\n".join(conns)
+            + '\n        </ssd:Connectors>\n        <ssd:ParameterBindings>\n'
+            f'          <ssd:ParameterBinding source="resources/{c.name}.ssv"/>\n'
+            '        </ssd:ParameterBindings>\n      </ssd:Component>')
+    links = [f'      <ssd:Connection startElement={quoteattr(a)} startConnector={quoteattr(va)} '
+             f'endElement={quoteattr(b)} endConnector={quoteattr(vb)}/>' for a, va, b, vb in links]
+    H = repr(float(spec.comm_step))
+    return ('<?xml version="1.0" encoding="UTF-8"?>\n'
+            f'<ssd:SystemStructureDescription {_NS} version="1.0" name={quoteattr(name)}>\n'
+            f'  <ssd:System name={quoteattr(name)}>\n    <ssd:Elements>\n' + "\n".join(elements)
+            + '\n    </ssd:Elements>\n    <ssd:Connections>\n' + "\n".join(links)
+            + '\n    </ssd:Connections>\n    <ssd:Annotations>\n'
+            '      <ssc:Annotation type="org.openmodelica">\n        <oms:Annotations>\n'
+            '          <oms:SimulationInformation>\n'
+            f'            <oms:FixedStepMaster description="oms-ma" stepSize="{H}"/>\n'
+            '          </oms:SimulationInformation>\n        </oms:Annotations>\n'
+            '      </ssc:Annotation>\n    </ssd:Annotations>\n  </ssd:System>\n'
+            f'  <ssd:DefaultExperiment startTime="0.0" stopTime="{float(stop_time_s)!r}"/>\n'
+            '</ssd:SystemStructureDescription>\n')
+
+
+def system_fmus(scene, fmu_dir, spec: SystemSpec | None = None, build: bool = True, log=None,
+                native: bool = False):
+    """What an export of the scene's system starts from: the assembled spec (given or assembled here),
+    its FMUs (built when missing or stale), each model's variables (name -> (type, causality)) and
+    every problem of binding the spec to them (:func:`system_problems`). ``native``: the compiled FMUs
+    (drivetrain.cosim.native_line, kept in ``<fmu_dir>/native``) wherever there is one; a gear that is not
+    fidelity table keeps its pythonfmu FMU (``log`` says so); no C compiler is a ConfigurationError."""
+    if spec is None:
+        spec = assemble_scene(scene)
+    models = list(dict.fromkeys(c.model for c in spec.components))
+    fmus = {}
+    if native:
+        from drivetrain.cosim.native_line import native_fmus, toolchain_problems
+
+        missing = toolchain_problems()
+        if missing:
+            raise ConfigurationError([f"native FMUs: {m}" for m in missing])
+        built, note = native_fmus(spec, Path(fmu_dir) / "native", log=log)
+        if note and log:
+            log(f"native FMUs: {note}")
+        fmus = {m: p for m, p in built.items() if m in models}
+    rest = [m for m in models if m not in fmus]
+    if rest:
+        fmus.update(ensure_fmus(rest, fmu_dir, build=build, log=log))
+    descriptions = {m: fmu_variables(fmus[m]) for m in dict.fromkeys(models)}
+    return spec, fmus, descriptions, system_problems(spec, descriptions)
+
+
+def export_ssp(scene, path: str | Path, fmu_dir: str | Path = "fmus", spec: SystemSpec | None = None,
+               build: bool = True, log=None, native: bool = False) -> Path:
+    """Write the scene's assembled system as an SSP 1.0 archive at ``path`` (module docstring). The
+    FMUs come from ``fmu_dir`` (built when missing or stale); ``native``: the compiled FMUs (a host then
+    needs no Python, :func:`system_fmus`). Raises ConfigurationError naming every
+    problem (a time profile, a parameter the FMU does not have); nothing is written then. The archive
+    is written to a temporary name and renamed, so a failed export leaves no partial file."""
+    path = Path(path)
+    if path.suffix != ".ssp":
+        raise ConfigurationError([f"{path}: an SSP archive's name ends in .ssp"])
+    spec, fmus, descriptions, problems = system_fmus(scene, fmu_dir, spec, build, log, native)
+    if problems:
+        raise ConfigurationError(problems)
+    ssd = ssd_text(spec, scene.name, scene.time.duration_s, descriptions)
+    ssvs = {c.name: ssv_text(c, descriptions[c.model]) for c in spec.components}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".part")
+    try:
+        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as z:
+            z.writestr(SSD_NAME, ssd)
+            for name, text in ssvs.items():
+                z.writestr(f"resources/{name}.ssv", text)
+            for m, p in fmus.items():
+                z.write(p, f"resources/{m}.fmu")
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path

@@ -1,0 +1,519 @@
+"""The rig's parameters: the public 22-inertia lumped model, its lumping and partition into FMUs, the
+calibrated losses and coupling stiffness, and the steady state (the cut checks: ``drivetrain.models.stability``).
+
+Sources: ``data/testbench_lumped_parameters.csv`` (Manngard et al. 2022, public model of the same
+bench), ``data/calibration.json`` (written by ``drivetrain calibrate``; losses fitted to
+``data/measured_mean_torques.csv``, elastomer stiffness fitted to the measured 24 Hz mode).
+Why the partition is what it is: docs/DRIVETRAIN.md.
+
+Conventions. Public node i (1..22) has inertia J_i and ground damping c_ext_i; element i joins nodes i
+and i+1 with stiffness k_i and damping c_i, ratio r_i = speed(i+1)/speed(i); a geared element's
+stiffness acts in the frame of node i+1 (this reproduces the published 27.9/39.6/68.2 Hz). Nodes
+1-12 turn with the drive shaft (frame ratio R = 1), 13-17 with the middle shaft (R = 1/3), 18-22 with
+the propeller shaft (R = 1/12). Lumping works on the model referred to the drive shaft (J R^2,
+k R^2); component parameters are given back in each component's own frame.
+"""
+from __future__ import annotations
+
+import csv
+import functools
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from gearcontact_fmu.params import BevelGearParams
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+PUBLIC_CSV = DATA / "testbench_lumped_parameters.csv"
+MEASURED_CSV = DATA / "measured_mean_torques.csv"
+CALIBRATION_JSON = DATA / "calibration.json"
+
+G_STEEL = 79.3e9          # Pa
+RHO_STEEL = 7850.0        # kg/m^3
+TINY_J = 1e-5             # kg m^2: hub inertias below this are condensed into their neighbours
+Z_PINION = BevelGearParams.z_pinion     # the lower bevel pair's tooth counts (declared in gearcontact_fmu.params)
+Z_WHEEL = BevelGearParams.z_wheel
+UPPER_RATIO = 3.0
+LOWER_RATIO = Z_WHEEL / Z_PINION        # 4
+PG_RATIO = 8.0
+ELASTOMER_ELEMENTS = (3, 4, 5, 6, 7)      # the elastomer coupling elements (k ~ 90 N m/rad)
+THIN_SHAFTS = {11: "drive shaft", 14: "middle shaft", 16: "pinion shaft", 21: "propeller shaft"}
+GEAR_ELEMENT_UPPER = 12
+GEAR_ELEMENT_LOWER = 17
+
+#: Fallback calibration (used only if data/calibration.json is missing): see calibrate.py.
+#: the rig's instruments: name -> (unit, description); the torque transducers among them
+RIG_SENSORS: dict[str, tuple[str, str]] = {
+    "drive_shaft_torque": ("N.m", "drive-shaft torque transducer (before the upper gearbox), 'Torq1'"),
+    "propeller_shaft_torque": ("N.m", "propeller-shaft torque transducer (after the lower gearbox), 'Torq2'"),
+    "enc1": ("rad", "encoder 1, drive shaft (motor end): shaft angle"),
+    "enc2": ("rad", "encoder 2, drive shaft (gearbox end): shaft angle"),
+    "enc3": ("rad", "encoder 3, middle shaft (upper end): shaft angle"),
+    "enc4": ("rad", "encoder 4, middle shaft (pinion end): shaft angle"),
+    "enc5": ("rad", "encoder 5, propeller shaft: shaft angle"),
+}
+TORQUE_SENSORS = ("drive_shaft_torque", "propeller_shaft_torque")
+
+FALLBACK_CALIBRATION = {
+    "coupling_scale": 0.70,
+    "upper": {"c_v": 1.5e-3, "T_c": 0.34, "w_c": 16.9, "a": 0.058},
+    "planetary": {"c_v": 0.107, "T_c": 2.85, "w_c": 2.12, "a": 0.028},
+}
+
+
+# ------------------------------------------------------------------------------------------------
+# Public model
+# ------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class PublicModel:
+    J: np.ndarray          # [22] kg m^2, own frames
+    c_ext: np.ndarray      # [22]
+    k: np.ndarray          # [21] N m/rad (frame of node i+1)
+    c: np.ndarray          # [21]
+    ratio: np.ndarray      # [21] speed(i+1)/speed(i)
+
+    @property
+    def R(self) -> np.ndarray:
+        """Speed ratio of each node relative to the drive shaft."""
+        R = np.ones(len(self.J))
+        for i, r in enumerate(self.ratio):
+            R[i + 1] = R[i] * r
+        return R
+
+
+def load_public(path: str | Path | None = None) -> PublicModel:
+    rows = [r for r in csv.reader(open(path or PUBLIC_CSV, newline="")) if r and not r[0].lstrip().startswith("#")]
+    hdr, body = rows[0], rows[1:]
+    col = {h: i for i, h in enumerate(hdr)}
+    J = np.array([float(r[col["J_kgm2"]]) for r in body])
+    cext = np.array([float(r[col["c_ext_Nms_per_rad"]]) for r in body])
+    k = np.array([float(r[col["k_next_Nm_per_rad"]]) for r in body[:-1]])
+    c = np.array([float(r[col["c_next_Nms_per_rad"]]) for r in body[:-1]])
+    ratio = np.array([float(r[col["ratio_next"]]) for r in body[:-1]])
+    return PublicModel(J, cext, k, c, ratio)
+
+
+def public_matrices(model: PublicModel | None = None, referred: bool = True):
+    """(M, K, C) of the unlumped public model referred to the drive shaft (the independent oracle)."""
+    m = model or load_public()
+    R = m.R
+    n = len(m.J)
+    M = np.diag(m.J * R ** 2)
+    K = np.zeros((n, n))
+    C = np.diag(m.c_ext * R ** 2)
+    for i in range(n - 1):
+        s = R[i + 1] ** 2
+        for A, v in ((K, m.k[i] * s), (C, m.c[i] * s)):
+            A[i, i] += v
+            A[i + 1, i + 1] += v
+            A[i, i + 1] -= v
+            A[i + 1, i] -= v
+    return M, K, C
+
+
+def load_calibration(path: str | Path | None = None) -> dict:
+    """The calibration: ``path``, else $DRIVETRAIN_CALIBRATION, else the shipped data/calibration.json
+    (else the built-in fallback)."""
+    import os
+
+    env = os.environ.get("DRIVETRAIN_CALIBRATION", "").strip()
+    p = Path(path) if path else (Path(env) if env else CALIBRATION_JSON)
+    if (path or env) and not p.is_file():
+        raise FileNotFoundError(f"calibration file not found: {p}")
+    if p.is_file():
+        with open(p) as fh:
+            cal = json.load(fh)
+    else:
+        cal = json.loads(json.dumps(FALLBACK_CALIBRATION))
+    for key in ("upper", "planetary"):
+        if key not in cal:
+            raise ValueError(f"calibration {p}: missing section {key!r}")
+        for q in ("c_v", "T_c", "w_c", "a"):
+            if q not in cal[key]:
+                raise ValueError(f"calibration {p}: missing {key}.{q}")
+    cal.setdefault("coupling_scale", FALLBACK_CALIBRATION["coupling_scale"])
+    return cal
+
+
+# ------------------------------------------------------------------------------------------------
+# Lumping on the referred chain
+# ------------------------------------------------------------------------------------------------
+
+@dataclass
+class _Node:
+    J: float
+    c_ext: float
+    members: dict            # public node id -> fraction of its inertia held here
+
+
+@dataclass
+class _Elem:
+    k: float
+    c: float
+    members: list            # public element ids in series
+
+
+def series(k1: float, c1: float, k2: float, c2: float) -> tuple[float, float]:
+    """Two Kelvin-Voigt elements in series as one: k = k1 k2/(k1+k2); c from the low-frequency
+    compliance, c = k^2 (c1/k1^2 + c2/k2^2). An infinite stiffness is rigid."""
+    if math.isinf(k1):
+        return k2, c2
+    if math.isinf(k2):
+        return k1, c1
+    k = k1 * k2 / (k1 + k2)
+    return k, k * k * (c1 / k1 ** 2 + c2 / k2 ** 2)
+
+
+class RefChain:
+    """The public chain referred to the drive shaft, reduced by merging (rigid elements) and
+    condensing (static condensation of a small interior inertia: springs in series, the inertia
+    split to the neighbours in proportion to the adjacent stiffnesses, as the row sums of the Guyan
+    mass matrix)."""
+
+    def __init__(self, model: PublicModel, scale: dict | None = None, rigid=()):
+        R = model.R
+        self.R = R
+        self.nodes = [_Node(float(model.J[i] * R[i] ** 2), float(model.c_ext[i] * R[i] ** 2), {i + 1: 1.0})
+                      for i in range(len(model.J))]
+        self.elems = []
+        for i in range(len(model.k)):
+            s = R[i + 1] ** 2 * (scale or {}).get(i + 1, 1.0)
+            k = math.inf if (i + 1) in rigid else float(model.k[i] * s)
+            self.elems.append(_Elem(k, float(model.c[i] * R[i + 1] ** 2), [i + 1]))
+
+    def idx(self, public_node: int) -> int:
+        for i, nd in enumerate(self.nodes):
+            if nd.members.get(public_node, 0.0) > 0.5:
+                return i
+        raise KeyError(f"public node {public_node} is not the main member of any node")
+
+    def eidx(self, public_elem: int) -> int:
+        for i, el in enumerate(self.elems):
+            if public_elem in el.members:
+                return i
+        raise KeyError(public_elem)
+
+    def merge(self, a: int, b: int) -> None:
+        """Merge the nodes holding public nodes a and b (adjacent; the element between becomes rigid)."""
+        i, j = sorted((self.idx(a), self.idx(b)))
+        if j != i + 1:
+            raise ValueError(f"nodes {a} and {b} are not adjacent")
+        self._merge_at(i)
+
+    def _merge_at(self, i: int) -> None:
+        n0, n1 = self.nodes[i], self.nodes[i + 1]
+        mem = dict(n0.members)
+        for kk, v in n1.members.items():
+            mem[kk] = mem.get(kk, 0.0) + v
+        self.nodes[i] = _Node(n0.J + n1.J, n0.c_ext + n1.c_ext, mem)
+        del self.nodes[i + 1]
+        del self.elems[i]
+
+    def condense(self, public_node: int) -> None:
+        i = self.idx(public_node)
+        if i == 0 or i == len(self.nodes) - 1:
+            raise ValueError(f"public node {public_node} is at an end of the chain")
+        el, er = self.elems[i - 1], self.elems[i]
+        nd = self.nodes[i]
+        if math.isinf(el.k) or math.isinf(er.k):
+            self._merge_at(i - 1 if math.isinf(el.k) else i)
+            return
+        fl = el.k / (el.k + er.k)
+        k, c = series(el.k, el.c, er.k, er.c)
+        for tgt, f in ((self.nodes[i - 1], fl), (self.nodes[i + 1], 1.0 - fl)):
+            tgt.J += f * nd.J
+            tgt.c_ext += f * nd.c_ext
+            for kk, v in nd.members.items():
+                tgt.members[kk] = tgt.members.get(kk, 0.0) + f * v
+        self.elems[i - 1] = _Elem(k, c, el.members + er.members)
+        del self.elems[i]
+        del self.nodes[i]
+
+    def merge_rigid(self) -> None:
+        """Merge across every rigid (infinite) element."""
+        i = 0
+        while i < len(self.elems):
+            if math.isinf(self.elems[i].k):
+                self._merge_at(i)
+            else:
+                i += 1
+
+    def node(self, public_node: int) -> _Node:
+        return self.nodes[self.idx(public_node)]
+
+    def elem_between(self, a: int, b: int) -> _Elem:
+        i, j = sorted((self.idx(a), self.idx(b)))
+        if j != i + 1:
+            raise ValueError(f"nodes {a} and {b} are not adjacent after lumping")
+        return self.elems[i]
+
+
+def _body_J(nd: _Node, model: PublicModel):
+    """Inertia of a body per frame (local values, not referred): (J_drive, J_middle, J_prop)."""
+    R = model.R
+    out = [0.0, 0.0, 0.0]
+    for pid, f in nd.members.items():
+        r = R[pid - 1]
+        fr = 0 if r > 0.5 else (1 if r > 0.2 else 2)
+        out[fr] += f * model.J[pid - 1]
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# Partition
+# ------------------------------------------------------------------------------------------------
+
+@dataclass
+class Partition:
+    """Physical parameters of each component (in the components' own frames), the cuts, and a
+    description of which public nodes/elements each body holds (for docs and checks)."""
+
+    shafts: str
+    n_elements: int
+    params: dict                      # component instance -> {parameter: value}
+    models: dict                      # component instance -> model name
+    connections: list                 # (spring "comp.port", inertia "comp.port")
+    cuts: list                        # dicts: spring, inertia, elements (public ids), k, c (flange frame)
+    bodies: dict                      # body name -> {"members": {node: fraction}, "J_ref": ...}
+    calibration: dict = field(default_factory=dict)
+
+
+def partition(shafts: str = "flexible", n_elements: int = 4, calibration: dict | None = None,
+              coupling_scale: float | None = None, losses: bool = True,
+              model: PublicModel | None = None) -> Partition:
+    """Lump the public model and split it into the components (docs/DRIVETRAIN.md, "Partition").
+
+    shafts "flexible": FlexibleShaft ``drive_shaft`` between ``motors`` and ``upper`` (transducer,
+    drive shaft in ``n_elements`` elements); "rigid": the thin shafts (public elements 11, 14, 16, 21)
+    rigid, no shaft FMU, the drive line from the C2 coupling to the upper gearbox one rigid body in
+    ``upper``. In both: the elastomer couplings C1 (inside ``motors``) and C2 (port spring of
+    ``motors.drive``) stay compliant; the gear stage's port springs are the remaining compliance
+    between the upper gearbox and the pinion (k_a) and between the wheel and the load (k_b)."""
+    if shafts not in ("flexible", "rigid"):
+        raise ValueError(f"shafts must be 'flexible' or 'rigid', got {shafts!r}")
+    n_elements = int(n_elements)
+    if n_elements < 1:
+        raise ValueError("n_elements must be >= 1")
+    m = model or load_public()
+    cal = calibration if calibration is not None else load_calibration()
+    s = float(cal["coupling_scale"] if coupling_scale is None else coupling_scale)
+    rigid = set(THIN_SHAFTS) if shafts == "rigid" else set()
+    rigid |= {GEAR_ELEMENT_UPPER}                 # upper mesh: rigid transmission (local mode ~3 kHz)
+    rigid |= {15, 16, 18} if shafts == "flexible" else {8, 9, 10, 18}
+    ch = RefChain(m, {e: s for e in ELASTOMER_ELEMENTS}, rigid)
+    R = m.R
+    bodies = {}
+
+    # --- drive motor side: condense the small hubs 2, 3, 4 (C1) and 6, 7 (C2) -------------------
+    for pid in (2, 3, 4, 6, 7):
+        ch.condense(pid)
+    # --- drive line ---------------------------------------------------------------------------------
+    ch.condense(9)                                 # transducer element 9 with its couplings 8
+    if shafts == "rigid":
+        # shafts 11, 14, 16, 21 are rigid: merge across them
+        ch.merge_rigid()
+    else:
+        # the drive shaft (element 11, distributed inertia = public node 11) is discretised inside
+        # FlexibleShaft; here node 11 stays as the shaft's start
+        ch.merge_rigid()
+    # upper gearbox body: 12+13 (+ condensed 14 in the flexible case)
+    if shafts == "flexible":
+        ch.condense(14)
+    # --- middle shaft / pinion ----------------------------------------------------------------
+    if shafts == "rigid":
+        # 14+15 sit between the couplings 13 and 15 (local mode ~3 kHz): condensed
+        ch.condense(15)
+    # --- propeller side -------------------------------------------------------------------------
+    if shafts == "flexible":
+        ch.condense(21)
+    ch.condense(20)
+
+    # ---- read the bodies and elements -----------------------------------------------------------
+    M_ = ch.node(1)
+    FW = ch.node(5)
+    C1 = ch.elem_between(1, 5)
+    pin = ch.node(17)
+    whl = ch.node(18)
+    L = ch.node(22)
+    UT = ch.node(12)
+    params: dict = {}
+    cuts = []
+    if shafts == "flexible":
+        H8 = ch.node(8)
+        C2 = ch.elem_between(5, 8)
+        H10 = ch.node(10)
+        T = ch.elem_between(8, 10)
+        S0 = ch.node(11)
+        Ec = ch.elem_between(10, 11)
+        Es = ch.elem_between(11, 12)
+        J_shaft = S0.J
+        # shaft start node S0 is replaced by the discretised shaft: its inertia is the shaft's own
+        params["drive_shaft"] = dict(
+            J_a=H8.J, k_t=T.k, d_t=T.c, J_b=H10.J, k_c=Ec.k, d_c=Ec.c,
+            k_shaft=Es.k, d_shaft=Es.c, J_shaft=J_shaft, n_elements=n_elements)
+        J_in_extra = J_shaft / (2 * n_elements)
+        cuts.append(dict(spring="motors.drive", inertia="drive_shaft.flange_a", elements=C2.members,
+                         k=C2.k, c=C2.c))
+        cuts.append(dict(spring="drive_shaft.flange_b", inertia="upper.flange_a",
+                         elements=[11], k=Es.k * n_elements, c=Es.c * n_elements,
+                         note=f"last of {n_elements} drive-shaft elements"))
+        bodies.update(hub_a=H8.members, hub_b=H10.members, drive_shaft=S0.members)
+        J_sensor = 0.0
+    else:
+        C2 = ch.elem_between(5, 12)
+        J_in_extra = 0.0
+        cuts.append(dict(spring="motors.drive", inertia="upper.flange_a", elements=C2.members, k=C2.k, c=C2.c))
+        # the transducer (public element 9, between nodes 9 and 10) lies inside the rigid body: the
+        # inertia upstream of its measuring section (nodes <= 8 and half of node 9, drive frame)
+        J_sensor = sum(f * m.J[pid - 1] for pid, f in UT.members.items() if pid <= 8) + \
+            0.5 * UT.members.get(9, 0.0) * m.J[8]
+    Ka = ch.elem_between(12, 17)
+    Kb = ch.elem_between(18, 22)
+    J_ut = UT.J + J_in_extra
+    Jd, Jm, _ = _body_J(UT, m)
+    # J_in (drive frame) and J_out (middle frame) of the upper gearbox body
+    J_out = Jm
+    J_in = J_ut - J_out * (1.0 / UPPER_RATIO) ** 2
+    up = cal["upper"]
+    pg = cal["planetary"]
+    lz = 1.0 if losses else 0.0
+    params["upper"] = dict(J_in=J_in, J_out=J_out, ratio=UPPER_RATIO,
+                           loss_c=lz * up["c_v"], loss_Tc=lz * up["T_c"], loss_wc=up["w_c"],
+                           loss_a=lz * up["a"], J_sensor=J_sensor)
+    Rm2 = (1.0 / 3.0) ** 2
+    Rp2 = (1.0 / 12.0) ** 2
+    params["gear"] = dict(J_pinion=pin.J / Rm2, J_wheel=whl.J / Rp2, k_a=Ka.k / Rm2, d_a=Ka.c / Rm2,
+                          k_b=Kb.k / Rp2, d_b=Kb.c / Rp2)
+    params["motors"] = dict(J_motor=M_.J, c_motor=lz * M_.c_ext, k_c1=C1.k, d_c1=C1.c, J_flywheel=FW.J,
+                            k_c2=C2.k, d_c2=C2.c, J_load=L.J / Rp2, ratio_pg=PG_RATIO,
+                            pg_c=lz * pg["c_v"], pg_Tc=lz * pg["T_c"], pg_wc=pg["w_c"], pg_a=lz * pg["a"])
+    cuts.append(dict(spring="gear.flange_a", inertia="upper.flange_b", elements=Ka.members,
+                     k=Ka.k / Rm2, c=Ka.c / Rm2))
+    cuts.append(dict(spring="gear.flange_b", inertia="motors.load", elements=Kb.members,
+                     k=Kb.k / Rp2, c=Kb.c / Rp2))
+    bodies.update(motor=M_.members, flywheel=FW.members, upper=UT.members, pinion=pin.members,
+                  wheel=whl.members, load=L.members)
+    models = {"motors": "MotorLoad", "upper": "UpperTransmission", "gear": "GearContact"}
+    if shafts == "flexible":
+        models = {"motors": "MotorLoad", "drive_shaft": "FlexibleShaft", "upper": "UpperTransmission",
+                  "gear": "GearContact"}
+    connections = [(cu["spring"], cu["inertia"]) for cu in cuts]
+    params = {name: {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in pv.items()}
+              for name, pv in params.items()}
+    for cu in cuts:
+        cu["k"], cu["c"] = float(cu["k"]), float(cu["c"])
+    return Partition(shafts, n_elements, params, models, connections, cuts,
+                     {k: {int(a): float(b) for a, b in v.items()} for k, v in bodies.items()},
+                     {"coupling_scale": s, **{k: v for k, v in cal.items() if k != "coupling_scale"}})
+
+
+@functools.lru_cache(maxsize=4)
+def _defaults_cached() -> dict:
+    part = partition("flexible", 4)
+    return {"FlexibleShaft": dict(part.params["drive_shaft"]),
+            "UpperTransmission": dict(part.params["upper"]),
+            "MotorLoad": dict(part.params["motors"]),
+            "GearContact": dict(part.params["gear"])}
+
+
+def default_parameters(model: str) -> dict:
+    """Default physical parameters of a component model (flexible partition, 4 shaft elements)."""
+    return dict(_defaults_cached()[model])
+
+
+# ------------------------------------------------------------------------------------------------
+# Steady state (constant speed): torques and angles
+# ------------------------------------------------------------------------------------------------
+
+def loss(w, T_trans, law: dict):
+    return law["c_v"] * w + (law["T_c"] + law["a"] * abs(T_trans)) * math.tanh(w / law["w_c"])
+
+
+@dataclass
+class SteadyState:
+    w_drive: float            # rad/s, drive shaft
+    w_middle: float
+    w_prop: float
+    T_load_prop: float        # N m at the propeller shaft from the load motor (8 T_set)
+    T_psh: float              # propeller-shaft torque (transducer, k_b)
+    T_msh: float              # middle-shaft torque (k_a)
+    T_dsh: float              # drive-shaft torque (transducer, C2 and the drive line)
+    T_motor: float            # drive-motor torque
+
+
+def steady_state(speed_rpm: float, load_Nm: float, upper: dict, motors: dict, load_mode: int = 0,
+                 load_w_nom: float = 1.0, load_w_reg: float | None = None) -> SteadyState:
+    """Torque balance at constant speed with an ideal lower gear (no mesh loss):
+
+        T_PSH = 8 T_set + T_pg(w_PSH, 8 T_set)              (load side, propeller frame)
+        T_MSH = T_PSH / 4                                   (ideal lower gear)
+        T_DSH = T_MSH / 3 + T_ut(w_DSH, T_MSH / 3)         (upper gearbox, drive frame)
+        T_motor = T_DSH + c_motor w_DSH
+
+    ``upper``/``motors``: the parameter dicts of UpperTransmission and MotorLoad. At standstill the
+    load setting is 0 (its regularisation below ``load_w_reg``), so a start from rest is at rest."""
+    w = speed_rpm * math.pi / 30.0
+    wm = w / upper.get("ratio", UPPER_RATIO)
+    wp = wm / LOWER_RATIO
+    r8 = motors.get("ratio_pg", PG_RATIO)
+    if int(load_mode) == 0:
+        # the torque setting, regularised at standstill as in MotorLoad (tanh = 1 at any operating speed)
+        wr = load_w_reg if load_w_reg is not None else motors.get("load_w_reg", 0.05)
+        T_prop_load = r8 * load_Nm * math.tanh(wp / wr) if wr > 0 else r8 * load_Nm
+    else:
+        T_prop_load = r8 * load_Nm * wp / load_w_nom
+    pg = {"c_v": motors["pg_c"], "T_c": motors["pg_Tc"], "w_c": motors["pg_wc"], "a": motors["pg_a"]}
+    T_psh = T_prop_load + loss(wp, r8 * load_Nm, pg)
+    T_msh = T_psh / LOWER_RATIO
+    ratio = upper.get("ratio", UPPER_RATIO)
+    ut = {"c_v": upper["loss_c"], "T_c": upper["loss_Tc"], "w_c": upper["loss_wc"], "a": upper["loss_a"]}
+    T_dsh = T_msh / ratio + loss(w, T_msh / ratio, ut)
+    T_motor = T_dsh + motors.get("c_motor", 0.0) * w
+    return SteadyState(w, wm, wp, T_prop_load, T_psh, T_msh, T_dsh, T_motor)
+
+
+# ------------------------------------------------------------------------------------------------
+# Measured mean torques (the calibration target)
+# ------------------------------------------------------------------------------------------------
+
+def read_measured(path: str | Path | None = None) -> dict:
+    """The measured table as arrays: T_load, T_DSH, T_PSH, n_DSH (rpm), n_PSH (rpm)."""
+    p = Path(path) if path else MEASURED_CSV
+    try:
+        with open(p, newline="", encoding="utf-8") as fh:
+            rows = [r for r in csv.reader(fh) if r and not r[0].lstrip().startswith("#")]
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{p}: not a readable CSV text file ({exc})") from None
+    if not rows:
+        raise ValueError(f"{p}: no data")
+    hdr = [h.strip() for h in rows[0]]
+    need = {"T_load_Nm", "T_DSH_Nm", "T_PSH_Nm", "n_DSH_rpm"}
+    missing = need - set(hdr)
+    if missing:
+        raise ValueError(f"{p}: missing columns {sorted(missing)} (have {hdr})")
+    col = {h: i for i, h in enumerate(hdr)}
+    problems = []
+    for n, r in enumerate(rows[1:], start=2):
+        if len(r) != len(hdr):
+            problems.append(f"data row {n - 1} has {len(r)} fields, the header {len(hdr)}: {','.join(r)}")
+            continue
+        for k in need:
+            try:
+                float(r[col[k]])
+            except ValueError:
+                problems.append(f"data row {n - 1}: {k} = {r[col[k]]!r} is not a number")
+    if problems:
+        raise ValueError(f"{p}: " + "; ".join(problems))
+    data = {}
+    for k in hdr:                 # every numeric column (the fit's were checked above; expectations read others)
+        try:
+            data[k] = np.array([float(r[col[k]]) for r in rows[1:]])
+        except ValueError:
+            pass
+    if len(data["T_load_Nm"]) < 8:
+        raise ValueError(f"{p}: at least 8 operating points are needed to fit 8 parameters")
+    return data

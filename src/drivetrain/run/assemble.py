@@ -1,0 +1,260 @@
+"""The assembler: a resolved Scene -> the SystemSpec the master runs (docs/DRIVETRAIN.md).
+
+Only what the scene needs is instantiated:
+
+| effects | FMUs |
+|---|---|
+| shaft_flexibility = "flexible" | motors (MotorLoad), drive_shaft (FlexibleShaft, ``shaft_elements``), upper (UpperTransmission), gear (GearContact) |
+| shaft_flexibility = "rigid" | motors, upper, gear: no shaft FMU |
+| mesh_contact = "ideal" | gear with fidelity "ideal": a rigid ratio, no contact engine |
+
+The parameters come from :func:`drivetrain.rig.data.partition` (the lumped public model, the calibrated
+coupling stiffness and losses); every cut is checked by :func:`drivetrain.models.stability.check_cuts` before the
+spec is returned (an unstable cut is refused with the numbers). The initial state is the steady state
+at the initial speed and load (every spring pre-twisted, the gear's port springs and mesh included;
+the PI integrator pre-loaded), so a constant-speed scene starts at its operating point (first 50 ms
+within 0.1 % of the steady torques on the example scene).
+
+``metadata``: ``sensors`` (rig sensor -> "component.variable"), ``characteristic`` (frequencies from
+the final drive speed), ``fidelity`` (component -> fidelity), ``partition`` (bodies and cuts),
+``cuts`` (the stability report of every cut), ``steady_state``, ``calibration``.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+
+from drivetrain.rig import data as rig
+
+from drivetrain.models import stability
+from drivetrain.models.components import COMPONENTS, FlexibleShaft, FlexibleShaftParams, make_component, params_from
+from drivetrain.rig.signals import characteristic_frequencies
+from drivetrain.errors import NativeBuildError
+from drivetrain.system import ComponentSpec, Connection, SystemSpec
+from gearcontact_fmu.manufacturing_specs import draw_errors
+from gearcontact_fmu.params import BevelGearParams, PCMParams
+
+#: Sensor variables per configuration (docs/DRIVETRAIN.md, "Sensors").
+SENSORS_COMMON = {
+    "propeller_shaft_torque": "gear.flange_b_tau_mean",
+    "enc1": "motors.motor_phi",
+    "enc2": "upper.flange_a_phi",
+    "enc3": "upper.flange_b_phi",
+    "enc4": "gear.pinion_phi",
+    "enc5": "gear.wheel_phi",
+}
+
+
+def sensor_map(shafts: str) -> dict:
+    m = {"drive_shaft_torque": "drive_shaft.torque_sensor" if shafts == "flexible" else "upper.torque_sensor"}
+    m.update(SENSORS_COMMON)
+    return m
+
+
+def manufacturing_errors(scene, gear: BevelGearParams | None = None):
+    """The scene's drawn manufacturing errors (manufacturing_specs.ManufacturingErrors), or None when
+    ``effects.manufacturing_errors`` is off. Deterministic in ``manufacturing.seed``."""
+    if not scene.effects.manufacturing_errors:
+        return None
+    m = scene.manufacturing
+    return draw_errors(gear or BevelGearParams(), grade=m.grade, seed=m.seed, single_pitch_um=m.single_pitch_um,
+                       runout_um=m.runout_um, members=tuple(m.members),
+                       runout_grade=m.runout_grade)
+
+
+def _gear_parameters(scene, part: rig.Partition, max_substep: float) -> dict:
+    eff = scene.effects
+    pcm = PCMParams()
+    p = dict(part.params["gear"])
+    p.update(fidelity=eff.mesh_contact, health=scene.gear.health, max_substep=float(max_substep),
+             profile_element_size=scene.numerics.profile_element_mm * 1e-3,
+             face_element_size=scene.numerics.face_element_mm * 1e-3,
+             map_points_per_pitch=int(scene.numerics.map_points_per_pitch),
+             map_approach_points=int(scene.numerics.map_approach_points),
+             scheme=scene.numerics.mesh_integrator,
+             energy_correction=bool(scene.numerics.energy_correction))
+    if scene.gear.faults:
+        p["faults"] = json.dumps([dict(f) for f in scene.gear.faults])
+    if eff.tooth_compliance and eff.mesh_contact == "table":      # the analytic pair has it already
+        p["tooth_compliance"] = float(scene.tooth_compliance.factor)
+    errors = manufacturing_errors(scene, BevelGearParams(**{f.name: p[f.name] for f in
+                                                             dataclasses.fields(BevelGearParams) if f.name in p}))
+    if errors is not None:
+        p["manufacturing_errors"] = json.dumps(errors.to_dict())
+    if scene.gear.pinion_mesh is not None:
+        p["pinion_mesh_file"] = str(scene.gear.pinion_mesh)
+    if scene.gear.wheel_mesh is not None:
+        p["wheel_mesh_file"] = str(scene.gear.wheel_mesh)
+    if scene.gear.pinion_mesh is not None or scene.gear.wheel_mesh is not None:
+        p["mesh_units"] = scene.gear.mesh_units
+    # effects switched off are not evaluated (the flags reach the mesh model; the contact map is the
+    # same, so no new map is built for a scene without friction or damping)
+    p["friction"] = bool(eff.friction)
+    p["contact_damping"] = bool(eff.contact_damping)
+    p.setdefault("c_compression", pcm.c_compression)
+    return p
+
+
+def initial_mesh_deflection(T_msh: float, fidelity: str) -> float:
+    """Pinion-referred mesh coordinate s = theta_p - (z2/z1) theta_w of the loaded flank at the steady
+    middle-shaft torque (drive flank backlash/2 + T/K_mean; a reversed load, T < 0, loads the coast
+    flank: -backlash/2 + T/K_mean); 0 for the ideal gear."""
+    if fidelity == "ideal":
+        return 0.0
+    try:
+        from gearcontact_fmu.analytic import backlash_angle, mesh_stiffness
+        from gearcontact_fmu.params import BevelGearParams
+
+        g = BevelGearParams()
+        half = 0.5 * float(backlash_angle(g))
+        return (half if T_msh >= 0.0 else -half) + T_msh / float(mesh_stiffness(g)["K_mean"])
+    except Exception:  # pragma: no cover - the gear package decides; a start-up transient only
+        return 0.0
+
+
+#: Internal sub-step of the linear components [s] (implicit midpoint: A-stable; 1e-5 s resolves their
+#: in-band modes, < 1.5 kHz, to better than 0.1 % in frequency). ``numerics.max_substep_s`` of the scene
+#: is the gear stage's sub-step (the stiff mesh needs it); the components use the smaller of this and H.
+COMPONENT_SUBSTEP = 1e-5
+
+
+def assemble(scene, calibration: dict | str | None = None, check: bool = True,
+             component_substep: float | None = None) -> SystemSpec:
+    """Build the SystemSpec for a resolved Scene.
+
+    ``calibration``: a calibration dict or a JSON file written by ``drivetrain calibrate`` (default:
+    $DRIVETRAIN_CALIBRATION, else the shipped ``drivetrain/data/calibration.json``). ``check``: refuse
+    unstable cuts (before any step) with :class:`drivetrain.errors.ConfigurationError`.
+    ``component_substep``: internal sub-step of MotorLoad, FlexibleShaft and UpperTransmission
+    (default min(COMPONENT_SUBSTEP, H); the gear stage uses ``numerics.max_substep_s``)."""
+    eff = scene.effects
+    num = scene.numerics
+    op = scene.operating_point
+    cal = calibration if isinstance(calibration, dict) else rig.load_calibration(calibration)
+    part = rig.partition(eff.shaft_flexibility, eff.shaft_elements, cal, losses=eff.losses)
+    H = float(num.comm_step_s)
+    sub = float(num.max_substep_s)
+    csub = float(component_substep) if component_substep else min(COMPONENT_SUBSTEP, H)
+
+    # ---- steady state at the initial operating point -------------------------------------------
+    n0 = float(op.speed_at(0.0))
+    T0 = float(op.load_at(0.0))
+    up = dict(part.params["upper"])
+    mo = dict(part.params["motors"])
+    ss = rig.steady_state(n0, T0, up, mo)
+    w = ss.w_drive
+    th_motor = 0.0
+    th_fw = th_motor - ss.T_dsh / mo["k_c1"]
+    th_next = th_fw - ss.T_dsh / mo["k_c2"]          # hub A of the drive shaft, or the upper gearbox
+    comps = []
+    if eff.shaft_flexibility == "flexible":
+        ds = dict(part.params["drive_shaft"])
+        ds.update(n_elements=int(eff.shaft_elements), max_substep=csub, phi0=th_next, w0=w, tau0=ss.T_dsh,
+                  energy_correction=int(bool(num.energy_correction)))
+        fs = FlexibleShaft(params_from(FlexibleShaftParams, ds))
+        th_ut = th_next - ss.T_dsh * fs.compliance_to_port()
+        comps.append(("drive_shaft", "FlexibleShaft", ds))
+    else:
+        th_ut = th_next
+    up.update(max_substep=csub, phi0=th_ut, w0=w)
+    phi_a = th_ut / up["ratio"]
+    gear = _gear_parameters(scene, part, sub)
+    # the stage's port springs carry the steady through torques from the start: the pinion lags the
+    # body at flange_a by T_msh / k_a (the stage resists the drive), the wheel leads the propeller
+    # body by T_psh / k_b; the mesh sits at its static deflection s0 between them
+    twist_a, twist_b = -ss.T_msh / float(gear["k_a"]), ss.T_psh / float(gear["k_b"])
+    theta_p = phi_a + twist_a
+    s0 = initial_mesh_deflection(ss.T_msh, eff.mesh_contact)
+    theta_w = (theta_p - s0) / rig.LOWER_RATIO
+    if "manufacturing_errors" in gear:
+        # the errors offset the mesh coordinate by Delta(theta_p, theta_w): start where the offset mesh sits at s0
+        from gearcontact_fmu.manufacturing import mesh_offset
+
+        theta_w += mesh_offset(gear["manufacturing_errors"], theta_p, theta_w) / rig.LOWER_RATIO
+    phi_b = theta_w - twist_b
+    gear.update(twist_a_start=twist_a, twist_b_start=twist_b)
+    mo.update(max_substep=csub, energy_correction=int(bool(num.energy_correction)), phi0_motor=th_motor, w0=w,
+              tau0=ss.T_dsh, phi0_load=phi_b, w0_load=ss.w_prop,
+              load_w_nom=ss.w_prop if ss.w_prop > 0 else 1.0)
+
+    inputs = {}
+    inputs["speed_ref_rpm"] = ([list(p) for p in op.speed_profile_rpm] if op.speed_profile_rpm
+                               else float(op.drive_speed_rpm))
+    inputs["load_torque"] = ([list(p) for p in op.load_profile_Nm] if op.load_profile_Nm
+                             else float(op.load_torque_Nm))
+    components = [ComponentSpec("motors", "MotorLoad", mo, inputs)]
+    for name, model, params in comps:
+        components.append(ComponentSpec(name, model, params))
+    components.append(ComponentSpec("upper", "UpperTransmission", up))
+    components.append(ComponentSpec("gear", "GearContact", gear))
+    connections = [Connection(s, i) for s, i in part.connections]
+    gear.update(gear_start_state(components, connections, "gear"))
+
+    meta = {
+        "sensors": sensor_map(eff.shaft_flexibility),
+        "characteristic": characteristic_frequencies(op.final_speed_rpm),
+        "fidelity": {"gear": eff.mesh_contact},
+        "partition": {"shafts": part.shafts, "n_elements": part.n_elements if part.shafts == "flexible" else 0,
+                      "bodies": part.bodies,
+                      "cuts": [{k: v for k, v in c.items()} for c in part.cuts]},
+        "steady_state": dataclasses.asdict(ss),
+        "manufacturing_errors": json.loads(gear["manufacturing_errors"]) if "manufacturing_errors" in gear else None,
+        "calibration": part.calibration,
+        "fmus": [c.model for c in components],
+        "substeps": {"gear": sub, "components": csub},
+        "warnings": [],
+    }
+    spec = SystemSpec(components, connections, H, meta)
+    if check:
+        try:
+            reports, rho = stability.check_cuts(spec)
+        except stability.UnstableCutError as exc:
+            from drivetrain.cosim import ConfigurationError
+
+            err = ConfigurationError(exc.problems)
+            err.reports = exc.reports
+            raise err from None
+        meta["cuts"] = [r.as_dict() for r in reports]
+        meta["cosim_spectral_radius"] = rho
+    return spec
+
+
+#: the gear stage's bodies and the flange whose connected body each one starts at
+_GEAR_BODIES = (("pinion", "flange_a"), ("wheel", "flange_b"))
+
+
+def gear_start_state(components: list[ComponentSpec], connections: list[Connection], gear: str) -> dict:
+    """GearContact's initial-state parameters (``initial_state = "parameters"``): each of its bodies
+    starts at the angle of the body its flange connects to plus the port twist (``twist_a_start``,
+    ``twist_b_start`` of the gear's parameters), at that body's speed, as that component starts (built
+    here from its own parameters and read back, so the values are the ones a master passes during
+    initialization, bit for bit). The FMU then starts right in a host that passes nothing before the
+    first step (docs/FMU.md, "Initialization"); with ``initial_state = "inputs"`` it starts the same."""
+    by_name = {c.name: c for c in components}
+    twists = {"a": float(by_name[gear].parameters.get("twist_a_start", 0.0)),
+              "b": float(by_name[gear].parameters.get("twist_b_start", 0.0))}
+    out = {"initial_state": "parameters"}
+    for body, flange in _GEAR_BODIES:
+        conn = next(c for c in connections if c.spring == f"{gear}.{flange}")
+        comp_name, port = conn.inertia.split(".", 1)
+        comp = by_name[comp_name]
+        if comp.model not in COMPONENTS:          # another FMU: it passes its values during initialization
+            return {}
+        values = make_component(comp.model, comp.parameters).outputs(energy=False)
+        out[f"{body}_phi_start"] = float(values[f"{port}_phi"]) + twists[flange[-1]]
+        out[f"{body}_w_start"] = float(values[f"{port}_w"])
+    return out
+
+
+__all__ = ["assemble", "gear_start_state", "sensor_map", "SENSORS_COMMON"]
+
+
+def gear_parameters(scene) -> dict:
+    """The GearContact parameters of a scene (component "gear" as assembled): what ``drivetrain
+    build-native-gear`` builds."""
+    spec = assemble(scene)
+    gears = [c for c in spec.components if c.model == "GearContact"]
+    if not gears:
+        raise NativeBuildError([f"scene {scene.name!r} has no GearContact component (effects.mesh_contact = "
+                                f"'ideal' with rigid shafts assembles none)"])
+    return dict(gears[0].parameters)

@@ -1,0 +1,479 @@
+"""Run one scene: assemble, co-simulate, post-process, write the result files.
+
+``run_scene(scene, out_dir, backend="fmi", progress=True) -> RunResult``; the ``drivetrain run`` command
+is a thin shell over it.
+
+Every summary has ``status`` ("ok" | "failed") and a ``stability`` block (:func:`stability_summary`,
+from the gear stage's cumulative counters read once at the end). When an FMU fails during the run,
+nothing computed is lost: the completed part is post-processed and written like a normal run (signals
+up to the last whole output sample before the failure, summary with ``status = "failed"`` and a
+``failure`` block) and :class:`RunFailedError` (a CosimError) is raised carrying that RunResult.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import time as _time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drivetrain import __version__
+
+from drivetrain.rig import instruments
+from drivetrain.run import outputs as O
+from drivetrain.run import accuracy
+from drivetrain.run import cost as runcost
+from drivetrain.models import stability
+from drivetrain.cosim import CosimResult, Master
+from drivetrain.errors import ConfigurationError, CosimError, RunFailedError  # noqa: F401  (re-exported)
+from drivetrain.scene.load import RIG_SENSORS, TORQUE_SENSORS, Scene
+from drivetrain.rig.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies, stats, to_db
+from drivetrain.system import BACKENDS, SystemSpec
+from gearcontact_fmu.fault_specs import FaultGeometryError
+
+#: messages for the user (progress, warnings); the CLI passes its own ``log``, a library caller sees them
+#: through Python logging (on stderr when logging is not configured)
+_LOG = logging.getLogger(__name__)
+
+SUMMARY_KEYS = (
+    "name", "wall_time_s", "sim_time_s", "real_time_factor", "torque", "f_DSH", "f_MSH", "f_PSH", "f_GMF",
+    "energy_residual", "fmus", "status", "stability",
+)
+
+#: The gear stage FMU model and what is read from it once at the end of a run (and at a failure) for
+#: ``summary["stability"]``: its cumulative stability counters (docs/FMU.md) and two parameters.
+GEAR_MODEL = "GearContact"
+#: read from every FMU that has it (ours with spring-side ports): the work mismatch of its cuts still
+#: pending at the end of the run (gearcontact_fmu.coupling)
+COUPLING_VAR = "coupling_energy_error"
+GEAR_FINAL_VARS = ("peak_penetration", "min_substep", "n_substeps", "n_refinements", "separated_time",
+                   "n_separations", "u_max", "max_substep")
+
+
+@dataclass
+class RunResult:
+    """What a run produced (files only when ``out_dir`` was given)."""
+
+    scene: Scene
+    summary: dict                           # the content of summary.json
+    time: np.ndarray                        # output sample times [s]
+    signals: dict[str, np.ndarray]          # sensor name or "component.variable" -> samples
+    units: dict[str, str]
+    sources: dict[str, str]                 # channel -> "component.variable" it came from
+    cosim: CosimResult                      # master result (energy audit, timing, logs)
+    spec: SystemSpec
+    out_dir: Path | None = None
+    files: dict[str, Any] = field(default_factory=dict)   # signals, summary, plots (list), csv
+
+    @property
+    def status(self) -> str:
+        """"ok", or "failed" (an FMU failed; the result holds the completed part)."""
+        return self.summary.get("status", "ok")
+
+    @property
+    def wall_time_s(self) -> float:
+        return self.summary["wall_time_s"]
+
+    @property
+    def real_time_factor(self) -> float:
+        return self.summary["real_time_factor"]
+
+    @property
+    def energy(self) -> dict:
+        return self.cosim.energy
+
+    def settled(self, name: str) -> np.ndarray:
+        """Samples of a channel after the settling time."""
+        return self.signals[name][self.time >= self.scene.time.settle_s]
+
+
+def stability_summary(res: CosimResult, spec: SystemSpec, time_s: float, energy_residual,
+                      settle_s: float = 0.0) -> dict:
+    """``summary["stability"]`` from the gear stage's counters (``res.final``, and ``res.snapshots`` at
+    ``settle_s``); keys (None where they do not apply: no gear FMU, or it could not be read after a
+    failure):
+
+    - ``gear``: the GearContact component the numbers are from; ``time_s``: the time they cover;
+    - ``max_penetration_m``: largest element penetration over the run (every sub-step point), ``u_max_m``
+      the gear's u_max, ``max_penetration_rel_umax`` their ratio (>= 1 means the mesh error state);
+    - ``min_substep_s``: smallest sub-step the stage took, ``max_substep_s`` its nominal sub-step,
+      ``n_substeps`` accepted sub-steps, ``n_refinements`` sub-step halvings (contact events);
+    - ``energy_residual``: the relative energy residual of the run (None for a failed run);
+    - ``coupling_energy_pending_J``: per FMU with spring-side ports, the work mismatch of its cuts not
+      yet returned by the energy correction at the end (with ``numerics.energy_correction = false``: the
+      whole mismatch, i.e. that FMU's share of the audit's residual);
+    - ``rattle``: tooth separation while running, i.e. after the settling time (the start-up transient
+      from the assembled initial state may bounce the teeth once or twice): ``window_s`` = [settle_s,
+      time_s] (the part of the run it covers), ``separated`` (the teeth lost contact at least once in
+      it), ``separated_time_s`` (time out of contact), ``separated_fraction`` (of the window),
+      ``n_separations`` (contact-loss events); ``whole_run``: the same three numbers from t = 0.
+      (None when the window is empty, e.g. a run that failed before settle_s.)
+    """
+    gears = [c.name for c in spec.components if c.model == GEAR_MODEL]
+    g = gears[0] if gears else None
+
+    def val(name):
+        return res.final.get(f"{g}.{name}") if g is not None else None
+
+    def count(name):
+        v = val(name)
+        return int(round(v)) if v is not None and np.isfinite(v) else None
+
+    def fraction(t_sep, span):
+        return float(min(max(t_sep / span, 0.0), 1.0)) if t_sep is not None and span > 0 else None
+
+    pen, umax = val("peak_penetration"), val("u_max")
+    n_sub = count("n_substeps")
+    tsep, nsep = val("separated_time"), count("n_separations")
+    # the running part: counters at the end minus the counters read at settle_s
+    t0 = max(float(settle_s), 0.0)
+    w_tsep, w_nsep = (tsep, nsep) if t0 == 0.0 else (None, None)      # None: window empty or unread
+    if t0 > 0.0 and g is not None and res.snapshots and tsep is not None and nsep is not None:
+        ts = min(res.snapshots, key=lambda x: abs(x - t0))
+        snap = res.snapshots[ts]
+        a, b = snap.get(f"{g}.separated_time"), snap.get(f"{g}.n_separations")
+        if abs(ts - t0) <= 0.5 * res.comm_step_s + 1e-12 and a is not None and b is not None:
+            w_tsep, w_nsep = tsep - a, nsep - int(round(b))
+    window = max(time_s - t0, 0.0)
+    return {
+        "gear": g,
+        "time_s": float(time_s),
+        "max_penetration_m": pen,
+        "u_max_m": umax,
+        "max_penetration_rel_umax": (pen / umax) if pen is not None and umax else None,
+        "min_substep_s": val("min_substep") if n_sub else None,
+        "max_substep_s": val("max_substep"),
+        "n_substeps": n_sub,
+        "n_refinements": count("n_refinements"),
+        "energy_residual": energy_residual,
+        "coupling_energy_pending_J": {c.name: res.final[f"{c.name}.{COUPLING_VAR}"] for c in spec.components
+                                      if f"{c.name}.{COUPLING_VAR}" in res.final},
+        "rattle": {
+            "window_s": [t0, float(time_s)],
+            "separated": (bool(w_nsep > 0 or w_tsep > 0) if w_nsep is not None and w_tsep is not None else None),
+            "separated_time_s": w_tsep,
+            "separated_fraction": fraction(w_tsep, window),
+            "n_separations": w_nsep,
+            "whole_run": {"separated_time_s": tsep, "separated_fraction": fraction(tsep, time_s),
+                          "n_separations": nsep},
+        },
+    }
+
+
+def failure_summary(res: CosimResult, spec: SystemSpec) -> dict | None:
+    """``summary["failure"]`` of a failed run: the master's failure record (``time_s``, ``component``,
+    ``model``, ``function``, ``status``, ``cause``, ``log``, ``steps_completed``,
+    ``last_sample_time_s``) with ``outputs`` = the failed FMU's Real outputs read after the failure
+    (None if it could not answer) and ``gear_state`` = the gear FMU's outputs (pinion/wheel angle and
+    speed, max_penetration, the stability counters, ...; None without a readable gear FMU)."""
+    if res.failure is None:
+        return None
+    f = dict(res.failure)
+    outs = f.pop("outputs", None) or {}
+    gears = [c.name for c in spec.components if c.model == GEAR_MODEL]
+    f["outputs"] = outs.get(f["component"])
+    f["gear"] = gears[0] if gears else None
+    f["gear_state"] = outs.get(gears[0]) if gears else None
+    return f
+
+
+def _fidelity(c, spec: SystemSpec):
+    meta = spec.metadata.get("fidelity") or spec.metadata.get("fidelities") or {}
+    if isinstance(meta, dict) and c.name in meta:
+        return meta[c.name]
+    for k in ("fidelity", "mesh_contact", "mode", "model_fidelity"):
+        if k in c.parameters:
+            return c.parameters[k]
+    return None
+
+
+def assemble_scene(scene: Scene) -> SystemSpec:
+    try:
+        from drivetrain.run.assemble import assemble
+    except ImportError as exc:
+        raise ConfigurationError(f"the assembler (drivetrain.run.assemble) is not available: {exc}") from None
+    return assemble(scene)
+
+
+def _natural_frequencies(spec: SystemSpec, n: int = 6) -> list[float] | None:
+    """The lowest elastic natural frequencies [Hz] of the assembled, linearised drivetrain (free-free,
+    undamped, ISO mean mesh stiffness; as ``drivetrain eigen``): a few ms. None for a system the linear
+    model does not know (custom FMUs)."""
+    try:
+        from drivetrain.models.eigen import natural_frequencies
+
+        return [float(f) for f in natural_frequencies(spec)[:n]]
+    except Exception:  # noqa: BLE001 - a summary entry, never a reason to lose a run
+        return None
+
+
+def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "fmi", progress: bool = True,
+              *, fmu_dir: str | Path = "fmus", spec: SystemSpec | None = None,
+              fmu_paths: dict | None = None, plots: bool | None = None, build: bool = True,
+              log=None, force: bool = False) -> RunResult:
+    """Simulate a validated scene and (if out_dir) write signals.h5, summary.json, plots and CSV.
+
+    ``spec``: use this system instead of ``assemble(scene)`` (tests, custom systems).
+    ``fmu_paths``: explicit {model: path} (no building). ``plots``: override ``scene.outputs.plots``.
+    Raises ConfigurationError before any step if the system cannot run as specified, or is predicted to
+    cost far more than its simulated time (:mod:`drivetrain.run.cost`; ``force=True`` runs it anyway, and
+    lifts ``numerics.max_contact_hours``). If an FMU fails
+    during the run, the completed part is post-processed (and written: signals up to the failure,
+    summary with ``status = "failed"`` and ``failure``) and :class:`RunFailedError` is raised with it
+    (a CosimError; a failure before the first step raises the master's CosimError, nothing written).
+    """
+    t0 = _time.perf_counter()
+    log = log or _LOG.warning
+    warnings: list[str] = []
+    choice = None
+    if spec is None:
+        if scene.numerics.tolerance_pct is not None:   # the cheapest studied setting within the tolerance
+            try:
+                scene, choice = accuracy.apply_tolerance(scene)
+            except (FileNotFoundError, ValueError) as exc:
+                raise ConfigurationError([f"numerics.tolerance_pct = {scene.numerics.tolerance_pct:g}: {exc}"]) from None
+            log(f"tolerance {choice.tolerance_pct:g} %: setting {choice.setting!r}: {choice.why}")
+        spec = assemble_scene(scene)
+    try:   # a contact model too costly for the scene's budget, or a u_max the static load alone would
+        #    pass, is refused before any step
+        contact_cost = stability.check_contact_cost(
+            spec, scene.time.duration_s, float("inf") if force else scene.numerics.max_contact_hours)
+        contact_range = stability.check_contact_range(spec)
+    except (stability.ContactCostError, stability.ContactRangeError) as exc:
+        raise ConfigurationError(exc.problems) from None
+    except FaultGeometryError as exc:
+        raise ConfigurationError([str(exc)]) from None
+    predicted = runcost.predict(scene, backend, contact_cost)
+    too_costly = runcost.refusal(scene, predicted)
+    if too_costly and not force:
+        raise ConfigurationError([too_costly])
+    if too_costly:
+        warnings.append(f"forced: {too_costly}")
+        log(f"warning: forced: {too_costly}")
+    for rep in contact_cost:
+        if rep.get("warning"):
+            warnings.append(rep["warning"])
+            log(f"warning: {rep['warning']}")
+    H = scene.numerics.comm_step_s
+    if abs(spec.comm_step - H) > 1e-12 * H:
+        warnings.append(f"the assembled system uses comm_step {spec.comm_step:.10g} s, the scene asks for {H:.10g} s")
+
+    sensor_map = dict(spec.metadata.get("sensors", {}))
+    sources: dict[str, str] = {}
+    for s in scene.outputs.sensors:
+        if s in sensor_map:
+            sources[s] = sensor_map[s]
+        else:
+            warnings.append(f"sensor {s!r} is not provided by the assembled system "
+                            f"(available: {', '.join(sensor_map) or 'none'}); skipped")
+    for v in scene.outputs.variables:
+        sources[v] = v
+    record = list(dict.fromkeys(sources.values()))
+
+    final = [f"{c.name}.{v}" for c in spec.components if c.model == GEAR_MODEL for v in GEAR_FINAL_VARS]
+    final += [f"{c.name}.{COUPLING_VAR}" for c in spec.components]
+    t_native = _time.perf_counter()
+    if backend not in BACKENDS:
+        raise ConfigurationError([f"backend {backend!r}: expected one of {', '.join(BACKENDS)}"])
+    if backend == "native":
+        # compiled FMUs (built once, kept in <fmu_dir>/native) through FMI; an explicit fmu_paths entry wins.
+        # Without a compiler the run still happens, on the pythonfmu FMUs, and says so.
+        from drivetrain.cosim.native_line import native_fmus, toolchain_problems
+
+        missing = toolchain_problems()
+        if missing:
+            note = f"{'; '.join(missing)}: the run uses the pythonfmu FMUs (backend fmi)"
+            backend = "fmi"
+        else:
+            native, note = native_fmus(spec, Path(fmu_dir) / "native", log=log)
+            fmu_paths = {**native, **(fmu_paths or {})}
+        if note:
+            warnings.append(f"backend native: {note}")
+            log(f"warning: backend native: {note}")
+    master_backend = "fmi" if backend == "native" else backend
+    t_master = _time.perf_counter()
+    master = Master(spec, fmu_dir=fmu_dir, backend=master_backend, fmu_paths=fmu_paths, build=build, log=log)
+    failed: CosimError | None = None
+    try:
+        res = master.run(scene.time.duration_s, scene.time.sample_rate_Hz, record,
+                         progress=None if progress else False, anti_alias=scene.numerics.anti_alias,
+                         final=final, snapshots=(scene.time.settle_s,))
+    except CosimError as exc:
+        if exc.partial is None:
+            raise
+        failed, res = exc, exc.partial
+    warnings += res.warnings
+    if failed is not None:
+        warnings.append(f"the run failed at t = {failed.time:.9g} s ({failed.component}: "
+                        f"{res.failure['cause']}); results up to t = {res.time[-1]:.9g} s")
+
+    signals = {name: res.signals[src] for name, src in sources.items()}
+    if scene.effects.sensors == "rig":      # what the rig's instruments would have reported
+        signals = instruments.measure(signals, scene.time.sample_rate_Hz, scene.instruments, scene.name)
+        if abs(scene.time.sample_rate_Hz - instruments.RIG_SAMPLE_RATE_HZ) > 1e-9:
+            warnings.append(f"rig sensors sampled at time.sample_rate_Hz = {scene.time.sample_rate_Hz:g} Hz; the "
+                            f"rig's clock is {instruments.RIG_SAMPLE_RATE_HZ:g} Hz (with numerics.comm_step_s = "
+                            f"1/12048 s)")
+    units = {}
+    for name, src in sources.items():
+        u = res.units.get(src)
+        if u is None and name in RIG_SENSORS:
+            u = RIG_SENSORS[name][0]
+        units[name] = u or ""
+    t = res.time
+    settle = scene.time.settle_s
+    m = t >= settle
+
+    cf = characteristic_frequencies(scene.operating_point.final_speed_rpm)
+    fs = scene.time.sample_rate_Hz
+    torque_stats, spectra, peaks = {}, {}, {}
+    for name in TORQUE_SENSORS:
+        if name not in signals:
+            continue
+        x = signals[name][m]
+        if not len(x):               # a failed run that ended before settle_s
+            continue
+        torque_stats[name] = {**stats(x), "unit": units[name]}
+        if len(x) > 16 and cf["f_GMF"] > 0:
+            try:
+                f, A = amplitude_spectrum(x, fs, lowpass_Hz=5.0 * cf["f_GMF"])
+            except ValueError as exc:    # too short for the low-pass (a short or failed run)
+                warnings.append(f"no spectrum of {name}: {exc}")
+                continue
+            spectra[name] = (f, A)
+            pk = {"bin_Hz": float(f[1] - f[0]),
+                  "GMF_harmonics": [{"k": k, "f_Hz": h, "amplitude": amplitude_near(f, A, h)}
+                                    for k, h in enumerate(cf["harmonics"], start=1) if h < fs / 2],
+                  "sidebands": [{"k": sb["k"], "lower_Hz": sb["lower"], "upper_Hz": sb["upper"],
+                                 "lower_amplitude": amplitude_near(f, A, sb["lower"]),
+                                 "upper_amplitude": amplitude_near(f, A, sb["upper"])}
+                                for sb in cf["sidebands"]]}
+            g = pk["GMF_harmonics"][0]["amplitude"] if pk["GMF_harmonics"] else float("nan")
+            for sb in pk["sidebands"]:
+                sb["lower_dB_re_GMF"] = float(to_db(sb["lower_amplitude"] / g)) if g > 0 else None
+                sb["upper_dB_re_GMF"] = float(to_db(sb["upper_amplitude"] / g)) if g > 0 else None
+            peaks[name] = pk
+    channel_stats = {name: {**stats(x[m]), "unit": units[name]} for name, x in signals.items() if m.any()}
+    nonfinite = [n for n, x in signals.items() if not np.all(np.isfinite(x))]
+
+    energy = res.energy
+    energy_residual = energy.get("relative_residual")
+    fmus = [{"name": c.name, "model": c.model, "fidelity": _fidelity(c, spec)} for c in spec.components]
+    covered = res.sim_time_s if failed is None else max(float(failed.time), res.sim_time_s)
+    wall = _time.perf_counter() - t0
+    summary = {
+        "name": scene.name,
+        "status": res.status,
+        "failure": failure_summary(res, spec),
+        "description": scene.scenario.description,
+        "source": str(scene.source) if scene.source else None,
+        "overrides": list(scene.overrides),
+        "backend": backend,
+        "wall_time_s": wall,
+        "sim_time_s": res.sim_time_s,
+        "requested_sim_time_s": scene.time.duration_s,
+        "real_time_factor": res.real_time_factor if res.loop_time_s > 0 else None,
+        "real_time_factor_wall": res.sim_time_s / wall if wall > 0 else None,
+        "loop_time_s": res.loop_time_s,
+        "loop_cpu_time_s": res.loop_cpu_time_s,
+        "time_breakdown_s": {"assemble_and_check": t_native - t0, "native_build": t_master - t_native,
+                             "fmu_setup": res.setup_time_s,
+                             "loop": res.loop_time_s,
+                             "postprocess": max(0.0, wall - (t_master - t0) - res.setup_time_s - res.loop_time_s)},
+        "us_per_step": res.us_per_step,
+        "us_per_step_steady": res.us_per_step_steady,
+        "n_steps": res.n_steps,
+        "comm_step_s": res.comm_step_s,
+        "sample_rate_Hz": fs,
+        "settle_s": settle,
+        "n_fmus": len(spec.components),
+        "operating_point": {"drive_speed_rpm": scene.operating_point.final_speed_rpm,
+                            "load_torque_Nm": scene.operating_point.load_torque_Nm,
+                            "profiles": bool(scene.operating_point.speed_profile_rpm
+                                             or scene.operating_point.load_profile_Nm)},
+        "health": scene.gear.health,
+        "effects": dataclasses.asdict(scene.effects),
+        # the drawn errors (per tooth, eccentricities, phases) and how they were drawn: the labels of the run
+        "manufacturing_errors": spec.metadata.get("manufacturing_errors"),
+        "instruments": dataclasses.asdict(scene.instruments) if scene.effects.sensors == "rig" else None,
+        "torque": torque_stats,
+        "channels": channel_stats,
+        "f_DSH": cf["f_DSH"], "f_MSH": cf["f_MSH"], "f_PSH": cf["f_PSH"], "f_GMF": cf["f_GMF"],
+        "characteristic_frequencies": cf,
+        "spectrum_peaks": peaks,
+        "energy_residual": energy_residual,
+        "energy": energy,
+        "natural_frequencies_Hz": _natural_frequencies(spec),
+        "stability": {**stability_summary(res, spec, covered, energy_residual, settle),
+                      "static_contact": contact_range, "contact_cost": contact_cost},
+        "fmus": fmus,
+        "nonfinite_channels": nonfinite,
+        "warnings": warnings,
+        "accuracy_choice": choice.to_dict() if choice is not None else None,
+        "drivetrain_version": __version__,
+    }
+    result = RunResult(scene=scene, summary=summary, time=t, signals=signals, units=units, sources=sources,
+                       cosim=res, spec=spec)
+    if out_dir is not None:
+        write_run(result, out_dir, plots=scene.outputs.plots if plots is None else plots, spectra=spectra)
+    if failed is not None:
+        raise RunFailedError(failed, result) from failed
+    return result
+
+
+def write_run(result: RunResult, out_dir: str | Path, plots: bool = True, spectra: dict | None = None) -> dict:
+    """Write signals.h5, summary.json, plots and (if asked) sensors.csv into out_dir."""
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    scene = result.scene
+    files: dict[str, Any] = {"signals": str(out / "signals.h5"), "summary": str(out / "summary.json")}
+    t_w = _time.perf_counter()
+    plot_files = []
+    cf = result.summary["characteristic_frequencies"]
+    failed = result.status != "ok"
+    if plots:
+        torques = {n: result.signals[n] for n in TORQUE_SENSORS if n in result.signals}
+        title = f"{scene.name}: torque waveforms"
+        if failed:
+            title += f" (FAILED at t = {result.summary['failure']['time_s']:.6g} s)"
+        try:
+            if torques:
+                plot_files.append(str(O.plot_torques(out / "torques.png", result.time, torques,
+                                                     scene.time.settle_s, cf, title=title)))
+            if spectra:
+                plot_files.append(str(O.plot_spectra(out / "spectra.png", spectra, cf,
+                                                     title=f"{scene.name}: spectra")))
+        except Exception as exc:    # noqa: BLE001 - a failed run's plots are optional: keep the data
+            if not failed:
+                raise
+            result.summary["warnings"].append(f"plots of the failed run skipped: {type(exc).__name__}: {exc}")
+    files["plots"] = plot_files
+    if scene.outputs.aalto_csv:
+        files["csv"] = str(O.write_aalto_csv(out / "sensors.csv", result.time, result.signals))
+    result.summary["files"] = {k: (Path(v).name if isinstance(v, str) else [Path(x).name for x in v])
+                               for k, v in files.items()}
+    result.summary["write_time_s"] = _time.perf_counter() - t_w
+    meta = {}
+    for name, src in result.sources.items():
+        kind = "sensor" if name in RIG_SENSORS else "variable"
+        desc = RIG_SENSORS[name][1] if name in RIG_SENSORS else ""
+        meta[name] = {"unit": result.units.get(name, ""), "source": src, "kind": kind, "description": desc}
+    attrs = {
+        "name": scene.name, "scene_json": scene.to_json(), "scene_toml": scene.to_toml(),
+        "system_json": json.dumps(O.spec_to_dict(result.spec)),
+        "summary_json": json.dumps(O.jsonable(result.summary)),
+        "backend": result.summary["backend"], "created": O.now_iso(), "drivetrain_version": __version__,
+        "sample_rate_Hz": scene.time.sample_rate_Hz, "comm_step_s": result.cosim.comm_step_s,
+        "settle_s": scene.time.settle_s, "duration_s": result.cosim.sim_time_s,
+        "status": result.status,
+    }
+    O.write_hdf5(out / "signals.h5", result.time, result.signals, meta, attrs, dtype=scene.outputs.dtype)
+    O.write_summary(out / "summary.json", result.summary)
+    result.out_dir = out
+    result.files = files
+    return files

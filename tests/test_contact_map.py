@@ -353,10 +353,17 @@ def test_seed_maps_are_what_a_build_gives():
         seed = cm.load_map(cm.seed_path(config), config["gear"], config["pcm"], config["grid"])
         fresh = get_map(config["gear"], config["pcm"], config["resolution"], config["health"],
                         grid=config["grid"], use_cache=False)
+        # each output channel against its own scale: a build on another processor generation differs in the
+        # last bits (numba vectorises the sums differently; measured up to 6e-9 of a channel's scale, on the
+        # dissipated power at standstill whose scale is itself 8e-9 W, and <= 7e-12 elsewhere, on a znver4
+        # against the machine that wrote the seed); 1e-8 is 1e4 x below any figure a run reports
         for name in ("theta", "a", "onset", "values"):
             a, b = getattr(seed, name), getattr(fresh, name)
-            scale = float(np.max(np.abs(b))) or 1.0
-            assert np.max(np.abs(a - b)) <= 1e-12 * scale, f"{name}: the seed map differs from a fresh build"
+            a, b = a.reshape(-1, a.shape[-1]) if name == "values" else a.reshape(-1, 1), \
+                b.reshape(-1, b.shape[-1]) if name == "values" else b.reshape(-1, 1)
+            scale = np.maximum(np.max(np.abs(b), axis=0), np.finfo(float).tiny)
+            worst = np.max(np.abs(a - b), axis=0) / scale
+            assert np.all(worst <= 1e-8), f"{name}: the seed map differs from a fresh build (relative {worst.max():.2e})"
         timing = {"build_seconds"}
         assert ({k: v for k, v in seed.info.items() if k not in timing}
                 == {k: v for k, v in fresh.info.items() if k in seed.info and k not in timing})

@@ -537,15 +537,13 @@ def _positive_int(text: str) -> int:
     return v
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="drivetrain", description=__doc__.splitlines()[0])
-    sub = parser.add_subparsers(dest="command", required=True)
-
+def _parser_build_fmus(sub) -> None:
     p = sub.add_parser("build-fmus", help="build every FMU of the project into fmus/ (or --out DIR)")
     p.add_argument("--out", default="fmus", help="output directory (default: fmus)")
     p.add_argument("--only", nargs="*", default=None, help="build only these FMUs (model names)")
     p.set_defaults(func=_cmd_build_fmus)
 
+def _parser_run(sub) -> None:
     p = sub.add_parser("run", help="run a scene: signals (HDF5), summary.json and plots into --out DIR")
     p.add_argument("scene", help="scene file (.toml); a grid file needs --case")
     p.add_argument("--set", action="append", metavar="KEY=VALUE",
@@ -570,6 +568,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "T dB on GMF and sidebands (numerics.tolerance_pct; docs/ACCURACY-COST.md)")
     p.set_defaults(func=_cmd_run)
 
+def _parser_build_native_gear(sub) -> None:
     p = sub.add_parser("build-native-gear", help="the scene's GearContact (fidelity table) as a native FMU: "
                        "compiled C and the contact map as a resource, no Python needed (docs/FMU.md)")
     p.add_argument("scene", help="scene file (.toml); a grid file needs --case")
@@ -579,6 +578,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the FMU file (default: fmus/native/GearContact.fmu)")
     p.set_defaults(func=_cmd_build_native_gear)
 
+def _parser_build_native(sub) -> None:
     p = sub.add_parser("build-native", help="the scene's four FMUs (GearContact at fidelity table, FlexibleShaft, "
                        "UpperTransmission, MotorLoad) as native FMUs: compiled C, no Python needed (docs/FMU.md)")
     p.add_argument("scene", help="scene file (.toml); a grid file needs --case")
@@ -587,6 +587,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", default="fmus/native", help="the directory of the FMUs (default: fmus/native)")
     p.set_defaults(func=_cmd_build_native)
 
+def _parser_export_ssp(sub) -> None:
     p = sub.add_parser("export-ssp", help="the scene's system (FMUs, connections, assembled parameters, "
                        "experiment) as an SSP 1.0 archive for other FMI tools")
     p.add_argument("scene", help="scene file (.toml); a grid file needs --case")
@@ -599,12 +600,14 @@ def build_parser() -> argparse.ArgumentParser:
                         "of another fidelity than table keeps its pythonfmu FMU, with a message)")
     p.set_defaults(func=_cmd_export_ssp)
 
+def _parser_eigen(sub) -> None:
     p = sub.add_parser("eigen", help="natural frequencies of the assembled, linearised drivetrain")
     p.add_argument("scene")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a scene key")
     p.add_argument("--modes", type=_positive_int, default=12, help="how many modes to list (default 12)")
     p.set_defaults(func=_cmd_eigen)
 
+def _parser_calibrate(sub) -> None:
     p = sub.add_parser("calibrate", help="refit the loss parameters from a measured mean-torque table")
     p.add_argument("measured", nargs="?", help="CSV like measured_mean_torques.csv")
     p.add_argument("--out", default=None, help="where to write the fitted parameters")
@@ -612,6 +615,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="rewrite the shipped data/calibration.json (losses, then the coupling factor for 24 Hz)")
     p.set_defaults(func=_cmd_calibrate)
 
+def _parser_sweep(sub) -> None:
     p = sub.add_parser("sweep", help="run many scenes (grid files expand) in parallel; one HDF5 per run + manifest")
     p.add_argument("scenes", nargs="+", help="scene or grid files")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key of every scene")
@@ -626,6 +630,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--force", action="store_true", help=_FORCE_HELP)
     p.set_defaults(func=_cmd_sweep)
 
+def _parser_validate(sub) -> None:
     p = sub.add_parser("validate", help="run the checks against the paper's findings and write docs/VALIDATION.md")
     p.add_argument("scene", nargs="?", default=None, help="base scene (default: scenarios/example.toml)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key of every scene")
@@ -640,6 +645,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_validate)
 
+def _parser_accuracy_cost(sub) -> None:
     p = sub.add_parser("accuracy-cost", help="the accuracy-cost study: every setting against a converged reference "
                                              "per scene; writes docs/ACCURACY-COST.md, its plots and the shipped results")
     p.add_argument("--scenes", nargs="*", default=None, metavar="NAME", help="studied scenes (default: all)")
@@ -655,12 +661,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_accuracy_cost)
 
+def _parser_dataset(sub) -> None:
     p = sub.add_parser("dataset", help="one labelled dataset (signals + labels of every run) from a sweep directory")
     p.add_argument("sweep_dir", help="the --out directory of a sweep (with manifest.json)")
     p.add_argument("--format", choices=("parquet", "hdf5", "aalto"), default="parquet")
     p.add_argument("--out", default=None, help="output file (directory for aalto); default: inside SWEEP_DIR")
     p.set_defaults(func=_cmd_dataset)
 
+def _parser_check_and_baseline(sub) -> None:
     for name, helptext in (("check", "run scenes and check them against their [expect] section and baseline; "
                                      "prints what moved; exit code 0 only if everything holds"),
                            ("baseline", "run scenes and store a compact reference of each run (baseline file)")):
@@ -683,6 +691,7 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("--allow-failed", action="store_true", help="also store runs whose FMU failed")
             p.set_defaults(func=_cmd_baseline)
 
+def _parser_stress(sub) -> None:
     p = sub.add_parser("stress", help="stress campaign: the paper's 54 scenes and randomized hard scenes, judged "
                                       "(completes, finite, stable, energy, step halving); writes stress.md")
     p.add_argument("--set-name", choices=("paper", "random", "all"), default="all",
@@ -713,6 +722,20 @@ def build_parser() -> argparse.ArgumentParser:
                    help="re-judge the runs in --out and rewrite stress.json / stress.md without running")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_stress)
+
+
+
+#: one function per command (or pair of commands sharing their options), in the order of --help
+_PARSERS = (_parser_build_fmus, _parser_run, _parser_build_native_gear, _parser_build_native, _parser_export_ssp,
+            _parser_eigen, _parser_calibrate, _parser_sweep, _parser_validate, _parser_accuracy_cost, _parser_dataset,
+            _parser_check_and_baseline, _parser_stress)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="drivetrain", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+    for add in _PARSERS:
+        add(sub)
 
     return parser
 

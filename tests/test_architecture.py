@@ -8,34 +8,19 @@
 import ast
 from pathlib import Path
 
+from drivetrain.cosim.bundle import imported_modules, package_modules
+
 SRC = Path(__file__).resolve().parents[1] / "src"
 
 
 def _modules() -> dict[str, Path]:
-    mods = {}
-    for p in SRC.rglob("*.py"):
-        parts = list(p.relative_to(SRC).with_suffix("").parts)
-        if parts[-1] == "__init__":
-            parts = parts[:-1]
-        mods[".".join(parts)] = p
-    return mods
+    """{dotted name: file} of every module of src/ (the walk the FMU bundle rule uses too)."""
+    return package_modules({p.name: p for p in SRC.iterdir() if (p / "__init__.py").is_file()})
 
 
 def _imports(name: str, path: Path, mods: dict) -> set[str]:
     """Every module of src/ that ``name`` imports, at any depth of its code (functions included)."""
-    pkg = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
-    out = set()
-    for node in ast.walk(ast.parse(path.read_text())):
-        targets = []
-        if isinstance(node, ast.Import):
-            targets = [a.name for a in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                base = ".".join(pkg[:len(pkg) - node.level + 1] + ([node.module] if node.module else []))
-            targets = [base] + [f"{base}.{a.name}" for a in node.names]
-        out.update(t for t in targets if t in mods and t != name)
-    return out
+    return imported_modules(name, path, mods)
 
 
 def test_import_graph_is_acyclic():

@@ -239,20 +239,20 @@ def element_data(tri, face_points, face_normals, has_exact):
 # contact search (broad + narrow phase)
 # ----------------------------------------------------------------------------------------------
 @njit(cache=True)
-def _obb_overlap(b_obb, i, t_obb, j, r00, r01, r02, r10, r11, r12, r20, r21, r22, t0, t1, t2,
-                 infl):
+def _obb_overlap(b_obb, i, t_obb, j, rt, infl):
     """Separating-axis test of base node i (its oriented box mapped by (R, t) into the target
     frame, half extents grown by ``infl``) and target node j on the 6 face axes of the two boxes
-    (conservative: True may be a false overlap, False proves a distance > infl)."""
-    return _obb_gap(b_obb, i, t_obb, j, r00, r01, r02, r10, r11, r12, r20, r21, r22, t0, t1, t2,
-                    infl) <= 0.0
+    (conservative: True may be a false overlap, False proves a distance > infl). ``rt`` = (r00,
+    r01, r02, r10, ..., r22, t0, t1, t2): the pose as a tuple of 12 scalars (numba passes it as
+    12 registers, as loose arguments)."""
+    return _obb_gap(b_obb, i, t_obb, j, rt, infl) <= 0.0
 
 
 @njit(cache=True)
-def _obb_gap(b_obb, i, t_obb, j, r00, r01, r02, r10, r11, r12, r20, r21, r22, t0, t1, t2,
-                 infl):
+def _obb_gap(b_obb, i, t_obb, j, rt, infl):
     """Largest separation of the two oriented boxes over the 6 face axes (> 0: separated, and the
     distance between the boxes is larger than this + infl). See :func:`_obb_overlap`."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22, t0, t1, t2 = rt
     a0x = r00 * b_obb[i, 0] + r01 * b_obb[i, 1] + r02 * b_obb[i, 2]
     a0y = r10 * b_obb[i, 0] + r11 * b_obb[i, 1] + r12 * b_obb[i, 2]
     a0z = r20 * b_obb[i, 0] + r21 * b_obb[i, 1] + r22 * b_obb[i, 2]
@@ -412,7 +412,7 @@ def tri_near(ax, ay, az, bx, by, bz, ttri, l, delta):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _descend(stack, sp, i, j, bl, tl, b_int, t_int, t_box, sb):
     """Push the children of the node pair (i, j) (base i's children ``bl``/``b_int[i, 1]``, target
     j's ``tl``/``t_int[j, 1]``): the base if the target is a leaf, else the larger box (``sb`` the
@@ -441,7 +441,7 @@ def _descend(stack, sp, i, j, bl, tl, b_int, t_int, t_box, sb):
     return stack, sp + 2
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _near_leaf(col, i, b_seg, cid):
     """Mode 1 of :func:`_traverse`: base leaf i is near (first time this call): counted, and its
     segment box added to the near box of its far-check node."""
@@ -502,6 +502,7 @@ def _traverse(mode, bm, tm, Rbt, tbt, L, s_neg, infl, delta, ws, col):
     a10, a11, a12 = abs(r10), abs(r11), abs(r12)
     a20, a21, a22 = abs(r20), abs(r21), abs(r22)
     t0, t1, t2 = tbt[0], tbt[1], tbt[2]
+    rt = (r00, r01, r02, r10, r11, r12, r20, r21, r22, t0, t1, t2)
     n_out = 0
     cap = cand.shape[0]
     col.icount[0] = 0
@@ -529,16 +530,14 @@ def _traverse(mode, bm, tm, Rbt, tbt, L, s_neg, infl, delta, ws, col):
             if cz - ez > t_box[j, 5] or cz + ez < t_box[j, 2]:
                 continue
             # oriented boxes (surface-patch frames)
-            if not _obb_overlap(b_obb, i, t_obb, j, r00, r01, r02, r10, r11, r12, r20, r21,
-                                r22, t0, t1, t2, infl):
+            if not _obb_overlap(b_obb, i, t_obb, j, rt, infl):
                 continue
         else:
             g = max(cx - ex - t_box[j, 3], t_box[j, 0] - cx - ex,
                     cy - ey - t_box[j, 4], t_box[j, 1] - cy - ey,
                     cz - ez - t_box[j, 5], t_box[j, 2] - cz - ez)
             if g <= 0.0:
-                g = _obb_gap(b_obb, i, t_obb, j, r00, r01, r02, r10, r11, r12, r20, r21, r22,
-                             t0, t1, t2, infl)
+                g = _obb_gap(b_obb, i, t_obb, j, rt, infl)
             if g > 0.0:
                 dist = g + infl
                 for f in range(fc[i, 0], fc[i, 1]):
@@ -782,7 +781,7 @@ def init_thresholds(n_cand, cands, ndisp, fresh):
     return ne
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _pair_clear(c, s0, den, dref, rho):
     """The second chance of :func:`search_candidates_skip`: True when a pair's own clearances at
     its list's pose (edge clearance ``c``, |s0|, |den|) exceed the motion since (``dref``, the
@@ -793,7 +792,7 @@ def _pair_clear(c, s0, den, dref, rho):
         1.0 + (math.sqrt(max(0.0, 1.0 - den * den)) + rho) / dd)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _plane_clearance(h, ttri, l, ax, ay, az):
     """The element clearance ``h`` so far, lowered to the segment start a's height over triangle
     l's plane, or -inf when l's exact normal is more than ~30 deg from its facet normal (see
@@ -808,7 +807,7 @@ def _plane_clearance(h, ttri, l, ax, ay, az):
     return -np.inf
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _set_hit(ws, k, ox, oy, oz, dx, dy, dz, u, j):
     """Base slot k hits target slot j at penetration u along the line o + s d (target frame):
     written to the workspace ``ws`` as :func:`search_pair` does (not yet listed as active)."""
@@ -1439,14 +1438,14 @@ def _direct_sums(cache, far):
     cache[C_SUMR] = ndisp[ndisp.shape[0] - 1] - cache[C_R0]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _exact(d):
     """The exact search of the fixed-axis pair ``d`` at its pose (:func:`search_pair`)."""
     p = d.params
     return search_pair(d.base, d.target, d.poses.Rbt, d.poses.tbt, p[P_L], p[P_SNEG], d.work)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _cool_down(theta_b, theta_t, d, periodic, cphi):
     """A call during a cool-down (:func:`cached_search`): -1 for the exact search, 1 when a kept
     list that fits ends it (set from the atlas), 0 when this call builds (and keeps) a list."""
@@ -1469,7 +1468,7 @@ def _cool_down(theta_b, theta_t, d, periodic, cphi):
     return 0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _still_valid(theta_b, theta_t, d, cphi):
     """Is the list in use valid at this pose (:func:`cached_search`)? Returns (valid, init):
     init when its thresholds are to be set again from its own pose (running sums whose turn
@@ -1559,7 +1558,7 @@ def _build_list(theta_b, theta_t, d, periodic):
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _set_motion(theta_b, theta_t, d, set_list, init, fresh, prev_life):
     """A list was set at this call (``set_list``) or its thresholds are to be set again
     (``init``): its lifetime statistics, the running sums started (:func:`_start_motion`) and
@@ -1578,7 +1577,7 @@ def _set_motion(theta_b, theta_t, d, set_list, init, fresh, prev_life):
         cache[C_NELEM] = init_thresholds(int(cache[C_NCAND]), d.cands, far.ndisp, fresh)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _narrow_phase(d):
     """The narrow phase on the list in use (:func:`search_candidates_skip`), its statistics kept
     in the cache state."""

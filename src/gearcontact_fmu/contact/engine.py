@@ -146,8 +146,10 @@ class PCMBody:
         else:
             self.s_neg = 0.0
         self.ttri = np.ascontiguousarray(ttri[self.order])
+        self.inv = _inverse(self.order)
         self._seg_boxes = {}
         self._ws = None
+        self._target = None
 
     @property
     def n_faces(self) -> int:
@@ -165,6 +167,18 @@ class PCMBody:
                    node_obbs(self.node_int, self.order, self._tri, p, n, key))
             self._seg_boxes[key] = box
         return box
+
+    def base_mesh(self, length: float) -> K.BaseMesh:
+        """The body in the base role for penetration lines of length ``length`` (kernel data)."""
+        seg, obb = self.segment_boxes(length)
+        return K.BaseMesh(self.node_int, seg, obb, self.belem, self.order, self.inv)
+
+    def target_mesh(self) -> K.TargetMesh:
+        """The body in the target role (kernel data)."""
+        if self._target is None:
+            self._target = K.TargetMesh(self.node_int, self.node_box, self.node_obb, self.ttri,
+                                        self.order, self.inv)
+        return self._target
 
     def far_check_nodes(self, n_target: int = FAR_CHECK_NODES):
         """A cut of the tree into about ``n_target`` subtrees (nodes at one depth, or shallower
@@ -205,12 +219,13 @@ class PCMBody:
         self._seg_boxes[key] = hit
         return hit
 
-    def new_workspace(self):
-        """Base-role work arrays: ``(stamp, call, best_u, best_j, line, active, stack)``."""
+    def new_workspace(self) -> K.Workspace:
+        """Base-role work arrays (:class:`kernels.Workspace`)."""
         m = self.n_faces
-        return (np.zeros(m, dtype=np.int64), np.zeros(1, dtype=np.int64), np.full(m, np.inf),
-                -np.ones(m, dtype=np.int64), np.zeros((m, 7)), np.zeros(m, dtype=np.int64),
-                np.zeros((4 * (self.max_depth + 64), 2), dtype=np.int64))
+        return K.Workspace(stamp=np.zeros(m, dtype=np.int64), call=np.zeros(1, dtype=np.int64),
+                           best_u=np.full(m, np.inf), best_j=-np.ones(m, dtype=np.int64),
+                           line=np.zeros((m, 7)), active=np.zeros(m, dtype=np.int64),
+                           stack=np.zeros((4 * (self.max_depth + 64), 2), dtype=np.int64))
 
     def workspace(self):
         if self._ws is None:
@@ -284,31 +299,22 @@ def evaluate_pair(base: PCMBody, target: PCMBody, pose_base, pose_target, vel_ba
     L = params[K.P_L]
     Rbt = np.ascontiguousarray(Rt.T @ Rb)
     tbt = Rt.T @ (tb - tt)
-    stamp, call, best_u, best_j, line, active, stack = base.workspace()
-    b_seg, b_obb = base.segment_boxes(L)
-    n = K.search_pair(base.node_int, b_seg, b_obb, base.belem, target.node_int,
-                      target.node_box, target.node_obb, target.ttri, Rbt, tbt, L,
-                      params[K.P_SNEG], stamp, call, best_u, best_j, line, active, stack)
-    e_base = np.empty(n, dtype=np.int64)
-    e_target = np.empty(n, dtype=np.int64)
-    e_u = np.empty(n)
-    e_point = np.empty((n, 3))
-    e_normal = np.empty((n, 3))
-    e_fn = np.empty(n)
-    e_ft = np.empty((n, 3))
-    e_area = np.empty(n)
-    force_t = np.zeros(3)
-    moment_t = np.zeros(3)
-    diag = np.zeros(K.N_DIAG)
-    K.pair_forces(n, active, best_u, best_j, line, base.belem, base.order, target.order,
-                  Rt, tt, tb, vb, wb, vt, wt, params,
-                  e_base, e_target, e_u, e_point, e_normal, e_fn, e_ft, e_area,
-                  force_t, moment_t, diag)
+    ws = base.workspace()
+    bm = base.base_mesh(L)
+    tm = target.target_mesh()
+    n = K.search_pair(bm, tm, Rbt, tbt, L, params[K.P_SNEG], ws)
+    e = K.ElementForces(base=np.empty(n, dtype=np.int64), target=np.empty(n, dtype=np.int64),
+                        u=np.empty(n), point=np.empty((n, 3)), normal=np.empty((n, 3)),
+                        fn=np.empty(n), ft=np.empty((n, 3)), area=np.empty(n),
+                        force=np.zeros(3), moment=np.zeros(3), diag=np.zeros(K.N_DIAG))
+    K.pair_forces(n, ws, bm, tm, K.Motion(Rt=Rt, tt=tt, tb=tb, vb=vb, wb=wb, vt=vt, wt=wt),
+                  params, e)
+    diag, force_t, moment_t = e.diag, e.force, e.moment
     status = int(diag[K.D_STATUS])
     if status and check_penetration:
         raise PenetrationError(
             f"penetration {diag[K.D_UMAX]:.6g} m exceeds u_max = {pcm.u_max:.6g} m "
-            f"({np.count_nonzero(e_u > pcm.u_max)} elements)")
+            f"({np.count_nonzero(e.u > pcm.u_max)} elements)")
     force_b = -force_t
     moment_b = -moment_t
     return ContactResult(
@@ -316,8 +322,8 @@ def evaluate_pair(base: PCMBody, target: PCMBody, pose_base, pose_target, vel_ba
         moment_base=moment_b, moment_target=moment_t.copy(),
         moment_base_origin=moment_b - np.cross(tb, force_b),
         moment_target_origin=moment_t - np.cross(tt, force_t),
-        base_idx=e_base, target_idx=e_target, u=e_u, point=e_point, normal=e_normal,
-        F_n=e_fn, F_t=e_ft, area=e_area,
+        base_idx=e.base, target_idx=e.target, u=e.u, point=e.point, normal=e.normal,
+        F_n=e.fn, F_t=e.ft, area=e.area,
         n_contact=int(diag[K.D_N]), contact_area=float(diag[K.D_AREA]),
         peak_pressure=float(diag[K.D_PEAK_P]), max_penetration=float(diag[K.D_UMAX]),
         normal_force=float(diag[K.D_FN]), elastic_energy=float(diag[K.D_EEL]),
@@ -326,14 +332,15 @@ def evaluate_pair(base: PCMBody, target: PCMBody, pose_base, pose_target, vel_ba
 
 def make_fixed_axis_data(base_body: PCMBody, target_body: PCMBody, R0_base, R0_target,
                          pcm: PCMParams = PCMParams(), friction: bool = True,
-                         damping: bool = True, search_length: float | None = None,
+                         damping: bool = True, *, search_length: float | None = None,
                          cache_margin: float | None = None, cache_far: float | None = None,
                          cache_phi: float = 0.02, cache_capacity: int | None = None,
                          periods: tuple[int, int] | None = None, atlas_snapshots: int = 1024,
-                         atlas_pairs: int | None = None) -> tuple:
-    """numba-typable data tuple of :func:`fixed_axis_eval` for a pair rotating about fixed axes
-    through the world origin: pose_base = (R0_base @ Rz(theta_base), 0), likewise the target; the
-    axes are R0[:, 2]. The tuple owns its work arrays and cache (one tuple per concurrent user).
+                         atlas_pairs: int | None = None) -> K.FixedAxisData:
+    """numba-typable data of :func:`fixed_axis_eval` (a :class:`kernels.FixedAxisData` named tuple
+    of named tuples of arrays) for a pair rotating about fixed axes through the world origin:
+    pose_base = (R0_base @ Rz(theta_base), 0), likewise the target; the axes are R0[:, 2]. The
+    data own their work arrays and cache (one per concurrent user).
 
     Candidate cache (temporal coherence, results identical to the exact search): candidate pairs
     are collected with margin ``cache_margin`` [m] (default 20 um; 0 disables the cache) for the
@@ -350,16 +357,15 @@ def make_fixed_axis_data(base_body: PCMBody, target_body: PCMBody, R0_base, R0_t
     current tooth pairs (bit-identical results, see :func:`kernels.cached_search`). Faulty pairs
     and mesh files fail the check and use the cache without the atlas.
 
-    Layout: ``(b_int, b_seg, b_obb, belem, b_order, t_int, t_box, t_obb, ttri, t_order, M, ab0,
-    params, stamp, call, best_u, best_j, line, active, stack, Rbt, tbt, cache, cand, nstamp,
-    icount, fnode, fc, minsep, nbox, close, dR, dt, ndisp, cand_c, cand_s, cand_d, cand_h,
-    cand_g, cand_f, slot_f, period, b_inv, t_inv, Rc, atlas_meta, atlas_pairs, atlas_c, atlas_s,
-    atlas_d, atlas_h, atlas_minsep, atlas_nbox, atlas_close, cand_x, elem_q, elem_x, elem_hit, atlas_x, nsum, nd0)``
-    with
-    ``M = R0_target.T @ R0_base``, ``ab0 = M[:, 2]`` (base axis in the target's reference frame),
-    ``params`` see :func:`kernels.make_params`, ``cache`` (kernels.N_CACHE,) cache state and
-    statistics (see ``kernels.C_*``), ``period`` = (pitch angle, triangles per tooth) of the base
-    and the target (zeros: no atlas), the rest work arrays (see :mod:`.kernels`). Memory of the
+    Fields (see :mod:`.kernels` for the array layouts): ``base`` (:class:`kernels.BaseMesh`, the
+    base body for the search length), ``target`` (:class:`kernels.TargetMesh`), ``M = R0_target.T
+    @ R0_base``, ``ab0 = M[:, 2]`` (base axis in the target's reference frame), ``params`` (see
+    :func:`kernels.make_params`), ``cache`` (kernels.N_CACHE,) cache state and statistics (see
+    ``kernels.C_*``), ``work`` (:class:`kernels.Workspace`), ``poses`` (:class:`kernels.Poses`,
+    scratch), ``cands`` (:class:`kernels.Candidates`, the list in use), ``far``
+    (:class:`kernels.FarCheck`, its validity data), ``atlas`` (:class:`kernels.Atlas`; its
+    ``period`` = (pitch angle, triangles per tooth) of the base and the target, zeros: no atlas).
+    Memory of the
     atlas: 24 bytes per pair of the pool and ~16 kB per snapshot (allocated, touched as used).
     """
     R0b = np.asarray(R0_base, dtype=np.float64).reshape(3, 3)
@@ -376,8 +382,6 @@ def make_fixed_axis_data(base_body: PCMBody, target_body: PCMBody, R0_base, R0_t
     L = params[K.P_L]
     M = np.ascontiguousarray(R0t.T @ R0b)
     ab0 = np.ascontiguousarray(M[:, 2].copy())
-    ws = base_body.new_workspace()
-    b_seg, b_obb = base_body.segment_boxes(L)
     if cache_capacity is None:
         cache_capacity = max(100_000, base_body.n_faces // 2)
     cap = int(cache_capacity) if cache_margin > 0 else 1
@@ -400,22 +404,27 @@ def make_fixed_axis_data(base_body: PCMBody, target_body: PCMBody, R0_base, R0_t
     for f, node in enumerate(fnode):
         lo = base_body.node_int[node, 2]
         slot_f[lo:lo + base_body.node_int[node, 3]] = f
-    return (base_body.node_int, b_seg, b_obb, base_body.belem, base_body.order,
-            target_body.node_int, target_body.node_box, target_body.node_obb, target_body.ttri,
-            target_body.order, M, ab0, params) + ws + (
-        np.zeros((3, 3)), np.zeros(3), np.zeros(K.N_CACHE), np.zeros((cap, 2), dtype=np.int64),
-        np.zeros(nb, dtype=np.int64), np.zeros(1, dtype=np.int64),
-        fnode, fc, np.full(nf, np.inf), np.zeros((nf, 6)), np.zeros(nf, dtype=np.int64),
-        np.zeros((3, 3)), np.zeros(3), np.zeros(nf + 1), np.zeros(cap), np.zeros(cap),
-        np.zeros(cap), np.zeros(cap), np.zeros(cap, dtype=np.int64), np.zeros(cap, dtype=np.int64),
-        slot_f,
-        period, _inverse(base_body.order), _inverse(target_body.order), np.zeros((3, 3)),
-        np.zeros((n_snap, K.N_SNAP)), np.zeros((n_pool, 2), dtype=np.int32),
-        np.zeros(n_pool, dtype=np.float32), np.zeros(n_pool, dtype=np.float32),
-        np.zeros(n_pool, dtype=np.float32), np.zeros(n_pool, dtype=np.float32),
-        np.zeros((n_snap, nf)), np.zeros((n_snap, nf, 6)), np.zeros((n_snap, nf), dtype=np.int64),
-        np.zeros(cap), np.zeros(cap, dtype=np.int64), np.zeros(cap), np.zeros(cap, dtype=np.bool_),
-        np.zeros(n_pool, dtype=np.float32), np.zeros(nf), np.zeros(nf))
+    i64 = np.int64
+    return K.FixedAxisData(
+        base=base_body.base_mesh(L), target=target_body.target_mesh(), M=M, ab0=ab0,
+        params=params, cache=np.zeros(K.N_CACHE), work=base_body.new_workspace(),
+        poses=K.Poses(Rbt=np.zeros((3, 3)), tbt=np.zeros(3), Rc=np.zeros((3, 3)),
+                      dR=np.zeros((3, 3)), dt=np.zeros(3)),
+        cands=K.Candidates(pairs=np.zeros((cap, 2), dtype=i64), c=np.zeros(cap),
+                           s=np.zeros(cap), d=np.zeros(cap), h=np.zeros(cap),
+                           g=np.zeros(cap, dtype=i64), f=np.zeros(cap, dtype=i64),
+                           x=np.zeros(cap), elem_q=np.zeros(cap, dtype=i64),
+                           elem_x=np.zeros(cap), elem_hit=np.zeros(cap, dtype=np.bool_)),
+        far=K.FarCheck(fnode=fnode, fc=fc, slot_f=slot_f, nstamp=np.zeros(nb, dtype=i64),
+                       icount=np.zeros(1, dtype=i64), minsep=np.full(nf, np.inf),
+                       nbox=np.zeros((nf, 6)), close=np.zeros(nf, dtype=i64),
+                       ndisp=np.zeros(nf + 1), nsum=np.zeros(nf), nd0=np.zeros(nf)),
+        atlas=K.Atlas(period=period, meta=np.zeros((n_snap, K.N_SNAP)),
+                      pairs=np.zeros((n_pool, 2), dtype=np.int32),
+                      c=np.zeros(n_pool, dtype=np.float32), s=np.zeros(n_pool, dtype=np.float32),
+                      d=np.zeros(n_pool, dtype=np.float32), h=np.zeros(n_pool, dtype=np.float32),
+                      x=np.zeros(n_pool, dtype=np.float32), minsep=np.zeros((n_snap, nf)),
+                      nbox=np.zeros((n_snap, nf, 6)), close=np.zeros((n_snap, nf), dtype=i64)))
 
 
 def _inverse(order: np.ndarray) -> np.ndarray:
@@ -456,28 +465,28 @@ def pitch_symmetry(body: PCMBody, z: int):
     return None
 
 
-def cache_stats(data: tuple) -> dict:
-    """Statistics of the candidate cache of a fixed-axis data tuple."""
-    c = data[22]
+def cache_stats(data: K.FixedAxisData) -> dict:
+    """Statistics of the candidate cache of fixed-axis data."""
+    c = data.cache
     return {"builds": int(c[K.C_BUILDS]), "cached_calls": int(c[K.C_CALLS]),
             "overflows": int(c[K.C_OVERFLOW]), "n_candidates": int(c[K.C_NCAND]),
             "exact_calls": int(c[K.C_EXACT]), "near_leaves": int(c[K.C_NNEAR]),
             "skipped_elements": int(c[K.C_SKIPPED]), "tested_pairs": int(c[K.C_TESTED]),
             "visited_elements": int(c[K.C_VISITED]), "tested_pairs_total": int(c[K.C_TESTED_ALL]),
             "reanchored_total": int(c[K.C_RETESTS_ALL]),
-            "atlas": bool(data[41][1] > 0), "atlas_snapshots": int(c[K.C_NSNAP]),
+            "atlas": bool(data.atlas.period[1] > 0), "atlas_snapshots": int(c[K.C_NSNAP]),
             "atlas_hits": int(c[K.C_AHITS]), "atlas_cleared": int(c[K.C_ACLEAR]),
             "valid": bool(c[K.C_VALID])}
 
 
-def reset_cache(data: tuple) -> None:
+def reset_cache(data: K.FixedAxisData) -> None:
     """Invalidate the candidate cache (the next call rebuilds it) and end any cool-down."""
-    data[22][K.C_VALID] = 0.0
-    data[22][K.C_COOL] = 0.0
+    data.cache[K.C_VALID] = 0.0
+    data.cache[K.C_COOL] = 0.0
 
 
-def clear_atlas(data: tuple) -> None:
+def clear_atlas(data: K.FixedAxisData) -> None:
     """Forget the pitch atlas's snapshots (and invalidate the cache)."""
     reset_cache(data)
-    data[22][K.C_NSNAP] = 0.0
-    data[22][K.C_ATOP] = 0.0
+    data.cache[K.C_NSNAP] = 0.0
+    data.cache[K.C_ATOP] = 0.0

@@ -42,9 +42,52 @@ m is reset per call: the cost follows the number of elements near contact.
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
+
+# ----------------------------------------------------------------------------------------------
+# kernel data: named tuples of arrays (numba types them as heterogeneous named tuples; an attribute
+# access compiles to the same code as a loose array argument). Fields as in the layouts above.
+# ----------------------------------------------------------------------------------------------
+#: base body in the base role for one search length: tree ``node_int``, segment boxes ``seg``
+#: (b_seg), oriented boxes ``obb`` (b_obb), elements ``elem`` (belem), slot ``order`` and its ``inv``
+BaseMesh = namedtuple("BaseMesh", "node_int seg obb elem order inv")
+#: target body in the target role: tree ``node_int``, boxes ``box`` (t_box), ``obb`` (t_obb),
+#: triangles ``tri`` (ttri), slot ``order`` and its ``inv``
+TargetMesh = namedtuple("TargetMesh", "node_int box obb tri order inv")
+#: base workspace (per base body and user)
+Workspace = namedtuple("Workspace", "stamp call best_u best_j line active stack")
+#: what a collecting traversal (mode 1 of :func:`_traverse`) writes: candidate pairs ``cand``,
+#: near-leaf stamps ``nstamp`` and count ``icount``, far-check ranges ``fc``, ``minsep``, ``nbox``
+Collect = namedtuple("Collect", "cand nstamp icount fc minsep nbox")
+#: pose scratch of the fixed-axis kernel: ``Rbt``, ``tbt`` (base in the target frame), ``Rc`` (the
+#: pose shifted by the list's pitches), ``dR``, ``dt`` (motion between two poses)
+Poses = namedtuple("Poses", "Rbt tbt Rc dR dt")
+#: the candidate list in use: ``pairs`` (cand), clearances ``c s d h`` (cand_c ...), per element
+#: ``g f`` (cand_g, cand_f), skip thresholds ``x`` (cand_x), ``elem_q``, ``elem_x``, ``elem_hit``
+Candidates = namedtuple("Candidates", "pairs c s d h g f x elem_q elem_x elem_hit")
+#: the list's validity data over the far-check cut of the base tree (``fnode``, ``fc``, ``slot_f``),
+#: near leaves (``nstamp``, ``icount``, ``nbox``), distances ``minsep``, ``close`` nodes, motion
+#: bounds ``ndisp`` and running sums ``nsum`` from ``nd0``
+FarCheck = namedtuple("FarCheck", "fnode fc slot_f nstamp icount minsep nbox close ndisp nsum nd0")
+#: the pitch atlas: ``period`` and the snapshots ``meta`` (atlas_meta), pool ``pairs``, ``c s d h x``
+#: (atlas_c ...), ``minsep``, ``nbox``, ``close``
+Atlas = namedtuple("Atlas", "period meta pairs c s d h x minsep nbox close")
+#: the fixed-axis kernel's data (:func:`fixed_axis_eval`, built by engine.make_fixed_axis_data):
+#: ``M`` = R0_target^T R0_base, ``ab0`` = M[:, 2], ``params`` (N_PARAMS,), ``cache`` (N_CACHE,)
+FixedAxisData = namedtuple("FixedAxisData",
+                           "base target M ab0 params cache work poses cands far atlas")
+#: rigid motion of the generic pair (:func:`pair_forces`): target pose ``Rt``, ``tt``, base origin
+#: ``tb``, velocities (origin, omega) ``vb``, ``wb`` of the base and ``vt``, ``wt`` of the target
+Motion = namedtuple("Motion", "Rt tt tb vb wb vt wt")
+#: what :func:`pair_forces` writes: per element ``base target u point normal fn ft area``, the body
+#: ``force`` and ``moment`` on the target, ``diag`` (N_DIAG,)
+ElementForces = namedtuple("ElementForces", "base target u point normal fn ft area force moment diag")
+#: a candidate list's validity data for :func:`_cache_check`: its pose ``ref[o:o+12]``, far group
+#: bound ``gfar``, ``nclose`` close far-check nodes ``close``, their ``nbox`` and ``minsep``
+ListBounds = namedtuple("ListBounds", "ref o gfar nclose close nbox minsep")
 
 # params layout
 P_C = 0            # combined layer stiffness c [N/m^3]
@@ -196,20 +239,20 @@ def element_data(tri, face_points, face_normals, has_exact):
 # contact search (broad + narrow phase)
 # ----------------------------------------------------------------------------------------------
 @njit(cache=True)
-def _obb_overlap(b_obb, i, t_obb, j, r00, r01, r02, r10, r11, r12, r20, r21, r22, t0, t1, t2,
-                 infl):
+def _obb_overlap(b_obb, i, t_obb, j, rt, infl):
     """Separating-axis test of base node i (its oriented box mapped by (R, t) into the target
     frame, half extents grown by ``infl``) and target node j on the 6 face axes of the two boxes
-    (conservative: True may be a false overlap, False proves a distance > infl)."""
-    return _obb_gap(b_obb, i, t_obb, j, r00, r01, r02, r10, r11, r12, r20, r21, r22, t0, t1, t2,
-                    infl) <= 0.0
+    (conservative: True may be a false overlap, False proves a distance > infl). ``rt`` = (r00,
+    r01, r02, r10, ..., r22, t0, t1, t2): the pose as a tuple of 12 scalars (numba passes it as
+    12 registers, as loose arguments)."""
+    return _obb_gap(b_obb, i, t_obb, j, rt, infl) <= 0.0
 
 
 @njit(cache=True)
-def _obb_gap(b_obb, i, t_obb, j, r00, r01, r02, r10, r11, r12, r20, r21, r22, t0, t1, t2,
-                 infl):
+def _obb_gap(b_obb, i, t_obb, j, rt, infl):
     """Largest separation of the two oriented boxes over the 6 face axes (> 0: separated, and the
     distance between the boxes is larger than this + infl). See :func:`_obb_overlap`."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22, t0, t1, t2 = rt
     a0x = r00 * b_obb[i, 0] + r01 * b_obb[i, 1] + r02 * b_obb[i, 2]
     a0y = r10 * b_obb[i, 0] + r11 * b_obb[i, 1] + r12 * b_obb[i, 2]
     a0z = r20 * b_obb[i, 0] + r21 * b_obb[i, 1] + r22 * b_obb[i, 2]
@@ -369,17 +412,87 @@ def tri_near(ax, ay, az, bx, by, bz, ttri, l, delta):
     return True
 
 
+@njit(cache=True, inline="always")
+def _descend(stack, sp, i, j, bl, tl, b_int, t_int, t_box, sb):
+    """Push the children of the node pair (i, j) (base i's children ``bl``/``b_int[i, 1]``, target
+    j's ``tl``/``t_int[j, 1]``): the base if the target is a leaf, else the larger box (``sb`` the
+    base box's half extents summed). Returns the stack (grown when full) and its new top."""
+    split_base = False
+    if tl < 0:
+        split_base = True
+    elif bl >= 0:
+        st = (t_box[j, 3] - t_box[j, 0]) + (t_box[j, 4] - t_box[j, 1]) \
+            + (t_box[j, 5] - t_box[j, 2])
+        split_base = 2.0 * sb > st
+    if sp + 2 > stack.shape[0]:
+        new = np.empty((2 * stack.shape[0], 2), dtype=np.int64)
+        new[:sp] = stack[:sp]
+        stack = new
+    if split_base:
+        stack[sp, 0] = b_int[i, 1]
+        stack[sp, 1] = j
+        stack[sp + 1, 0] = bl
+        stack[sp + 1, 1] = j
+    else:
+        stack[sp, 0] = i
+        stack[sp, 1] = t_int[j, 1]
+        stack[sp + 1, 0] = i
+        stack[sp + 1, 1] = tl
+    return stack, sp + 2
+
+
+@njit(cache=True, inline="always")
+def _near_leaf(col, i, b_seg, cid):
+    """Mode 1 of :func:`_traverse`: base leaf i is near (first time this call): counted, and its
+    segment box added to the near box of its far-check node."""
+    if col.nstamp[i] != cid:
+        col.nstamp[i] = cid
+        col.icount[0] += 1
+        nbox = col.nbox
+        f = col.fc[i, 0]
+        for a in range(3):
+            lo = b_seg[i, a] - b_seg[i, 3 + a]
+            hi = b_seg[i, a] + b_seg[i, 3 + a]
+            if lo < nbox[f, a]:
+                nbox[f, a] = lo
+            if hi > nbox[f, 3 + a]:
+                nbox[f, 3 + a] = hi
+
+
 @njit(cache=True)
-def _traverse(mode, b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L, s_neg,
-              infl, delta, stamp, call, best_u, best_j, line, active, stack,
-              cand, nstamp, icount, fc, minsep, nbox):
-    """Dual-tree traversal. mode 0: exact search (fills the base workspace, returns the number
-    of base elements with a hit). mode 1: candidate collection for the cache (pairs (base slot,
-    target slot) into ``cand``; returns the number of pairs, or -1 when ``cand`` overflows).
+def _first_crossing(n_out, active, best_u, best_j, line):
+    """First-crossing rule: drop the elements whose line enters the target before the hit.
+    Returns the number kept (``active[:n]``)."""
+    n_keep = 0
+    for q in range(n_out):
+        k = active[q]
+        if best_u[k] < line[k, 6]:
+            active[n_keep] = k
+            n_keep += 1
+        else:
+            best_j[k] = -1
+    return n_keep
+
+
+@njit(cache=True)
+def _traverse(mode, bm, tm, Rbt, tbt, L, s_neg, infl, delta, ws, col):
+    """Dual-tree traversal of base ``bm`` and target ``tm`` (:class:`BaseMesh`,
+    :class:`TargetMesh`). mode 0: exact search (fills the base workspace ``ws``, returns the
+    number of base elements with a hit). mode 1: candidate collection for the cache (pairs (base
+    slot, target slot) into ``col.cand``; returns the number of pairs, or -1 when it overflows).
     Node volumes are grown by ``infl``. Mode 1 also records, per far-check node f of the base
-    (``fc[i] = [f_lo, f_hi)`` the far-check nodes under base node i), a lower bound of the
-    distance of its non-near elements to the target (``minsep[f]``) and the box of its near
-    leaves (``nbox[f] = [lo, hi]``, base frame); ``icount[0]`` = number of near leaves."""
+    (``col.fc[i] = [f_lo, f_hi)`` the far-check nodes under base node i), a lower bound of the
+    distance of its non-near elements to the target (``col.minsep[f]``) and the box of its near
+    leaves (``col.nbox[f] = [lo, hi]``, base frame); ``col.icount[0]`` = number of near leaves.
+
+    Long kernel: the node-pair loop keeps the pose's 21 scalars and the stack top in registers;
+    its box tests, leaf loop and narrow phase share them, so they stay in one function (the
+    descent and the bookkeeping are helpers)."""
+    b_int, b_seg, b_obb, belem = bm.node_int, bm.seg, bm.obb, bm.elem
+    t_int, t_box, t_obb, ttri = tm.node_int, tm.box, tm.obb, tm.tri
+    stamp, call, best_u, best_j = ws.stamp, ws.call, ws.best_u, ws.best_j
+    line, active, stack = ws.line, ws.active, ws.stack
+    cand, fc, minsep = col.cand, col.fc, col.minsep
     call[0] += 1
     cid = call[0]
     r00, r01, r02 = Rbt[0, 0], Rbt[0, 1], Rbt[0, 2]
@@ -389,9 +502,10 @@ def _traverse(mode, b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, 
     a10, a11, a12 = abs(r10), abs(r11), abs(r12)
     a20, a21, a22 = abs(r20), abs(r21), abs(r22)
     t0, t1, t2 = tbt[0], tbt[1], tbt[2]
+    rt = (r00, r01, r02, r10, r11, r12, r20, r21, r22, t0, t1, t2)
     n_out = 0
     cap = cand.shape[0]
-    icount[0] = 0
+    col.icount[0] = 0
     stack[0, 0] = 0
     stack[0, 1] = 0
     sp = 1
@@ -416,16 +530,14 @@ def _traverse(mode, b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, 
             if cz - ez > t_box[j, 5] or cz + ez < t_box[j, 2]:
                 continue
             # oriented boxes (surface-patch frames)
-            if not _obb_overlap(b_obb, i, t_obb, j, r00, r01, r02, r10, r11, r12, r20, r21,
-                                r22, t0, t1, t2, infl):
+            if not _obb_overlap(b_obb, i, t_obb, j, rt, infl):
                 continue
         else:
             g = max(cx - ex - t_box[j, 3], t_box[j, 0] - cx - ex,
                     cy - ey - t_box[j, 4], t_box[j, 1] - cy - ey,
                     cz - ez - t_box[j, 5], t_box[j, 2] - cz - ez)
             if g <= 0.0:
-                g = _obb_gap(b_obb, i, t_obb, j, r00, r01, r02, r10, r11, r12, r20, r21, r22,
-                             t0, t1, t2, infl)
+                g = _obb_gap(b_obb, i, t_obb, j, rt, infl)
             if g > 0.0:
                 dist = g + infl
                 for f in range(fc[i, 0], fc[i, 1]):
@@ -435,47 +547,15 @@ def _traverse(mode, b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, 
         bl = b_int[i, 0]
         tl = t_int[j, 0]
         if bl >= 0 or tl >= 0:
-            # descend: the base if the target is a leaf, else the larger box
-            split_base = False
-            if tl < 0:
-                split_base = True
-            elif bl >= 0:
-                sb = ex + ey + ez
-                st = (t_box[j, 3] - t_box[j, 0]) + (t_box[j, 4] - t_box[j, 1]) \
-                    + (t_box[j, 5] - t_box[j, 2])
-                split_base = 2.0 * sb > st
-            if sp + 2 > stack.shape[0]:
-                new = np.empty((2 * stack.shape[0], 2), dtype=np.int64)
-                new[:sp] = stack[:sp]
-                stack = new
-            if split_base:
-                stack[sp, 0] = b_int[i, 1]
-                stack[sp, 1] = j
-                stack[sp + 1, 0] = bl
-                stack[sp + 1, 1] = j
-            else:
-                stack[sp, 0] = i
-                stack[sp, 1] = t_int[j, 1]
-                stack[sp + 1, 0] = i
-                stack[sp + 1, 1] = tl
-            sp += 2
+            stack, sp = _descend(stack, sp, i, j, bl, tl, b_int, t_int, t_box, ex + ey + ez)
             continue
         # leaf pair: base elements x target triangles
         bs = b_int[i, 2]
         be = bs + b_int[i, 3]
         ts = t_int[j, 2]
         te = ts + t_int[j, 3]
-        if mode == 1 and nstamp[i] != cid:
-            nstamp[i] = cid
-            icount[0] += 1
-            f = fc[i, 0]
-            for a in range(3):
-                lo = b_seg[i, a] - b_seg[i, 3 + a]
-                hi = b_seg[i, a] + b_seg[i, 3 + a]
-                if lo < nbox[f, a]:
-                    nbox[f, a] = lo
-                if hi > nbox[f, 3 + a]:
-                    nbox[f, 3 + a] = hi
+        if mode == 1:
+            _near_leaf(col, i, b_seg, cid)
         for k in range(bs, be):
             if stamp[k] != cid:
                 stamp[k] = cid
@@ -521,31 +601,22 @@ def _traverse(mode, b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, 
                         cand[n_out, 1] = l
                         n_out += 1
     if mode == 0:
-        # first-crossing rule: drop the elements whose line enters the target before the hit
-        n_keep = 0
-        for q in range(n_out):
-            k = active[q]
-            if best_u[k] < line[k, 6]:
-                active[n_keep] = k
-                n_keep += 1
-            else:
-                best_j[k] = -1
-        n_out = n_keep
+        n_out = _first_crossing(n_out, active, best_u, best_j, line)
     return n_out
 
 
 @njit(cache=True)
-def search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L, s_neg,
-                stamp, call, best_u, best_j, line, active, stack):
-    """Exact contact search (dual-tree traversal + penetration lines). ``Rbt``, ``tbt``: pose of
-    the base frame in the target frame (x_target = Rbt x_base + tbt). Returns the number of base
-    elements with a hit; their slots are ``active[:n]``, penetration ``best_u[slot]``, target slot
-    ``best_j[slot]``, line ``line[slot] = [p', d']`` (target frame; d' = inward base normal)."""
+def search_pair(bm, tm, Rbt, tbt, L, s_neg, ws):
+    """Exact contact search (dual-tree traversal + penetration lines) of base ``bm`` against
+    target ``tm`` (:class:`BaseMesh`, :class:`TargetMesh`; ``ws`` a :class:`Workspace` of the
+    base). ``Rbt``, ``tbt``: pose of the base frame in the target frame (x_target = Rbt x_base +
+    tbt). Returns the number of base elements with a hit; their slots are ``ws.active[:n]``,
+    penetration ``ws.best_u[slot]``, target slot ``ws.best_j[slot]``, line ``ws.line[slot] = [p',
+    d']`` (target frame; d' = inward base normal)."""
     dummy_c = np.empty((0, 2), dtype=np.int64)
     dummy_i = np.zeros(1, dtype=np.int64)
-    return _traverse(0, b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L,
-                     s_neg, s_neg, 0.0, stamp, call, best_u, best_j, line, active,
-                     stack, dummy_c, dummy_i, dummy_i, dummy_c, np.empty(0), np.empty((0, 6)))
+    col = Collect(dummy_c, dummy_i, dummy_i, dummy_c, np.empty(0), np.empty((0, 6)))
+    return _traverse(0, bm, tm, Rbt, tbt, L, s_neg, s_neg, 0.0, ws, col)
 
 
 @njit(cache=True)
@@ -579,10 +650,9 @@ def edge_clearance(ox, oy, oz, dx, dy, dz, ttri, l):
 
 
 @njit(cache=True)
-def candidate_clearances(n, cand, ttri, belem, slot_f, Rbt, tbt, L, s_neg, cand_c, cand_s,
-                         cand_d, cand_h, cand_g, cand_f):
-    """Clearances of the candidate pairs ``cand[:n]`` (sorted by base slot) at the current pose,
-    for :func:`search_candidates_skip`. Per pair (k, l), with the line o + s d of element k and
+def candidate_clearances(n, cands, ttri, belem, slot_f, Rbt, tbt, s_neg):
+    """Clearances of the candidate pairs ``cand[:n]`` (``cands``, :class:`Candidates`; sorted by
+    base slot) at the current pose, for :func:`search_candidates_skip`. Per pair (k, l), with the line o + s d of element k and
     triangle l (first vertex v, facet normal n_g, dual edge vectors g1, g2):
 
     * edge clearance ``cand_c[q]``: how far outside the triangle (in its plane, by the inside
@@ -601,6 +671,8 @@ def candidate_clearances(n, cand, ttri, belem, slot_f, Rbt, tbt, L, s_neg, cand_
       segment moved by less than cand_h the element has no hit (its entries then do not matter).
     * ``cand_g[q]`` the number of pairs of the element and ``cand_f[q]`` its far-check node
       (whose motion bound applies), at the element's first pair."""
+    cand, cand_c, cand_s, cand_d = cands.pairs, cands.c, cands.s, cands.d
+    cand_h, cand_g, cand_f = cands.h, cands.g, cands.f
     r00, r01, r02 = Rbt[0, 0], Rbt[0, 1], Rbt[0, 2]
     r10, r11, r12 = Rbt[1, 0], Rbt[1, 1], Rbt[1, 2]
     r20, r21, r22 = Rbt[2, 0], Rbt[2, 1], Rbt[2, 2]
@@ -679,14 +751,16 @@ def _retest_threshold(ox, oy, oz, dx, dy, dz, ttri, l, sum_d):
 
 
 @njit(cache=True)
-def init_thresholds(n_cand, cand_c, cand_s, cand_d, cand_h, cand_g, cand_f, ndisp, fresh,
-                    cand_x, elem_q, elem_x, elem_hit):
-    """Skip thresholds of a list just set (built at this pose, ``fresh``, or served from the atlas):
+def init_thresholds(n_cand, cands, ndisp, fresh):
+    """Skip thresholds of a list just set (``cands``, :class:`Candidates`) (built at this pose, ``fresh``, or served from the atlas):
     per pair ``cand_x[q]``, per element ``elem_x[i]`` (its first pair ``elem_q[i]``, in base-slot
     order), in units of the running motion sum, which starts at 0 (:func:`search_candidates_skip`).
     From the list's clearances at its own pose (:func:`candidate_clearances`): the allowance less
     the motion since that pose (``ndisp[f]`` for the near leaves of far-check node f, the turn
     ``ndisp[-1]``; 0 when fresh). Returns the number of elements."""
+    cand_c, cand_s, cand_d, cand_h = cands.c, cands.s, cands.d, cands.h
+    cand_g, cand_f, cand_x = cands.g, cands.f, cands.x
+    elem_q, elem_x, elem_hit = cands.elem_q, cands.elem_x, cands.elem_hit
     r = R_LIFE if fresh else ndisp[ndisp.shape[0] - 1] + R_LIFE
     ne = 0
     q = 0
@@ -707,15 +781,55 @@ def init_thresholds(n_cand, cand_c, cand_s, cand_d, cand_h, cand_g, cand_f, ndis
     return ne
 
 
+@njit(cache=True, inline="always")
+def _pair_clear(c, s0, den, dref, rho):
+    """The second chance of :func:`search_candidates_skip`: True when a pair's own clearances at
+    its list's pose (edge clearance ``c``, |s0|, |den|) exceed the motion since (``dref``, the
+    turn ``rho``): its line still meets the plane outside the triangle (see
+    :func:`candidate_clearances`)."""
+    dd = den - rho
+    return dd > DOT_EPS and c > (dref + s0 * rho) * (
+        1.0 + (math.sqrt(max(0.0, 1.0 - den * den)) + rho) / dd)
+
+
+@njit(cache=True, inline="always")
+def _plane_clearance(h, ttri, l, ax, ay, az):
+    """The element clearance ``h`` so far, lowered to the segment start a's height over triangle
+    l's plane, or -inf when l's exact normal is more than ~30 deg from its facet normal (see
+    :func:`candidate_clearances`)."""
+    ngx, ngy, ngz = ttri[l, 3], ttri[l, 4], ttri[l, 5]
+    if ngx * ttri[l, 15] + ngy * ttri[l, 16] + ngz * ttri[l, 17] >= SKIP_COS:
+        e = ((ax - ttri[l, 0]) * ngx + (ay - ttri[l, 1]) * ngy
+             + (az - ttri[l, 2]) * ngz)
+        if e < h:
+            h = e
+        return h
+    return -np.inf
+
+
+@njit(cache=True, inline="always")
+def _set_hit(ws, k, ox, oy, oz, dx, dy, dz, u, j):
+    """Base slot k hits target slot j at penetration u along the line o + s d (target frame):
+    written to the workspace ``ws`` as :func:`search_pair` does (not yet listed as active)."""
+    line = ws.line
+    line[k, 0] = ox
+    line[k, 1] = oy
+    line[k, 2] = oz
+    line[k, 3] = dx
+    line[k, 4] = dy
+    line[k, 5] = dz
+    ws.best_u[k] = u
+    ws.best_j[k] = j
+
+
 @njit(cache=True)
-def search_candidates_skip(n_elem, elem_q, elem_x, elem_hit, cand, ttri, cand_x, cand_g, cand_f,
-                           nsum, reanchor, cand_c, cand_s, cand_d, cand_h, nd0, rho, belem,
-                           L, s_neg, Rbt, tbt, best_u, best_j, line, active, stats):
-    """Exact narrow phase over the cached candidate pairs (sorted by base slot; same outputs as
-    :func:`search_pair`), skipping what cannot hit or enter (the criteria below, and as a second
+def search_candidates_skip(n_elem, cands, far, reanchor, rho, belem, ttri, L, s_neg, ps, ws,
+                           stats):
+    """Exact narrow phase over the cached candidate pairs ``cands`` (:class:`Candidates`, sorted
+    by base slot; same outputs in ``ws`` as :func:`search_pair`), skipping what cannot hit or enter (the criteria below, and as a second
     chance for what they do not skip, the list's own clearances ``cand_c``, ``cand_s``,
     ``cand_d``, ``cand_h`` against the motion since the list's pose, ``nd0[f]`` at the sums'
-    start + ``nsum[f]``, and the turn since it, ``rho``). ``nsum[f]`` is the running sum of the
+    start + ``nsum[f]`` (``far``, :class:`FarCheck`), and the turn since it, ``rho``). ``nsum[f]`` is the running sum of the
     per-call motion bounds of far-check node f's near leaves since the list was set
     (:func:`_advance_motion`): by the triangle inequality the motion between two calls is at most
     the difference of their sums. Every element and pair carries a threshold in these units (the
@@ -730,10 +844,15 @@ def search_candidates_skip(n_elem, elem_q, elem_x, elem_hit, cand, ttri, cand_x,
     this pose (skipped when it had a hit at its last visit: then it is <= 0) and its pairs'
     smallest threshold. Without (direct bounds, for lists that live too few calls to use new
     thresholds; a difference of direct bounds bounds no motion) a tested pair keeps its
-    threshold, a hit gets -inf, and an element its pairs' smallest. So along a trajectory a pair is tested again only when the motion since
-    its last test could have closed its gap: a call costs about the elements in contact and
+    threshold, a hit gets -inf, and an element its pairs' smallest. So along a trajectory a pair
+    is tested again only when the motion since its last test could have closed its gap: a call costs about the elements in contact and
     their near neighbours, not the list's size or age. ``stats`` (4,): elements skipped, pairs
     tested, thresholds re-anchored, elements visited."""
+    elem_q, elem_x, elem_hit, cand = cands.elem_q, cands.elem_x, cands.elem_hit, cands.pairs
+    cand_c, cand_s, cand_d, cand_h = cands.c, cands.s, cands.d, cands.h
+    cand_g, cand_f, cand_x = cands.g, cands.f, cands.x
+    nsum, nd0, Rbt, tbt, active = far.nsum, far.nd0, ps.Rbt, ps.tbt, ws.active
+
     r00, r01, r02 = Rbt[0, 0], Rbt[0, 1], Rbt[0, 2]
     r10, r11, r12 = Rbt[1, 0], Rbt[1, 1], Rbt[1, 2]
     r20, r21, r22 = Rbt[2, 0], Rbt[2, 1], Rbt[2, 2]
@@ -776,23 +895,13 @@ def search_candidates_skip(n_elem, elem_q, elem_x, elem_hit, cand, ttri, cand_x,
         while q < qe:
             l = cand[q, 1]
             if h > -np.inf:
-                ngx, ngy, ngz = ttri[l, 3], ttri[l, 4], ttri[l, 5]
-                if ngx * ttri[l, 15] + ngy * ttri[l, 16] + ngz * ttri[l, 17] >= SKIP_COS:
-                    e = ((ax - ttri[l, 0]) * ngx + (ay - ttri[l, 1]) * ngy
-                         + (az - ttri[l, 2]) * ngz)
-                    if e < h:
-                        h = e
-                else:
-                    h = -np.inf
+                h = _plane_clearance(h, ttri, l, ax, ay, az)
             if now < cand_x[q]:
                 if cand_x[q] < xm:
                     xm = cand_x[q]
                 q += 1
                 continue
-            den = cand_d[q]
-            dd = den - rho
-            if dd > DOT_EPS and cand_c[q] > (dref + cand_s[q] * rho) * (
-                    1.0 + (math.sqrt(max(0.0, 1.0 - den * den)) + rho) / dd):
+            if _pair_clear(cand_c[q], cand_s[q], cand_d[q], dref, rho):
                 if cand_x[q] < xm:
                     xm = cand_x[q]
                 q += 1
@@ -822,14 +931,7 @@ def search_candidates_skip(n_elem, elem_q, elem_x, elem_hit, cand, ttri, cand_x,
         elem_hit[i] = bj >= 0
         stats[3] += 1
         if bj >= 0 and best < entry:
-            line[k, 0] = ox
-            line[k, 1] = oy
-            line[k, 2] = oz
-            line[k, 3] = dx
-            line[k, 4] = dy
-            line[k, 5] = dz
-            best_u[k] = best
-            best_j[k] = bj
+            _set_hit(ws, k, ox, oy, oz, dx, dy, dz, best, bj)
             active[n_active] = k
             n_active += 1
     stats[0] = n_skip
@@ -965,13 +1067,16 @@ def _rbt_of(M, theta_b, theta_t, R):
 
 
 @njit(cache=True)
-def _cache_check(Rc, tc, ref, o, gfar, nclose, close, nbox, minsep, b_seg, b_obb, fnode, s_neg,
-                 delta, cphi, margin, dR, dt, ndisp):
-    """Validity of a candidate list built at the pose ``ref[o:o+9]`` (R), ``ref[o+9:o+12]`` (t)
-    for the pose (Rc, tc): relative rotation below the cache angle, the far group (root box)
-    within ``gfar``, and per close far-check node f its near leaves within ``delta`` and the node
-    within ``minsep[f]`` (all less ``margin``). Writes the near-leaf motion bounds ``ndisp[f]``;
-    returns the largest of them, or -1.0 when the list is not valid."""
+def _cache_check(ps, lb, bm, fnode, s_neg, delta, cphi, margin, ndisp):
+    """Validity of a candidate list (``lb``, :class:`ListBounds`) built at the pose
+    ``ref[o:o+9]`` (R), ``ref[o+9:o+12]`` (t) for the pose (``ps.Rc``, ``ps.tbt``): relative
+    rotation below the cache angle, the far group (root box) within ``gfar``, and per close
+    far-check node f (of ``fnode``) its near leaves within ``delta`` and the node within
+    ``minsep[f]`` (all less ``margin``). Writes the near-leaf motion bounds ``ndisp[f]`` (and
+    ``ps.dR``, ``ps.dt``); returns the largest of them, or -1.0 when the list is not valid."""
+    Rc, tc, dR, dt, b_seg, b_obb = ps.Rc, ps.tbt, ps.dR, ps.dt, bm.seg, bm.obb
+    ref, o, gfar, nclose, close = lb.ref, lb.o, lb.gfar, lb.nclose, lb.close
+    nbox, minsep = lb.nbox, lb.minsep
     tr = 0.0
     for r in range(3):
         for c in range(3):
@@ -1010,11 +1115,16 @@ def _cache_check(Rc, tc, ref, o, gfar, nclose, close, nbox, minsep, b_seg, b_obb
 
 
 @njit(cache=True)
-def _atlas_store(theta_b, theta_t, Rbt, tbt, cache, n, cand, cand_c, cand_s, cand_d, cand_h,
-                 minsep, nbox, close, atlas_meta, atlas_pairs, atlas_c, atlas_s, atlas_d,
-                 atlas_h, atlas_x, atlas_minsep, atlas_nbox, atlas_close):
-    """Store the list just built (pairs in this pose's slots) as a snapshot; when the atlas is
-    full it is emptied first (no eviction policy: a run soon refills what it visits)."""
+def _atlas_store(theta_b, theta_t, d, n):
+    """Store the list just built (``d.cands``, n pairs in this pose's slots, and its validity
+    data ``d.far``) as a snapshot of ``d.atlas``; when the atlas is full it is emptied first (no
+    eviction policy: a run soon refills what it visits)."""
+    Rbt, tbt, cache, at = d.poses.Rbt, d.poses.tbt, d.cache, d.atlas
+    cands = d.cands
+    cand, cand_c, cand_s, cand_d, cand_h = cands.pairs, cands.c, cands.s, cands.d, cands.h
+    minsep, nbox, close = d.far.minsep, d.far.nbox, d.far.close
+    atlas_meta, atlas_pairs, atlas_c, atlas_s, atlas_d = at.meta, at.pairs, at.c, at.s, at.d
+    atlas_h, atlas_x, atlas_minsep, atlas_nbox, atlas_close = at.h, at.x, at.minsep, at.nbox, at.close
     ns = int(cache[C_NSNAP])
     top = int(cache[C_ATOP])
     if n > atlas_pairs.shape[0]:
@@ -1055,11 +1165,13 @@ def _atlas_store(theta_b, theta_t, Rbt, tbt, cache, n, cand, cand_c, cand_s, can
 
 
 @njit(cache=True)
-def _atlas_lookup(theta_b, theta_t, M, period, tbt, cache, atlas_meta, atlas_minsep, atlas_nbox,
-                  atlas_close, b_seg, b_obb, fnode, s_neg, delta, cphi, dR, dt, ndisp, Rc):
-    """A snapshot valid at the current pose shifted by whole pitches (the pose of the same tooth
-    pairs the snapshot was built for): returns (snapshot, base pitches, target pitches), or
-    snapshot -1. Checks the ATLAS_TRIES snapshots nearest in the two shifted angles."""
+def _atlas_lookup(theta_b, theta_t, d, cphi):
+    """A snapshot of ``d.atlas`` valid at the current pose shifted by whole pitches (the pose of
+    the same tooth pairs the snapshot was built for): returns (snapshot, base pitches, target
+    pitches), or snapshot -1. Checks the ATLAS_TRIES snapshots nearest in the two shifted
+    angles (writes ``d.poses.Rc`` and the motion bounds ``d.far.ndisp``)."""
+    cache, M, at, params = d.cache, d.M, d.atlas, d.params
+    period, atlas_meta, Rc = at.period, at.meta, d.poses.Rc
     ns = int(cache[C_NSNAP])
     pb = period[0]
     pt = period[2]
@@ -1088,11 +1200,12 @@ def _atlas_lookup(theta_b, theta_t, M, period, tbt, cache, atlas_meta, atlas_min
             break
         tried[sel] = True
         _rbt_of(M, theta_b + sel_db * pb, theta_t + sel_dt * pt, Rc)
-        d = _cache_check(Rc, tbt, atlas_meta[sel], S_RREF, atlas_meta[sel, S_GFAR],
-                         int(atlas_meta[sel, S_NCLOSE]), atlas_close[sel], atlas_nbox[sel],
-                         atlas_minsep[sel], b_seg, b_obb, fnode, s_neg, delta, cphi,
-                         ATLAS_EPS, dR, dt, ndisp)
-        if d >= 0.0:
+        lb = ListBounds(atlas_meta[sel], S_RREF, atlas_meta[sel, S_GFAR],
+                        int(atlas_meta[sel, S_NCLOSE]), at.close[sel], at.nbox[sel],
+                        at.minsep[sel])
+        dmax = _cache_check(d.poses, lb, d.base, d.far.fnode, params[P_SNEG], params[P_DELTA],
+                            cphi, ATLAS_EPS, d.far.ndisp)
+        if dmax >= 0.0:
             best_s = sel
             best_db = sel_db
             best_dt = sel_dt
@@ -1101,16 +1214,21 @@ def _atlas_lookup(theta_b, theta_t, M, period, tbt, cache, atlas_meta, atlas_min
 
 
 @njit(cache=True)
-def _atlas_activate(s, db, dtt, period, cache, atlas_meta, atlas_pairs, atlas_c, atlas_s,
-                    atlas_d, atlas_h, atlas_x, atlas_minsep, atlas_nbox, atlas_close, b_order,
-                    b_inv, t_order, t_inv, slot_f, minsep, nbox, close, cand, cand_c, cand_s,
-                    cand_d, cand_h, cand_g, cand_f, ndisp, cand_x, elem_q, elem_x, elem_hit):
-    """Make snapshot s the current list, its pairs mapped to the tooth pairs of the current pose
+def _atlas_activate(s, db, dtt, d):
+    """Make snapshot s of ``d.atlas`` the current list (``d.cands``, ``d.far``), its pairs mapped to the tooth pairs of the current pose
     (base triangle id + db teeth, target id + dtt teeth), sorted by the mapped base slot. The
     validity data stay the snapshot's (checked at the shifted pose, which left the motion bounds
     since the snapshot's pose in ``ndisp``); ``cand_f`` is the far-check node of the snapshot's
     element (its motion bound applies). Sets the skip thresholds as :func:`init_thresholds` does,
     from the stored allowances when the turn since the snapshot's pose is within R_SNAP."""
+    cache, at, cands, far = d.cache, d.atlas, d.cands, d.far
+    period, atlas_meta, atlas_pairs, atlas_c, atlas_s = at.period, at.meta, at.pairs, at.c, at.s
+    atlas_d, atlas_h, atlas_x = at.d, at.h, at.x
+    b_order, b_inv, t_order, t_inv = d.base.order, d.base.inv, d.target.order, d.target.inv
+    slot_f, minsep, nbox, close, ndisp = far.slot_f, far.minsep, far.nbox, far.close, far.ndisp
+    cand, cand_c, cand_s, cand_d, cand_h = cands.pairs, cands.c, cands.s, cands.d, cands.h
+    cand_g, cand_f, cand_x = cands.g, cands.f, cands.x
+    elem_q, elem_x, elem_hit = cands.elem_q, cands.elem_x, cands.elem_hit
     row = atlas_meta[s]
     p0 = int(row[S_START])
     n = int(row[S_N])
@@ -1166,12 +1284,12 @@ def _atlas_activate(s, db, dtt, period, cache, atlas_meta, atlas_pairs, atlas_c,
         elem_hit[gi] = False
     cache[C_NELEM] = ng
     for f in range(minsep.shape[0]):
-        minsep[f] = atlas_minsep[s, f]
+        minsep[f] = at.minsep[s, f]
         for a in range(6):
-            nbox[f, a] = atlas_nbox[s, f, a]
+            nbox[f, a] = at.nbox[s, f, a]
     nclose = int(row[S_NCLOSE])
     for q in range(nclose):
-        close[q] = atlas_close[s, q]
+        close[q] = at.close[s, q]
     for a in range(12):
         cache[C_RREF + a] = row[S_RREF + a]
     cache[C_NCLOSE] = nclose
@@ -1183,24 +1301,16 @@ def _atlas_activate(s, db, dtt, period, cache, atlas_meta, atlas_pairs, atlas_c,
 
 
 @njit(cache=True)
-def _atlas_serve(theta_b, theta_t, M, period, tbt, cache, atlas_meta, atlas_pairs, atlas_c,
-                 atlas_s, atlas_d, atlas_h, atlas_x, atlas_minsep, atlas_nbox, atlas_close, b_seg,
-                 b_obb, fnode, s_neg, delta, cphi, dR, dt, ndisp, Rc, b_order, b_inv, t_order,
-                 t_inv, slot_f, minsep, nbox, close, cand, cand_c, cand_s, cand_d, cand_h, cand_g,
-                 cand_f, cand_x, elem_q, elem_x, elem_hit):
+def _atlas_serve(theta_b, theta_t, d, cphi):
     """A kept list that fits the current pose (:func:`_atlas_lookup`) made the current list
     (:func:`_atlas_activate`); False when none fits."""
+    cache = d.cache
     if cache[C_NSNAP] <= 0.0:
         return False
-    s, sdb, sdt = _atlas_lookup(theta_b, theta_t, M, period, tbt, cache, atlas_meta,
-                                atlas_minsep, atlas_nbox, atlas_close, b_seg, b_obb, fnode, s_neg,
-                                delta, cphi, dR, dt, ndisp, Rc)
+    s, sdb, sdt = _atlas_lookup(theta_b, theta_t, d, cphi)
     if s < 0:
         return False
-    _atlas_activate(s, sdb, sdt, period, cache, atlas_meta, atlas_pairs, atlas_c, atlas_s,
-                    atlas_d, atlas_h, atlas_x, atlas_minsep, atlas_nbox, atlas_close, b_order,
-                    b_inv, t_order, t_inv, slot_f, minsep, nbox, close, cand, cand_c, cand_s,
-                    cand_d, cand_h, cand_g, cand_f, ndisp, cand_x, elem_q, elem_x, elem_hit)
+    _atlas_activate(s, sdb, sdt, d)
     cache[C_VALID] = 1.0
     cache[C_SINCE] = 0.0
     cache[C_AHITS] += 1.0
@@ -1229,14 +1339,17 @@ def _keep_pose(Rc, tbt, cache):
 
 
 @njit(cache=True)
-def _start_motion(Rc, tbt, fresh, s_neg, b_seg, b_obb, cache, nbox, minsep, close, ndisp, nd0,
-                  nsum, dR, dt):
-    """Running motion sums of a list (re)started at this call (pose ``Rc``, shifted): zero (per
+def _start_motion(ps, fresh, s_neg, bm, cache, far):
+    """Running motion sums of a list (re)started at this call (pose ``ps.Rc``, shifted): zero (per
     far-check node with near leaves ``nsum[f]``, the whole base, the turn), the pose kept for the
     next call, and what :func:`_valid_by_sums` needs: the near-leaf bounds and the turn since the
     list's pose (this call's check, ``ndisp``; 0 when ``fresh``; each kept as ``nd0[f]``, the
     largest as the start of ``cache[C_SUMD]``), the whole base's bound since it, and the
-    smallest distance its far checks allow (``minsep``, the far group's ``C_GFAR``)."""
+    smallest distance its far checks allow (``minsep``, the far group's ``C_GFAR``). The arrays
+    named are those of ``far`` (:class:`FarCheck`)."""
+    Rc, tbt, dR, dt, b_seg, b_obb = ps.Rc, ps.tbt, ps.dR, ps.dt, bm.seg, bm.obb
+    nbox, minsep, close = far.nbox, far.minsep, far.close
+    ndisp, nd0, nsum = far.ndisp, far.nd0, far.nsum
     d0 = 0.0
     sep = cache[C_GFAR]
     for q in range(int(cache[C_NCLOSE])):
@@ -1264,13 +1377,16 @@ def _start_motion(Rc, tbt, fresh, s_neg, b_seg, b_obb, cache, nbox, minsep, clos
 
 
 @njit(cache=True)
-def _advance_motion(Rc, tbt, s_neg, b_seg, b_obb, cache, nbox, close, nd0, nsum, dR, dt):
+def _advance_motion(ps, s_neg, bm, cache, far):
     """Add the motion since the previous call to the running sums: per far-check node f with near
     leaves the largest |dR x + dt| over their box to ``nsum[f]``; over the whole base to
     ``cache[C_SUMROOT]``; |dR|_F (a bound of the turn of every direction) to ``cache[C_SUMR]``.
     ``cache[C_SUMD]`` becomes the largest nd0[f] + nsum[f] (a bound of the near leaves' motion
     since the list's pose). The poses are shifted by the list's pitches (the teeth the list was
-    made for): a fixed isometry away from the true poses, so the same motion."""
+    made for): a fixed isometry away from the true poses, so the same motion. Poses ``ps``
+    (:class:`Poses`), arrays of ``far`` (:class:`FarCheck`)."""
+    Rc, tbt, dR, dt, b_seg, b_obb = ps.Rc, ps.tbt, ps.dR, ps.dt, bm.seg, bm.obb
+    nbox, close, nd0, nsum = far.nbox, far.close, far.nd0, far.nsum
     fro = 0.0
     for r in range(3):
         for c in range(3):
@@ -1309,11 +1425,12 @@ def _valid_by_sums(cache, delta, margin, phi_tol):
 
 
 @njit(cache=True)
-def _direct_sums(cache, nbox, close, ndisp, nd0, nsum):
+def _direct_sums(cache, far):
     """For a list without running sums: the motion since the sums' start bounded by the full
     check's direct bounds since the list's pose (``ndisp``) less those at the start (``nd0``), so
     that the thresholds (:func:`init_thresholds`: allowance less the start bound) compare as the
-    list's own clearances against the direct bound; the turn likewise."""
+    list's own clearances against the direct bound; the turn likewise. Arrays of ``far``."""
+    nbox, close, ndisp, nd0, nsum = far.nbox, far.close, far.ndisp, far.nd0, far.nsum
     for q in range(int(cache[C_NCLOSE])):
         f = close[q]
         if nbox[f, 0] <= nbox[f, 3]:
@@ -1321,16 +1438,170 @@ def _direct_sums(cache, nbox, close, ndisp, nd0, nsum):
     cache[C_SUMR] = ndisp[ndisp.shape[0] - 1] - cache[C_R0]
 
 
+@njit(cache=True, inline="always")
+def _exact(d):
+    """The exact search of the fixed-axis pair ``d`` at its pose (:func:`search_pair`)."""
+    p = d.params
+    return search_pair(d.base, d.target, d.poses.Rbt, d.poses.tbt, p[P_L], p[P_SNEG], d.work)
+
+
+@njit(cache=True, inline="always")
+def _cool_down(theta_b, theta_t, d, periodic, cphi):
+    """A call during a cool-down (:func:`cached_search`): -1 for the exact search, 1 when a kept
+    list that fits ends it (set from the atlas), 0 when this call builds (and keeps) a list."""
+    cache = d.cache
+    cache[C_COOL] -= 1.0
+    if not periodic:
+        cache[C_EXACT] += 1.0
+        return -1
+    # cool-down with an atlas: a kept list that fits ends it; every ATLAS_BUILD_EVERY-th call
+    # builds (and keeps) a list, so that large steps fill the atlas too; else the exact search
+    if _atlas_serve(theta_b, theta_t, d, cphi):
+        cache[C_COOL] = 0.0
+        return 1
+    if int(cache[C_COOL]) % ATLAS_BUILD_EVERY != 0:
+        cache[C_EXACT] += 1.0
+        return -1
+    cache[C_COOL] = 0.0           # a build below
+    cache[C_VALID] = 0.0
+    cache[C_SINCE] = CACHE_MIN_REUSE
+    return 0
+
+
+@njit(cache=True, inline="always")
+def _still_valid(theta_b, theta_t, d, cphi):
+    """Is the list in use valid at this pose (:func:`cached_search`)? Returns (valid, init):
+    init when its thresholds are to be set again from its own pose (running sums whose turn
+    exceeds R_LIFE, or a short-lived list that switches to running sums)."""
+    cache, ps, far, p = d.cache, d.poses, d.far, d.params
+    s_neg, delta, phi_tol = p[P_SNEG], p[P_DELTA], p[P_PHI]
+    _shifted_pose(theta_b, theta_t, d.M, d.atlas.period, ps.Rbt, cache, ps.Rc)
+    margin = ATLAS_EPS if (cache[C_DB] != 0.0 or cache[C_DT] != 0.0) else 0.0
+    lb = ListBounds(cache, C_RREF, cache[C_GFAR], int(cache[C_NCLOSE]), far.close, far.nbox,
+                    far.minsep)
+    valid = True
+    init = False
+    if cache[C_SUMS] != 0.0:
+        _advance_motion(ps, s_neg, d.base, cache, far)
+        # the turn since the thresholds were set may exceed what they allow for: the same
+        # list then gets them set again from its own pose (with the bounds of the full check)
+        init = cache[C_SUMR] > R_LIFE
+        if init or not _valid_by_sums(cache, delta, margin, phi_tol):
+            dmax = _cache_check(ps, lb, d.base, far.fnode, s_neg, delta, cphi, margin, far.ndisp)
+            valid = dmax >= 0.0
+            init = init and valid
+    else:
+        # a short-lived list: the full check every call, its direct bounds as the "sums";
+        # once it has lived REANCHOR_LIFE calls it switches to running sums (a restart)
+        dmax = _cache_check(ps, lb, d.base, far.fnode, s_neg, delta, cphi, margin, far.ndisp)
+        valid = dmax >= 0.0
+        if valid:
+            _direct_sums(cache, far)
+            init = cache[C_SINCE] + 1.0 >= REANCHOR_LIFE
+    return valid, init
+
+
 @njit(cache=True)
-def cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L, s_neg,
-                  delta, far, phi_tol, cache, cand, nstamp, icount, fnode, fc, minsep,
-                  nbox, close, dR, dt, stamp, call, best_u, best_j, line, active, stack,
-                  ndisp, cand_c, cand_s, cand_d, cand_h, cand_g,
-                  cand_f, slot_f, theta_b,
-                  theta_t, M, period, b_order, b_inv, t_order, t_inv, Rc, atlas_meta,
-                  atlas_pairs, atlas_c, atlas_s, atlas_d, atlas_h, atlas_minsep, atlas_nbox,
-                  atlas_close, cand_x, elem_q, elem_x, elem_hit, atlas_x, nsum, nd0):
-    """Exact contact search through a candidate cache (temporal coherence).
+def _build_list(theta_b, theta_t, d, periodic):
+    """Build a candidate list at this pose (:func:`cached_search`): collecting traversal, pairs
+    sorted by base slot, clearances, far-check groups, the pose kept; and the list kept in the
+    atlas when ``periodic``. False when the list overflowed (the list is then invalid)."""
+    cache, ps, far, cands, p = d.cache, d.poses, d.far, d.cands, d.params
+    Rbt, tbt, minsep, nbox, close = ps.Rbt, ps.tbt, far.minsep, far.nbox, far.close
+    s_neg, far_m = p[P_SNEG], p[P_FAR]
+    cache[C_SINCE] = 0.0
+    cache[C_DB] = 0.0
+    cache[C_DT] = 0.0
+    nf = far.fnode.shape[0]
+    for f in range(nf):
+        minsep[f] = np.inf
+        for a in range(3):
+            nbox[f, a] = np.inf
+            nbox[f, 3 + a] = -np.inf
+    col = Collect(cands.pairs, far.nstamp, far.icount, far.fc, minsep, nbox)
+    n = _traverse(1, d.base, d.target, Rbt, tbt, p[P_L], s_neg, far_m + s_neg, p[P_DELTA],
+                  d.work, col)
+    cache[C_BUILDS] += 1.0
+    if n < 0:
+        cache[C_VALID] = 0.0
+        cache[C_OVERFLOW] += 1.0
+        return False
+    # sort the pairs by base slot (stable)
+    cand = cands.pairs
+    order = np.argsort(cand[:n, 0], kind="mergesort")
+    tmp = cand[:n].copy()
+    for q in range(n):
+        cand[q, 0] = tmp[order[q], 0]
+        cand[q, 1] = tmp[order[q], 1]
+    candidate_clearances(n, cands, d.target.tri, d.base.elem, far.slot_f, Rbt, tbt, s_neg)
+    cache[C_NNEAR] = far.icount[0]
+    # far-check nodes checked one by one: those with near leaves or within 16 far; the
+    # others together through the root box against the smallest of their distances
+    nclose = 0
+    gfar = np.inf
+    for f in range(nf):
+        if nbox[f, 0] <= nbox[f, 3] or minsep[f] < 16.0 * far_m:
+            close[nclose] = f
+            nclose += 1
+        elif minsep[f] < gfar:
+            gfar = minsep[f]
+    cache[C_NCLOSE] = nclose
+    cache[C_GFAR] = gfar
+    cache[C_VALID] = 1.0
+    for r in range(3):
+        for c in range(3):
+            cache[C_RREF + 3 * r + c] = Rbt[r, c]
+        cache[C_TREF + r] = tbt[r]
+    cache[C_NCAND] = n
+    if periodic:
+        _atlas_store(theta_b, theta_t, d, n)
+    return True
+
+
+@njit(cache=True, inline="always")
+def _set_motion(theta_b, theta_t, d, set_list, init, fresh, prev_life):
+    """A list was set at this call (``set_list``) or its thresholds are to be set again
+    (``init``): its lifetime statistics, the running sums started (:func:`_start_motion`) and
+    the skip thresholds set (:func:`init_thresholds`)."""
+    cache, ps, far = d.cache, d.poses, d.far
+    if set_list:
+        # lifetime of the lists (calls served, exponential average): re-anchoring pays
+        # only when a list lives long enough to use the thresholds
+        life = cache[C_LIFE]
+        cache[C_LIFE] = prev_life if life == 0.0 else 0.75 * life + 0.25 * prev_life
+        _shifted_pose(theta_b, theta_t, d.M, d.atlas.period, ps.Rbt, cache, ps.Rc)
+    _start_motion(ps, fresh, d.params[P_SNEG], d.base, cache, far)
+    # running sums (and re-anchored thresholds) for lists that live long enough to use them
+    cache[C_SUMS] = 1.0 if (init and not set_list) or cache[C_LIFE] >= REANCHOR_LIFE else 0.0
+    if init:
+        cache[C_NELEM] = init_thresholds(int(cache[C_NCAND]), d.cands, far.ndisp, fresh)
+
+
+@njit(cache=True, inline="always")
+def _narrow_phase(d):
+    """The narrow phase on the list in use (:func:`search_candidates_skip`), its statistics kept
+    in the cache state."""
+    cache, p = d.cache, d.params
+    stats = np.zeros(4, dtype=np.int64)
+    n_act = search_candidates_skip(int(cache[C_NELEM]), d.cands, d.far, cache[C_SUMS] != 0.0,
+                                   cache[C_R0] + cache[C_SUMR] + 1e-11, d.base.elem,
+                                   d.target.tri, p[P_L], p[P_SNEG], d.poses, d.work, stats)
+    cache[C_SKIPPED] = stats[0]
+    cache[C_TESTED] = stats[1]
+    cache[C_RETESTS] = stats[2]
+    cache[C_VISITED] = stats[3]
+    cache[C_TESTED_ALL] += stats[1]
+    cache[C_RETESTS_ALL] += stats[2]
+    return n_act
+
+
+@njit(cache=True)
+def cached_search(d, theta_b, theta_t):
+    """Exact contact search through a candidate cache (temporal coherence) of the fixed-axis
+    pair ``d`` (:class:`FixedAxisData`) at the pose ``d.poses`` (angles ``theta_b``, ``theta_t``);
+    the search length, the margins ``delta`` and ``far`` and the angle ``phi_tol`` are
+    ``d.params``' (``P_*``). Returns the number of base elements with a hit (``d.work`` as
+    :func:`search_pair`).
 
     Build (at the current pose): a traversal with node volumes grown by ``far`` finds the base
     leaves within ``far`` of the target ("near" leaves); for their elements every (element,
@@ -1356,7 +1627,7 @@ def cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tb
     about the elements in contact and their near neighbours, not the list's size or age. The
     same sums prove check (i)-(iii) most calls without the per-node check (:func:`_valid_by_sums`).
 
-    Pitch atlas (``period[1] > 0``: both meshes are invariant under a turn by one pitch, checked
+    Pitch atlas (``d.atlas``, ``period[1] > 0``: both meshes are invariant under a turn by one pitch, checked
     by :func:`engine.pitch_symmetry`): every list built is kept as a snapshot (pairs, clearances,
     validity data, angles). Turning the base by one pitch (angle ``period[0]``) maps the mesh
     onto itself with triangle ids shifted by ``period[1]`` (target: ``period[2]``, ``period[3]``),
@@ -1366,163 +1637,41 @@ def cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tb
     is mapped to the current tooth pairs (:func:`_atlas_activate`) instead of a build. The narrow
     phase runs at the true pose on the mapped pairs: results as without the atlas, bit for bit.
     In a steady run every pitch repeats the previous one and builds stop after the first pitch."""
-    periodic = period[1] > 0.0 and atlas_meta.shape[0] > 1
-    cphi = math.cos(phi_tol)
+    cache = d.cache
+    periodic = d.atlas.period[1] > 0.0 and d.atlas.meta.shape[0] > 1
+    cphi = math.cos(d.params[P_PHI])
     prev_life = cache[C_SINCE] if cache[C_VALID] != 0.0 else 0.0
     set_list = False    # a list was set at this call (the atlas sets its thresholds)
     init = False        # thresholds to set from the list's clearances (a build, or a restart)
     fresh = False
     if cache[C_COOL] > 0.0:
-        cache[C_COOL] -= 1.0
-        if not periodic:
-            cache[C_EXACT] += 1.0
-            return search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt,
-                               L, s_neg, stamp, call, best_u, best_j, line, active, stack)
-        # cool-down with an atlas: a kept list that fits ends it; every ATLAS_BUILD_EVERY-th call
-        # builds (and keeps) a list, so that large steps fill the atlas too; else the exact search
-        if _atlas_serve(theta_b, theta_t, M, period, tbt, cache, atlas_meta, atlas_pairs,
-                        atlas_c, atlas_s, atlas_d, atlas_h, atlas_x, atlas_minsep, atlas_nbox,
-                        atlas_close, b_seg, b_obb, fnode, s_neg, delta, cphi, dR, dt, ndisp, Rc,
-                        b_order, b_inv, t_order, t_inv, slot_f, minsep, nbox, close, cand,
-                        cand_c, cand_s, cand_d, cand_h, cand_g, cand_f, cand_x, elem_q, elem_x,
-                        elem_hit):
-            cache[C_COOL] = 0.0
-            set_list = True
-        elif int(cache[C_COOL]) % ATLAS_BUILD_EVERY != 0:
-            cache[C_EXACT] += 1.0
-            return search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt,
-                               L, s_neg, stamp, call, best_u, best_j, line, active, stack)
-        else:
-            cache[C_COOL] = 0.0           # a build below
-            cache[C_VALID] = 0.0
-            cache[C_SINCE] = CACHE_MIN_REUSE
+        go = _cool_down(theta_b, theta_t, d, periodic, cphi)
+        if go < 0:
+            return _exact(d)
+        set_list = go > 0
     valid = cache[C_VALID] != 0.0 and not set_list
     if valid:
-        _shifted_pose(theta_b, theta_t, M, period, Rbt, cache, Rc)
-        margin = ATLAS_EPS if (cache[C_DB] != 0.0 or cache[C_DT] != 0.0) else 0.0
-        if cache[C_SUMS] != 0.0:
-            _advance_motion(Rc, tbt, s_neg, b_seg, b_obb, cache, nbox, close, nd0, nsum, dR, dt)
-            # the turn since the thresholds were set may exceed what they allow for: the same
-            # list then gets them set again from its own pose (with the bounds of the full check)
-            init = cache[C_SUMR] > R_LIFE
-            if init or not _valid_by_sums(cache, delta, margin, phi_tol):
-                d = _cache_check(Rc, tbt, cache, C_RREF, cache[C_GFAR], int(cache[C_NCLOSE]),
-                                 close, nbox, minsep, b_seg, b_obb, fnode, s_neg, delta, cphi,
-                                 margin, dR, dt, ndisp)
-                valid = d >= 0.0
-                init = init and valid
-        else:
-            # a short-lived list: the full check every call, its direct bounds as the "sums";
-            # once it has lived REANCHOR_LIFE calls it switches to running sums (a restart)
-            d = _cache_check(Rc, tbt, cache, C_RREF, cache[C_GFAR], int(cache[C_NCLOSE]), close,
-                             nbox, minsep, b_seg, b_obb, fnode, s_neg, delta, cphi, margin, dR,
-                             dt, ndisp)
-            valid = d >= 0.0
-            if valid:
-                _direct_sums(cache, nbox, close, ndisp, nd0, nsum)
-                init = cache[C_SINCE] + 1.0 >= REANCHOR_LIFE
+        valid, init = _still_valid(theta_b, theta_t, d, cphi)
     if not valid and not set_list:
-        set_list = periodic and _atlas_serve(
-            theta_b, theta_t, M, period, tbt, cache, atlas_meta, atlas_pairs, atlas_c, atlas_s,
-            atlas_d, atlas_h, atlas_x, atlas_minsep, atlas_nbox, atlas_close, b_seg, b_obb, fnode,
-            s_neg, delta, cphi, dR, dt, ndisp, Rc, b_order, b_inv, t_order, t_inv, slot_f,
-            minsep, nbox, close, cand, cand_c, cand_s, cand_d, cand_h, cand_g, cand_f, cand_x,
-            elem_q, elem_x, elem_hit)
+        set_list = periodic and _atlas_serve(theta_b, theta_t, d, cphi)
         if not set_list:
             if cache[C_VALID] != 0.0 and cache[C_SINCE] < CACHE_MIN_REUSE:
                 # the motion between calls is too large for the margins: exact search for a while
                 cache[C_VALID] = 0.0
                 cache[C_COOL] = CACHE_COOLDOWN - 1
                 cache[C_EXACT] += 1.0
-                return search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt,
-                                   tbt, L, s_neg, stamp, call, best_u, best_j, line, active,
-                                   stack)
-            cache[C_SINCE] = 0.0
-            cache[C_DB] = 0.0
-            cache[C_DT] = 0.0
-            nf = fnode.shape[0]
-            for f in range(nf):
-                minsep[f] = np.inf
-                for a in range(3):
-                    nbox[f, a] = np.inf
-                    nbox[f, 3 + a] = -np.inf
-            n = _traverse(1, b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L,
-                          s_neg, far + s_neg, delta, stamp, call,
-                          best_u, best_j, line, active, stack, cand, nstamp, icount, fc, minsep,
-                          nbox)
-            cache[C_BUILDS] += 1.0
-            if n < 0:
-                cache[C_VALID] = 0.0
-                cache[C_OVERFLOW] += 1.0
-                return search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt,
-                                   tbt, L, s_neg, stamp, call, best_u, best_j, line, active,
-                                   stack)
-            # sort the pairs by base slot (stable)
-            order = np.argsort(cand[:n, 0], kind="mergesort")
-            tmp = cand[:n].copy()
-            for q in range(n):
-                cand[q, 0] = tmp[order[q], 0]
-                cand[q, 1] = tmp[order[q], 1]
-            candidate_clearances(n, cand, ttri, belem, slot_f, Rbt, tbt, L, s_neg, cand_c,
-                                 cand_s, cand_d, cand_h, cand_g, cand_f)
-            cache[C_NNEAR] = icount[0]
-            # far-check nodes checked one by one: those with near leaves or within 16 far; the
-            # others together through the root box against the smallest of their distances
-            nclose = 0
-            gfar = np.inf
-            for f in range(nf):
-                if nbox[f, 0] <= nbox[f, 3] or minsep[f] < 16.0 * far:
-                    close[nclose] = f
-                    nclose += 1
-                elif minsep[f] < gfar:
-                    gfar = minsep[f]
-            cache[C_NCLOSE] = nclose
-            cache[C_GFAR] = gfar
-            cache[C_VALID] = 1.0
-            for r in range(3):
-                for c in range(3):
-                    cache[C_RREF + 3 * r + c] = Rbt[r, c]
-                cache[C_TREF + r] = tbt[r]
-            cache[C_NCAND] = n
+                return _exact(d)
+            if not _build_list(theta_b, theta_t, d, periodic):
+                return _exact(d)
             fresh = True
             set_list = True
             init = True
-            if periodic:
-                _atlas_store(theta_b, theta_t, Rbt, tbt, cache, n, cand, cand_c, cand_s, cand_d,
-                             cand_h, minsep, nbox, close, atlas_meta, atlas_pairs, atlas_c,
-                             atlas_s, atlas_d, atlas_h, atlas_x, atlas_minsep, atlas_nbox,
-                             atlas_close)
     else:
         cache[C_CALLS] += 1.0
         cache[C_SINCE] += 1.0
     if set_list or init:
-        if set_list:
-            # lifetime of the lists (calls served, exponential average): re-anchoring pays
-            # only when a list lives long enough to use the thresholds
-            life = cache[C_LIFE]
-            cache[C_LIFE] = prev_life if life == 0.0 else 0.75 * life + 0.25 * prev_life
-            _shifted_pose(theta_b, theta_t, M, period, Rbt, cache, Rc)
-        _start_motion(Rc, tbt, fresh, s_neg, b_seg, b_obb, cache, nbox, minsep, close, ndisp, nd0,
-                      nsum, dR, dt)
-        # running sums (and re-anchored thresholds) for lists that live long enough to use them
-        cache[C_SUMS] = 1.0 if (init and not set_list) or cache[C_LIFE] >= REANCHOR_LIFE else 0.0
-        if init:
-            cache[C_NELEM] = init_thresholds(int(cache[C_NCAND]), cand_c, cand_s, cand_d, cand_h,
-                                             cand_g, cand_f, ndisp, fresh, cand_x, elem_q,
-                                             elem_x, elem_hit)
-    stats = np.zeros(4, dtype=np.int64)
-    n_act = search_candidates_skip(int(cache[C_NELEM]), elem_q, elem_x, elem_hit, cand, ttri,
-                                   cand_x, cand_g, cand_f, nsum, cache[C_SUMS] != 0.0, cand_c,
-                                   cand_s, cand_d, cand_h, nd0,
-                                   cache[C_R0] + cache[C_SUMR] + 1e-11, belem,
-                                   L, s_neg, Rbt, tbt, best_u, best_j, line, active, stats)
-    cache[C_SKIPPED] = stats[0]
-    cache[C_TESTED] = stats[1]
-    cache[C_RETESTS] = stats[2]
-    cache[C_VISITED] = stats[3]
-    cache[C_TESTED_ALL] += stats[1]
-    cache[C_RETESTS_ALL] += stats[2]
-    return n_act
+        _set_motion(theta_b, theta_t, d, set_list, init, fresh, prev_life)
+    return _narrow_phase(d)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -1567,14 +1716,20 @@ def element_force(u, area, vn, vtx, vty, vtz, params):
 
 
 @njit(cache=True)
-def pair_forces(n_active, active, best_u, best_j, line, belem, b_order, t_order,
-                Rt, tt, tb, vb, wb, vt_, wt, params,
-                e_base, e_target, e_u, e_point, e_normal, e_fn, e_ft, e_area,
-                force_t, moment_t, diag):
-    """Element and body forces for the generic pair. Inputs in the target frame (``line``) are
-    mapped to the world with (Rt, tt). Velocities (v of the body origin, omega) in the world.
-    Writes the per-element arrays (first n_active rows), the force on the target ``force_t`` and
-    its moment about the world origin ``moment_t``, and ``diag`` (N_DIAG)."""
+def pair_forces(n_active, ws, bm, tm, motion, params, out):
+    """Element and body forces for the generic pair (base ``bm``, target ``tm``, the search's
+    workspace ``ws``). Inputs in the target frame (``ws.line``) are mapped to the world with
+    ``motion.Rt``, ``motion.tt`` (:class:`Motion`). Velocities (v of the body origin, omega) in
+    the world. Writes to ``out`` (:class:`ElementForces`) the per-element arrays (first n_active
+    rows), the force on the target ``force`` and its moment about the world origin ``moment``,
+    and ``diag`` (N_DIAG)."""
+    active, best_u, best_j, line = ws.active, ws.best_u, ws.best_j, ws.line
+    belem, b_order, t_order = bm.elem, bm.order, tm.order
+    Rt, tt, tb = motion.Rt, motion.tt, motion.tb
+    vb, wb, vt_, wt = motion.vb, motion.wb, motion.vt, motion.wt
+    e_base, e_target, e_u, e_point, e_normal = out.base, out.target, out.u, out.point, out.normal
+    e_fn, e_ft, e_area = out.fn, out.ft, out.area
+    force_t, moment_t, diag = out.force, out.moment, out.diag
     ratio = params[P_RATIO]
     c = params[P_C]
     umax = params[P_UMAX]
@@ -1653,34 +1808,20 @@ def pair_forces(n_active, active, best_u, best_j, line, belem, b_order, t_order,
 def fixed_axis_eval(data, theta_base, theta_target, omega_base, omega_target, out):
     """Fixed-axis pair: pose = R0 @ Rz(theta), both axes through the world origin.
 
-    ``data`` from :func:`gearcontact_fmu.contact.engine.make_fixed_axis_data`. Writes ``out``
+    ``data`` (:class:`FixedAxisData`) from
+    :func:`gearcontact_fmu.contact.engine.make_fixed_axis_data`. Writes ``out``
     (mesh_model.OUT_* layout): out[0] torque on the base about its axis, out[1] torque on the target
     about its axis, out[2..8] diagnostics, out[9] status (1 = penetration beyond u_max).
     """
-    (b_int, b_seg, b_obb, belem, b_order, t_int, t_box, t_obb, ttri, t_order, M, ab0, params,
-     stamp, call, best_u, best_j, line, active, stack, Rbt, tbt, cache, cand, nstamp,
-     icount, fnode, fc, minsep, nbox, close, dR, dt, ndisp, cand_c, cand_s, cand_d, cand_h, cand_g,
-     cand_f, slot_f, period, b_inv, t_inv, Rc, atlas_meta, atlas_pairs, atlas_c, atlas_s, atlas_d,
-     atlas_h, atlas_minsep, atlas_nbox, atlas_close, cand_x, elem_q, elem_x, elem_hit, atlas_x, nsum,
-     nd0) = data
+    M, ab0, params, Rbt = data.M, data.ab0, data.params, data.poses.Rbt
+    belem, active, best_u, line = data.base.elem, data.work.active, data.work.best_u, data.work.line
     _rbt_of(M, theta_base, theta_target, Rbt)       # Rbt = Rz(-theta_t) M Rz(theta_b), M = R0_t^T R0_b
     ct = math.cos(theta_target)
     st = math.sin(theta_target)
-    L = params[P_L]
-    s_neg = params[P_SNEG]
     if params[P_DELTA] > 0.0:
-        n = cached_search(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L,
-                          s_neg, params[P_DELTA], params[P_FAR], params[P_PHI], cache, cand,
-                          nstamp, icount, fnode, fc, minsep, nbox, close, dR, dt, stamp,
-                          call, best_u, best_j, line, active, stack, ndisp, cand_c, cand_s,
-                          cand_d, cand_h, cand_g, cand_f,
-                          slot_f, theta_base, theta_target, M,
-                          period, b_order, b_inv, t_order, t_inv, Rc, atlas_meta, atlas_pairs,
-                          atlas_c, atlas_s, atlas_d, atlas_h, atlas_minsep, atlas_nbox,
-                          atlas_close, cand_x, elem_q, elem_x, elem_hit, atlas_x, nsum, nd0)
+        n = cached_search(data, theta_base, theta_target)
     else:
-        n = search_pair(b_int, b_seg, b_obb, belem, t_int, t_box, t_obb, ttri, Rbt, tbt, L,
-                        s_neg, stamp, call, best_u, best_j, line, active, stack)
+        n = _exact(data)
     # base axis in the target frame: Rz(-theta_t) M e_z
     abx = ct * ab0[0] + st * ab0[1]
     aby = -st * ab0[0] + ct * ab0[1]

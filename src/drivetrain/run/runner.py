@@ -31,6 +31,7 @@ from drivetrain.models import stability
 from drivetrain.cosim import CosimResult, Master
 from drivetrain.cosim.native_gear import MODEL as GEAR_MODEL
 from drivetrain.errors import ConfigurationError, CosimError, RunFailedError  # noqa: F401  (re-exported)
+from drivetrain.scene.expect import RUN_SUMMARY_TREE, SUMMARY_TREE
 from drivetrain.scene.load import RIG_SENSORS, TORQUE_SENSORS, Scene
 from drivetrain.rig.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies, stats, to_db
 from drivetrain.system import BACKENDS, SystemSpec
@@ -40,10 +41,8 @@ from gearcontact_fmu.fault_specs import FaultGeometryError
 #: through Python logging (on stderr when logging is not configured)
 _LOG = logging.getLogger(__name__)
 
-SUMMARY_KEYS = (
-    "name", "wall_time_s", "sim_time_s", "real_time_factor", "torque", "f_DSH", "f_MSH", "f_PSH", "f_GMF",
-    "energy_residual", "fmus", "status", "stability",
-)
+#: the top-level keys of summary.json (declared once, with their subtrees, in scene.expect.SUMMARY_TREE)
+SUMMARY_KEYS = tuple(SUMMARY_TREE)
 
 #: What is read from the gear stage FMU (GEAR_MODEL) once at the end of a run (and at a failure) for
 #: ``summary["stability"]``: its cumulative stability counters (docs/FMU.md) and two parameters.
@@ -472,15 +471,15 @@ def _scene_labels(plan: RunPlan) -> dict:
 
 
 def build_summary(plan: RunPlan, res: CosimResult, failed: CosimError | None, ch: Channels, sp: Spectra) -> dict:
-    """summary.json of a run (``files`` and ``write_time_s`` are added when it is written); its keys are
-    those of :data:`drivetrain.scene.expect.RUN_SUMMARY_TREE`, in this order."""
+    """summary.json of a run (``files`` and ``write_time_s`` are added when it is written): the keys of
+    :data:`drivetrain.scene.expect.RUN_SUMMARY_TREE`, in its order (the tests check the subtrees)."""
     scene, spec = plan.scene, plan.spec
     m = ch.time >= scene.time.settle_s
     channel_stats = {name: {**stats(x[m]), "unit": ch.units[name]} for name, x in ch.signals.items() if m.any()}
     nonfinite = [n for n, x in ch.signals.items() if not np.all(np.isfinite(x))]
     energy_residual = res.energy.get("relative_residual")
     covered = res.sim_time_s if failed is None else max(float(failed.time), res.sim_time_s)
-    return {
+    summary = {
         "name": scene.name, "status": res.status, "failure": failure_summary(res, spec),
         "description": scene.scenario.description,
         "source": str(scene.source) if scene.source else None,
@@ -511,6 +510,8 @@ def build_summary(plan: RunPlan, res: CosimResult, failed: CosimError | None, ch
         "accuracy_choice": plan.choice.to_dict() if plan.choice is not None else None,
         "drivetrain_version": __version__,
     }
+    assert list(summary) == list(RUN_SUMMARY_TREE), "summary.json and its declaration (scene.expect) differ"
+    return summary
 
 
 def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "fmi", progress: bool = True,

@@ -11,6 +11,7 @@ import pytest
 from drivetrain.run import accuracy as A
 from drivetrain.campaigns import accuracy_study as S
 from drivetrain.run import cost as runcost
+from drivetrain.run.assemble import assemble
 from drivetrain.scene.load import load_scene
 from drivetrain.rig.signals import characteristic_frequencies
 
@@ -99,7 +100,8 @@ def test_every_setting_and_scene_of_the_study_is_a_valid_scene():
     # only the fidelities without tooth geometry are refused, and only for faulty gears
     assert {st for _, st in refused} <= {"analytic", "ideal"}
     assert all(not sc.startswith("healthy") for sc, _ in refused)
-    assert all(runcost.refusal(s, runcost.predict(s)) is None for s in runs if "__pcm" not in s.name)
+    assert all(runcost.refusal(runcost.predict(assemble(s), s.time.duration_s)) is None
+               for s in runs if "__pcm" not in s.name)
 
 
 def test_the_shipped_results_choose_different_settings():

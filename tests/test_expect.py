@@ -164,6 +164,25 @@ def test_summary_tree_covers_every_summary_value(tiny_run):
         X.parse_key(".".join(path))
         n += 1
     assert n > 100
+    # and the other way round: the declaration holds no key the summary lacks (written: + files, write time)
+    assert X.summary_mismatch(run.summary, X.RUN_SUMMARY_TREE) == []
+
+
+def test_summary_mismatch_names_what_differs():
+    """The check of a summary against its declaration: missing and undeclared keys, at any depth; named
+    keys (torque sensors, channels) and list items against their template; None and "any" fit anything."""
+    tree = {"a": "num", "b": {"c": "int", "d": "any"}, "t": {"<torque>": {"mean": "num"}}, "l": {"<i>": "num"},
+            "o": {"x": "num"}}
+    ok = {"a": 1.0, "b": {"c": 2, "d": {"whatever": [1]}}, "t": {"drive_shaft_torque": {"mean": 1.0}},
+          "l": [1.0, 2.0], "o": None}
+    assert X.summary_mismatch(ok, tree) == []
+    bad = {"a": {"x": 1}, "b": {"e": 1, "d": 0}, "t": {"drive_shaft_torque": {"rms": 1.0}}, "l": {"0": 1},
+           "o": {"x": 1.0}, "z": 0}
+    assert sorted(X.summary_mismatch(bad, tree)) == sorted([
+        "a: a dict where a num is declared", "b: no 'c'", "b: 'e' is not declared",
+        "t.drive_shaft_torque: no 'mean'", "t.drive_shaft_torque: 'rms' is not declared",
+        "l: a dict where a list is declared", "summary.json: 'z' is not declared"])
+    assert set(X.SUMMARY_TREE) == set(X.RUN_SUMMARY_TREE) | set(X.WRITE_SUMMARY_TREE)
 
 
 # --------------------------------------------------------------------------------------------------

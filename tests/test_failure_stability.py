@@ -14,6 +14,7 @@ from drivetrain.cli import main
 from drivetrain.cosim import CosimError, simulate
 from drivetrain.run.outputs import read_hdf5
 from drivetrain.run.runner import RunFailedError, run_scene
+from drivetrain.scene.expect import summary_mismatch
 from drivetrain.scene.load import load_scene
 from drivetrain.system import ComponentSpec, Connection, SystemSpec
 
@@ -106,6 +107,7 @@ def test_failed_run_writes_partial_results(tmp_path, fmus):
     t_fail = exc.time
     assert t_fail == pytest.approx(0.2)
     assert s["status"] == "failed" and s["sim_time_s"] == pytest.approx(t_fail)
+    assert summary_mismatch(s) == []           # a failed run's summary has the declared keys too
     assert exc.result.files["summary"] == str(out / "summary.json")
     f = s["failure"]
     for k in FAILURE_KEYS:

@@ -67,21 +67,29 @@ def test_runcost_predicts_the_default_scene_cheap_and_online_pcm_costly():
     """The default 20 s scene runs in a few times its simulated time; 20 s of online PCM takes hours
     (measured here: 0.05 s in 19.5 s of loop) and is refused; 0.05 s of it is below the floor."""
     from drivetrain.run import cost as runcost
+    from drivetrain.run.assemble import assemble
     from drivetrain.scene.load import load_scene
+
+    def predict(scene, **kw):            # the counts are those of the assembled system
+        return runcost.predict(assemble(scene), scene.time.duration_s, **kw)
 
     example = ROOT / "scenarios" / "example.toml"
     default = load_scene(example)
-    c = runcost.predict(default)
-    assert 1.0 < c.factor < runcost.REFUSE_FACTOR and runcost.refusal(default, c) is None
+    c = predict(default)
+    assert 1.0 < c.factor < runcost.REFUSE_FACTOR and runcost.refusal(c) is None
     pcm = load_scene(example, ["effects.mesh_contact=pcm"])
-    c = runcost.predict(pcm)
+    c = predict(pcm)
     assert 3600 < c.total_s < 6 * 3600
-    assert 'effects.mesh_contact = "table"' in runcost.refusal(pcm, c)
+    assert 'effects.mesh_contact = "table"' in runcost.refusal(c)
     short = load_scene(example, ["effects.mesh_contact=pcm", "time.duration_s=0.05"])
-    assert runcost.refusal(short, runcost.predict(short)) is None
+    assert runcost.refusal(predict(short)) is None
     # a measured contact model (mesh files, finer elements) replaces the default pcm figure
-    c = runcost.predict(pcm, contact_reports=[{"estimate_s": 7200.0}])
+    c = predict(pcm, contact_reports=[{"estimate_s": 7200.0}])
     assert c.parts["contact model (measured on this machine)"] == 7200.0 and c.total_s < 7200.0 + 100
+    # the sub-step advice names the scene's key, with the gear's sub-step
+    fine = load_scene(example, ["numerics.max_substep_s=1e-9"])
+    c = predict(fine)
+    assert c.max_substep_s == 1e-9 and "numerics.max_substep_s (now 1e-09 s" in runcost.refusal(c)
 
 
 def test_force_runs_a_refused_scene_and_says_so(monkeypatch):

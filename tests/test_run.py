@@ -13,6 +13,7 @@ from _cosim_test_fmus import build_test_fmus
 from drivetrain.cli import main
 from drivetrain.run.outputs import AALTO_COLUMNS, read_hdf5
 from drivetrain.run.runner import SUMMARY_KEYS, run_scene
+from drivetrain.scene.expect import RUN_SUMMARY_TREE, summary_mismatch
 from drivetrain.scene.load import load_scene, load_scenes
 from drivetrain.system import ComponentSpec, Connection, SystemSpec
 
@@ -51,8 +52,7 @@ def test_run_scene_writes_everything(tmp_path, fmus):
     for f in ("signals.h5", "summary.json", "torques.png", "spectra.png", "sensors.csv"):
         assert (out / f).is_file() and (out / f).stat().st_size > 1000, f
     s = json.loads((out / "summary.json").read_text())
-    for k in SUMMARY_KEYS:
-        assert k in s, k
+    assert summary_mismatch(s) == []            # exactly the declared keys (scene.expect.SUMMARY_TREE)
     assert s["sim_time_s"] == pytest.approx(0.6)
     assert s["real_time_factor"] > 0 and s["wall_time_s"] > 0
     assert (s["f_DSH"], s["f_MSH"], s["f_PSH"], s["f_GMF"]) == pytest.approx((25.0, 25 / 3, 25 / 12, 125.0))
@@ -74,6 +74,20 @@ def test_run_scene_writes_everything(tmp_path, fmus):
     np.testing.assert_allclose(h["signals"]["drive_shaft_torque"], res.signals["drive_shaft_torque"])
     header = (out / "sensors.csv").read_text().splitlines()[0]
     assert header.split(",") == list(AALTO_COLUMNS)
+
+
+def test_an_assembled_run_writes_exactly_the_declared_summary(tmp_path, fmu_dir):
+    """The example scene as assembled (every FMU, the stability block, the contact checks, natural
+    frequencies), 0.05 s in process: summary.json holds exactly the keys scene.expect declares, the
+    summary in memory those of the run (files and write time come with the writing)."""
+    scene = load_scene(EXAMPLE, ["time.duration_s=0.05", "outputs.plots=false"])
+    res = run_scene(scene, tmp_path / "out", backend="inprocess", progress=False, fmu_dir=fmu_dir,
+                    log=lambda m: None)
+    s = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary_mismatch(s) == []
+    assert tuple(s) == SUMMARY_KEYS and s["stability"]["gear"] == "gear" and s["natural_frequencies_Hz"]
+    unwritten = {k: v for k, v in res.summary.items() if k not in ("files", "write_time_s")}
+    assert summary_mismatch(unwritten, RUN_SUMMARY_TREE) == []
 
 
 def test_cli_refuses_malformed_scene_before_running(tmp_path, capsys):

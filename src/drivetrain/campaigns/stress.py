@@ -827,10 +827,10 @@ def regenerate_report(out_dir: Path | str) -> dict:
 
 
 def _cost(c: StressCase) -> float:
-    """Rough relative cost, to submit the longest runs first."""
+    """Rough relative cost, to submit the longest runs first (of an assembled case)."""
     from drivetrain.run.cost import predict
 
-    return predict(c.scene).total_s
+    return predict(c.spec, c.scene.time.duration_s).total_s
 
 
 def _map_key(comp) -> str:

@@ -45,6 +45,7 @@ import logging
 import os
 import time
 import traceback
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -368,6 +369,119 @@ def _write_manifest(out: Path, runs: list[dict], meta: dict, complete: bool) -> 
     return manifest
 
 
+def _refuse_costly(scenes: list[Scene], all_specs: list, backend: str) -> None:
+    """Refuse, all at once and before anything runs, every case predicted to cost far more than its
+    simulated time (:mod:`drivetrain.run.cost`, from its assembled system)."""
+    too_costly = [f"{s.name}: {why}" for s, sp in zip(scenes, all_specs)
+                  if (why := runcost.refusal(runcost.predict(sp, s.time.duration_s, backend))) is not None]
+    if too_costly:
+        raise ConfigurationError(too_costly)
+
+
+def _prepare_fmus(scenes: list[Scene], all_specs: list, *, backend: str, fmu_dir, fmu_paths: dict | None,
+                  prepare: bool, log) -> None:
+    """In this process, once: missing or stale FMUs, the components' disk caches, the native FMUs."""
+    if fmu_paths is None:
+        from drivetrain.cosim import ensure_fmus
+
+        needed = list(dict.fromkeys(c.model for sp in all_specs for c in sp.components))
+        ensure_fmus(needed, fmu_dir, build=True, log=log or (lambda m: None))
+    if prepare:
+        prepare_caches(all_specs, fmu_dir, fmu_paths, log=log)
+    if backend == "native" and fmu_paths is None:
+        # compiled once here (one gear build per contact map), found in the cache by every worker (without a
+        # compiler each run falls back to the pythonfmu FMUs and says so)
+        from drivetrain.cosim.native_line import native_fmus, toolchain_problems
+
+        if not toolchain_problems():
+            for s, sp in zip(scenes, all_specs):
+                native_fmus(sp, Path(fmu_dir) / "native", log=log)
+
+
+@dataclass
+class _Manifest:
+    """The records of a sweep as they come in, and the manifest written from them."""
+
+    out: Path
+    scenes: dict[str, Scene]            # name -> scene of this invocation (for the labels of a record)
+    order: dict[str, int]               # name -> position in the grid
+    meta: dict
+    kept: list[dict] = field(default_factory=list)    # the other cases' records of an earlier invocation
+    runs: list[dict] = field(default_factory=list)
+    t0: float = field(default_factory=time.perf_counter)
+
+    def annotate(self, r: dict) -> dict:
+        s = self.scenes.get(r["name"])
+        if s is not None:
+            r.update(drive_speed_rpm=s.operating_point.final_speed_rpm, load_torque_Nm=s.operating_point.load_torque_Nm,
+                     health=s.gear.health, mesh_contact=s.effects.mesh_contact,
+                     shaft_flexibility=s.effects.shaft_flexibility)
+        return r
+
+    def write(self, complete: bool) -> dict:
+        allr = sorted(self.kept + self.runs, key=lambda r: self.order.get(r["name"], len(self.order)))
+        return _write_manifest(self.out, allr, {**self.meta, "wall_time_s": time.perf_counter() - self.t0}, complete)
+
+
+def _kept_records(out: Path, grid_names: list[str] | None, names: list[str]) -> list[dict]:
+    """Records of the other cases of the same sweep from an earlier invocation (--only)."""
+    if not grid_names:
+        return []
+    others = set(grid_names) - set(names)
+    try:
+        old = read_runs(out)
+    except OSError:
+        old = []
+    return [r for r in old if r.get("name") in others]
+
+
+def _cases(scenes: list[Scene], all_specs: list, out: Path, *, skip_existing: bool,
+           **case_args) -> tuple[list[dict], list[dict]]:
+    """(the cases to run, the records of the finished runs reused as they are)."""
+    cases, reused = [], []
+    for s, sp in zip(scenes, all_specs):
+        d = out / s.name
+        case = make_case(s, d, spec=sp, **case_args)
+        if skip_existing:
+            prev, why = _reuse(s, d, case["fingerprint"])
+            if prev is not None:
+                reused.append(prev)
+                continue
+            case["rerun_reason"] = why
+        cases.append(case)
+    return cases, reused
+
+
+def _run_cases(cases: list[dict], manifest: _Manifest, executor, progress: bool) -> None:
+    """Submit every case, record each as it finishes (journal now, manifest at most every
+    MANIFEST_EVERY_S); an interruption still writes the manifest."""
+    last_write = time.monotonic()
+    try:
+        futures = {executor.submit(simulate, c): c for c in cases}
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=len(futures), unit="run", desc="sweep")
+        for fut in cf.as_completed(futures):
+            rec = fut.result()
+            if futures[fut].get("rerun_reason"):
+                rec["rerun_reason"] = futures[fut]["rerun_reason"]
+            rec = manifest.annotate(rec)
+            _append_journal(manifest.out, rec)
+            manifest.runs.append(rec)
+            if time.monotonic() - last_write >= MANIFEST_EVERY_S:
+                manifest.write(False)
+                last_write = time.monotonic()
+            if bar is not None:
+                bar.update(1)
+        if bar is not None:
+            bar.close()
+    except BaseException:
+        manifest.write(False)           # interrupted (Ctrl-C, an executor that died): the manifest catches up
+        raise
+
+
 def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None = None, address: str | None = None,
               backend: str = "fmi", fmu_dir: str | Path = "fmus", skip_existing: bool = False,
               plots: bool | None = None, progress: bool = True, specs: dict[str, Any] | None = None,
@@ -391,107 +505,36 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         raise ConfigurationError(f"scene names must be unique in a sweep: {', '.join(dup)}")
+    all_specs = _specs_of(scenes, specs)
     if not force:
-        too_costly = [f"{s.name}: {why}" for s in scenes
-                      if (why := runcost.refusal(s, runcost.predict(s, backend))) is not None]
-        if too_costly:
-            raise ConfigurationError(too_costly)
+        _refuse_costly(scenes, all_specs, backend)
     _check_writable(out)
     log = _LOG.warning if progress else None
-    all_specs = _specs_of(scenes, specs)
-    if fmu_paths is None:
-        from drivetrain.cosim import ensure_fmus
-
-        needed = list(dict.fromkeys(c.model for sp in all_specs for c in sp.components))
-        ensure_fmus(needed, fmu_dir, build=True, log=log or (lambda m: None))
-    if prepare:
-        prepare_caches(all_specs, fmu_dir, fmu_paths, log=log)
-    if backend == "native" and fmu_paths is None:
-        # compiled once here (one gear build per contact map), found in the cache by every worker (without a
-        # compiler each run falls back to the pythonfmu FMUs and says so)
-        from drivetrain.cosim.native_line import native_fmus, toolchain_problems
-
-        if not toolchain_problems():
-            for s, sp in zip(scenes, all_specs):
-                native_fmus(sp, Path(fmu_dir) / "native", log=log)
-    # records of the other cases of the same sweep from an earlier invocation (--only)
-    kept: list[dict] = []
-    if grid_names:
-        others = set(grid_names) - set(names)
-        try:
-            old = read_runs(out)
-        except OSError:
-            old = []
-        kept = [r for r in old if r.get("name") in others]
-    order = {n: i for i, n in enumerate(grid_names or names)}
-    by_name = {s.name: s for s in scenes}
-    cases, runs = [], []
-    for s, sp in zip(scenes, all_specs):
-        d = out / s.name
-        case = make_case(s, d, backend=backend, fmu_dir=fmu_dir, plots=plots, spec=sp, fmu_paths=fmu_paths,
-                         force=force)
-        if skip_existing:
-            prev, why = _reuse(s, d, case["fingerprint"])
-            if prev is not None:
-                runs.append(prev)
-                continue
-            case["rerun_reason"] = why
-        cases.append(case)
-    t0 = time.perf_counter()
-    meta = {"executor": "dask" if address else ("custom" if executor is not None else "local processes"),
-            "backend": backend}
-
-    def annotate(r):
-        s = by_name.get(r["name"])
-        if s is not None:
-            r.update(drive_speed_rpm=s.operating_point.final_speed_rpm, load_torque_Nm=s.operating_point.load_torque_Nm,
-                     health=s.gear.health, mesh_contact=s.effects.mesh_contact,
-                     shaft_flexibility=s.effects.shaft_flexibility)
-        return r
-
-    def write(complete):
-        allr = sorted(kept + runs, key=lambda r: order.get(r["name"], len(order)))
-        return _write_manifest(out, allr, {**meta, "wall_time_s": time.perf_counter() - t0}, complete)
-
-    runs = [annotate(r) for r in runs]          # the reused ones
-    _start_journal(out, kept + runs)
-    write(not cases)
-    last_write = time.monotonic()
-    client = None
-    own = executor is None
+    _prepare_fmus(scenes, all_specs, backend=backend, fmu_dir=fmu_dir, fmu_paths=fmu_paths, prepare=prepare, log=log)
+    kept = _kept_records(out, grid_names, names)
+    cases, reused = _cases(scenes, all_specs, out, skip_existing=skip_existing, backend=backend, fmu_dir=fmu_dir,
+                           plots=plots, fmu_paths=fmu_paths, force=force)
+    manifest = _Manifest(out, scenes={s.name: s for s in scenes},
+                         order={n: i for i, n in enumerate(grid_names or names)},
+                         meta={"executor": "dask" if address else ("custom" if executor is not None
+                                                                    else "local processes"), "backend": backend},
+                         kept=kept)
+    manifest.runs = [manifest.annotate(r) for r in reused]
+    _start_journal(out, kept + manifest.runs)
+    manifest.write(not cases)
     if cases:
+        client = None
+        own = executor is None
         if own:
             executor, client = _executor(workers, address)
         try:
-            futures = {executor.submit(simulate, c): c for c in cases}
-            bar = None
-            if progress:
-                from tqdm import tqdm
-
-                bar = tqdm(total=len(futures), unit="run", desc="sweep")
-            for fut in cf.as_completed(futures):
-                rec = fut.result()
-                if futures[fut].get("rerun_reason"):
-                    rec["rerun_reason"] = futures[fut]["rerun_reason"]
-                rec = annotate(rec)
-                _append_journal(out, rec)
-                runs.append(rec)
-                if time.monotonic() - last_write >= MANIFEST_EVERY_S:
-                    write(False)
-                    last_write = time.monotonic()
-                if bar is not None:
-                    bar.update(1)
-            if bar is not None:
-                bar.close()
-        except BaseException:
-            write(False)           # interrupted (Ctrl-C, an executor that died): the manifest catches up
-            raise
+            _run_cases(cases, manifest, executor, progress)
         finally:
             if own:
                 executor.shutdown(wait=True)
             if client is not None:
                 client.close()
-    return write(True)
+    return manifest.write(True)
 
 
 __all__ = ["simulate", "run_sweep", "make_case", "prepare_caches", "read_runs"]

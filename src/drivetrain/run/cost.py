@@ -7,10 +7,15 @@ predicted from its counts before anything is built or stepped:
 
     loop_s = steps * STEP_S[backend] + sub-steps * SUBSTEP_S[mesh model]      (+ contact, when measured)
 
-* ``steps``: communication steps of the master (duration / comm_step_s). Each pays the per-step cost of
-  the co-simulation loop: the FMI calls, the line components, the coupling correction, recording.
-* ``sub-steps``: gear-stage sub-steps (steps x ceil(comm_step_s / max_substep_s)). Each pays the mesh
-  model: table and analytic interpolate (about 1 us), pcm searches and integrates the triangle meshes.
+* ``steps``: communication steps of the master (duration / the assembled system's comm_step). Each pays
+  the per-step cost of the co-simulation loop: the FMI calls, the line components, the coupling
+  correction, recording.
+* ``sub-steps``: gear-stage sub-steps (steps x ceil(comm_step / max_substep), max_substep the gear
+  component's). Each pays the mesh model (the gear component's fidelity): table and analytic interpolate
+  (about 1 us), pcm searches and integrates the triangle meshes.
+
+The counts are read from the assembled :class:`~drivetrain.system.SystemSpec`, which fixes them, not from
+the scene it came from; only the duration (which no SystemSpec holds) is passed.
 * ``contact``: when :func:`drivetrain.models.stability.check_contact_cost` has timed the pair on this machine
   (mesh files, element sizes finer than the default), its measured map build and online loop replace
   the default pcm figure.
@@ -29,7 +34,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from drivetrain.cosim.native_gear import MODEL as GEAR_MODEL
 from drivetrain.scene.load import default_of
+from drivetrain.system import SystemSpec
 from gearcontact_fmu.params import substeps
 
 #: wall seconds per communication step of the master (loop overhead without the mesh model; native: the
@@ -50,8 +57,9 @@ class RunCost:
     duration_s: float
     steps: float
     substeps: float
-    mesh_contact: str
+    mesh_contact: str                             # the gear's fidelity ("none" without a gear stage)
     parts: dict = field(default_factory=dict)     # {what: seconds}
+    max_substep_s: float | None = None            # the gear stage's largest sub-step (None: no gear)
 
     @property
     def total_s(self) -> float:
@@ -63,26 +71,37 @@ class RunCost:
         return self.total_s / self.duration_s if self.duration_s > 0 else float("inf")
 
 
-def predict(scene, backend: str = "fmi", contact_reports=()) -> RunCost:
-    """The predicted cost of running ``scene`` (a validated Scene) on ``backend``; ``contact_reports``:
-    what :func:`drivetrain.models.stability.check_contact_cost` measured for its gear (replaces the default
-    pcm figure)."""
-    H = scene.numerics.comm_step_s
-    duration = scene.time.duration_s
-    steps = duration / H
-    n_sub = steps * substeps(H, scene.numerics.max_substep_s)
-    model = scene.effects.mesh_contact
+def _gear_max_substep_s(comp) -> float:
+    """The gear stage's largest sub-step: its parameter, else the FMU's default (a custom system)."""
+    if "max_substep" in comp.parameters:
+        return float(comp.parameters["max_substep"])
+    from gearcontact_fmu.stage import StageParams      # (the stage loads the numba kernels: only here)
+
+    return float(StageParams().max_substep)
+
+
+def predict(spec: SystemSpec, duration_s: float, backend: str = "fmi", contact_reports=()) -> RunCost:
+    """The predicted cost of running the assembled system ``spec`` for ``duration_s`` on ``backend``;
+    ``contact_reports``: what :func:`drivetrain.models.stability.check_contact_cost` measured for its gear
+    (replaces the default pcm figure)."""
+    H = float(spec.comm_step)
+    steps = duration_s / H
+    gears = [c for c in spec.components if c.model == GEAR_MODEL]
+    subs = [(str(c.parameters.get("fidelity", "pcm")), _gear_max_substep_s(c)) for c in gears]
+    n_subs = [(model, steps * substeps(H, sub)) for model, sub in subs]
+    n_sub = float(sum(n for _, n in n_subs))
+    model = ", ".join(dict.fromkeys(m for m, _ in subs)) or "none"
     parts = {"co-simulation loop": steps * STEP_S.get(backend, STEP_S["fmi"])}
     measured = [r for r in contact_reports or () if r.get("estimate_s")]
     if measured:
         parts["gear-stage sub-steps"] = n_sub * SUBSTEP_S["table"]
         parts["contact model (measured on this machine)"] = float(sum(r["estimate_s"] for r in measured))
     else:
-        parts["gear-stage sub-steps"] = n_sub * SUBSTEP_S.get(model, SUBSTEP_S["pcm"])
-    return RunCost(duration, steps, n_sub, model, parts)
+        parts["gear-stage sub-steps"] = sum(n * SUBSTEP_S.get(m, SUBSTEP_S["pcm"]) for m, n in n_subs)
+    return RunCost(duration_s, steps, n_sub, model, parts, min((s for _, s in subs), default=None))
 
 
-def refusal(scene, cost: RunCost) -> str | None:
+def refusal(cost: RunCost) -> str | None:
     """The refusal message for a run predicted beyond the limits (None when it may run)."""
     if cost.total_s <= max(REFUSE_FACTOR * cost.duration_s, REFUSE_FLOOR_S):
         return None
@@ -92,9 +111,9 @@ def refusal(scene, cost: RunCost) -> str | None:
     ways = []
     if cost.mesh_contact == "pcm":
         ways.append("effects.mesh_contact = \"table\" (the same PCM contact, precomputed)")
-    default_substep_s = default_of("numerics.max_substep_s")
-    if scene.numerics.max_substep_s < default_substep_s:
-        ways.append(f"a larger numerics.max_substep_s (now {scene.numerics.max_substep_s:.3g} s; "
+    default_substep_s = default_of("numerics.max_substep_s")     # the scene's key: what the user can change
+    if cost.max_substep_s is not None and cost.max_substep_s < default_substep_s:
+        ways.append(f"a larger numerics.max_substep_s (now {cost.max_substep_s:.3g} s; "
                     f"default {default_substep_s:g} s)")
     ways.append(f"a shorter time.duration_s (now {cost.duration_s:g} s)")
     return (f"this run is predicted to take about {hours(cost.total_s)} ({cost.factor:.0f}x its "

@@ -29,7 +29,9 @@ from drivetrain.run import accuracy
 from drivetrain.run import cost as runcost
 from drivetrain.models import stability
 from drivetrain.cosim import CosimResult, Master
+from drivetrain.cosim.native_gear import MODEL as GEAR_MODEL
 from drivetrain.errors import ConfigurationError, CosimError, RunFailedError  # noqa: F401  (re-exported)
+from drivetrain.scene.expect import RUN_SUMMARY_TREE, SUMMARY_TREE
 from drivetrain.scene.load import RIG_SENSORS, TORQUE_SENSORS, Scene
 from drivetrain.rig.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies, stats, to_db
 from drivetrain.system import BACKENDS, SystemSpec
@@ -39,14 +41,11 @@ from gearcontact_fmu.fault_specs import FaultGeometryError
 #: through Python logging (on stderr when logging is not configured)
 _LOG = logging.getLogger(__name__)
 
-SUMMARY_KEYS = (
-    "name", "wall_time_s", "sim_time_s", "real_time_factor", "torque", "f_DSH", "f_MSH", "f_PSH", "f_GMF",
-    "energy_residual", "fmus", "status", "stability",
-)
+#: the top-level keys of summary.json (declared once, with their subtrees, in scene.expect.SUMMARY_TREE)
+SUMMARY_KEYS = tuple(SUMMARY_TREE)
 
-#: The gear stage FMU model and what is read from it once at the end of a run (and at a failure) for
+#: What is read from the gear stage FMU (GEAR_MODEL) once at the end of a run (and at a failure) for
 #: ``summary["stability"]``: its cumulative stability counters (docs/FMU.md) and two parameters.
-GEAR_MODEL = "GearContact"
 #: read from every FMU that has it (ours with spring-side ports): the work mismatch of its cuts still
 #: pending at the end of the run (gearcontact_fmu.coupling)
 COUPLING_VAR = "coupling_energy_error"
@@ -211,6 +210,310 @@ def _natural_frequencies(spec: SystemSpec, n: int = 6) -> list[float] | None:
         return None
 
 
+@dataclass
+class RunPlan:
+    """What a run is, decided before any step (:func:`prepare_run`): the scene (after a tolerance's
+    setting), its assembled system, the backend and FMUs that run it, what is recorded, the checks."""
+
+    scene: Scene
+    spec: SystemSpec
+    backend: str                        # "fmi" | "inprocess" | "native" (native without a compiler: "fmi")
+    fmu_paths: dict | None
+    sources: dict[str, str]             # channel -> "component.variable" it comes from
+    contact_cost: list                  # stability.check_contact_cost's reports
+    contact_range: Any                  # stability.check_contact_range's report
+    choice: Any = None                  # the accuracy choice of numerics.tolerance_pct (None without)
+    warnings: list[str] = field(default_factory=list)
+    t_start: float = 0.0                # perf_counter marks: the call, the native build, the master
+    t_native: float = 0.0
+    t_master: float = 0.0
+
+    @property
+    def record(self) -> list[str]:
+        """The "component.variable"s the master records (each once)."""
+        return list(dict.fromkeys(self.sources.values()))
+
+    @property
+    def final(self) -> list[str]:
+        """What is read once at the end (and at a failure): the gear's counters, the pending coupling work."""
+        names = [f"{c.name}.{v}" for c in self.spec.components if c.model == GEAR_MODEL for v in GEAR_FINAL_VARS]
+        return names + [f"{c.name}.{COUPLING_VAR}" for c in self.spec.components]
+
+
+@dataclass
+class Channels:
+    """The output channels of a run as the summary and the files see them (after the rig's instruments)."""
+
+    time: np.ndarray
+    signals: dict[str, np.ndarray]
+    units: dict[str, str]
+
+
+@dataclass
+class Spectra:
+    """The torque channels' statistics, spectra and peaks at the characteristic frequencies."""
+
+    cf: dict                            # characteristic frequencies (rig.signals.characteristic_frequencies)
+    torque: dict = field(default_factory=dict)      # sensor -> stats
+    spectra: dict = field(default_factory=dict)     # sensor -> (f, A) (for the plots)
+    peaks: dict = field(default_factory=dict)       # sensor -> harmonics and sidebands
+
+
+def _tolerance_setting(scene: Scene, log):
+    """The cheapest studied setting within ``numerics.tolerance_pct`` -> (scene, choice); as is without."""
+    if scene.numerics.tolerance_pct is None:
+        return scene, None
+    try:
+        scene, choice = accuracy.apply_tolerance(scene)
+    except (FileNotFoundError, ValueError) as exc:
+        raise ConfigurationError([f"numerics.tolerance_pct = {scene.numerics.tolerance_pct:g}: {exc}"]) from None
+    log(f"tolerance {choice.tolerance_pct:g} %: setting {choice.setting!r}: {choice.why}")
+    return scene, choice
+
+
+def _check_cost(plan: RunPlan, force: bool, log) -> None:
+    """Refuse before any step a contact model too costly for the scene's budget, a u_max the static load
+    alone would pass, or a run predicted far beyond its simulated time (unless ``force``)."""
+    scene, spec = plan.scene, plan.spec
+    try:
+        plan.contact_cost = stability.check_contact_cost(
+            spec, scene.time.duration_s, float("inf") if force else scene.numerics.max_contact_hours)
+        plan.contact_range = stability.check_contact_range(spec)
+    except (stability.ContactCostError, stability.ContactRangeError) as exc:
+        raise ConfigurationError(exc.problems) from None
+    except FaultGeometryError as exc:
+        raise ConfigurationError([str(exc)]) from None
+    too_costly = runcost.refusal(runcost.predict(spec, scene.time.duration_s, plan.backend, plan.contact_cost))
+    if too_costly and not force:
+        raise ConfigurationError([too_costly])
+    if too_costly:
+        plan.warnings.append(f"forced: {too_costly}")
+        log(f"warning: forced: {too_costly}")
+    for rep in plan.contact_cost:
+        if rep.get("warning"):
+            plan.warnings.append(rep["warning"])
+            log(f"warning: {rep['warning']}")
+    H = scene.numerics.comm_step_s      # what the scene asked, against what a given system fixes
+    if abs(spec.comm_step - H) > 1e-12 * H:
+        plan.warnings.append(f"the assembled system uses comm_step {spec.comm_step:.10g} s, the scene asks for {H:.10g} s")
+
+
+def _sources(scene: Scene, spec: SystemSpec, warnings: list[str]) -> dict[str, str]:
+    """Channel -> "component.variable": the scene's sensors the system provides, and its variables."""
+    sensor_map = dict(spec.metadata.get("sensors", {}))
+    sources: dict[str, str] = {}
+    for s in scene.outputs.sensors:
+        if s in sensor_map:
+            sources[s] = sensor_map[s]
+        else:
+            warnings.append(f"sensor {s!r} is not provided by the assembled system "
+                            f"(available: {', '.join(sensor_map) or 'none'}); skipped")
+    for v in scene.outputs.variables:
+        sources[v] = v
+    return sources
+
+
+def _choose_backend(plan: RunPlan, fmu_dir, log) -> None:
+    """Check the backend; for "native", the compiled FMUs (built once, kept in <fmu_dir>/native; an explicit
+    fmu_paths entry wins), or without a compiler the pythonfmu FMUs (backend "fmi"), said so."""
+    if plan.backend not in BACKENDS:
+        raise ConfigurationError([f"backend {plan.backend!r}: expected one of {', '.join(BACKENDS)}"])
+    if plan.backend != "native":
+        return
+    from drivetrain.cosim.native_line import native_fmus, toolchain_problems
+
+    missing = toolchain_problems()
+    if missing:
+        note = f"{'; '.join(missing)}: the run uses the pythonfmu FMUs (backend fmi)"
+        plan.backend = "fmi"
+    else:
+        native, note = native_fmus(plan.spec, Path(fmu_dir) / "native", log=log)
+        plan.fmu_paths = {**native, **(plan.fmu_paths or {})}
+    if note:
+        plan.warnings.append(f"backend native: {note}")
+        log(f"warning: backend native: {note}")
+
+
+def prepare_run(scene: Scene, spec: SystemSpec | None, backend: str, fmu_paths: dict | None, *, fmu_dir,
+                force: bool, log) -> RunPlan:
+    """Everything before the first step: the tolerance's setting, the assembly (unless ``spec`` is given),
+    the cost and contact checks, the channels, the backend and its FMUs. Raises ConfigurationError."""
+    t_start = _time.perf_counter()
+    choice = None
+    if spec is None:
+        scene, choice = _tolerance_setting(scene, log)
+        spec = assemble_scene(scene)
+    plan = RunPlan(scene=scene, spec=spec, backend=backend, fmu_paths=fmu_paths, sources={}, contact_cost=[],
+                   contact_range=None, choice=choice, t_start=t_start)
+    _check_cost(plan, force, log)
+    plan.sources = _sources(scene, spec, plan.warnings)
+    plan.t_native = _time.perf_counter()
+    _choose_backend(plan, fmu_dir, log)
+    plan.t_master = _time.perf_counter()
+    return plan
+
+
+def simulate_plan(plan: RunPlan, *, fmu_dir, build: bool, progress: bool, log):
+    """Co-simulate -> (CosimResult, None), or after an FMU failure (the completed part, its CosimError);
+    a failure before the first step raises the master's CosimError."""
+    scene = plan.scene
+    master = Master(plan.spec, fmu_dir=fmu_dir, backend="fmi" if plan.backend == "native" else plan.backend,
+                    fmu_paths=plan.fmu_paths, build=build, log=log)
+    failed: CosimError | None = None
+    try:
+        res = master.run(scene.time.duration_s, scene.time.sample_rate_Hz, plan.record,
+                         progress=None if progress else False, anti_alias=scene.numerics.anti_alias,
+                         final=plan.final, snapshots=(scene.time.settle_s,))
+    except CosimError as exc:
+        if exc.partial is None:
+            raise
+        failed, res = exc, exc.partial
+    plan.warnings.extend(res.warnings)
+    if failed is not None:
+        plan.warnings.append(f"the run failed at t = {failed.time:.9g} s ({failed.component}: "
+                             f"{res.failure['cause']}); results up to t = {res.time[-1]:.9g} s")
+    return res, failed
+
+
+def measured_channels(plan: RunPlan, res: CosimResult) -> Channels:
+    """The recorded variables as the scene's channels: through the rig's instruments when
+    ``effects.sensors = "rig"``, with their units."""
+    scene = plan.scene
+    signals = {name: res.signals[src] for name, src in plan.sources.items()}
+    if scene.effects.sensors == "rig":      # what the rig's instruments would have reported
+        signals = instruments.measure(signals, scene.time.sample_rate_Hz, scene.instruments, scene.name)
+        if abs(scene.time.sample_rate_Hz - instruments.RIG_SAMPLE_RATE_HZ) > 1e-9:
+            plan.warnings.append(f"rig sensors sampled at time.sample_rate_Hz = {scene.time.sample_rate_Hz:g} Hz; the "
+                                 f"rig's clock is {instruments.RIG_SAMPLE_RATE_HZ:g} Hz (with numerics.comm_step_s = "
+                                 f"1/12048 s)")
+    units = {}
+    for name, src in plan.sources.items():
+        u = res.units.get(src)
+        if u is None and name in RIG_SENSORS:
+            u = RIG_SENSORS[name][0]
+        units[name] = u or ""
+    return Channels(time=res.time, signals=signals, units=units)
+
+
+def _peaks(f: np.ndarray, A: np.ndarray, cf: dict, fs: float) -> dict:
+    """The amplitudes of a spectrum at the GMF harmonics and its sidebands (dB re GMF)."""
+    pk = {"bin_Hz": float(f[1] - f[0]),
+          "GMF_harmonics": [{"k": k, "f_Hz": h, "amplitude": amplitude_near(f, A, h)}
+                            for k, h in enumerate(cf["harmonics"], start=1) if h < fs / 2],
+          "sidebands": [{"k": sb["k"], "lower_Hz": sb["lower"], "upper_Hz": sb["upper"],
+                         "lower_amplitude": amplitude_near(f, A, sb["lower"]),
+                         "upper_amplitude": amplitude_near(f, A, sb["upper"])}
+                        for sb in cf["sidebands"]]}
+    g = pk["GMF_harmonics"][0]["amplitude"] if pk["GMF_harmonics"] else float("nan")
+    for sb in pk["sidebands"]:
+        sb["lower_dB_re_GMF"] = float(to_db(sb["lower_amplitude"] / g)) if g > 0 else None
+        sb["upper_dB_re_GMF"] = float(to_db(sb["upper_amplitude"] / g)) if g > 0 else None
+    return pk
+
+
+def torque_spectra(plan: RunPlan, ch: Channels) -> Spectra:
+    """Statistics of the torque channels after the settling time, their spectra (low-passed at 5 x f_GMF)
+    and the peaks at the characteristic frequencies of the final drive speed."""
+    scene = plan.scene
+    m = ch.time >= scene.time.settle_s
+    fs = scene.time.sample_rate_Hz
+    out = Spectra(cf=characteristic_frequencies(scene.operating_point.final_speed_rpm))
+    for name in TORQUE_SENSORS:
+        if name not in ch.signals:
+            continue
+        x = ch.signals[name][m]
+        if not len(x):               # a failed run that ended before settle_s
+            continue
+        out.torque[name] = {**stats(x), "unit": ch.units[name]}
+        if len(x) > 16 and out.cf["f_GMF"] > 0:
+            try:
+                f, A = amplitude_spectrum(x, fs, lowpass_Hz=5.0 * out.cf["f_GMF"])
+            except ValueError as exc:    # too short for the low-pass (a short or failed run)
+                plan.warnings.append(f"no spectrum of {name}: {exc}")
+                continue
+            out.spectra[name] = (f, A)
+            out.peaks[name] = _peaks(f, A, out.cf, fs)
+    return out
+
+
+def _timing(plan: RunPlan, res: CosimResult) -> dict:
+    """The summary's timing entries (wall time from the call to now)."""
+    wall = _time.perf_counter() - plan.t_start
+    before = plan.t_master - plan.t_start
+    return {
+        "wall_time_s": wall,
+        "sim_time_s": res.sim_time_s,
+        "requested_sim_time_s": plan.scene.time.duration_s,
+        "real_time_factor": res.real_time_factor if res.loop_time_s > 0 else None,
+        "real_time_factor_wall": res.sim_time_s / wall if wall > 0 else None,
+        "loop_time_s": res.loop_time_s,
+        "loop_cpu_time_s": res.loop_cpu_time_s,
+        "time_breakdown_s": {"assemble_and_check": plan.t_native - plan.t_start,
+                             "native_build": plan.t_master - plan.t_native,
+                             "fmu_setup": res.setup_time_s,
+                             "loop": res.loop_time_s,
+                             "postprocess": max(0.0, wall - before - res.setup_time_s - res.loop_time_s)},
+    }
+
+
+def _scene_labels(plan: RunPlan) -> dict:
+    """The summary's labels of what ran: operating point, health, effects, drawn errors, instruments."""
+    scene, op = plan.scene, plan.scene.operating_point
+    return {
+        "operating_point": {"drive_speed_rpm": op.final_speed_rpm, "load_torque_Nm": op.load_torque_Nm,
+                            "profiles": bool(op.speed_profile_rpm or op.load_profile_Nm)},
+        "health": scene.gear.health,
+        "effects": dataclasses.asdict(scene.effects),
+        # the drawn errors (per tooth, eccentricities, phases) and how they were drawn: the labels of the run
+        "manufacturing_errors": plan.spec.metadata.get("manufacturing_errors"),
+        "instruments": dataclasses.asdict(scene.instruments) if scene.effects.sensors == "rig" else None,
+    }
+
+
+def build_summary(plan: RunPlan, res: CosimResult, failed: CosimError | None, ch: Channels, sp: Spectra) -> dict:
+    """summary.json of a run (``files`` and ``write_time_s`` are added when it is written): the keys of
+    :data:`drivetrain.scene.expect.RUN_SUMMARY_TREE`, in its order (the tests check the subtrees)."""
+    scene, spec = plan.scene, plan.spec
+    m = ch.time >= scene.time.settle_s
+    channel_stats = {name: {**stats(x[m]), "unit": ch.units[name]} for name, x in ch.signals.items() if m.any()}
+    nonfinite = [n for n, x in ch.signals.items() if not np.all(np.isfinite(x))]
+    energy_residual = res.energy.get("relative_residual")
+    covered = res.sim_time_s if failed is None else max(float(failed.time), res.sim_time_s)
+    summary = {
+        "name": scene.name, "status": res.status, "failure": failure_summary(res, spec),
+        "description": scene.scenario.description,
+        "source": str(scene.source) if scene.source else None,
+        "overrides": list(scene.overrides),
+        "backend": plan.backend,
+        **_timing(plan, res),
+        "us_per_step": res.us_per_step,
+        "us_per_step_steady": res.us_per_step_steady,
+        "n_steps": res.n_steps,
+        "comm_step_s": res.comm_step_s,
+        "sample_rate_Hz": scene.time.sample_rate_Hz,
+        "settle_s": scene.time.settle_s,
+        "n_fmus": len(spec.components),
+        **_scene_labels(plan),
+        "torque": sp.torque,
+        "channels": channel_stats,
+        "f_DSH": sp.cf["f_DSH"], "f_MSH": sp.cf["f_MSH"], "f_PSH": sp.cf["f_PSH"], "f_GMF": sp.cf["f_GMF"],
+        "characteristic_frequencies": sp.cf,
+        "spectrum_peaks": sp.peaks,
+        "energy_residual": energy_residual,
+        "energy": res.energy,
+        "natural_frequencies_Hz": _natural_frequencies(spec),
+        "stability": {**stability_summary(res, spec, covered, energy_residual, scene.time.settle_s),
+                      "static_contact": plan.contact_range, "contact_cost": plan.contact_cost},
+        "fmus": [{"name": c.name, "model": c.model, "fidelity": _fidelity(c, spec)} for c in spec.components],
+        "nonfinite_channels": nonfinite,
+        "warnings": plan.warnings,
+        "accuracy_choice": plan.choice.to_dict() if plan.choice is not None else None,
+        "drivetrain_version": __version__,
+    }
+    assert list(summary) == list(RUN_SUMMARY_TREE), "summary.json and its declaration (scene.expect) differ"
+    return summary
+
+
 def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "fmi", progress: bool = True,
               *, fmu_dir: str | Path = "fmus", spec: SystemSpec | None = None,
               fmu_paths: dict | None = None, plots: bool | None = None, build: bool = True,
@@ -225,201 +528,20 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
     during the run, the completed part is post-processed (and written: signals up to the failure,
     summary with ``status = "failed"`` and ``failure``) and :class:`RunFailedError` is raised with it
     (a CosimError; a failure before the first step raises the master's CosimError, nothing written).
+
+    The steps: :func:`prepare_run` (assemble, check, choose the backend) -> :func:`simulate_plan` ->
+    :func:`measured_channels`, :func:`torque_spectra`, :func:`build_summary` -> :func:`write_run`.
     """
-    t0 = _time.perf_counter()
     log = log or _LOG.warning
-    warnings: list[str] = []
-    choice = None
-    if spec is None:
-        if scene.numerics.tolerance_pct is not None:   # the cheapest studied setting within the tolerance
-            try:
-                scene, choice = accuracy.apply_tolerance(scene)
-            except (FileNotFoundError, ValueError) as exc:
-                raise ConfigurationError([f"numerics.tolerance_pct = {scene.numerics.tolerance_pct:g}: {exc}"]) from None
-            log(f"tolerance {choice.tolerance_pct:g} %: setting {choice.setting!r}: {choice.why}")
-        spec = assemble_scene(scene)
-    try:   # a contact model too costly for the scene's budget, or a u_max the static load alone would
-        #    pass, is refused before any step
-        contact_cost = stability.check_contact_cost(
-            spec, scene.time.duration_s, float("inf") if force else scene.numerics.max_contact_hours)
-        contact_range = stability.check_contact_range(spec)
-    except (stability.ContactCostError, stability.ContactRangeError) as exc:
-        raise ConfigurationError(exc.problems) from None
-    except FaultGeometryError as exc:
-        raise ConfigurationError([str(exc)]) from None
-    predicted = runcost.predict(scene, backend, contact_cost)
-    too_costly = runcost.refusal(scene, predicted)
-    if too_costly and not force:
-        raise ConfigurationError([too_costly])
-    if too_costly:
-        warnings.append(f"forced: {too_costly}")
-        log(f"warning: forced: {too_costly}")
-    for rep in contact_cost:
-        if rep.get("warning"):
-            warnings.append(rep["warning"])
-            log(f"warning: {rep['warning']}")
-    H = scene.numerics.comm_step_s
-    if abs(spec.comm_step - H) > 1e-12 * H:
-        warnings.append(f"the assembled system uses comm_step {spec.comm_step:.10g} s, the scene asks for {H:.10g} s")
-
-    sensor_map = dict(spec.metadata.get("sensors", {}))
-    sources: dict[str, str] = {}
-    for s in scene.outputs.sensors:
-        if s in sensor_map:
-            sources[s] = sensor_map[s]
-        else:
-            warnings.append(f"sensor {s!r} is not provided by the assembled system "
-                            f"(available: {', '.join(sensor_map) or 'none'}); skipped")
-    for v in scene.outputs.variables:
-        sources[v] = v
-    record = list(dict.fromkeys(sources.values()))
-
-    final = [f"{c.name}.{v}" for c in spec.components if c.model == GEAR_MODEL for v in GEAR_FINAL_VARS]
-    final += [f"{c.name}.{COUPLING_VAR}" for c in spec.components]
-    t_native = _time.perf_counter()
-    if backend not in BACKENDS:
-        raise ConfigurationError([f"backend {backend!r}: expected one of {', '.join(BACKENDS)}"])
-    if backend == "native":
-        # compiled FMUs (built once, kept in <fmu_dir>/native) through FMI; an explicit fmu_paths entry wins.
-        # Without a compiler the run still happens, on the pythonfmu FMUs, and says so.
-        from drivetrain.cosim.native_line import native_fmus, toolchain_problems
-
-        missing = toolchain_problems()
-        if missing:
-            note = f"{'; '.join(missing)}: the run uses the pythonfmu FMUs (backend fmi)"
-            backend = "fmi"
-        else:
-            native, note = native_fmus(spec, Path(fmu_dir) / "native", log=log)
-            fmu_paths = {**native, **(fmu_paths or {})}
-        if note:
-            warnings.append(f"backend native: {note}")
-            log(f"warning: backend native: {note}")
-    master_backend = "fmi" if backend == "native" else backend
-    t_master = _time.perf_counter()
-    master = Master(spec, fmu_dir=fmu_dir, backend=master_backend, fmu_paths=fmu_paths, build=build, log=log)
-    failed: CosimError | None = None
-    try:
-        res = master.run(scene.time.duration_s, scene.time.sample_rate_Hz, record,
-                         progress=None if progress else False, anti_alias=scene.numerics.anti_alias,
-                         final=final, snapshots=(scene.time.settle_s,))
-    except CosimError as exc:
-        if exc.partial is None:
-            raise
-        failed, res = exc, exc.partial
-    warnings += res.warnings
-    if failed is not None:
-        warnings.append(f"the run failed at t = {failed.time:.9g} s ({failed.component}: "
-                        f"{res.failure['cause']}); results up to t = {res.time[-1]:.9g} s")
-
-    signals = {name: res.signals[src] for name, src in sources.items()}
-    if scene.effects.sensors == "rig":      # what the rig's instruments would have reported
-        signals = instruments.measure(signals, scene.time.sample_rate_Hz, scene.instruments, scene.name)
-        if abs(scene.time.sample_rate_Hz - instruments.RIG_SAMPLE_RATE_HZ) > 1e-9:
-            warnings.append(f"rig sensors sampled at time.sample_rate_Hz = {scene.time.sample_rate_Hz:g} Hz; the "
-                            f"rig's clock is {instruments.RIG_SAMPLE_RATE_HZ:g} Hz (with numerics.comm_step_s = "
-                            f"1/12048 s)")
-    units = {}
-    for name, src in sources.items():
-        u = res.units.get(src)
-        if u is None and name in RIG_SENSORS:
-            u = RIG_SENSORS[name][0]
-        units[name] = u or ""
-    t = res.time
-    settle = scene.time.settle_s
-    m = t >= settle
-
-    cf = characteristic_frequencies(scene.operating_point.final_speed_rpm)
-    fs = scene.time.sample_rate_Hz
-    torque_stats, spectra, peaks = {}, {}, {}
-    for name in TORQUE_SENSORS:
-        if name not in signals:
-            continue
-        x = signals[name][m]
-        if not len(x):               # a failed run that ended before settle_s
-            continue
-        torque_stats[name] = {**stats(x), "unit": units[name]}
-        if len(x) > 16 and cf["f_GMF"] > 0:
-            try:
-                f, A = amplitude_spectrum(x, fs, lowpass_Hz=5.0 * cf["f_GMF"])
-            except ValueError as exc:    # too short for the low-pass (a short or failed run)
-                warnings.append(f"no spectrum of {name}: {exc}")
-                continue
-            spectra[name] = (f, A)
-            pk = {"bin_Hz": float(f[1] - f[0]),
-                  "GMF_harmonics": [{"k": k, "f_Hz": h, "amplitude": amplitude_near(f, A, h)}
-                                    for k, h in enumerate(cf["harmonics"], start=1) if h < fs / 2],
-                  "sidebands": [{"k": sb["k"], "lower_Hz": sb["lower"], "upper_Hz": sb["upper"],
-                                 "lower_amplitude": amplitude_near(f, A, sb["lower"]),
-                                 "upper_amplitude": amplitude_near(f, A, sb["upper"])}
-                                for sb in cf["sidebands"]]}
-            g = pk["GMF_harmonics"][0]["amplitude"] if pk["GMF_harmonics"] else float("nan")
-            for sb in pk["sidebands"]:
-                sb["lower_dB_re_GMF"] = float(to_db(sb["lower_amplitude"] / g)) if g > 0 else None
-                sb["upper_dB_re_GMF"] = float(to_db(sb["upper_amplitude"] / g)) if g > 0 else None
-            peaks[name] = pk
-    channel_stats = {name: {**stats(x[m]), "unit": units[name]} for name, x in signals.items() if m.any()}
-    nonfinite = [n for n, x in signals.items() if not np.all(np.isfinite(x))]
-
-    energy = res.energy
-    energy_residual = energy.get("relative_residual")
-    fmus = [{"name": c.name, "model": c.model, "fidelity": _fidelity(c, spec)} for c in spec.components]
-    covered = res.sim_time_s if failed is None else max(float(failed.time), res.sim_time_s)
-    wall = _time.perf_counter() - t0
-    summary = {
-        "name": scene.name,
-        "status": res.status,
-        "failure": failure_summary(res, spec),
-        "description": scene.scenario.description,
-        "source": str(scene.source) if scene.source else None,
-        "overrides": list(scene.overrides),
-        "backend": backend,
-        "wall_time_s": wall,
-        "sim_time_s": res.sim_time_s,
-        "requested_sim_time_s": scene.time.duration_s,
-        "real_time_factor": res.real_time_factor if res.loop_time_s > 0 else None,
-        "real_time_factor_wall": res.sim_time_s / wall if wall > 0 else None,
-        "loop_time_s": res.loop_time_s,
-        "loop_cpu_time_s": res.loop_cpu_time_s,
-        "time_breakdown_s": {"assemble_and_check": t_native - t0, "native_build": t_master - t_native,
-                             "fmu_setup": res.setup_time_s,
-                             "loop": res.loop_time_s,
-                             "postprocess": max(0.0, wall - (t_master - t0) - res.setup_time_s - res.loop_time_s)},
-        "us_per_step": res.us_per_step,
-        "us_per_step_steady": res.us_per_step_steady,
-        "n_steps": res.n_steps,
-        "comm_step_s": res.comm_step_s,
-        "sample_rate_Hz": fs,
-        "settle_s": settle,
-        "n_fmus": len(spec.components),
-        "operating_point": {"drive_speed_rpm": scene.operating_point.final_speed_rpm,
-                            "load_torque_Nm": scene.operating_point.load_torque_Nm,
-                            "profiles": bool(scene.operating_point.speed_profile_rpm
-                                             or scene.operating_point.load_profile_Nm)},
-        "health": scene.gear.health,
-        "effects": dataclasses.asdict(scene.effects),
-        # the drawn errors (per tooth, eccentricities, phases) and how they were drawn: the labels of the run
-        "manufacturing_errors": spec.metadata.get("manufacturing_errors"),
-        "instruments": dataclasses.asdict(scene.instruments) if scene.effects.sensors == "rig" else None,
-        "torque": torque_stats,
-        "channels": channel_stats,
-        "f_DSH": cf["f_DSH"], "f_MSH": cf["f_MSH"], "f_PSH": cf["f_PSH"], "f_GMF": cf["f_GMF"],
-        "characteristic_frequencies": cf,
-        "spectrum_peaks": peaks,
-        "energy_residual": energy_residual,
-        "energy": energy,
-        "natural_frequencies_Hz": _natural_frequencies(spec),
-        "stability": {**stability_summary(res, spec, covered, energy_residual, settle),
-                      "static_contact": contact_range, "contact_cost": contact_cost},
-        "fmus": fmus,
-        "nonfinite_channels": nonfinite,
-        "warnings": warnings,
-        "accuracy_choice": choice.to_dict() if choice is not None else None,
-        "drivetrain_version": __version__,
-    }
-    result = RunResult(scene=scene, summary=summary, time=t, signals=signals, units=units, sources=sources,
-                       cosim=res, spec=spec)
+    plan = prepare_run(scene, spec, backend, fmu_paths, fmu_dir=fmu_dir, force=force, log=log)
+    res, failed = simulate_plan(plan, fmu_dir=fmu_dir, build=build, progress=progress, log=log)
+    ch = measured_channels(plan, res)
+    sp = torque_spectra(plan, ch)
+    summary = build_summary(plan, res, failed, ch, sp)
+    result = RunResult(scene=plan.scene, summary=summary, time=ch.time, signals=ch.signals, units=ch.units,
+                       sources=plan.sources, cosim=res, spec=plan.spec)
     if out_dir is not None:
-        write_run(result, out_dir, plots=scene.outputs.plots if plots is None else plots, spectra=spectra)
+        write_run(result, out_dir, plots=plan.scene.outputs.plots if plots is None else plots, spectra=sp.spectra)
     if failed is not None:
         raise RunFailedError(failed, result) from failed
     return result

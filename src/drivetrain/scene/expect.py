@@ -71,27 +71,30 @@ SLOW_DURATION_PCM_S = 0.1
 SPECTRUM_BINS = 2
 
 # --------------------------------------------------------------------------------------------------
-# The known layout of summary.json (drivetrain.run.runner.run_scene). Leaves: "num", "int", "str", "bool",
-# "any" (a whole subtree is accepted: energy audit, failure record, ...). "<torque>" = a torque sensor of
-# the scene, "<channel>" = any output channel of the scene, "<i>" = a list index.
+# The layout of summary.json, declared once: drivetrain.run.runner builds the summary in this order and
+# takes its top-level keys from here; the tests check a real run's summary.json against it key for key
+# (summary_mismatch). Leaves: "num", "int", "str", "bool" (None allowed where it does not apply), "any"
+# (a whole subtree is accepted: energy audit, failure record, ...). "<torque>" = a torque sensor of the
+# scene, "<channel>" = any output channel of the scene, "<i>" = a list index.
 # --------------------------------------------------------------------------------------------------
 
 _STATS_TREE = {"mean": "num", "rms": "num", "std": "num", "min": "num", "max": "num", "unit": "str"}
 _RATTLE3 = {"separated_time_s": "num", "separated_fraction": "num", "n_separations": "int"}
-SUMMARY_TREE: dict = {
+#: what :func:`drivetrain.run.runner.run_scene` computes (RunResult.summary)
+RUN_SUMMARY_TREE: dict = {
     "name": "str", "status": "str", "failure": "any", "description": "str", "source": "str",
     "overrides": "any", "backend": "str", "wall_time_s": "num", "sim_time_s": "num",
     "requested_sim_time_s": "num", "real_time_factor": "num", "real_time_factor_wall": "num",
+    "loop_time_s": "num", "loop_cpu_time_s": "num",
     "time_breakdown_s": {"assemble_and_check": "num", "native_build": "num", "fmu_setup": "num", "loop": "num", "postprocess": "num"},
-    "loop_time_s": "num", "loop_cpu_time_s": "num", "us_per_step": "num",
-    "us_per_step_steady": "num", "n_steps": "int", "comm_step_s": "num", "sample_rate_Hz": "num",
-    "settle_s": "num", "n_fmus": "int",
+    "us_per_step": "num", "us_per_step_steady": "num", "n_steps": "int", "comm_step_s": "num",
+    "sample_rate_Hz": "num", "settle_s": "num", "n_fmus": "int",
     "operating_point": {"drive_speed_rpm": "num", "load_torque_Nm": "num", "profiles": "bool"},
     "health": "str",
     "effects": {"mesh_contact": "str", "shaft_flexibility": "str", "shaft_elements": "int", "friction": "bool",
                 "contact_damping": "bool", "losses": "bool", "sensors": "str", "tooth_compliance": "bool",
                 "manufacturing_errors": "bool"},
-    "manufacturing_errors": "any", "instruments": "any", "accuracy_choice": "any",
+    "manufacturing_errors": "any", "instruments": "any",
     "torque": {"<torque>": _STATS_TREE},
     "channels": {"<channel>": _STATS_TREE},
     "f_DSH": "num", "f_MSH": "num", "f_PSH": "num", "f_GMF": "num",
@@ -104,18 +107,51 @@ SUMMARY_TREE: dict = {
         "GMF_harmonics": {"<i>": {"k": "int", "f_Hz": "num", "amplitude": "num"}},
         "sidebands": {"<i>": {"k": "int", "lower_Hz": "num", "upper_Hz": "num", "lower_amplitude": "num",
                               "upper_amplitude": "num", "lower_dB_re_GMF": "num", "upper_dB_re_GMF": "num"}}}},
-    "natural_frequencies_Hz": {"<i>": "num"},
     "energy_residual": "num",
     "energy": "any",
+    "natural_frequencies_Hz": {"<i>": "num"},
     "stability": {
         "gear": "str", "time_s": "num", "max_penetration_m": "num", "u_max_m": "num",
         "max_penetration_rel_umax": "num", "min_substep_s": "num", "max_substep_s": "num", "n_substeps": "int",
         "n_refinements": "int", "energy_residual": "num", "coupling_energy_pending_J": "any",
         "rattle": {"window_s": {"<i>": "num"}, "separated": "bool", **_RATTLE3, "whole_run": dict(_RATTLE3)},
         "static_contact": "any", "contact_cost": "any"},
-    "fmus": "any", "nonfinite_channels": "any", "warnings": "any", "drivetrain_version": "str",
-    "files": "any", "write_time_s": "num",
+    "fmus": "any", "nonfinite_channels": "any", "warnings": "any", "accuracy_choice": "any",
+    "drivetrain_version": "str",
 }
+#: what :func:`drivetrain.run.runner.write_run` adds when it writes the files
+WRITE_SUMMARY_TREE: dict = {"files": "any", "write_time_s": "num"}
+#: summary.json as written
+SUMMARY_TREE: dict = {**RUN_SUMMARY_TREE, **WRITE_SUMMARY_TREE}
+#: the placeholders of a tree: a key the scene names (a torque sensor, an output channel)
+_NAMED = ("<torque>", "<channel>")
+
+
+def summary_mismatch(summary: Any, tree: Any = None, where: str = "") -> list[str]:
+    """Where ``summary`` (a summary.json's content, or a part of it at ``where``) differs in its keys from
+    the declared ``tree`` (default :data:`SUMMARY_TREE`): keys missing, keys not declared, a subtree where a
+    leaf is declared or the reverse. None fits anything (an entry that does not apply); "any" takes any
+    subtree. Empty when they agree."""
+    tree = SUMMARY_TREE if tree is None else tree
+    at = where or "summary.json"
+    if tree == "any" or summary is None:
+        return []
+    if not isinstance(tree, dict):
+        return [f"{at}: a {type(summary).__name__} where a {tree} is declared"] \
+            if isinstance(summary, (dict, list)) else []
+    if isinstance(summary, list) and "<i>" in tree:
+        return [p for i, x in enumerate(summary) for p in summary_mismatch(x, tree["<i>"], f"{where}.{i}".lstrip("."))]
+    if not isinstance(summary, dict) or "<i>" in tree:
+        return [f"{at}: a {type(summary).__name__} where {'a list' if '<i>' in tree else 'a table'} is declared"]
+    named = next((tree[k] for k in _NAMED if k in tree), None)
+    problems = [f"{at}: no {k!r}" for k in tree if k not in summary and k not in _NAMED]
+    for k, x in summary.items():
+        sub = tree.get(k, named)
+        if sub is None:
+            problems.append(f"{at}: {k!r} is not declared")
+        else:
+            problems += summary_mismatch(x, sub, f"{where}.{k}".lstrip("."))
+    return problems
 
 
 # --------------------------------------------------------------------------------------------------
@@ -860,7 +896,8 @@ def _channel_of(e: Expectation) -> str | None:
     return None
 
 
-__all__ = ["Expectation", "ExpectSpec", "CheckOptions", "Outcome", "SUMMARY_TREE", "SIGNAL_STATS",
+__all__ = ["Expectation", "ExpectSpec", "CheckOptions", "Outcome", "SUMMARY_TREE", "RUN_SUMMARY_TREE",
+           "WRITE_SUMMARY_TREE", "summary_mismatch", "SIGNAL_STATS",
            "SPECTRUM_LEVELS", "FREQ_NAMES", "parse_checks", "parse_key", "parse_spec", "parse_frequency",
            "frequency_value", "evaluate", "metric_value", "summary_value", "signal_stat", "spectrum_levels",
            "window_mask", "is_slow", "freqs_of"]

@@ -152,6 +152,7 @@ def _read_values(slaves: Sequence[Slave], plan: ExchangePlan, names: Sequence[st
                 out[f"{s.name}.{vn}"] = v
     return out
 
+
 def _energy_reads(plan: ExchangePlan, slaves: Sequence[Slave]) -> list[dict]:
     """Every FMU's energy counters now (per component: {name: value})."""
     return [dict(zip(plan.energy[i], s.get_reals(list(plan.energy[i])))) if plan.energy[i] else {}

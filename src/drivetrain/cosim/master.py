@@ -153,6 +153,363 @@ def _read_values(slaves: Sequence[Slave], plan: ExchangePlan, names: Sequence[st
     return out
 
 
+def _energy_reads(plan: ExchangePlan, slaves: Sequence[Slave]) -> list[dict]:
+    """Every FMU's energy counters now (per component: {name: value})."""
+    return [dict(zip(plan.energy[i], s.get_reals(list(plan.energy[i])))) if plan.energy[i] else {}
+            for i, s in enumerate(slaves)]
+
+
+# --------------------------------------------------------------------------------------------------
+# The run's parts: time grid, exchange buffers, the loop, and its observers (recorder, progress, clock)
+# --------------------------------------------------------------------------------------------------
+
+#: steps per chunk of the loop: the observers (snapshots, progress, stop_check, the clock) act between chunks
+CHUNK_STEPS = 4096
+
+
+@dataclass(frozen=True)
+class _Grid:
+    """The run's time grid: communication step H, steps per output sample, steps (whole output samples)."""
+
+    H: float
+    steps_per_output: int
+    n_steps: int
+    output_rate_Hz: float
+
+    @classmethod
+    def covering(cls, duration_s: float, H: float, steps_per_output: int, output_rate_Hz: float) -> "_Grid":
+        """The steps that cover ``duration_s`` (H apart), rounded up to whole output samples."""
+        n_steps = int(round(duration_s / H))
+        if abs(n_steps * H - duration_s) > 1e-9 * max(1.0, duration_s):
+            n_steps = int(math.ceil(duration_s / H))
+        n_steps = int(math.ceil(n_steps / steps_per_output) * steps_per_output)
+        return cls(H, steps_per_output, n_steps, output_rate_Hz)
+
+    @property
+    def T(self) -> float:
+        return self.n_steps * self.H
+
+
+class _Exchange:
+    """The exchange buffers of one run, bound to the slaves: ``y`` every output read (then one slot per
+    external time profile, from a table at the step times), ``u`` every input set; ``u = y[gather]``."""
+
+    def __init__(self, plan: ExchangePlan, grid: _Grid):
+        self.plan = plan
+        self.ny, self.nu = len(plan.y_names), len(plan.u_names)
+        self.y = np.zeros(max(self.ny, 1))
+        self.u = np.zeros(max(self.nu, 1))
+        self.ext_idx = np.array([i for i, _ in plan.ext], dtype=np.intp)
+        self.ext_table = None
+        if plan.ext:
+            tk = np.arange(grid.n_steps + 1) * grid.H
+            self.ext_table = np.empty((grid.n_steps + 1, len(plan.ext)))
+            for j, (_, prof) in enumerate(plan.ext):
+                arr = np.asarray(prof, dtype=float)
+                self.ext_table[:, j] = np.interp(tk, arr[:, 0], arr[:, 1])
+        self.u_off = np.cumsum([0] + [len(x) for x in plan.in_names])
+        self.y_off = np.cumsum([0] + [len(x) for x in plan.out_names])
+
+    def bind(self, slaves: Sequence[Slave]) -> None:
+        for i, s in enumerate(slaves):
+            s.bind(self.plan.in_names[i], self.plan.out_names[i], self.u, int(self.u_off[i]), self.y,
+                   int(self.y_off[i]))
+
+    def exchange(self, k: int) -> None:
+        """The inputs of step k from the outputs (and the profiles at t = k H)."""
+        if self.ext_table is not None:
+            self.y[self.ext_idx] = self.ext_table[k]
+        np.take(self.y, self.plan.gather, out=self.u[:self.nu])
+
+    def read_all(self, slaves: Sequence[Slave]) -> None:
+        for i, s in enumerate(slaves):
+            if self.plan.out_names[i]:
+                self.y[self.y_off[i]:self.y_off[i + 1]] = s.get_reals(self.plan.out_names[i])
+
+    def write_all(self, slaves: Sequence[Slave]) -> None:
+        for i, s in enumerate(slaves):
+            if self.plan.in_names[i]:
+                s.set_values(self.plan.in_names[i], self.u[self.u_off[i]:self.u_off[i + 1]].tolist())
+
+    def initialise(self, slaves: Sequence[Slave]) -> None:
+        """Initialization mode: two exchange sweeps propagate the initial flange values; then the outputs
+        at t = 0."""
+        for s in slaves:
+            s.enter_init()
+        for _ in range(2):
+            self.read_all(slaves)
+            self.exchange(0)
+            self.write_all(slaves)
+        for s in slaves:
+            s.exit_init()
+        self.read_all(slaves)
+
+
+class _Recorder:
+    """The observer that keeps the results: every exchanged value at the internal rate (``rec``, row k at
+    t = k H), the energy counters at the start and the end, the ``final`` names after the last step (or
+    at a failure) and at the ``snapshots`` (read between chunks: no cost per step)."""
+
+    def __init__(self, plan: ExchangePlan, grid: _Grid, record: Sequence[str], final: Sequence[str],
+                 snapshots: Sequence[float]):
+        self.plan, self.grid, self.record = plan, grid, record
+        self.rec = np.empty((grid.n_steps + 1, len(plan.y_names)))
+        self.final = _readable(plan, final)
+        H, T = grid.H, grid.T
+        self.snap_steps = sorted({int(round(ts / H)) for ts in snapshots if 0 < ts < T}) if self.final else []
+        self.snapshots: dict[float, dict[str, float]] = {}
+        self.final_values: dict[str, float] = {}
+        self.e0: list[dict] = []
+        self.e1: list[dict] = []
+
+    def start(self, slaves: Sequence[Slave], y: np.ndarray) -> None:
+        self.rec[0] = y[:len(self.plan.y_names)]
+        self.e0 = _energy_reads(self.plan, slaves)
+
+    def chunk_end(self, slaves: Sequence[Slave], k: int, k_end: int) -> int:
+        """Where the chunk from step k ends: at the next snapshot; one due is read now (t = k H)."""
+        snap = self.snap_steps
+        if snap:
+            if snap[0] <= k:                 # read after step k-1 (at t = k H)
+                self.snapshots[k * self.grid.H] = _read_values(slaves, self.plan, self.final)
+                snap.pop(0)
+            if snap:
+                k_end = min(k_end, snap[0])
+        return k_end
+
+    def finish(self, slaves: Sequence[Slave]) -> None:
+        self.e1 = _energy_reads(self.plan, slaves)
+        self.final_values = _read_values(slaves, self.plan, self.final)
+
+    def after_failure(self, slaves: Sequence[Slave]) -> None:
+        self.final_values = _read_values(slaves, self.plan, self.final)
+
+    def signals(self, k_done: int, anti_alias: str) -> tuple[dict, dict]:
+        """The recorded names at the output rate (anti-aliased, decimated) and their units."""
+        plan, valid = self.plan, self.rec[:k_done + 1]
+        col = {n: j for j, n in enumerate(plan.y_names)}
+        units, signals = {}, {}
+        if self.record:
+            cols = [col[r] for r in self.record]
+            dec = decimate(valid[:, cols], 1.0 / self.grid.H, self.grid.output_rate_Hz, method=anti_alias)
+            for j, r in enumerate(self.record):
+                signals[r] = dec[:, j]
+                comp, vn = split_ref(r)
+                units[r] = plan.infos[[c.name for c in plan.comps].index(comp)].variables[vn].unit
+        return signals, units
+
+    def raw(self, k_done: int) -> dict[str, np.ndarray]:
+        """The internal-rate records of the completed steps ("time" + every exchanged name)."""
+        valid = self.rec[:k_done + 1]
+        raw = {"time": np.arange(k_done + 1) * self.grid.H}
+        raw.update({n: valid[:, j].copy() for j, n in enumerate(self.plan.y_names)})
+        return raw
+
+
+class _Progress:
+    """The progress reporter: a tqdm bar, by default for runs of more than 50 000 steps."""
+
+    def __init__(self, grid: _Grid, show: bool | None):
+        self.bar = None
+        if (grid.n_steps > 50_000) if show is None else bool(show):
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=grid.n_steps, unit="step", unit_scale=True, desc=f"co-sim {grid.T:g} s",
+                            mininterval=0.5, leave=False)
+
+    def update(self, n: int) -> None:
+        if self.bar is not None:
+            self.bar.update(n)
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+
+
+class _LoopClock:
+    """The stepping loop's wall and CPU time, and its cost per step in each chunk."""
+
+    def __init__(self):
+        self.t0 = self.cpu0 = 0.0
+        self.loop_s = 0.0
+        self.cpu_s: float | None = None
+        self.chunk_costs: list[float] = []
+        self._running = False
+
+    def start(self) -> None:
+        self.t0, self.cpu0, self._running = time.perf_counter(), time.process_time(), True
+
+    def chunk(self, t_chunk: float, n: int) -> None:
+        self.chunk_costs.append((time.perf_counter() - t_chunk) / n)
+
+    def stop(self) -> None:
+        """The loop's times, taken once (a failure after the loop keeps them)."""
+        if self._running:
+            self.loop_s = time.perf_counter() - self.t0
+            self.cpu_s = time.process_time() - self.cpu0
+            self._running = False
+
+    def us_per_step_steady(self, k_done: int) -> float:
+        """Median over the chunks, the first (JIT warm-up) excluded."""
+        steady = self.chunk_costs[1:] if len(self.chunk_costs) > 1 else self.chunk_costs
+        return 1e6 * float(np.median(steady)) if steady else 1e6 * self.loop_s / max(k_done, 1)
+
+
+# --------------------------------------------------------------------------------------------------
+# Failure handling
+# --------------------------------------------------------------------------------------------------
+
+
+def _check_status(slave: Slave, function: str, status: int, t: float) -> None:
+    """A non-zero FMI status: a warning goes on (the message is in the log); discard or worse stops the run
+    with CosimError naming the FMU, the call, the time and the FMU's log (fatal: no more calls to it)."""
+    if status == 1:     # warning: keep going, the message is in the log
+        return
+    if status >= 4:
+        slave.fatal = True
+    raise CosimError(slave.name, slave.model, function, int(status), t, list(slave.log.lines))
+
+
+@dataclass
+class _Stop:
+    """How the stepping ended: the steps completed (rows ``rec[:k_done + 1]`` hold valid samples) and the
+    FMU failure if any, with every FMU's outputs as read after it (each read guarded)."""
+
+    k_done: int
+    fail: CosimError | None = None
+    outputs: dict[str, dict | None] = dataclasses.field(default_factory=dict)
+
+
+def _failed_outputs(slaves: Sequence[Slave], plan: ExchangePlan) -> dict[str, dict | None]:
+    """Every FMU's Real outputs as it still exposes them after a failure (None where it cannot answer)."""
+    return {s.name: _read_guarded(s, _real_outputs(info)) for s, info in zip(slaves, plan.infos)}
+
+
+def _check_finite(rec: np.ndarray, stop: _Stop, plan: ExchangePlan, H: float) -> _Stop:
+    """The valid part of the records ends before the first non-finite value: a failure of the FMU that
+    produced it (unless one failed already)."""
+    valid = rec[:stop.k_done + 1]
+    if np.all(np.isfinite(valid)):
+        return stop
+    bad = np.where(~np.isfinite(valid))
+    kbad, jbad = int(bad[0][0]), int(bad[1][0])
+    fail = stop.fail
+    if fail is None:
+        fail = CosimError(plan.y_names[jbad].split(".")[0], "?", "output check (NaN/Inf)", 3, kbad * H,
+                          [f"{plan.y_names[jbad]} = {valid[kbad, jbad]} at t = {kbad * H:.9g} s"])
+        comp_names = [c.name for c in plan.comps]
+        if fail.component in comp_names:
+            fail.model = plan.comps[comp_names.index(fail.component)].model
+    return _Stop(kbad - 1, fail, stop.outputs)       # the samples before the first non-finite one
+
+
+def _failure_record(stop: _Stop, last_sample_time_s: float) -> dict:
+    """CosimResult.failure: when, where and why the run failed, and what the FMUs showed after it."""
+    fail = stop.fail
+    st = fail.status
+    return {
+        "time_s": float(fail.time), "component": fail.component, "model": fail.model,
+        "function": fail.function,
+        "status": FMI_STATUS[st] if 0 <= st < len(FMI_STATUS) else str(st),
+        "cause": failure_cause(fail), "log": list(fail.log[-20:]),
+        "steps_completed": int(stop.k_done), "last_sample_time_s": float(last_sample_time_s),
+        "outputs": stop.outputs,
+    }
+
+
+# --------------------------------------------------------------------------------------------------
+# The loop: exchange, step, status
+# --------------------------------------------------------------------------------------------------
+
+
+class _Loop:
+    """Fixed-step Jacobi stepping of the slaves: gather the inputs from the outputs of the previous
+    communication point, then per FMU set inputs, do the step, get outputs, each status checked; the
+    observers act between chunks. The C loop (drivetrain.cosim.stepper) runs the chunks of compiled-FMI
+    slaves, else the Python loop does: the same calls in the same order, the same values."""
+
+    def __init__(self, slaves: Sequence[Slave], xc: _Exchange, rec: np.ndarray, grid: _Grid):
+        self.slaves, self.xc, self.rec, self.H = slaves, xc, rec, grid.H
+        self.calls = [(s.set_fn, s.step_fn, s.get_fn, i) for i, s in enumerate(slaves)]
+        self.k = 0                   # steps completed (at a failure: the failed step's index)
+        self.stepper = None
+        if all(isinstance(s, FmiSlave) for s in slaves):
+            fn = load_stepper()
+            if fn is not None:
+                self.stepper = Stepper(fn, slaves, grid.H, xc.y, xc.u, xc.plan.gather, xc.ext_idx,
+                                       xc.ext_table, rec, xc.ny)
+
+    def run(self, n_steps: int, recorder: _Recorder, clock: _LoopClock, progress: _Progress,
+            stop_check: Callable[[], bool] | None) -> None:
+        step_chunk = self._python_chunk if self.stepper is None else self._c_chunk
+        k = 0
+        while k < n_steps:
+            t_chunk = time.perf_counter()
+            k_end = recorder.chunk_end(self.slaves, k, min(n_steps, k + CHUNK_STEPS))
+            step_chunk(k, k_end)
+            self.k = k_end
+            clock.chunk(t_chunk, k_end - k)
+            progress.update(k_end - k)
+            k = k_end
+            if stop_check is not None and stop_check():
+                raise KeyboardInterrupt
+
+    def _python_chunk(self, k: int, k_end: int) -> None:
+        H, y, rec, y_rec, u_in = self.H, self.xc.y, self.rec, self.xc.y[:self.xc.ny], self.xc.u[:self.xc.nu]
+        take, gather, calls, slaves = np.take, self.xc.plan.gather, self.calls, self.slaves
+        ext_idx, ext_table = self.xc.ext_idx, self.xc.ext_table
+        has_ext = ext_table is not None
+        kk = k
+        try:
+            for kk in range(k, k_end):
+                t = kk * H
+                if has_ext:
+                    y[ext_idx] = ext_table[kk]
+                take(y, gather, out=u_in)
+                for set_fn, step_fn, get_fn, i in calls:
+                    if set_fn is not None:
+                        st = set_fn()
+                        if st:
+                            _check_status(slaves[i], "fmi2SetReal", st, t)
+                    st = step_fn(t, H, 1)
+                    if st:
+                        _check_status(slaves[i], "fmi2DoStep", st, t)
+                    if get_fn is not None:
+                        st = get_fn()
+                        if st:
+                            _check_status(slaves[i], "fmi2GetReal", st, t + H)
+                rec[kk + 1] = y_rec
+        except CosimError:
+            self.k = kk
+            raise
+
+    def _c_chunk(self, k: int, k_end: int) -> None:
+        kk = k
+        while kk < k_end:
+            hit = self.stepper.run(kk, k_end)       # None: the chunk is done
+            if hit is None:
+                break
+            self.k = kk = hit[0]
+            self._finish_step(*hit)
+            kk += 1
+
+    def _finish_step(self, kk: int, i: int, call: int, st: int) -> None:
+        """The C loop stopped at a non-zero status: raise as the Python loop does (>= 2), or for a warning
+        do the rest of step kk here, the same calls in the same order."""
+        H, slaves, calls = self.H, self.slaves, self.calls
+        t = kk * H
+        _check_status(slaves[i], CALLS[call], st, t + H if call == 2 else t)
+        for j in range(i, len(slaves)):
+            for c in range(call + 1 if j == i else 0, 3):
+                fn = calls[j][c]
+                if fn is None:
+                    continue
+                st = fn(t, H, 1) if c == 1 else fn()
+                if st:
+                    _check_status(slaves[j], CALLS[c], st, t + H if c == 2 else t)
+        self.rec[kk + 1] = self.xc.y[:self.xc.ny]
+
+
 # --------------------------------------------------------------------------------------------------
 # The master
 # --------------------------------------------------------------------------------------------------
@@ -196,11 +553,40 @@ class Master:
 
     def check(self, output_rate_Hz: float, record: Sequence[str] = ()) -> ExchangePlan:
         """Everything that can be checked without instantiating; raises ConfigurationError."""
-        steps = check_comm_step(self.spec.comm_step, output_rate_Hz)
-        del steps
+        check_comm_step(self.spec.comm_step, output_rate_Hz)
+        return self._plan(record)
+
+    def _plan(self, record: Sequence[str]) -> ExchangePlan:
+        """The FMUs (built when missing or stale) and the spec checked against their model descriptions."""
         paths = self.resolve_fmus()
         infos = {m: load_fmu_info(p) for m, p in paths.items()}
         return check_system(self.spec, infos, record)
+
+    def _instantiate(self, plan: ExchangePlan, slaves: list[Slave], T: float) -> None:
+        """Exactly the spec's components, appended to ``slaves`` as they come (the caller tears them down),
+        with their parameters and constant inputs set."""
+        callbacks = FmiCallbacks() if self.backend == "fmi" else None
+        for comp, info in zip(plan.comps, plan.infos):
+            s = FmiSlave(comp, info, callbacks) if self.backend == "fmi" else InprocSlave(comp, info)
+            slaves.append(s)
+            s.setup(T)
+        for comp, s in zip(plan.comps, slaves):
+            if comp.parameters:
+                s.set_parameters(comp.parameters)
+            consts = {k: v for k, v in comp.inputs.items() if not is_profile(v)}
+            if consts:
+                s.set_values(list(consts), list(consts.values()))
+
+    def _teardown(self, slaves: Sequence[Slave], report: bool) -> None:
+        """Every instance torn down (last first); problems are logged after an otherwise clean run."""
+        teardown_errors = []
+        for s in reversed(slaves):
+            try:
+                teardown_errors += [f"{s.name}: {e}" for e in s.teardown()]
+            except Exception as exc:  # pragma: no cover
+                teardown_errors.append(f"{s.name}: {exc}")
+        if teardown_errors and report:
+            self._log("teardown problems: " + "; ".join(teardown_errors))
 
     # -- run ---------------------------------------------------------------------------------------
     def run(self, duration_s: float, output_rate_Hz: float, record: Sequence[str] = (), *,
@@ -223,298 +609,84 @@ class Master:
         function, cause, log, every FMU's outputs as read after the failure) and an energy audit marked
         unavailable. A failure before the first step raises with ``partial = None``.
         """
-
         t_wall0 = time.perf_counter()
         record = list(dict.fromkeys(record))
         if not (duration_s > 0 and math.isfinite(duration_s)):
             raise ConfigurationError(f"duration {duration_s!r} s: expected a positive finite time")
         H = float(self.spec.comm_step)
-        d = check_comm_step(H, output_rate_Hz)
-        plan = self.check(output_rate_Hz, record)
-        n_steps = int(round(duration_s / H))
-        if abs(n_steps * H - duration_s) > 1e-9 * max(1.0, duration_s):
-            n_steps = int(math.ceil(duration_s / H))
-        n_steps = int(math.ceil(n_steps / d) * d)    # whole output samples
-        T = n_steps * H
-
-        nc = len(plan.comps)
-        ny, nu = len(plan.y_names), len(plan.u_names)
-        y = np.zeros(max(ny, 1))
-        u = np.zeros(max(nu, 1))
-        rec = np.empty((n_steps + 1, ny))
-        ext_idx = np.array([i for i, _ in plan.ext], dtype=np.intp)
-        ext_table = None
-        if plan.ext:
-            tk = np.arange(n_steps + 1) * H
-            ext_table = np.empty((n_steps + 1, len(plan.ext)))
-            for j, (_, prof) in enumerate(plan.ext):
-                arr = np.asarray(prof, dtype=float)
-                ext_table[:, j] = np.interp(tk, arr[:, 0], arr[:, 1])
-
+        grid = _Grid.covering(duration_s, H, check_comm_step(H, output_rate_Hz), output_rate_Hz)
+        plan = self._plan(record)
+        xc = _Exchange(plan, grid)
+        recorder = _Recorder(plan, grid, record, final, snapshots)
+        clock = _LoopClock()
         slaves: list[Slave] = []
-        callbacks = FmiCallbacks() if self.backend == "fmi" else None
-        error: BaseException | None = None
-        fail: CosimError | None = None     # an FMU failure inside the stepping loop (partial results kept)
-        k_done = -1                        # steps completed: rows rec[:k_done + 1] hold valid samples
-        e0: list[dict] = []
-        e1: list[dict] = []
-        final = _readable(plan, final)
-        final_values: dict[str, float] = {}
-        snap_steps = sorted({int(round(ts / H)) for ts in snapshots if final and 0 < ts < T}) if final else []
-        snap_values: dict[float, dict[str, float]] = {}
-        fail_outputs: dict[str, dict | None] = {}
-        loop_time = 0.0
-        loop_cpu = None
-        setup_time = 0.0                   # checks, FMU loading, instantiation, initialisation (map builds)
-        chunk_costs: list[float] = []
+        stop = None
         try:
-            # instantiate exactly the spec's components
-            for comp, info in zip(plan.comps, plan.infos):
-                if self.backend == "fmi":
-                    s = FmiSlave(comp, info, callbacks)
-                else:
-                    s = InprocSlave(comp, info)
-                slaves.append(s)
-                s.setup(T)
-            for comp, s in zip(plan.comps, slaves):
-                if comp.parameters:
-                    s.set_parameters(comp.parameters)
-                consts = {k: v for k, v in comp.inputs.items() if not is_profile(v)}
-                if consts:
-                    s.set_values(list(consts), list(consts.values()))
-            # buffers
-            u_off = np.cumsum([0] + [len(x) for x in plan.in_names])
-            y_off = np.cumsum([0] + [len(x) for x in plan.out_names])
-            for i, s in enumerate(slaves):
-                s.bind(plan.in_names[i], plan.out_names[i], u, int(u_off[i]), y, int(y_off[i]))
-            for s in slaves:
-                s.enter_init()
-
-            def exchange(k: int):
-                if ext_table is not None:
-                    y[ext_idx] = ext_table[k]
-                np.take(y, plan.gather, out=u[:nu])
-
-            def read_all():
-                for i, s in enumerate(slaves):
-                    if plan.out_names[i]:
-                        y[y_off[i]:y_off[i + 1]] = s.get_reals(plan.out_names[i])
-
-            def write_all():
-                for i, s in enumerate(slaves):
-                    if plan.in_names[i]:
-                        s.set_values(plan.in_names[i], u[u_off[i]:u_off[i + 1]].tolist())
-
-            for _ in range(2):           # propagate initial flange values in initialization mode
-                read_all()
-                exchange(0)
-                write_all()
-            for s in slaves:
-                s.exit_init()
-            read_all()
-            rec[0] = y[:ny]
-            e0 = [dict(zip(plan.energy[i], s.get_reals(list(plan.energy[i])))) if plan.energy[i] else {}
-                  for i, s in enumerate(slaves)]
-            k_done = 0
-
-            # ---- the stepping loop ----
-            calls = [(s.set_fn, s.step_fn, s.get_fn, i) for i, s in enumerate(slaves)]
-            gather = plan.gather
-            u_in = u[:nu]
-            y_rec = y[:ny]
-            take = np.take
-            has_ext = ext_table is not None
-            show = (n_steps > 50_000) if progress is None else bool(progress)
-            bar = None
-            if show:
-                from tqdm import tqdm
-
-                bar = tqdm(total=n_steps, unit="step", unit_scale=True, desc=f"co-sim {T:g} s",
-                           mininterval=0.5, leave=False)
-            # the C loop (drivetrain.cosim.stepper) for compiled-FMI slaves; else this Python loop
-            stepper = None
-            if all(isinstance(s, FmiSlave) for s in slaves):
-                fn = load_stepper()
-                if fn is not None:
-                    stepper = Stepper(fn, slaves, H, y, u, gather, ext_idx, ext_table, rec, ny)
-
-            def finish_step(kk: int, i: int, call: int, st: int):
-                # the C loop stopped at a non-zero status: raise as the Python loop does (>= 2), or for
-                # a warning do the rest of step kk here, the same calls in the same order
-                t = kk * H
-                self._status(slaves[i], CALLS[call], st, t + H if call == 2 else t)
-                for j in range(i, nc):
-                    for c in range(call + 1 if j == i else 0, 3):
-                        fn = calls[j][c]
-                        if fn is None:
-                            continue
-                        st = fn(t, H, 1) if c == 1 else fn()
-                        if st:
-                            self._status(slaves[j], CALLS[c], st, t + H if c == 2 else t)
-                rec[kk + 1] = y_rec
-
-            chunk = 4096
-            t_loop0 = time.perf_counter()
-            cpu_loop0 = time.process_time()
-            setup_time = t_loop0 - t_wall0
-            chunk_costs = []
-            k = 0
-            kk = 0
-            loop_done = False
-            try:
-                while k < n_steps:
-                    t_chunk = time.perf_counter()
-                    k_end = min(n_steps, k + chunk)
-                    if snap_steps:
-                        if snap_steps[0] <= k:                 # read after step k-1 (at t = k H)
-                            snap_values[k * H] = _read_values(slaves, plan, final)
-                            snap_steps.pop(0)
-                        if snap_steps:
-                            k_end = min(k_end, snap_steps[0])
-                    kk = k
-                    while stepper is not None and kk < k_end:
-                        hit = stepper.run(kk, k_end)       # None: the chunk is done
-                        if hit is None:
-                            break
-                        kk = hit[0]
-                        finish_step(*hit)
-                        kk += 1
-                    for kk in range(k, k_end if stepper is None else k):
-                        t = kk * H
-                        if has_ext:
-                            y[ext_idx] = ext_table[kk]
-                        take(y, gather, out=u_in)
-                        for set_fn, step_fn, get_fn, i in calls:
-                            if set_fn is not None:
-                                st = set_fn()
-                                if st:
-                                    self._status(slaves[i], "fmi2SetReal", st, t)
-                            st = step_fn(t, H, 1)
-                            if st:
-                                self._status(slaves[i], "fmi2DoStep", st, t)
-                            if get_fn is not None:
-                                st = get_fn()
-                                if st:
-                                    self._status(slaves[i], "fmi2GetReal", st, t + H)
-                        rec[kk + 1] = y_rec
-                    chunk_costs.append((time.perf_counter() - t_chunk) / (k_end - k))
-                    if bar is not None:
-                        bar.update(k_end - k)
-                    k = k_end
-                    if stop_check is not None and stop_check():
-                        raise KeyboardInterrupt
-                loop_done = True
-                k_done = n_steps
-                loop_time = time.perf_counter() - t_loop0
-                loop_cpu = time.process_time() - cpu_loop0
-                if bar is not None:
-                    bar.close()
-                e1 = [dict(zip(plan.energy[i], s.get_reals(list(plan.energy[i])))) if plan.energy[i] else {}
-                      for i, s in enumerate(slaves)]
-                final_values = _read_values(slaves, plan, final)
-            except CosimError as exc:
-                # an FMU failed: keep what was computed (rows up to the start of the failed step), read
-                # what the FMUs still expose (each read guarded: a broken FMU must not crash this)
-                fail = error = exc
-                if not loop_done:
-                    k_done = kk
-                    loop_time = time.perf_counter() - t_loop0
-                    loop_cpu = time.process_time() - cpu_loop0
-                if bar is not None:
-                    bar.close()
-                final_values = _read_values(slaves, plan, final)
-                fail_outputs = {s.name: _read_guarded(s, _real_outputs(info))
-                                for s, info in zip(slaves, plan.infos)}
-        except BaseException as exc:
-            error = exc
-            raise
+            stop = self._step(plan, grid, slaves, xc, recorder, clock, progress, stop_check)
         finally:
-            teardown_errors = []
-            for s in reversed(slaves):
-                try:
-                    teardown_errors += [f"{s.name}: {e}" for e in s.teardown()]
-                except Exception as exc:  # pragma: no cover
-                    teardown_errors.append(f"{s.name}: {exc}")
-            if teardown_errors and error is None:
-                self._log("teardown problems: " + "; ".join(teardown_errors))
+            self._teardown(slaves, report=stop is not None and stop.fail is None)
+        return self._result(plan, grid, slaves, recorder, clock, stop, anti_alias, keep_raw, t_wall0)
 
-        # ---- post-processing (of the completed part after a failure) ----
-        valid = rec[:k_done + 1]
-        if not np.all(np.isfinite(valid)):
-            bad = np.where(~np.isfinite(valid))
-            kbad, jbad = int(bad[0][0]), int(bad[1][0])
-            if fail is None:
-                fail = CosimError(plan.y_names[jbad].split(".")[0], "?", "output check (NaN/Inf)", 3, kbad * H,
-                                  [f"{plan.y_names[jbad]} = {valid[kbad, jbad]} at t = {kbad * H:.9g} s"])
-                comp_names = [c.name for c in plan.comps]
-                if fail.component in comp_names:
-                    fail.model = plan.comps[comp_names.index(fail.component)].model
-            k_done = kbad - 1            # the samples before the first non-finite one
-            valid = rec[:k_done + 1]
+    def _step(self, plan: ExchangePlan, grid: _Grid, slaves: list[Slave], xc: _Exchange, recorder: _Recorder,
+              clock: _LoopClock, progress: bool | None, stop_check: Callable[[], bool] | None) -> _Stop:
+        """Instantiate, initialise and step. An FMU failure in the stepping loop keeps what was computed
+        (rows up to the start of the failed step) and reads what the FMUs still expose (each read guarded:
+        a broken FMU must not crash this); one before the loop raises."""
+        self._instantiate(plan, slaves, grid.T)
+        xc.bind(slaves)
+        xc.initialise(slaves)
+        recorder.start(slaves, xc.y)
+        loop = _Loop(slaves, xc, recorder.rec, grid)
+        bar = _Progress(grid, progress)
+        clock.start()
+        try:
+            loop.run(grid.n_steps, recorder, clock, bar, stop_check)
+            clock.stop()
+            bar.close()
+            recorder.finish(slaves)
+            return _Stop(grid.n_steps)
+        except CosimError as exc:
+            clock.stop()                      # (kept when the loop had completed)
+            bar.close()
+            recorder.after_failure(slaves)
+            return _Stop(loop.k, exc, _failed_outputs(slaves, plan))
+
+    def _result(self, plan: ExchangePlan, grid: _Grid, slaves: Sequence[Slave], recorder: _Recorder,
+                clock: _LoopClock, stop: _Stop, anti_alias: str, keep_raw: bool, t_wall0: float) -> CosimResult:
+        """The CosimResult of the completed part; after a failure it is the error's ``partial`` and the
+        error is raised (without a partial when nothing was computed)."""
+        stop = _check_finite(recorder.rec, stop, plan, grid.H)
+        fail, k_done = stop.fail, stop.k_done
         if fail is not None and k_done < 0:
             raise fail                   # nothing was computed
-        col = {n: j for j, n in enumerate(plan.y_names)}
-        fs_in = 1.0 / H
-        units = {}
-        signals = {}
-        if record:
-            cols = [col[r] for r in record]
-            dec = decimate(valid[:, cols], fs_in, output_rate_Hz, method=anti_alias)
-            for j, r in enumerate(record):
-                signals[r] = dec[:, j]
-                comp, vn = split_ref(r)
-                units[r] = plan.infos[[c.name for c in plan.comps].index(comp)].variables[vn].unit
-        n_out = k_done // d + 1          # whole output samples (up to the failure)
-        t_out = np.arange(n_out) / output_rate_Hz
+        signals, units = recorder.signals(k_done, anti_alias)
+        t_out = np.arange(k_done // grid.steps_per_output + 1) / grid.output_rate_Hz  # whole output samples
         if fail is None:
-            audit = energy_audit(plan, rec, e0, e1)
+            audit = energy_audit(plan, recorder.rec, recorder.e0, recorder.e1)
         else:
             audit = energy_unavailable(f"the run failed at t = {fail.time:.9g} s: the FMUs' energy counters "
                                        "are not available at one common time")
-        raw = None
-        if keep_raw:
-            raw = {"time": np.arange(k_done + 1) * H}
-            raw.update({n: valid[:, j].copy() for n, j in col.items()})
+        raw = recorder.raw(k_done) if keep_raw else None
         wall = time.perf_counter() - t_wall0
-        logs = {}
-        for s in slaves:
-            logs[s.name] = list(s.log.lines)
+        logs = {s.name: list(s.log.lines) for s in slaves}
         fmus = [{"name": c.name, "model": c.model, "path": str(info.path), "parameters": dict(c.parameters)}
                 for c, info in zip(plan.comps, plan.infos)]
-        T_done = k_done * H
-        failure = None
-        if fail is not None:
-            st = fail.status
-            failure = {
-                "time_s": float(fail.time), "component": fail.component, "model": fail.model,
-                "function": fail.function,
-                "status": FMI_STATUS[st] if 0 <= st < len(FMI_STATUS) else str(st),
-                "cause": failure_cause(fail), "log": list(fail.log[-20:]),
-                "steps_completed": int(k_done), "last_sample_time_s": float(t_out[-1]),
-                "outputs": fail_outputs,
-            }
-        steady = chunk_costs[1:] if len(chunk_costs) > 1 else chunk_costs
+        T_done, loop_time = k_done * grid.H, clock.loop_s
         result = CosimResult(
-            time=t_out, signals=signals, units=units, output_rate_Hz=output_rate_Hz, comm_step_s=H,
-            steps_per_output=d, n_steps=k_done, sim_time_s=T_done, wall_time_s=wall, loop_time_s=loop_time,
-            us_per_step=1e6 * loop_time / max(k_done, 1),
-            us_per_step_steady=1e6 * float(np.median(steady)) if steady else 1e6 * loop_time / max(k_done, 1),
+            time=t_out, signals=signals, units=units, output_rate_Hz=grid.output_rate_Hz, comm_step_s=grid.H,
+            steps_per_output=grid.steps_per_output, n_steps=k_done, sim_time_s=T_done, wall_time_s=wall,
+            loop_time_s=loop_time, us_per_step=1e6 * loop_time / max(k_done, 1),
+            us_per_step_steady=clock.us_per_step_steady(k_done),
             real_time_factor=T_done / loop_time if loop_time > 0 else float("inf"),
-            setup_time_s=setup_time, loop_cpu_time_s=loop_cpu,
+            setup_time_s=clock.t0 - t_wall0, loop_cpu_time_s=clock.cpu_s,
             backend=self.backend, energy=audit, fmus=fmus, warnings=list(plan.warnings), logs=logs, raw=raw,
-            status="ok" if fail is None else "failed", failure=failure, final=final_values,
-            snapshots=snap_values)
+            status="ok" if fail is None else "failed",
+            failure=None if fail is None else _failure_record(stop, t_out[-1]), final=recorder.final_values,
+            snapshots=recorder.snapshots)
         if fail is not None:
             fail.partial = result
             raise fail
         return result
-
-    def _status(self, slave: Slave, function: str, status: int, t: float) -> None:
-        if status == 1:     # warning: keep going, the message is in the log
-            return
-        if status >= 4:
-            slave.fatal = True
-        raise CosimError(slave.name, slave.model, function, int(status), t, list(slave.log.lines))
 
 
 def simulate(spec: SystemSpec, duration_s: float, output_rate_Hz: float, record: Sequence[str] = (), *,

@@ -65,134 +65,165 @@ class ExchangePlan:
 def check_system(spec: SystemSpec, infos: dict[str, FMUInfo], record: Sequence[str] = ()) -> ExchangePlan:
     """Validate the spec against the model descriptions; raise ConfigurationError listing every problem."""
     problems: list[str] = []
-    warnings: list[str] = []
+    _check_components(spec, infos, problems)
+    if problems:
+        raise ConfigurationError(problems)
+    var = {c.name: infos[c.model].variables for c in spec.components}
+    for c in spec.components:
+        _check_parameters(c, var[c.name], problems)
+        _check_inputs(c, var[c.name], problems)
+    fed: dict[str, str] = {}           # input "comp.var" -> the output "comp.var" that feeds it
+    conn_vars = [ports for ports in (_check_connection(conn, spec, var, fed, problems)
+                                     for conn in spec.connections) if ports is not None]
+    _check_inputs_fed_once(spec, fed, problems)
+    _check_record(record, spec, var, problems)
+    if problems:
+        raise ConfigurationError(problems)
+    return _layout(spec, infos, var, fed, conn_vars, record, _unconnected_flanges(spec, var, fed))
+
+
+def _check_components(spec: SystemSpec, infos: dict[str, FMUInfo], problems: list[str]) -> None:
+    """Unique names, an FMU for every model."""
     names = [c.name for c in spec.components]
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         problems.append(f"component names are not unique: {', '.join(dup)}")
-    comps = {c.name: c for c in spec.components}
     for c in spec.components:
         if c.model not in infos:
             problems.append(f"component {c.name!r}: no FMU for model {c.model!r}")
-    if problems:
-        raise ConfigurationError(problems)
-    var = {c.name: infos[c.model].variables for c in spec.components}
 
-    # parameters and constant/profile inputs
-    for c in spec.components:
-        for pname, value in c.parameters.items():
-            v = var[c.name].get(pname)
-            if v is None:
-                problems.append(f"{c.name}.{pname}: no such variable in {c.model} (parameters: "
-                                + ", ".join(n for n, x in var[c.name].items() if x.causality == "parameter") + ")")
-                continue
-            if v.causality != "parameter" or v.variability == "constant":
-                problems.append(f"{c.name}.{pname}: not a settable parameter (causality {v.causality}, "
-                                f"variability {v.variability})")
-                continue
+
+def _check_parameters(c: ComponentSpec, var: dict, problems: list[str]) -> None:
+    """Each parameter exists, is settable and has the FMI type's kind of value."""
+    for pname, value in c.parameters.items():
+        v = var.get(pname)
+        if v is None:
+            problems.append(f"{c.name}.{pname}: no such variable in {c.model} (parameters: "
+                            + ", ".join(n for n, x in var.items() if x.causality == "parameter") + ")")
+            continue
+        if v.causality != "parameter" or v.variability == "constant":
+            problems.append(f"{c.name}.{pname}: not a settable parameter (causality {v.causality}, "
+                            f"variability {v.variability})")
+            continue
+        exp = _type_ok(v.type, value)
+        if exp:
+            problems.append(f"{c.name}.{pname} = {value!r}: expected {exp} (FMI type {v.type})")
+
+
+def _check_inputs(c: ComponentSpec, var: dict, problems: list[str]) -> None:
+    """Each constant or time-profile input is an input of the model, of the right type (a profile: Real,
+    times strictly increasing)."""
+    for iname, value in c.inputs.items():
+        v = var.get(iname)
+        if v is None or v.causality != "input":
+            problems.append(f"{c.name}.{iname}: not an input of {c.model}")
+            continue
+        if is_profile(value):
+            if v.type != "Real":
+                problems.append(f"{c.name}.{iname}: a time profile needs a Real input (is {v.type})")
+            else:
+                ts = [float(p[0]) for p in value]
+                if any(b <= a for a, b in zip(ts, ts[1:])):
+                    problems.append(f"{c.name}.{iname}: profile times must increase strictly")
+        else:
             exp = _type_ok(v.type, value)
             if exp:
-                problems.append(f"{c.name}.{pname} = {value!r}: expected {exp} (FMI type {v.type})")
-        for iname, value in c.inputs.items():
-            v = var[c.name].get(iname)
-            if v is None or v.causality != "input":
-                problems.append(f"{c.name}.{iname}: not an input of {c.model}")
-                continue
-            if is_profile(value):
-                if v.type != "Real":
-                    problems.append(f"{c.name}.{iname}: a time profile needs a Real input (is {v.type})")
-                else:
-                    ts = [float(p[0]) for p in value]
-                    if any(b <= a for a, b in zip(ts, ts[1:])):
-                        problems.append(f"{c.name}.{iname}: profile times must increase strictly")
-            else:
-                exp = _type_ok(v.type, value)
-                if exp:
-                    problems.append(f"{c.name}.{iname} = {value!r}: expected {exp} (FMI type {v.type})")
+                problems.append(f"{c.name}.{iname} = {value!r}: expected {exp} (FMI type {v.type})")
 
-    # connections
-    fed: dict[str, str] = {}
-    conn_vars = []
-    for conn in spec.connections:
-        sc, sp = split_ref(conn.spring)
-        ic, ip = split_ref(conn.inertia)
-        label = f"connection spring={conn.spring} <-> inertia={conn.inertia}"
-        bad = False
-        for ref, comp in ((conn.spring, sc), (conn.inertia, ic)):
-            if comp not in comps:
-                problems.append(f"{label}: component {comp!r} of {ref} is not in the system "
-                                f"(components: {', '.join(names)})")
-                bad = True
-        if bad:
+
+def _check_connection(conn, spec: SystemSpec, var: dict, fed: dict[str, str],
+                      problems: list[str]) -> tuple[str, str, str, str] | None:
+    """One connection: both components in the system, a spring-side port joined to an inertia-side port
+    (causality, Real, units), inputs fed once (entered into ``fed``). Its (spring comp, port, inertia
+    comp, port), or None when it has a problem."""
+    sc, sp = split_ref(conn.spring)
+    ic, ip = split_ref(conn.inertia)
+    label = f"connection spring={conn.spring} <-> inertia={conn.inertia}"
+    comps = {c.name: c for c in spec.components}
+    missing = [(ref, comp) for ref, comp in ((conn.spring, sc), (conn.inertia, ic)) if comp not in comps]
+    for ref, comp in missing:
+        problems.append(f"{label}: component {comp!r} of {ref} is not in the system "
+                        f"(components: {', '.join(c.name for c in spec.components)})")
+    if missing:
+        return None
+    n0 = len(problems)
+    _check_port(label, SPRING, sc, sp, ("phi", "w"), conn.inertia, comps[sc].model, var[sc], problems)
+    _check_port(label, INERTIA, ic, ip, ("tau",), conn.spring, comps[ic].model, var[ic], problems)
+    if len(problems) > n0:
+        return None
+    for q in PORT_VARS:
+        us = var[sc][f"{sp}_{q}"].unit
+        ui = var[ic][f"{ip}_{q}"].unit
+        exp = PORT_UNITS[q]
+        if us != ui or us != exp:
+            problems.append(f"{label}: unit mismatch: {conn.spring}_{q} [{us or 'no unit'}] vs "
+                            f"{conn.inertia}_{q} [{ui or 'no unit'}], expected {exp} on both")
+    for tgt, src in ((f"{sc}.{sp}_phi", f"{ic}.{ip}_phi"), (f"{sc}.{sp}_w", f"{ic}.{ip}_w"),
+                     (f"{ic}.{ip}_tau", f"{sc}.{sp}_tau")):
+        if tgt in fed:
+            problems.append(f"{label}: input {tgt} is already fed by {fed[tgt]}")
+        fed[tgt] = src
+    return None if len(problems) > n0 else (sc, sp, ic, ip)
+
+
+def _check_port(label: str, side: str, comp: str, port: str, want_in: tuple[str, ...], other: str, model: str,
+                var: dict, problems: list[str]) -> None:
+    """A flange of the model, with the causalities of its side (``want_in`` inputs, the rest outputs),
+    every variable Real."""
+    for q in PORT_VARS:
+        vn = f"{port}_{q}"
+        v = var.get(vn)
+        if v is None:
+            problems.append(f"{label}: {comp}.{port} is not a flange of {model} (no variable {vn})")
             continue
-        for side, comp, port, want_in, want_out in ((SPRING, sc, sp, ("phi", "w"), ("tau",)),
-                                                    (INERTIA, ic, ip, ("tau",), ("phi", "w"))):
-            for q in PORT_VARS:
-                vn = f"{port}_{q}"
-                v = var[comp].get(vn)
-                if v is None:
-                    problems.append(f"{label}: {comp}.{port} is not a flange of {comps[comp].model} "
-                                    f"(no variable {vn})")
-                    bad = True
-                    continue
-                need = "input" if q in want_in else "output"
-                if v.causality != need:
-                    other = conn.inertia if side == SPRING else conn.spring
-                    problems.append(
-                        f"{label}: wrong causality: {comp}.{port} is not a {side}-side port "
-                        f"({vn} is {v.causality}, a {side}-side port needs {vn} as {need}); "
-                        f"it cannot be joined to {other}")
-                    bad = True
-                if v.type != "Real":
-                    problems.append(f"{label}: {comp}.{vn} is {v.type}, expected Real")
-                    bad = True
-        if bad:
-            continue
-        for q in PORT_VARS:
-            us = var[sc][f"{sp}_{q}"].unit
-            ui = var[ic][f"{ip}_{q}"].unit
-            exp = PORT_UNITS[q]
-            if us != ui or us != exp:
-                problems.append(f"{label}: unit mismatch: {conn.spring}_{q} [{us or 'no unit'}] vs "
-                                f"{conn.inertia}_{q} [{ui or 'no unit'}], expected {exp} on both")
-                bad = True
-        for tgt, src in ((f"{sc}.{sp}_phi", f"{ic}.{ip}_phi"), (f"{sc}.{sp}_w", f"{ic}.{ip}_w"),
-                         (f"{ic}.{ip}_tau", f"{sc}.{sp}_tau")):
-            if tgt in fed:
-                problems.append(f"{label}: input {tgt} is already fed by {fed[tgt]}")
-                bad = True
-            fed[tgt] = src
-        if not bad:
-            conn_vars.append((sc, sp, ic, ip))
+        need = "input" if q in want_in else "output"
+        if v.causality != need:
+            problems.append(
+                f"{label}: wrong causality: {comp}.{port} is not a {side}-side port "
+                f"({vn} is {v.causality}, a {side}-side port needs {vn} as {need}); "
+                f"it cannot be joined to {other}")
+        if v.type != "Real":
+            problems.append(f"{label}: {comp}.{vn} is {v.type}, expected Real")
+
+
+def _check_inputs_fed_once(spec: SystemSpec, fed: dict[str, str], problems: list[str]) -> None:
+    """No input both given as a component input and fed by a connection."""
     for c in spec.components:
-        for iname, value in c.inputs.items():
+        for iname in c.inputs:
             ref = f"{c.name}.{iname}"
             if ref in fed:
                 problems.append(f"{ref}: given as a component input and also fed by connection from {fed[ref]}")
 
-    # recorded variables
+
+def _check_record(record: Sequence[str], spec: SystemSpec, var: dict, problems: list[str]) -> None:
+    """Every recorded name is a Real variable of a component of the system."""
+    comps = {c.name: c for c in spec.components}
     for ref in record:
         comp, vn = split_ref(ref)
         if comp not in comps:
             problems.append(f"recorded variable {ref}: no component {comp!r} in the system "
-                            f"(components: {', '.join(names)})")
+                            f"(components: {', '.join(c.name for c in spec.components)})")
         elif vn not in var[comp]:
             problems.append(f"recorded variable {ref}: {comps[comp].model} has no variable {vn!r}")
         elif var[comp][vn].type != "Real":
             problems.append(f"recorded variable {ref}: is {var[comp][vn].type}; only Real variables are recorded")
 
-    if problems:
-        raise ConfigurationError(problems)
 
-    # unconnected flanges (allowed: a free end / a clamped spring; reported)
+def _unconnected_flanges(spec: SystemSpec, var: dict, fed: dict[str, str]) -> list[str]:
+    """Warnings for flanges joined to nothing (allowed: a free end / a clamped spring; reported)."""
+    warnings = []
     for c in spec.components:
         vs = var[c.name]
         ports = {n[:-4] for n in vs if n.endswith("_tau") and f"{n[:-4]}_phi" in vs and f"{n[:-4]}_w" in vs}
         for p in sorted(ports):
             if not any(f"{c.name}.{p}_{q}" in fed or f"{c.name}.{p}_{q}" in fed.values() for q in PORT_VARS):
                 warnings.append(f"flange {c.name}.{p} is not connected")
+    return warnings
 
-    # ---- layout of the exchange buffers ---------------------------------------------------------
+
+def _layout(spec: SystemSpec, infos: dict[str, FMUInfo], var: dict, fed: dict[str, str], conn_vars: list,
+            record: Sequence[str], warnings: list[str]) -> ExchangePlan:
+    """The layout of the exchange buffers of a checked system."""
     in_names = [[] for _ in spec.components]
     out_names = [[] for _ in spec.components]
     idx = {c.name: i for i, c in enumerate(spec.components)}
@@ -252,7 +283,7 @@ def check_system(spec: SystemSpec, infos: dict[str, FMUInfo], record: Sequence[s
         else:
             ext_work.append((idx[cname], f"{cname}.{port}", float(value), None, ypos[f"{cname}.{port}_phi"]))
     return ExchangePlan(list(spec.components), [infos[c.model] for c in spec.components], in_names, out_names,
-                 gather, ext, y_names, u_names, energy, warnings, conn_index, ext_work)
+                        gather, ext, y_names, u_names, energy, warnings, conn_index, ext_work)
 
 
 def check_comm_step(comm_step: float, output_rate_Hz: float) -> int:

@@ -45,14 +45,14 @@ EXTRA_INPUTS = {
     "MotorLoad": ("speed_ref_rpm", "load_torque"),
 }
 #: extra inputs that a parameter of the same FMU can carry as a time profile ('t0:v0; t1:v1; ...',
-#: linear between points, held outside; components.parse_profile): a host without input signals sets
+#: linear between points, held outside; parameters.parse_profile): a host without input signals sets
 #: the parameter instead (drivetrain.interop.ssp)
 INPUT_PROFILES = {
     "MotorLoad": {"speed_ref_rpm": "speed_profile", "load_torque": "load_profile"},
 }
 #: per model: its own outputs, each declared once: name -> (unit, description); then the energies every
 #: drivetrain FMU has (ENERGY). Parameters are declared in the component's parameter dataclass (name,
-#: default, unit, description: drivetrain.models.components); the flange variables follow from the port kinds.
+#: default, unit, description: drivetrain.models.parameters); the flange variables follow from the port kinds.
 OWN_OUTPUTS = {
     "FlexibleShaft": {
         "flange_b_tau_mean": ("N.m", "exact mean over the last step of the torque at flange_b"),

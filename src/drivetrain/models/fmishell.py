@@ -289,14 +289,13 @@ def _apply_inputs(slave):
 
 def _publish(slave, initial: bool = False):
     if not initial:
-        # every step: the component's STEP_OUTPUTS as a tuple (LAZY_OUTPUTS are computed when read)
-        comp = slave._comp
-        values = tuple(map(float, comp.step_outputs()))
-        if not all(map(math.isfinite, values)):
-            bad = {n: v for n, v in zip(comp.STEP_OUTPUTS, values) if not math.isfinite(v)}
+        # every step: the component's step outputs by name, Python floats (LAZY_OUTPUTS are computed when read)
+        values = slave._comp.step_outputs()
+        if not all(map(math.isfinite, values.values())):
+            bad = {n: v for n, v in values.items() if not math.isfinite(v)}
             raise C.ComponentError(f"the step produced non-finite outputs {bad} (inputs far out of range?)")
         slave._lazy_pending = True
-        for name, v in zip(comp.STEP_OUTPUTS, values):
+        for name, v in values.items():
             setattr(slave, name, v)
         return
     # before the first step: the spring-side torques are the port springs against the current inputs

@@ -576,10 +576,11 @@ def loss_slope(w, T_trans, c_v, T_c, w_c, a):
 class LineComponent:
     """What the three components share: a LineModel ``line``, outputs by FMU variable name."""
 
-    STEP_OUTPUTS: tuple = ()       #: the outputs every step changes, in the order of step_outputs()
     line: LineModel
 
-    def step_outputs(self) -> tuple:
+    def step_outputs(self) -> dict:
+        """The outputs every step changes, by FMU variable name (Python floats; the FMU shell publishes them
+        after every step, the others, fmishell.LAZY_OUTPUTS, when read)."""
         raise NotImplementedError
 
     def _parse_node_start(self) -> None:
@@ -602,7 +603,7 @@ class LineComponent:
         """Output values by FMU variable name. ``energy=False``: the lazy outputs (``energy_stored``,
         ``coupling_energy_error``, ``loss_torque``) are left out (the FMU shell computes them when a host
         reads them, drivetrain.models.fmishell)."""
-        out = dict(zip(self.STEP_OUTPUTS, self.step_outputs()))
+        out = self.step_outputs()
         if energy:
             out.update(self.lazy_outputs())
         return out

@@ -162,16 +162,15 @@ class MotorLoad(LineComponent):
         self.motor_torque = self.line.motor_torque
         self.load_motor_torque = self.line.source_torque / self.p.ratio_pg
 
-    #: the outputs every step changes, in the order of step_outputs
-    STEP_OUTPUTS = ("load_phi", "load_w", "drive_tau", "drive_tau_mean", "motor_phi", "motor_w", "flywheel_phi",
-                    "flywheel_w", "motor_torque", "load_motor_torque", "load_motor_w", "coupling_torque",
-                    "energy_dissipated", "energy_supplied")
-
-    def step_outputs(self) -> tuple:
-        """The values of STEP_OUTPUTS (Python floats), read by the FMU shell after every step."""
+    def step_outputs(self) -> dict:
+        """The outputs every step changes, by FMU variable name (Python floats), read by the FMU shell after
+        every step."""
         ln = self.line
         pl, wl = ln.flange("load")
         th, om = ln.th, ln.om
-        return (pl, wl, float(ln.tau_out[0]), float(ln.tau_mean[0]), float(th[0]), float(om[0]), float(th[1]),
-                float(om[1]), self.motor_torque, self.load_motor_torque, self.p.ratio_pg * wl,
-                float(ln.el_mean[0]), ln.energy_dissipated, ln.energy_supplied)
+        return {"load_phi": pl, "load_w": wl, "drive_tau": float(ln.tau_out[0]),
+                "drive_tau_mean": float(ln.tau_mean[0]), "motor_phi": float(th[0]), "motor_w": float(om[0]),
+                "flywheel_phi": float(th[1]), "flywheel_w": float(om[1]), "motor_torque": self.motor_torque,
+                "load_motor_torque": self.load_motor_torque, "load_motor_w": self.p.ratio_pg * wl,
+                "coupling_torque": float(ln.el_mean[0]), "energy_dissipated": ln.energy_dissipated,
+                "energy_supplied": ln.energy_supplied}

@@ -146,13 +146,13 @@ class FlexibleShaft(LineComponent):
             self.line.tau_mean[1])
         self.shaft_torque = float(self.line.tau_mean[1])
 
-    #: the outputs every step changes, in the order of step_outputs
-    STEP_OUTPUTS = ("flange_a_phi", "flange_a_w", "flange_b_tau", "flange_b_tau_mean", "torque_sensor",
-                    "shaft_torque", "hub_b_phi", "hub_b_w", "energy_dissipated", "energy_supplied")
-
-    def step_outputs(self) -> tuple:
-        """The values of STEP_OUTPUTS (Python floats), read by the FMU shell after every step."""
+    def step_outputs(self) -> dict:
+        """The outputs every step changes, by FMU variable name (Python floats), read by the FMU shell after
+        every step."""
         ln = self.line
         phi, w = ln.flange("flange_a")
-        return (phi, w, float(ln.tau_out[1]), float(ln.tau_mean[1]), self.torque_sensor, self.shaft_torque,
-                float(ln.th[self.i_hub_b]), float(ln.om[self.i_hub_b]), ln.energy_dissipated, ln.energy_supplied)
+        return {"flange_a_phi": phi, "flange_a_w": w, "flange_b_tau": float(ln.tau_out[1]),
+                "flange_b_tau_mean": float(ln.tau_mean[1]), "torque_sensor": self.torque_sensor,
+                "shaft_torque": self.shaft_torque, "hub_b_phi": float(ln.th[self.i_hub_b]),
+                "hub_b_w": float(ln.om[self.i_hub_b]), "energy_dissipated": ln.energy_dissipated,
+                "energy_supplied": ln.energy_supplied}

@@ -88,16 +88,15 @@ class UpperTransmission(LineComponent):
         w, T_c, w_c = self._loss_at
         return float(loss_torque(w, 0.0, self.p.loss_c, T_c, w_c, 0.0))
 
-    #: the outputs every step changes, in the order of step_outputs
-    STEP_OUTPUTS = ("flange_a_phi", "flange_a_w", "flange_b_phi", "flange_b_w", "torque_sensor",
-                    "energy_dissipated", "energy_supplied")
-
-    def step_outputs(self) -> tuple:
-        """The values of STEP_OUTPUTS (Python floats), read by the FMU shell after every step."""
+    def step_outputs(self) -> dict:
+        """The outputs every step changes, by FMU variable name (Python floats), read by the FMU shell after
+        every step."""
         ln = self.line
         pa, wa = ln.flange("flange_a")
         pb, wb = ln.flange("flange_b")
-        return pa, wa, pb, wb, self.torque_sensor, ln.energy_dissipated, ln.energy_supplied
+        return {"flange_a_phi": pa, "flange_a_w": wa, "flange_b_phi": pb, "flange_b_w": wb,
+                "torque_sensor": self.torque_sensor, "energy_dissipated": ln.energy_dissipated,
+                "energy_supplied": ln.energy_supplied}
 
     def lazy_outputs(self) -> dict:
         return {"loss_torque": self.loss_torque, "energy_stored": self.line.stored_energy()}

@@ -366,6 +366,90 @@ def _finite(y):
     return True
 
 
+@njit(cache=True)
+def _advance_bare(f, data, u, H, n_sub, x, out, res):
+    """_advance_py in bare mode (no inertias): the driven motion u, Simpson quadrature of the mesh torques
+    and the dissipation per sub-step; the torques at the step end and predicted over the next step."""
+    h = H / n_sub
+    outp = np.empty(out.shape[0])
+    t = 0.0
+    f(data, u[0], u[2], u[1], u[3], out)
+    _tally_start(res, _in_contact(out), out[OUT_MAX_PENETRATION], True)
+    for i in range(n_sub):
+        if out[OUT_STATUS] != 0.0:
+            res[_RTF] = t
+            res[_RDET] = out[OUT_MAX_PENETRATION]
+            return CODE_MESH_STATUS
+        ta0 = out[OUT_TAU_PINION]
+        tb0 = out[OUT_TAU_WHEEL]
+        p0 = out[OUT_DISSIPATED_POWER]
+        c0 = _in_contact(out)
+        tm = t + 0.5 * h
+        f(data, u[0] + u[1] * tm, u[2] + u[3] * tm, u[1], u[3], out)
+        ta1 = out[OUT_TAU_PINION]
+        tb1 = out[OUT_TAU_WHEEL]
+        p1 = out[OUT_DISSIPATED_POWER]
+        pen1 = out[OUT_MAX_PENETRATION]
+        if pen1 > res[_RPEN]:
+            res[_RPEN] = pen1
+        t = (i + 1) * h
+        f(data, u[0] + u[1] * t, u[2] + u[3] * t, u[1], u[3], out)
+        _tally(res, h, c0, _in_contact(out), out[OUT_MAX_PENETRATION], True)
+        x[4] += h / 6.0 * (ta0 + 4.0 * ta1 + out[OUT_TAU_PINION])
+        x[5] += h / 6.0 * (tb0 + 4.0 * tb1 + out[OUT_TAU_WHEEL])
+        x[6] += h / 6.0 * (p0 + 4.0 * p1 + out[OUT_DISSIPATED_POWER])
+        if not (_finite(out) and _finite(x)):
+            res[_RTF] = t
+            return CODE_NONFINITE_STATE
+    x[0] = u[0] + u[1] * H
+    x[1] = u[2] + u[3] * H
+    x[2] = u[1]
+    x[3] = u[3]
+    if out[OUT_STATUS] != 0.0:
+        res[_RTF] = H
+        res[_RDET] = out[OUT_MAX_PENETRATION]
+        return CODE_MESH_STATUS
+    res[_RTA] = x[4] / H
+    res[_RTB] = x[5] / H
+    res[_RES] = out[OUT_ELASTIC_ENERGY]
+    res[_RTAE] = out[OUT_TAU_PINION]
+    res[_RTBE] = out[OUT_TAU_WHEEL]
+    # predicted mean over the next step: the torques at its midpoint along the extrapolation
+    tm = 1.5 * H
+    f(data, u[0] + u[1] * tm, u[2] + u[3] * tm, u[1], u[3], outp)
+    res[_RTAP] = outp[OUT_TAU_PINION]
+    res[_RTBP] = outp[OUT_TAU_WHEEL]
+    return CODE_OK
+
+
+@njit(cache=True)
+def _end_of_step(mode, par, u, H, y, out, res):
+    """After the last sub-step of an integrating mode: the mean torques, the stored energy, the torques
+    at the step end and the prediction of their mean over the next step, into res."""
+    res[_RTA] = y[4] / H
+    res[_RTB] = y[5] / H
+    res[_RES] = _stored(mode, par, u, H, y, out)
+    # torques at the step end, and the prediction of their mean over the next step: the spring part
+    # extrapolated with the relative speed at the end (the damper's acceleration term is left out: it
+    # carries the unresolved mesh-mode and impact accelerations and adds nothing to stability)
+    wa = u[1]
+    wb = u[3]
+    if mode == _M_RIGID:
+        th_w = y[0] / par[_PR]
+        w_w = y[2] / par[_PR]
+    else:
+        th_w = y[1]
+        w_w = y[3]
+    ta = par[_PKA] * (y[0] - u[0] - wa * H) + par[_PDA] * (y[2] - wa)
+    tb = par[_PKB] * (th_w - u[2] - wb * H) + par[_PDB] * (w_w - wb)
+    ta_dot = par[_PKA] * (y[2] - wa)
+    tb_dot = par[_PKB] * (w_w - wb)
+    res[_RTAE] = ta
+    res[_RTBE] = tb
+    res[_RTAP] = ta + 0.5 * H * ta_dot
+    res[_RTBP] = tb + 0.5 * H * tb_dot
+
+
 def _advance_py(f, data, mode, scheme, x, par, u, H, n_sub, out, res):
     """Advance the stage over one communication step [0, H] (time relative to the step start).
 
@@ -382,58 +466,10 @@ def _advance_py(f, data, mode, scheme, x, par, u, H, n_sub, out, res):
     h = H / n_sub
     x[4] = 0.0
     x[5] = 0.0
-    outp = np.empty(out.shape[0])
     if mode == _M_BARE:
-        # driven motion: Simpson quadrature of the mesh torques and dissipation per sub-step
-        t = 0.0
-        f(data, u[0], u[2], u[1], u[3], out)
-        _tally_start(res, _in_contact(out), out[OUT_MAX_PENETRATION], True)
-        for i in range(n_sub):
-            if out[OUT_STATUS] != 0.0:
-                res[_RTF] = t
-                res[_RDET] = out[OUT_MAX_PENETRATION]
-                return CODE_MESH_STATUS
-            ta0 = out[OUT_TAU_PINION]
-            tb0 = out[OUT_TAU_WHEEL]
-            p0 = out[OUT_DISSIPATED_POWER]
-            c0 = _in_contact(out)
-            tm = t + 0.5 * h
-            f(data, u[0] + u[1] * tm, u[2] + u[3] * tm, u[1], u[3], out)
-            ta1 = out[OUT_TAU_PINION]
-            tb1 = out[OUT_TAU_WHEEL]
-            p1 = out[OUT_DISSIPATED_POWER]
-            pen1 = out[OUT_MAX_PENETRATION]
-            if pen1 > res[_RPEN]:
-                res[_RPEN] = pen1
-            t = (i + 1) * h
-            f(data, u[0] + u[1] * t, u[2] + u[3] * t, u[1], u[3], out)
-            _tally(res, h, c0, _in_contact(out), out[OUT_MAX_PENETRATION], True)
-            x[4] += h / 6.0 * (ta0 + 4.0 * ta1 + out[OUT_TAU_PINION])
-            x[5] += h / 6.0 * (tb0 + 4.0 * tb1 + out[OUT_TAU_WHEEL])
-            x[6] += h / 6.0 * (p0 + 4.0 * p1 + out[OUT_DISSIPATED_POWER])
-            if not (_finite(out) and _finite(x)):
-                res[_RTF] = t
-                return CODE_NONFINITE_STATE
-        x[0] = u[0] + u[1] * H
-        x[1] = u[2] + u[3] * H
-        x[2] = u[1]
-        x[3] = u[3]
-        if out[OUT_STATUS] != 0.0:
-            res[_RTF] = H
-            res[_RDET] = out[OUT_MAX_PENETRATION]
-            return CODE_MESH_STATUS
-        res[_RTA] = x[4] / H
-        res[_RTB] = x[5] / H
-        res[_RES] = out[OUT_ELASTIC_ENERGY]
-        res[_RTAE] = out[OUT_TAU_PINION]
-        res[_RTBE] = out[OUT_TAU_WHEEL]
-        # predicted mean over the next step: the torques at its midpoint along the extrapolation
-        tm = 1.5 * H
-        f(data, u[0] + u[1] * tm, u[2] + u[3] * tm, u[1], u[3], outp)
-        res[_RTAP] = outp[OUT_TAU_PINION]
-        res[_RTBP] = outp[OUT_TAU_WHEEL]
-        return CODE_OK
+        return _advance_bare(f, data, u, H, n_sub, x, out, res)
 
+    outp = np.empty(out.shape[0])
     y = x
     f0 = np.empty(n)
     fn = np.empty(n)
@@ -523,28 +559,7 @@ def _advance_py(f, data, mode, scheme, x, par, u, H, n_sub, out, res):
         have_jac = False
         if dt < h:
             dt = min(2.0 * dt, h)
-    res[_RTA] = y[4] / H
-    res[_RTB] = y[5] / H
-    res[_RES] = _stored(mode, par, u, H, y, out)
-    # torques at the step end, and the prediction of their mean over the next step: the spring part
-    # extrapolated with the relative speed at the end (the damper's acceleration term is left out: it
-    # carries the unresolved mesh-mode and impact accelerations and adds nothing to stability)
-    wa = u[1]
-    wb = u[3]
-    if mode == _M_RIGID:
-        th_w = y[0] / par[_PR]
-        w_w = y[2] / par[_PR]
-    else:
-        th_w = y[1]
-        w_w = y[3]
-    ta = par[_PKA] * (y[0] - u[0] - wa * H) + par[_PDA] * (y[2] - wa)
-    tb = par[_PKB] * (th_w - u[2] - wb * H) + par[_PDB] * (w_w - wb)
-    ta_dot = par[_PKA] * (y[2] - wa)
-    tb_dot = par[_PKB] * (w_w - wb)
-    res[_RTAE] = ta
-    res[_RTBE] = tb
-    res[_RTAP] = ta + 0.5 * H * ta_dot
-    res[_RTBP] = tb + 0.5 * H * tb_dot
+    _end_of_step(mode, par, u, H, y, out, res)
     return CODE_OK
 
 

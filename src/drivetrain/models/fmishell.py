@@ -45,14 +45,14 @@ EXTRA_INPUTS = {
     "MotorLoad": ("speed_ref_rpm", "load_torque"),
 }
 #: extra inputs that a parameter of the same FMU can carry as a time profile ('t0:v0; t1:v1; ...',
-#: linear between points, held outside; components.parse_profile): a host without input signals sets
+#: linear between points, held outside; parameters.parse_profile): a host without input signals sets
 #: the parameter instead (drivetrain.interop.ssp)
 INPUT_PROFILES = {
     "MotorLoad": {"speed_ref_rpm": "speed_profile", "load_torque": "load_profile"},
 }
 #: per model: its own outputs, each declared once: name -> (unit, description); then the energies every
 #: drivetrain FMU has (ENERGY). Parameters are declared in the component's parameter dataclass (name,
-#: default, unit, description: drivetrain.models.components); the flange variables follow from the port kinds.
+#: default, unit, description: drivetrain.models.parameters); the flange variables follow from the port kinds.
 OWN_OUTPUTS = {
     "FlexibleShaft": {
         "flange_b_tau_mean": ("N.m", "exact mean over the last step of the torque at flange_b"),
@@ -289,14 +289,13 @@ def _apply_inputs(slave):
 
 def _publish(slave, initial: bool = False):
     if not initial:
-        # every step: the component's STEP_OUTPUTS as a tuple (LAZY_OUTPUTS are computed when read)
-        comp = slave._comp
-        values = tuple(map(float, comp.step_outputs()))
-        if not all(map(math.isfinite, values)):
-            bad = {n: v for n, v in zip(comp.STEP_OUTPUTS, values) if not math.isfinite(v)}
+        # every step: the component's step outputs by name, Python floats (LAZY_OUTPUTS are computed when read)
+        values = slave._comp.step_outputs()
+        if not all(map(math.isfinite, values.values())):
+            bad = {n: v for n, v in values.items() if not math.isfinite(v)}
             raise C.ComponentError(f"the step produced non-finite outputs {bad} (inputs far out of range?)")
         slave._lazy_pending = True
-        for name, v in zip(comp.STEP_OUTPUTS, values):
+        for name, v in values.items():
             setattr(slave, name, v)
         return
     # before the first step: the spring-side torques are the port springs against the current inputs

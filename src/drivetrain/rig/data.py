@@ -301,25 +301,41 @@ def partition(shafts: str = "flexible", n_elements: int = 4, calibration: dict |
     m = model or load_public()
     cal = calibration if calibration is not None else load_calibration()
     s = float(cal["coupling_scale"] if coupling_scale is None else coupling_scale)
+    ch = _lumped_chain(m, shafts, s)
+    params: dict = {}
+    cuts: list = []
+    bodies: dict = {}
+    C2, J_in_extra, J_sensor = _drive_line(ch, m, shafts, n_elements, params, cuts, bodies)
+    _upper_gear_motors(ch, m, cal, losses, C2, J_in_extra, J_sensor, params, cuts, bodies)
+    models = {"motors": "MotorLoad", "upper": "UpperTransmission", "gear": "GearContact"}
+    if shafts == "flexible":
+        models = {"motors": "MotorLoad", "drive_shaft": "FlexibleShaft", "upper": "UpperTransmission",
+                  "gear": "GearContact"}
+    connections = [(cu["spring"], cu["inertia"]) for cu in cuts]
+    params = {name: {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in pv.items()}
+              for name, pv in params.items()}
+    for cu in cuts:
+        cu["k"], cu["c"] = float(cu["k"]), float(cu["c"])
+    return Partition(shafts, n_elements, params, models, connections, cuts,
+                     {k: {int(a): float(b) for a, b in v.items()} for k, v in bodies.items()},
+                     {"coupling_scale": s, **{k: v for k, v in cal.items() if k != "coupling_scale"}})
+
+
+def _lumped_chain(m: PublicModel, shafts: str, coupling_scale: float) -> RefChain:
+    """The public model lumped for the partition: the elastomer couplings scaled, the rigid elements
+    merged, the small hubs condensed (which ones: by the shafts' model)."""
     rigid = set(THIN_SHAFTS) if shafts == "rigid" else set()
     rigid |= {GEAR_ELEMENT_UPPER}                 # upper mesh: rigid transmission (local mode ~3 kHz)
     rigid |= {15, 16, 18} if shafts == "flexible" else {8, 9, 10, 18}
-    ch = RefChain(m, {e: s for e in ELASTOMER_ELEMENTS}, rigid)
-    R = m.R
-    bodies = {}
-
+    ch = RefChain(m, {e: coupling_scale for e in ELASTOMER_ELEMENTS}, rigid)
     # --- drive motor side: condense the small hubs 2, 3, 4 (C1) and 6, 7 (C2) -------------------
     for pid in (2, 3, 4, 6, 7):
         ch.condense(pid)
     # --- drive line ---------------------------------------------------------------------------------
     ch.condense(9)                                 # transducer element 9 with its couplings 8
-    if shafts == "rigid":
-        # shafts 11, 14, 16, 21 are rigid: merge across them
-        ch.merge_rigid()
-    else:
-        # the drive shaft (element 11, distributed inertia = public node 11) is discretised inside
-        # FlexibleShaft; here node 11 stays as the shaft's start
-        ch.merge_rigid()
+    # rigid: shafts 11, 14, 16, 21 are rigid, merged across; flexible: the drive shaft (element 11,
+    # distributed inertia = public node 11) is discretised inside FlexibleShaft, node 11 stays as its start
+    ch.merge_rigid()
     # upper gearbox body: 12+13 (+ condensed 14 in the flexible case)
     if shafts == "flexible":
         ch.condense(14)
@@ -331,17 +347,14 @@ def partition(shafts: str = "flexible", n_elements: int = 4, calibration: dict |
     if shafts == "flexible":
         ch.condense(21)
     ch.condense(20)
+    return ch
 
-    # ---- read the bodies and elements -----------------------------------------------------------
-    M_ = ch.node(1)
-    FW = ch.node(5)
-    C1 = ch.elem_between(1, 5)
-    pin = ch.node(17)
-    whl = ch.node(18)
-    L = ch.node(22)
-    UT = ch.node(12)
-    params: dict = {}
-    cuts = []
+
+def _drive_line(ch: RefChain, m: PublicModel, shafts: str, n_elements: int, params: dict, cuts: list,
+                bodies: dict):
+    """The drive line from coupling C2 to the upper gearbox into ``params``, ``cuts``, ``bodies``:
+    flexible, FlexibleShaft ``drive_shaft`` and its two cuts; rigid, the one cut of C2 into the rigid
+    upper body. Returns (C2, the shaft inertia the upper body takes, the upper body's J_sensor)."""
     if shafts == "flexible":
         H8 = ch.node(8)
         C2 = ch.elem_between(5, 8)
@@ -355,22 +368,35 @@ def partition(shafts: str = "flexible", n_elements: int = 4, calibration: dict |
         params["drive_shaft"] = dict(
             J_a=H8.J, k_t=T.k, d_t=T.c, J_b=H10.J, k_c=Ec.k, d_c=Ec.c,
             k_shaft=Es.k, d_shaft=Es.c, J_shaft=J_shaft, n_elements=n_elements)
-        J_in_extra = J_shaft / (2 * n_elements)
         cuts.append(dict(spring="motors.drive", inertia="drive_shaft.flange_a", elements=C2.members,
                          k=C2.k, c=C2.c))
         cuts.append(dict(spring="drive_shaft.flange_b", inertia="upper.flange_a",
                          elements=[11], k=Es.k * n_elements, c=Es.c * n_elements,
                          note=f"last of {n_elements} drive-shaft elements"))
         bodies.update(hub_a=H8.members, hub_b=H10.members, drive_shaft=S0.members)
-        J_sensor = 0.0
-    else:
-        C2 = ch.elem_between(5, 12)
-        J_in_extra = 0.0
-        cuts.append(dict(spring="motors.drive", inertia="upper.flange_a", elements=C2.members, k=C2.k, c=C2.c))
-        # the transducer (public element 9, between nodes 9 and 10) lies inside the rigid body: the
-        # inertia upstream of its measuring section (nodes <= 8 and half of node 9, drive frame)
-        J_sensor = sum(f * m.J[pid - 1] for pid, f in UT.members.items() if pid <= 8) + \
-            0.5 * UT.members.get(9, 0.0) * m.J[8]
+        return C2, J_shaft / (2 * n_elements), 0.0
+    C2 = ch.elem_between(5, 12)
+    cuts.append(dict(spring="motors.drive", inertia="upper.flange_a", elements=C2.members, k=C2.k, c=C2.c))
+    # the transducer (public element 9, between nodes 9 and 10) lies inside the rigid body: the
+    # inertia upstream of its measuring section (nodes <= 8 and half of node 9, drive frame)
+    UT = ch.node(12)
+    J_sensor = sum(f * m.J[pid - 1] for pid, f in UT.members.items() if pid <= 8) + \
+        0.5 * UT.members.get(9, 0.0) * m.J[8]
+    return C2, 0.0, J_sensor
+
+
+def _upper_gear_motors(ch: RefChain, m: PublicModel, cal: dict, losses: bool, C2, J_in_extra: float,
+                       J_sensor: float, params: dict, cuts: list, bodies: dict) -> None:
+    """The upper gearbox, the gear stage and the motors (their parameters, the gear stage's two cuts,
+    the bodies) into ``params``, ``cuts``, ``bodies``; the losses from the calibration (0 if not
+    ``losses``)."""
+    M_ = ch.node(1)
+    FW = ch.node(5)
+    C1 = ch.elem_between(1, 5)
+    pin = ch.node(17)
+    whl = ch.node(18)
+    L = ch.node(22)
+    UT = ch.node(12)
     Ka = ch.elem_between(12, 17)
     Kb = ch.elem_between(18, 22)
     J_ut = UT.J + J_in_extra
@@ -397,18 +423,6 @@ def partition(shafts: str = "flexible", n_elements: int = 4, calibration: dict |
                      k=Kb.k / Rp2, c=Kb.c / Rp2))
     bodies.update(motor=M_.members, flywheel=FW.members, upper=UT.members, pinion=pin.members,
                   wheel=whl.members, load=L.members)
-    models = {"motors": "MotorLoad", "upper": "UpperTransmission", "gear": "GearContact"}
-    if shafts == "flexible":
-        models = {"motors": "MotorLoad", "drive_shaft": "FlexibleShaft", "upper": "UpperTransmission",
-                  "gear": "GearContact"}
-    connections = [(cu["spring"], cu["inertia"]) for cu in cuts]
-    params = {name: {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in pv.items()}
-              for name, pv in params.items()}
-    for cu in cuts:
-        cu["k"], cu["c"] = float(cu["k"]), float(cu["c"])
-    return Partition(shafts, n_elements, params, models, connections, cuts,
-                     {k: {int(a): float(b) for a, b in v.items()} for k, v in bodies.items()},
-                     {"coupling_scale": s, **{k: v for k, v in cal.items() if k != "coupling_scale"}})
 
 
 @functools.lru_cache(maxsize=4)

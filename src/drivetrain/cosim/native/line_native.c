@@ -1,7 +1,7 @@
 /* The drivetrain line models (FlexibleShaft, UpperTransmission, MotorLoad) as native FMI 2.0 co-simulation
  * FMUs: no Python in the process (docs/FMU.md, "Python-free drivetrain FMUs").
  *
- * A C port of drivetrain/models/components.py and the FMI shell drivetrain/models/fmishell.py:
+ * A C port of drivetrain/models/ (line.py, shaft.py, transmission.py, motors.py) and the FMI shell drivetrain/models/fmishell.py:
  *   1. line_step: the numba kernel of LineModel (implicit midpoint, Thomas solve, PI motor with LimPID
  *      anti-windup, loss laws, inertia- and spring-side ports, energy accumulators), operation by operation;
  *   2. the LineModel bookkeeping around it (step, start_ports, stored_energy) and the energy-conserving
@@ -66,7 +66,7 @@ typedef struct {
 #include "coupling_correction.h"         /* its CC_* constants come with line_build.h */
 
 /* ============================================================================================== */
-/* 1. The kernel (components.line_step)                                                            */
+/* 1. The kernel (models.line.line_step)                                                           */
 /* ============================================================================================== */
 
 enum { CODE_OK = 0, CODE_NONFINITE_INPUT = LN_CODE_NONFINITE_INPUT, CODE_NONFINITE_STATE = LN_CODE_NONFINITE_STATE };
@@ -91,7 +91,7 @@ static void thomas(int n, const double *a, const double *b, const double *rhs, d
     for (int i = n - 2; i >= 0; i--) x[i] = dp[i] - cp[i] * x[i + 1];
 }
 
-/* components.line_step: the same packed layout (see there) and the same operations */
+/* models.line.line_step: the same packed layout (see there) and the same operations */
 static int line_step(double H, int64_t n_sub, const double *fp, const int64_t *ip, double *st, double *out,
                      double *wk) {
     const int64_t n = ip[0], npt = ip[1], nl = ip[2], m_node = ip[3], out_mode = ip[4];
@@ -257,7 +257,7 @@ static int line_step(double H, int64_t n_sub, const double *fp, const int64_t *i
 /* 3. The line model and the three components                                                     */
 /* ============================================================================================== */
 
-/* a parsed profile parameter ('t0:v0; t1:v1; ...', components.parse_profile) */
+/* a parsed profile parameter ('t0:v0; t1:v1; ...', models.parameters.parse_profile) */
 typedef struct { int64_t n; double *t, *v; } Profile;
 
 static void profile_free(Profile *p) { free(p->t); free(p->v); p->t = p->v = NULL; p->n = 0; }
@@ -303,7 +303,7 @@ static int pyfloat_parse(const char *s, size_t len, double *out) {
     return end == buf + len;
 }
 
-/* components.parse_profile: 0 and a message in why on a bad text; n = 0 for an empty text */
+/* models.parameters.parse_profile: 0 and a message in why on a bad text; n = 0 for an empty text */
 MAYBE_UNUSED static int profile_parse(const char *text, Profile *p, char *why, size_t nwhy) {
     profile_free(p);
     const char *ws = " \t\n\r\f\v";
@@ -361,7 +361,7 @@ MAYBE_UNUSED static int profile_parse(const char *text, Profile *p, char *why, s
     return 1;
 }
 
-/* components.parse_node_values: a node start parameter (node_phi_start, node_w_start), comma-separated numbers,
+/* models.parameters.parse_node_values: a node start parameter (node_phi_start, node_w_start), comma-separated numbers,
  * one per node. 1: out[0..n) filled (set = 1) or an empty text (set = 0); 0: a message in why (the Python's).
  * node_name(i, buf, nbuf) writes the name of node i (LineModel.node_names). */
 typedef void (*NodeNameFn)(const void *c, int64_t i, char *buf, size_t nbuf);
@@ -417,7 +417,7 @@ MAYBE_UNUSED static int node_values_parse(const void *c, const char *text, const
     return 1;
 }
 
-/* The packed arrays of a LineModel (components.LineModel: fp, ip, st, out, wk) and its Python-side state */
+/* The packed arrays of a LineModel (models.line.LineModel: fp, ip, st, out, wk) and its Python-side state */
 typedef struct {
     int64_t n, P, L;
     int64_t ip[N_IP];
@@ -759,7 +759,7 @@ static int line_step_checked(Inst *c, double t, double H, double wref0, double w
 #define R(name) (c->r[VR_##name])
 #define I(name) (c->iv[VR_##name])
 
-/* the node start parameters (components._LineComponent._node_start): th, om replaced where set */
+/* the node start parameters (models.line.LineComponent._node_start): th, om replaced where set */
 static int node_start(Inst *c, NodeNameFn node_name, double *th, double *om, char *why, size_t nwhy) {
     int set;
     if (!node_values_parse(c, var_string(c, VR_node_phi_start), "node_phi_start", c->ln.n, node_name, th, &set, why,

@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from drivetrain.rig.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies, to_db
+from drivetrain.scene.load import with_overrides
 
 ROOT = Path(__file__).resolve().parents[3]
 RESULTS_FILE = Path(__file__).resolve().parents[1] / "data" / "accuracy_cost.json"
@@ -290,7 +291,7 @@ def apply_tolerance(scene) -> tuple:
     if T is None:
         return scene, None
     c = choose(scene, T)
-    return (scene.with_overrides(list(c.overrides)) if c.overrides else scene), c
+    return (with_overrides(scene, list(c.overrides)) if c.overrides else scene), c
 
 
 __all__ = ["SETTINGS", "STUDY_SCENES", "Setting", "compare", "choose", "apply_tolerance", "closest_scene",

@@ -29,7 +29,8 @@ from drivetrain.scene.schema import (FIDELITIES, HEALTH_STATES, RIG_SENSORS, SHA
                                      TORQUE_SENSORS, UPPER_RATIO, Z_PINION, Z_WHEEL, EffectsSpec, GearSpec,
                                      NumericsSpec, OperatingPoint, OutputSpec, ScenarioInfo, TimeSpec)
 from drivetrain.system import steps_per_output
-from gearcontact_fmu.fault_specs import fault_spec_problems, normalised_spec
+from gearcontact_fmu.fault_specs import health_problems, normalised_spec
+from gearcontact_fmu.mesh_model import fidelities_with, supports
 
 # --------------------------------------------------------------------------------------------------
 # Value checking
@@ -129,15 +130,11 @@ def _check_value(key: str, spec: Key, value: Any, base_dir: Path, problems) -> A
             problems.append((key, value, f"an existing mesh file (not found: {p})"))
             return None
         return p
-    if t == "faults":
+    if t == "faults":                   # each specification: checked with the health (_check_gear)
         if not isinstance(value, list):
             problems.append((key, value, "an array of tables [[gear.faults]]"))
             return None
-        bad = len(problems)
-        for i, spec in enumerate(value):
-            for k, v, e in fault_spec_problems(spec, Z_PINION, Z_WHEEL):
-                problems.append((f"{key}[{i}]" + (f".{k}" if k else ""), v, e))
-        return tuple(normalised_spec(f) for f in value) if len(problems) == bad else None
+        return tuple(value)
     if t == "profile":
         exp = (f"a list of [time_s, {spec.unit}] pairs with times >= 0 strictly increasing and "
                + (f"values >= {spec.minimum:g} {spec.unit}" if spec.minimum is not None else "finite values"))
@@ -319,12 +316,12 @@ def _check_gear(values: dict, problems) -> None:
     then at least one), and a fidelity that models the health state."""
     gr = values["gear"]
     eff = values["effects"]
-    if _ok(values, "gear", "health", "faults"):
-        if gr["health"] == "faults" and not gr["faults"]:
-            problems.append(("gear.faults", _MISSING, 'at least one [[gear.faults]] table when gear.health = "faults"'))
-        elif gr["faults"] and gr["health"] != "faults":
-            problems.append(("gear.faults", f"{len(gr['faults'])} fault(s)",
-                             f'no [[gear.faults]] unless gear.health = "faults" (health is {gr["health"]!r})'))
+    if _ok(values, "gear", "faults"):       # gearcontact_fmu.fault_specs: the check the FMU makes too
+        found = [(f"gear.{k}", _MISSING if v is None else v, e) for k, v, e in health_problems(
+            gr["health"] if _ok(values, "gear", "health") else None, list(gr["faults"]), Z_PINION, Z_WHEEL,
+            health_key="gear.health", faults_name="[[gear.faults]] table")]
+        problems += found
+        gr["faults"] = _MISSING if found else tuple(normalised_spec(f) for f in gr["faults"])
     if not _ok(values, "gear", "health", "pinion_mesh", "wheel_mesh"):
         return
     if gr["health"] == "mesh":
@@ -336,30 +333,30 @@ def _check_gear(values: dict, problems) -> None:
             if gr[k] is not None:
                 problems.append((f"gear.{k}", str(gr[k]),
                                  f'no mesh file unless gear.health = "mesh" (health is {gr["health"]!r})'))
-    if _ok(values, "effects", "mesh_contact"):
-        if eff["mesh_contact"] == "ideal" and gr["health"] != "healthy":
-            problems.append(("effects.mesh_contact", "ideal",
-                             f"a fidelity with tooth geometry (pcm or table) for gear.health = "
-                             f"{gr['health']!r}; the ideal gear has no teeth"))
-        if eff["mesh_contact"] == "analytic" and gr["health"] != "healthy":
-            problems.append(("effects.mesh_contact", "analytic",
-                             f"pcm or table for gear.health = {gr['health']!r} (the analytic ISO 6336 pair "
-                             "models the healthy gear only: it has no fault and cannot read a mesh)"))
+    fid = eff["mesh_contact"]
+    if _ok(values, "effects", "mesh_contact") and gr["health"] != "healthy" and not supports(fid, "teeth"):
+        toothed = " or ".join(fidelities_with("teeth"))
+        problems.append(("effects.mesh_contact", fid,
+                         f"a fidelity with tooth geometry ({toothed}) for gear.health = {gr['health']!r}; the "
+                         "ideal gear has no teeth" if fid == "ideal" else
+                         f"{toothed} for gear.health = {gr['health']!r} (the analytic ISO 6336 pair models the "
+                         "healthy gear only: it has no fault and cannot read a mesh)"))
 
 
 def _check_effects(values: dict, problems) -> None:
     """The effects the chosen fidelity can carry: tooth compliance, manufacturing errors."""
     eff = values["effects"]
     if _ok(values, "effects", "mesh_contact", "tooth_compliance") and eff["tooth_compliance"] \
-            and eff["mesh_contact"] in ("pcm", "ideal"):
+            and not supports(eff["mesh_contact"], "tooth_compliance"):
         problems.append(("effects.tooth_compliance", True,
                          f"false with effects.mesh_contact = \"{eff['mesh_contact']}\" (the series compliance is "
                          "applied to the contact map: use table; the analytic ISO 6336 pair has it already)"))
     if _ok(values, "effects", "mesh_contact", "manufacturing_errors") and eff["manufacturing_errors"] \
-            and eff["mesh_contact"] == "ideal":
+            and not supports(eff["mesh_contact"], "manufacturing_errors"):
         problems.append(("effects.manufacturing_errors", True,
-                         "false with effects.mesh_contact = \"ideal\" (a rigid mesh has no mesh coordinate for the "
-                         "errors to offset; use pcm, table or analytic)"))
+                         f"false with effects.mesh_contact = \"{eff['mesh_contact']}\" (a rigid mesh has no mesh "
+                         f"coordinate for the errors to offset; use {', '.join(fidelities_with('manufacturing_errors')[:-1])} "
+                         f"or {fidelities_with('manufacturing_errors')[-1]})"))
 
 
 def _check_profiles(values: dict, problems) -> None:

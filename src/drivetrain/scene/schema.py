@@ -26,7 +26,7 @@ from gearcontact_fmu.fault_specs import FAULT_KINDS
 from gearcontact_fmu.manufacturing_specs import DEFAULT_GRADE as MANUFACTURING_GRADE
 from gearcontact_fmu.manufacturing_specs import DEFAULT_RUNOUT_GRADE as MANUFACTURING_RUNOUT_GRADE
 from gearcontact_fmu.manufacturing_specs import GRADES
-from gearcontact_fmu.mesh_model import FIDELITIES, HEALTH_STATES, SCHEMES
+from gearcontact_fmu.mesh_model import FIDELITIES, HEALTH_STATES, SCHEMES, fidelities_with
 from gearcontact_fmu.params import DEFAULT_COMM_STEP_S, TOOTH_COMPLIANCE_FACTOR, MapGrid, MeshResolution
 
 # --------------------------------------------------------------------------------------------------
@@ -202,7 +202,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
                                  doc="flexible shafts (FlexibleShaft FMUs) or rigid (no shaft FMU)"),
         "shaft_elements": Key("int", 4, minimum=1, maximum=64,
                               doc="torsional elements per long shaft (flexible only)"),
-        "friction": Key("bool", True, doc="tooth friction in the mesh (pcm/table)"),
+        "friction": Key("bool", True, doc=f"tooth friction in the mesh ({'/'.join(fidelities_with('friction'))})"),
         "contact_damping": Key("bool", True, doc="contact damping in the mesh"),
         "losses": Key("bool", True, doc="viscous losses of the gearboxes and bearings"),
         "sensors": Key("enum", "ideal", allowed=SENSOR_MODELS, doc=(

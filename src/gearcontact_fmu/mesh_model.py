@@ -37,7 +37,9 @@ STATUS_PENETRATION_EXCEEDED = 1
 SCHEMES = ("auto", "ros2", "rk4")
 FIDELITIES = ("pcm", "table", "analytic", "ideal")
 """Mesh-contact fidelities, finest first (``fidelity.BUILDERS`` maps each to its builder)."""
-GENERATED_HEALTH = ("healthy", "mild", "severe", "faults")
+PAPER_HEALTH = ("healthy", "mild", "severe")
+"""The paper's three health states, the ones the rig measured (validation, accuracy study, stress)."""
+GENERATED_HEALTH = PAPER_HEALTH + ("faults",)
 """Health states generated from the healthy geometry (``faults.apply_health``; ``"faults"``: a list of
 fault specifications on either gear, ``faults.FAULT_KINDS``)."""
 HEALTH_STATES = GENERATED_HEALTH + ("mesh",)

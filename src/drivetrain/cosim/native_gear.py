@@ -39,10 +39,11 @@ from xml.etree import ElementTree as ET
 import numpy as np
 
 import gearcontact_fmu
+from gearcontact_fmu.params import GEAR_MODEL
 from drivetrain.errors import NativeBuildError
 
 NATIVE_DIR = Path(gearcontact_fmu.__file__).resolve().parent / "native"
-SLAVE_SCRIPT = Path(gearcontact_fmu.__file__).resolve().parent / "slaves" / "GearContact.py"
+SLAVE_SCRIPT = Path(gearcontact_fmu.__file__).resolve().parent / "slaves" / f"{GEAR_MODEL}.py"
 C_SOURCE = "gearcontact_native.c"
 #: the coupling correction, shared with the native line FMUs (drivetrain.cosim.native_line)
 #: C headers every native FMU compiles (in gearcontact_fmu/native, shipped in each FMU's sources/)
@@ -50,7 +51,7 @@ SHARED_HEADERS = ("coupling_correction.h", "fmi2_shell.h")
 BUILD_HEADER = "gearcontact_build.h"
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 MAP_RESOURCE = "contact_map.bin"
-MODEL = "GearContact"
+MODEL = GEAR_MODEL
 
 #: parameters the C model reads at initialization: settable as in the pythonfmu GearContact
 RUNTIME_PARAMETERS = frozenset({

@@ -32,7 +32,7 @@ from drivetrain.rig.signals import characteristic_frequencies
 from drivetrain.errors import NativeBuildError
 from drivetrain.system import ComponentSpec, Connection, SystemSpec
 from gearcontact_fmu.manufacturing_specs import draw_errors
-from gearcontact_fmu.params import BevelGearParams, PCMParams
+from gearcontact_fmu.params import GEAR_MODEL, BevelGearParams, PCMParams
 
 #: Sensor variables per configuration (docs/DRIVETRAIN.md, "Sensors").
 SENSORS_COMMON = {
@@ -186,7 +186,7 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     for name, model, params in comps:
         components.append(ComponentSpec(name, model, params))
     components.append(ComponentSpec("upper", "UpperTransmission", up))
-    components.append(ComponentSpec("gear", "GearContact", gear))
+    components.append(ComponentSpec("gear", GEAR_MODEL, gear))
     connections = [Connection(s, i) for s, i in part.connections]
     gear.update(gear_start_state(components, connections, "gear"))
 
@@ -253,7 +253,7 @@ def gear_parameters(scene) -> dict:
     """The GearContact parameters of a scene (component "gear" as assembled): what ``drivetrain
     build-native-gear`` builds."""
     spec = assemble(scene)
-    gears = [c for c in spec.components if c.model == "GearContact"]
+    gears = [c for c in spec.components if c.model == GEAR_MODEL]
     if not gears:
         raise NativeBuildError([f"scene {scene.name!r} has no GearContact component (effects.mesh_contact = "
                                 f"'ideal' with rigid shafts assembles none)"])

@@ -104,9 +104,9 @@ def _table_arrays(slave, parameters: dict) -> dict:
         model = build_mesh_model({**values, **parameters, **NEUTRAL})
     except Exception as exc:  # noqa: BLE001 - every builder error becomes a refusal with its message
         raise NativeBuildError([f"the contact map cannot be built: {type(exc).__name__}: {exc}"]) from None
-    data, te = model.data, None
-    if len(data) == 2:                         # manufacturing.with_errors: (inner data, offset data)
-        data, te = data
+    from gearcontact_fmu.manufacturing import split_offset
+
+    data, te = split_offset(model)             # manufacturing.with_errors' layout, named there
     values, a, onset, dtheta, ratio, _cc, _ce, _umax, _fric, w_reg, n_rev = data
     return {"values": np.ascontiguousarray(values, dtype="<f8"), "a": np.ascontiguousarray(a, dtype="<f8"),
             "onset": np.ascontiguousarray(onset, dtype="<f8"), "dtheta": float(dtheta), "ratio": float(ratio),

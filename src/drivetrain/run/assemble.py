@@ -31,7 +31,7 @@ from drivetrain.models.components import COMPONENTS, FlexibleShaft, FlexibleShaf
 from drivetrain.rig.signals import characteristic_frequencies
 from drivetrain.errors import NativeBuildError
 from drivetrain.system import ComponentSpec, Connection, SystemSpec
-from gearcontact_fmu.manufacturing_specs import draw_errors
+from gearcontact_fmu.manufacturing_specs import draw_errors, errors_of
 from gearcontact_fmu.params import GEAR_MODEL, BevelGearParams, PCMParams
 
 #: Sensor variables per configuration (docs/DRIVETRAIN.md, "Sensors").
@@ -166,11 +166,13 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     theta_p = phi_a + twist_a
     s0 = initial_mesh_deflection(ss.T_msh, eff.mesh_contact)
     theta_w = (theta_p - s0) / rig.LOWER_RATIO
-    if "manufacturing_errors" in gear:
+    # the gear's manufacturing errors, read once from its parameter (the JSON the FMU receives)
+    errors = errors_of(gear.get("manufacturing_errors"))
+    if errors is not None:
         # the errors offset the mesh coordinate by Delta(theta_p, theta_w): start where the offset mesh sits at s0
         from gearcontact_fmu.manufacturing import mesh_offset
 
-        theta_w += mesh_offset(gear["manufacturing_errors"], theta_p, theta_w) / rig.LOWER_RATIO
+        theta_w += mesh_offset(errors, theta_p, theta_w) / rig.LOWER_RATIO
     phi_b = theta_w - twist_b
     gear.update(twist_a_start=twist_a, twist_b_start=twist_b)
     mo.update(max_substep=csub, energy_correction=int(bool(num.energy_correction)), phi0_motor=th_motor, w0=w,
@@ -198,7 +200,7 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
                       "bodies": part.bodies,
                       "cuts": [{k: v for k, v in c.items()} for c in part.cuts]},
         "steady_state": dataclasses.asdict(ss),
-        "manufacturing_errors": json.loads(gear["manufacturing_errors"]) if "manufacturing_errors" in gear else None,
+        "manufacturing_errors": errors.to_dict() if errors is not None else None,
         "calibration": part.calibration,
         "fmus": [c.model for c in components],
         "substeps": {"gear": sub, "components": csub},

@@ -14,7 +14,7 @@ import pytest
 
 from drivetrain.scene import expect as X
 from drivetrain.cli import main
-from drivetrain.scene.load import ScenarioError, load_scene, load_scenes
+from drivetrain.scene.load import ScenarioError, load_scene, load_scenes, with_overrides
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -98,7 +98,7 @@ def test_issue_example_and_syntax_accepted(tmp_path):
     assert X.is_slow(scene)
     assert X.frequency_value("f_GMF-2*f_MSH", {"f_GMF": 125.0, "f_MSH": 25 / 3}) == pytest.approx(125 - 50 / 3)
     # --set keeps the expectations; what depends on the scene is then left to the check (no refusal)
-    s2 = scene.with_overrides(["time.duration_s=0.15", "operating_point.load_torque_Nm=0.5"])
+    s2 = with_overrides(scene, ["time.duration_s=0.15", "operating_point.load_torque_Nm=0.5"])
     items2 = {e.key: e for e in s2.expect.items}
     assert len(items2) == 10 and np.isnan(items2["torque.drive_shaft_torque.mean"].value)
     assert load_scene(tiny(tmp_path, '"status" = "ok"'), ["time.duration_s=0.2"]).expect.items[0].value == "ok"

@@ -71,6 +71,7 @@ from gearcontact_fmu.mesh_model import (
     STATUS_PENETRATION_EXCEEDED,
     MeshModel,
 )
+from gearcontact_fmu.geometry import backlash_angle  # noqa: F401  (re-exported: the one declaration is geometry's)
 from gearcontact_fmu.params import BevelGearParams, PCMParams
 
 # ISO 6336-1:2006 method B, coefficients of q' (mm um / N)
@@ -108,12 +109,6 @@ N_P = 22
 # --------------------------------------------------------------------------------------------
 # geometry and ISO 6336 (plain Python, evaluated once)
 # --------------------------------------------------------------------------------------------
-
-def backlash_angle(gear: BevelGearParams) -> float:
-    """Backlash in the pinion-referred mesh coordinate s [rad]: circumferential backlash at the outer
-    pitch circle divided by the pinion's outer pitch radius."""
-    return gear.backlash / (0.5 * gear.module * gear.z_pinion)
-
 
 def virtual_spur_gears(gear: BevelGearParams) -> dict:
     """Virtual spur gears of the bevel pair at the mean cone distance (SI units)."""

@@ -5,6 +5,8 @@ with it before any mesh is built; :mod:`gearcontact_fmu.faults` builds the meshe
 """
 from __future__ import annotations
 
+from gearcontact_fmu.mesh_model import HEALTH_STATES
+
 DEFAULT_WIDTH = 1.0e-3      # [m] flank-fracture void width along the profile (the paper's mild fault)
 DEFAULT_DEPTH = 0.3e-3      # [m] its depth along the flank normal
 DEFAULT_POSITION = 0.0      # [m] its centre from the pitch cone towards the tip
@@ -81,6 +83,31 @@ def fault_spec_problems(spec, z_pinion: int, z_wheel: int) -> list[tuple[str, ob
         elif key not in ("position_mm", "face_position") and not (value > 0 or (kind, key) == ("chipped_tip", "length_mm")
                                                                  and value == 0):
             problems.append((key, value, "a size > 0" + (" µm" if key.endswith("_um") else " mm")))
+    return problems
+
+
+def health_problems(health, specs, z_pinion: int, z_wheel: int, health_key: str = "health",
+                    faults_name: str = "fault specification") -> list[tuple[str, object, str]]:
+    """Problems of a health state and its fault list, all of them, as (key, value, expectation) triples with
+    keys ``health``, ``faults`` and ``faults[i].<key>``: a known state; a list of well-formed specifications
+    (:func:`fault_spec_problems`); ``"faults"`` with at least one, the other states with none. The one
+    check of the scene (``gear.health``, ``[[gear.faults]]``) and of the GearContact FMU's parameters;
+    ``health_key`` and ``faults_name`` name them in the messages as the caller's user knows them.
+    ``health`` None: not known (refused elsewhere), the list alone is checked. The value of a problem of
+    a missing list is None."""
+    problems = []
+    if health is not None and health not in HEALTH_STATES:
+        problems.append(("health", health, "one of " + ", ".join(repr(h) for h in HEALTH_STATES)))
+    if not isinstance(specs, (list, tuple)):
+        return problems + [("faults", specs, f"a list of {faults_name}s")]
+    for i, spec in enumerate(specs):
+        problems += [(f"faults[{i}]" + (f".{k}" if k else ""), v, e)
+                     for k, v, e in fault_spec_problems(spec, z_pinion, z_wheel)]
+    if health == "faults" and not specs:
+        problems.append(("faults", None, f'at least one {faults_name} when {health_key} = "faults"'))
+    elif specs and health is not None and health != "faults":
+        problems.append(("faults", f"{len(specs)} fault(s)",
+                         f'no {faults_name} unless {health_key} = "faults" (health is {health!r})'))
     return problems
 
 

@@ -13,7 +13,7 @@ import math
 import numpy as np
 from numba import njit
 
-from gearcontact_fmu.mesh_model import FIDELITIES, MeshModel
+from gearcontact_fmu.mesh_model import FIDELITIES, MeshModel, supports
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
 
 
@@ -34,7 +34,7 @@ def make_ideal_model(gear_params=None, pcm_params=None, resolution=None, **kw) -
 
 def make_analytic_model(gear_params, pcm_params, resolution=None, health="healthy", mesh_files=None, **kw) -> MeshModel:
     """The ISO 6336 reference pair (``analytic.make_analytic_model``); it models the healthy pair only."""
-    if health not in ("healthy", "", None) or mesh_files:
+    if not supports("analytic", "teeth") and (health not in ("healthy", "", None) or mesh_files):
         raise ValueError("the analytic mesh models the healthy pair only (health='healthy', "
                          "no mesh files); use fidelity 'pcm' or 'table' for faults")
     from gearcontact_fmu.analytic import make_analytic_model as make
@@ -82,7 +82,7 @@ def make_mesh_model(fidelity: str, gear_params=None, pcm_params=None, resolution
     if not (math.isfinite(compliance) and compliance >= 1.0):
         raise ValueError(f"tooth compliance factor must be >= 1 (1 = none), not {compliance!r}")
     if compliance != 1.0:
-        if fidelity in ("pcm", "ideal"):
+        if not supports(fidelity, "tooth_compliance"):
             raise ValueError(f"tooth compliance is carried by the table fidelity (a series compliance on its map's "
                              f"approach axis) and already part of the analytic ISO 6336 pair; not by {fidelity!r}")
         if fidelity == "table":

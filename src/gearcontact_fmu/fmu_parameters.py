@@ -18,28 +18,27 @@ import json
 from collections.abc import Mapping
 from typing import Any
 
-from gearcontact_fmu.fault_specs import fault_spec_problems
+from gearcontact_fmu.fault_specs import health_problems
 from gearcontact_fmu.mesh_model import MeshModel
 from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCMParams
 from gearcontact_fmu.stage import GearStage, StageParams, make_stage, stage_mesh_model
 
 
 def fault_specs(parameters: Mapping[str, Any]) -> list:
-    """The ``faults`` parameter (a JSON list of fault specifications), checked against the tooth counts:
-    every problem named at once (ValueError); ``health = "faults"`` needs at least one."""
+    """The ``faults`` parameter (a JSON list of fault specifications), checked with the health against the
+    tooth counts by the scene's own check (``fault_specs.health_problems``): every problem named at once
+    (ValueError); ``health = "faults"`` needs at least one, the other states none. The FMU is used
+    standalone too, so it guards its parameters itself."""
     try:
         specs = json.loads(str(parameters["faults"]) or "[]")
     except ValueError as exc:
         raise ValueError(f"parameter faults is not JSON ({exc})") from None
     if not isinstance(specs, list):
         raise ValueError("parameter faults must be a JSON list of fault specifications")
-    z_pinion, z_wheel = int(parameters["z_pinion"]), int(parameters["z_wheel"])
-    problems = [f"faults[{i}].{k} = {v!r}: expected {e}" for i, spec in enumerate(specs)
-                for k, v, e in fault_spec_problems(spec, z_pinion, z_wheel)]
+    problems = health_problems(str(parameters["health"]).strip(), specs, int(parameters["z_pinion"]),
+                               int(parameters["z_wheel"]), faults_name="fault in the faults parameter")
     if problems:
-        raise ValueError("; ".join(problems))
-    if str(parameters["health"]).strip() == "faults" and not specs:
-        raise ValueError('health = "faults" needs at least one fault in the faults parameter')
+        raise ValueError("; ".join(f"{k}{'' if v is None else f' = {v!r}'}: expected {e}" for k, v, e in problems))
     return specs
 
 

@@ -179,6 +179,18 @@ def _wrapped(inner_eval):
     return f
 
 
+def split_offset(model: MeshModel) -> tuple[tuple, tuple | None]:
+    """(the data of the mesh model inside, the offset data or None): the layout :func:`with_errors` gives a
+    model's data, ``(inner data, offset data)``, read here so that no caller guesses it from a length."""
+    if OFFSET_INFO in model.info:
+        return model.data
+    return model.data, None
+
+
+#: the key of MeshModel.info that marks a model wrapped by with_errors (its value: the errors' dict)
+OFFSET_INFO = "manufacturing_errors"
+
+
 def with_errors(model: MeshModel, errors, gear: BevelGearParams | None = None) -> MeshModel:
     """``model`` with the manufacturing errors applied: ``errors`` a ManufacturingErrors, its dict or JSON
     (:func:`manufacturing_specs.errors_of`); unchanged if None or empty."""
@@ -189,6 +201,6 @@ def with_errors(model: MeshModel, errors, gear: BevelGearParams | None = None) -
         raise ValueError("the ideal (rigid) mesh cannot carry manufacturing errors: it has no mesh "
                          "coordinate to offset; use fidelity pcm, table or analytic")
     te = offset_data(errors, gear)
-    info = {**model.info, "manufacturing_errors": errors.to_dict()}
+    info = {**model.info, OFFSET_INFO: errors.to_dict()}
     return MeshModel(eval=_wrapped(model.eval), data=(model.data, te), fidelity=model.fidelity, kind=model.kind,
                      info=info)

@@ -37,11 +37,36 @@ STATUS_PENETRATION_EXCEEDED = 1
 SCHEMES = ("auto", "ros2", "rk4")
 FIDELITIES = ("pcm", "table", "analytic", "ideal")
 """Mesh-contact fidelities, finest first (``fidelity.BUILDERS`` maps each to its builder)."""
-GENERATED_HEALTH = ("healthy", "mild", "severe", "faults")
+PAPER_HEALTH = ("healthy", "mild", "severe")
+"""The paper's three health states, the ones the rig measured (validation, accuracy study, stress)."""
+GENERATED_HEALTH = PAPER_HEALTH + ("faults",)
 """Health states generated from the healthy geometry (``faults.apply_health``; ``"faults"``: a list of
 fault specifications on either gear, ``faults.FAULT_KINDS``)."""
 HEALTH_STATES = GENERATED_HEALTH + ("mesh",)
 """Every health state a scene or the GearContact FMU accepts (``"mesh"``: user mesh files)."""
+FIDELITY_SUPPORTS = {
+    "pcm": frozenset({"teeth", "friction", "manufacturing_errors"}),
+    "table": frozenset({"teeth", "friction", "tooth_compliance", "manufacturing_errors"}),
+    "analytic": frozenset({"friction", "tooth_compliance", "manufacturing_errors"}),
+    "ideal": frozenset(),
+}
+"""What each fidelity models beyond the healthy pair's mesh force, declared once (the scene's checks and
+``fidelity`` read it): ``teeth``, tooth geometry, so
+every health state (faults, user meshes), the others the healthy pair only; ``friction``, tooth friction
+(pcm/table from the PCM, analytic from ``mu``); ``tooth_compliance``, the series tooth compliance (table
+applies it to its map; the analytic ISO 6336 pair has it already); ``manufacturing_errors``, a mesh
+coordinate for the errors to offset (the rigid ideal mesh has none)."""
+
+
+def supports(fidelity: str, feature: str) -> bool:
+    """Does ``fidelity`` model ``feature`` (a key of :data:`FIDELITY_SUPPORTS`' sets)?"""
+    return feature in FIDELITY_SUPPORTS[fidelity]
+
+
+def fidelities_with(feature: str) -> tuple[str, ...]:
+    """The fidelities that model ``feature``, finest first."""
+    return tuple(f for f in FIDELITIES if supports(f, feature))
+
 
 @dataclass
 class MeshModel:

@@ -12,6 +12,8 @@ import functools
 import math
 from dataclasses import dataclass
 
+#: the model name of the gear FMU (GearContact.fmu, its slave class, the native build's model)
+GEAR_MODEL = "GearContact"
 #: the default communication step of a co-simulation [s] (scene key numerics.comm_step_s, the FMUs'
 #: DefaultExperiment step size): 4 steps per output sample at the rig's ~3 kHz
 DEFAULT_COMM_STEP_S = 1.0 / 12000.0

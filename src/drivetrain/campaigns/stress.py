@@ -59,6 +59,7 @@ from drivetrain.campaigns.sweep import CACHED_FIDELITIES, prepare_caches, read_r
 from drivetrain.system import SystemSpec
 from gearcontact_fmu import faults, geometry
 from gearcontact_fmu.meshes import save_mesh
+from gearcontact_fmu.mesh_model import PAPER_HEALTH
 from gearcontact_fmu.params import BevelGearParams
 
 # --------------------------------------------------------------------------------------------------
@@ -71,7 +72,7 @@ MAX_SPEED_RPM = 3000.0
 SAMPLE_RATE_HZ = 3000.0
 STEP_DIVISORS = (1, 2, 4, 8, 16)               #: H = 1 / (SAMPLE_RATE_HZ * k): 1/3000 .. 1/48000 s
 RATTLE_LOAD_NM = 0.1                           #: |load| below this: the rattle regime
-HEALTHS = ("healthy", "mild", "severe", "mesh")
+HEALTHS = PAPER_HEALTH + ("mesh",)
 HEALTH_WEIGHTS = {"healthy": 0.34, "mild": 0.22, "severe": 0.22, "mesh": 0.22}
 SHAFT_ELEMENTS = {1: 0.15, 2: 0.15, 4: 0.4, 8: 0.15, 16: 0.15}     #: effects.shaft_elements: weight
 #: fidelity weights given the health (ideal and analytic model the healthy gear only)

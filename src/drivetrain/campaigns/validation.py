@@ -20,9 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
+from gearcontact_fmu.mesh_model import PAPER_HEALTH
+
 SPEEDS_RPM = (250.0, 500.0, 750.0, 1000.0, 1250.0, 1500.0)
 LOADS_NM = (0.12, 0.71, 1.31)
-HEALTHS = ("healthy", "mild", "severe")
+HEALTHS = PAPER_HEALTH
 #: the realism effects the checks run with, unless a check says otherwise
 REALISM = ("effects.manufacturing_errors=true", "effects.sensors=rig", "effects.tooth_compliance=true")
 #: the rig's first torsional mode [Hz] (RIG.md: measured)

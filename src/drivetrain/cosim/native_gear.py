@@ -39,10 +39,11 @@ from xml.etree import ElementTree as ET
 import numpy as np
 
 import gearcontact_fmu
+from gearcontact_fmu.params import GEAR_MODEL
 from drivetrain.errors import NativeBuildError
 
 NATIVE_DIR = Path(gearcontact_fmu.__file__).resolve().parent / "native"
-SLAVE_SCRIPT = Path(gearcontact_fmu.__file__).resolve().parent / "slaves" / "GearContact.py"
+SLAVE_SCRIPT = Path(gearcontact_fmu.__file__).resolve().parent / "slaves" / f"{GEAR_MODEL}.py"
 C_SOURCE = "gearcontact_native.c"
 #: the coupling correction, shared with the native line FMUs (drivetrain.cosim.native_line)
 #: C headers every native FMU compiles (in gearcontact_fmu/native, shipped in each FMU's sources/)
@@ -50,7 +51,7 @@ SHARED_HEADERS = ("coupling_correction.h", "fmi2_shell.h")
 BUILD_HEADER = "gearcontact_build.h"
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 MAP_RESOURCE = "contact_map.bin"
-MODEL = "GearContact"
+MODEL = GEAR_MODEL
 
 #: parameters the C model reads at initialization: settable as in the pythonfmu GearContact
 RUNTIME_PARAMETERS = frozenset({
@@ -103,9 +104,9 @@ def _table_arrays(slave, parameters: dict) -> dict:
         model = build_mesh_model({**values, **parameters, **NEUTRAL})
     except Exception as exc:  # noqa: BLE001 - every builder error becomes a refusal with its message
         raise NativeBuildError([f"the contact map cannot be built: {type(exc).__name__}: {exc}"]) from None
-    data, te = model.data, None
-    if len(data) == 2:                         # manufacturing.with_errors: (inner data, offset data)
-        data, te = data
+    from gearcontact_fmu.manufacturing import split_offset
+
+    data, te = split_offset(model)             # manufacturing.with_errors' layout, named there
     values, a, onset, dtheta, ratio, _cc, _ce, _umax, _fric, w_reg, n_rev = data
     return {"values": np.ascontiguousarray(values, dtype="<f8"), "a": np.ascontiguousarray(a, dtype="<f8"),
             "onset": np.ascontiguousarray(onset, dtype="<f8"), "dtheta": float(dtheta), "ratio": float(ratio),

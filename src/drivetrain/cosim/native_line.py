@@ -37,6 +37,7 @@ from typing import Callable
 
 import drivetrain
 import gearcontact_fmu
+from gearcontact_fmu.params import GEAR_MODEL
 from drivetrain.errors import NativeBuildError
 from drivetrain.cosim.native_gear import NATIVE_DIR as SHARED_DIR
 from drivetrain.cosim.native_gear import (SHARED_HEADERS, c_double, c_string, compile_and_pack, copy_shared_sources,
@@ -269,7 +270,7 @@ def _gear_fingerprint(parameters: dict) -> str:
 def system_gear(spec) -> tuple[dict | None, str | None]:
     """(the GearContact parameters of the system ``spec``, None) if it has a gear of fidelity table;
     (None, why not) else."""
-    gears = [c for c in spec.components if c.model == "GearContact"]
+    gears = [c for c in spec.components if c.model == GEAR_MODEL]
     if not gears:
         return None, "the system has no GearContact component"
     params = dict(gears[0].parameters)
@@ -300,7 +301,7 @@ def build_native_fmus(spec, out_dir: str | Path, *, log: Callable[[str], None] |
         raise NativeBuildError([why])
     out_dir = Path(out_dir)
     paths = {m: build_native_line(m, out_dir / f"{m}.fmu", log=log) for m in MODELS}
-    paths["GearContact"] = build_native_gear(gear, out_dir / "GearContact.fmu", log=log)
+    paths[GEAR_MODEL] = build_native_gear(gear, out_dir / f"{GEAR_MODEL}.fmu", log=log)
     return paths
 
 
@@ -322,8 +323,8 @@ def native_fmus(spec, cache_dir: str | Path = CACHE_DIR, *,
     gear, why = system_gear(spec)
     if gear is not None:
         fixed = build_fixed(gear)
-        path = cache_dir / f"GearContact-{_gear_fingerprint(fixed)[:16]}.fmu"
-        builds["GearContact"] = (path, None if path.is_file() else
+        path = cache_dir / f"{GEAR_MODEL}-{_gear_fingerprint(fixed)[:16]}.fmu"
+        builds[GEAR_MODEL] = (path, None if path.is_file() else
                                  functools.partial(build_native_gear, fixed, path))
     todo = {m: b for m, (_, b) in builds.items() if b is not None}
     if todo:

@@ -24,7 +24,7 @@ from drivetrain.models.components import COMPONENTS, loss_slope, make_component
 from drivetrain.rig.data import default_parameters
 from drivetrain.system import SPRING, SystemSpec
 from gearcontact_fmu.analytic import mesh_stiffness
-from gearcontact_fmu.params import BevelGearParams
+from gearcontact_fmu.params import GEAR_MODEL, BevelGearParams
 
 
 
@@ -88,7 +88,7 @@ def gear_block(name: str, params: dict, gear: str = "auto") -> LinearBlock:
     """Linear model of the GearContact stage: pinion and wheel (or one rigid body for the ideal gear),
     port springs k_a, k_b, the mesh as a spring of the mean mesh stiffness."""
 
-    p = dict(default_parameters("GearContact"))
+    p = dict(default_parameters(GEAR_MODEL))
     p.update({k: v for k, v in params.items()})
     Jp, Jw = float(p["J_pinion"]), float(p["J_wheel"])
     r = float(p.get("z_wheel", 60)) / float(p.get("z_pinion", 15))
@@ -116,7 +116,7 @@ def gear_block(name: str, params: dict, gear: str = "auto") -> LinearBlock:
         names = ["pinion", "wheel"]
     # the mesh is far stiffer than the ports: each port sees pinion and wheel together
     port_J = {"flange_a": Jp + Jw / r ** 2, "flange_b": Jw + Jp * r ** 2}
-    return LinearBlock(name, "GearContact", M, K, C, ports, names, out, port_J)
+    return LinearBlock(name, GEAR_MODEL, M, K, C, ports, names, out, port_J)
 
 
 def component_block(name: str, model: str, params: dict, operating: bool = True) -> LinearBlock:
@@ -146,7 +146,7 @@ def component_block(name: str, model: str, params: dict, operating: bool = True)
 def blocks_from_spec(spec: SystemSpec, gear: str = "auto", operating: bool = True) -> dict:
     out = {}
     for c in spec.components:
-        if c.model == "GearContact":
+        if c.model == GEAR_MODEL:
             out[c.name] = gear_block(c.name, c.parameters, gear)
         elif c.model in COMPONENTS:
             out[c.name] = component_block(c.name, c.model, c.parameters, operating)
@@ -216,7 +216,7 @@ def assemble_linear(spec: SystemSpec, gear: str = "auto", blocks: dict | None = 
             for j in range(i + 1, b.n):
                 if b.K[i, j] != 0 or b.M[i, j] != 0:
                     f = 1.0
-                    if b.model == "GearContact":
+                    if b.model == GEAR_MODEL:
                         f = -b.K[i, i] / b.K[i, j]          # speed(wheel) / speed(pinion) = 1/r
                     links.append((o + i, o + j, f))
     for a, bb, rr in edges:
@@ -416,7 +416,7 @@ def describe_modes(spec: SystemSpec, n_modes: int = 10, gear: str = "auto") -> l
                 lbl = f"{name}: {b.node_names[i]}-{b.node_names[i + 1]}"
                 v = np.zeros(ls.M.shape[0])
                 ki = -b.K[i, i + 1]
-                if b.model == "GearContact":
+                if b.model == GEAR_MODEL:
                     v[n + i], v[n + i + 1] = 1.0, b.K[0, 1] / b.K[0, 0]
                     ki = b.K[0, 0]
                     lbl = f"{name}: mesh"

@@ -22,7 +22,7 @@ from scipy.linalg import expm
 
 from drivetrain.models import eigen
 from drivetrain.errors import ContactCostError, ContactRangeError, UnstableCutError  # noqa: F401
-from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCMParams
+from gearcontact_fmu.params import GEAR_MODEL, BevelGearParams, MapGrid, MeshResolution, PCMParams
 
 # gearcontact_fmu.contact_map (the PCM engine) is imported by check_contact_range only for table/pcm gears
 
@@ -125,7 +125,7 @@ def cut_report(spring: str, inertia: str, k: float, c: float, J_spring: float, J
 
 def contact_gears(spec) -> list:
     """The GearContact components of a spec whose fidelity evaluates the PCM engine (table or pcm)."""
-    return [c for c in spec.components if c.model == "GearContact"
+    return [c for c in spec.components if c.model == GEAR_MODEL
             and str(c.parameters.get("fidelity", "")).strip().lower() in ("table", "pcm")]
 
 

@@ -33,6 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from drivetrain.rig.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies, to_db
+from drivetrain.scene.load import with_overrides
+from gearcontact_fmu.mesh_model import PAPER_HEALTH
 
 ROOT = Path(__file__).resolve().parents[3]
 RESULTS_FILE = Path(__file__).resolve().parents[1] / "data" / "accuracy_cost.json"
@@ -122,7 +124,7 @@ _EXAMPLE = "scenarios/example.toml"
 STUDY_SCENES: dict[str, tuple[str, tuple[str, ...], str]] = {
     f"{h}_{n}rpm": (_EXAMPLE, (f"operating_point.drive_speed_rpm={n}", f"gear.health={h}",
                                "operating_point.load_torque_Nm=1.31"), f"{h}, {n} rpm, 1.31 N·m")
-    for h in ("healthy", "mild", "severe") for n in (250, 1500)
+    for h in PAPER_HEALTH for n in (250, 1500)
 }
 STUDY_SCENES["wheel_void_1500rpm"] = ("scenarios/faults/wheel_void_1500rpm.toml", (),
                                       "void on wheel tooth 38, 1500 rpm, 1.31 N·m")
@@ -230,7 +232,7 @@ def health_class(scene) -> str:
     if h == "faults":
         members = {str(f.get("member", "pinion")) for f in scene.gear.faults}
         return "wheel" if members == {"wheel"} else "severe"
-    return h if h in ("healthy", "mild", "severe") else "severe"
+    return h if h in PAPER_HEALTH else "severe"
 
 
 def closest_scene(scene, results: dict) -> str:
@@ -290,7 +292,7 @@ def apply_tolerance(scene) -> tuple:
     if T is None:
         return scene, None
     c = choose(scene, T)
-    return (scene.with_overrides(list(c.overrides)) if c.overrides else scene), c
+    return (with_overrides(scene, list(c.overrides)) if c.overrides else scene), c
 
 
 __all__ = ["SETTINGS", "STUDY_SCENES", "Setting", "compare", "choose", "apply_tolerance", "closest_scene",

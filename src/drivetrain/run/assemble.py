@@ -31,8 +31,8 @@ from drivetrain.models.components import COMPONENTS, FlexibleShaft, FlexibleShaf
 from drivetrain.rig.signals import characteristic_frequencies
 from drivetrain.errors import NativeBuildError
 from drivetrain.system import ComponentSpec, Connection, SystemSpec
-from gearcontact_fmu.manufacturing_specs import draw_errors
-from gearcontact_fmu.params import BevelGearParams, PCMParams
+from gearcontact_fmu.manufacturing_specs import draw_errors, errors_of
+from gearcontact_fmu.params import GEAR_MODEL, BevelGearParams, PCMParams
 
 #: Sensor variables per configuration (docs/DRIVETRAIN.md, "Sensors").
 SENSORS_COMMON = {
@@ -166,11 +166,13 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     theta_p = phi_a + twist_a
     s0 = initial_mesh_deflection(ss.T_msh, eff.mesh_contact)
     theta_w = (theta_p - s0) / rig.LOWER_RATIO
-    if "manufacturing_errors" in gear:
+    # the gear's manufacturing errors, read once from its parameter (the JSON the FMU receives)
+    errors = errors_of(gear.get("manufacturing_errors"))
+    if errors is not None:
         # the errors offset the mesh coordinate by Delta(theta_p, theta_w): start where the offset mesh sits at s0
         from gearcontact_fmu.manufacturing import mesh_offset
 
-        theta_w += mesh_offset(gear["manufacturing_errors"], theta_p, theta_w) / rig.LOWER_RATIO
+        theta_w += mesh_offset(errors, theta_p, theta_w) / rig.LOWER_RATIO
     phi_b = theta_w - twist_b
     gear.update(twist_a_start=twist_a, twist_b_start=twist_b)
     mo.update(max_substep=csub, energy_correction=int(bool(num.energy_correction)), phi0_motor=th_motor, w0=w,
@@ -186,7 +188,7 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     for name, model, params in comps:
         components.append(ComponentSpec(name, model, params))
     components.append(ComponentSpec("upper", "UpperTransmission", up))
-    components.append(ComponentSpec("gear", "GearContact", gear))
+    components.append(ComponentSpec("gear", GEAR_MODEL, gear))
     connections = [Connection(s, i) for s, i in part.connections]
     gear.update(gear_start_state(components, connections, "gear"))
 
@@ -198,7 +200,7 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
                       "bodies": part.bodies,
                       "cuts": [{k: v for k, v in c.items()} for c in part.cuts]},
         "steady_state": dataclasses.asdict(ss),
-        "manufacturing_errors": json.loads(gear["manufacturing_errors"]) if "manufacturing_errors" in gear else None,
+        "manufacturing_errors": errors.to_dict() if errors is not None else None,
         "calibration": part.calibration,
         "fmus": [c.model for c in components],
         "substeps": {"gear": sub, "components": csub},
@@ -253,7 +255,7 @@ def gear_parameters(scene) -> dict:
     """The GearContact parameters of a scene (component "gear" as assembled): what ``drivetrain
     build-native-gear`` builds."""
     spec = assemble(scene)
-    gears = [c for c in spec.components if c.model == "GearContact"]
+    gears = [c for c in spec.components if c.model == GEAR_MODEL]
     if not gears:
         raise NativeBuildError([f"scene {scene.name!r} has no GearContact component (effects.mesh_contact = "
                                 f"'ideal' with rigid shafts assembles none)"])

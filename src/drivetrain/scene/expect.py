@@ -252,7 +252,7 @@ class ExpectSpec:
 
     items: tuple[Expectation, ...] = ()
     options: CheckOptions = field(default_factory=CheckOptions)
-    raw_expect: dict | None = None            # the sections as written (re-validated by with_overrides)
+    raw_expect: dict | None = None            # the sections as written (re-validated by load.with_overrides)
     raw_check: dict | None = None
 
     def __bool__(self) -> bool:

@@ -1,0 +1,206 @@
+"""Grid files: a scene with a ``[sweep]`` table, expanded to one scene per case.
+
+``axes`` list values for some keys; the grid is the Cartesian product of those values. ``[sweep.draw]``
+adds ``n`` cases with randomly drawn faults per axes combination (one seeded generator for the whole
+grid: reproducible). ``name`` is a template for the case names (:func:`case_name`), and
+``[sweep.expect."<case name pattern>"]`` adds checks to the cases it matches. Each case is validated by
+the ``resolve`` the loader passes in (:func:`drivetrain.scene.load.load_scenes`); every problem of every
+case is reported together.
+"""
+from __future__ import annotations
+
+import copy
+import dataclasses
+import itertools
+import re
+import string
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from drivetrain.errors import ScenarioError
+from drivetrain.rig.data import Z_PINION, Z_WHEEL
+from drivetrain.scene.schema import NAME_RE, NAME_RULE, SCHEMA, Scene
+from gearcontact_fmu.fault_specs import draw_faults, draw_rule_problems
+
+GRID_SECTION = "sweep"
+GRID_KEYS = {"axes", "name", "draw"}
+DRAW_KEYS = {"n", "seed", "faults"}
+#: format spec allowed in a grid name template field (width and precision at most 2 digits)
+_SPEC_RE = re.compile(r"[<>^=]?[+\- ]?#?0?\d{0,2}[,_]?(\.\d{1,2})?[bdeEfFgGnosxX%]?")
+
+
+@dataclass(frozen=True)
+class Grid:
+    """The ``[sweep]`` table of a grid file, checked: the swept keys ("section.key" -> values), the case
+    name template, the ``[sweep.draw]`` table and the ``[sweep.expect]`` table (None: absent)."""
+
+    axes: dict
+    template: str | None
+    draw: dict | None
+    expect: dict | None
+
+
+def split_grid(raw: dict, src: str) -> Grid | None:
+    """Take the ``[sweep]`` table out of raw scene data and check it (None: not a grid file)."""
+    grid = raw.pop(GRID_SECTION, None)
+    if grid is None:
+        return None
+    problems = []
+    if not isinstance(grid, dict):
+        raise ScenarioError([(GRID_SECTION, grid, "a table [sweep] with axes = {\"section.key\" = [values]}")], src)
+    expect = grid.pop("expect", None)
+    for k in grid:
+        if k not in GRID_KEYS:
+            problems.append((f"{GRID_SECTION}.{k}", grid[k], "a known key of [sweep]: axes, name, draw"))
+    draw = grid.get("draw")
+    if draw is not None:
+        problems.extend(_draw_problems(draw))
+    axes = grid.get("axes", {} if draw is not None else None)
+    if not isinstance(axes, dict) or not (axes or draw is not None):
+        problems.append((f"{GRID_SECTION}.axes", axes, 'a table {"section.key" = [value, ...]} with at least one axis'))
+        axes = {}
+    for k, vals in axes.items():
+        parts = k.split(".")
+        if len(parts) != 2 or parts[0] not in SCHEMA or parts[1] not in SCHEMA[parts[0]]:
+            problems.append((f"{GRID_SECTION}.axes.{k}", vals, "a scene key of the form section.key"))
+        elif not isinstance(vals, list) or not vals:
+            problems.append((f"{GRID_SECTION}.axes.{k}", vals, "a non-empty list of values"))
+    template = grid.get("name", None)
+    if template is not None and not isinstance(template, str):
+        problems.append((f"{GRID_SECTION}.name", template, "a name template string, e.g. \"run_{gear.health}\""))
+    if problems:
+        raise ScenarioError(problems, src)
+    return Grid(axes, template, draw, expect)
+
+
+def _draw_problems(draw) -> list:
+    """Problems of ``[sweep.draw]``: ``n`` drawn cases per axes combination, ``seed``, and
+    ``[[sweep.draw.faults]]`` templates (gearcontact_fmu.fault_specs.draw_rule_problems)."""
+    key = f"{GRID_SECTION}.draw"
+    if not isinstance(draw, dict):
+        return [(key, draw, "a table [sweep.draw] with n, seed and [[sweep.draw.faults]]")]
+    problems = [(f"{key}.{k}", v, "a key of [sweep.draw]: n, seed, faults") for k, v in draw.items()
+                if k not in DRAW_KEYS]
+    for k in ("n", "seed"):
+        v = draw.get(k)
+        if isinstance(v, bool) or not isinstance(v, int) or v < (1 if k == "n" else 0):
+            problems.append((f"{key}.{k}", v, "an integer >= 1" if k == "n" else "an integer seed >= 0"))
+    tpls = draw.get("faults")
+    if not isinstance(tpls, list) or not tpls:
+        problems.append((f"{key}.faults", tpls, "at least one [[sweep.draw.faults]] table"))
+        return problems
+    for i, tpl in enumerate(tpls):
+        problems += [(f"{key}.faults[{i}]" + (f".{k}" if k else ""), v, e) for k, v, e in draw_rule_problems(tpl)]
+    return problems
+
+
+def refuse_swept_overrides(grid: Grid, overrides: tuple[str, ...], path) -> None:
+    """Overriding a swept key would silently replace the axis: refused."""
+    for text in overrides:
+        k = text.partition("=")[0].strip()
+        if k in grid.axes:
+            raise ScenarioError([(k, text.partition("=")[2], f"a key that is not a sweep axis of {path.name} "
+                                  f"(axes: {', '.join(grid.axes)})")], str(path))
+
+
+def case_name(template: str, base: str, scene: "Scene", src: str = "") -> str:
+    """The name of a grid case from the ``[sweep] name`` template: literal text and fields ``{base}`` or
+    ``{section.key}`` (a scene key), each with an optional short format spec (``{operating_point.
+    drive_speed_rpm:g}``, width and precision at most 2 digits). Nothing else is evaluated (no
+    attribute or index walking, no conversions); characters other than letters, digits and ``_ . + -``
+    become ``_``, and the result must be a valid scene name."""
+    key = f"{GRID_SECTION}.name"
+
+    def bad(why):
+        return ScenarioError([(key, template, why)], src)
+
+    out = []
+    try:
+        parts = list(string.Formatter().parse(template))
+    except ValueError as exc:
+        raise bad(f"a valid name template ({exc})") from None
+    for literal, field, spec, conv in parts:
+        out.append(literal)
+        if field is None:
+            continue
+        if conv is not None:
+            raise bad(f"fields without conversions (!{conv} in {{{field}}})")
+        if not _SPEC_RE.fullmatch(spec or ""):
+            raise bad(f"a short format spec such as :g or :.1f, not {spec!r} in {{{field}}}")
+        if field == "base":
+            value = base
+        else:
+            sec, _, k = field.partition(".")
+            if sec not in SCHEMA or k not in SCHEMA[sec]:
+                raise bad(f"fields {{base}} or {{section.key}} of scene keys, not {{{field}}}")
+            value = getattr(getattr(scene, sec), k)
+        try:
+            out.append(format(value, spec or ""))
+        except (TypeError, ValueError) as exc:
+            raise bad(f"a format spec that suits {field} = {value!r} ({exc})") from None
+    nm = re.sub(r"[^A-Za-z0-9_.+\-]", "_", "".join(out))
+    if not NAME_RE.fullmatch(nm):
+        raise bad(f"names that are valid scene names ({NAME_RULE}), not {nm[:80]!r}")
+    return nm
+
+
+def _cases(raw: dict, grid: Grid):
+    """(raw data of the case, draw number or None) for every case, in the grid's order: the axes'
+    Cartesian product, each combination ``n`` times with drawn faults when ``[sweep.draw]`` is given
+    (one Generator for the whole grid: reproducible)."""
+    keys = list(grid.axes)
+    draw = grid.draw
+    rng = np.random.default_rng(draw["seed"]) if draw else None
+    draws = range(draw["n"]) if draw else [None]
+    for combo, d in itertools.product(itertools.product(*(grid.axes[k] for k in keys)), draws):
+        case = copy.deepcopy(raw)
+        for k, v in zip(keys, combo):
+            sec, key = k.split(".")
+            case.setdefault(sec, {})[key] = v
+        if d is not None:
+            case.setdefault("gear", {}).update(
+                health="faults", faults=draw_faults(draw["faults"], rng, Z_PINION, Z_WHEEL))
+        case.setdefault("scenario", {}).pop("name", None)
+        yield case, d
+
+
+def expand(raw: dict, grid: Grid, resolve_case: Callable[[dict], Scene], base_name: str, src: str) -> list[Scene]:
+    """The grid's scenes, each validated by ``resolve_case`` (raw case data -> Scene) and named from the
+    template (default ``{base}_{axis}_...``, plus ``_drawNNN`` for drawn cases). Every problem of every
+    case is collected and raised together."""
+    scenes, problems, names = [], [], set()
+    template = grid.template or "_".join(["{base}"] + ["{" + k + "}" for k in grid.axes])
+    for case, d in _cases(raw, grid):
+        try:
+            sc = resolve_case(case)
+        except ScenarioError as exc:
+            problems.extend(exc.problems)
+            continue
+        nm = case_name(template, base_name, sc, src)
+        if d is not None:
+            nm += f"_draw{d:03d}"
+        if nm in names:
+            raise ScenarioError([(f"{GRID_SECTION}.name", grid.template,
+                                  f"a template giving unique names ({nm!r} twice)")], src)
+        names.add(nm)
+        if grid.expect is not None:          # [sweep.expect."<case name pattern>"]: more checks per case
+            from drivetrain.scene.expect import case_expectations
+
+            extra = case_expectations(grid.expect, nm, problems)
+            if extra:
+                case["expect"] = {**(case.get("expect") or {}), **extra}
+                try:
+                    sc = resolve_case(case)
+                except ScenarioError as exc:
+                    problems.extend(exc.problems)
+                    continue
+        scenes.append(dataclasses.replace(sc, scenario=dataclasses.replace(sc.scenario, name=nm)))
+    if grid.expect is not None:
+        from drivetrain.scene.expect import unmatched_case_patterns
+
+        problems.extend(unmatched_case_patterns(grid.expect, names))
+    if problems:
+        raise ScenarioError(list({(k, repr(v), e): (k, v, e) for k, v, e in problems}.values()), src)
+    return scenes

@@ -1,0 +1,516 @@
+"""Scene files: the schema (every key's type, unit, default and meaning, declared once) and the resolved
+``Scene``.
+
+A scene is a TOML file (documented key by key in ``docs/SCENARIOS.md``, generated from :data:`SCHEMA` by
+:func:`schema_markdown`). Validation and loading are in :mod:`drivetrain.scene.load`, grid expansion in
+:mod:`drivetrain.scene.grid`.
+
+Numbers may be written plainly (in the unit of the key's suffix) or as a string with a unit,
+``duration_s = "500 ms"``, ``drive_speed_rpm = "25 Hz"``; :data:`UNITS` lists the units accepted and a
+unit of the wrong kind is refused.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from drivetrain.errors import MISSING as _MISSING
+from drivetrain.rig.data import RIG_SENSORS, TORQUE_SENSORS, UPPER_RATIO, Z_PINION, Z_WHEEL  # noqa: F401  (re-exported)
+from drivetrain.rig.instruments import Instruments
+from gearcontact_fmu.fault_specs import FAULT_KINDS
+from gearcontact_fmu.manufacturing_specs import DEFAULT_GRADE as MANUFACTURING_GRADE
+from gearcontact_fmu.manufacturing_specs import DEFAULT_RUNOUT_GRADE as MANUFACTURING_RUNOUT_GRADE
+from gearcontact_fmu.manufacturing_specs import GRADES
+from gearcontact_fmu.mesh_model import FIDELITIES, HEALTH_STATES, SCHEMES, fidelities_with
+from gearcontact_fmu.params import DEFAULT_COMM_STEP_S, TOOTH_COMPLIANCE_FACTOR, MapGrid, MeshResolution
+
+# --------------------------------------------------------------------------------------------------
+# Fixed vocabularies
+# --------------------------------------------------------------------------------------------------
+
+SHAFT_MODELS = ("flexible", "rigid")
+MESH_UNITS = ("mm", "m")
+ANTI_ALIAS = ("fir", "butter")
+SAMPLE_DTYPES = ("float64", "float32")
+
+#: a scene name names a directory and files: no path separators, no ".", "..", hidden or option-like names
+NAME_RE = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+\-]{0,199}")
+NAME_RULE = ("1-200 letters, digits and _ . + -, starting with a letter, digit or _ "
+             "(it names the output directory and files)")
+#: an extra output variable: "component.variable"
+VAR_RE = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*\.[A-Za-z_][A-Za-z0-9_.\[\]]*$")
+
+# --------------------------------------------------------------------------------------------------
+# Units accepted in "<number> <unit>" strings: unit -> (dimension, factor to the key's base unit)
+# --------------------------------------------------------------------------------------------------
+
+UNITS: dict[str, tuple[str, float]] = {
+    # time, base s
+    "s": ("time", 1.0), "ms": ("time", 1e-3), "us": ("time", 1e-6), "µs": ("time", 1e-6),
+    "min": ("time", 60.0), "h": ("time", 3600.0),
+    # rotational speed, base rpm
+    "rpm": ("speed", 1.0), "1/min": ("speed", 1.0), "rad/s": ("speed", 60.0 / (2.0 * math.pi)),
+    "rps": ("speed", 60.0), "rev/s": ("speed", 60.0),
+    # torque, base N·m
+    "N·m": ("torque", 1.0), "Nm": ("torque", 1.0), "N.m": ("torque", 1.0), "N*m": ("torque", 1.0),
+    "mN·m": ("torque", 1e-3), "mNm": ("torque", 1e-3), "kN·m": ("torque", 1e3), "kNm": ("torque", 1e3),
+    # frequency, base Hz
+    "Hz": ("frequency", 1.0), "kHz": ("frequency", 1e3), "1/s": ("frequency", 1.0),
+    # length, base mm
+    "mm": ("length", 1.0), "m": ("length", 1e3), "um": ("length", 1e-3), "µm": ("length", 1e-3),
+    "cm": ("length", 10.0),
+    # force (only to recognise and refuse it in a torque key)
+    "N": ("force", 1.0), "kN": ("force", 1e3),
+    # angle (recognised, refused where a speed is expected)
+    "rad": ("angle", 1.0), "deg": ("angle", 1.0),
+}
+BASE_UNIT = {"time": "s", "speed": "rpm", "torque": "N·m", "frequency": "Hz", "length": "mm"}
+
+
+# --------------------------------------------------------------------------------------------------
+# Schema
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Key:
+    """One scene key."""
+
+    type: str                       # float | int | bool | str | enum | path | profile | str_list | var_list
+    default: Any = _MISSING         # _MISSING = required; None = optional (absent)
+    unit: str = ""                  # unit of the value ("" = dimensionless / not a quantity)
+    dimension: str = ""             # dimension accepted in "<number> <unit>" strings
+    allowed: tuple = ()             # enum values, or allowed list items
+    minimum: float | None = None
+    maximum: float | None = None
+    min_exclusive: bool = False
+    doc: str = ""
+    default_doc: str = ""           # how the default is shown in the docs, if not the plain value
+
+
+def _f(default, unit, dimension, doc, minimum=None, min_exclusive=False, maximum=None, default_doc=""):
+    return Key("float", default, unit, dimension, (), minimum, maximum, min_exclusive, doc, default_doc)
+
+
+_RES = MeshResolution()       # the converged contact-mesh resolution of the gear library is the scene default
+_GRID = MapGrid()             # the contact-map grid, likewise
+_INST = Instruments()         # the instrument constants are declared in drivetrain.rig.instruments
+SENSOR_MODELS = ("ideal", "rig")
+
+SCHEMA: dict[str, dict[str, Key]] = {
+    "scenario": {
+        "name": Key("str", None, doc="scene name (used for output files and manifests)",
+                    default_doc="the file name without .toml"),
+        "description": Key("str", "", doc="free text"),
+    },
+    "operating_point": {
+        "drive_speed_rpm": _f(1500.0, "rpm", "speed", "drive-motor speed reference (drive shaft)", minimum=0.0),
+        "load_torque_Nm": _f(1.31, "N·m", "torque",
+                             "load-motor torque setting, before the 1:8 planetary (paper: 0.12, 0.71, 1.31); "
+                             "negative = a reversal: the load motor drives the propeller shaft and the coast "
+                             "flanks carry the load"),
+        "speed_profile_rpm": Key("profile", None, "rpm", doc=(
+            "piecewise-linear speed reference, [[time_s, rpm], ...], times strictly increasing from 0; "
+            "held constant after the last point; overrides drive_speed_rpm"), minimum=0.0),
+        "load_profile_Nm": Key("profile", None, "N·m", doc=(
+            "piecewise-linear load torque, [[time_s, N·m], ...] like speed_profile_rpm; overrides "
+            "load_torque_Nm (a step: two points 1 ms apart); values may be negative (a load reversal)")),
+    },
+    "gear": {
+        "health": Key("enum", "healthy", allowed=HEALTH_STATES, doc=(
+            "healthy; mild = tooth-flank-fracture void on one pinion tooth; severe = one pinion tooth "
+            "missing; faults = the faults listed in [[gear.faults]], on either gear; mesh = user surface "
+            "mesh(es) from pinion_mesh / wheel_mesh")),
+        "faults": Key("faults", (), doc=(
+            "with health = \"faults\": an array of tables [[gear.faults]], each with kind ("
+            + " | ".join(FAULT_KINDS) + "), member (pinion | wheel, default pinion), tooth (0..z-1, "
+            "default 0), flank (drive | coast, default drive) and the sizes of its kind [mm]: "
+            + "; ".join(f"{k}: " + (", ".join(f"{n} (default {v if isinstance(v, str) else format(v, 'g')})"
+                                              for n, v in sz.items()) or "none")
+                        for k, sz in FAULT_KINDS.items()))),
+        "pinion_mesh": Key("path", None, doc="OBJ/STL of the pinion (health = \"mesh\"); relative to the scene file"),
+        "wheel_mesh": Key("path", None, doc="OBJ/STL of the wheel (health = \"mesh\"; optional, healthy wheel if absent)"),
+        "mesh_units": Key("enum", "mm", allowed=MESH_UNITS, doc="length unit of the mesh files"),
+    },
+    "time": {
+        "duration_s": _f(20.0, "s", "time", "simulated time", minimum=0.0, min_exclusive=True),
+        "settle_s": _f(None, "s", "time", "initial transient excluded from statistics and spectra; < duration_s",
+                       minimum=0.0, default_doc="min(2 s, 20 % of duration_s)"),
+        "sample_rate_Hz": _f(3000.0, "Hz", "frequency",
+                             "output sample rate (the rig: 3012 Hz); comm_step_s must divide its period",
+                             minimum=0.0, min_exclusive=True),
+    },
+    "outputs": {
+        "sensors": Key("str_list", list(RIG_SENSORS), allowed=tuple(RIG_SENSORS),
+                       doc="rig sensors to write (torques in N·m, encoder angles in rad)"),
+        "variables": Key("var_list", [], doc="extra FMU variables to write, each \"component.variable\""),
+        "plots": Key("bool", True, doc="write PNG plots (torque waveforms, spectra)"),
+        "aalto_csv": Key("bool", False, doc=(
+            "also write sensors.csv in the Aalto Gear Fault Dataset layout: time, enc1..enc5, Torq1, Torq2")),
+        "dtype": Key("enum", "float64", allowed=SAMPLE_DTYPES, doc="sample type of the HDF5 signals"),
+    },
+    "numerics": {
+        "comm_step_s": _f(DEFAULT_COMM_STEP_S, "s", "time",
+                          "communication step H of the master; must divide 1/sample_rate_Hz",
+                          minimum=0.0, min_exclusive=True, default_doc="1/12000 (8.333e-05)"),
+        "max_substep_s": _f(5.0e-6, "s", "time",
+                            "largest internal sub-step of the gear stage; <= comm_step_s (5 µs: the same "
+                            "torques as 1 µs to 0.1 %, see docs/pcm_vs_table.md)",
+                            minimum=0.0, min_exclusive=True),
+        "profile_element_mm": _f(_RES.profile * 1e3, "mm", "length",
+                                 "contact-mesh element size along the tooth profile (default: the converged "
+                                 "resolution of gearcontact_fmu.params.MeshResolution)",
+                                 minimum=0.0, min_exclusive=True),
+        "face_element_mm": _f(_RES.face * 1e3, "mm", "length",
+                              "contact-mesh element size along the face width (default: MeshResolution)",
+                              minimum=0.0, min_exclusive=True),
+        "map_points_per_pitch": Key("int", _GRID.points_per_pitch, minimum=4, maximum=4096, doc=(
+            "table: contact-map nodes along the pinion angle per pinion pitch (bilinear between them)")),
+        "map_approach_points": Key("int", _GRID.s_points, minimum=4, maximum=4096, doc=(
+            "table: contact-map nodes per flank along the approach beyond the contact onset")),
+        "mesh_integrator": Key("enum", "auto", allowed=SCHEMES, doc=(
+            "sub-step integrator of the gear stage: auto (rk4 where it is stable at max_substep_s, else "
+            "ros2), ros2 (linearly implicit Rosenbrock, 2nd order), rk4 (explicit; stiff contact needs small "
+            "sub-steps)")),
+        "energy_correction": Key("bool", True, doc=(
+            "energy-conserving correction of the torques the spring-side ports hand over (gear stage, "
+            "drive motor, drive shaft; gearcontact_fmu.coupling): removes the first-order energy error "
+            "of the co-simulation cuts (docs/STABILITY.md)")),
+        "anti_alias": Key("enum", "fir", allowed=ANTI_ALIAS, doc=(
+            "anti-alias filter before decimating to sample_rate_Hz: linear-phase Kaiser FIR or "
+            "zero-phase Butterworth (sosfiltfilt)")),
+        "max_contact_hours": _f(4.0, "h", "time", (
+            "refuse, before it starts, a run whose contact model (map build and online PCM) is estimated "
+            "to take longer: mesh files or element sizes finer than the default are timed on this machine "
+            "first, and the refusal says how far to coarsen"), minimum=0.0, min_exclusive=True),
+        "tolerance_pct": _f(None, "%", "", (
+            "run with the cheapest setting whose measured error for the closest studied scene is within "
+            "this: mean torques and fluctuation within T %, GMF and sidebands within T dB (docs/ACCURACY-COST.md; "
+            "the choice and why go to the summary as accuracy_choice); `drivetrain run --tolerance 1%`"),
+            minimum=0.0, min_exclusive=True, default_doc="none: the scene's own settings"),
+    },
+    "effects": {
+        "mesh_contact": Key("enum", "table", allowed=FIDELITIES, doc=(
+            "lower-gear mesh model: pcm (online polygonal contact), table (precomputed contact map), "
+            "analytic (ISO 6336 stiffness), ideal (rigid kinematic ratio, no contact FMU)")),
+        "shaft_flexibility": Key("enum", "flexible", allowed=SHAFT_MODELS,
+                                 doc="flexible shafts (FlexibleShaft FMUs) or rigid (no shaft FMU)"),
+        "shaft_elements": Key("int", 4, minimum=1, maximum=64,
+                              doc="torsional elements per long shaft (flexible only)"),
+        "friction": Key("bool", True, doc=f"tooth friction in the mesh ({'/'.join(fidelities_with('friction'))})"),
+        "contact_damping": Key("bool", True, doc="contact damping in the mesh"),
+        "losses": Key("bool", True, doc="viscous losses of the gearboxes and bearings"),
+        "sensors": Key("enum", "ideal", allowed=SENSOR_MODELS, doc=(
+            "ideal: the sensor signals as simulated; rig: as the rig's instruments report them (encoder "
+            "quantisation, transducer bandwidth and noise, from [instruments], seeded)")),
+        "tooth_compliance": Key("bool", False, doc=(
+            "tooth bending and foundation compliance in series with the PCM layers, so that the loaded mesh "
+            "stiffness is ISO 6336's ([tooth_compliance]; table; the analytic pair has it already; the "
+            "paper's simulation had none)")),
+        "manufacturing_errors": Key("bool", False, doc=(
+            "tooth position (pitch) errors and runout of pinion and wheel, drawn from [manufacturing] "
+            "(pcm, table, analytic; the paper's simulation had none)")),
+    },
+    "instruments": {
+        "seed": Key("int", _INST.seed, minimum=0, doc="seed of the measurement noise (recorded in the summary)"),
+        "encoder_lines": Key("int", _INST.encoder_lines, minimum=1, doc=(
+            "lines per revolution of the incremental encoders (read in quadrature: 4 counts per line); "
+            "assumed, not from a data sheet")),
+        "torque_bandwidth_Hz": _f(_INST.torque_bandwidth_Hz, "Hz", "frequency", (
+            "-3 dB bandwidth of the torque transducers (2nd-order Butterworth, causal); assumed"),
+            minimum=0.0, min_exclusive=True),
+        "drive_torque_noise_Nm": _f(_INST.drive_torque_noise_Nm, "N·m", "torque",
+                                    "RMS white noise of the drive-shaft torque transducer; assumed", minimum=0.0),
+        "propeller_torque_noise_Nm": _f(_INST.propeller_torque_noise_Nm, "N·m", "torque",
+                                        "RMS white noise of the propeller-shaft torque transducer; assumed",
+                                        minimum=0.0),
+    },
+    "tooth_compliance": {
+        "factor": _f(TOOTH_COMPLIANCE_FACTOR, "", "", (
+            "total mesh approach per unit of PCM layer approach (1 = the layers alone); the default makes the "
+            "loaded mesh stiffness ISO 6336's c_gamma within 7 % at the paper's loads"), minimum=1.0),
+    },
+    "manufacturing": {
+        "grade": Key("int", MANUFACTURING_GRADE, minimum=min(GRADES), maximum=max(GRADES), doc=(
+            "ISO 1328 accuracy grade of the teeth: sets the single pitch tolerance f_pt of each gear (lower = "
+            "finer; 6 = ground industrial gear)")),
+        "runout_grade": Key("int", MANUFACTURING_RUNOUT_GRADE, minimum=min(GRADES), maximum=max(GRADES), doc=(
+            "ISO 1328 grade of the radial runout F_r of each gear as mounted (its own runout plus its seat "
+            "on the shaft; coarser than the teeth)")),
+        "seed": Key("int", 0, minimum=0, doc=(
+            "seed of the draw (one seed, one set of errors; recorded in the summary); the pair is numbered from "
+            "its most loaded pinion tooth, so a fault on tooth 0 sits where a flank fracture starts")),
+        "single_pitch_um": _f(None, "um", "length", "single pitch tolerance f_pt of both gears, instead of the grade's",
+                              minimum=0.0, default_doc="from grade"),
+        "runout_um": _f(None, "um", "length", "radial runout F_r (= 2 x eccentricity) of both gears, instead of the "
+                        "runout grade's", minimum=0.0, default_doc="from runout_grade"),
+        "members": Key("str_list", ["pinion", "wheel"], allowed=("pinion", "wheel"),
+                       doc="the gears that have errors"),
+    },
+}
+
+#: Sections validated by drivetrain.scene.expect (expectations and how a scene is checked; docs/SCENARIOS.md).
+CHECK_SECTIONS = ("expect", "check")
+
+
+# --------------------------------------------------------------------------------------------------
+# Resolved scene
+# --------------------------------------------------------------------------------------------------
+
+
+# The resolved sections: every value is filled in by the loader from SCHEMA, which declares each key's
+# default once (the dataclasses have none; a section is never built with missing values).
+
+@dataclass(frozen=True)
+class ScenarioInfo:
+    name: str
+    description: str
+
+
+@dataclass(frozen=True)
+class OperatingPoint:
+    drive_speed_rpm: float
+    load_torque_Nm: float
+    speed_profile_rpm: tuple[tuple[float, float], ...] | None
+    load_profile_Nm: tuple[tuple[float, float], ...] | None
+
+    def speed_at(self, t: float) -> float:
+        """Speed reference [rpm] at time t (profile if given)."""
+        return _interp_profile(self.speed_profile_rpm, t, self.drive_speed_rpm)
+
+    def load_at(self, t: float) -> float:
+        return _interp_profile(self.load_profile_Nm, t, self.load_torque_Nm)
+
+    @property
+    def final_speed_rpm(self) -> float:
+        return self.speed_profile_rpm[-1][1] if self.speed_profile_rpm else self.drive_speed_rpm
+
+
+@dataclass(frozen=True)
+class GearSpec:
+    health: str
+    faults: tuple                        # normalised fault specifications (dicts), health = "faults"
+    pinion_mesh: Path | None             # absolute
+    wheel_mesh: Path | None              # absolute
+    mesh_units: str
+
+
+@dataclass(frozen=True)
+class TimeSpec:
+    duration_s: float
+    settle_s: float
+    sample_rate_Hz: float
+
+    @property
+    def output_period_s(self) -> float:
+        return 1.0 / self.sample_rate_Hz
+
+
+@dataclass(frozen=True)
+class OutputSpec:
+    sensors: tuple[str, ...]
+    variables: tuple[str, ...]
+    plots: bool
+    aalto_csv: bool
+    dtype: str
+
+
+@dataclass(frozen=True)
+class NumericsSpec:
+    comm_step_s: float
+    max_substep_s: float
+    profile_element_mm: float
+    face_element_mm: float
+    map_points_per_pitch: int
+    map_approach_points: int
+    mesh_integrator: str
+    energy_correction: bool
+    anti_alias: str
+    max_contact_hours: float
+    tolerance_pct: float | None
+
+
+@dataclass(frozen=True)
+class EffectsSpec:
+    mesh_contact: str
+    shaft_flexibility: str
+    shaft_elements: int
+    friction: bool
+    contact_damping: bool
+    losses: bool
+    sensors: str
+    tooth_compliance: bool
+    manufacturing_errors: bool
+
+
+@dataclass(frozen=True)
+class ToothComplianceSpec:
+    factor: float
+
+
+@dataclass(frozen=True)
+class ManufacturingSpec:
+    grade: int
+    runout_grade: int
+    seed: int
+    single_pitch_um: float | None
+    runout_um: float | None
+    members: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A validated, fully resolved scene (every default filled in, paths absolute)."""
+
+    scenario: ScenarioInfo
+    operating_point: OperatingPoint
+    gear: GearSpec
+    time: TimeSpec
+    outputs: OutputSpec
+    numerics: NumericsSpec
+    effects: EffectsSpec
+    instruments: Instruments
+    tooth_compliance: ToothComplianceSpec
+    manufacturing: ManufacturingSpec
+    source: Path | None = None           # the file it came from (None if built in code)
+    overrides: tuple[str, ...] = ()      # the --set strings applied
+    # drivetrain.scene.expect.ExpectSpec of [expect]/[check] (None: absent); not part of what is simulated
+    expect: Any = dataclasses.field(default=None, compare=False, repr=False)
+
+    @property
+    def name(self) -> str:
+        return self.scenario.name
+
+    def to_dict(self) -> dict:
+        """The resolved scene as plain TOML/JSON-able data (same layout as the file)."""
+        out: dict[str, dict] = {}
+        for section in SCHEMA:
+            obj = getattr(self, section)
+            d = {}
+            for f in dataclasses.fields(obj):
+                v = getattr(obj, f.name)
+                if v is None:
+                    continue
+                if isinstance(v, Path):
+                    v = str(v)
+                elif isinstance(v, tuple):
+                    v = [list(x) if isinstance(x, tuple) else x for x in v]
+                d[f.name] = v
+            out[section] = d
+        return out
+
+    def to_json(self) -> str:
+        return json.dumps({"scene": self.to_dict(), "source": str(self.source) if self.source else None,
+                           "overrides": list(self.overrides)}, indent=1)
+
+    def to_toml(self) -> str:
+        return dump_toml(self.to_dict())
+
+    def replace(self, **sections) -> "Scene":
+        """Copy with whole sections replaced, e.g. ``scene.replace(time=dataclasses.replace(scene.time, duration_s=1))``."""
+        return dataclasses.replace(self, **sections)
+
+
+#: section name -> the dataclass it resolves to
+SECTION_CLASSES = {
+    "scenario": ScenarioInfo, "operating_point": OperatingPoint, "gear": GearSpec, "time": TimeSpec,
+    "outputs": OutputSpec, "numerics": NumericsSpec, "effects": EffectsSpec, "instruments": Instruments,
+    "tooth_compliance": ToothComplianceSpec, "manufacturing": ManufacturingSpec,
+}
+
+
+def _interp_profile(profile, t: float, default: float) -> float:
+    if not profile:
+        return default
+    ts = [p[0] for p in profile]
+    vs = [p[1] for p in profile]
+    if t <= ts[0]:
+        return vs[0]
+    if t >= ts[-1]:
+        return vs[-1]
+    for i in range(1, len(ts)):
+        if t <= ts[i]:
+            a = (t - ts[i - 1]) / (ts[i] - ts[i - 1])
+            return vs[i - 1] + a * (vs[i] - vs[i - 1])
+    return vs[-1]  # pragma: no cover
+
+
+# --------------------------------------------------------------------------------------------------
+# TOML output and documentation
+# --------------------------------------------------------------------------------------------------
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int,)):
+        return str(v)
+    if isinstance(v, float):
+        return repr(v) if math.isfinite(v) else ("nan" if math.isnan(v) else ("inf" if v > 0 else "-inf"))
+    if isinstance(v, str):
+        return json.dumps(v, ensure_ascii=False)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + " }"
+    return json.dumps(str(v))
+
+
+def dump_toml(data: dict) -> str:
+    lines = []
+    for section, content in data.items():
+        lines.append(f"[{section}]")
+        for k, v in content.items():
+            lines.append(f"{k} = {_toml_value(v)}")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def schema_markdown() -> str:
+    """The key reference table of docs/SCENARIOS.md, generated from SCHEMA."""
+    out = []
+    for section, keys in SCHEMA.items():
+        out.append(f"### [{section}]\n")
+        out.append("| key | type | unit | default | allowed values | meaning |")
+        out.append("|---|---|---|---|---|---|")
+        for key, spec in keys.items():
+            if spec.default_doc:
+                dflt = spec.default_doc
+            elif spec.default is _MISSING:
+                dflt = "required"
+            elif spec.default is None:
+                dflt = "(absent)"
+            else:
+                dflt = "`" + _toml_value(spec.default) + "`"
+            if spec.allowed:
+                allowed = ", ".join(f"`{a}`" for a in spec.allowed)
+            else:
+                rng = []
+                if spec.minimum is not None:
+                    rng.append(f"{'>' if spec.min_exclusive else '>='} {spec.minimum:g}")
+                if spec.maximum is not None:
+                    rng.append(f"<= {spec.maximum:g}")
+                allowed = " and ".join(rng)
+                if not allowed and spec.type in ("float", "profile"):
+                    allowed = "any finite value (negative allowed)"
+            typ = {"faults": "array of tables", "str_list": "list of str", "var_list": "list of str", "profile": "list of [float, float]",
+                   "path": "str (path)", "enum": "str"}.get(spec.type, spec.type)
+            out.append(f"| `{key}` | {typ} | {spec.unit or '–'} | {dflt} | {allowed or '–'} | {spec.doc} |")
+        out.append("")
+    return "\n".join(out)
+
+
+def all_keys() -> list[str]:
+    """Every scene key, "section.key"."""
+    return [f"{s}.{k}" for s, keys in SCHEMA.items() for k in keys]
+
+
+def default_of(key: str) -> Any:
+    """The default of a scene key "section.key", as SCHEMA declares it (None: optional, absent)."""
+    section, name = key.split(".", 1)
+    return SCHEMA[section][name].default

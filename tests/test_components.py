@@ -4,10 +4,15 @@ import math
 import numpy as np
 import pytest
 
+from drivetrain.errors import ComponentError
 from drivetrain.models import components as C
+from drivetrain.models import motors, parameters
+from drivetrain.models.components import make_component
+from drivetrain.models.line import loss_torque
+from drivetrain.models.motors import MotorLoad, MotorLoadParams
+from drivetrain.models.shaft import FlexibleShaft, FlexibleShaftParams
+from drivetrain.models.transmission import UpperTransmission, UpperTransmissionParams
 from drivetrain.system import SPRING
-from drivetrain.models.components import (ComponentError, FlexibleShaft, FlexibleShaftParams, MotorLoad, MotorLoadParams,
-                                   UpperTransmission, UpperTransmissionParams, loss_torque, make_component)
 
 H = 1.0 / 12000.0
 G, RHO = 79.3e9, 7850.0
@@ -74,7 +79,7 @@ def _motor_only(**kw):
     """MotorLoad with the drive flange free (no port spring): motor + C1 + flywheel."""
     p = dict(k_c2=0.0, d_c2=0.0, c_motor=0.0, max_substep=1e-5)
     p.update(kw)
-    return MotorLoad(C.params_from(MotorLoadParams, p))
+    return MotorLoad(parameters.params_from(MotorLoadParams, p))
 
 
 def _speed_step(ref_rpm, tau_max, Ni=0.9, T=4.0):
@@ -94,7 +99,7 @@ def test_pi_reaches_reference_and_respects_torque_limit():
     T, w, m = _speed_step(ref, tau_max=1.0)
     assert np.max(np.abs(T)) <= 1.0 + 1e-9                            # the torque limit holds
     assert np.mean(T[: int(0.1 / H)]) == pytest.approx(1.0, rel=1e-6)  # saturated at the start
-    assert w[-1] == pytest.approx(ref * C.RPM, rel=1e-4)               # reaches the reference
+    assert w[-1] == pytest.approx(ref * motors.RPM, rel=1e-4)               # reaches the reference
 
 
 def test_anti_windup_limits_overshoot():
@@ -102,11 +107,11 @@ def test_anti_windup_limits_overshoot():
     the overshoot below that of the unsaturated linear loop; without it (Ni huge) it winds up."""
     ref = 500.0
     _, w_lin, _ = _speed_step(10.0, tau_max=10.0)          # small step: the linear PI response
-    lin = w_lin.max() / (10.0 * C.RPM) - 1.0
+    lin = w_lin.max() / (10.0 * motors.RPM) - 1.0
     _, w_aw, _ = _speed_step(ref, tau_max=0.5)
     _, w_no, _ = _speed_step(ref, tau_max=0.5, Ni=1e9)
-    aw = w_aw.max() / (ref * C.RPM) - 1.0
-    no = w_no.max() / (ref * C.RPM) - 1.0
+    aw = w_aw.max() / (ref * motors.RPM) - 1.0
+    no = w_no.max() / (ref * motors.RPM) - 1.0
     assert aw <= lin + 1e-3
     assert no > 3.0 * lin
 
@@ -117,8 +122,8 @@ def test_speed_profile_parameter_ramps():
         m.set_inputs(0.0, 0.0, 0.0, load_torque=0.0)
         m.step(i * H, H)
         if abs(i * H - 0.5) < H / 2:
-            assert m.outputs()["motor_w"] == pytest.approx(300 * C.RPM, rel=0.05)
-    assert m.outputs()["motor_w"] == pytest.approx(600 * C.RPM, rel=1e-3)
+            assert m.outputs()["motor_w"] == pytest.approx(300 * motors.RPM, rel=0.05)
+    assert m.outputs()["motor_w"] == pytest.approx(600 * motors.RPM, rel=1e-3)
 
 
 def test_planetary_ratio_and_energy():
@@ -185,7 +190,7 @@ def test_energy_balance_every_step(model):
 
 
 def test_upper_transmission_ratio_and_steady_loss():
-    p = C.params_from(UpperTransmissionParams, {"max_substep": 1e-5, "w0": 100.0})
+    p = parameters.params_from(UpperTransmissionParams, {"max_substep": 1e-5, "w0": 100.0})
     ut = UpperTransmission(p)
     T_out = 3.0            # middle-shaft torque the gear takes (on the UT output: -3 N m)
     for i in range(int(2.0 / H)):
@@ -248,14 +253,14 @@ def test_every_parameter_is_declared_once_with_unit_and_description():
     for model, (_, pcls) in C.COMPONENTS.items():
         defaults = pcls()
         for f in dataclasses.fields(pcls):
-            assert C.parameter_description(f), f"{model}.{f.name}: no description"
+            assert parameters.parameter_description(f), f"{model}.{f.name}: no description"
             value = getattr(defaults, f.name)
-            unit = C.parameter_unit(f)
+            unit = parameters.parameter_unit(f)
             if isinstance(value, float):
                 assert unit, f"{model}.{f.name}: a Real parameter without a unit"
             else:
                 assert unit is None, f"{model}.{f.name}: {type(value).__name__} parameter with unit {unit}"
-            assert fmishell.variable_descriptions(model)[f.name] == C.parameter_description(f)
+            assert fmishell.variable_descriptions(model)[f.name] == parameters.parameter_description(f)
 
 
 def test_step_outputs_and_lazy_outputs_cover_every_output_once():

@@ -365,8 +365,14 @@ def test_seed_maps_are_what_a_build_gives():
             worst = np.max(np.abs(a - b), axis=0) / scale
             assert np.all(worst <= 1e-8), f"{name}: the seed map differs from a fresh build (relative {worst.max():.2e})"
         timing = {"build_seconds"}
-        assert ({k: v for k, v in seed.info.items() if k not in timing}
-                == {k: v for k, v in fresh.info.items() if k in seed.info and k not in timing})
+        kept = {k: v for k, v in seed.info.items() if k not in timing}
+        built = {k: v for k, v in fresh.info.items() if k in seed.info and k not in timing}
+        assert kept.keys() == built.keys()
+        for k, v in kept.items():      # computed figures (the span) to the same 1e-8, the rest exactly
+            if isinstance(v, float):
+                assert v == pytest.approx(built[k], rel=1e-8), k
+            else:
+                assert v == built[k], k
 
 
 def test_a_cache_miss_of_a_seed_configuration_takes_the_shipped_map(tmp_path, monkeypatch):

@@ -131,7 +131,8 @@ def test_a_huge_communication_step_is_refused_not_computed():
     """One step of 1000 s blocked an FMU for 27 s; now it is refused at once with the reason."""
     import time
 
-    from drivetrain.models.components import ComponentError, make_component
+    from drivetrain.errors import ComponentError
+    from drivetrain.models.components import make_component
     from gearcontact_fmu.stage import StageError, make_stage
 
     t0 = time.perf_counter()

@@ -132,7 +132,7 @@ def test_the_fmus_run_in_an_fmu_container_as_in_our_master(system, fmu_dir, tmp_
 
 
 def test_container_start_values_are_written_without_spaces():
-    from drivetrain.models.components import parse_profile
+    from drivetrain.models.parameters import parse_profile
     from drivetrain.interop.container import _spaceless
 
     assert _spaceless("m.fidelity", "table") == "table"

@@ -94,7 +94,7 @@ def test_time_profiles_go_to_the_parameters_that_carry_them(tmp_path, fmu_dir):
         ssv = ET.fromstring(z.read("resources/motors.ssv"))
     got = {p.get("name"): _value(p) for p in ssv.findall("ssv:Parameters/ssv:Parameter", NS)}
     assert "speed_ref_rpm" not in got and "load_torque" not in got
-    from drivetrain.models.components import parse_profile
+    from drivetrain.models.parameters import parse_profile
 
     for name, want in (("speed_profile", [[0.0, 0.0], [0.2, 1500.0]]), ("load_profile", [[0.0, 0.5], [0.3, 1.31]])):
         t, v = parse_profile(got[name])                  # read back as the FMU reads it

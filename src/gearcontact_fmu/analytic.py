@@ -71,8 +71,7 @@ from gearcontact_fmu.mesh_model import (
     STATUS_PENETRATION_EXCEEDED,
     MeshModel,
 )
-from gearcontact_fmu.geometry import backlash_angle  # noqa: F401  (re-exported: the one declaration is geometry's)
-from gearcontact_fmu.params import BevelGearParams, PCMParams
+from gearcontact_fmu.params import BevelGearParams, PCMParams, backlash_angle
 
 # ISO 6336-1:2006 method B, coefficients of q' (mm um / N)
 ISO6336_C = (0.04723, 0.15551, 0.25791, -0.00635, -0.11654, -0.00193, -0.24188, 0.00529, 0.00182)

@@ -85,7 +85,7 @@ from .meshes import (
     KIND_VOID_WALL,
     SurfaceMesh,
 )
-from .params import BevelGearParams, MeshResolution
+from .params import BevelGearParams, MeshResolution, backlash_angle  # noqa: F401  (declared with the gear)
 
 __all__ = [
     "GearGeometry", "gear_geometry", "flank_point_normal", "pinion_axis", "wheel_axis", "pinion_R0",
@@ -151,15 +151,6 @@ def tooth_axis_body(role: str) -> np.ndarray:
     """Unit vector in the body frame from the apex towards the teeth: +z pinion, -z wheel."""
     _check_role(role)
     return np.array([0.0, 0.0, 1.0]) if role == "pinion" else np.array([0.0, 0.0, -1.0])
-
-
-def backlash_angle(params: BevelGearParams | None = None) -> float:
-    """Angular backlash s_b [rad at the pinion]: ``j / r_e1 = 2 j / (m z1)``.
-
-    The free play of the exact geometry equals this to sampling accuracy (~1e-9..1e-7 relative,
-    see :func:`backlash_angle_exact`, tested); drive flanks close at s = +s_b/2, coast at -s_b/2."""
-    p = params or BevelGearParams()
-    return 2.0 * p.backlash / (p.module * p.z_pinion)
 
 
 def _check_role(role):

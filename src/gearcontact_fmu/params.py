@@ -83,6 +83,17 @@ class BevelGearParams:
         return self.module * self.z_pinion / (2.0 * math.sin(self.delta_pinion))
 
 
+def backlash_angle(params: BevelGearParams | None = None) -> float:
+    """Angular backlash s_b [rad at the pinion]: ``j / r_e1 = 2 j / (m z1)``.
+
+    The free play of the exact geometry equals this to sampling accuracy (~1e-9..1e-7 relative, see
+    :func:`gearcontact_fmu.geometry.backlash_angle_exact`, tested); drive flanks close at s = +s_b/2, coast
+    at -s_b/2. Declared with the gear (not in geometry) so that a light model (ideal, analytic) does not
+    load the flank geometry for it."""
+    p = params or BevelGearParams()
+    return 2.0 * p.backlash / (p.module * p.z_pinion)
+
+
 @dataclass(frozen=True)
 class PCMParams:
     """Polygonal contact (elastic layer) parameters, paper values for the lower gear mesh."""

@@ -134,9 +134,20 @@ def _copy_packages(dest: Path) -> Path:
     dirs = {pkg: SRC_ROOT / pkg for pkg in PACKAGES if (SRC_ROOT / pkg).is_dir()}
     fmu_side = {f.resolve() for f in fmu_files(dirs)}
 
+    def host_only(path: Path) -> bool:
+        """A module that never runs inside an FMU, or a folder of a host-only package (its nearest
+        package's __init__ is host-only: e.g. cosim/native's C sources); package data stays."""
+        if path.suffix == ".py":
+            return path.resolve() not in fmu_side
+        if not path.is_dir():
+            return False
+        pkg = path
+        while not (pkg / "__init__.py").is_file() and pkg.parent != pkg:
+            pkg = pkg.parent
+        return (pkg / "__init__.py").resolve() not in fmu_side
+
     def ignore(folder, names):
-        host_only = {n for n in names if n.endswith(".py") and (Path(folder) / n).resolve() not in fmu_side}
-        return set(_IGNORE(folder, names)) | host_only
+        return set(_IGNORE(folder, names)) | {n for n in names if host_only(Path(folder) / n)}
 
     for pkg, src in dirs.items():
         shutil.copytree(src, bundled / pkg, ignore=ignore)

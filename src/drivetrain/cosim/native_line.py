@@ -35,7 +35,6 @@ import uuid
 from pathlib import Path
 from typing import Callable
 
-import drivetrain
 import gearcontact_fmu
 from gearcontact_fmu.params import GEAR_MODEL
 from drivetrain.errors import NativeBuildError
@@ -90,7 +89,7 @@ def _port_names(model: str) -> list[str]:
 
 def write_header(model: str, rows: list[dict], guid: str, path: Path) -> None:
     """line_build.h: the model selector, the LN_VARS table (by value reference), the VR_* names, the constants."""
-    from drivetrain.models.components import RPM
+    from drivetrain.models.motors import RPM
     from gearcontact_fmu.params import CODE_NONFINITE_INPUT, CODE_NONFINITE_STATE, MAX_SUBSTEPS_PER_STEP
 
     ports = _port_names(model)

@@ -33,7 +33,7 @@ import tempfile
 from pathlib import Path
 
 from drivetrain.run.assemble import sensor_map
-from drivetrain.models.components import parse_profile
+from drivetrain.models.parameters import parse_profile
 from drivetrain.errors import ConfigurationError
 from drivetrain.interop.ssp import bound_values, system_connections, system_fmus, value_text
 from drivetrain.system import SystemSpec

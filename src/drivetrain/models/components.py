@@ -14,11 +14,9 @@ import copy
 
 import numpy as np
 
-from drivetrain.errors import ComponentError  # noqa: F401  (re-exported)
-from drivetrain.models.line import LineModel, loss_slope, loss_torque  # noqa: F401  (re-exported)
-from drivetrain.models.motors import RPM, MotorLoad, MotorLoadParams  # noqa: F401  (RPM re-exported)
-from drivetrain.models.parameters import (parameter_description, parameter_unit, params_from,  # noqa: F401
-                                          parse_profile)
+from drivetrain.models.line import LineModel
+from drivetrain.models.motors import MotorLoad, MotorLoadParams
+from drivetrain.models.parameters import params_from
 from drivetrain.models.shaft import FlexibleShaft, FlexibleShaftParams
 from drivetrain.models.transmission import UpperTransmission, UpperTransmissionParams
 

@@ -20,7 +20,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivetrain.models.components import COMPONENTS, loss_slope, make_component
+from drivetrain.models.components import COMPONENTS, make_component
+
+from drivetrain.models.line import loss_slope
 from drivetrain.rig.data import default_parameters
 from drivetrain.system import SPRING, SystemSpec
 from gearcontact_fmu.analytic import mesh_stiffness

@@ -28,7 +28,10 @@ import weakref
 from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real, String
 from pythonfmu.enums import Fmi2Status
 
+from drivetrain.errors import ComponentError
 from drivetrain.models import components as C
+from drivetrain.models.motors import RPM
+from drivetrain.models.parameters import parameter_description, parameter_unit, params_from
 from drivetrain.system import INERTIA, SPRING
 from fmu_runtime.guard import enter_error_state, fmi_text, guard_value_references, restore_shell_state, shell_state
 from gearcontact_fmu.params import DEFAULT_COMM_STEP_S
@@ -127,7 +130,7 @@ def variable_table(model: str) -> dict:
     """Every variable of a drivetrain FMU but ``error``: name -> (unit or None, description), from the
     declarations (parameter fields, flanges by port kind, own inputs and outputs, energies)."""
     _, pcls = C.COMPONENTS[model]
-    out = {f.name: (C.parameter_unit(f), C.parameter_description(f)) for f in dataclasses.fields(pcls)}
+    out = {f.name: (parameter_unit(f), parameter_description(f)) for f in dataclasses.fields(pcls)}
     for p, kind in PORTS[model].items():
         for suffix, unit, text in zip(("_phi", "_w", "_tau"), _FLANGE_UNITS, _FLANGE_DESCRIPTIONS[kind]):
             out[p + suffix] = (unit, text.format(p=p))
@@ -207,7 +210,7 @@ def init_slave(slave, model: str, slave_kwargs: dict | None = None) -> None:
         setattr(slave, name, 0.0)
         slave.register_variable(Real(name, causality=Fmi2Causality.input))
     if model == "MotorLoad":
-        slave.speed_ref_rpm = float(defaults.w0) / C.RPM
+        slave.speed_ref_rpm = float(defaults.w0) / RPM
     ref = weakref.ref(slave)
     for name in slave._outputs:
         setattr(slave, name, 0.0)
@@ -245,7 +248,7 @@ def _lazy_output(ref, name):
 
 
 def _params(slave):
-    return C.params_from(slave._pcls, {n: getattr(slave, n) for n in slave._param_names})
+    return params_from(slave._pcls, {n: getattr(slave, n) for n in slave._param_names})
 
 
 def _fail(slave, msg: str):
@@ -278,7 +281,7 @@ def _check_inputs(slave, t: float):
         return
     bad = {n: getattr(slave, n) for n in slave._inputs if not math.isfinite(float(getattr(slave, n)))}
     if bad:
-        raise C.ComponentError(f"non-finite input at t = {t:.9g} s: {bad}")
+        raise ComponentError(f"non-finite input at t = {t:.9g} s: {bad}")
 
 
 def _apply_inputs(slave):
@@ -293,7 +296,7 @@ def _publish(slave, initial: bool = False):
         values = slave._comp.step_outputs()
         if not all(map(math.isfinite, values.values())):
             bad = {n: v for n, v in values.items() if not math.isfinite(v)}
-            raise C.ComponentError(f"the step produced non-finite outputs {bad} (inputs far out of range?)")
+            raise ComponentError(f"the step produced non-finite outputs {bad} (inputs far out of range?)")
         slave._lazy_pending = True
         for name, v in values.items():
             setattr(slave, name, v)
@@ -308,7 +311,7 @@ def _publish(slave, initial: bool = False):
     values = {name: float(out[name]) for name in slave._outputs if name in out}
     if not all(map(math.isfinite, values.values())):
         bad = {n: v for n, v in values.items() if not math.isfinite(v)}
-        raise C.ComponentError(f"the initial outputs are not finite: {bad} (check the parameters and start values)")
+        raise ComponentError(f"the initial outputs are not finite: {bad} (check the parameters and start values)")
     for name, v in values.items():
         setattr(slave, name, v)
 
@@ -370,7 +373,7 @@ def do_step(slave, current_time, step_size) -> bool:
         slave._comp.step(current_time, step_size)
         _publish(slave)
     except Exception as exc:  # noqa: BLE001 - ComponentError and anything unexpected
-        name = "" if isinstance(exc, C.ComponentError) else f"{type(exc).__name__}: "
+        name = "" if isinstance(exc, ComponentError) else f"{type(exc).__name__}: "
         _fail(slave, f"do_step at t = {current_time:.9g} s failed: {name}{exc}")
         return False
     return True

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from gearcontact_fmu.params import BevelGearParams
+from gearcontact_fmu.params import GEAR_MODEL, BevelGearParams
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 PUBLIC_CSV = DATA / "testbench_lumped_parameters.csv"
@@ -307,10 +307,10 @@ def partition(shafts: str = "flexible", n_elements: int = 4, calibration: dict |
     bodies: dict = {}
     C2, J_in_extra, J_sensor = _drive_line(ch, m, shafts, n_elements, params, cuts, bodies)
     _upper_gear_motors(ch, m, cal, losses, C2, J_in_extra, J_sensor, params, cuts, bodies)
-    models = {"motors": "MotorLoad", "upper": "UpperTransmission", "gear": "GearContact"}
+    models = {"motors": "MotorLoad", "upper": "UpperTransmission", "gear": GEAR_MODEL}
     if shafts == "flexible":
         models = {"motors": "MotorLoad", "drive_shaft": "FlexibleShaft", "upper": "UpperTransmission",
-                  "gear": "GearContact"}
+                  "gear": GEAR_MODEL}
     connections = [(cu["spring"], cu["inertia"]) for cu in cuts]
     params = {name: {k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in pv.items()}
               for name, pv in params.items()}
@@ -431,7 +431,7 @@ def _defaults_cached() -> dict:
     return {"FlexibleShaft": dict(part.params["drive_shaft"]),
             "UpperTransmission": dict(part.params["upper"]),
             "MotorLoad": dict(part.params["motors"]),
-            "GearContact": dict(part.params["gear"])}
+            GEAR_MODEL: dict(part.params["gear"])}
 
 
 def default_parameters(model: str) -> dict:

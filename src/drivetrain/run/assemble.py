@@ -27,7 +27,9 @@ import json
 from drivetrain.rig import data as rig
 
 from drivetrain.models import stability
-from drivetrain.models.components import COMPONENTS, FlexibleShaft, FlexibleShaftParams, make_component, params_from
+from drivetrain.models.components import COMPONENTS, make_component
+from drivetrain.models.parameters import params_from
+from drivetrain.models.shaft import FlexibleShaft, FlexibleShaftParams
 from drivetrain.rig.signals import characteristic_frequencies
 from drivetrain.errors import NativeBuildError
 from drivetrain.system import ComponentSpec, Connection, SystemSpec
@@ -102,8 +104,8 @@ def initial_mesh_deflection(T_msh: float, fidelity: str) -> float:
     if fidelity == "ideal":
         return 0.0
     try:
-        from gearcontact_fmu.analytic import backlash_angle, mesh_stiffness
-        from gearcontact_fmu.params import BevelGearParams
+        from gearcontact_fmu.analytic import mesh_stiffness
+        from gearcontact_fmu.params import BevelGearParams, backlash_angle
 
         g = BevelGearParams()
         half = 0.5 * float(backlash_angle(g))

@@ -34,10 +34,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from drivetrain.cosim.native_gear import MODEL as GEAR_MODEL
 from drivetrain.scene.load import default_of
 from drivetrain.system import SystemSpec
-from gearcontact_fmu.params import substeps
+from gearcontact_fmu.params import GEAR_MODEL, substeps
 
 #: wall seconds per communication step of the master (loop overhead without the mesh model; native: the
 #: whole step, measured 25-35 us on 2 cores; its gear sub-steps cost less than SUBSTEP_S says: an upper bound)

@@ -29,13 +29,13 @@ from drivetrain.run import accuracy
 from drivetrain.run import cost as runcost
 from drivetrain.models import stability
 from drivetrain.cosim import CosimResult, Master
-from drivetrain.cosim.native_gear import MODEL as GEAR_MODEL
 from drivetrain.errors import ConfigurationError, CosimError, RunFailedError  # noqa: F401  (re-exported)
 from drivetrain.scene.expect import RUN_SUMMARY_TREE, SUMMARY_TREE
 from drivetrain.scene.load import RIG_SENSORS, TORQUE_SENSORS, Scene
 from drivetrain.rig.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies, stats, to_db
 from drivetrain.system import BACKENDS, SystemSpec
 from gearcontact_fmu.fault_specs import FaultGeometryError
+from gearcontact_fmu.params import GEAR_MODEL
 
 #: messages for the user (progress, warnings); the CLI passes its own ``log``, a library caller sees them
 #: through Python logging (on stderr when logging is not configured)

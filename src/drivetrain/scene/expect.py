@@ -54,6 +54,7 @@ import numpy as np
 
 from drivetrain.rig.data import RIG_SENSORS, TORQUE_SENSORS, read_measured
 from drivetrain.rig.signals import amplitude_near, amplitude_spectrum
+from drivetrain.scene.schema import SCHEMA
 
 #: Statistics of ``signal.<channel>.<stat>``.
 SIGNAL_STATS = ("mean", "rms", "std", "p2p", "min", "max")
@@ -78,6 +79,8 @@ SPECTRUM_BINS = 2
 # scene, "<channel>" = any output channel of the scene, "<i>" = a list index.
 # --------------------------------------------------------------------------------------------------
 
+#: the summary's type of a scene key's value (the scene's [effects] are copied into the summary as resolved)
+_SUMMARY_TYPE = {"bool": "bool", "int": "int", "float": "num", "enum": "str", "str": "str"}
 _STATS_TREE = {"mean": "num", "rms": "num", "std": "num", "min": "num", "max": "num", "unit": "str"}
 _RATTLE3 = {"separated_time_s": "num", "separated_fraction": "num", "n_separations": "int"}
 #: what :func:`drivetrain.run.runner.run_scene` computes (RunResult.summary)
@@ -91,9 +94,7 @@ RUN_SUMMARY_TREE: dict = {
     "sample_rate_Hz": "num", "settle_s": "num", "n_fmus": "int",
     "operating_point": {"drive_speed_rpm": "num", "load_torque_Nm": "num", "profiles": "bool"},
     "health": "str",
-    "effects": {"mesh_contact": "str", "shaft_flexibility": "str", "shaft_elements": "int", "friction": "bool",
-                "contact_damping": "bool", "losses": "bool", "sensors": "str", "tooth_compliance": "bool",
-                "manufacturing_errors": "bool"},
+    "effects": {key: _SUMMARY_TYPE[spec.type] for key, spec in SCHEMA["effects"].items()},
     "manufacturing_errors": "any", "instruments": "any",
     "torque": {"<torque>": _STATS_TREE},
     "channels": {"<channel>": _STATS_TREE},

@@ -52,6 +52,7 @@ import numpy as np
 
 from ..params import PCMParams
 from . import kernels as K
+from .records import Atlas, BaseMesh, Candidates, ElementForces, FarCheck, FixedAxisData, Motion, Poses, TargetMesh, Workspace
 from .bvh import LEAF_SIZE, build_bvh, node_obbs, refit_segment_boxes
 from .kernels import fixed_axis_eval  # noqa: F401  (re-exported: the gear stage imports it here)
 
@@ -168,15 +169,15 @@ class PCMBody:
             self._seg_boxes[key] = box
         return box
 
-    def base_mesh(self, length: float) -> K.BaseMesh:
+    def base_mesh(self, length: float) -> BaseMesh:
         """The body in the base role for penetration lines of length ``length`` (kernel data)."""
         seg, obb = self.segment_boxes(length)
-        return K.BaseMesh(self.node_int, seg, obb, self.belem, self.order, self.inv)
+        return BaseMesh(self.node_int, seg, obb, self.belem, self.order, self.inv)
 
-    def target_mesh(self) -> K.TargetMesh:
+    def target_mesh(self) -> TargetMesh:
         """The body in the target role (kernel data)."""
         if self._target is None:
-            self._target = K.TargetMesh(self.node_int, self.node_box, self.node_obb, self.ttri,
+            self._target = TargetMesh(self.node_int, self.node_box, self.node_obb, self.ttri,
                                         self.order, self.inv)
         return self._target
 
@@ -219,10 +220,10 @@ class PCMBody:
         self._seg_boxes[key] = hit
         return hit
 
-    def new_workspace(self) -> K.Workspace:
+    def new_workspace(self) -> Workspace:
         """Base-role work arrays (:class:`kernels.Workspace`)."""
         m = self.n_faces
-        return K.Workspace(stamp=np.zeros(m, dtype=np.int64), call=np.zeros(1, dtype=np.int64),
+        return Workspace(stamp=np.zeros(m, dtype=np.int64), call=np.zeros(1, dtype=np.int64),
                            best_u=np.full(m, np.inf), best_j=-np.ones(m, dtype=np.int64),
                            line=np.zeros((m, 7)), active=np.zeros(m, dtype=np.int64),
                            stack=np.zeros((4 * (self.max_depth + 64), 2), dtype=np.int64))
@@ -303,11 +304,11 @@ def evaluate_pair(base: PCMBody, target: PCMBody, pose_base, pose_target, vel_ba
     bm = base.base_mesh(L)
     tm = target.target_mesh()
     n = K.search_pair(bm, tm, Rbt, tbt, L, params[K.P_SNEG], ws)
-    e = K.ElementForces(base=np.empty(n, dtype=np.int64), target=np.empty(n, dtype=np.int64),
+    e = ElementForces(base=np.empty(n, dtype=np.int64), target=np.empty(n, dtype=np.int64),
                         u=np.empty(n), point=np.empty((n, 3)), normal=np.empty((n, 3)),
                         fn=np.empty(n), ft=np.empty((n, 3)), area=np.empty(n),
                         force=np.zeros(3), moment=np.zeros(3), diag=np.zeros(K.N_DIAG))
-    K.pair_forces(n, ws, bm, tm, K.Motion(Rt=Rt, tt=tt, tb=tb, vb=vb, wb=wb, vt=vt, wt=wt),
+    K.pair_forces(n, ws, bm, tm, Motion(Rt=Rt, tt=tt, tb=tb, vb=vb, wb=wb, vt=vt, wt=wt),
                   params, e)
     diag, force_t, moment_t = e.diag, e.force, e.moment
     status = int(diag[K.D_STATUS])
@@ -336,7 +337,7 @@ def make_fixed_axis_data(base_body: PCMBody, target_body: PCMBody, R0_base, R0_t
                          cache_margin: float | None = None, cache_far: float | None = None,
                          cache_phi: float = 0.02, cache_capacity: int | None = None,
                          periods: tuple[int, int] | None = None, atlas_snapshots: int = 1024,
-                         atlas_pairs: int | None = None) -> K.FixedAxisData:
+                         atlas_pairs: int | None = None) -> FixedAxisData:
     """numba-typable data of :func:`fixed_axis_eval` (a :class:`kernels.FixedAxisData` named tuple
     of named tuples of arrays) for a pair rotating about fixed axes through the world origin:
     pose_base = (R0_base @ Rz(theta_base), 0), likewise the target; the axes are R0[:, 2]. The
@@ -405,21 +406,21 @@ def make_fixed_axis_data(base_body: PCMBody, target_body: PCMBody, R0_base, R0_t
         lo = base_body.node_int[node, 2]
         slot_f[lo:lo + base_body.node_int[node, 3]] = f
     i64 = np.int64
-    return K.FixedAxisData(
+    return FixedAxisData(
         base=base_body.base_mesh(L), target=target_body.target_mesh(), M=M, ab0=ab0,
         params=params, cache=np.zeros(K.N_CACHE), work=base_body.new_workspace(),
-        poses=K.Poses(Rbt=np.zeros((3, 3)), tbt=np.zeros(3), Rc=np.zeros((3, 3)),
+        poses=Poses(Rbt=np.zeros((3, 3)), tbt=np.zeros(3), Rc=np.zeros((3, 3)),
                       dR=np.zeros((3, 3)), dt=np.zeros(3)),
-        cands=K.Candidates(pairs=np.zeros((cap, 2), dtype=i64), c=np.zeros(cap),
+        cands=Candidates(pairs=np.zeros((cap, 2), dtype=i64), c=np.zeros(cap),
                            s=np.zeros(cap), d=np.zeros(cap), h=np.zeros(cap),
                            g=np.zeros(cap, dtype=i64), f=np.zeros(cap, dtype=i64),
                            x=np.zeros(cap), elem_q=np.zeros(cap, dtype=i64),
                            elem_x=np.zeros(cap), elem_hit=np.zeros(cap, dtype=np.bool_)),
-        far=K.FarCheck(fnode=fnode, fc=fc, slot_f=slot_f, nstamp=np.zeros(nb, dtype=i64),
+        far=FarCheck(fnode=fnode, fc=fc, slot_f=slot_f, nstamp=np.zeros(nb, dtype=i64),
                        icount=np.zeros(1, dtype=i64), minsep=np.full(nf, np.inf),
                        nbox=np.zeros((nf, 6)), close=np.zeros(nf, dtype=i64),
                        ndisp=np.zeros(nf + 1), nsum=np.zeros(nf), nd0=np.zeros(nf)),
-        atlas=K.Atlas(period=period, meta=np.zeros((n_snap, K.N_SNAP)),
+        atlas=Atlas(period=period, meta=np.zeros((n_snap, K.N_SNAP)),
                       pairs=np.zeros((n_pool, 2), dtype=np.int32),
                       c=np.zeros(n_pool, dtype=np.float32), s=np.zeros(n_pool, dtype=np.float32),
                       d=np.zeros(n_pool, dtype=np.float32), h=np.zeros(n_pool, dtype=np.float32),
@@ -465,7 +466,7 @@ def pitch_symmetry(body: PCMBody, z: int):
     return None
 
 
-def cache_stats(data: K.FixedAxisData) -> dict:
+def cache_stats(data: FixedAxisData) -> dict:
     """Statistics of the candidate cache of fixed-axis data."""
     c = data.cache
     return {"builds": int(c[K.C_BUILDS]), "cached_calls": int(c[K.C_CALLS]),
@@ -479,13 +480,13 @@ def cache_stats(data: K.FixedAxisData) -> dict:
             "valid": bool(c[K.C_VALID])}
 
 
-def reset_cache(data: K.FixedAxisData) -> None:
+def reset_cache(data: FixedAxisData) -> None:
     """Invalidate the candidate cache (the next call rebuilds it) and end any cool-down."""
     data.cache[K.C_VALID] = 0.0
     data.cache[K.C_COOL] = 0.0
 
 
-def clear_atlas(data: K.FixedAxisData) -> None:
+def clear_atlas(data: FixedAxisData) -> None:
     """Forget the pitch atlas's snapshots (and invalidate the cache)."""
     reset_cache(data)
     data.cache[K.C_NSNAP] = 0.0

@@ -1555,7 +1555,7 @@ def _narrow_phase(d):
     return n_act
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def cached_search(d, theta_b, theta_t):
     """Exact contact search through a candidate cache (temporal coherence) of the fixed-axis
     pair ``d`` (:class:`FixedAxisData`) at the pose ``d.poses`` (angles ``theta_b``, ``theta_t``);

@@ -276,38 +276,50 @@ def _tabulate_rows(pair, theta, a, grid: MapGrid):
     # a small probe rate of the mesh coordinate gives the damping coefficient (damping is linear in
     # the normal velocity, so D = -dT/d(s_dot) / c_compression exactly on the compressing side)
     sdot = 1e-6
+    consts = (float(z1), float(z2), sdot, float(w_ref), float(pcm.c_compression))
     for i, th in enumerate(theta):
         for side, sign in ((SIDE_DRIVE, 1.0), (SIDE_COAST, -1.0)):
             on = contact_onset(pair, th, int(sign), max_approach=grid.max_approach)
             if not math.isfinite(on):
                 on = sign * s_far                        # nothing touches within the range
             onset[i, side] = on
-            for j, aj in enumerate(a):
-                sj = on + sign * aj
-                thw = (th - sj) * z1 / z2
-                engine.fixed_axis_eval(data_el, th, thw, 0.0, 0.0, out)
-                row = vals[i, side, j]
-                row[CH_TAU_P] = out[OUT_TAU_PINION]
-                row[CH_TAU_W] = out[OUT_TAU_WHEEL]
-                row[CH_N] = out[OUT_N_CONTACT]
-                row[CH_AREA] = out[OUT_CONTACT_AREA]
-                row[CH_PEAK] = out[OUT_PEAK_PRESSURE]
-                row[CH_PEN] = out[OUT_MAX_PENETRATION]
-                row[CH_FN] = out[OUT_NORMAL_FORCE]
-                row[CH_EEL] = out[OUT_ELASTIC_ENERGY]
-                if out[OUT_N_CONTACT] == 0:
-                    continue
-                tp_el = out[OUT_TAU_PINION]
-                tw_el = out[OUT_TAU_WHEEL]
-                # damping: the pinion moves at a rate that compresses the flank in contact
-                engine.fixed_axis_eval(data_dm, th, thw, sign * sdot, 0.0, out)
-                d_tp = out[OUT_TAU_PINION] - tp_el
-                row[CH_DAMP] = abs(d_tp) / (pcm.c_compression * sdot) if pcm.c_compression > 0 else 0.0
-                # friction at the reference speed with kinematic wheel speed
-                engine.fixed_axis_eval(data_fr, th, thw, w_ref, w_ref * z1 / z2, out)
-                row[CH_FRIC_P] = out[OUT_TAU_PINION] - tp_el
-                row[CH_FRIC_W] = out[OUT_TAU_WHEEL] - tw_el
+            _tabulate_side((data_el, data_dm, data_fr), th, on, sign, a, consts, vals[i, side], out)
     return onset, vals
+
+
+@njit(cache=True)
+def _tabulate_side(datas, th, on, sign, a, consts, rows, out):
+    """The rows of one pinion angle and flank (``rows``: one per approach ``a[j]`` past the onset): the
+    elastic torques and diagnostics, the damping coefficient from a probe rate ``sdot`` of the mesh
+    coordinate, the friction torques at the reference speed. One call from Python per angle and flank:
+    the kernel's data (a few hundred arrays in named tuples) is unboxed once, not three times per row."""
+    data_el, data_dm, data_fr = datas
+    z1, z2, sdot, w_ref, c_compression = consts
+    for j in range(a.shape[0]):
+        sj = on + sign * a[j]
+        thw = (th - sj) * z1 / z2
+        engine.fixed_axis_eval(data_el, th, thw, 0.0, 0.0, out)
+        row = rows[j]
+        row[CH_TAU_P] = out[OUT_TAU_PINION]
+        row[CH_TAU_W] = out[OUT_TAU_WHEEL]
+        row[CH_N] = out[OUT_N_CONTACT]
+        row[CH_AREA] = out[OUT_CONTACT_AREA]
+        row[CH_PEAK] = out[OUT_PEAK_PRESSURE]
+        row[CH_PEN] = out[OUT_MAX_PENETRATION]
+        row[CH_FN] = out[OUT_NORMAL_FORCE]
+        row[CH_EEL] = out[OUT_ELASTIC_ENERGY]
+        if out[OUT_N_CONTACT] == 0:
+            continue
+        tp_el = out[OUT_TAU_PINION]
+        tw_el = out[OUT_TAU_WHEEL]
+        # damping: the pinion moves at a rate that compresses the flank in contact
+        engine.fixed_axis_eval(data_dm, th, thw, sign * sdot, 0.0, out)
+        d_tp = out[OUT_TAU_PINION] - tp_el
+        row[CH_DAMP] = abs(d_tp) / (c_compression * sdot) if c_compression > 0 else 0.0
+        # friction at the reference speed with kinematic wheel speed
+        engine.fixed_axis_eval(data_fr, th, thw, w_ref, w_ref * z1 / z2, out)
+        row[CH_FRIC_P] = out[OUT_TAU_PINION] - tp_el
+        row[CH_FRIC_W] = out[OUT_TAU_WHEEL] - tw_el
 
 
 def cache_key(gear, pcm, resolution, health, mesh_files, grid, fault_kwargs=None, mesh_units: str = "mm") -> str:

@@ -198,7 +198,7 @@ def element_data(tri, face_points, face_normals, has_exact):
 # ----------------------------------------------------------------------------------------------
 # contact search (broad + narrow phase)
 # ----------------------------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _obb_overlap(b_obb, i, t_obb, j, rt, infl):
     """Separating-axis test of base node i (its oriented box mapped by (R, t) into the target
     frame, half extents grown by ``infl``) and target node j on the 6 face axes of the two boxes
@@ -208,7 +208,7 @@ def _obb_overlap(b_obb, i, t_obb, j, rt, infl):
     return _obb_gap(b_obb, i, t_obb, j, rt, infl) <= 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _obb_gap(b_obb, i, t_obb, j, rt, infl):
     """Largest separation of the two oriented boxes over the 6 face axes (> 0: separated, and the
     distance between the boxes is larger than this + infl). See :func:`_obb_overlap`."""
@@ -419,7 +419,7 @@ def _near_leaf(col, i, b_seg, cid):
                 nbox[f, 3 + a] = hi
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _first_crossing(n_out, active, best_u, best_j, line):
     """First-crossing rule: drop the elements whose line enters the target before the hit.
     Returns the number kept (``active[:n]``)."""

@@ -38,9 +38,10 @@ import numpy as np
 from fmpy.fmi2 import FMU2Slave
 
 from drivetrain.cosim.build import build_all
-from drivetrain.cosim.native_gear import C_SOURCE, MODEL, _probe_slave, build_native_gear, compile_command
+from drivetrain.cosim.native_gear import C_SOURCE, _probe_slave, build_native_gear, compile_command
 from drivetrain.run.assemble import gear_parameters
 from drivetrain.scene.load import load_scene
+from gearcontact_fmu.params import GEAR_MODEL
 
 ROOT = Path(__file__).resolve().parents[1]
 ap = argparse.ArgumentParser()
@@ -67,7 +68,7 @@ def rebuild_from(fmu: Path, c_source: Path, out: Path) -> Path:
     with zipfile.ZipFile(fmu) as z:
         z.extractall(d)
     (d / "sources" / C_SOURCE).write_bytes(c_source.read_bytes())
-    subprocess.run(compile_command(d / "sources", d / "binaries" / "linux64" / f"{MODEL}.so"), check=True)
+    subprocess.run(compile_command(d / "sources", d / "binaries" / "linux64" / f"{GEAR_MODEL}.so"), check=True)
     with zipfile.ZipFile(out, "w") as z:
         for f in sorted(d.rglob("*")):
             if f.is_file():

@@ -247,7 +247,6 @@ def test_every_parameter_is_declared_once_with_unit_and_description():
     them from there); a Real parameter has a unit, an Integer or String one none."""
     import dataclasses
 
-    from drivetrain.models import components as C
     from drivetrain.models import fmishell
 
     for model, (_, pcls) in C.COMPONENTS.items():
@@ -266,7 +265,6 @@ def test_every_parameter_is_declared_once_with_unit_and_description():
 def test_step_outputs_and_lazy_outputs_cover_every_output_once():
     """The shell publishes the step outputs after every step and computes LAZY_OUTPUTS when read: together
     they are the FMU's outputs (but the flange torques a spring side returns are among the step's)."""
-    from drivetrain.models import components as C
     from drivetrain.models import fmishell
 
     for model, (cls, pcls) in C.COMPONENTS.items():

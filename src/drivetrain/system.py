@@ -57,3 +57,7 @@ class SystemSpec:
     connections: list[Connection]
     comm_step: float               # communication step H [s]; must divide the output period
     metadata: dict = field(default_factory=dict)
+
+    def components_of(self, model: str) -> list[ComponentSpec]:
+        """The components of FMU model ``model``, in the system's order."""
+        return [c for c in self.components if c.model == model]

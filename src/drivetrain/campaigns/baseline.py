@@ -39,7 +39,7 @@ import numpy as np
 from drivetrain import __version__
 from drivetrain.scene.expect import CheckOptions, Outcome, _fmt, freqs_of, frequency_value, spectrum_levels
 from drivetrain.run.outputs import _finish, _mpl, jsonable, now_iso
-from drivetrain.scene.load import TORQUE_SENSORS
+from drivetrain.rig.data import TORQUE_SENSORS
 from drivetrain.rig.signals import decimate
 
 FORMAT = "drivetrain-baseline/1"

@@ -210,7 +210,7 @@ def check_run(run: CaseRun, *, base: B.Entry | None = None, baseline_file: str |
     if plots and not cc.ok and plot_dir is not None and run.time is not None and run.signals is not None:
         chans = list(dict.fromkeys(o.channel for o in cc.failures if o.channel and o.channel in run.signals))
         if not chans:
-            from drivetrain.scene.load import TORQUE_SENSORS
+            from drivetrain.rig.data import TORQUE_SENSORS
 
             chans = [c for c in TORQUE_SENSORS if c in run.signals]
         if cur is None:

@@ -54,7 +54,8 @@ import numpy as np
 from drivetrain.cosim import ConfigurationError
 from drivetrain.run.outputs import jsonable, now_iso
 from drivetrain.run.runner import assemble_scene
-from drivetrain.scene.load import FIDELITIES, TORQUE_SENSORS, Scene, load_scenes, scene_from_dict
+from drivetrain.rig.data import TORQUE_SENSORS
+from drivetrain.scene.load import FIDELITIES, Scene, load_scenes, scene_from_dict
 from drivetrain.campaigns.sweep import CACHED_FIDELITIES, prepare_caches, read_runs, run_sweep
 from drivetrain.system import SystemSpec
 from gearcontact_fmu import faults, geometry

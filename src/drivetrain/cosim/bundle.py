@@ -57,11 +57,11 @@ def _with_parents(name: str) -> list[str]:
     return [".".join(parts[:i]) for i in range(1, len(parts) + 1)]
 
 
-def fmu_modules(pkg_dirs: dict[str, Path]) -> set[str]:
+def fmu_modules(pkg_dirs: dict[str, Path], mods: dict[str, Path] | None = None) -> set[str]:
     """Every module that can run inside one of our FMUs: the whole-package roots, the drivetrain entry
     point, and the closure of their imports (with the packages on each module's path, whose
-    ``__init__`` runs at import)."""
-    mods = package_modules(pkg_dirs)
+    ``__init__`` runs at import). ``mods``: :func:`package_modules` of ``pkg_dirs`` when at hand."""
+    mods = package_modules(pkg_dirs) if mods is None else mods
     todo = [m for m in mods if m.split(".")[0] in WHOLE_PACKAGES]
     if DRIVETRAIN_ENTRY in mods:
         todo.append(DRIVETRAIN_ENTRY)
@@ -79,4 +79,4 @@ def fmu_modules(pkg_dirs: dict[str, Path]) -> set[str]:
 def fmu_files(pkg_dirs: dict[str, Path]) -> list[Path]:
     """The source files of :func:`fmu_modules`, sorted."""
     mods = package_modules(pkg_dirs)
-    return sorted(mods[m] for m in fmu_modules(pkg_dirs))
+    return sorted(mods[m] for m in fmu_modules(pkg_dirs, mods))

@@ -51,7 +51,6 @@ SHARED_HEADERS = ("coupling_correction.h", "fmi2_shell.h")
 BUILD_HEADER = "gearcontact_build.h"
 FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 MAP_RESOURCE = "contact_map.bin"
-MODEL = GEAR_MODEL
 
 #: parameters the C model reads at initialization: settable as in the pythonfmu GearContact
 RUNTIME_PARAMETERS = frozenset({
@@ -82,7 +81,7 @@ def _check(slave, parameters: dict) -> list[str]:
     known = {v.name: v for v in slave.vars.values()}
     for name in parameters:
         if name not in known:
-            problems.append(f"parameter {name!r}: not a {MODEL} parameter")
+            problems.append(f"parameter {name!r}: not a {GEAR_MODEL} parameter")
         elif known[name].causality.name != "parameter":
             problems.append(f"parameter {name!r}: is an {known[name].causality.name}, not a parameter")
     fid = str(parameters.get("fidelity", slave.fidelity)).strip().lower()
@@ -295,7 +294,7 @@ def model_description(slave, rows: list[dict], guid: str) -> bytes:
     notes = {"fixed": FIXED_NOTE, "ignored": IGNORED_NOTE}
     descriptions = {r["name"]: type(slave).variable_descriptions.get(r["name"], "") + notes.get(r["role"], "")
                     for r in rows}
-    return native_model_description(MODEL, slave, rows, guid, c_source=C_SOURCE, tool="bevel-drivetrain nativebuild",
+    return native_model_description(GEAR_MODEL, slave, rows, guid, c_source=C_SOURCE, tool="bevel-drivetrain nativebuild",
                                     note=" Native build: fidelity table, mode stage, compiled C (no Python).",
                                     descriptions=descriptions)
 
@@ -389,7 +388,7 @@ def build_native_gear(parameters: dict | None = None, out: str | Path = "fmus/na
         copy_shared_sources(src)
         write_header(rows, guid, src / BUILD_HEADER)
         (tmp / "modelDescription.xml").write_bytes(model_description(slave, rows, guid))
-        compile_and_pack(tmp, MODEL, C_SOURCE, cc, out, log,
+        compile_and_pack(tmp, GEAR_MODEL, C_SOURCE, cc, out, log,
                          "Lower bevel gear stage, fidelity table, mode stage, compiled C: no Python needed. The "
                          "contact map is <code>resources/contact_map.bin</code>.")
     if log:

@@ -269,7 +269,7 @@ def _gear_fingerprint(parameters: dict) -> str:
 def system_gear(spec) -> tuple[dict | None, str | None]:
     """(the GearContact parameters of the system ``spec``, None) if it has a gear of fidelity table;
     (None, why not) else."""
-    gears = [c for c in spec.components if c.model == GEAR_MODEL]
+    gears = spec.components_of(GEAR_MODEL)
     if not gears:
         return None, "the system has no GearContact component"
     params = dict(gears[0].parameters)

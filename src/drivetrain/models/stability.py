@@ -125,8 +125,8 @@ def cut_report(spring: str, inertia: str, k: float, c: float, J_spring: float, J
 
 def contact_gears(spec) -> list:
     """The GearContact components of a spec whose fidelity evaluates the PCM engine (table or pcm)."""
-    return [c for c in spec.components if c.model == GEAR_MODEL
-            and str(c.parameters.get("fidelity", "")).strip().lower() in ("table", "pcm")]
+    return [c for c in spec.components_of(GEAR_MODEL)
+            if str(c.parameters.get("fidelity", "")).strip().lower() in ("table", "pcm")]
 
 
 def contact_inputs(comp) -> dict:

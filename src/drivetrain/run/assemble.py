@@ -257,7 +257,7 @@ def gear_parameters(scene) -> dict:
     """The GearContact parameters of a scene (component "gear" as assembled): what ``drivetrain
     build-native-gear`` builds."""
     spec = assemble(scene)
-    gears = [c for c in spec.components if c.model == GEAR_MODEL]
+    gears = spec.components_of(GEAR_MODEL)
     if not gears:
         raise NativeBuildError([f"scene {scene.name!r} has no GearContact component (effects.mesh_contact = "
                                 f"'ideal' with rigid shafts assembles none)"])

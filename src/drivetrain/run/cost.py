@@ -85,7 +85,7 @@ def predict(spec: SystemSpec, duration_s: float, backend: str = "fmi", contact_r
     (replaces the default pcm figure)."""
     H = float(spec.comm_step)
     steps = duration_s / H
-    gears = [c for c in spec.components if c.model == GEAR_MODEL]
+    gears = spec.components_of(GEAR_MODEL)
     subs = [(str(c.parameters.get("fidelity", "pcm")), _gear_max_substep_s(c)) for c in gears]
     n_subs = [(model, steps * substeps(H, sub)) for model, sub in subs]
     n_sub = float(sum(n for _, n in n_subs))

@@ -22,17 +22,17 @@ from typing import Any
 import numpy as np
 
 from drivetrain import __version__
-
-from drivetrain.rig import instruments
-from drivetrain.run import outputs as O
-from drivetrain.run import accuracy
-from drivetrain.run import cost as runcost
-from drivetrain.models import stability
 from drivetrain.cosim import CosimResult, Master
 from drivetrain.errors import ConfigurationError, CosimError, RunFailedError  # noqa: F401  (re-exported)
-from drivetrain.scene.expect import RUN_SUMMARY_TREE, SUMMARY_TREE
-from drivetrain.scene.load import RIG_SENSORS, TORQUE_SENSORS, Scene
+from drivetrain.models import stability
+from drivetrain.rig import instruments
+from drivetrain.rig.data import RIG_SENSORS, TORQUE_SENSORS
 from drivetrain.rig.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies, stats, to_db
+from drivetrain.run import accuracy
+from drivetrain.run import cost as runcost
+from drivetrain.run import outputs as O
+from drivetrain.scene.expect import RUN_SUMMARY_TREE, SUMMARY_TREE
+from drivetrain.scene.load import Scene
 from drivetrain.system import BACKENDS, SystemSpec
 from gearcontact_fmu.fault_specs import FaultGeometryError
 from gearcontact_fmu.params import GEAR_MODEL
@@ -112,8 +112,7 @@ def stability_summary(res: CosimResult, spec: SystemSpec, time_s: float, energy_
       ``n_separations`` (contact-loss events); ``whole_run``: the same three numbers from t = 0.
       (None when the window is empty, e.g. a run that failed before settle_s.)
     """
-    gears = [c.name for c in spec.components if c.model == GEAR_MODEL]
-    g = gears[0] if gears else None
+    g = next((c.name for c in spec.components_of(GEAR_MODEL)), None)
 
     def val(name):
         return res.final.get(f"{g}.{name}") if g is not None else None
@@ -173,10 +172,10 @@ def failure_summary(res: CosimResult, spec: SystemSpec) -> dict | None:
         return None
     f = dict(res.failure)
     outs = f.pop("outputs", None) or {}
-    gears = [c.name for c in spec.components if c.model == GEAR_MODEL]
+    gear = next((c.name for c in spec.components_of(GEAR_MODEL)), None)
     f["outputs"] = outs.get(f["component"])
-    f["gear"] = gears[0] if gears else None
-    f["gear_state"] = outs.get(gears[0]) if gears else None
+    f["gear"] = gear
+    f["gear_state"] = outs.get(gear) if gear is not None else None
     return f
 
 
@@ -236,7 +235,7 @@ class RunPlan:
     @property
     def final(self) -> list[str]:
         """What is read once at the end (and at a failure): the gear's counters, the pending coupling work."""
-        names = [f"{c.name}.{v}" for c in self.spec.components if c.model == GEAR_MODEL for v in GEAR_FINAL_VARS]
+        names = [f"{c.name}.{v}" for c in self.spec.components_of(GEAR_MODEL) for v in GEAR_FINAL_VARS]
         return names + [f"{c.name}.{COUPLING_VAR}" for c in self.spec.components]
 
 

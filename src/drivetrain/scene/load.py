@@ -22,12 +22,13 @@ else:  # pragma: no cover
 
 from drivetrain.errors import MISSING as _MISSING
 from drivetrain.errors import ScenarioError
+from drivetrain.rig.data import Z_PINION, Z_WHEEL
 from drivetrain.scene.grid import GRID_SECTION, expand, refuse_swept_overrides, split_grid
 from drivetrain.scene.schema import (BASE_UNIT, CHECK_SECTIONS, NAME_RE, NAME_RULE, SCHEMA, SECTION_CLASSES,  # noqa: F401
                                      UNITS, VAR_RE, Key, Scene, all_keys, default_of, dump_toml, schema_markdown)
-from drivetrain.scene.schema import (FIDELITIES, HEALTH_STATES, RIG_SENSORS, SHAFT_MODELS,  # noqa: F401  (re-exported)
-                                     TORQUE_SENSORS, UPPER_RATIO, Z_PINION, Z_WHEEL, EffectsSpec, GearSpec,
-                                     NumericsSpec, OperatingPoint, OutputSpec, ScenarioInfo, TimeSpec)
+from drivetrain.scene.schema import (FIDELITIES, HEALTH_STATES, SHAFT_MODELS,  # noqa: F401  (re-exported)
+                                     EffectsSpec, GearSpec, NumericsSpec, OperatingPoint, OutputSpec, ScenarioInfo,
+                                     TimeSpec)
 from drivetrain.system import steps_per_output
 from gearcontact_fmu.fault_specs import health_problems, normalised_spec
 from gearcontact_fmu.mesh_model import fidelities_with, supports
@@ -488,8 +489,7 @@ def with_overrides(scene: Scene, overrides: list[str]) -> Scene:
 
 __all__ = [
     "Scene", "ScenarioInfo", "OperatingPoint", "GearSpec", "TimeSpec", "OutputSpec", "NumericsSpec",
-    "EffectsSpec", "ScenarioError", "SCHEMA", "RIG_SENSORS", "TORQUE_SENSORS", "HEALTH_STATES", "FIDELITIES",
+    "EffectsSpec", "ScenarioError", "SCHEMA", "HEALTH_STATES", "FIDELITIES", "SHAFT_MODELS",
     "load_scene", "load_scenes", "resolve", "apply_overrides", "parse_override", "scene_from_dict",
     "default_scene", "with_overrides", "schema_markdown", "dump_toml", "all_keys", "default_of", "is_grid",
-    "Z_PINION", "Z_WHEEL", "UPPER_RATIO",
 ]

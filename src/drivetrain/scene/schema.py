@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from drivetrain.errors import MISSING as _MISSING
-from drivetrain.rig.data import RIG_SENSORS, TORQUE_SENSORS, UPPER_RATIO, Z_PINION, Z_WHEEL  # noqa: F401  (re-exported)
+from drivetrain.rig.data import RIG_SENSORS
 from drivetrain.rig.instruments import Instruments
 from gearcontact_fmu.fault_specs import FAULT_KINDS
 from gearcontact_fmu.manufacturing_specs import DEFAULT_GRADE as MANUFACTURING_GRADE

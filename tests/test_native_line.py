@@ -77,8 +77,9 @@ def _open(path, params=None, name="x"):
     return open_instance(path, params, name, _extract_once(path))
 
 
-def _inputs(model, t):
-    """Every input of the model at t (fmishell.port_inputs order): ramps and sines, a few hundred steps."""
+def _inputs(model, t, disturbance=False):
+    """Every input of the model at t (fmishell.port_inputs order): ramps and sines, a few hundred steps.
+    MotorLoad's motor_torque_disturbance is 0 unless ``disturbance`` (then a sine around an offset)."""
     s1, s2 = math.sin(2 * math.pi * 70.0 * t), math.sin(2 * math.pi * 23.0 * t + 0.4)
     if model == "FlexibleShaft":
         w = 100.0 + 400.0 * t + 5.0 * s1
@@ -88,16 +89,17 @@ def _inputs(model, t):
         return [3.0 + 40.0 * t + 2.0 * s1, -(6.0 + 90.0 * t + 3.0 * s2)]
     w = 20.0 + 1500.0 * t + 3.0 * s2
     phi = 20.0 * t + 750.0 * t * t
-    return [phi, w, -(1.0 + 20.0 * t + 0.5 * s1), 200.0 + 3.0e4 * t + 50.0 * s2, 0.5 + 10.0 * t + 0.3 * s1]
+    d = 0.15 + 0.25 * math.sin(2 * math.pi * 310.0 * t + 0.2) if disturbance else 0.0
+    return [phi, w, -(1.0 + 20.0 * t + 0.5 * s1), 200.0 + 3.0e4 * t + 50.0 * s2, 0.5 + 10.0 * t + 0.3 * s1, d]
 
 
 def _outputs(vr):
     return [n for n, v in vr.items() if v.causality == "output" and v.type == "Real"]
 
 
-def _drive(s, vr, model, n, t0=0.0, init=True, init_params=None):
+def _drive(s, vr, model, n, t0=0.0, init=True, init_params=None, disturbance=False):
     """Initialize (inputs at t0; ``init_params`` set in initialization mode), then n steps; rows of every
-    Real output (the initial values first when init)."""
+    Real output (the initial values first when init). ``disturbance``: see _inputs."""
     names = fmishell.port_inputs(model)
     vin = [vr[k].valueReference for k in names]
     vout = [vr[k].valueReference for k in _outputs(vr)]
@@ -107,13 +109,13 @@ def _drive(s, vr, model, n, t0=0.0, init=True, init_params=None):
         s.enterInitializationMode()
         if init_params:
             _set(s, vr, init_params)
-        s.setReal(vin, _inputs(model, t0))
+        s.setReal(vin, _inputs(model, t0, disturbance))
         rows.append(s.getReal(vout))
         s.exitInitializationMode()
         rows.append(s.getReal(vout))
     for k in range(n):
         t = t0 + k * H
-        s.setReal(vin, _inputs(model, t))
+        s.setReal(vin, _inputs(model, t, disturbance))
         s.doStep(t, H)
         rows.append(s.getReal(vout))
     return np.array(rows)
@@ -233,6 +235,31 @@ def test_matches_the_pythonfmu_bit_for_bit(native, pyfmu, model, case):
     if case == "torque_load_limit" or case == "viscous_profiles_limit_end":
         tm = b[2:, names.index("motor_torque")]
         assert np.max(np.abs(tm)) == pytest.approx(params["tau_max"]), "the torque limit was hit"
+
+
+@pytest.mark.parametrize("case", ["defaults", "torque_load_limit", "viscous_profiles_limit_end"])
+def test_motor_torque_disturbance_matches_the_pythonfmu_bit_for_bit(native, pyfmu, case):
+    """MotorLoad driven with a nonzero motor_torque_disturbance (a sine around an offset, also while the PI's
+    torque limit is hit): the native FMU's outputs are the pythonfmu FMU's bit for bit (energy_stored to
+    rounding, as above), and the disturbance does move them (against the same run without it)."""
+    model = "MotorLoad"
+    params = CASES[model][case]
+    a = _drive(*_open(native[model], params), model, N_STEPS, disturbance=True)
+    b = _drive(*_open(pyfmu[model], params), model, N_STEPS, disturbance=True)
+    z = _drive(*_open(native[model], params), model, N_STEPS)
+    s, vr = _open(native[model])
+    names = _outputs(vr)
+    assert np.all(np.isfinite(a)) and np.all(np.isfinite(b))
+    rel = dict(zip(names, _rel(a, b)))
+    assert max(rel.values()) <= 1e-12, rel
+    exact = [i for i, n in enumerate(names) if n not in ROUNDING]
+    assert np.array_equal(a[:, exact], b[:, exact]), {n: v for n, v in rel.items() if v}
+    for n in ("motor_w", "motor_torque", "energy_supplied"):
+        assert not np.array_equal(a[2:, names.index(n)], z[2:, names.index(n)]), n
+    if case != "defaults":
+        # the limit bounds the PI's share only: the total exceeds tau_max by up to the disturbance
+        tm = a[2:, names.index("motor_torque")]
+        assert np.max(np.abs(tm)) > params["tau_max"] + 0.05
 
 
 @pytest.mark.parametrize("model, name", [("FlexibleShaft", "J_a"), ("UpperTransmission", "loss_c"),

@@ -45,7 +45,7 @@ PORTS = {model: dict(cls.PORTS) for model, (cls, _) in C.COMPONENTS.items()}
 EXTRA_INPUTS = {
     "FlexibleShaft": (),
     "UpperTransmission": (),
-    "MotorLoad": ("speed_ref_rpm", "load_torque"),
+    "MotorLoad": ("speed_ref_rpm", "load_torque", "motor_torque_disturbance"),
 }
 #: extra inputs that a parameter of the same FMU can carry as a time profile ('t0:v0; t1:v1; ...',
 #: linear between points, held outside; parameters.parse_profile): a host without input signals sets
@@ -77,7 +77,8 @@ OWN_OUTPUTS = {
         "motor_w": ("rad/s", "drive motor speed"),
         "flywheel_phi": ("rad", "drive flywheel angle"),
         "flywheel_w": ("rad/s", "drive flywheel speed"),
-        "motor_torque": ("N.m", "drive motor air-gap torque"),
+        "motor_torque": ("N.m", "drive motor air-gap torque (step mean: the PI controller's torque plus "
+                                "motor_torque_disturbance)"),
         "load_motor_torque": ("N.m", "load motor torque at the propeller shaft"),
         "load_motor_w": ("rad/s", "load motor speed"),
         "coupling_torque": ("N.m", "torque in coupling C1"),
@@ -93,6 +94,9 @@ OWN_INPUTS = {
         "speed_ref_rpm": ("rpm", "drive motor speed reference"),
         "load_torque": ("N.m", "load motor torque setting (at the load motor; times ratio_pg at the propeller "
                                "shaft)"),
+        "motor_torque_disturbance": ("N.m", "torque added to the drive motor's controlled torque on its rotor, after "
+                                            "the PI controller and its torque limit (the drive's torque noise and "
+                                            "ripple; 0 = none)"),
     },
 }
 ENERGY = {

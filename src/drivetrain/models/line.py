@@ -95,7 +95,9 @@ def line_step(H, n_sub, fp, ip, st, out, wk, cs):
     fp (float64): Md[n], Mo[n] (off-diagonal mass, last unused), k[n], c[n] (element i joins node i and
         i+1, last unused), cext[n], p_ratio[P], p_k[P], p_c[P], p_u0[P] (tau | phi_n), p_u1[P] (- | w_n),
         l_cv[L], l_Tc[L], l_wc[L], m_par[4] (Kp, Ti, Ni, tau_max), wref0, wref1 (speed reference at the
-        step start and end, linear in between).
+        step start and end, linear in between), Td (motor torque disturbance, constant over the step: an
+        external torque on the motor node added after the PI controller and its limit, outside the
+        anti-windup; counted in the motor's work and its step-mean torque).
     st: th[n], om[n], pi_x, alpha[n] (acceleration of the last sub-step), cumulative dissipated and
         supplied energy.
     out (reset here): acc[N_ACC] (step means of motor and source torque, step dissipated and supplied
@@ -135,6 +137,7 @@ def line_step(H, n_sub, fp, ip, st, out, wk, cs):
     o_m = o_wc + nl
     wref0 = fp[o_m + 4]
     wref1 = fp[o_m + 5]
+    Td = fp[o_m + 6]
     Kp = fp[o_m]
     Ti = fp[o_m + 1]
     Ni = fp[o_m + 2]
@@ -154,7 +157,7 @@ def line_step(H, n_sub, fp, ip, st, out, wk, cs):
     for q in range(npt):
         if not (np.isfinite(fp[o_u0 + q]) and np.isfinite(fp[o_u1 + q])):
             return CODE_NONFINITE_INPUT
-    if not (np.isfinite(wref0) and np.isfinite(wref1)):
+    if not (np.isfinite(wref0) and np.isfinite(wref1) and np.isfinite(Td)):
         return CODE_NONFINITE_INPUT
     for q in range(nl):
         if not (np.isfinite(fp[o_Tc + q]) and np.isfinite(fp[o_cv + q])):
@@ -211,6 +214,7 @@ def line_step(H, n_sub, fp, ip, st, out, wk, cs):
         if m_node >= 0:
             a[m_node] += Kp
             rhs[m_node] += Kp * (wr + st[s_pi])
+            rhs[m_node] += Td
         _thomas(a, b, rhs, wm, cp, dp)
         if m_node >= 0:
             j = m_node
@@ -258,8 +262,8 @@ def line_step(H, n_sub, fp, ip, st, out, wk, cs):
             else:
                 diss += Tu * wm[j]
         if m_node >= 0:
-            supp += Tm * wm[m_node]
-            out[o_acc + A_MOTOR] += h * Tm
+            supp += (Tm + Td) * wm[m_node]
+            out[o_acc + A_MOTOR] += h * (Tm + Td)
         out[o_acc + A_DISS] += h * diss
         out[o_acc + A_SUPP] += h * supp
         # ---- update ------------------------------------------------------------------------------
@@ -334,7 +338,7 @@ class LineModel:
     """A torsional chain with ports, laws and an optional PI-controlled motor (see module doc).
 
     The parameters and the state live in a few packed arrays (the kernel's layout); the attributes
-    ``J, Mo, k, c, cext, p_*, l_*, m_par, th, om, pi_x, alpha, energy, acc, tau_mean, work_out, el_mean,
+    ``J, Mo, k, c, cext, p_*, l_*, m_par, m_dist, th, om, pi_x, alpha, energy, acc, tau_mean, work_out, el_mean,
     tau_out`` are
     views into them, so writing e.g. ``model.l_Tc[0] = 2.0`` changes what the next step uses."""
 
@@ -386,7 +390,7 @@ class LineModel:
         self.ip[5 + P:5 + 2 * P] = [PORT_CODES[p.kind] for p in self.ports]
         self.ip[5 + 2 * P:5 + 2 * P + L] = [lw.node for lw in self.laws]
         self.ip[5 + 2 * P + L:] = [1 if lw.source else 0 for lw in self.laws]
-        self.fp = np.zeros(5 * n + 5 * P + 3 * L + 6)
+        self.fp = np.zeros(5 * n + 5 * P + 3 * L + 7)
         fp = self.fp
         self.J, self.Mo, self.k, self.c, self.cext = (fp[0:n], fp[n:2 * n], fp[2 * n:3 * n], fp[3 * n:4 * n],
                                                       fp[4 * n:5 * n])
@@ -397,6 +401,7 @@ class LineModel:
         o += 3 * L
         self.m_par = fp[o:o + 4]
         self.wref = fp[o + 4:o + 6]
+        self.m_dist = fp[o + 6:o + 7]      # the motor torque disturbance (set_motor_disturbance)
         self.J[:] = J
         self.Mo[:] = mo
         self.k[:] = kk
@@ -440,6 +445,15 @@ class LineModel:
         self.p_u0[q] = u0
         self.p_u1[q] = u1
 
+    def set_motor_disturbance(self, value: float) -> None:
+        """The torque [N.m] added to the drive motor's controlled torque on its node from the next step on
+        (after the PI controller and its torque limit; held over the step; 0 = none)."""
+        self.m_dist[0] = value
+
+    @property
+    def motor_disturbance(self) -> float:
+        return float(self.m_dist[0])
+
     def n_substeps(self, H):
         return substeps(H, self.max_substep)
 
@@ -458,7 +472,8 @@ class LineModel:
         if code == CODE_NONFINITE_INPUT:
             vals = {p.name: (float(self.p_u0[i]), float(self.p_u1[i])) for i, p in enumerate(self.ports)}
             raise ComponentError(f"non-finite input at t = {t:.9g} s: ports {vals}, speed reference "
-                                 f"{wref0!r}..{wref1!r}, law levels {self.l_Tc.tolist()}")
+                                 f"{wref0!r}..{wref1!r}, law levels {self.l_Tc.tolist()}"
+                                 + (f", motor disturbance {float(self.m_dist[0])!r}" if self.motor_node >= 0 else ""))
         if code == CODE_NONFINITE_STATE:
             raise ComponentError(f"non-finite state at t = {t:.9g} s; check the parameters")
         self.last_H = H
@@ -489,7 +504,7 @@ class LineModel:
 
     @property
     def motor_torque(self) -> float:
-        """Mean drive-motor torque over the last step."""
+        """Mean drive-motor torque over the last step (the PI torque plus the disturbance)."""
         return float(self.acc[A_MOTOR])
 
     @property

@@ -1,7 +1,8 @@
 """The drive motor and the load side as one component (no FMI): MotorLoadParams (its FMU parameters, each declared
 once) and MotorLoad, a LineModel (drivetrain.models.line) of the PI speed-controlled drive motor (torque limit,
 LimPID anti-windup), coupling C1, the drive flywheel, and the load body with the planetary loss and the load motor;
-the speed reference and the load setting as inputs or as time profiles."""
+the speed reference and the load setting as inputs or as time profiles, and a torque disturbance of the drive
+motor (its torque noise and ripple) as an input."""
 from __future__ import annotations
 
 import math
@@ -105,6 +106,7 @@ class MotorLoad(LineComponent):
         self.load_profile = parse_profile(p.load_profile)
         self.speed_ref_rpm = p.w0 / RPM
         self.load_torque = 0.0
+        self.motor_torque_disturbance = 0.0
         self._parse_node_start()
         self.initialize()
 
@@ -145,19 +147,24 @@ class MotorLoad(LineComponent):
             ln.l_cv[1] = T_prop / p.load_w_nom if p.load_w_nom > 0 else 0.0
             ln.l_Tc[1] = 0.0
 
-    def set_inputs(self, drive_phi, drive_w, load_tau, speed_ref_rpm=None, load_torque=None):
+    def set_inputs(self, drive_phi, drive_w, load_tau, speed_ref_rpm=None, load_torque=None,
+                   motor_torque_disturbance=None):
         self.line.set_input("drive", drive_phi, drive_w)
         self.line.set_input("load", load_tau)
         if speed_ref_rpm is not None:
             self.speed_ref_rpm = float(speed_ref_rpm)
         if load_torque is not None:
             self.load_torque = float(load_torque)
+        if motor_torque_disturbance is not None:
+            self.motor_torque_disturbance = float(motor_torque_disturbance)
 
     def step(self, t, H):
         T_set = self.load_at(t)
         if not math.isfinite(T_set):
             raise ComponentError(f"non-finite load torque {T_set!r} at t = {t:.9g} s")
         self._set_load_level(T_set)
+        # the disturbance is held over the step; the kernel refuses a non-finite one (ComponentError)
+        self.line.set_motor_disturbance(self.motor_torque_disturbance)
         self.line.step(t, H, self.speed_ref_at(t), self.speed_ref_at(t + H))
         self.motor_torque = self.line.motor_torque
         self.load_motor_torque = self.line.source_torque / self.p.ratio_pg

@@ -99,14 +99,14 @@ static int line_step(double H, int64_t n_sub, const double *fp, const int64_t *i
     const int64_t o_Md = 0, o_Mo = n, o_k = 2 * n, o_c = 3 * n, o_ce = 4 * n, o_pr = 5 * n;
     const int64_t o_pkk = o_pr + npt, o_pc = o_pkk + npt, o_u0 = o_pc + npt, o_u1 = o_u0 + npt;
     const int64_t o_cv = o_u1 + npt, o_Tc = o_cv + nl, o_wc = o_Tc + nl, o_m = o_wc + nl;
-    const double wref0 = fp[o_m + 4], wref1 = fp[o_m + 5];
+    const double wref0 = fp[o_m + 4], wref1 = fp[o_m + 5], Td = fp[o_m + 6];
     const double Kp = fp[o_m], Ti = fp[o_m + 1], Ni = fp[o_m + 2], Tmax = fp[o_m + 3];
     const int64_t s_th = 0, s_om = n, s_pi = 2 * n, s_al = 2 * n + 1, s_e = 3 * n + 1;
     const int64_t o_acc = 0, o_ti = N_ACC, o_wo = o_ti + npt, o_el = o_wo + npt, o_to = o_el + n;
     for (int64_t i = 0; i < o_to + npt; i++) out[i] = 0.0;
     for (int64_t q = 0; q < npt; q++)
         if (!(isfinite(fp[o_u0 + q]) && isfinite(fp[o_u1 + q]))) return CODE_NONFINITE_INPUT;
-    if (!(isfinite(wref0) && isfinite(wref1))) return CODE_NONFINITE_INPUT;
+    if (!(isfinite(wref0) && isfinite(wref1) && isfinite(Td))) return CODE_NONFINITE_INPUT;
     for (int64_t q = 0; q < nl; q++)
         if (!(isfinite(fp[o_Tc + q]) && isfinite(fp[o_cv + q]))) return CODE_NONFINITE_INPUT;
     const double h = H / (double)n_sub;
@@ -156,6 +156,7 @@ static int line_step(double H, int64_t n_sub, const double *fp, const int64_t *i
         if (m_node >= 0) {
             a[m_node] += Kp;
             rhs[m_node] += Kp * (wr + st[s_pi]);
+            rhs[m_node] += Td;
         }
         thomas((int)n, a, b, rhs, wm, cp, dp);
         if (m_node >= 0) {
@@ -208,8 +209,8 @@ static int line_step(double H, int64_t n_sub, const double *fp, const int64_t *i
             }
         }
         if (m_node >= 0) {
-            supp += Tm * wm[m_node];
-            out[o_acc + A_MOTOR] += h * Tm;
+            supp += (Tm + Td) * wm[m_node];
+            out[o_acc + A_MOTOR] += h * (Tm + Td);
         }
         out[o_acc + A_DISS] += h * diss;
         out[o_acc + A_SUPP] += h * supp;
@@ -445,6 +446,7 @@ typedef struct {
 #define LN_LWC(c) (LN_LCV(c) + 2 * (c)->ln.L)
 #define LN_MPAR(c) (LN_LCV(c) + 3 * (c)->ln.L)
 #define LN_WREF(c) (LN_MPAR(c) + 4)
+#define LN_MDIST(c) (LN_MPAR(c) + 6)
 #define LN_TH(c) ((c)->st)
 #define LN_OM(c) ((c)->st + (c)->ln.n)
 #define LN_PI(c) ((c)->st + 2 * (c)->ln.n)
@@ -490,7 +492,7 @@ typedef struct {
     int64_t i_hub_b, sensor_element;
     double tau_a, loss_w, loss_Tc, loss_wc;      /* UpperTransmission */
     int loss_at;
-    double speed_ref_rpm, load_torque, motor_torque, load_motor_torque;   /* MotorLoad */
+    double speed_ref_rpm, load_torque, motor_torque_disturbance, motor_torque, load_motor_torque;   /* MotorLoad */
     double lazy_energy_stored;
 } Inst;
 
@@ -512,7 +514,7 @@ static void pylist(char *buf, size_t nbuf, const double *v, int64_t n) {
 
 /* the packed arrays for n nodes, P ports, L laws (LineModel.__init__'s sizes) */
 static int line_alloc(Inst *c, int64_t n, int64_t P, int64_t L) {
-    size_t nfp = (size_t)(5 * n + 5 * P + 3 * L + 6), nst = (size_t)(3 * n + 3);
+    size_t nfp = (size_t)(5 * n + 5 * P + 3 * L + 7), nst = (size_t)(3 * n + 3);
     size_t nout = (size_t)(N_ACC + 3 * P + n), nwk = (size_t)(7 * n + 2 * L + 2);
     size_t need = nfp + nst + nout + nwk;
     if (need != c->mem_n) {
@@ -534,7 +536,7 @@ static int line_alloc(Inst *c, int64_t n, int64_t P, int64_t L) {
 static void line_views(Inst *c) {
     int64_t n = c->ln.n, P = c->ln.P, L = c->ln.L;
     c->fp = c->mem;
-    c->st = c->fp + (5 * n + 5 * P + 3 * L + 6);
+    c->st = c->fp + (5 * n + 5 * P + 3 * L + 7);
     c->out = c->st + (3 * n + 3);
     c->wk = c->out + (N_ACC + 3 * P + n);
 }
@@ -732,6 +734,10 @@ static int line_step_checked(Inst *c, double t, double H, double wref0, double w
         size_t k = strlen(why);
         snprintf(why + k, nwhy - k, "}, speed reference %s..%s, law levels ", pyfloat(wref0).s, pyfloat(wref1).s);
         pylist(why, nwhy, LN_LTC(c), c->ln.L);
+        if (c->ln.ip[3] >= 0) {
+            k = strlen(why);
+            snprintf(why + k, nwhy - k, ", motor disturbance %s", pyfloat(LN_MDIST(c)[0]).s);
+        }
         return 0;
     }
     if (code == CODE_NONFINITE_STATE) {
@@ -1027,6 +1033,7 @@ static int comp_build(Inst *c, char *why, size_t nwhy) {
     if (!node_start(c, node_name, th_chk, om_chk, why, nwhy)) return 0;
     c->speed_ref_rpm = R(w0) / RPM;
     c->load_torque = 0.0;
+    c->motor_torque_disturbance = 0.0;
     comp_initialize_load(c, 0, 0.0);
     return 1;
 }
@@ -1036,6 +1043,7 @@ static void comp_set_inputs(Inst *c) {
     line_set_input(c, 1, R(load_tau), 0.0);
     c->speed_ref_rpm = R(speed_ref_rpm);
     c->load_torque = R(load_torque);
+    c->motor_torque_disturbance = R(motor_torque_disturbance);
 }
 
 static double speed_ref_at(const Inst *c, double t) {
@@ -1050,6 +1058,7 @@ static int comp_step(Inst *c, double t, double H, char *why, size_t nwhy) {
         return 0;
     }
     set_load_level(c, T_set);
+    LN_MDIST(c)[0] = c->motor_torque_disturbance;        /* MotorLoad.step: line.set_motor_disturbance */
     if (!line_step_checked(c, t, H, speed_ref_at(c, t), speed_ref_at(c, t + H), why, nwhy)) return 0;
     c->motor_torque = LN_ACC(c)[A_MOTOR];
     c->load_motor_torque = LN_ACC(c)[A_SRC] / R(ratio_pg);

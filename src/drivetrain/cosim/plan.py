@@ -42,6 +42,9 @@ def _type_ok(vtype: str, value) -> str | None:
 
 
 def is_profile(value) -> bool:
+    """A time profile: rows [t, value], as a list of pairs or an (n, 2) numpy array (a long generated one)."""
+    if isinstance(value, np.ndarray):
+        return value.ndim == 2 and value.shape[0] > 0 and value.shape[1] == 2
     return (isinstance(value, (list, tuple)) and len(value) > 0
             and all(isinstance(p, (list, tuple)) and len(p) == 2 for p in value))
 
@@ -122,9 +125,9 @@ def _check_inputs(c: ComponentSpec, var: dict, problems: list[str]) -> None:
             if v.type != "Real":
                 problems.append(f"{c.name}.{iname}: a time profile needs a Real input (is {v.type})")
             else:
-                ts = [float(p[0]) for p in value]
-                if any(b <= a for a, b in zip(ts, ts[1:])):
-                    problems.append(f"{c.name}.{iname}: profile times must increase strictly")
+                ts = np.asarray(value, dtype=float)[:, 0]
+                if np.any(np.diff(ts) <= 0) or not np.all(np.isfinite(np.asarray(value, dtype=float))):
+                    problems.append(f"{c.name}.{iname}: profile times must increase strictly and its values be finite")
         else:
             exp = _type_ok(v.type, value)
             if exp:

@@ -24,6 +24,9 @@ from __future__ import annotations
 import dataclasses
 import json
 
+import numpy as np
+
+from drivetrain.rig import background
 from drivetrain.rig import data as rig
 
 from drivetrain.models import stability
@@ -133,7 +136,11 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     num = scene.numerics
     op = scene.operating_point
     cal = calibration if isinstance(calibration, dict) else rig.load_calibration(calibration)
+    if eff.couplings == "record":
+        cal = dict(cal, coupling_scale=float(scene.background.coupling_stiffness_scale))
     part = rig.partition(eff.shaft_flexibility, eff.shaft_elements, cal, losses=eff.losses)
+    if eff.couplings == "record":
+        record_couplings(part, scene.background)
     H = float(num.comm_step_s)
     sub = float(num.max_substep_s)
     csub = float(component_substep) if component_substep else min(COMPONENT_SUBSTEP, H)
@@ -143,6 +150,8 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     T0 = float(op.load_at(0.0))
     up = dict(part.params["upper"])
     mo = dict(part.params["motors"])
+    if eff.drive_control == "record":
+        mo.update(Kp=float(scene.background.drive_Kp), Ti=float(scene.background.drive_Ti_s))
     ss = rig.steady_state(n0, T0, up, mo)
     w = ss.w_drive
     th_motor = 0.0
@@ -186,6 +195,7 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
                                else float(op.drive_speed_rpm))
     inputs["load_torque"] = ([list(p) for p in op.load_profile_Nm] if op.load_profile_Nm
                              else float(op.load_torque_Nm))
+    inputs.update(background_inputs(scene, H, float(mo.get("ratio_pg", rig.PG_RATIO))))
     components = [ComponentSpec("motors", "MotorLoad", mo, inputs)]
     for name, model, params in comps:
         components.append(ComponentSpec(name, model, params))
@@ -250,7 +260,46 @@ def gear_start_state(components: list[ComponentSpec], connections: list[Connecti
     return out
 
 
-__all__ = ["assemble", "gear_start_state", "sensor_map", "SENSORS_COMMON"]
+def record_couplings(part: rig.Partition, bg: background.Background) -> None:
+    """``effects.couplings = "record"``: the coupling damping (C1 and C2) and the stiffness and damping
+    between the wheel and the propeller mass (the gear's port spring k_b, d_b: propeller shaft and its
+    transducer) scaled as identified from the measured record (the coupling stiffness scale enters the
+    partition itself); the cuts' copies of the same springs follow."""
+    mo, gear = part.params["motors"], part.params["gear"]
+    mo["d_c1"] *= bg.coupling_damping_scale
+    mo["d_c2"] *= bg.coupling_damping_scale
+    gear["k_b"] *= bg.propeller_stiffness_scale
+    gear["d_b"] *= bg.propeller_damping_scale
+    for cu in part.cuts:
+        if cu["spring"] == "motors.drive":
+            cu["c"] = mo["d_c2"]
+        elif cu["spring"] == "gear.flange_b":
+            cu["k"], cu["c"] = gear["k_b"], gear["d_b"]
+
+
+def background_inputs(scene, H: float, ratio_pg: float) -> dict:
+    """MotorLoad's inputs that carry the scene's background torques (drivetrain.rig.background), as profiles
+    at every communication point of the run: ``motor_torque_disturbance`` (on the drive rotor) and
+    ``load_torque`` (the load motor's setting plus its share, 1/ratio_pg, of the torques on the propeller
+    mass; a load profile of the scene is kept under them). Empty when no background effect is on."""
+    eff, op = scene.effects, scene.operating_point
+    n_steps = int(round(scene.time.duration_s / H)) + 1
+    speed = [list(p) for p in op.speed_profile_rpm] if op.speed_profile_rpm else float(op.drive_speed_rpm)
+    parts = background.disturbances(eff, n_steps, H, speed, scene.background, scene.name,
+                                    upper_ratio=rig.UPPER_RATIO, lower_ratio=rig.LOWER_RATIO)
+    out = {}
+    if "drive" in parts:
+        out["motor_torque_disturbance"] = background.as_profile(H, parts["drive"])
+    if "load" in parts:
+        t = np.arange(n_steps + 1) * H
+        setting = (np.interp(t, *np.asarray(op.load_profile_Nm, dtype=float).T) if op.load_profile_Nm
+                   else np.full(n_steps + 1, float(op.load_torque_Nm)))
+        out["load_torque"] = background.as_profile(H, setting + parts["load"] / ratio_pg)
+    return out
+
+
+__all__ = ["assemble", "gear_start_state", "sensor_map", "SENSORS_COMMON", "record_couplings",
+           "background_inputs"]
 
 
 def gear_parameters(scene) -> dict:

@@ -21,6 +21,7 @@ from typing import Any
 
 from drivetrain.errors import MISSING as _MISSING
 from drivetrain.rig.data import RIG_SENSORS
+from drivetrain.rig.background import Background
 from drivetrain.rig.instruments import Instruments
 from gearcontact_fmu.fault_specs import FAULT_KINDS
 from gearcontact_fmu.manufacturing_specs import DEFAULT_GRADE as MANUFACTURING_GRADE
@@ -100,6 +101,7 @@ def _f(default, unit, dimension, doc, minimum=None, min_exclusive=False, maximum
 _RES = MeshResolution()       # the converged contact-mesh resolution of the gear library is the scene default
 _GRID = MapGrid()             # the contact-map grid, likewise
 _INST = Instruments()         # the instrument constants are declared in drivetrain.rig.instruments
+_BG = Background()            # the background constants, in drivetrain.rig.background
 SENSOR_MODELS = ("ideal", "rig")
 
 SCHEMA: dict[str, dict[str, Key]] = {
@@ -215,6 +217,67 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "manufacturing_errors": Key("bool", False, doc=(
             "tooth position (pitch) errors and runout of pinion and wheel, drawn from [manufacturing] "
             "(pcm, table, analytic; the paper's simulation had none)")),
+        "drive_torque_noise": Key("bool", False, doc=(
+            "the drive's broadband torque noise on the drive motor's rotor ([background]; docs/DRIVETRAIN.md, "
+            "\"The measured background\")")),
+        "load_torque_noise": Key("bool", False, doc=(
+            "the load motor's broadband torque noise on the propeller mass, through the 1:8 planetary "
+            "([background]; identified from the rig's measured record)")),
+        "shaft_orders": Key("bool", False, doc=(
+            "periodic torque on the propeller mass at 1x and 2x the middle and drive shafts' speeds (runout, "
+            "bow and misalignment against the stiffly held drive) and at the planetary's mesh frequency "
+            "([background])")),
+        "drive_control": Key("enum", "assumed", allowed=("assumed", "record"), doc=(
+            "the drive's PI speed controller: assumed (Kp 0.1 N·m·s/rad, Ti 0.4 s: a ~2 Hz speed loop) or record "
+            "(identified from the drive's own torque and speed signals in the measured record: [background] "
+            "drive_Kp, drive_Ti_s)")),
+        "couplings": Key("enum", "fitted", allowed=("fitted", "record"), doc=(
+            "stiffness and damping of the elastomer couplings and the propeller shaft: fitted (the coupling "
+            "factor fitted to the paper's 24 Hz, public damping) or record (identified from the rig's measured "
+            "record: [background] coupling_* and propeller_* scales)")),
+    },
+    "background": {
+        "seed": Key("int", _BG.seed, minimum=0, doc=(
+            "seed of the background: the noise records (with the run's name) and the periodic lines' phases")),
+        "load_noise_Nm_rtHz": _f(_BG.load_noise_Nm_rtHz, "N·m/√Hz", "", (
+            "one-sided amplitude spectral density of the load motor's torque noise on the propeller mass "
+            "(propeller-shaft frame; effects.load_torque_noise)"), minimum=0.0),
+        "drive_noise_Nm_rtHz": _f(_BG.drive_noise_Nm_rtHz, "N·m/√Hz", "", (
+            "one-sided amplitude spectral density of the drive's torque noise on the motor rotor "
+            "(effects.drive_torque_noise)"), minimum=0.0),
+        "noise_band_Hz": _f(_BG.noise_band_Hz, "Hz", "frequency", (
+            "upper edge of both torque noises (4th-order Butterworth)"), minimum=0.0, min_exclusive=True),
+        "order_msh_1x_Nm": _f(_BG.order_msh_1x_Nm, "N·m", "torque", (
+            "periodic torque on the propeller mass at the middle shaft's speed (effects.shaft_orders)"),
+            minimum=0.0),
+        "order_msh_2x_Nm": _f(_BG.order_msh_2x_Nm, "N·m", "torque", "... at twice the middle shaft's speed",
+                              minimum=0.0),
+        "order_dsh_1x_Nm": _f(_BG.order_dsh_1x_Nm, "N·m", "torque", "... at the drive shaft's speed", minimum=0.0),
+        "order_dsh_2x_Nm": _f(_BG.order_dsh_2x_Nm, "N·m", "torque", "... at twice the drive shaft's speed",
+                              minimum=0.0),
+        "planetary_mesh_Nm": _f(_BG.planetary_mesh_Nm, "N·m", "torque", (
+            "periodic torque on the propeller mass at the planetary's mesh frequency (effects.shaft_orders)"),
+            minimum=0.0),
+        "planetary_ring_teeth": Key("int", _BG.planetary_ring_teeth, minimum=1, doc=(
+            "teeth of the planetary's ring gear: its mesh frequency is this times the propeller shaft's speed "
+            "(84: the record's line at 84.0 f_PSH; 1 + 84/12 = 8, the planetary's ratio)")),
+        "drive_Kp": _f(_BG.drive_Kp, "N·m·s/rad", "", (
+            "proportional gain of the drive's speed controller (effects.drive_control = record)"), minimum=0.0,
+            min_exclusive=True),
+        "drive_Ti_s": _f(_BG.drive_Ti_s, "s", "time", (
+            "integral time of the drive's speed controller (effects.drive_control = record)"), minimum=0.0,
+            min_exclusive=True),
+        "coupling_stiffness_scale": _f(_BG.coupling_stiffness_scale, "", "", (
+            "factor on the public model's elastomer coupling stiffness (effects.couplings = record)"),
+            minimum=0.0, min_exclusive=True),
+        "coupling_damping_scale": _f(_BG.coupling_damping_scale, "", "", (
+            "factor on the public model's coupling damping (effects.couplings = record)"), minimum=0.0),
+        "propeller_stiffness_scale": _f(_BG.propeller_stiffness_scale, "", "", (
+            "factor on the stiffness between the wheel and the propeller mass (propeller shaft and its "
+            "transducer; effects.couplings = record)"), minimum=0.0, min_exclusive=True),
+        "propeller_damping_scale": _f(_BG.propeller_damping_scale, "", "", (
+            "factor on the damping between the wheel and the propeller mass (effects.couplings = record)"),
+            minimum=0.0),
     },
     "instruments": {
         "seed": Key("int", _INST.seed, minimum=0, doc="seed of the measurement noise (recorded in the summary)"),
@@ -346,6 +409,11 @@ class EffectsSpec:
     sensors: str
     tooth_compliance: bool
     manufacturing_errors: bool
+    drive_torque_noise: bool
+    load_torque_noise: bool
+    shaft_orders: bool
+    drive_control: str
+    couplings: str
 
 
 @dataclass(frozen=True)
@@ -375,6 +443,7 @@ class Scene:
     numerics: NumericsSpec
     effects: EffectsSpec
     instruments: Instruments
+    background: Background
     tooth_compliance: ToothComplianceSpec
     manufacturing: ManufacturingSpec
     source: Path | None = None           # the file it came from (None if built in code)
@@ -419,7 +488,8 @@ class Scene:
 #: section name -> the dataclass it resolves to
 SECTION_CLASSES = {
     "scenario": ScenarioInfo, "operating_point": OperatingPoint, "gear": GearSpec, "time": TimeSpec,
-    "outputs": OutputSpec, "numerics": NumericsSpec, "effects": EffectsSpec, "instruments": Instruments,
+    "outputs": OutputSpec, "numerics": NumericsSpec, "effects": EffectsSpec, "background": Background,
+    "instruments": Instruments,
     "tooth_compliance": ToothComplianceSpec, "manufacturing": ManufacturingSpec,
 }
 

@@ -1,0 +1,128 @@
+"""The rig's measured record (500 rpm, 1.31 N·m; ``drivetrain/data/rig_records``) and the figures a run is
+compared with it by.
+
+The record (a later campaign of the same rig, 2023; provenance in its README) holds both torque
+transducers and two encoder speeds at 3012.06 Hz for 1.99 s, and the motor drives' own signals at 1 kHz.
+Its first samples are a filter's start-up: :data:`SKIP_S` is left out, leaving a window of
+:data:`WINDOW_S`. Every figure is computed alike for the record and for a run (:func:`background_figures`):
+the run is cut into windows of the record's length (the amplitude of a broadband floor per spectral bin
+depends on the window length), each window Hann-windowed with amplitude correction, and the figures of
+the windows averaged (amplitudes in power). The figures, per torque signal:
+
+* ``std``: standard deviation [N·m];
+* ``f_GMF``, ``f_MSH``, ``f_DSH``: the largest amplitude within ``LINE_HALF_WIDTH_HZ`` of the line [N·m];
+* ``hump_27``, ``hump_58``: the largest amplitude in :data:`HUMPS` (the record's two broadband humps);
+* ``floor``: the median amplitude in f_GMF ± :data:`FLOOR_HALF_WIDTH_HZ` (lines and humps count little
+  in a median) [N·m].
+
+The comparison of means needs a word: the record's mean torques (2.51 / 12.15 N·m) are not the paper's
+campaign's (1.63 / 13.93 N·m at the same point: another state of the rig's losses). The figures above are
+of the fluctuation about the mean, which the loss state changes little; the means are compared with the
+paper's 18 points (check 1), not with the record. Pure: arrays in, numbers out.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+RECORD_DIR = Path(__file__).resolve().parents[1] / "data" / "rig_records"
+SENSOR_CSV = "baseline_500rpm_constant_load_sensor.csv"
+MOTOR_CSV = "baseline_500rpm_constant_load_motor.csv"
+#: the record's operating point
+RECORD_SPEED_RPM = 500.0
+RECORD_LOAD_NM = 1.309
+#: the filter start-up at the record's beginning, left out of every analysis [s]
+SKIP_S = 0.15
+#: the analysed length of the record (and of each window of a run) [s]
+WINDOW_S = 1.84
+HUMPS = {"hump_27": (24.0, 32.0), "hump_58": (54.0, 64.0)}
+LINE_HALF_WIDTH_HZ = 0.6
+FLOOR_HALF_WIDTH_HZ = 10.0
+FIGURES = ("std", "f_GMF", "f_MSH", "f_DSH", "hump_27", "hump_58", "floor")
+TORQUES = ("drive_shaft_torque", "propeller_shaft_torque")
+
+
+@dataclass(frozen=True)
+class Record:
+    """The measured record: sensor time [s] and channels at ``fs`` [Hz]; the motor drives' signals at ``fs_motor``."""
+
+    fs: float
+    t: np.ndarray
+    channels: dict            # drive_shaft_torque, propeller_shaft_torque [N·m], enc1_w, enc2_w [rad/s]
+    fs_motor: float
+    motor: dict               # drive_motor_w, load_motor_w [rad/s], drive_motor_torque, load_motor_torque [N·m]
+
+
+def load_record(directory: str | Path | None = None) -> Record:
+    """Read the record's two CSV files (columns as in its README)."""
+    d = Path(directory) if directory is not None else RECORD_DIR
+    s = np.loadtxt(d / SENSOR_CSV, delimiter=",")
+    m = np.loadtxt(d / MOTOR_CSV, delimiter=",")
+    fs = 1.0 / float(np.median(np.diff(s[:, 0])))
+    fm = 1.0 / float(np.median(np.diff(m[:, 0])))
+    ch = {"enc1_w": s[:, 1], "enc2_w": s[:, 2], "drive_shaft_torque": s[:, 3], "propeller_shaft_torque": s[:, 4]}
+    mo = {"drive_motor_w": m[:, 1], "load_motor_w": m[:, 2], "drive_motor_torque": m[:, 3],
+          "load_motor_torque": m[:, 4]}
+    return Record(fs, s[:, 0] - s[0, 0], ch, fm, mo)
+
+
+def amplitude_spectrum(x: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
+    """Single-sided amplitude spectrum of x about its mean, Hann window, amplitude-corrected: a sine of
+    amplitude A on a bin reads A."""
+    x = np.asarray(x, dtype=float)
+    w = np.hanning(len(x))
+    spec = np.abs(np.fft.rfft((x - x.mean()) * w)) * 2.0 / w.sum()
+    return np.fft.rfftfreq(len(x), 1.0 / fs), spec
+
+
+def windows(x: np.ndarray, fs: float, skip_s: float = SKIP_S, window_s: float = WINDOW_S) -> list[np.ndarray]:
+    """Consecutive windows of ``window_s`` after ``skip_s`` (at least one: a shorter signal is one window)."""
+    x = np.asarray(x, dtype=float)[int(round(skip_s * fs)):]
+    n = int(round(window_s * fs))
+    if len(x) <= n:
+        return [x]
+    return [x[i * n:(i + 1) * n] for i in range(len(x) // n)]
+
+
+def _figures_one(x: np.ndarray, fs: float, speed_rpm: float) -> dict:
+    f, a = amplitude_spectrum(x, fs)
+    f_dsh = speed_rpm / 60.0
+    f_msh = f_dsh / 3.0
+    lines = {"f_GMF": 15.0 * f_msh, "f_MSH": f_msh, "f_DSH": f_dsh}
+    out = {"std": float(np.std(x))}
+    for name, fl in lines.items():
+        sel = np.abs(f - fl) <= LINE_HALF_WIDTH_HZ
+        out[name] = float(a[sel].max()) if sel.any() else float("nan")
+    for name, (lo, hi) in HUMPS.items():
+        sel = (f >= lo) & (f <= hi)
+        out[name] = float(a[sel].max())
+    sel = np.abs(f - lines["f_GMF"]) <= FLOOR_HALF_WIDTH_HZ
+    out["floor"] = float(np.median(a[sel]))
+    return out
+
+
+def background_figures(x: np.ndarray, fs: float, speed_rpm: float = RECORD_SPEED_RPM,
+                       skip_s: float = SKIP_S) -> dict:
+    """The figures of one torque signal (module docstring), averaged over the record-length windows
+    (std and amplitudes in power); ``n_windows`` says how many."""
+    per = [_figures_one(w, fs, speed_rpm) for w in windows(x, fs, skip_s)]
+    out = {k: float(np.sqrt(np.mean([p[k] ** 2 for p in per]))) for k in FIGURES}
+    out["n_windows"] = len(per)
+    return out
+
+
+def record_figures(record: Record | None = None) -> dict:
+    """The record's figures per torque transducer."""
+    r = record or load_record()
+    return {name: background_figures(r.channels[name], r.fs) for name in TORQUES}
+
+
+def ratio_dB(sim: float, measured: float) -> float:
+    """20 log10(sim / measured): amplitude ratio in dB."""
+    return float(20.0 * np.log10(sim / measured)) if sim > 0 and measured > 0 else float("nan")
+
+
+__all__ = ["Record", "load_record", "amplitude_spectrum", "windows", "background_figures", "record_figures",
+           "ratio_dB", "FIGURES", "HUMPS", "TORQUES", "SKIP_S", "WINDOW_S", "RECORD_SPEED_RPM", "RECORD_LOAD_NM"]

@@ -114,9 +114,43 @@ def test_validate_command_on_short_runs(tmp_path):
                        capture_output=True, text=True, timeout=3000)
     print(p.stdout[-3000:], p.stderr[-3000:])
     text = report.read_text()
-    for k in range(1, 11):
+    for k in range(1, 12):
         assert f"| {k} |" in text
     status = {int(line.split()[0]): line.split()[1] for line in p.stdout.splitlines() if line[:2].strip().isdigit()}
-    for k in (1, 2, 3, 7, 8, 10):
+    for k in (1, 3, 7, 8, 10):
         assert status[k] == "pass", p.stdout
+    assert status[2] == "calibration", p.stdout
     assert (report.parent / "figures" / "validation_spectra.png").exists()
+
+
+def test_record_judge(tmp_path):
+    """Check 11 judged on the record itself as every gearbox's run: every figure within 0.5 dB (the record
+    against itself; the run's 1.84 s window starts after its settling second) and pass; the same signals
+    scaled by 2 (+6 dB) fail on std; missing runs fail."""
+    from drivetrain.campaigns import record_check as RC
+    from drivetrain.rig import record as rec
+
+    r = rec.load_record()
+    global FS
+    fs_saved, FS = FS, r.fs
+    try:
+        cut = int(round(rec.SKIP_S * r.fs))
+        pad = int(round(1.0 * r.fs))                      # the settling second the judge leaves out
+
+        def sig(scale):
+            return {k: np.concatenate([np.full(pad, r.channels[k][cut]), scale * r.channels[k][cut:]])
+                    for k in rec.TORQUES}
+
+        def runs(sub, scale):
+            names = [RC.case_name(s) for s in range(RC.N_GEARBOXES)] + [RC.case_name(None)]
+            return V.Runs({"runs": [_run(tmp_path / sub, n, sig(scale), sample_rate_Hz=r.fs) for n in names]})
+
+        good = V.check_record(runs("a", 1.0))
+        assert good.status == "pass", good.figure
+        c = RC.compare(runs("a", 1.0))
+        assert all(abs(v["dB"]) < 0.5 for rows in c["table"].values() for v in rows.values()), c
+        bad = V.check_record(runs("b", 2.0))
+        assert bad.status == "fail" and "std" in bad.figure
+        assert V.check_record(V.Runs({"runs": []})).status == "fail"
+    finally:
+        FS = fs_saved

@@ -206,6 +206,41 @@ def _cmd_eigen(args: argparse.Namespace) -> int:
     return 0
 
 
+def _calibrate_record(args: argparse.Namespace) -> int:
+    """``drivetrain calibrate --record [DIR]``: identify the background from a measured record (campaigns.record_fit),
+    print it beside the shipped defaults and write it as a scene's [background] and [instruments] sections."""
+    import dataclasses
+
+    from drivetrain.campaigns import record_fit
+    from drivetrain.rig import record as rec
+    from drivetrain.rig.background import Background
+
+    try:
+        r = rec.load_record(args.record or None)
+        out = record_fit.identify(r)
+    except (OSError, ValueError) as exc:
+        print(f"error: the record {args.record or rec.RECORD_DIR}: {exc}", file=sys.stderr)
+        return 2
+    shipped = dataclasses.asdict(Background())
+    print(f"identified from {args.record or rec.RECORD_DIR} (docs/DRIVETRAIN.md, 'The measured background')")
+    print(f"  {'[background]':28s} {'identified':>12s} {'shipped':>12s}")
+    for k, v in out["background"].items():
+        print(f"  {k:28s} {v:12.5g} {shipped[k]:12.5g}")
+    c = out["controller"]
+    print(f"  speed controller: Kp {c['drive_Kp']:.4g} N·m·s/rad, Ti {c['drive_Ti_s']:.4g} s, logged speed delay "
+          f"{1e3 * c['logged_speed_delay_s']:.1f} ms (residual {c['residual_rms']:.3f})")
+    print("  modes: " + ", ".join(f"{m['f_Hz']:.2f} Hz (zeta {m['zeta']:.3f})" for m in out["modes"]))
+    print(f"  broadband fit: {out['fit']['rms_log10']:.3f} decades rms over {out['fit']['bins']} bins "
+          f"{out['fit']['band_Hz'][0]:g}-{out['fit']['band_Hz'][1]:g} Hz")
+    path = Path(args.out or "background.toml")
+    lines = ["# drivetrain calibrate --record: the background identified from a measured record", "[background]"]
+    lines += [f"{k} = {v!r}" for k, v in out["background"].items()]
+    lines += ["", "[instruments]"] + [f"{k} = {v!r}" for k, v in out["instruments"].items()]
+    path.write_text("\n".join(lines) + "\n")
+    print(f"wrote {path}")
+    return 0
+
+
 def _cmd_calibrate(args: argparse.Namespace) -> int:
     """``drivetrain calibrate MEASURED.csv [--out FILE]``: refit the losses, print the fit at every
     operating point, write the calibration JSON (default ./calibration.json; use it with
@@ -215,6 +250,8 @@ def _cmd_calibrate(args: argparse.Namespace) -> int:
     from drivetrain.campaigns import calibrate as C
     from drivetrain.rig import data as rig
 
+    if args.record is not None:
+        return _calibrate_record(args)
     if args.regenerate:
         r = C.regenerate_shipped()
         print(f"wrote {rig.CALIBRATION_JSON}: coupling_scale {r['coupling_scale']:.6g}, lowest mode "
@@ -328,13 +365,15 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     fig_path = report.parent / "figures" / "validation_spectra.png"
     fig_path.parent.mkdir(parents=True, exist_ok=True)
     fig = V.plot_spectra(manifest, fig_path)
+    record_fig = V.record_check.plot_record(V.Runs(manifest), fig_path.parent / "validation_record.png")
     command = _command_line("validate")
     meta = {"command": command, "n_scenes": len(scenes), "duration_s": args.duration,
             "settle_s": scenes[0].time.settle_s, "wall_time_s": time.perf_counter() - t0,
             "workers": args.workers or os.cpu_count(), "judge_only": args.judge_only,
             "runs_cpu_s": sum(r.get("elapsed_s") or 0.0 for r in manifest.get("runs", []) + repeat.get("runs", []))}
     fig_rel = os.path.relpath(fig, report.parent) if fig else None
-    report.write_text(V.report_markdown(results, meta, fig_rel))
+    record_rel = os.path.relpath(record_fig, report.parent) if record_fig else None
+    report.write_text(V.report_markdown(results, meta, fig_rel, record_rel))
     for r in results:
         print(f"{r.number:2d} {r.status:8s} {r.title}: {r.figure}")
     print(f"wrote {report} ({meta['wall_time_s'] / 60:.1f} min)")
@@ -613,6 +652,9 @@ def _parser_calibrate(sub) -> None:
     p.add_argument("--out", default=None, help="where to write the fitted parameters")
     p.add_argument("--regenerate", action="store_true",
                    help="rewrite the shipped data/calibration.json (losses, then the coupling factor for 24 Hz)")
+    p.add_argument("--record", nargs="?", const="", default=None, metavar="DIR",
+                   help="identify the measured background from a rig record (default: the shipped 500 rpm record) "
+                        "and write it as [background] and [instruments] sections to --out (default background.toml)")
     p.set_defaults(func=_cmd_calibrate)
 
 def _parser_sweep(sub) -> None:

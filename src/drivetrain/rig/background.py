@@ -1,32 +1,36 @@
 """The rig's measured background: what a healthy run needs besides the gears to look like the rig.
 
-A simulated healthy drivetrain is quieter than the rig: a measured 2 s record of the rig at 500 rpm /
-1.31 N·m (``drivetrain/data/rig_records``, docs/VALIDATION.md "The measured record") has a propeller-shaft
-torque std 2.9x ours, shaft-order lines 26-31 dB over ours, two humps near 27 and 58 Hz and a floor
-22 dB over ours. Three effects supply it, each switchable per scene and off by default (off, a run is
-bit-identical to one without this module); their parameters are the scene section ``[background]``:
+A healthy run of the model is quieter than the rig: against a measured 2 s record of the rig at 500 rpm /
+1.31 N·m (drivetrain.rig.record) its propeller-shaft torque std is 2.9x low, its shaft-order lines 26-31 dB
+low, its broadband floor 22 dB low, and two humps near 27 and 58 Hz are missing. The effects below supply
+what the record shows, each switchable per scene and off by default (off, a run is bit-identical to one
+without this module); their constants are the scene section ``[background]`` (:class:`Background`), every
+default identified from the record by campaigns.record_fit (``drivetrain calibrate --record``; the evidence
+and the procedure: docs/DRIVETRAIN.md, "The measured background"):
 
-* ``effects.drive_torque_noise``: broadband torque noise of the drive, a stationary Gaussian torque on
-  the drive motor's rotor (the ``motor_torque_disturbance`` input of MotorLoad, added after the PI
-  controller): current-loop and PWM noise of a servo drive. White with one-sided amplitude spectral
-  density ``drive_noise_Nm_rtHz`` up to ``drive_noise_band_Hz`` (4th-order Butterworth roll-off).
-  Why at the drive: the ratio of the two transducers' spectra in the humps (5.8 at 27 Hz, 16 at 58 Hz
-  measured) is what the linearised drivetrain gives for a torque entering at the drive motor (6.6, 17),
-  not for one at the mesh (8.5, 88) or the load motor (8.0, 20); the drive's own torque signal is
-  coherent with the propeller-shaft torque in both humps (0.6, 0.8).
-* ``effects.shaft_orders``: torque ripple at 1x and 2x the drive shaft's and the middle shaft's speed
-  (coupling misalignment and shaft bow on the drive shaft, runout of the upper bevel pair on the middle
-  shaft), on the same rotor input, in phase with the drive shaft's angle (the integral of the speed
-  reference): ``order_*_Nm`` amplitudes, phases drawn from ``seed`` (one gearbox, one set of phases).
-* ``effects.couplings = "record"``: the elastomer couplings' stiffness and damping and the propeller
-  shaft's as identified from the record (``coupling_*_scale``, ``propeller_*_scale`` on the public
-  lumped model) instead of the coupling factor fitted to the paper's 24 Hz (``"fitted"``).
+* ``effects.drive_control = "record"``: the drive's PI speed controller as the rig runs it. The drive's own
+  torque and speed signals give Kp 1.41 N·m·s/rad and Ti 0.065 s (a ~23 Hz speed loop), 14x the assumed
+  gain: the rig's drive holds its speed to 0.009 rad/s std.
+* ``effects.couplings = "record"``: coupling stiffness and damping and the propeller shaft's stiffness as the
+  record shows them (modes on its humps at 27.8 and 58.4 Hz; damping from its broadband).
+* ``effects.load_torque_noise``: broadband torque noise of the load motor, which is torque-controlled (no
+  speed loop to oppose it) and acts through the 1:8 planetary on the propeller mass; white, one-sided
+  density ``load_noise_Nm_rtHz`` (propeller-shaft frame) to ``noise_band_Hz``. With the drive held stiffly,
+  a noise at the drive cannot make the record's spectra: its own torque signal would show it 10-1000x
+  larger than it does; one at the load gives both transducers' spectra within a factor 2-3.
+* ``effects.drive_torque_noise``: the drive's broadband torque noise on the motor rotor (MotorLoad's
+  ``motor_torque_disturbance`` input), at the floor of its own torque signal: small, for completeness.
+* ``effects.shaft_orders``: periodic torque on the propeller mass at 1x and 2x the middle and drive
+  shafts' speeds (runout, bow and misalignment between the stiffly held drive and the free propeller mass:
+  below the first mode their effect on both transducers is that of a torque on the one body free to follow)
+  and at the planetary's mesh frequency (84 x the propeller shaft's speed: the record's largest line, at
+  84.0 f_PSH, with 1 + 84/12 = 8 the planetary's ratio). In phase with the propeller shaft's nominal angle
+  (the integral of the speed reference); phases drawn from ``seed``.
 
-The transducers' measured noise is not here: it is ``[instruments]`` (``effects.sensors = "rig"``), set
-to the record's high-frequency floor in ``scenarios/validation/rig_record_500rpm.toml``.
-
-Every default below is identified from the record by ``drivetrain calibrate --record`` (campaigns.record_fit;
-the procedure in docs/VALIDATION.md): fitted, not tuned line by line. Pure: numbers in, arrays out.
+Torques on the propeller mass reach the model as the load motor's setting (MotorLoad's ``load_torque``
+input, their 1/8 share), torques on the rotor as ``motor_torque_disturbance``: both are input profiles
+the master feeds every communication step, so every backend and host that feeds inputs runs them. The
+transducers' measured noise is ``[instruments]`` (effects.sensors = "rig"). Pure: numbers in, arrays out.
 """
 from __future__ import annotations
 
@@ -50,20 +54,20 @@ class Background:
     the propeller mass are in the propeller-shaft frame (the load motor's share is 1/8 of them)."""
 
     seed: int = 0
-    load_noise_Nm_rtHz: float = 0.0131
-    drive_noise_Nm_rtHz: float = 0.00069
+    load_noise_Nm_rtHz: float = 0.02266
+    drive_noise_Nm_rtHz: float = 0.0006895
     noise_band_Hz: float = 300.0
-    order_msh_1x_Nm: float = 0.0615
-    order_msh_2x_Nm: float = 0.0554
-    order_dsh_1x_Nm: float = 0.0303
-    order_dsh_2x_Nm: float = 0.0188
-    planetary_mesh_Nm: float = 0.309
+    order_msh_1x_Nm: float = 0.06153
+    order_msh_2x_Nm: float = 0.05541
+    order_dsh_1x_Nm: float = 0.02973
+    order_dsh_2x_Nm: float = 0.01836
+    planetary_mesh_Nm: float = 0.319
     planetary_ring_teeth: int = 84
-    drive_Kp: float = 1.41
-    drive_Ti_s: float = 0.065
-    coupling_stiffness_scale: float = 0.887
-    coupling_damping_scale: float = 1.93
-    propeller_stiffness_scale: float = 0.581
+    drive_Kp: float = 1.411
+    drive_Ti_s: float = 0.06506
+    coupling_stiffness_scale: float = 1.049
+    coupling_damping_scale: float = 1.114
+    propeller_stiffness_scale: float = 0.4814
     propeller_damping_scale: float = 1.0
 
 
@@ -75,7 +79,7 @@ def broadband_noise(n: int, fs: float, asd: float, band_Hz: float, rng: np.rando
     """``n`` samples at ``fs`` of Gaussian noise with one-sided amplitude spectral density ``asd`` [unit/sqrt(Hz)]
     in its pass band, low-passed at ``band_Hz`` (causal 4th-order Butterworth; none at or above Nyquist)."""
     if not (asd >= 0 and band_Hz > 0 and fs > 0):
-        raise ValueError("drive_noise_Nm_rtHz must be >= 0, drive_noise_band_Hz and the sample rate > 0")
+        raise ValueError("the noise density must be >= 0, noise_band_Hz and the sample rate > 0")
     x = rng.normal(0.0, asd * math.sqrt(0.5 * fs), n)
     if band_Hz < 0.5 * fs:
         from scipy import signal

@@ -40,6 +40,9 @@ WINDOW_S = 1.84
 HUMPS = {"hump_27": (24.0, 32.0), "hump_58": (54.0, 64.0)}
 LINE_HALF_WIDTH_HZ = 0.6
 FLOOR_HALF_WIDTH_HZ = 10.0
+#: the transducers' white noise [N·m RMS at 3012 Hz] in the record: the median PSD over 300-1000 Hz, where the
+#: torque spectra are flat (campaigns.record_fit, step 1); the record scene and the validation use them
+MEASURED_TRANSDUCER_NOISE_NM = {"drive_torque_noise_Nm": 0.00048, "propeller_torque_noise_Nm": 0.0080}
 FIGURES = ("std", "f_GMF", "f_MSH", "f_DSH", "hump_27", "hump_58", "floor")
 TORQUES = ("drive_shaft_torque", "propeller_shaft_torque")
 
@@ -124,5 +127,5 @@ def ratio_dB(sim: float, measured: float) -> float:
     return float(20.0 * np.log10(sim / measured)) if sim > 0 and measured > 0 else float("nan")
 
 
-__all__ = ["Record", "load_record", "amplitude_spectrum", "windows", "background_figures", "record_figures",
+__all__ = ["MEASURED_TRANSDUCER_NOISE_NM", "Record", "load_record", "amplitude_spectrum", "windows", "background_figures", "record_figures",
            "ratio_dB", "FIGURES", "HUMPS", "TORQUES", "SKIP_S", "WINDOW_S", "RECORD_SPEED_RPM", "RECORD_LOAD_NM"]

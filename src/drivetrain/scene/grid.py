@@ -1,8 +1,9 @@
 """Grid files: a scene with a ``[sweep]`` table, expanded to one scene per case.
 
 ``axes`` list values for some keys; the grid is the Cartesian product of those values. ``[sweep.draw]``
-adds ``n`` cases with randomly drawn faults per axes combination (one seeded generator for the whole
-grid: reproducible). ``name`` is a template for the case names (:func:`case_name`), and
+adds ``n`` cases with randomly drawn faults and/or background parameters (``[sweep.draw.background]``:
+domain randomisation of the measured background) per axes combination (one seeded generator for the
+whole grid: reproducible). ``name`` is a template for the case names (:func:`case_name`), and
 ``[sweep.expect."<case name pattern>"]`` adds checks to the cases it matches. Each case is validated by
 the ``resolve`` the loader passes in (:func:`drivetrain.scene.load.load_scenes`); every problem of every
 case is reported together.
@@ -26,7 +27,11 @@ from gearcontact_fmu.fault_specs import draw_faults, draw_rule_problems
 
 GRID_SECTION = "sweep"
 GRID_KEYS = {"axes", "name", "draw"}
-DRAW_KEYS = {"n", "seed", "faults"}
+DRAW_KEYS = {"n", "seed", "faults", "background"}
+#: the largest seed a ``seed = "any"`` rule of [sweep.draw.background] draws
+MAX_DRAWN_SEED = 2 ** 31 - 1
+#: the second word of the background draws' seed (numpy SeedSequence entropy [seed, this])
+BACKGROUND_STREAM = 0x6267
 #: format spec allowed in a grid name template field (width and precision at most 2 digits)
 _SPEC_RE = re.compile(r"[<>^=]?[+\- ]?#?0?\d{0,2}[,_]?(\.\d{1,2})?[bdeEfFgGnosxX%]?")
 
@@ -77,23 +82,66 @@ def split_grid(raw: dict, src: str) -> Grid | None:
 
 def _draw_problems(draw) -> list:
     """Problems of ``[sweep.draw]``: ``n`` drawn cases per axes combination, ``seed``, and
-    ``[[sweep.draw.faults]]`` templates (gearcontact_fmu.fault_specs.draw_rule_problems)."""
+    ``[[sweep.draw.faults]]`` templates (gearcontact_fmu.fault_specs.draw_rule_problems) and/or a
+    ``[sweep.draw.background]`` table (:func:`_background_rule_problems`)."""
     key = f"{GRID_SECTION}.draw"
     if not isinstance(draw, dict):
-        return [(key, draw, "a table [sweep.draw] with n, seed and [[sweep.draw.faults]]")]
-    problems = [(f"{key}.{k}", v, "a key of [sweep.draw]: n, seed, faults") for k, v in draw.items()
+        return [(key, draw, "a table [sweep.draw] with n, seed and [[sweep.draw.faults]] or [sweep.draw.background]")]
+    problems = [(f"{key}.{k}", v, "a key of [sweep.draw]: n, seed, faults, background") for k, v in draw.items()
                 if k not in DRAW_KEYS]
     for k in ("n", "seed"):
         v = draw.get(k)
         if isinstance(v, bool) or not isinstance(v, int) or v < (1 if k == "n" else 0):
             problems.append((f"{key}.{k}", v, "an integer >= 1" if k == "n" else "an integer seed >= 0"))
+    if "background" in draw:
+        problems += _background_rule_problems(draw["background"])
     tpls = draw.get("faults")
+    if tpls is None and "background" in draw:
+        return problems
     if not isinstance(tpls, list) or not tpls:
-        problems.append((f"{key}.faults", tpls, "at least one [[sweep.draw.faults]] table"))
+        problems.append((f"{key}.faults", tpls, "at least one [[sweep.draw.faults]] table (or a [sweep.draw.background])"))
         return problems
     for i, tpl in enumerate(tpls):
         problems += [(f"{key}.faults[{i}]" + (f".{k}" if k else ""), v, e) for k, v, e in draw_rule_problems(tpl)]
     return problems
+
+
+def _background_rule_problems(table) -> list:
+    """Problems of ``[sweep.draw.background]``: keys of [background], each a fixed value, a list (one of its
+    items, uniformly), ``{uniform = [a, b]}`` or, for ``seed``, ``"any"`` (uniformly over 0..2^31-1); the
+    drawn values are then checked as any scene value."""
+    key = f"{GRID_SECTION}.draw.background"
+    if not isinstance(table, dict) or not table:
+        return [(key, table, 'a table of [background] keys, e.g. load_noise_Nm_rtHz = { uniform = [0.01, 0.04] }')]
+    problems = []
+    for k, rule in table.items():
+        if k not in SCHEMA["background"]:
+            problems.append((f"{key}.{k}", rule, f"a key of [background]: {', '.join(SCHEMA['background'])}"))
+        elif isinstance(rule, dict):
+            u = rule.get("uniform")
+            if (set(rule) != {"uniform"} or not isinstance(u, list) or len(u) != 2
+                    or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in u) or not u[0] <= u[1]):
+                problems.append((f"{key}.{k}", rule, "{uniform = [a, b]} with numbers a <= b"))
+        elif isinstance(rule, list) and not rule:
+            problems.append((f"{key}.{k}", rule, "a non-empty list to choose from"))
+        elif rule == "any" and k != "seed":
+            problems.append((f"{key}.{k}", rule, '"any" only for seed; a value, a list or {uniform = [a, b]}'))
+    return problems
+
+
+def draw_background(table: dict, rng: np.random.Generator) -> dict:
+    """The [background] values of one drawn case, in the table's order, with the numpy Generator ``rng``."""
+    out = {}
+    for k, rule in table.items():
+        if isinstance(rule, dict):
+            out[k] = float(rng.uniform(*rule["uniform"]))
+        elif isinstance(rule, list):
+            out[k] = rule[int(rng.integers(len(rule)))]
+        elif rule == "any":
+            out[k] = int(rng.integers(MAX_DRAWN_SEED + 1))
+        else:
+            out[k] = rule
+    return out
 
 
 def refuse_swept_overrides(grid: Grid, overrides: tuple[str, ...], path) -> None:
@@ -153,15 +201,19 @@ def _cases(raw: dict, grid: Grid):
     keys = list(grid.axes)
     draw = grid.draw
     rng = np.random.default_rng(draw["seed"]) if draw else None
+    # the background's own stream: adding [sweep.draw.background] leaves the faults' draws as they were
+    rng_bg = np.random.default_rng([draw["seed"], BACKGROUND_STREAM]) if draw else None
     draws = range(draw["n"]) if draw else [None]
     for combo, d in itertools.product(itertools.product(*(grid.axes[k] for k in keys)), draws):
         case = copy.deepcopy(raw)
         for k, v in zip(keys, combo):
             sec, key = k.split(".")
             case.setdefault(sec, {})[key] = v
-        if d is not None:
+        if d is not None and draw.get("faults"):
             case.setdefault("gear", {}).update(
                 health="faults", faults=draw_faults(draw["faults"], rng, Z_PINION, Z_WHEEL))
+        if d is not None and draw.get("background"):
+            case.setdefault("background", {}).update(draw_background(draw["background"], rng_bg))
         case.setdefault("scenario", {}).pop("name", None)
         yield case, d
 

@@ -166,7 +166,7 @@ _LEGITIMATE = {("scenario.description", '"a/b"'), ("scenario.description", '".."
                ("time.settle_s", "0"),
                # no manufacturing errors of one kind, the finest grade, any seed, no measurement noise
                ("manufacturing.grade", "0"), ("manufacturing.runout_grade", "0"), ("manufacturing.seed", "0"), ("manufacturing.seed", "100000000"),
-               ("manufacturing.single_pitch_um", "0"), ("manufacturing.runout_um", "0"),
+               ("manufacturing.single_pitch_um", "0"), ("manufacturing.runout_um", "0"), ("manufacturing.profile_um", "0"),
                ("instruments.seed", "0"), ("instruments.seed", "100000000"), ("instruments.encoder_lines", "100000000"),
                ("instruments.drive_torque_noise_Nm", "0"), ("instruments.propeller_torque_noise_Nm", "0")}
 

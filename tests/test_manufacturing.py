@@ -274,3 +274,112 @@ def test_scene_keys_draw_from_the_seed_and_refuse_the_ideal_gear():
         load_scene(EXAMPLE, overrides=on + ["effects.mesh_contact=ideal"])
     with pytest.raises(ScenarioError, match="grade"):
         load_scene(EXAMPLE, overrides=on + ["manufacturing.grade=13"])
+
+
+# ---- profile form deviation (mesh-periodic) ------------------------------------------------------------
+
+
+def test_iso1328_profile_form_tolerance_by_hand():
+    """f_falpha = (2.5 sqrt(m) + 0.17 sqrt(d) + 0.5) sqrt(2)^(Q-5) (ISO 1328-1:1995): the pinion of
+    the rig at grade 6 (m = 3 mm, d = 45 mm) by hand, and the standard's table values at the geometric
+    means of its ranges (d 20..50 mm, m 2..3.5 mm), rounded to 0.5 um below 10 um and to 1 um above."""
+    by_hand = (2.5 * 1.7320508075688772 + 0.17 * 6.708203932499369 + 0.5) * 1.4142135623730951   # 8.4436 um
+    assert iso1328_tolerances(6, 3.0, 45.0)["f_falpha_um"] == pytest.approx(by_hand, rel=1e-12)
+    assert by_hand == pytest.approx(8.4436, abs=1e-4)
+    for grade, table in ((5, 5.5), (6, 8.0), (7, 11.0), (8, 16.0)):
+        f = iso1328_tolerances(grade, math.sqrt(2 * 3.5), math.sqrt(20 * 50))["f_falpha_um"]
+        assert ((round(2 * f) / 2) if f < 10 else round(f)) == table
+
+
+def test_profile_offset_is_a_sine_at_the_mesh_period():
+    """Only a profile term (no pitch errors, no runout): over one pitch the offset is the sum of the two
+    gears' sines, half their peak-to-peak along the line of action over the pinion's mean base radius, at
+    the mesh period, whatever the wheel angle; its derivative matches finite differences."""
+    ep = ManufacturingErrors(pinion_profile_um=8.0, pinion_profile_phase_rad=0.7)
+    both = ManufacturingErrors(pinion_profile_um=8.0, pinion_profile_phase_rad=0.7,
+                               wheel_profile_um=10.0, wheel_profile_phase_rad=2.9)
+    u = np.linspace(0.0, 1.0, 65)
+    for errors, want in ((ep, 4e-6 / RB * np.sin(2 * np.pi * u + 0.7)),
+                         (both, (4e-6 * np.sin(2 * np.pi * u + 0.7) + 5e-6 * np.sin(2 * np.pi * u + 2.9)) / RB)):
+        te = offset_data(errors, G)
+        for s in (0.0, 1e-3, -2e-3):                     # the mesh coordinate does not matter
+            got = np.array([te_offset(te, x * PITCH, (x * PITCH - s) / 4)[0] for x in u])
+            assert np.max(np.abs(got - want)) <= 1e-12 * np.max(np.abs(want))
+        h = 1e-7
+        for x in (0.1, 0.37, 0.8):
+            th = x * PITCH + 3 * PITCH
+            d, dp, dw = te_offset(te, th, th / 4)
+            fd = (te_offset(te, th + h, th / 4)[0] - te_offset(te, th - h, th / 4)[0]) / (2 * h)
+            assert dp == pytest.approx(fd, rel=1e-6) and dw == 0.0
+    amp = 2 * np.abs(np.fft.rfft(np.array([mesh_offset(ep, x * PITCH, x * PITCH / 4) for x in u[:-1]]))) / 64
+    assert amp[1] == pytest.approx(4e-6 / RB, rel=1e-9) and np.all(amp[2:] < 1e-9 * amp[1])
+    # without profile errors the parameters carry zeros and the offset is the one of the other errors
+    p = offset_data(draw_errors(G, 6, seed=1), G)[0]
+    assert p[-2] == 0.0 and p[-1] == 0.0
+
+
+def test_profile_draw_leaves_the_pitch_and_runout_errors_of_a_seed():
+    for seed in (0, 3, 11):
+        off = draw_errors(G, 6, seed=seed)
+        on = draw_errors(G, 6, seed=seed, profile=True)
+        assert off.pinion_profile_um == off.wheel_profile_um == 0.0 == off.pinion_profile_phase_rad
+        for name in ("pinion_position_um", "wheel_position_um", "pinion_eccentricity_um", "pinion_phase_rad",
+                     "wheel_eccentricity_um", "wheel_phase_rad"):
+            assert getattr(on, name) == getattr(off, name), name
+        for member, z in (("pinion", G.z_pinion), ("wheel", G.z_wheel)):
+            f_fa = iso1328_tolerances(6, G.module * 1e3, G.module * z * 1e3)["f_falpha_um"]
+            assert getattr(on, f"{member}_profile_um") == f_fa
+            assert 0.0 <= getattr(on, f"{member}_profile_phase_rad") < 2 * math.pi
+            assert on.source[member]["f_falpha_um"] == f_fa
+        assert on.pinion_profile_phase_rad != on.wheel_profile_phase_rad
+        assert draw_errors(G, 6, seed=seed, profile=True) == on                     # seeded
+    x = draw_errors(G, 6, seed=3, profile=True, profile_um=4.0, members=("wheel",))
+    assert x.pinion_profile_um == 0.0 and x.pinion_profile_phase_rad == 0.0 and x.wheel_profile_um == 4.0
+    assert x.wheel_profile_phase_rad == draw_errors(G, 6, seed=3, profile=True).wheel_profile_phase_rad
+    assert draw_errors(G, 8, seed=3, profile=True).pinion_profile_um == pytest.approx(
+        2.0 * draw_errors(G, 6, seed=3, profile=True).pinion_profile_um)           # sqrt(2) a grade
+    with pytest.raises(ValueError, match="profile"):
+        draw_errors(G, 6, profile=True, profile_um=float("nan"))
+    # round trip, and a dict written before the profile fields still loads (with none)
+    on = draw_errors(G, 6, seed=3, profile=True)
+    assert errors_of(json.dumps(on.to_dict())) == on
+    old = {k: v for k, v in draw_errors(G, 6, seed=3).to_dict().items() if "profile" not in k}
+    assert errors_of(old) == draw_errors(G, 6, seed=3)
+
+
+def test_scene_keys_draw_the_profile_errors():
+    from test_scene_effects import EXAMPLE
+
+    from drivetrain.run.assemble import manufacturing_errors
+    from drivetrain.scene.load import load_scene
+
+    on = ["effects.manufacturing_errors=true"]
+    assert manufacturing_errors(load_scene(EXAMPLE, overrides=on)).pinion_profile_um == 0.0
+    p = manufacturing_errors(load_scene(EXAMPLE, overrides=on + ["manufacturing.profile_errors=true"]))
+    assert p == draw_errors(G, 6, seed=0, profile=True) and p.wheel_profile_um > 0.0
+    q = manufacturing_errors(load_scene(EXAMPLE, overrides=on + ["manufacturing.profile_errors=true",
+                                                                  "manufacturing.profile_um=3"]))
+    assert q.pinion_profile_um == q.wheel_profile_um == 3.0
+
+
+def test_a_table_run_with_profile_errors_has_a_larger_gmf_line():
+    """The example scene (table, 0.5 s, in-process) with the default manufacturing errors, with and
+    without the profile form: the mesh-periodic transmission error raises the GMF line of the
+    propeller-shaft torque."""
+    from test_scene_effects import EXAMPLE
+
+    from drivetrain.rig.signals import amplitude_near, amplitude_spectrum
+    from drivetrain.run.runner import run_scene
+    from drivetrain.scene.load import load_scene
+
+    base = ["time.duration_s=0.5", "outputs.plots=false", "outputs.aalto_csv=false",
+            "effects.manufacturing_errors=true"]
+    gmf = {}
+    for on in (False, True):
+        scene = load_scene(EXAMPLE, overrides=base + [f"manufacturing.profile_errors={str(on).lower()}"])
+        res = run_scene(scene, None, backend="inprocess", progress=False, log=lambda m: None)
+        m = res.time >= res.summary["settle_s"]
+        f, A = amplitude_spectrum(res.signals["propeller_shaft_torque"][m], res.summary["sample_rate_Hz"])
+        gmf[on] = amplitude_near(f, A, res.summary["f_GMF"], bins=1)
+        assert (res.summary["manufacturing_errors"]["pinion_profile_um"] > 0.0) == on
+    assert gmf[True] > 1.5 * gmf[False], gmf

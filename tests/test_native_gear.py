@@ -241,7 +241,7 @@ def test_the_map_is_the_one_the_slave_steps_with(gear):
 
     other = {"fidelity": "table", "health": "mild", "profile_element_size": 0.5e-3, "face_element_size": 5e-3,
              "map_points_per_pitch": 2, "map_approach_points": 6,
-             "manufacturing_errors": json.dumps(draw_errors(BevelGearParams(), 6, seed=2).to_dict())}
+             "manufacturing_errors": json.dumps(draw_errors(BevelGearParams(), 6, seed=2, profile=True).to_dict())}
     maps = []
     for params in (gear, other):
         arrays = _table_arrays(_probe_slave(), params)
@@ -350,13 +350,17 @@ def test_cli_refuses_with_a_message(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_manufacturing_errors_match(tmp_path, pyfmu):
+@pytest.mark.parametrize("profile", [False, True], ids=["pitch_runout", "with_profile"])
+def test_manufacturing_errors_match(tmp_path, pyfmu, profile):
     """A map with manufacturing errors baked in (the offset is in the resource), tooth compliance set at
-    run time: the same outputs as the pythonfmu GearContact."""
+    run time: the same outputs as the pythonfmu GearContact; also with the teeth's profile form
+    deviation (the mesh-periodic term of the offset, P_PROF_A and P_PROF_PHASE in the C)."""
     from drivetrain.cosim.native_gear import build_native_gear
 
-    gear = _scene_gear(["effects.manufacturing_errors=true", "effects.tooth_compliance=true"])
+    gear = _scene_gear(["effects.manufacturing_errors=true", "effects.tooth_compliance=true",
+                        f"manufacturing.profile_errors={str(profile).lower()}"])
     assert json.loads(gear["manufacturing_errors"])["pinion_position_um"]
+    assert (json.loads(gear["manufacturing_errors"])["pinion_profile_um"] > 0.0) == profile
     fmu = build_native_gear(gear, tmp_path / "GearContact.fmu")
     a = _drive(*_open(fmu, gear), 1200)
     b = _drive(*_open(pyfmu, gear), 1200)

@@ -1,5 +1,5 @@
-"""Manufacturing errors of the bevel pair: tooth position (pitch) errors and runout, carried by every
-compliant mesh fidelity as a transmission-error offset of the mesh coordinate.
+"""Manufacturing errors of the bevel pair: tooth position (pitch) errors, runout and the teeth's profile
+form deviation, carried by every compliant mesh fidelity as a transmission-error offset of the mesh coordinate.
 
 What: each tooth of pinion and wheel sits a little off its nominal angular position (single pitch
 deviations f_p accumulate to a tooth position error), and each gear runs a little eccentric on its
@@ -28,7 +28,14 @@ divided by its own base radius and referred through r, come out over r_bp as wel
   deflection (5 um at 20 N·m: that tooth carries 90-100 % of its error over its whole engagement):
   the larger error on the drive flank, the smaller on the coast flank, blended C1 with the engagement
   weights. Within 10 % of the PCM with a displaced tooth (tests/test_manufacturing.py); what it
-  leaves out is the load sharing between two pairs whose errors differ by less than the deflection.
+  leaves out is the load sharing between two pairs whose errors differ by less than the deflection;
+* profile: every tooth of a gear has the same profile form deviation, so the pair's transmission error
+  gets a term periodic with the mesh (once per pitch), its fundamental
+  Delta = (A_p sin(2 pi u + phi_p) + A_w sin(2 pi u + phi_w)) / r_bp, u = theta_p / pitch the engagement
+  coordinate in pitches, A half the gear's peak-to-peak deviation along the line of action; summed
+  once in :func:`offset_data` to one amplitude and phase (A sin(2 pi u + phi)). What it leaves out: the
+  higher harmonics of the profile form and their load dependence (the deflection that spreads a pair's
+  load over the double-contact zone).
 
 The offset is applied by evaluating the wrapped model at the wheel angle theta_w - Delta / r. Its
 torques are then the gradient of the shifted potential (chain rule: tau_p = tau_p0 - tau_w0 dDelta/dtheta_p / r,
@@ -39,9 +46,12 @@ to shift and refuses them).
 Magnitudes come from an accuracy grade with the ISO 1328-1:1995 / ISO 1328-2:1997 formulas (the step
 between grades is sqrt(2)): single pitch tolerance f_pt = (0.3 (m + 0.4 sqrt(d)) + 4) sqrt(2)^(Q-5) um,
 total cumulative pitch F_p = (0.3 m + 1.25 sqrt(d) + 7) sqrt(2)^(Q-5) um and radial runout
-F_r = 0.8 F_p (m in mm, d the pitch diameter in mm), or from explicit values. Draws, seeded: single pitch
+F_r = 0.8 F_p, profile form f_falpha = (2.5 sqrt(m) + 0.17 sqrt(d) + 0.5) sqrt(2)^(Q-5) um (ISO
+1328-1:1995, clause 6; its peak-to-peak along the line of action) (m in mm, d the pitch diameter in mm), or
+from explicit values. Draws, seeded: single pitch
 deviations normal with sigma = f_pt / 2 (95 % within the tolerance) clipped to +-f_pt, summed to tooth
-positions that close the circle; eccentricity e = F_r / 2 at a uniform phase.
+positions that close the circle; eccentricity e = F_r / 2 at a uniform phase; with profile errors, the
+amplitude f_falpha / 2 at a uniform phase in the mesh cycle (drawn after the others).
 """
 from __future__ import annotations
 
@@ -57,7 +67,7 @@ from gearcontact_fmu.mesh_model import OUT_TAU_PINION, OUT_TAU_WHEEL, MeshModel
 from gearcontact_fmu.params import BevelGearParams
 
 # layout of the parameter array of the offset kernel
-P_PITCH_P, P_RATIO, P_ECC_P, P_PHASE_P, P_ECC_W, P_PHASE_W, P_EPS, P_RAMP, N_P = range(9)
+P_PITCH_P, P_RATIO, P_ECC_P, P_PHASE_P, P_ECC_W, P_PHASE_W, P_EPS, P_RAMP, P_PROF_A, P_PROF_PHASE, N_P = range(11)
 
 #: where pair n's engagement is centred [pitches from theta_p = n pitches] and the length of the C1
 #: ramps at its ends [pitches]: measured on the online PCM with one advanced tooth at 20 N·m (entry at
@@ -87,6 +97,13 @@ def offset_data(errors: ManufacturingErrors, gear: BevelGearParams | None = None
     p[P_PHASE_W] = errors.wheel_phase_rad
     p[P_EPS] = virtual_spur_gears(gear)["eps_alpha"]
     p[P_RAMP] = RAMP
+    # the profile terms of both gears at the mesh frequency, summed to one sine (complex amplitudes)
+    c = (0.5 * errors.pinion_profile_um * complex(math.cos(errors.pinion_profile_phase_rad),
+                                                  math.sin(errors.pinion_profile_phase_rad))
+         + 0.5 * errors.wheel_profile_um * complex(math.cos(errors.wheel_profile_phase_rad),
+                                                   math.sin(errors.wheel_profile_phase_rad)))
+    p[P_PROF_A] = abs(c) * 1e-6 / rb
+    p[P_PROF_PHASE] = math.atan2(c.imag, c.real) if p[P_PROF_A] != 0.0 else 0.0
     pin = np.array(errors.pinion_position_um or [0.0] * gear.z_pinion, dtype=np.float64) * 1e-6 / rb
     whl = np.array(errors.wheel_position_um or [0.0] * gear.z_wheel, dtype=np.float64) * 1e-6 / rb
     return (p, pin, whl)
@@ -145,6 +162,11 @@ def te_offset(te, theta_pinion, theta_wheel):
         dswe = dw0 * e0 + dw1 * e1 + dw2 * e2
         d += swe / sw
         dp += (dswe * sw - swe * dsw) / (sw * sw) / p[P_PITCH_P]
+    a_prof = p[P_PROF_A]
+    if a_prof != 0.0:                                    # the profile form: once per pitch
+        x = 2.0 * math.pi * u + p[P_PROF_PHASE]
+        d += a_prof * math.sin(x)
+        dp += a_prof * math.cos(x) * 2.0 * math.pi / p[P_PITCH_P]
     return d, dp, dw
 
 

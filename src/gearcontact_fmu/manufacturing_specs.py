@@ -22,22 +22,26 @@ DEFAULT_RUNOUT_GRADE = 7
 
 
 def iso1328_tolerances(grade: int, module_mm: float, pitch_diameter_mm: float) -> dict:
-    """Single pitch f_pt, total cumulative pitch F_p and radial runout F_r tolerances [um] of an
-    accuracy grade (ISO 1328-1:1995, ISO 1328-2:1997 Annex B; unrounded)."""
+    """Single pitch f_pt, total cumulative pitch F_p, radial runout F_r and profile form f_falpha
+    tolerances [um] of an accuracy grade (ISO 1328-1:1995 clause 6, ISO 1328-2:1997 Annex B; unrounded):
+    f_falpha = (2.5 sqrt(m) + 0.17 sqrt(d) + 0.5) sqrt(2)^(Q-5) (ISO 1328-1:1995, the formula of the profile form tolerance)."""
     if int(grade) != grade or grade not in GRADES:
         raise ValueError(f"accuracy grade must be an integer in 0..12, not {grade!r}")
     q = math.sqrt(2.0) ** (grade - 5)
     m, d = float(module_mm), float(pitch_diameter_mm)
     f_pt = (0.3 * (m + 0.4 * math.sqrt(d)) + 4.0) * q
     F_p = (0.3 * m + 1.25 * math.sqrt(d) + 7.0) * q
-    return {"f_pt_um": f_pt, "F_p_um": F_p, "F_r_um": 0.8 * F_p}
+    f_fa = (2.5 * math.sqrt(m) + 0.17 * math.sqrt(d) + 0.5) * q
+    return {"f_pt_um": f_pt, "F_p_um": F_p, "F_r_um": 0.8 * F_p, "f_falpha_um": f_fa}
 
 
 @dataclass(frozen=True)
 class ManufacturingErrors:
     """Drawn (or given) errors of one pair: tooth position errors along the line of action [um] per
     tooth (positive = ahead in the direction of rotation), eccentricities [um] and their phases [rad]
-    in each gear's body frame. ``source``: how they were obtained (grade, tolerances, seed)."""
+    in each gear's body frame; the mesh-periodic profile form deviation of each gear (the same on every
+    tooth): its peak-to-peak along the line of action [um] and its phase in the mesh cycle [rad].
+    ``source``: how they were obtained (grade, tolerances, seed)."""
 
     pinion_position_um: tuple = ()
     wheel_position_um: tuple = ()
@@ -45,6 +49,10 @@ class ManufacturingErrors:
     pinion_phase_rad: float = 0.0
     wheel_eccentricity_um: float = 0.0
     wheel_phase_rad: float = 0.0
+    pinion_profile_um: float = 0.0
+    wheel_profile_um: float = 0.0
+    pinion_profile_phase_rad: float = 0.0
+    wheel_profile_phase_rad: float = 0.0
     source: dict = field(default_factory=dict, compare=False)
 
     def to_dict(self) -> dict:
@@ -75,7 +83,8 @@ class ManufacturingErrors:
                 raise ValueError(f"manufacturing error {k} = {v!r}: expected {want}") from None
         e = cls(**kw)
         vals = list(e.pinion_position_um) + list(e.wheel_position_um) + [
-            e.pinion_eccentricity_um, e.pinion_phase_rad, e.wheel_eccentricity_um, e.wheel_phase_rad]
+            e.pinion_eccentricity_um, e.pinion_phase_rad, e.wheel_eccentricity_um, e.wheel_phase_rad,
+            e.pinion_profile_um, e.wheel_profile_um, e.pinion_profile_phase_rad, e.wheel_profile_phase_rad]
         if not all(math.isfinite(v) for v in vals):
             raise ValueError("manufacturing errors must be finite numbers")
         return e
@@ -89,11 +98,17 @@ class ManufacturingErrors:
 
 def draw_errors(gear: BevelGearParams | None = None, grade: int = DEFAULT_GRADE, seed: int = 0,
                 single_pitch_um: float | None = None, runout_um: float | None = None,
-                members: tuple = ("pinion", "wheel"), runout_grade: int = DEFAULT_RUNOUT_GRADE) -> ManufacturingErrors:
+                members: tuple = ("pinion", "wheel"), runout_grade: int = DEFAULT_RUNOUT_GRADE,
+                profile: bool = False, profile_um: float | None = None) -> ManufacturingErrors:
     """Errors of both gears drawn with ``seed``: single pitch deviations from the tolerance f_pt of
     ``grade``, eccentricities from the radial runout F_r of ``runout_grade`` (or the explicit f_pt and
     F_r [um], the same for both gears); ``members`` limits them to one gear. Deterministic: one seed,
     one set of errors.
+
+    ``profile``: each gear also gets the profile form deviation f_falpha of ``grade`` (or the explicit
+    peak-to-peak ``profile_um``, the same for both gears) as a mesh-periodic transmission error at a
+    uniform phase. Its phases are drawn after every other draw, so the pitch and runout errors of a seed
+    are the same with and without it; without it nothing more is drawn.
 
     The pair is numbered from its most loaded pinion tooth. A pair carries load as far as it leads
     (e = P_pinion - P_wheel), so the most advanced pinion tooth carries the most, and a flank fracture
@@ -119,6 +134,15 @@ def draw_errors(gear: BevelGearParams | None = None, grade: int = DEFAULT_GRADE,
         pos -= pos.mean()
         drawn[member] = (z, pos, float(rng.uniform(0.0, 2.0 * math.pi)), F_r)
         source[member] = {"f_pt_um": f_pt, "F_r_um": F_r, "pitch_diameter_mm": d_mm}
+        if profile:
+            f_fa = tol["f_falpha_um"] if profile_um is None else float(profile_um)
+            if not (f_fa >= 0 and math.isfinite(f_fa)):
+                raise ValueError("the profile form tolerance must be finite and >= 0")
+            source[member]["f_falpha_um"] = f_fa
+    # the profile phases after every other draw (the pitch and runout errors of a seed stay as they were);
+    # the same on every tooth, so the renumbering below leaves them as drawn
+    prof = {member: (source[member]["f_falpha_um"], float(rng.uniform(0.0, 2.0 * math.pi)))
+            for member in ("pinion", "wheel")} if profile else {}
     k = int(np.argmax(drawn["pinion"][1]))           # the most loaded pinion tooth becomes tooth 0
     for member, (z, pos, phase, F_r) in drawn.items():
         # tooth i is drawn tooth i + k; the body frame turns by k pitches with it (theta = theta_drawn - k p)
@@ -127,6 +151,9 @@ def draw_errors(gear: BevelGearParams | None = None, grade: int = DEFAULT_GRADE,
         out[f"{member}_position_um"] = tuple(float(v) for v in pos) if on else ()
         out[f"{member}_eccentricity_um"] = 0.5 * F_r if on else 0.0
         out[f"{member}_phase_rad"] = phase if on else 0.0
+        if member in prof:
+            out[f"{member}_profile_um"] = prof[member][0] if on else 0.0
+            out[f"{member}_profile_phase_rad"] = prof[member][1] if on else 0.0
     source["numbered_from_drawn_tooth"] = k
     return ManufacturingErrors(**out, source=source)
 

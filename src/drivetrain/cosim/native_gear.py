@@ -123,7 +123,7 @@ def write_map_resource(arrays: dict, path: Path) -> None:
     if te is not None:
         p, pin, whl = (np.ascontiguousarray(x, dtype="<f8") for x in te)
     with open(path, "wb") as f:
-        f.write(b"GCNMAP1\0")
+        f.write(b"GCNMAP2\0")
         f.write(struct.pack("<7q", n_theta, n_a, n_ch, arrays["n_rev"], int(te is not None),
                             0 if te is None else len(pin), 0 if te is None else len(whl)))
         f.write(struct.pack("<3d", arrays["dtheta"], arrays["ratio"], arrays["w_reg"]))

@@ -64,7 +64,7 @@ def manufacturing_errors(scene, gear: BevelGearParams | None = None):
     m = scene.manufacturing
     return draw_errors(gear or BevelGearParams(), grade=m.grade, seed=m.seed, single_pitch_um=m.single_pitch_um,
                        runout_um=m.runout_um, members=tuple(m.members),
-                       runout_grade=m.runout_grade)
+                       runout_grade=m.runout_grade, profile=bool(m.profile_errors), profile_um=m.profile_um)
 
 
 def _gear_parameters(scene, part: rig.Partition, max_substep: float) -> dict:

@@ -215,7 +215,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "stiffness is ISO 6336's ([tooth_compliance]; table; the analytic pair has it already; the "
             "paper's simulation had none)")),
         "manufacturing_errors": Key("bool", False, doc=(
-            "tooth position (pitch) errors and runout of pinion and wheel, drawn from [manufacturing] "
+            "tooth position (pitch) errors and runout of pinion and wheel, and with "
+            "manufacturing.profile_errors their profile form deviation, drawn from [manufacturing] "
             "(pcm, table, analytic; the paper's simulation had none)")),
         "drive_torque_noise": Key("bool", False, doc=(
             "the drive's broadband torque noise on the drive motor's rotor ([background]; docs/DRIVETRAIN.md, "
@@ -314,6 +315,11 @@ SCHEMA: dict[str, dict[str, Key]] = {
                         "runout grade's", minimum=0.0, default_doc="from runout_grade"),
         "members": Key("str_list", ["pinion", "wheel"], allowed=("pinion", "wheel"),
                        doc="the gears that have errors"),
+        "profile_errors": Key("bool", False, doc=(
+            "the teeth's profile form deviation f_falpha of `grade` as a mesh-periodic transmission error "
+            "(ISO 1328); the paper's simulation had none")),
+        "profile_um": _f(None, "um", "length", "peak-to-peak profile form deviation of both gears along the "
+                         "line of action, instead of the grade's f_falpha", minimum=0.0, default_doc="from grade"),
     },
 }
 
@@ -429,6 +435,8 @@ class ManufacturingSpec:
     single_pitch_um: float | None
     runout_um: float | None
     members: tuple[str, ...]
+    profile_errors: bool
+    profile_um: float | None
 
 
 @dataclass(frozen=True)

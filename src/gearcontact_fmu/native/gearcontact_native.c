@@ -103,9 +103,9 @@ enum { K_TAU_P, K_TAU_W, K_FN, K_DAMP, K_FRIC_P, K_FRIC_W,          /* the lean 
 static const int K_FROM_CH[N_K - 1] = {CH_TAU_P, CH_TAU_W, CH_FN, CH_DAMP, CH_FRIC_P, CH_FRIC_W,
                                        CH_N, CH_AREA, CH_PEAK, CH_PEN, CH_EEL};
 /* manufacturing offset parameters (manufacturing.P_*) */
-enum { P_PITCH_P, P_RATIO, P_ECC_P, P_PHASE_P, P_ECC_W, P_PHASE_W, P_EPS, P_RAMP, N_P };
+enum { P_PITCH_P, P_RATIO, P_ECC_P, P_PHASE_P, P_ECC_W, P_PHASE_W, P_EPS, P_RAMP, P_PROF_A, P_PROF_PHASE, N_P };
 
-#define MAP_MAGIC "GCNMAP1"
+#define MAP_MAGIC "GCNMAP2"   /* 2: the offset parameters end with the profile term (P_PROF_A, P_PROF_PHASE) */
 
 typedef struct {
     int64_t n_theta, n_a, n_rev, te_zp, te_zw;
@@ -467,6 +467,12 @@ static void te_offset(const Map *mp, double theta_pinion, double theta_wheel, do
         double dswe = dw0 * e0 + dw1 * e1 + dw2 * e2;
         d += swe / sw;
         dp += (dswe * sw - swe * dsw) / (sw * sw) / p[P_PITCH_P];
+    }
+    double a_prof = p[P_PROF_A];
+    if (a_prof != 0.0) {                 /* the profile form: once per pitch */
+        double x = 2.0 * M_PI * u + p[P_PROF_PHASE];
+        d += a_prof * sin(x);
+        dp += a_prof * cos(x) * 2.0 * M_PI / p[P_PITCH_P];
     }
     *d_out = d; *dp_out = dp; *dw_out = dw;
 }

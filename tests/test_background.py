@@ -11,6 +11,7 @@ from scipy import signal
 
 from drivetrain.rig import background as bgm
 from drivetrain.rig import record as rec
+from drivetrain.rig.signals import amplitude_spectrum
 from drivetrain.run.assemble import assemble
 from drivetrain.scene.load import load_scene
 
@@ -31,7 +32,7 @@ def test_amplitude_spectrum_reads_a_sine_amplitude():
     fs, n = 3012.0, 5542
     t = np.arange(n) / fs
     f0 = 100 * fs / n                      # on a bin
-    f, a = rec.amplitude_spectrum(0.3 + 0.7 * np.sin(2 * np.pi * f0 * t), fs)
+    f, a = amplitude_spectrum(0.3 + 0.7 * np.sin(2 * np.pi * f0 * t), fs)
     assert a[np.argmin(abs(f - f0))] == pytest.approx(0.7, rel=1e-3)
 
 
@@ -115,7 +116,7 @@ def test_record_couplings_put_the_modes_on_the_records_humps():
 
     r = rec.load_record()
     x = r.channels["propeller_shaft_torque"][int(rec.SKIP_S * r.fs):]
-    f, a = rec.amplitude_spectrum(x, r.fs)
+    f, a = amplitude_spectrum(x, r.fs)
     f27 = hump_mode(f, a, rec.HUMPS["hump_27"])["f_Hz"]
     f58 = hump_mode(f, a, rec.HUMPS["hump_58"])["f_Hz"]
     bg = bgm.Background()
@@ -279,3 +280,21 @@ def test_the_measured_transducer_noise_is_the_records():
     for k, v in rec.MEASURED_TRANSDUCER_NOISE_NM.items():
         assert out[k] == pytest.approx(v, rel=0.01), k
         assert getattr(sc.instruments, k) == v
+
+
+def test_order_ripple_grows_as_the_speed_squared():
+    """A kinematic error's torque: the same gearbox at 1000 rpm has 4x the record's line amplitudes (exponent 2),
+    at 250 rpm a quarter; exponent 0 keeps them; along a speed ramp the amplitude follows the reference."""
+    bg = bgm.Background(order_msh_1x_Nm=0.2, order_msh_2x_Nm=0.0, order_dsh_1x_Nm=0.0, order_dsh_2x_Nm=0.0,
+                        planetary_mesh_Nm=0.0)
+    fs = 3000.0
+    for rpm, factor in ((1000.0, 4.0), (250.0, 0.25)):
+        t = np.arange(int(fs * 3 * 60 / rpm * 3)) / fs          # whole middle-shaft revolutions
+        x = bgm.order_ripple(t, rpm, bg, 3.0, 4.0)
+        assert np.max(np.abs(x)) == pytest.approx(0.2 * factor, rel=1e-3)
+        flat = bgm.order_ripple(t, rpm, dataclasses.replace(bg, orders_speed_exponent=0.0), 3.0, 4.0)
+        assert np.max(np.abs(flat)) == pytest.approx(0.2, rel=1e-3)
+    t = np.linspace(0.0, 2.0, 20001)
+    ramp = bgm.order_ripple(t, [[0.0, 0.0], [2.0, 1000.0]], bg, 3.0, 4.0)
+    late = np.abs(ramp[t > 1.9]).max()
+    assert late == pytest.approx(0.2 * (1000 / 500) ** 2 * 0.975 ** 2, rel=0.06)

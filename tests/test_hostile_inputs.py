@@ -168,7 +168,14 @@ _LEGITIMATE = {("scenario.description", '"a/b"'), ("scenario.description", '".."
                ("manufacturing.grade", "0"), ("manufacturing.runout_grade", "0"), ("manufacturing.seed", "0"), ("manufacturing.seed", "100000000"),
                ("manufacturing.single_pitch_um", "0"), ("manufacturing.runout_um", "0"), ("manufacturing.profile_um", "0"),
                ("instruments.seed", "0"), ("instruments.seed", "100000000"), ("instruments.encoder_lines", "100000000"),
-               ("instruments.drive_torque_noise_Nm", "0"), ("instruments.propeller_torque_noise_Nm", "0")}
+               ("instruments.drive_torque_noise_Nm", "0"), ("instruments.propeller_torque_noise_Nm", "0"),
+               # the measured background: any seed, no noise, no line, constant lines, undamped couplings
+               ("background.seed", "0"), ("background.seed", "100000000"), ("background.load_noise_Nm_rtHz", "0"),
+               ("background.drive_noise_Nm_rtHz", "0"), ("background.order_msh_1x_Nm", "0"),
+               ("background.order_msh_2x_Nm", "0"), ("background.order_dsh_1x_Nm", "0"),
+               ("background.order_dsh_2x_Nm", "0"), ("background.planetary_mesh_Nm", "0"),
+               ("background.orders_speed_exponent", "0"), ("background.coupling_damping_scale", "0"),
+               ("background.propeller_damping_scale", "0")}
 
 
 def _scene_key_cases():

@@ -435,6 +435,19 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_features(args: argparse.Namespace) -> int:
+    from drivetrain.campaigns.features import write_features
+    from drivetrain.errors import DatasetError
+
+    try:
+        path = write_features(args.dir, args.out)
+    except (DatasetError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {path}")
+    return 0
+
+
 def _stress_command(args: argparse.Namespace) -> str:
     """The command line of a stress campaign (the options that differ from their defaults)."""
     import shlex
@@ -710,6 +723,13 @@ def _parser_dataset(sub) -> None:
     p.add_argument("--out", default=None, help="output file (directory for aalto); default: inside SWEEP_DIR")
     p.set_defaults(func=_cmd_dataset)
 
+def _parser_features(sub) -> None:
+    p = sub.add_parser("features", help="condition indicators (TSA per shaft, FM4, NA4, SER, ...) of every run of a "
+                                        "run or sweep directory -> DIR/features.parquet")
+    p.add_argument("dir", help="a run directory (with signals.h5) or a sweep directory (with manifest.json)")
+    p.add_argument("--out", default=None, help="output file (default: DIR/features.parquet)")
+    p.set_defaults(func=_cmd_features)
+
 def _parser_check_and_baseline(sub) -> None:
     for name, helptext in (("check", "run scenes and check them against their [expect] section and baseline; "
                                      "prints what moved; exit code 0 only if everything holds"),
@@ -770,7 +790,7 @@ def _parser_stress(sub) -> None:
 #: one function per command (or pair of commands sharing their options), in the order of --help
 _PARSERS = (_parser_build_fmus, _parser_run, _parser_build_native_gear, _parser_build_native, _parser_export_ssp,
             _parser_eigen, _parser_calibrate, _parser_sweep, _parser_validate, _parser_accuracy_cost, _parser_dataset,
-            _parser_check_and_baseline, _parser_stress)
+            _parser_features, _parser_check_and_baseline, _parser_stress)
 
 
 def build_parser() -> argparse.ArgumentParser:

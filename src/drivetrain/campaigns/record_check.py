@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from drivetrain.rig import record as rec
+from drivetrain.rig.signals import amplitude_spectrum
 from drivetrain.rig.instruments import Instruments
 
 RECORD_SCENE = Path(__file__).resolve().parents[3] / "scenarios" / "validation" / "rig_record_500rpm.toml"
@@ -120,14 +121,14 @@ def plot_record(runs, path: Path) -> Path | None:
     n = int(round(rec.WINDOW_S * r.fs))
     for ax, sensor in zip(axes, rec.TORQUES):
         cut = int(round(rec.SKIP_S * r.fs))
-        f, a = rec.amplitude_spectrum(r.channels[sensor][cut:cut + n], r.fs)
+        f, a = amplitude_spectrum(r.channels[sensor][cut:cut + n], r.fs)
         m = f <= 150.0
         ax.semilogy(f[m], a[m], color="k", lw=0.8, label="measured (2023 record)")
         for name, color, label in ((case_name(0), "tab:red", "ours, gearbox 0, background on"),
                                    (case_name(None), "tab:blue", "ours, background off")):
             if runs.ok(name):
                 x, fs = runs.settled(name, sensor)
-                fx, ax_ = rec.amplitude_spectrum(rec.windows(x, fs, 0.0)[0], fs)
+                fx, ax_ = amplitude_spectrum(rec.windows(x, fs, 0.0)[0], fs)
                 mm = fx <= 150.0
                 ax.semilogy(fx[mm], ax_[mm], color=color, lw=0.6, alpha=0.8, label=label)
         ax.set_title(f"{sensor.replace('_', ' ')}: amplitude spectrum, 1.84 s Hann window", fontsize=10)

@@ -32,6 +32,7 @@ import math
 import numpy as np
 
 from drivetrain.rig import record as rec
+from drivetrain.rig.signals import amplitude_spectrum
 from drivetrain.rig.background import ORDERS, Background
 
 #: the band [Hz] of the damping and noise fit, and the half width around lines left out of it [Hz]
@@ -236,7 +237,7 @@ def identify(record: rec.Record | None = None, base: Background | None = None) -
     bg = dataclasses.replace(bg, drive_Kp=out["controller"]["drive_Kp"], drive_Ti_s=out["controller"]["drive_Ti_s"],
                              drive_noise_Nm_rtHz=math.sqrt(drive_floor))
     xp = r.channels["propeller_shaft_torque"][cut:]
-    fa, amp = rec.amplitude_spectrum(xp, r.fs)
+    fa, amp = amplitude_spectrum(xp, r.fs)
     out["humps"] = {name: hump_mode(fa, amp, band) for name, band in rec.HUMPS.items()}
     lines = periodic_lines(rec.RECORD_SPEED_RPM, bg.planetary_ring_teeth)
     sel = (f >= FIT_BAND_HZ[0]) & (f <= FIT_BAND_HZ[1])

@@ -25,7 +25,8 @@ and the procedure: docs/DRIVETRAIN.md, "The measured background"):
   below the first mode their effect on both transducers is that of a torque on the one body free to follow)
   and at the planetary's mesh frequency (84 x the propeller shaft's speed: the record's largest line, at
   84.0 f_PSH, with 1 + 84/12 = 8 the planetary's ratio). In phase with the propeller shaft's nominal angle
-  (the integral of the speed reference); phases drawn from ``seed``.
+  (the integral of the speed reference); phases drawn from ``seed``; amplitudes as the square of the speed
+  (kinematic errors: ``orders_speed_exponent``), the record's at 500 rpm.
 
 Torques on the propeller mass reach the model as the load motor's setting (MotorLoad's ``load_torque``
 input, their 1/8 share), torques on the rotor as ``motor_torque_disturbance``: both are input profiles
@@ -39,6 +40,8 @@ import zlib
 from dataclasses import dataclass
 
 import numpy as np
+
+from drivetrain.rig.record import RECORD_SPEED_RPM as REFERENCE_SPEED_RPM
 
 #: the periodic lines of ``effects.shaft_orders``: key -> order of the propeller shaft (lines per propeller
 #: revolution; the drive shaft turns 12 times, the middle shaft 4 times per propeller revolution);
@@ -58,11 +61,12 @@ class Background:
     drive_noise_Nm_rtHz: float = 0.0006895
     noise_band_Hz: float = 300.0
     order_msh_1x_Nm: float = 0.06153
-    order_msh_2x_Nm: float = 0.05541
+    order_msh_2x_Nm: float = 0.05542
     order_dsh_1x_Nm: float = 0.02973
     order_dsh_2x_Nm: float = 0.01836
     planetary_mesh_Nm: float = 0.319
     planetary_ring_teeth: int = 84
+    orders_speed_exponent: float = 2.0
     drive_Kp: float = 1.411
     drive_Ti_s: float = 0.06506
     coupling_stiffness_scale: float = 1.049
@@ -101,11 +105,24 @@ def drive_angle(t: np.ndarray, speed_rpm) -> np.ndarray:
     return out
 
 
+def speed_at(t: np.ndarray, speed_rpm) -> np.ndarray:
+    """The speed reference [rpm] at times ``t``: a constant or a profile [[t_s, rpm], ...]."""
+    t = np.asarray(t, dtype=float)
+    if np.isscalar(speed_rpm) or np.ndim(speed_rpm) == 0:
+        return np.full_like(t, float(speed_rpm))
+    p = np.asarray(speed_rpm, dtype=float)
+    return np.interp(t, p[:, 0], p[:, 1])
+
+
 def order_ripple(t: np.ndarray, speed_rpm, bg: Background, upper_ratio: float, lower_ratio: float) -> np.ndarray:
     """Periodic torque [N·m] on the propeller mass at the orders of ``ORDERS``, in phase with the
-    propeller shaft's nominal angle (the drive's angle over the two gear stages); the phases are drawn from
-    ``bg.seed`` (one gearbox, one set of phases; not the run's name)."""
+    propeller shaft's nominal angle (the drive's angle over the two gear stages). Each amplitude is the
+    record's at its speed (``REFERENCE_SPEED_RPM``) times (speed / that speed)^``orders_speed_exponent``: a
+    kinematic error between two bodies is a displacement, and the torque that makes a body follow it grows as
+    the square of its frequency (exponent 2; 0 = a constant torque). The phases are drawn from ``bg.seed``
+    (one gearbox, one set of phases; not the run's name)."""
     theta = drive_angle(t, speed_rpm) / (upper_ratio * lower_ratio)
+    scale = (speed_at(t, speed_rpm) / REFERENCE_SPEED_RPM) ** float(bg.orders_speed_exponent)
     phases = _rng(bg.seed, "shaft_orders", "").uniform(0.0, 2.0 * math.pi, len(ORDERS))
     out = np.zeros_like(theta)
     for (key, order), ph in zip(ORDERS.items(), phases):
@@ -113,7 +130,7 @@ def order_ripple(t: np.ndarray, speed_rpm, bg: Background, upper_ratio: float, l
         if amp:
             k = float(bg.planetary_ring_teeth if order is None else order)
             out += amp * np.sin(k * theta + ph)
-    return out
+    return out * scale
 
 
 def disturbances(scene_effects, n_steps: int, H: float, speed_rpm, bg: Background, run: str,
@@ -144,5 +161,5 @@ def as_profile(H: float, values: np.ndarray) -> np.ndarray:
     return np.column_stack([np.arange(len(values)) * H, values])
 
 
-__all__ = ["Background", "ORDERS", "broadband_noise", "drive_angle", "order_ripple", "disturbances",
-           "as_profile"]
+__all__ = ["Background", "ORDERS", "REFERENCE_SPEED_RPM", "broadband_noise", "drive_angle", "speed_at",
+           "order_ripple", "disturbances", "as_profile"]

@@ -6,8 +6,9 @@ transducers and two encoder speeds at 3012.06 Hz for 1.99 s, and the motor drive
 Its first samples are a filter's start-up: :data:`SKIP_S` is left out, leaving a window of
 :data:`WINDOW_S`. Every figure is computed alike for the record and for a run (:func:`background_figures`):
 the run is cut into windows of the record's length (the amplitude of a broadband floor per spectral bin
-depends on the window length), each window Hann-windowed with amplitude correction, and the figures of
-the windows averaged (amplitudes in power). The figures, per torque signal:
+depends on the window length), each window's amplitude spectrum taken as every spectrum of the project
+(rig.signals.amplitude_spectrum: Hann, amplitude-corrected), and the figures of the windows averaged
+(amplitudes in power). The figures, per torque signal:
 
 * ``std``: standard deviation [N·m];
 * ``f_GMF``, ``f_MSH``, ``f_DSH``: the largest amplitude within ``LINE_HALF_WIDTH_HZ`` of the line [N·m];
@@ -26,6 +27,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from drivetrain.rig.signals import amplitude_spectrum
 
 RECORD_DIR = Path(__file__).resolve().parents[1] / "data" / "rig_records"
 SENSOR_CSV = "baseline_500rpm_constant_load_sensor.csv"
@@ -69,15 +72,6 @@ def load_record(directory: str | Path | None = None) -> Record:
     mo = {"drive_motor_w": m[:, 1], "load_motor_w": m[:, 2], "drive_motor_torque": m[:, 3],
           "load_motor_torque": m[:, 4]}
     return Record(fs, s[:, 0] - s[0, 0], ch, fm, mo)
-
-
-def amplitude_spectrum(x: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray]:
-    """Single-sided amplitude spectrum of x about its mean, Hann window, amplitude-corrected: a sine of
-    amplitude A on a bin reads A."""
-    x = np.asarray(x, dtype=float)
-    w = np.hanning(len(x))
-    spec = np.abs(np.fft.rfft((x - x.mean()) * w)) * 2.0 / w.sum()
-    return np.fft.rfftfreq(len(x), 1.0 / fs), spec
 
 
 def windows(x: np.ndarray, fs: float, skip_s: float = SKIP_S, window_s: float = WINDOW_S) -> list[np.ndarray]:
@@ -127,5 +121,5 @@ def ratio_dB(sim: float, measured: float) -> float:
     return float(20.0 * np.log10(sim / measured)) if sim > 0 and measured > 0 else float("nan")
 
 
-__all__ = ["MEASURED_TRANSDUCER_NOISE_NM", "Record", "load_record", "amplitude_spectrum", "windows", "background_figures", "record_figures",
+__all__ = ["MEASURED_TRANSDUCER_NOISE_NM", "Record", "load_record", "windows", "background_figures", "record_figures",
            "ratio_dB", "FIGURES", "HUMPS", "TORQUES", "SKIP_S", "WINDOW_S", "RECORD_SPEED_RPM", "RECORD_LOAD_NM"]

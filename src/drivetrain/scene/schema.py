@@ -259,9 +259,13 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "planetary_mesh_Nm": _f(_BG.planetary_mesh_Nm, "N·m", "torque", (
             "periodic torque on the propeller mass at the planetary's mesh frequency (effects.shaft_orders)"),
             minimum=0.0),
-        "planetary_ring_teeth": Key("int", _BG.planetary_ring_teeth, minimum=1, doc=(
+        "planetary_ring_teeth": Key("int", _BG.planetary_ring_teeth, minimum=1, maximum=1000, doc=(
             "teeth of the planetary's ring gear: its mesh frequency is this times the propeller shaft's speed "
             "(84: the record's line at 84.0 f_PSH; 1 + 84/12 = 8, the planetary's ratio)")),
+        "orders_speed_exponent": _f(_BG.orders_speed_exponent, "", "", (
+            "the periodic lines' amplitudes scale as (speed / 500 rpm)^this: 2 for kinematic errors (runout, "
+            "misalignment, a mesh's transmission error between two bodies: the torque that makes a body follow a "
+            "displacement grows as its frequency squared), 0 for constant torques"), minimum=0.0),
         "drive_Kp": _f(_BG.drive_Kp, "N·m·s/rad", "", (
             "proportional gain of the drive's speed controller (effects.drive_control = record)"), minimum=0.0,
             min_exclusive=True),

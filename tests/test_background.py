@@ -298,3 +298,30 @@ def test_order_ripple_grows_as_the_speed_squared():
     ramp = bgm.order_ripple(t, [[0.0, 0.0], [2.0, 1000.0]], bg, 3.0, 4.0)
     late = np.abs(ramp[t > 1.9]).max()
     assert late == pytest.approx(0.2 * (1000 / 500) ** 2 * 0.975 ** 2, rel=0.06)
+
+
+def test_paired_healthy_runs_share_gearbox_background_and_noise(tmp_path):
+    """[sweep.draw] paired_healthy: each drawn fault gets a healthy twin right after it (name + "_healthy"), with
+    the same operating point, background draws and seeds, and one noise_name (the pair id), so both are
+    measured with one noise record; the faults are those of the same file without pairing."""
+    faults = """paired_healthy = true
+[[sweep.draw.faults]]
+kind = ["pit", "void"]
+tooth = "any"
+[sweep.draw.background]
+load_noise_Nm_rtHz = { uniform = [0.01, 0.04] }
+"""
+    scenes = _grid(tmp_path, faults)
+    assert len(scenes) == 8
+    plain = _grid(tmp_path, faults.replace("paired_healthy = true\n", ""))
+    assert [s.gear.faults for s in scenes[0::2]] == [s.gear.faults for s in plain]
+    for f, h in zip(scenes[0::2], scenes[1::2]):
+        assert h.name == f.name + "_healthy" and h.gear.health == "healthy" and not h.gear.faults
+        assert f.noise_name == h.noise_name == f.name
+        assert f.background == h.background and f.operating_point == h.operating_point
+        pf = assemble(dataclasses.replace(f, time=dataclasses.replace(f.time, duration_s=0.2, settle_s=0.0)),
+                      check=False).components[0].inputs["load_torque"]
+        ph = assemble(dataclasses.replace(h, time=dataclasses.replace(h.time, duration_s=0.2, settle_s=0.0)),
+                      check=False).components[0].inputs["load_torque"]
+        assert np.array_equal(pf, ph)
+    assert len({s.noise_name for s in scenes}) == 4

@@ -161,6 +161,8 @@ _BAD_VALUES = {
 # legitimate settings among them: free text, a drive held at standstill, a reversed or zero load, no
 # settling time
 _LEGITIMATE = {("scenario.description", '"a/b"'), ("scenario.description", '".."'),
+               # a noise record's name is only hashed, never a path or a file name
+               ("scenario.noise_name", '"a/b"'), ("scenario.noise_name", '".."'), ("scenario.noise_name", '"x\\u0000y"'),
                ("scenario.description", '"x\\u0000y"'), ("operating_point.drive_speed_rpm", "0"),
                ("operating_point.load_torque_Nm", "-1"), ("operating_point.load_torque_Nm", "0"),
                ("time.settle_s", "0"),

@@ -448,6 +448,53 @@ def _cmd_features(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_detectability(args: argparse.Namespace) -> int:
+    import time
+
+    from drivetrain.campaigns import detectability as D
+    from drivetrain.campaigns.features import features
+    from drivetrain.campaigns.sweep import run_sweep
+    from drivetrain.cosim import ConfigurationError
+    from drivetrain.errors import DatasetError
+    from drivetrain.scene.load import ScenarioError
+
+    t0 = time.perf_counter()
+    fams = D.families(args.kinds, tuple(args.members), tuple(args.sizes))
+    study = D.Study(fams, tuple(args.speeds), tuple(args.loads), args.gearboxes, args.duration, args.settle,
+                    args.background, tuple(args.set or ()))
+    try:
+        scenes = study.scenes()
+    except ScenarioError as exc:
+        return _scene_errors(exc)
+    runs_dir = Path(args.out) / "runs"
+    try:
+        run_sweep(scenes, runs_dir, workers=args.workers, address=args.scheduler, backend=args.backend,
+                  fmu_dir=args.fmu_dir, skip_existing=args.resume, plots=False, progress=not args.quiet)
+    except ConfigurationError as exc:
+        return _scene_errors(exc)
+    try:
+        rows = features(runs_dir)
+    except DatasetError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    table = D.auc_table(rows, study)
+    verdicts = D.verdicts(table)
+    report = Path(args.report)
+    report.parent.mkdir(parents=True, exist_ok=True)
+    stem = report.stem.lower()
+    csv_path = D.write_table_csv(table, report.parent / f"{stem}_auc.csv")
+    (report.parent / "figures").mkdir(parents=True, exist_ok=True)
+    fig = D.plot(verdicts, study, report.parent / "figures" / f"{stem}.png")
+    meta = {"command": _command_line("detectability"), "n_runs": len(scenes), "workers": args.workers or os.cpu_count(),
+            "wall_time_s": time.perf_counter() - t0}
+    report.write_text(D.report_markdown(verdicts, study, meta, os.path.relpath(fig, report.parent),
+                                        os.path.relpath(csv_path, report.parent)))
+    det = sum(v["detectable"] for v in verdicts)
+    print(f"{det} of {len(verdicts)} cells carry a detectable signal (paired); wrote {report} "
+          f"({meta['wall_time_s'] / 60:.1f} min)")
+    return 0
+
+
 def _stress_command(args: argparse.Namespace) -> str:
     """The command line of a stress campaign (the options that differ from their defaults)."""
     import shlex
@@ -730,6 +777,30 @@ def _parser_features(sub) -> None:
     p.add_argument("--out", default=None, help="output file (default: DIR/features.parquet)")
     p.set_defaults(func=_cmd_features)
 
+def _parser_detectability(sub) -> None:
+    from drivetrain.campaigns import detectability as D
+    from gearcontact_fmu.fault_specs import FAULT_KINDS
+
+    p = sub.add_parser("detectability", help="the fault families over gearboxes: paired and unpaired AUC of every "
+                                             "indicator -> docs/DETECTABILITY.md")
+    p.add_argument("--out", default="out/detectability", help="run directory (default: out/detectability)")
+    p.add_argument("--report", default="docs/DETECTABILITY.md", help="the report (default: docs/DETECTABILITY.md)")
+    p.add_argument("--gearboxes", type=_positive_int, default=20, help="gearboxes (seeds) per cell (default: 20)")
+    p.add_argument("--kinds", nargs="+", choices=tuple(FAULT_KINDS), default=None, help="fault kinds (default: all)")
+    p.add_argument("--members", nargs="+", choices=D.MEMBERS, default=list(D.MEMBERS))
+    p.add_argument("--sizes", nargs="+", choices=("default", "small"), default=["default", "small"])
+    p.add_argument("--speeds", nargs="+", type=float, default=list(D.SPEEDS_RPM), help="drive speeds [rpm]")
+    p.add_argument("--loads", nargs="+", type=float, default=list(D.LOADS_NM), help="load-motor torques [N·m]")
+    p.add_argument("--duration", type=float, default=7.0, help="simulated seconds per run (default: 7)")
+    p.add_argument("--settle", type=float, default=1.0, help="settling time left out (default: 1 s)")
+    p.add_argument("--background", choices=("on", "off"), default="on",
+                   help="the rig's measured background (default: on)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key of every scene")
+    _add_execution_options(p)
+    p.add_argument("--resume", action="store_true", help="reuse finished runs of the same scenes")
+    p.add_argument("--quiet", action="store_true")
+    p.set_defaults(func=_cmd_detectability)
+
 def _parser_check_and_baseline(sub) -> None:
     for name, helptext in (("check", "run scenes and check them against their [expect] section and baseline; "
                                      "prints what moved; exit code 0 only if everything holds"),
@@ -790,7 +861,7 @@ def _parser_stress(sub) -> None:
 #: one function per command (or pair of commands sharing their options), in the order of --help
 _PARSERS = (_parser_build_fmus, _parser_run, _parser_build_native_gear, _parser_build_native, _parser_export_ssp,
             _parser_eigen, _parser_calibrate, _parser_sweep, _parser_validate, _parser_accuracy_cost, _parser_dataset,
-            _parser_features, _parser_check_and_baseline, _parser_stress)
+            _parser_features, _parser_detectability, _parser_check_and_baseline, _parser_stress)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -57,31 +57,44 @@ def run_labels(name: str, record: dict, scene: dict, summary: dict | None) -> di
     return labels
 
 
-def collect(sweep_dir: Path | str) -> list[dict]:
-    """[{"name", "labels", "time", "signals", "units"}] of every run of the sweep that wrote signals."""
-
+def run_records(sweep_dir: Path | str) -> list[dict]:
+    """The run records of a sweep directory (the manifest, with the journal's runs of a killed sweep)."""
     d = Path(sweep_dir)
     try:
-        records = read_runs(d)           # the manifest, with the journal's runs of a killed sweep
+        return read_runs(d)
     except OSError as exc:
         raise DatasetError(f"{d}: no readable manifest.json or manifest.jsonl ({exc}); is it a sweep "
                            "directory?") from None
-    runs = []
-    for rec in records:
-        name = rec.get("name")
-        sig = d / str(name) / "signals.h5"
-        if not name or not sig.is_file():
-            continue
-        try:
-            h = read_hdf5(sig)
-        except Exception as exc:  # noqa: BLE001 - name the file, whatever h5py says
-            raise DatasetError(f"{sig}: unreadable ({type(exc).__name__}: {exc})") from None
-        scene = (h.get("scene") or {}).get("scene") or h.get("scene") or {}
-        summary = json.loads(h["attrs"]["summary_json"]) if "summary_json" in h["attrs"] else None
-        runs.append({"name": name, "labels": run_labels(name, rec, scene, summary), "time": h["time"],
-                     "signals": h["signals"], "units": h["units"]})
+
+
+def load_run(sweep_dir: Path | str, rec: dict) -> dict | None:
+    """One run of a sweep as {"name", "labels", "time", "signals", "units"}; None if it wrote no signals."""
+    name = rec.get("name")
+    sig = Path(sweep_dir) / str(name) / "signals.h5"
+    if not name or not sig.is_file():
+        return None
+    try:
+        h = read_hdf5(sig)
+    except Exception as exc:  # noqa: BLE001 - name the file, whatever h5py says
+        raise DatasetError(f"{sig}: unreadable ({type(exc).__name__}: {exc})") from None
+    scene = (h.get("scene") or {}).get("scene") or h.get("scene") or {}
+    summary = json.loads(h["attrs"]["summary_json"]) if "summary_json" in h["attrs"] else None
+    return {"name": name, "labels": run_labels(name, rec, scene, summary), "time": h["time"],
+            "signals": h["signals"], "units": h["units"]}
+
+
+def collect(sweep_dir: Path | str) -> list[dict]:
+    """[{"name", "labels", "time", "signals", "units"}] of every run of the sweep that wrote signals."""
+    d = Path(sweep_dir)
+    runs = [r for r in (load_run(d, rec) for rec in run_records(d)) if r is not None]
     if not runs:
         raise DatasetError(f"{d}: the manifest lists no run with signals")
+    # a faulty run with its healthy twin ([sweep.draw] paired_healthy): the fault's signal-to-background ratio
+    from drivetrain.rig.indicators import paired_sbr
+
+    sbr = paired_sbr(runs, ("propeller_shaft_torque", "drive_shaft_torque"))
+    for r in runs:
+        r["labels"].update({f"SBR_dB.{sig}": v for sig, v in sbr.get(r["name"], {}).items()})
     return runs
 
 
@@ -182,5 +195,5 @@ def export(sweep_dir: Path | str, fmt: str = "parquet", out: Path | str | None =
     return WRITERS[fmt](runs, path)
 
 
-__all__ = ["FORMATS", "DatasetError", "collect", "export", "run_labels", "write_parquet", "write_hdf5",
+__all__ = ["run_records", "load_run", "FORMATS", "DatasetError", "collect", "export", "run_labels", "write_parquet", "write_hdf5",
            "write_aalto"]

@@ -7,8 +7,10 @@ consecutive records and the metrics of drivetrain.rig.indicators on them; and th
 characteristic frequencies of the raw signal (Hann spectrum). Columns are ``<METRIC>.<signal>`` with the
 shaft in the metric's name (``FM4_pinion.propeller_shaft_torque``, ``kurtosis_wheel.drive_shaft_torque``,
 ``amp_f_GMF+f_MSH.propeller_shaft_torque``), the run's labels beside them (the columns of
-``drivetrain dataset``: run, status, every scene key, the faults). Written to ``DIR/features.parquet``
-(pyarrow), one row per run.
+``drivetrain dataset``: run, status, every scene key, the faults). A faulty run with a healthy twin
+(``[sweep.draw] paired_healthy``: one ``scenario.noise_name``, the pair id) also gets ``SBR_dB.<signal>``, the
+fault's signal-to-background ratio (rig.indicators.signal_to_background_dB). Written to
+``DIR/features.parquet`` (pyarrow), one row per run.
 """
 from __future__ import annotations
 
@@ -74,30 +76,47 @@ def run_features(time: np.ndarray, signals: dict, settle_s: float, drive_speed_r
     return out
 
 
-def _runs(directory: Path) -> list[dict]:
-    """The runs of a sweep directory (campaigns.dataset.collect) or the one run of a run directory."""
-    from drivetrain.campaigns.dataset import collect, run_labels
+def _one_run(directory: Path) -> dict:
+    """The run of a run directory (its ``signals.h5``), as campaigns.dataset.load_run gives a sweep's."""
+    from drivetrain.campaigns.dataset import run_labels
     from drivetrain.run.outputs import read_hdf5
 
+    h = read_hdf5(directory / "signals.h5")
+    scene = (h.get("scene") or {}).get("scene") or h.get("scene") or {}
+    summary = json.loads(h["attrs"]["summary_json"]) if "summary_json" in h["attrs"] else None
+    name = (scene.get("scenario") or {}).get("name", directory.name)
+    return {"name": name, "labels": run_labels(name, {"status": (summary or {}).get("status", "ok")}, scene, summary),
+            "time": h["time"], "signals": h["signals"]}
+
+
+def _iter_runs(directory: Path):
+    """The runs of a sweep directory one at a time, the healthy ones first (their signals are kept for the
+    faulty runs paired with them), or the one run of a run directory."""
+    from drivetrain.campaigns.dataset import load_run, run_records
+
     if (directory / "signals.h5").is_file() and not (directory / "manifest.json").is_file():
-        h = read_hdf5(directory / "signals.h5")
-        scene = (h.get("scene") or {}).get("scene") or h.get("scene") or {}
-        summary = json.loads(h["attrs"]["summary_json"]) if "summary_json" in h["attrs"] else None
-        name = (scene.get("scenario") or {}).get("name", directory.name)
-        return [{"name": name, "labels": run_labels(name, {"status": (summary or {}).get("status", "ok")}, scene,
-                                                    summary),
-                 "time": h["time"], "signals": h["signals"], "summary": summary, "scene": scene}]
-    runs = collect(directory)
-    for r in runs:
-        r.setdefault("summary", None)
-    return runs
+        yield _one_run(directory)
+        return
+    records = run_records(directory)
+    healthy_first = sorted(records, key=lambda rec: (rec.get("labels") or {}).get("health") != "healthy")
+    found = False
+    for rec in healthy_first:
+        run = load_run(directory, rec)
+        if run is not None:
+            found = True
+            yield run
+    if not found:
+        raise DatasetError(f"{directory}: the manifest lists no run with signals")
 
 
 def features(directory: str | Path) -> list[dict]:
-    """One row per run: its labels and its indicator columns."""
+    """One row per run: its labels and its indicator columns. The runs are read one at a time (a study of
+    thousands of runs never holds their signals together); a healthy run's torques are kept while a faulty
+    run paired with it (one ``scenario.noise_name``) may follow."""
     d = Path(directory)
     rows = []
-    for r in _runs(d):
+    twins: dict = {}
+    for r in _iter_runs(d):
         lab = r["labels"]
         settle = float(lab.get("time.settle_s") or 0.0)
         speed = lab.get("operating_point.drive_speed_rpm")
@@ -108,6 +127,16 @@ def features(directory: str | Path) -> list[dict]:
             cols = run_features(r["time"], r["signals"], settle, float(speed))
         except ValueError as exc:
             raise DatasetError(f"{d}: run {r['name']}: {exc}") from None
+        pair = lab.get("scenario.noise_name")
+        if pair and lab.get("gear.health") == "healthy":
+            twins[pair] = {"time": r["time"], "signals": {k: r["signals"][k] for k in TORQUES if k in r["signals"]}}
+        elif pair and pair in twins:
+            h = twins[pair]
+            keep = np.asarray(r["time"]) >= settle
+            for sig in TORQUES:
+                if sig in r["signals"] and sig in h["signals"]:
+                    cols[f"SBR_dB.{sig}"] = ci.signal_to_background_dB(np.asarray(r["signals"][sig])[keep],
+                                                                       np.asarray(h["signals"][sig])[keep])
         rows.append({**lab, **cols})
     return rows
 

@@ -42,9 +42,11 @@ def _type_ok(vtype: str, value) -> str | None:
 
 
 def is_profile(value) -> bool:
-    """A time profile: rows [t, value], as a list of pairs or an (n, 2) numpy array (a long generated one)."""
-    if isinstance(value, np.ndarray):
-        return value.ndim == 2 and value.shape[0] > 0 and value.shape[1] == 2
+    """A time profile: rows [t, value], as a list of pairs, an (n, 2) numpy array, or an object that becomes one
+    when read (``__array__`` and ``shape``: rig.background.GeneratedProfile)."""
+    if isinstance(value, np.ndarray) or hasattr(value, "__array__"):     # an array, or one generated when read
+        shape = getattr(value, "shape", ())
+        return len(shape) == 2 and shape[0] > 0 and shape[1] == 2
     return (isinstance(value, (list, tuple)) and len(value) > 0
             and all(isinstance(p, (list, tuple)) and len(p) == 2 for p in value))
 

@@ -156,10 +156,41 @@ def disturbances(scene_effects, n_steps: int, H: float, speed_rpm, bg: Backgroun
     return out
 
 
+class GeneratedProfile:
+    """An input profile computed when it is read: rows [t_k, value] at the communication points, as
+    ``numpy.asarray`` (``__array__``), indexing and iteration see them. It keeps and pickles its recipe
+    (a picklable callable returning the values), not its samples: a sweep of thousands of runs holds and
+    ships recipes of a few numbers, not megabytes of noise per run."""
+
+    def __init__(self, make, n_rows: int, H: float):
+        self._make, self._n, self._H = make, int(n_rows), float(H)
+
+    shape = property(lambda self: (self._n, 2))
+    ndim = 2
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __array__(self, dtype=None, copy=None):
+        rows = as_profile(self._H, np.asarray(self._make(), dtype=float))
+        if rows.shape != (self._n, 2):
+            raise ValueError(f"a generated profile gave {rows.shape[0]} rows, not {self._n}")
+        return rows if dtype is None else rows.astype(dtype)
+
+    def __getitem__(self, index):
+        return np.asarray(self)[index]
+
+    def __iter__(self):
+        return iter(np.asarray(self))
+
+    def __repr__(self) -> str:
+        return f"GeneratedProfile({self._n} rows at H = {self._H:g} s)"
+
+
 def as_profile(H: float, values: np.ndarray) -> np.ndarray:
     """An input profile (rows [t_s, value]) of values at the communication points k H."""
     return np.column_stack([np.arange(len(values)) * H, values])
 
 
 __all__ = ["Background", "ORDERS", "REFERENCE_SPEED_RPM", "broadband_noise", "drive_angle", "speed_at",
-           "order_ripple", "disturbances", "as_profile"]
+           "order_ripple", "disturbances", "as_profile", "GeneratedProfile"]

@@ -209,11 +209,52 @@ def separability(a: float) -> float:
     return float(max(a, 1.0 - a)) if math.isfinite(a) else float("nan")
 
 
+def signal_to_background_dB(faulty: np.ndarray, healthy: np.ndarray) -> float:
+    """The fault's signal-to-background ratio [dB]: the energy of (faulty - healthy) over the healthy run's own
+    variability (its variance), for two runs of one gearbox, operating point and noise record sample by sample
+    ([sweep.draw] paired_healthy): 10 log10(mean((f - h)^2) / var(h))."""
+    f = np.asarray(faulty, dtype=float)
+    h = np.asarray(healthy, dtype=float)
+    n = min(len(f), len(h))
+    if n < 2:
+        return float("nan")
+    f, h = f[:n], h[:n]
+    var = float(np.var(h))
+    diff = float(np.mean((f - h) ** 2))
+    if var <= 0.0 or diff <= 0.0:
+        return float("-inf") if var > 0.0 else float("nan")
+    return float(10.0 * math.log10(diff / var))
+
+
+def paired_sbr(runs: list[dict], signals: tuple[str, ...]) -> dict:
+    """{faulty run name: {signal: SBR dB}} of the runs with a healthy twin: runs sharing a
+    ``scenario.noise_name`` label, one healthy, compared after the settling time (``time.settle_s``)."""
+    by_pair: dict = {}
+    for r in runs:
+        key = r["labels"].get("scenario.noise_name")
+        if key:
+            by_pair.setdefault(key, []).append(r)
+    out = {}
+    for members in by_pair.values():
+        healthy = [r for r in members if r["labels"].get("gear.health") == "healthy"]
+        if len(healthy) != 1:
+            continue
+        h = healthy[0]
+        for r in members:
+            if r is h:
+                continue
+            keep = np.asarray(r["time"]) >= float(r["labels"].get("time.settle_s") or 0.0)
+            out[r["name"]] = {sig: signal_to_background_dB(np.asarray(r["signals"][sig])[keep],
+                                                           np.asarray(h["signals"][sig])[keep])
+                              for sig in signals if sig in r["signals"] and sig in h["signals"]}
+    return out
+
+
 def points_per_revolution(fs: float, f_shaft: float) -> int:
     """TSA points per revolution: the power of two at or below the samples per revolution (no upsampling
     beyond what was measured), at least 64."""
     return max(64, 2 ** int(math.floor(math.log2(fs / f_shaft))))
 
 
-__all__ = ["auc", "paired_auc", "separability", "METRICS", "tsa", "tsa_records", "split", "order_amplitudes", "mesh_orders", "indicators",
+__all__ = ["auc", "paired_auc", "separability", "signal_to_background_dB", "paired_sbr", "METRICS", "tsa", "tsa_records", "split", "order_amplitudes", "mesh_orders", "indicators",
            "envelope_band", "points_per_revolution", "SER_SIDEBANDS"]

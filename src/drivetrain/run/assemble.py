@@ -22,6 +22,7 @@ the final drive speed), ``fidelity`` (component -> fidelity), ``partition`` (bod
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 
 import numpy as np
@@ -278,24 +279,35 @@ def record_couplings(part: rig.Partition, bg: background.Background) -> None:
 
 
 def background_inputs(scene, H: float, ratio_pg: float) -> dict:
-    """MotorLoad's inputs that carry the scene's background torques (drivetrain.rig.background), as profiles
-    at every communication point of the run: ``motor_torque_disturbance`` (on the drive rotor) and
-    ``load_torque`` (the load motor's setting plus its share, 1/ratio_pg, of the torques on the propeller
-    mass; a load profile of the scene is kept under them). Empty when no background effect is on."""
-    eff, op = scene.effects, scene.operating_point
+    """MotorLoad's inputs that carry the scene's background torques (drivetrain.rig.background), as profiles at
+    every communication point of the run, generated when the master reads them: ``motor_torque_disturbance``
+    (on the drive rotor) and ``load_torque`` (the load motor's setting plus its share, 1/ratio_pg, of the torques
+    on the propeller mass; a load profile of the scene is kept under them). Empty when no background effect is on."""
+    eff = scene.effects
+    n_steps = int(round(scene.time.duration_s / H)) + 1
+    out = {}
+    if eff.drive_torque_noise:
+        out["motor_torque_disturbance"] = background.GeneratedProfile(
+            functools.partial(_background_values, scene, H, ratio_pg, "drive"), n_steps + 1, H)
+    if eff.load_torque_noise or eff.shaft_orders:
+        out["load_torque"] = background.GeneratedProfile(
+            functools.partial(_background_values, scene, H, ratio_pg, "load"), n_steps + 1, H)
+    return out
+
+
+def _background_values(scene, H: float, ratio_pg: float, where: str) -> np.ndarray:
+    """The values of one background input of :func:`background_inputs` at the communication points."""
+    op = scene.operating_point
     n_steps = int(round(scene.time.duration_s / H)) + 1
     speed = [list(p) for p in op.speed_profile_rpm] if op.speed_profile_rpm else float(op.drive_speed_rpm)
-    parts = background.disturbances(eff, n_steps, H, speed, scene.background, scene.name,
+    parts = background.disturbances(scene.effects, n_steps, H, speed, scene.background, scene.noise_name,
                                     upper_ratio=rig.UPPER_RATIO, lower_ratio=rig.LOWER_RATIO)
-    out = {}
-    if "drive" in parts:
-        out["motor_torque_disturbance"] = background.as_profile(H, parts["drive"])
-    if "load" in parts:
-        t = np.arange(n_steps + 1) * H
-        setting = (np.interp(t, *np.asarray(op.load_profile_Nm, dtype=float).T) if op.load_profile_Nm
-                   else np.full(n_steps + 1, float(op.load_torque_Nm)))
-        out["load_torque"] = background.as_profile(H, setting + parts["load"] / ratio_pg)
-    return out
+    if where == "drive":
+        return parts["drive"]
+    t = np.arange(n_steps + 1) * H
+    setting = (np.interp(t, *np.asarray(op.load_profile_Nm, dtype=float).T) if op.load_profile_Nm
+               else np.full(n_steps + 1, float(op.load_torque_Nm)))
+    return setting + parts["load"] / ratio_pg
 
 
 __all__ = ["assemble", "gear_start_state", "sensor_map", "SENSORS_COMMON", "record_couplings",

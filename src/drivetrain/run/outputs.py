@@ -36,6 +36,10 @@ def jsonable(obj: Any) -> Any:
         return [jsonable(v) for v in obj]
     if isinstance(obj, np.ndarray):
         return jsonable(obj.tolist())
+    if hasattr(obj, "__array__") and hasattr(obj, "shape"):
+        # an input profile generated when read (rig.background.GeneratedProfile): its description, not its
+        # samples (the scene, stored beside it, generates it again)
+        return {"generated_profile": repr(obj)}
     if isinstance(obj, (np.floating, float)):
         v = float(obj)
         return v if math.isfinite(v) else None

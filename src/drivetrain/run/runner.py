@@ -380,7 +380,7 @@ def measured_channels(plan: RunPlan, res: CosimResult) -> Channels:
     scene = plan.scene
     signals = {name: res.signals[src] for name, src in plan.sources.items()}
     if scene.effects.sensors == "rig":      # what the rig's instruments would have reported
-        signals = instruments.measure(signals, scene.time.sample_rate_Hz, scene.instruments, scene.name)
+        signals = instruments.measure(signals, scene.time.sample_rate_Hz, scene.instruments, scene.noise_name)
         if abs(scene.time.sample_rate_Hz - instruments.RIG_SAMPLE_RATE_HZ) > 1e-9:
             plan.warnings.append(f"rig sensors sampled at time.sample_rate_Hz = {scene.time.sample_rate_Hz:g} Hz; the "
                                  f"rig's clock is {instruments.RIG_SAMPLE_RATE_HZ:g} Hz (with numerics.comm_step_s = "

@@ -27,7 +27,7 @@ from gearcontact_fmu.fault_specs import draw_faults, draw_rule_problems
 
 GRID_SECTION = "sweep"
 GRID_KEYS = {"axes", "name", "draw"}
-DRAW_KEYS = {"n", "seed", "faults", "background"}
+DRAW_KEYS = {"n", "seed", "faults", "background", "paired_healthy"}
 #: the largest seed a ``seed = "any"`` rule of [sweep.draw.background] draws
 MAX_DRAWN_SEED = 2 ** 31 - 1
 #: the second word of the background draws' seed (numpy SeedSequence entropy [seed, this])
@@ -87,8 +87,12 @@ def _draw_problems(draw) -> list:
     key = f"{GRID_SECTION}.draw"
     if not isinstance(draw, dict):
         return [(key, draw, "a table [sweep.draw] with n, seed and [[sweep.draw.faults]] or [sweep.draw.background]")]
-    problems = [(f"{key}.{k}", v, "a key of [sweep.draw]: n, seed, faults, background") for k, v in draw.items()
-                if k not in DRAW_KEYS]
+    problems = [(f"{key}.{k}", v, "a key of [sweep.draw]: n, seed, faults, background, paired_healthy")
+                for k, v in draw.items() if k not in DRAW_KEYS]
+    if not isinstance(draw.get("paired_healthy", False), bool):
+        problems.append((f"{key}.paired_healthy", draw["paired_healthy"], "true or false"))
+    elif draw.get("paired_healthy") and not draw.get("faults"):
+        problems.append((f"{key}.paired_healthy", True, "[[sweep.draw.faults]] to pair healthy runs with"))
     for k in ("n", "seed"):
         v = draw.get(k)
         if isinstance(v, bool) or not isinstance(v, int) or v < (1 if k == "n" else 0):
@@ -209,13 +213,22 @@ def _cases(raw: dict, grid: Grid):
         for k, v in zip(keys, combo):
             sec, key = k.split(".")
             case.setdefault(sec, {})[key] = v
+        healthy = copy.deepcopy(case) if d is not None and draw.get("paired_healthy") else None
         if d is not None and draw.get("faults"):
             case.setdefault("gear", {}).update(
                 health="faults", faults=draw_faults(draw["faults"], rng, Z_PINION, Z_WHEEL))
         if d is not None and draw.get("background"):
-            case.setdefault("background", {}).update(draw_background(draw["background"], rng_bg))
+            bg = draw_background(draw["background"], rng_bg)
+            case.setdefault("background", {}).update(bg)
+            if healthy is not None:
+                healthy.setdefault("background", {}).update(bg)
         case.setdefault("scenario", {}).pop("name", None)
-        yield case, d
+        yield case, d, False
+        if healthy is not None:               # the same gearbox, operating point and background, healthy
+            healthy.setdefault("gear", {}).update(health="healthy")
+            healthy["gear"].pop("faults", None)
+            healthy["scenario"] = {k: v for k, v in case["scenario"].items()}
+            yield healthy, d, True
 
 
 def expand(raw: dict, grid: Grid, resolve_case: Callable[[dict], Scene], base_name: str, src: str) -> list[Scene]:
@@ -223,8 +236,9 @@ def expand(raw: dict, grid: Grid, resolve_case: Callable[[dict], Scene], base_na
     template (default ``{base}_{axis}_...``, plus ``_drawNNN`` for drawn cases). Every problem of every
     case is collected and raised together."""
     scenes, problems, names = [], [], set()
+    last_pair = ""
     template = grid.template or "_".join(["{base}"] + ["{" + k + "}" for k in grid.axes])
-    for case, d in _cases(raw, grid):
+    for case, d, twin in _cases(raw, grid):
         try:
             sc = resolve_case(case)
         except ScenarioError as exc:
@@ -233,6 +247,13 @@ def expand(raw: dict, grid: Grid, resolve_case: Callable[[dict], Scene], base_na
         nm = case_name(template, base_name, sc, src)
         if d is not None:
             nm += f"_draw{d:03d}"
+        pair = None
+        if d is not None and grid.draw.get("paired_healthy"):
+            # the faulty case comes first; its healthy twin (next) is named and measured after it
+            if twin:
+                pair, nm = last_pair, last_pair + "_healthy"
+            else:
+                pair = last_pair = nm
         if nm in names:
             raise ScenarioError([(f"{GRID_SECTION}.name", grid.template,
                                   f"a template giving unique names ({nm!r} twice)")], src)
@@ -248,7 +269,10 @@ def expand(raw: dict, grid: Grid, resolve_case: Callable[[dict], Scene], base_na
                 except ScenarioError as exc:
                     problems.extend(exc.problems)
                     continue
-        scenes.append(dataclasses.replace(sc, scenario=dataclasses.replace(sc.scenario, name=nm)))
+        info = dataclasses.replace(sc.scenario, name=nm)
+        if pair is not None:                  # a pair is measured with one noise record: its id is its noise_name
+            info = dataclasses.replace(info, noise_name=pair)
+        scenes.append(dataclasses.replace(sc, scenario=info))
     if grid.expect is not None:
         from drivetrain.scene.expect import unmatched_case_patterns
 

@@ -109,6 +109,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "name": Key("str", None, doc="scene name (used for output files and manifests)",
                     default_doc="the file name without .toml"),
         "description": Key("str", "", doc="free text"),
+        "noise_name": Key("str", None, doc=(
+            "the name the run's noise records (instruments, background) are drawn with; two runs with one "
+            "noise_name are measured with the same noise: a paired healthy run ([sweep.draw] paired_healthy)"),
+            default_doc="the scene's name"),
     },
     "operating_point": {
         "drive_speed_rpm": _f(1500.0, "rpm", "speed", "drive-motor speed reference (drive shaft)", minimum=0.0),
@@ -343,6 +347,7 @@ CHECK_SECTIONS = ("expect", "check")
 class ScenarioInfo:
     name: str
     description: str
+    noise_name: str | None
 
 
 @dataclass(frozen=True)
@@ -466,6 +471,11 @@ class Scene:
     @property
     def name(self) -> str:
         return self.scenario.name
+
+    @property
+    def noise_name(self) -> str:
+        """The name the run's noise records are drawn with (``scenario.noise_name``, else the scene's name)."""
+        return self.scenario.noise_name or self.scenario.name
 
     def to_dict(self) -> dict:
         """The resolved scene as plain TOML/JSON-able data (same layout as the file)."""

@@ -1,0 +1,253 @@
+"""``drivetrain detectability``: which fault labels carry a signal, over gearboxes, for every indicator.
+
+The study: each fault family (the seven kinds of gearcontact_fmu.fault_specs on the pinion and on the wheel,
+at their default size and at :data:`SMALL` of it; the missing tooth has no size) at :data:`SPEEDS_RPM` x
+:data:`LOADS_NM`, on ``gearboxes`` gearboxes (manufacturing, background and instrument seeds 0..N-1), and the
+same gearboxes healthy at each operating point. Every run is the record scene
+(``scenarios/validation/rig_record_500rpm.toml``: the rig's measured background, errors, compliance, profile
+deviation, rig sensors) at the operating point; ``background = "off"`` runs the same without the background
+(record_check.BACKGROUND_OFF), for what the background changes. A faulty run and its gearbox's healthy run
+at one operating point share one noise record (``scenario.noise_name``), so faulty minus healthy is the
+fault's own signal.
+
+Where the fault sits: tooth 0 of its member. The manufacturing draw numbers the pair from its most loaded
+pinion tooth (the most advanced one carries the most load), where a flank fracture starts
+(docs/GEAR-CONTACT.md, "Pitch errors and the mild fault"); the same rule for every gearbox, chosen before any
+run.
+
+For each family, operating point and indicator (drivetrain.campaigns.features: TSA per shaft and the gear
+metrics, the amplitudes at the characteristic frequencies, per torque transducer):
+* **paired AUC**: over gearboxes, the fraction whose indicator rose with the fault (its own healthy run as
+  the baseline: a monitoring system);
+* **unpaired AUC**: healthy against faulty over all gearboxes (a classifier that sees a population);
+both rig.indicators; an indicator that falls with the fault reads below 0.5, so the report uses the
+separability max(AUC, 1 - AUC). The rule, stated before the runs: a label **carries a detectable signal** at
+an operating point when its best indicator's paired separability is >= :data:`DETECTABLE` (0.9), and is
+**separable in a population** when its best unpaired separability is >= 0.9.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from drivetrain.campaigns import record_check
+from drivetrain.rig import indicators as ci
+from gearcontact_fmu.fault_specs import FAULT_KINDS
+
+SPEEDS_RPM = (500.0, 1000.0, 1500.0)
+LOADS_NM = (0.71, 1.31)
+MEMBERS = ("pinion", "wheel")
+#: the small size: every size key of a kind at this fraction of its default
+SMALL = 0.5
+#: the rule: separability (max(AUC, 1 - AUC)) of the best indicator
+DETECTABLE = 0.9
+#: keys of a fault kind that are its size (the others place it)
+SIZE_KEYS = ("width_mm", "depth_mm", "radius_mm", "length_mm", "height_mm", "depth_um")
+
+
+@dataclass(frozen=True)
+class Family:
+    kind: str
+    member: str
+    size: str                   # "default" | "small"
+
+    @property
+    def name(self) -> str:
+        return f"{self.kind}_{self.member}_{self.size}"
+
+    def fault(self) -> dict:
+        """The fault specification: tooth 0 of the member, the kind's defaults, sizes scaled for "small"."""
+        spec = {"kind": self.kind, "member": self.member, "tooth": 0}
+        if self.size == "small":
+            for k, v in FAULT_KINDS[self.kind].items():
+                if k in SIZE_KEYS and isinstance(v, (int, float)) and v:
+                    spec[k] = float(v) * SMALL
+        return spec
+
+
+def families(kinds=None, members=MEMBERS, sizes=("default", "small")) -> list[Family]:
+    """The studied families; the missing tooth only at its one size."""
+    out = []
+    for kind in kinds or tuple(FAULT_KINDS):
+        for member in members:
+            for size in sizes:
+                if size == "small" and not any(k in SIZE_KEYS for k in FAULT_KINDS[kind]):
+                    continue
+                out.append(Family(kind, member, size))
+    return out
+
+
+def case_names(fam: Family | None, speed: float, load: float, gearbox: int) -> tuple[str, str]:
+    """(run name, noise name) of a faulty (``fam``) or healthy (None) run."""
+    op = f"{speed:g}rpm_{load:g}Nm_gb{gearbox}"
+    return (f"{fam.name if fam else 'healthy'}_{op}", f"noise_{op}")
+
+
+@dataclass
+class Study:
+    """What a study runs: its families, operating points, gearboxes, run length and background."""
+
+    families: list
+    speeds: tuple = SPEEDS_RPM
+    loads: tuple = LOADS_NM
+    gearboxes: int = 20
+    duration_s: float = 7.0
+    settle_s: float = 1.0
+    background: str = "on"
+    overrides: tuple = field(default_factory=tuple)
+
+    def scenes(self) -> list:
+        from drivetrain.scene.load import load_scene
+
+        common = [f"time.duration_s={self.duration_s}", f"time.settle_s={self.settle_s}", "outputs.plots=false",
+                  "outputs.aalto_csv=false", "outputs.variables=[]"]
+        if self.background == "off":
+            common += list(record_check.BACKGROUND_OFF)
+        out = []
+        for speed in self.speeds:
+            for load in self.loads:
+                for gb in range(self.gearboxes):
+                    seeds = [f"manufacturing.seed={gb}", f"background.seed={gb}", f"instruments.seed={gb}",
+                             f"operating_point.drive_speed_rpm={speed}", f"operating_point.load_torque_Nm={load}"]
+                    for fam in [None, *self.families]:
+                        name, noise = case_names(fam, speed, load, gb)
+                        gear = (['gear.health="healthy"'] if fam is None else
+                                ['gear.health="faults"', f"gear.faults=[{_toml_inline(fam.fault())}]"])
+                        out.append(load_scene(record_check.RECORD_SCENE, overrides=[
+                            *common, *seeds, *gear, *self.overrides, f'scenario.name="{name}"',
+                            f'scenario.noise_name="{noise}"']))
+        return out
+
+
+def _toml_inline(d: dict) -> str:
+    items = []
+    for k, v in d.items():
+        items.append(f'{k} = "{v}"' if isinstance(v, str) else f"{k} = {v!r}")
+    return "{" + ", ".join(items) + "}"
+
+
+def auc_table(rows: list[dict], study: Study) -> list[dict]:
+    """Per family, operating point and indicator column: paired and unpaired AUC over the gearboxes."""
+    by_name = {r["run"]: r for r in rows}
+    cols = sorted({k for r in rows for k in r if "." in k and k.split(".")[0].split("_")[0] in
+                   (*ci.METRICS, "amp")})
+    out = []
+    for fam in study.families:
+        for speed in study.speeds:
+            for load in study.loads:
+                pairs = []
+                for gb in range(study.gearboxes):
+                    f = by_name.get(case_names(fam, speed, load, gb)[0])
+                    h = by_name.get(case_names(None, speed, load, gb)[0])
+                    if f is not None and h is not None:
+                        pairs.append((h, f))
+                for col in cols:
+                    hv = np.array([_num(h.get(col)) for h, _ in pairs])
+                    fv = np.array([_num(f.get(col)) for _, f in pairs])
+                    out.append({"family": fam.name, "kind": fam.kind, "member": fam.member, "size": fam.size,
+                                "speed_rpm": speed, "load_Nm": load, "indicator": col, "n": len(pairs),
+                                "paired_auc": ci.paired_auc(hv, fv) if len(pairs) else float("nan"),
+                                "unpaired_auc": ci.auc(hv, fv) if len(pairs) else float("nan")})
+    return out
+
+
+def _num(v) -> float:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+def verdicts(table: list[dict]) -> list[dict]:
+    """Per family and operating point: the best indicator by paired and by unpaired separability, and the
+    rule's verdicts."""
+    groups: dict = {}
+    for row in table:
+        groups.setdefault((row["family"], row["speed_rpm"], row["load_Nm"]), []).append(row)
+    out = []
+    for (fam, speed, load), rs in groups.items():
+        ok = [r for r in rs if math.isfinite(r["paired_auc"])]
+        if not ok:
+            continue
+        bp = max(ok, key=lambda r: ci.separability(r["paired_auc"]))
+        bu = max(ok, key=lambda r: ci.separability(r["unpaired_auc"]))
+        out.append({"family": fam, "speed_rpm": speed, "load_Nm": load, "n": bp["n"],
+                    "best_paired": bp["indicator"], "paired": ci.separability(bp["paired_auc"]),
+                    "best_unpaired": bu["indicator"], "unpaired": ci.separability(bu["unpaired_auc"]),
+                    "detectable": ci.separability(bp["paired_auc"]) >= DETECTABLE,
+                    "population": ci.separability(bu["unpaired_auc"]) >= DETECTABLE})
+    return out
+
+
+def write_table_csv(table: list[dict], path: Path) -> Path:
+    with open(path, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(table[0]))
+        w.writeheader()
+        w.writerows(table)
+    return path
+
+
+def plot(verdict_rows: list[dict], study: Study, path: Path) -> Path:
+    """Best paired and unpaired separability per family (rows) and operating point (columns)."""
+    from drivetrain.run.outputs import _finish, _mpl
+
+    plt = _mpl()
+    fams = [f.name for f in study.families]
+    ops = [(s, l) for s in study.speeds for l in study.loads]
+    fig, axes = plt.subplots(1, 2, figsize=(14, 0.35 * len(fams) + 2.5), sharey=True)
+    for ax, key, title in ((axes[0], "paired", "paired (the same gearbox healthy)"),
+                           (axes[1], "unpaired", "unpaired (any healthy gearbox)")):
+        m = np.full((len(fams), len(ops)), np.nan)
+        for r in verdict_rows:
+            m[fams.index(r["family"]), ops.index((r["speed_rpm"], r["load_Nm"]))] = r[key]
+        im = ax.imshow(m, vmin=0.5, vmax=1.0, cmap="viridis", aspect="auto")
+        ax.set_xticks(range(len(ops)), [f"{s:g} rpm\n{l:g} N·m" for s, l in ops], fontsize=7)
+        ax.set_yticks(range(len(fams)), fams, fontsize=7)
+        ax.set_title(f"best indicator's separability, {title}", fontsize=9)
+        for i in range(len(fams)):
+            for j in range(len(ops)):
+                if np.isfinite(m[i, j]):
+                    ax.text(j, i, f"{m[i, j]:.2f}", ha="center", va="center", fontsize=6,
+                            color="w" if m[i, j] < 0.8 else "k")
+    fig.colorbar(im, ax=axes, shrink=0.6, label="max(AUC, 1 - AUC)")
+    import warnings
+
+    with warnings.catch_warnings():           # the colorbar's axes do not take part in tight_layout: harmless
+        warnings.simplefilter("ignore", UserWarning)
+        return _finish(plt, fig, path, f"detectability over {study.gearboxes} gearboxes "
+                                       f"(background {study.background})")
+
+
+def report_markdown(verdict_rows: list[dict], study: Study, meta: dict, figure: str | None, table_csv: str) -> str:
+    n_det = sum(r["detectable"] for r in verdict_rows)
+    n_pop = sum(r["population"] for r in verdict_rows)
+    lines = ["# Detectability of the fault labels over gearboxes", "",
+             "Generated by `drivetrain detectability` (src/drivetrain/campaigns/detectability.py); do not edit by "
+             "hand. The study, the indicators, the AUCs and the rule: that module's docstring.", "",
+             f"- command: `{meta.get('command', '')}`",
+             f"- runs: {meta.get('n_runs')} of {study.duration_s:g} s (settle {study.settle_s:g} s), "
+             f"{study.gearboxes} gearboxes, background {study.background}",
+             f"- wall time: {meta.get('wall_time_s', float('nan')) / 60:.1f} min on {meta.get('workers')} worker(s)",
+             f"- rule: detectable when the best indicator's paired separability >= {DETECTABLE}; separable in a "
+             f"population when the best unpaired separability >= {DETECTABLE}",
+             f"- outcome: {n_det} of {len(verdict_rows)} family x operating point cells carry a detectable signal "
+             f"(paired), {n_pop} are separable in a population (unpaired)",
+             f"- every indicator's AUCs: [{table_csv}]({table_csv})", ""]
+    if figure:
+        lines += [f"![detectability]({figure})", ""]
+    lines += ["| family | speed | load | best paired indicator | paired | best unpaired indicator | unpaired | "
+              "verdict |", "|---|---|---|---|---|---|---|---|"]
+    for r in sorted(verdict_rows, key=lambda r: (r["family"], r["speed_rpm"], r["load_Nm"])):
+        verdict = ("detectable, separable in a population" if r["population"] else
+                   "detectable against its own gearbox only" if r["detectable"] else "**no detectable signal**")
+        lines.append(f"| {r['family']} | {r['speed_rpm']:g} rpm | {r['load_Nm']:g} N·m | {r['best_paired']} | "
+                     f"{r['paired']:.2f} | {r['best_unpaired']} | {r['unpaired']:.2f} | {verdict} |")
+    return "\n".join(lines) + "\n"
+
+
+__all__ = ["Family", "Study", "families", "case_names", "auc_table", "verdicts", "plot", "report_markdown",
+           "write_table_csv", "SPEEDS_RPM", "LOADS_NM", "DETECTABLE", "SMALL"]

@@ -121,15 +121,33 @@ def normalised_spec(spec: dict) -> dict:
     return out
 
 
-def _draw_value(key, rule, rng, z):
+def draw_value(rule, rng):
+    """One value of a draw rule with the numpy Generator ``rng``: ``{uniform = [a, b]}`` a number uniformly in
+    [a, b], a list one of its items uniformly, anything else itself (the grammar of ``[sweep.draw]``)."""
     if isinstance(rule, dict):
         lo, hi = rule["uniform"]
         return float(rng.uniform(lo, hi))
     if isinstance(rule, list):
         return rule[int(rng.integers(len(rule)))]
+    return rule
+
+
+def rule_problem(rule) -> str | None:
+    """What is wrong with a draw rule's grammar (:func:`draw_value`), or None."""
+    if isinstance(rule, dict):
+        u = rule.get("uniform")
+        if (set(rule) != {"uniform"} or not isinstance(u, list) or len(u) != 2
+                or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in u) or not u[0] <= u[1]):
+            return "{uniform = [a, b]} with numbers a <= b"
+    elif isinstance(rule, list) and not rule:
+        return "a non-empty list to choose from"
+    return None
+
+
+def _draw_value(key, rule, rng, z):
     if key == "tooth" and rule == "any":
         return int(rng.integers(z))
-    return rule
+    return draw_value(rule, rng)
 
 
 def draw_rule_problems(template) -> list[tuple[str, object, str]]:
@@ -145,13 +163,8 @@ def draw_rule_problems(template) -> list[tuple[str, object, str]]:
     for key, rule in template.items():
         if key not in known:
             problems.append((key, rule, f"a fault key: {tuple(sorted(known))}"))
-        elif isinstance(rule, dict):
-            u = rule.get("uniform")
-            if (set(rule) != {"uniform"} or not isinstance(u, list) or len(u) != 2
-                    or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in u) or not u[0] <= u[1]):
-                problems.append((key, rule, "{uniform = [a, b]} with numbers a <= b"))
-        elif isinstance(rule, list) and not rule:
-            problems.append((key, rule, "a non-empty list to choose from"))
+        elif rule_problem(rule):
+            problems.append((key, rule, rule_problem(rule)))
     return problems
 
 

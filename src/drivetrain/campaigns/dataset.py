@@ -73,12 +73,20 @@ def load_run(sweep_dir: Path | str, rec: dict) -> dict | None:
     sig = Path(sweep_dir) / str(name) / "signals.h5"
     if not name or not sig.is_file():
         return None
+    return read_run(sig, rec)
+
+
+def read_run(sig: Path, rec: dict) -> dict:
+    """A run's ``signals.h5`` as {"name", "labels", "time", "signals", "units"}; the name is the record's, else
+    the one its scene has; the status is the record's, else its summary's."""
     try:
         h = read_hdf5(sig)
     except Exception as exc:  # noqa: BLE001 - name the file, whatever h5py says
         raise DatasetError(f"{sig}: unreadable ({type(exc).__name__}: {exc})") from None
     scene = (h.get("scene") or {}).get("scene") or h.get("scene") or {}
     summary = json.loads(h["attrs"]["summary_json"]) if "summary_json" in h["attrs"] else None
+    name = rec.get("name") or (scene.get("scenario") or {}).get("name", Path(sig).parent.name)
+    rec = {"status": (summary or {}).get("status", "ok"), **rec}
     return {"name": name, "labels": run_labels(name, rec, scene, summary), "time": h["time"],
             "signals": h["signals"], "units": h["units"]}
 
@@ -195,5 +203,5 @@ def export(sweep_dir: Path | str, fmt: str = "parquet", out: Path | str | None =
     return WRITERS[fmt](runs, path)
 
 
-__all__ = ["run_records", "load_run", "FORMATS", "DatasetError", "collect", "export", "run_labels", "write_parquet", "write_hdf5",
+__all__ = ["run_records", "load_run", "read_run", "FORMATS", "DatasetError", "collect", "export", "run_labels", "write_parquet", "write_hdf5",
            "write_aalto"]

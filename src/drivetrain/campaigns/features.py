@@ -76,26 +76,13 @@ def run_features(time: np.ndarray, signals: dict, settle_s: float, drive_speed_r
     return out
 
 
-def _one_run(directory: Path) -> dict:
-    """The run of a run directory (its ``signals.h5``), as campaigns.dataset.load_run gives a sweep's."""
-    from drivetrain.campaigns.dataset import run_labels
-    from drivetrain.run.outputs import read_hdf5
-
-    h = read_hdf5(directory / "signals.h5")
-    scene = (h.get("scene") or {}).get("scene") or h.get("scene") or {}
-    summary = json.loads(h["attrs"]["summary_json"]) if "summary_json" in h["attrs"] else None
-    name = (scene.get("scenario") or {}).get("name", directory.name)
-    return {"name": name, "labels": run_labels(name, {"status": (summary or {}).get("status", "ok")}, scene, summary),
-            "time": h["time"], "signals": h["signals"]}
-
-
 def _iter_runs(directory: Path):
     """The runs of a sweep directory one at a time, the healthy ones first (their signals are kept for the
     faulty runs paired with them), or the one run of a run directory."""
-    from drivetrain.campaigns.dataset import load_run, run_records
+    from drivetrain.campaigns.dataset import load_run, read_run, run_records
 
     if (directory / "signals.h5").is_file() and not (directory / "manifest.json").is_file():
-        yield _one_run(directory)
+        yield read_run(directory / "signals.h5", {})
         return
     records = run_records(directory)
     healthy_first = sorted(records, key=lambda rec: (rec.get("labels") or {}).get("health") != "healthy")

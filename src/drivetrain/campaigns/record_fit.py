@@ -33,7 +33,7 @@ import numpy as np
 
 from drivetrain.rig import record as rec
 from drivetrain.rig.signals import amplitude_spectrum
-from drivetrain.rig.background import ORDERS, Background
+from drivetrain.rig.background import ORDERS, Background, propeller_order
 
 #: the band [Hz] of the damping and noise fit, and the half width around lines left out of it [Hz]
 FIT_BAND_HZ = (10.0, 80.0)
@@ -122,14 +122,24 @@ def hump_mode(f: np.ndarray, amp: np.ndarray, band: tuple[float, float]) -> dict
     return {"f_Hz": fp, "zeta_bound": zeta, "half_power_width_Hz": width, "amplitude_Nm": float(amp[i])}
 
 
+def record_humps(record: rec.Record | None = None) -> dict:
+    """The record's humps (rig.record.HUMPS) in its propeller-shaft torque, each read as one mode (:func:`hump_mode`)."""
+    r = record or rec.load_record()
+    fa, amp = amplitude_spectrum(r.channels["propeller_shaft_torque"][int(round(rec.SKIP_S * r.fs)):], r.fs)
+    return {name: hump_mode(fa, amp, band) for name, band in rec.HUMPS.items()}
+
+
 def periodic_lines(speed_rpm: float, ring_teeth: int) -> dict:
     """The record's periodic lines [Hz]: ``named``, the lines of ``effects.shaft_orders`` by their
     [background] key; ``all``, the lines left out of the broadband fit (those, the mesh frequency and its
     second harmonic, the drive shaft's orders up to 12)."""
-    f_psh = speed_rpm / 60.0 / 12.0
-    named = {key: (ring_teeth if order is None else order) * f_psh for key, order in ORDERS.items()}
-    f_dsh, f_msh = 12 * f_psh, 4 * f_psh
-    others = [k * f_dsh for k in range(1, 13)] + [15 * f_msh, 30 * f_msh]
+    from drivetrain.rig.data import LOWER_RATIO, UPPER_RATIO
+    from drivetrain.rig.signals import characteristic_frequencies
+
+    cf = characteristic_frequencies(speed_rpm, n_harmonics=2)
+    bg = Background(planetary_ring_teeth=ring_teeth)
+    named = {key: propeller_order(key, bg, UPPER_RATIO, LOWER_RATIO) * cf["f_PSH"] for key in ORDERS}
+    others = [k * cf["f_DSH"] for k in range(1, 13)] + list(cf["harmonics"])
     return {"named": named, "all": sorted(set(list(named.values()) + others))}
 
 
@@ -236,9 +246,8 @@ def identify(record: rec.Record | None = None, base: Background | None = None) -
     out["controller"] = controller(r)
     bg = dataclasses.replace(bg, drive_Kp=out["controller"]["drive_Kp"], drive_Ti_s=out["controller"]["drive_Ti_s"],
                              drive_noise_Nm_rtHz=math.sqrt(drive_floor))
-    xp = r.channels["propeller_shaft_torque"][cut:]
-    fa, amp = amplitude_spectrum(xp, r.fs)
-    out["humps"] = {name: hump_mode(fa, amp, band) for name, band in rec.HUMPS.items()}
+    fa, amp = amplitude_spectrum(r.channels["propeller_shaft_torque"][cut:], r.fs)
+    out["humps"] = record_humps(r)
     lines = periodic_lines(rec.RECORD_SPEED_RPM, bg.planetary_ring_teeth)
     sel = (f >= FIT_BAND_HZ[0]) & (f <= FIT_BAND_HZ[1])
     sel &= np.min(np.abs(f[:, None] - np.array(lines["all"])[None, :]), axis=1) > LINE_GAP_HZ
@@ -258,4 +267,5 @@ def identify(record: rec.Record | None = None, base: Background | None = None) -
     return out
 
 
-__all__ = ["identify", "response", "first_modes", "mode_in", "hump_mode", "controller", "periodic_lines"]
+__all__ = ["identify", "response", "first_modes", "mode_in", "hump_mode", "record_humps", "controller",
+           "periodic_lines"]

@@ -175,8 +175,7 @@ def check_mode(runs: Runs) -> CheckResult:
     ``effects.couplings = "fitted"``, the coupling factor fitted to it) and the 2023 record (the propeller-shaft
     torque's hump, ``couplings = "record"`` with the identified drive control: stiffness placed on the hump,
     damping fitted to the broadband; campaigns.record_fit)."""
-    from drivetrain.campaigns.record_fit import MODE_PLACEMENT, hump_mode, mode_in
-    from drivetrain.rig import record as rec
+    from drivetrain.campaigns.record_fit import MODE_PLACEMENT, mode_in, record_humps
     from drivetrain.rig.background import Background
 
     r = CheckResult(2, "lowest torsional mode", f"{MODE_HZ:g} Hz ± 3 % in the paper's campaign; the 2023 record's "
@@ -186,9 +185,7 @@ def check_mode(runs: Runs) -> CheckResult:
         r.status, r.details = "fail", [f"missing run {name}"]
         return r
     f0 = runs.summary(name)["natural_frequencies_Hz"][0]
-    record = rec.load_record()
-    x = record.channels["propeller_shaft_torque"][int(round(rec.SKIP_S * record.fs)):]
-    hump = hump_mode(*rec.amplitude_spectrum(x, record.fs), rec.HUMPS["hump_27"])
+    hump = record_humps()["hump_27"]
     mode = mode_in(Background(), MODE_PLACEMENT[0][1])
     r.figure = (f"paper's state (couplings fitted): {f0:.2f} Hz ({100 * (f0 / MODE_HZ - 1):+.1f} %); the record's "
                 f"state (couplings and drive control record): {mode['f_Hz']:.2f} Hz, damping ratio {mode['zeta']:.2f}, "

@@ -43,11 +43,11 @@ import numpy as np
 
 from drivetrain.rig.record import RECORD_SPEED_RPM as REFERENCE_SPEED_RPM
 
-#: the periodic lines of ``effects.shaft_orders``: key -> order of the propeller shaft (lines per propeller
-#: revolution; the drive shaft turns 12 times, the middle shaft 4 times per propeller revolution);
-#: ``planetary_mesh_Nm`` is at ``planetary_ring_teeth`` (the 1:8 planetary's mesh frequency)
-ORDERS = {"order_msh_1x_Nm": 4, "order_msh_2x_Nm": 8, "order_dsh_1x_Nm": 12, "order_dsh_2x_Nm": 24,
-          "planetary_mesh_Nm": None}
+#: the periodic lines of ``effects.shaft_orders``: key -> (what turns, lines per its revolution): the middle
+#: and drive shafts' 1x and 2x, and the 1:8 planetary's mesh (``planetary_ring_teeth`` lines per propeller
+#: revolution); :func:`propeller_order` turns each into lines per propeller revolution
+ORDERS = {"order_msh_1x_Nm": ("middle", 1), "order_msh_2x_Nm": ("middle", 2), "order_dsh_1x_Nm": ("drive", 1),
+          "order_dsh_2x_Nm": ("drive", 2), "planetary_mesh_Nm": ("planetary", None)}
 
 
 @dataclass(frozen=True)
@@ -92,26 +92,34 @@ def broadband_noise(n: int, fs: float, asd: float, band_Hz: float, rng: np.rando
     return x
 
 
-def drive_angle(t: np.ndarray, speed_rpm) -> np.ndarray:
-    """The drive shaft's nominal angle [rad] at times ``t``: the integral of the speed reference, a
-    constant [rpm] or a profile [[t_s, rpm], ...] (linear between points, held outside)."""
-    t = np.asarray(t, dtype=float)
-    if np.isscalar(speed_rpm) or np.ndim(speed_rpm) == 0:
-        return float(speed_rpm) * math.pi / 30.0 * t
-    p = np.asarray(speed_rpm, dtype=float)
-    w = np.interp(t, p[:, 0], p[:, 1]) * math.pi / 30.0
-    out = np.zeros_like(t)
-    out[1:] = np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t))
-    return out
-
-
 def speed_at(t: np.ndarray, speed_rpm) -> np.ndarray:
-    """The speed reference [rpm] at times ``t``: a constant or a profile [[t_s, rpm], ...]."""
+    """The speed reference [rpm] at times ``t``: a constant or a profile [[t_s, rpm], ...] (linear between
+    points, held outside)."""
     t = np.asarray(t, dtype=float)
     if np.isscalar(speed_rpm) or np.ndim(speed_rpm) == 0:
         return np.full_like(t, float(speed_rpm))
     p = np.asarray(speed_rpm, dtype=float)
     return np.interp(t, p[:, 0], p[:, 1])
+
+
+def drive_angle(t: np.ndarray, speed_rpm) -> np.ndarray:
+    """The drive shaft's nominal angle [rad] at times ``t``: the integral of the speed reference
+    (:func:`speed_at`; exact for a constant speed, trapezoidal along a profile)."""
+    t = np.asarray(t, dtype=float)
+    if np.isscalar(speed_rpm) or np.ndim(speed_rpm) == 0:
+        return float(speed_rpm) * math.pi / 30.0 * t
+    w = speed_at(t, speed_rpm) * math.pi / 30.0
+    out = np.zeros_like(t)
+    out[1:] = np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t))
+    return out
+
+
+def propeller_order(key: str, bg: Background, upper_ratio: float, lower_ratio: float) -> float:
+    """Lines per propeller revolution of the periodic line ``key`` of :data:`ORDERS`."""
+    what, k = ORDERS[key]
+    if what == "planetary":
+        return float(bg.planetary_ring_teeth)
+    return float(k) * (lower_ratio if what == "middle" else upper_ratio * lower_ratio)
 
 
 def order_ripple(t: np.ndarray, speed_rpm, bg: Background, upper_ratio: float, lower_ratio: float) -> np.ndarray:
@@ -125,34 +133,44 @@ def order_ripple(t: np.ndarray, speed_rpm, bg: Background, upper_ratio: float, l
     scale = (speed_at(t, speed_rpm) / REFERENCE_SPEED_RPM) ** float(bg.orders_speed_exponent)
     phases = _rng(bg.seed, "shaft_orders", "").uniform(0.0, 2.0 * math.pi, len(ORDERS))
     out = np.zeros_like(theta)
-    for (key, order), ph in zip(ORDERS.items(), phases):
+    for key, ph in zip(ORDERS, phases):
         amp = float(getattr(bg, key))
         if amp:
-            k = float(bg.planetary_ring_teeth if order is None else order)
-            out += amp * np.sin(k * theta + ph)
+            out += amp * np.sin(propeller_order(key, bg, upper_ratio, lower_ratio) * theta + ph)
     return out * scale
 
 
-def disturbances(scene_effects, n_steps: int, H: float, speed_rpm, bg: Background, run: str,
-                 upper_ratio: float, lower_ratio: float) -> dict:
-    """The background's torques at the communication points t_k = k H, k = 0..n_steps, by where they act:
-    ``"drive"`` (on the drive motor's rotor [N·m]) and ``"load"`` (on the propeller mass, propeller-shaft
-    frame [N·m]); only the switched-on effects, and only the places something acts on. Each noise record is
-    drawn from (``bg.seed``, its stream, the run's name): each run of a grid gets its own, a scene rerun the
-    same."""
+#: where the background's torques act: on the drive motor's rotor, or on the propeller mass
+PLACES = ("drive", "load")
+
+
+def acts_on(where: str, effects) -> bool:
+    """Whether any switched-on background effect puts a torque ``where`` (:data:`PLACES`)."""
+    if where == "drive":
+        return bool(effects.drive_torque_noise)
+    return bool(effects.load_torque_noise or effects.shaft_orders)
+
+
+def disturbance(where: str, effects, n_steps: int, H: float, speed_rpm, bg: Background, run: str,
+                upper_ratio: float, lower_ratio: float) -> np.ndarray:
+    """The background's torque [N·m] at the communication points t_k = k H, k = 0..n_steps, acting ``where``:
+    ``"drive"`` (on the drive motor's rotor) or ``"load"`` (on the propeller mass, propeller-shaft frame), of
+    the switched-on effects only (zeros when none acts there). Each noise record is drawn from (``bg.seed``,
+    its stream, the run's name): each run of a grid gets its own, a scene rerun the same."""
+    if where not in PLACES:
+        raise ValueError(f"a background torque acts on {' or '.join(PLACES)}, not {where!r}")
     fs = 1.0 / H
-    out = {}
-    if scene_effects.drive_torque_noise:
-        out["drive"] = broadband_noise(n_steps + 1, fs, bg.drive_noise_Nm_rtHz, bg.noise_band_Hz,
-                                       _rng(bg.seed, "drive_torque_noise", run))
-    load = np.zeros(n_steps + 1)
-    if scene_effects.load_torque_noise:
-        load += broadband_noise(n_steps + 1, fs, bg.load_noise_Nm_rtHz, bg.noise_band_Hz,
-                                _rng(bg.seed, "load_torque_noise", run))
-    if scene_effects.shaft_orders:
-        load += order_ripple(np.arange(n_steps + 1) * H, speed_rpm, bg, upper_ratio, lower_ratio)
-    if scene_effects.load_torque_noise or scene_effects.shaft_orders:
-        out["load"] = load
+    out = np.zeros(n_steps + 1)
+    if where == "drive":
+        if effects.drive_torque_noise:
+            out += broadband_noise(n_steps + 1, fs, bg.drive_noise_Nm_rtHz, bg.noise_band_Hz,
+                                   _rng(bg.seed, "drive_torque_noise", run))
+        return out
+    if effects.load_torque_noise:
+        out += broadband_noise(n_steps + 1, fs, bg.load_noise_Nm_rtHz, bg.noise_band_Hz,
+                               _rng(bg.seed, "load_torque_noise", run))
+    if effects.shaft_orders:
+        out += order_ripple(np.arange(n_steps + 1) * H, speed_rpm, bg, upper_ratio, lower_ratio)
     return out
 
 
@@ -193,4 +211,5 @@ def as_profile(H: float, values: np.ndarray) -> np.ndarray:
 
 
 __all__ = ["Background", "ORDERS", "REFERENCE_SPEED_RPM", "broadband_noise", "drive_angle", "speed_at",
-           "order_ripple", "disturbances", "as_profile", "GeneratedProfile"]
+           "propeller_order",
+           "order_ripple", "PLACES", "acts_on", "disturbance", "as_profile", "GeneratedProfile"]

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drivetrain.rig.signals import amplitude_spectrum
+from drivetrain.rig.signals import amplitude_spectrum, characteristic_frequencies
 
 RECORD_DIR = Path(__file__).resolve().parents[1] / "data" / "rig_records"
 SENSOR_CSV = "baseline_500rpm_constant_load_sensor.csv"
@@ -85,9 +85,8 @@ def windows(x: np.ndarray, fs: float, skip_s: float = SKIP_S, window_s: float = 
 
 def _figures_one(x: np.ndarray, fs: float, speed_rpm: float) -> dict:
     f, a = amplitude_spectrum(x, fs)
-    f_dsh = speed_rpm / 60.0
-    f_msh = f_dsh / 3.0
-    lines = {"f_GMF": 15.0 * f_msh, "f_MSH": f_msh, "f_DSH": f_dsh}
+    cf = characteristic_frequencies(speed_rpm)
+    lines = {k: cf[k] for k in ("f_GMF", "f_MSH", "f_DSH")}
     out = {"std": float(np.std(x))}
     for name, fl in lines.items():
         sel = np.abs(f - fl) <= LINE_HALF_WIDTH_HZ

@@ -278,21 +278,19 @@ def record_couplings(part: rig.Partition, bg: background.Background) -> None:
             cu["k"], cu["c"] = gear["k_b"], gear["d_b"]
 
 
+#: the MotorLoad input that carries the background's torque at each place (rig.background.PLACES)
+BACKGROUND_INPUTS = {"drive": "motor_torque_disturbance", "load": "load_torque"}
+
+
 def background_inputs(scene, H: float, ratio_pg: float) -> dict:
     """MotorLoad's inputs that carry the scene's background torques (drivetrain.rig.background), as profiles at
     every communication point of the run, generated when the master reads them: ``motor_torque_disturbance``
     (on the drive rotor) and ``load_torque`` (the load motor's setting plus its share, 1/ratio_pg, of the torques
     on the propeller mass; a load profile of the scene is kept under them). Empty when no background effect is on."""
-    eff = scene.effects
-    n_steps = int(round(scene.time.duration_s / H)) + 1
-    out = {}
-    if eff.drive_torque_noise:
-        out["motor_torque_disturbance"] = background.GeneratedProfile(
-            functools.partial(_background_values, scene, H, ratio_pg, "drive"), n_steps + 1, H)
-    if eff.load_torque_noise or eff.shaft_orders:
-        out["load_torque"] = background.GeneratedProfile(
-            functools.partial(_background_values, scene, H, ratio_pg, "load"), n_steps + 1, H)
-    return out
+    n_rows = int(round(scene.time.duration_s / H)) + 2
+    return {name: background.GeneratedProfile(functools.partial(_background_values, scene, H, ratio_pg, where),
+                                              n_rows, H)
+            for where, name in BACKGROUND_INPUTS.items() if background.acts_on(where, scene.effects)}
 
 
 def _background_values(scene, H: float, ratio_pg: float, where: str) -> np.ndarray:
@@ -300,14 +298,14 @@ def _background_values(scene, H: float, ratio_pg: float, where: str) -> np.ndarr
     op = scene.operating_point
     n_steps = int(round(scene.time.duration_s / H)) + 1
     speed = [list(p) for p in op.speed_profile_rpm] if op.speed_profile_rpm else float(op.drive_speed_rpm)
-    parts = background.disturbances(scene.effects, n_steps, H, speed, scene.background, scene.noise_name,
+    torque = background.disturbance(where, scene.effects, n_steps, H, speed, scene.background, scene.noise_name,
                                     upper_ratio=rig.UPPER_RATIO, lower_ratio=rig.LOWER_RATIO)
     if where == "drive":
-        return parts["drive"]
+        return torque
     t = np.arange(n_steps + 1) * H
     setting = (np.interp(t, *np.asarray(op.load_profile_Nm, dtype=float).T) if op.load_profile_Nm
                else np.full(n_steps + 1, float(op.load_torque_Nm)))
-    return setting + parts["load"] / ratio_pg
+    return setting + torque / ratio_pg
 
 
 __all__ = ["assemble", "gear_start_state", "sensor_map", "SENSORS_COMMON", "record_couplings",

@@ -23,7 +23,7 @@ import numpy as np
 from drivetrain.errors import ScenarioError
 from drivetrain.rig.data import Z_PINION, Z_WHEEL
 from drivetrain.scene.schema import NAME_RE, NAME_RULE, SCHEMA, Scene
-from gearcontact_fmu.fault_specs import draw_faults, draw_rule_problems
+from gearcontact_fmu.fault_specs import draw_faults, draw_rule_problems, draw_value, rule_problem
 
 GRID_SECTION = "sweep"
 GRID_KEYS = {"axes", "name", "draw"}
@@ -121,13 +121,8 @@ def _background_rule_problems(table) -> list:
     for k, rule in table.items():
         if k not in SCHEMA["background"]:
             problems.append((f"{key}.{k}", rule, f"a key of [background]: {', '.join(SCHEMA['background'])}"))
-        elif isinstance(rule, dict):
-            u = rule.get("uniform")
-            if (set(rule) != {"uniform"} or not isinstance(u, list) or len(u) != 2
-                    or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in u) or not u[0] <= u[1]):
-                problems.append((f"{key}.{k}", rule, "{uniform = [a, b]} with numbers a <= b"))
-        elif isinstance(rule, list) and not rule:
-            problems.append((f"{key}.{k}", rule, "a non-empty list to choose from"))
+        elif rule_problem(rule):
+            problems.append((f"{key}.{k}", rule, rule_problem(rule)))
         elif rule == "any" and k != "seed":
             problems.append((f"{key}.{k}", rule, '"any" only for seed; a value, a list or {uniform = [a, b]}'))
     return problems
@@ -135,17 +130,8 @@ def _background_rule_problems(table) -> list:
 
 def draw_background(table: dict, rng: np.random.Generator) -> dict:
     """The [background] values of one drawn case, in the table's order, with the numpy Generator ``rng``."""
-    out = {}
-    for k, rule in table.items():
-        if isinstance(rule, dict):
-            out[k] = float(rng.uniform(*rule["uniform"]))
-        elif isinstance(rule, list):
-            out[k] = rule[int(rng.integers(len(rule)))]
-        elif rule == "any":
-            out[k] = int(rng.integers(MAX_DRAWN_SEED + 1))
-        else:
-            out[k] = rule
-    return out
+    return {k: int(rng.integers(MAX_DRAWN_SEED + 1)) if rule == "any" else draw_value(rule, rng)
+            for k, rule in table.items()}
 
 
 def refuse_swept_overrides(grid: Grid, overrides: tuple[str, ...], path) -> None:

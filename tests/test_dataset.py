@@ -46,6 +46,13 @@ def test_parquet_round_trip(sweep, tmp_path, capsys):
         assert set(part["gear.health"]) == {h["scene"]["scene"]["gear"]["health"]}
         assert set(part["operating_point.load_torque_Nm"]) == {h["scene"]["scene"]["operating_point"]["load_torque_Nm"]}
         assert set(part["status"]) == {"ok"}
+        # the condition indicators are per-run columns, those of `drivetrain features` (campaigns.features)
+        from drivetrain.campaigns.features import run_features
+
+        scene = h["scene"]["scene"]
+        cols = run_features(h["time"], h["signals"], scene["time"]["settle_s"],
+                            scene["operating_point"]["drive_speed_rpm"])
+        assert cols and all(set(part[k]) == {v} or (np.isnan(v) and part[k].isna().all()) for k, v in cols.items())
 
 
 def test_hdf5_round_trip(sweep, tmp_path):

@@ -248,6 +248,40 @@ def test_detectability_table_on_known_rows():
     assert "detectable against its own gearbox only" in text and "1 of 1" in text
 
 
+def test_chance_levels_by_their_laws():
+    """Paired: the binomial law of coin flips (one indicator over 20 gearboxes: 15 of 20 one way has
+    2 P(B >= 15) = 0.041 <= 5 %, 14 of 20 has 0.115); unpaired: the Mann-Whitney null, normal about 1/2 with
+    variance (n1 + n2 + 1) / (12 n1 n2): one indicator, 20 and 20 runs, 1/2 + 1.96 sqrt(41 / 4800)."""
+    from scipy.stats import norm
+
+    assert ci.chance_separability(20, 1) == 0.75
+    assert ci.chance_separability(20, 1000) > ci.chance_separability(20, 10) >= 0.75
+    assert ci.chance_unpaired(20, 20, 1) == pytest.approx(0.5 + norm.isf(0.025) * math.sqrt(41 / 4800), rel=1e-12)
+    assert ci.chance_unpaired(20, 20, 60) > ci.chance_unpaired(20, 20, 1)
+
+
+def test_what_moved_between_two_studies(tmp_path):
+    """Two studies' verdicts, cell by cell: a cell detectable only in the other counts as lost here, the median
+    change of the best separability is their difference; the AUC table survives its CSV."""
+    from drivetrain.campaigns import detectability as D
+
+    def v(fam, speed, paired, unpaired):
+        return {"family": fam, "speed_rpm": speed, "load_Nm": 1.31, "paired": paired, "unpaired": unpaired,
+                "detectable": paired >= 0.9, "population": unpaired >= 0.9}
+
+    here = [v("void_pinion_default", 500.0, 0.7, 0.6), v("void_pinion_default", 1500.0, 1.0, 0.95)]
+    there = [v("void_pinion_default", 500.0, 1.0, 0.9), v("void_pinion_default", 1500.0, 1.0, 0.95),
+             v("pit_wheel_small", 500.0, 0.5, 0.5)]
+    lines = D.what_moved(here, there, "the background off")
+    assert "over the 2 cells" in lines[0] and "detectable (paired) in both 1, lost here 1, gained here 0" in lines[0]
+    assert "median -0.15" in lines[0]
+    assert lines[-1].startswith("| void_pinion_default | 2 | 1 | 2 | 1 | 2 |")
+    table = [{"family": "f", "kind": "void", "member": "pinion", "size": "default", "speed_rpm": 500.0,
+              "load_Nm": 1.31, "indicator": "FM4_pinion.propeller_shaft_torque", "n": 20, "paired_auc": 0.85,
+              "unpaired_auc": 0.4}]
+    assert D.read_table_csv(D.write_table_csv(table, tmp_path / "t.csv")) == table
+
+
 @pytest.mark.slow
 def test_detectability_command_on_a_small_grid(tmp_path):
     """The study through the sweep machinery on a small grid (the pinion void, 1500 rpm, 1.31 N·m, 3 gearboxes,

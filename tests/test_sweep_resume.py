@@ -161,3 +161,20 @@ def test_the_fingerprint_covers_version_sources_and_given_fmus(tmp_path, monkeyp
     b = S.fingerprint(scene)
     monkeypatch.setattr(S, "__version__", "0.0.0-other")
     assert S.fingerprint(scene) != b
+
+
+def test_a_sweep_prepares_each_contact_map_once():
+    """Gearboxes (manufacturing seeds) and operating points share a contact map: the gear parameters that can
+    shape a disk cache are the same for them, and differ for another fault; a run's state never counts."""
+    from drivetrain.campaigns.sweep import _cache_shaping
+    from drivetrain.run.runner import assemble_scene
+    from drivetrain.scene.load import load_scene
+
+    def gear(*overrides):
+        scene = load_scene(ROOT / "scenarios" / "example.toml", ["effects.manufacturing_errors=true", *overrides])
+        return _cache_shaping(assemble_scene(scene).components_of("GearContact")[0].parameters)
+
+    base = gear()
+    assert gear("manufacturing.seed=7", "operating_point.drive_speed_rpm=500") == base
+    assert gear("gear.health=mild") != base
+    assert not any(k.endswith("_start") or k == "manufacturing_errors" for k in base)

@@ -338,7 +338,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     base = Path(args.scene) if args.scene else Path(__file__).resolve().parents[2] / "scenarios" / "example.toml"
     try:
         scenes = V.scenes(base, args.duration, args.settle if args.settle is not None else min(2.0, 0.2 * args.duration),
-                          tuple(args.set or ()))
+                          tuple(args.set or ()), gearboxes=args.gearboxes)
     except ScenarioError as exc:
         return _scene_errors(exc)
     if args.judge_only:                 # the runs exist: judge them again (e.g. after a judge changed)
@@ -366,14 +366,17 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     fig_path.parent.mkdir(parents=True, exist_ok=True)
     fig = V.plot_spectra(manifest, fig_path)
     record_fig = V.record_check.plot_record(V.Runs(manifest), fig_path.parent / "validation_record.png")
+    sep_fig = V.plot_separability(next(r for r in results if r.number == 6),
+                                  fig_path.parent / "validation_separability.png")
     command = _command_line("validate")
-    meta = {"command": command, "n_scenes": len(scenes), "duration_s": args.duration,
+    meta = {"command": command, "n_scenes": len(scenes), "duration_s": args.duration, "gearboxes": args.gearboxes,
             "settle_s": scenes[0].time.settle_s, "wall_time_s": time.perf_counter() - t0,
             "workers": args.workers or os.cpu_count(), "judge_only": args.judge_only,
             "runs_cpu_s": sum(r.get("elapsed_s") or 0.0 for r in manifest.get("runs", []) + repeat.get("runs", []))}
     fig_rel = os.path.relpath(fig, report.parent) if fig else None
     record_rel = os.path.relpath(record_fig, report.parent) if record_fig else None
-    report.write_text(V.report_markdown(results, meta, fig_rel, record_rel))
+    sep_rel = os.path.relpath(sep_fig, report.parent) if sep_fig else None
+    report.write_text(V.report_markdown(results, meta, fig_rel, record_rel, sep_rel))
     for r in results:
         print(f"{r.number:2d} {r.status:8s} {r.title}: {r.figure}")
     print(f"wrote {report} ({meta['wall_time_s'] / 60:.1f} min)")
@@ -487,8 +490,17 @@ def _cmd_detectability(args: argparse.Namespace) -> int:
     fig = D.plot(verdicts, study, report.parent / "figures" / f"{stem}.png")
     meta = {"command": _command_line("detectability"), "n_runs": len(scenes), "workers": args.workers or os.cpu_count(),
             "wall_time_s": time.perf_counter() - t0}
+    moved = None
+    if args.compare:
+        try:
+            other = D.verdicts(D.read_table_csv(Path(args.compare)))
+        except (OSError, KeyError, ValueError) as exc:
+            print(f"error: --compare {args.compare}: not an AUC table of drivetrain detectability ({exc})",
+                  file=sys.stderr)
+            return 2
+        moved = D.what_moved(verdicts, other, f"`{args.compare}`")
     report.write_text(D.report_markdown(verdicts, study, meta, os.path.relpath(fig, report.parent),
-                                        os.path.relpath(csv_path, report.parent)))
+                                        os.path.relpath(csv_path, report.parent), moved))
     det = sum(v["detectable"] for v in verdicts)
     print(f"{det} of {len(verdicts)} cells carry a detectable signal (paired); wrote {report} "
           f"({meta['wall_time_s'] / 60:.1f} min)")
@@ -733,6 +745,8 @@ def _parser_sweep(sub) -> None:
     p.set_defaults(func=_cmd_sweep)
 
 def _parser_validate(sub) -> None:
+    from drivetrain.campaigns import GEARBOXES
+
     p = sub.add_parser("validate", help="run the checks against the paper's findings and write docs/VALIDATION.md")
     p.add_argument("scene", nargs="?", default=None, help="base scene (default: scenarios/example.toml)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key of every scene")
@@ -740,6 +754,8 @@ def _parser_validate(sub) -> None:
     p.add_argument("--report", default="docs/VALIDATION.md", help="the report (default: docs/VALIDATION.md)")
     p.add_argument("--duration", type=float, default=20.0, help="simulated seconds per run (default: 20, the paper's)")
     p.add_argument("--settle", type=float, default=None, help="settling time excluded (default: min(2 s, 20 %%))")
+    p.add_argument("--gearboxes", type=_positive_int, default=GEARBOXES,
+                   help=f"gearboxes (seeds 0..N-1) every check runs over (default: {GEARBOXES})")
     _add_execution_options(p)
     p.add_argument("--resume", action="store_true", help="reuse finished runs of the same scenes")
     p.add_argument("--judge-only", action="store_true",
@@ -778,6 +794,7 @@ def _parser_features(sub) -> None:
     p.set_defaults(func=_cmd_features)
 
 def _parser_detectability(sub) -> None:
+    from drivetrain.campaigns import GEARBOXES
     from drivetrain.campaigns import detectability as D
     from gearcontact_fmu.fault_specs import FAULT_KINDS
 
@@ -785,7 +802,8 @@ def _parser_detectability(sub) -> None:
                                              "indicator -> docs/DETECTABILITY.md")
     p.add_argument("--out", default="out/detectability", help="run directory (default: out/detectability)")
     p.add_argument("--report", default="docs/DETECTABILITY.md", help="the report (default: docs/DETECTABILITY.md)")
-    p.add_argument("--gearboxes", type=_positive_int, default=20, help="gearboxes (seeds) per cell (default: 20)")
+    p.add_argument("--gearboxes", type=_positive_int, default=GEARBOXES,
+                   help=f"gearboxes (seeds) per cell (default: {GEARBOXES})")
     p.add_argument("--kinds", nargs="+", choices=tuple(FAULT_KINDS), default=None, help="fault kinds (default: all)")
     p.add_argument("--members", nargs="+", choices=D.MEMBERS, default=list(D.MEMBERS))
     p.add_argument("--sizes", nargs="+", choices=("default", "small"), default=["default", "small"])
@@ -793,6 +811,9 @@ def _parser_detectability(sub) -> None:
     p.add_argument("--loads", nargs="+", type=float, default=list(D.LOADS_NM), help="load-motor torques [N·m]")
     p.add_argument("--duration", type=float, default=7.0, help="simulated seconds per run (default: 7)")
     p.add_argument("--settle", type=float, default=1.0, help="settling time left out (default: 1 s)")
+    p.add_argument("--compare", default=None, metavar="CSV",
+                   help="another study's AUC table (e.g. the same study with --background off): the report says "
+                        "what moved between them")
     p.add_argument("--background", choices=("on", "off"), default="on",
                    help="the rig's measured background (default: on)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key of every scene")

@@ -103,7 +103,24 @@ def collect(sweep_dir: Path | str) -> list[dict]:
     sbr = paired_sbr(runs, ("propeller_shaft_torque", "drive_shaft_torque"))
     for r in runs:
         r["labels"].update({f"SBR_dB.{sig}": v for sig, v in sbr.get(r["name"], {}).items()})
+        r["labels"].update(_indicators(r))
     return runs
+
+
+def _indicators(run: dict) -> dict:
+    """The run's condition indicators (campaigns.features.run_features: the columns of ``drivetrain features``),
+    per-run columns of the dataset; none for a run without a constant drive speed (a speed profile moves
+    the characteristic frequencies) or too short to judge."""
+    from drivetrain.campaigns.features import run_features
+
+    lab = run["labels"]
+    try:
+        speed = float(lab.get("operating_point.drive_speed_rpm") or 0.0)
+        if not speed > 0 or lab.get("operating_point.speed_profile_rpm"):
+            return {}
+        return run_features(run["time"], run["signals"], float(lab.get("time.settle_s") or 0.0), speed)
+    except (TypeError, ValueError):
+        return {}
 
 
 def _label_columns(runs: list[dict]) -> list[str]:

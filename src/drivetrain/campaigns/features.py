@@ -10,7 +10,8 @@ shaft in the metric's name (``FM4_pinion.propeller_shaft_torque``, ``kurtosis_wh
 ``drivetrain dataset``: run, status, every scene key, the faults). A faulty run with a healthy twin
 (``[sweep.draw] paired_healthy``: one ``scenario.noise_name``, the pair id) also gets ``SBR_dB.<signal>``, the
 fault's signal-to-background ratio (rig.indicators.signal_to_background_dB). Written to
-``DIR/features.parquet`` (pyarrow), one row per run.
+``DIR/features.parquet`` (pyarrow), one row per run. The same indicator columns are per-run columns of
+``drivetrain dataset`` (campaigns.dataset), and :func:`features` / :func:`run_features` are the Python API.
 """
 from __future__ import annotations
 

@@ -209,6 +209,14 @@ def _specs_of(scenes: list[Scene], specs: dict | None) -> list:
 CACHED_FIDELITIES = ("table",)
 
 
+def _cache_shaping(parameters: dict) -> dict:
+    """The parameters a component's disk cache can depend on: all but the running state (``*_start``,
+    ``initial_state``) and the manufacturing errors (applied to the contact map, not in it), so that a sweep
+    over operating points and gearboxes prepares each contact map once."""
+    return {k: v for k, v in parameters.items()
+            if not (k.endswith("_start") or k in ("initial_state", "manufacturing_errors"))}
+
+
 def prepare_caches(specs: list, fmu_dir: str | Path = "fmus", fmu_paths: dict | None = None,
                    log=None) -> int:
     """Initialise once, in this (non-daemonic) process, every distinct component configuration whose
@@ -221,7 +229,7 @@ def prepare_caches(specs: list, fmu_dir: str | Path = "fmus", fmu_paths: dict | 
     for spec in specs:
         for c in spec.components:
             if c.parameters.get("fidelity") in CACHED_FIDELITIES:
-                key = json.dumps({"model": c.model, "p": c.parameters}, sort_keys=True, default=str)
+                key = json.dumps({"model": c.model, "p": _cache_shaping(c.parameters)}, sort_keys=True, default=str)
                 if key not in seen:
                     seen.add(key)
                     todo.append((c, spec.comm_step))
@@ -394,8 +402,29 @@ def _prepare_fmus(scenes: list[Scene], all_specs: list, *, backend: str, fmu_dir
         from drivetrain.cosim.native_line import native_fmus, toolchain_problems
 
         if not toolchain_problems():
-            for s, sp in zip(scenes, all_specs):
-                native_fmus(sp, Path(fmu_dir) / "native", log=log)
+            _native_builds(all_specs, Path(fmu_dir) / "native", log)
+
+
+def _native_builds(all_specs: list, cache_dir: Path, log) -> None:
+    """The native FMUs of every distinct gear (one per contact map and manufacturing draw), the compilers
+    side by side: the first system serially (it builds the line FMUs all share), the others in threads."""
+    from drivetrain.cosim.native_line import build_fixed, native_fmus, system_gear
+
+    distinct = {}
+    for sp in all_specs:
+        gear, _ = system_gear(sp)
+        distinct.setdefault(json.dumps(build_fixed(gear) if gear else None, sort_keys=True, default=str), sp)
+    specs = list(distinct.values())
+    if not specs:
+        return
+    native_fmus(specs[0], cache_dir, log=log)
+    if len(specs) > 1:
+        t0, n = time.perf_counter(), len(specs) - 1
+        with cf.ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as ex:
+            for future in [ex.submit(native_fmus, sp, cache_dir) for sp in specs[1:]]:
+                future.result()
+        if log:
+            log(f"native FMUs: {n + 1} distinct gears ready in {cache_dir} ({time.perf_counter() - t0:.1f} s)")
 
 
 @dataclass

@@ -1,16 +1,31 @@
-"""`drivetrain validate`: our signals against the paper's findings, as checks that can fail.
+"""`drivetrain validate`: our signals against the paper's findings, as checks that can fail, over a population
+of gearboxes.
 
-Each check names the paper's statement (or the reference value), the scenes it needs and how it is
-judged; :data:`CHECKS` maps its number to its function (the numbering of issue 9). The scenes are the
-realistic grid (the paper's 54 operating points with ``effects.manufacturing_errors`` and
-``effects.sensors = "rig"``), the 18 healthy points with every realism effect off, and two runs for
-reproducibility; they run through the sweep machinery (local processes or Dask, ``--resume`` reuses
-finished runs of the same fingerprint). :func:`report_markdown` writes docs/VALIDATION.md: per check
-the statement, our figure and pass/fail, and the spectra of healthy/mild/severe at 500 and 1500 rpm
-laid out like the paper's figures.
+A validation is a statement about the gearboxes users draw, not about one draw: every check runs on
+:data:`N_GEARBOXES` gearboxes (manufacturing, background and instrument seeds 0..N-1 alike), reports the
+distribution of its figure (median, 10th and 90th percentile) and passes by a rule stated as a fraction of
+gearboxes (:data:`PASS_FRACTION` unless the check says otherwise; a gearbox whose runs are missing counts
+against it). Each check names the paper's statement (or the reference value), the scenes it needs and how
+it is judged; :data:`CHECKS` maps its number to its function (the numbering of issue 9). The scenes: the
+realistic grid (the paper's 54 cells, 18 operating points x healthy/mild/severe, with the realism effects
+:data:`REALISM`) for every gearbox, the severe case without tooth compliance for every gearbox, the 18
+healthy points with every realism effect off (no seed: once), a repeat of one run, and the record scenes of
+check 11; they run through the sweep machinery (local processes or Dask, ``--resume`` reuses finished runs
+of the same fingerprint). :func:`report_markdown` writes docs/VALIDATION.md.
 
-Checks not yet possible say so (``status = "not run"`` with the reason) instead of passing; check 9
-is a report (``status = "report"``).
+Checks 5 and 6 were restated for the population (issue 27): (5) the mild fault's peak-to-peak is at most
+1.5x healthy in at least 90 % of gearboxes; (6) for each of the 18 operating points, the fraction of
+gearboxes in which mild, and severe, is separable from healthy by the best standard indicator
+(drivetrain.campaigns.features: the gear metrics of the shafts' time-synchronous averages and the
+amplitudes at the characteristic frequencies, both transducers). "Separable by an indicator" is the paired
+comparison a monitoring system makes: the gearbox's indicator moved from its healthy run in the direction
+it moves in most gearboxes; the fraction for the best indicator is max over indicators of
+max(paired AUC, 1 - paired AUC) (rig.indicators). With many indicators and N gearboxes, the best of them
+reaches a fraction by chance too: rig.indicators.chance_separability gives the level that 5 % of healthy-vs-healthy
+comparisons would reach, and the report shows it. Rule, stated before the runs: severe separable in
+>= 90 % of gearboxes at every operating point; mild at >= 1 operating point (the paper: distinguishable "at
+appropriate speeds and loads"). A fitted quantity judged against its own target is a calibration and
+says so (checks 2 and 8); check 9 is a report.
 """
 from __future__ import annotations
 
@@ -20,7 +35,8 @@ from pathlib import Path
 
 import numpy as np
 
-from drivetrain.campaigns import record_check
+from drivetrain.campaigns import GEARBOXES, record_check
+from drivetrain.rig import indicators as ci
 from drivetrain.rig.record import MEASURED_TRANSDUCER_NOISE_NM
 from gearcontact_fmu.mesh_model import PAPER_HEALTH
 
@@ -36,25 +52,43 @@ REALISM = ("effects.manufacturing_errors=true", "effects.sensors=rig", "effects.
            *(f"instruments.{k}={v}" for k, v in MEASURED_TRANSDUCER_NOISE_NM.items()))
 #: the rig's first torsional mode [Hz] (RIG.md: measured)
 MODE_HZ = 24.0
+#: gearboxes per check (seeds 0..N-1)
+N_GEARBOXES = GEARBOXES
+#: a check's pass rule unless it says otherwise: its criterion holds in this fraction of gearboxes
+PASS_FRACTION = 0.9
 
 
 @dataclass
 class CheckResult:
     number: int
     title: str
-    statement: str          # the paper's words or the reference value
+    statement: str          # the paper's words or the reference value, and the pass rule
     figure: str = ""        # ours
-    status: str = "not run"   # pass | fail | report | not run
+    status: str = "not run"   # pass | fail | report | calibration | not run
     details: list = field(default_factory=list)
+    data: dict = field(default_factory=dict)     # what a figure of the report draws (check 6: the map)
 
 
-def case_name(health: str, speed: float, load: float, realistic: bool = True) -> str:
-    return f"{'realistic' if realistic else 'ideal'}_{health}_{speed:g}rpm_{load:g}Nm"
+def case_name(health: str, speed: float, load: float, realistic: bool = True, gearbox: int = 0) -> str:
+    """A realistic run of one gearbox, or (``realistic=False``) the ideal run, which has no seed."""
+    if not realistic:
+        return f"ideal_{health}_{speed:g}rpm_{load:g}Nm"
+    return f"realistic_{health}_{speed:g}rpm_{load:g}Nm_gb{gearbox}"
 
 
-def scenes(base: Path, duration_s: float, settle_s: float, overrides: tuple = ()) -> list:
-    """Every scene the checks need: the realistic grid and the healthy points with the effects off (names
-    from :func:`case_name`), another seed (check 10) and the severe case without compliance (check 9)."""
+def stiff_name(gearbox: int) -> str:
+    """The severe case without tooth compliance (check 9) of one gearbox."""
+    return f"stiff_severe_1500rpm_1.31Nm_gb{gearbox}"
+
+
+def gearbox_seeds(gearbox: int) -> list[str]:
+    """The overrides that make a scene gearbox ``gearbox``: its manufacturing draw, background and noise."""
+    return [f"manufacturing.seed={gearbox}", f"background.seed={gearbox}", f"instruments.seed={gearbox}"]
+
+
+def scenes(base: Path, duration_s: float, settle_s: float, overrides: tuple = (),
+           gearboxes: int = N_GEARBOXES) -> list:
+    """Every scene the checks need (module docstring), named by :func:`case_name` and :func:`stiff_name`."""
     from drivetrain.scene.load import load_scene
 
     common = [f"time.duration_s={duration_s}", f"time.settle_s={settle_s}", "outputs.plots=false",
@@ -65,26 +99,24 @@ def scenes(base: Path, duration_s: float, settle_s: float, overrides: tuple = ()
     def add(name, extra):
         out.append(load_scene(base, overrides=common + list(extra) + [f'scenario.name="{name}"']))
 
-    for h in HEALTHS:
-        for n in SPEEDS_RPM:
-            for t in LOADS_NM:
-                op = [f"operating_point.drive_speed_rpm={n}", f"operating_point.load_torque_Nm={t}",
-                      f"gear.health={h}"]
-                add(case_name(h, n, t), op + list(REALISM))
-                if h == "healthy":
-                    add(case_name(h, n, t, realistic=False), op)
-    op = ["operating_point.drive_speed_rpm=1500", "operating_point.load_torque_Nm=1.31", "gear.health=healthy"]
-    add("seed1_healthy_1500rpm_1.31Nm", op + list(REALISM) + ["manufacturing.seed=1", "instruments.seed=1"])
-    add(STIFF_SEVERE, [o.replace("healthy", "severe") for o in op] + [x for x in REALISM if "compliance" not in x])
-    return out + record_check.scenes(common)
+    def op(health, n, t):
+        return [f"operating_point.drive_speed_rpm={n}", f"operating_point.load_torque_Nm={t}", f"gear.health={health}"]
 
-
-#: the severe case without tooth compliance (check 9)
-STIFF_SEVERE = "stiff_severe_1500rpm_1.31Nm"
+    for gb in range(gearboxes):
+        for h in HEALTHS:
+            for n in SPEEDS_RPM:
+                for t in LOADS_NM:
+                    add(case_name(h, n, t, gearbox=gb), op(h, n, t) + list(REALISM) + gearbox_seeds(gb))
+        add(stiff_name(gb), op("severe", 1500.0, 1.31) + [x for x in REALISM if "compliance" not in x]
+            + gearbox_seeds(gb))
+    for n in SPEEDS_RPM:
+        for t in LOADS_NM:
+            add(case_name("healthy", n, t, realistic=False), op("healthy", n, t))
+    return out + record_check.scenes(common, gearboxes)
 
 
 #: the case run a second time (in a directory of its own, same name and seeds) for check 10
-REPEAT = case_name("healthy", 1500.0, 1.31)
+REPEAT = case_name("healthy", 1500.0, 1.31, gearbox=0)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -93,13 +125,21 @@ REPEAT = case_name("healthy", 1500.0, 1.31)
 
 
 class Runs:
-    """The finished runs of a validation directory: summaries and signals by case name (lazy)."""
+    """The finished runs of a validation directory: summaries and signals by case name (lazy; signals and
+    spectra of the last few runs only: a population is gigabytes), the gearboxes it holds."""
+
+    KEEP = 8
 
     def __init__(self, manifest: dict):
+        from collections import OrderedDict
+
         self.records = {r["name"]: r for r in manifest.get("runs", [])}
-        self._sig: dict = {}
+        self._sig: OrderedDict = OrderedDict()
+        self._spec: OrderedDict = OrderedDict()
         self._sum: dict = {}
-        self._spec: dict = {}
+        self._feat: dict = {}
+        self.gearboxes = sorted({int(n.rsplit("_gb", 1)[1]) for n in self.records
+                                 if n.startswith("realistic_") and n.rsplit("_gb", 1)[-1].isdigit()})
 
     def ok(self, name: str) -> bool:
         return self.records.get(name, {}).get("status") == "ok"
@@ -111,12 +151,19 @@ class Runs:
             self._sum[name] = json.loads(Path(self.records[name]["summary"]).read_text())
         return self._sum[name]
 
+    def _lru(self, cache, key, make):
+        if key in cache:
+            cache.move_to_end(key)
+            return cache[key]
+        cache[key] = value = make()
+        while len(cache) > self.KEEP:
+            cache.popitem(last=False)
+        return value
+
     def signals(self, name: str) -> dict:
         from drivetrain.run.outputs import read_hdf5
 
-        if name not in self._sig:
-            self._sig[name] = read_hdf5(self.records[name]["signals"])
-        return self._sig[name]
+        return self._lru(self._sig, name, lambda: read_hdf5(self.records[name]["signals"]))
 
     def settled(self, name: str, sensor: str) -> tuple[np.ndarray, float]:
         d = self.signals(name)
@@ -124,19 +171,47 @@ class Runs:
         m = d["time"] >= s["settle_s"]
         return d["signals"][sensor][m], s["sample_rate_Hz"]
 
-
     def spectrum(self, name: str, sensor: str):
-        """Amplitude spectrum (f, A) of a settled sensor signal, computed once per run and sensor."""
+        """Amplitude spectrum (f, A) of a settled sensor signal."""
         from drivetrain.rig.signals import amplitude_spectrum
 
-        key = (name, sensor)
-        if key not in self._spec:
-            self._spec[key] = amplitude_spectrum(*self.settled(name, sensor))
-        return self._spec[key]
+        return self._lru(self._spec, (name, sensor), lambda: amplitude_spectrum(*self.settled(name, sensor)))
+
+    def features(self, name: str) -> dict:
+        """The condition indicators of a run (drivetrain.campaigns.features.run_features), kept."""
+        from drivetrain.campaigns.features import run_features
+
+        if name not in self._feat:
+            d, s = self.signals(name), self.summary(name)
+            self._feat[name] = run_features(d["time"], d["signals"], s["settle_s"],
+                                            s["operating_point"]["drive_speed_rpm"])
+        return self._feat[name]
 
 
 def _missing(runs: Runs, names) -> list:
     return [n for n in names if not runs.ok(n)]
+
+
+def spread(values, fmt: str = "{:.3g}", unit: str = "") -> str:
+    """'median m (p10 a, p90 b)' of the finite values."""
+    v = np.asarray([x for x in values if x is not None], dtype=float)
+    v = v[np.isfinite(v)]
+    if not len(v):
+        return "–"
+    m, lo, hi = (fmt.format(float(q)) for q in (np.median(v), np.percentile(v, 10), np.percentile(v, 90)))
+    return f"median {m}{unit} (p10 {lo}, p90 {hi})"
+
+
+def by_fraction(ok: dict, gearboxes: list, need: float = PASS_FRACTION) -> tuple[str, bool]:
+    """('k of N gearboxes (p %)', whether k / N >= need): ``ok`` maps a gearbox to its verdict, a gearbox
+    missing from it (its runs failed or are absent) counts against."""
+    k, n = sum(bool(ok.get(g)) for g in gearboxes), len(gearboxes)
+    return f"{k} of {n} gearboxes ({100 * k / n if n else 0:.0f} %)", n > 0 and k >= need * n - 1e-9
+
+
+def _no_gearboxes(r: CheckResult) -> CheckResult:
+    r.status, r.details = "fail", ["no realistic runs: nothing to judge"]
+    return r
 
 
 # --------------------------------------------------------------------------------------------------
@@ -147,26 +222,32 @@ def _missing(runs: Runs, names) -> list:
 def check_mean_torques(runs: Runs) -> CheckResult:
     from drivetrain.scene.expect import _measured_value
 
-    r = CheckResult(1, "healthy mean torques", "within 3 % of the rig's mean torques at the 18 measured points, "
-                    "realism effects on and off")
-    worst = 0.0
-    names = [case_name("healthy", n, t, real) for n in SPEEDS_RPM for t in LOADS_NM for real in (True, False)]
-    if _missing(runs, names):
-        r.details.append(f"missing runs: {', '.join(_missing(runs, names))}")
-        r.status = "fail"
-        return r
-    for name in names:
-        s = runs.summary(name)
-        op = {"drive_speed_rpm": s["operating_point"]["drive_speed_rpm"],
-              "load_torque_Nm": s["operating_point"]["load_torque_Nm"]}
-        for sensor, col in (("drive_shaft_torque", "T_DSH_Nm"), ("propeller_shaft_torque", "T_PSH_Nm")):
-            meas, _ = _measured_value(col, op)
-            err = s["torque"][sensor]["mean"] / meas - 1.0
-            worst = max(worst, abs(err))
-            if abs(err) > 0.03:
-                r.details.append(f"{name} {sensor}: {100 * err:+.2f} %")
-    r.figure = f"largest deviation {100 * worst:.2f} % over {len(names)} runs x 2 transducers"
-    r.status = "pass" if worst <= 0.03 else "fail"
+    r = CheckResult(1, "healthy mean torques", "within 3 % of the rig's mean torques at the 18 measured points: "
+                    f"the ideal runs, and the realistic runs of >= {PASS_FRACTION:.0%} of gearboxes")
+    if not runs.gearboxes:
+        return _no_gearboxes(r)
+
+    def worst(names):
+        if _missing(runs, names):
+            return None
+        w = 0.0
+        for name in names:
+            s = runs.summary(name)
+            op = {"drive_speed_rpm": s["operating_point"]["drive_speed_rpm"],
+                  "load_torque_Nm": s["operating_point"]["load_torque_Nm"]}
+            for sensor, col in (("drive_shaft_torque", "T_DSH_Nm"), ("propeller_shaft_torque", "T_PSH_Nm")):
+                meas, _ = _measured_value(col, op)
+                w = max(w, abs(s["torque"][sensor]["mean"] / meas - 1.0))
+        return w
+
+    points = [(n, t) for n in SPEEDS_RPM for t in LOADS_NM]
+    ideal = worst([case_name("healthy", n, t, realistic=False) for n, t in points])
+    per = {g: worst([case_name("healthy", n, t, gearbox=g) for n, t in points]) for g in runs.gearboxes}
+    frac, ok = by_fraction({g: w is not None and w <= 0.03 for g, w in per.items()}, runs.gearboxes)
+    r.figure = (f"ideal: largest deviation {'missing runs' if ideal is None else f'{100 * ideal:.2f} %'}; realistic: "
+                f"largest deviation per gearbox {spread([100 * w for w in per.values() if w is not None], unit=' %')}, "
+                f"within 3 % in {frac}")
+    r.status = "pass" if ok and ideal is not None and ideal <= 0.03 else "fail"
     return r
 
 
@@ -202,34 +283,46 @@ def check_mode(runs: Runs) -> CheckResult:
     return r
 
 
+
+
 def check_frequencies(runs: Runs) -> CheckResult:
     """The GMF line of each healthy realistic run sits where the gear data put it (z1 f_MSH)."""
     from drivetrain.rig.data import UPPER_RATIO, Z_PINION, Z_WHEEL
     from drivetrain.rig.signals import peak_frequency
 
     r = CheckResult(3, "characteristic frequencies", "f_DSH = n/60, f_MSH = f_DSH/3, f_PSH = f_MSH/4, "
-                    "f_GMF = 15 f_MSH from the gear data; the simulated GMF line at f_GMF at all six speeds")
-    worst = 0.0
-    for n in SPEEDS_RPM:
-        name = case_name("healthy", n, 1.31)
-        if not runs.ok(name):
-            r.details.append(f"missing run {name}")
-            continue
-        s = runs.summary(name)
-        f_dsh = n / 60.0
-        want = {"f_DSH": f_dsh, "f_MSH": f_dsh / UPPER_RATIO, "f_PSH": f_dsh / UPPER_RATIO / (Z_WHEEL / Z_PINION),
-                "f_GMF": Z_PINION * f_dsh / UPPER_RATIO}
-        for k, v in want.items():
-            if abs(s[k] - v) > 1e-9 * v:
-                r.details.append(f"{name}: summary {k} = {s[k]:.6g} Hz, gear data {v:.6g} Hz")
-        f, A = runs.spectrum(name, "propeller_shaft_torque")
-        df = f[1] - f[0]
-        got = peak_frequency(f, A, 0.9 * want["f_GMF"], 1.1 * want["f_GMF"])
-        worst = max(worst, abs(got - want["f_GMF"]) / df)
-        if abs(got - want["f_GMF"]) > 1.01 * df:
-            r.details.append(f"{name}: GMF line at {got:.3f} Hz, expected {want['f_GMF']:.3f} Hz")
-    r.figure = f"GMF line within {worst:.2f} bins of z1 f_MSH at 6 speeds"
-    r.status = "pass" if not r.details else "fail"
+                    "f_GMF = 15 f_MSH from the gear data; the simulated GMF line at f_GMF at all six speeds "
+                    "(1.31 N·m), in every gearbox (kinematics does not vary between gearboxes)")
+    if not runs.gearboxes:
+        return _no_gearboxes(r)
+    worst, ok = 0.0, {}
+    for g in runs.gearboxes:
+        good = True
+        for n in SPEEDS_RPM:
+            name = case_name("healthy", n, 1.31, gearbox=g)
+            if not runs.ok(name):
+                r.details.append(f"missing run {name}")
+                good = False
+                continue
+            s = runs.summary(name)
+            f_dsh = n / 60.0
+            want = {"f_DSH": f_dsh, "f_MSH": f_dsh / UPPER_RATIO, "f_PSH": f_dsh / UPPER_RATIO / (Z_WHEEL / Z_PINION),
+                    "f_GMF": Z_PINION * f_dsh / UPPER_RATIO}
+            for k, v in want.items():
+                if abs(s[k] - v) > 1e-9 * v:
+                    r.details.append(f"{name}: summary {k} = {s[k]:.6g} Hz, gear data {v:.6g} Hz")
+                    good = False
+            f, A = runs.spectrum(name, "propeller_shaft_torque")
+            df = f[1] - f[0]
+            got = peak_frequency(f, A, 0.9 * want["f_GMF"], 1.1 * want["f_GMF"])
+            worst = max(worst, abs(got - want["f_GMF"]) / df)
+            if abs(got - want["f_GMF"]) > 1.01 * df:
+                r.details.append(f"{name}: GMF line at {got:.3f} Hz, expected {want['f_GMF']:.3f} Hz")
+                good = False
+        ok[g] = good
+    frac, passed = by_fraction(ok, runs.gearboxes, need=1.0)
+    r.figure = f"GMF line within {worst:.2f} bins of z1 f_MSH at 6 speeds in {frac}"
+    r.status = "pass" if passed else "fail"
     return r
 
 
@@ -237,27 +330,36 @@ def check_shaft_peaks(runs: Runs) -> CheckResult:
     from drivetrain.rig.signals import amplitude_near, local_floor
 
     r = CheckResult(4, "healthy shaft-order peaks", "clear peaks at f_PSH (propeller-shaft spectrum) and f_DSH "
-                    "(drive-shaft spectrum): >= 20 dB over the local floor with manufacturing errors on; "
-                    "absent with them off")
-    on, off = case_name("healthy", 1500.0, 1.31), case_name("healthy", 1500.0, 1.31, realistic=False)
-    if _missing(runs, [on, off]):
-        r.status, r.details = "fail", [f"missing runs {_missing(runs, [on, off])}"]
+                    "(drive-shaft spectrum): >= 20 dB over the local floor with manufacturing errors on, absent "
+                    f"with them off (1500 rpm, 1.31 N·m), in >= {PASS_FRACTION:.0%} of gearboxes")
+    off = case_name("healthy", 1500.0, 1.31, realistic=False)
+    if not runs.gearboxes:
+        return _no_gearboxes(r)
+    if not runs.ok(off):
+        r.status, r.details = "fail", [f"missing run {off}"]
         return r
-    figs, ok = [], True
-    for sensor, order in (("propeller_shaft_torque", "f_PSH"), ("drive_shaft_torque", "f_DSH")):
-        peak, floor = {}, {}
-        for name in (on, off):
-            s = runs.summary(name)
-            f, A = runs.spectrum(name, sensor)
+    levels = {"f_PSH": [], "f_DSH": []}
+    ok = {}
+    for g in runs.gearboxes:
+        on = case_name("healthy", 1500.0, 1.31, gearbox=g)
+        if not runs.ok(on):
+            continue
+        good = True
+        for sensor, order in (("propeller_shaft_torque", "f_PSH"), ("drive_shaft_torque", "f_DSH")):
+            s = runs.summary(on)
             f0, lines = s[order], s["f_PSH"]
-            peak[name], floor[name] = amplitude_near(f, A, f0, 1), local_floor(f, A, f0, 3 * lines, lines)
-        level = 20 * math.log10(peak[on] / floor[on])
-        # absent: what the ideal machine has there would not show above the floor of the measured signal
-        below = 20 * math.log10(peak[off] / floor[on])
-        figs.append(f"{order} {level:.1f} dB over the floor with errors, without them {below:.1f} dB")
-        ok &= level >= 20.0 and below < 0.0
-    r.figure = "; ".join(figs) + " (1500 rpm, 1.31 N·m)"
-    r.status = "pass" if ok else "fail"
+            f, A = runs.spectrum(on, sensor)
+            peak, floor = amplitude_near(f, A, f0, 1), local_floor(f, A, f0, 3 * lines, lines)
+            f, A = runs.spectrum(off, sensor)
+            level = 20 * math.log10(peak / floor)
+            below = 20 * math.log10(amplitude_near(f, A, f0, 1) / floor)   # the ideal machine's, on this floor
+            levels[order].append(level)
+            good &= level >= 20.0 and below < 0.0
+        ok[g] = good
+    frac, passed = by_fraction(ok, runs.gearboxes)
+    r.figure = (f"f_PSH {spread(levels['f_PSH'], '{:.1f}', ' dB')}, f_DSH {spread(levels['f_DSH'], '{:.1f}', ' dB')} "
+                f"over the floor; both >= 20 dB and absent without errors in {frac}")
+    r.status = "pass" if passed else "fail"
     return r
 
 
@@ -269,23 +371,32 @@ def _ptp(runs, name, sensor):
 def check_mild(runs: Runs) -> CheckResult:
     from drivetrain.rig.signals import amplitude_near
 
-    r = CheckResult(5, "mild fault: barely visible in time, noticeable in the spectrum",
-                    "peak-to-peak <= 1.5x healthy; first sidebands f_GMF ± f_MSH >= 6 dB over healthy "
-                    "(propeller shaft, 1500 rpm, 1.31 N·m)")
-    h, m = case_name("healthy", 1500.0, 1.31), case_name("mild", 1500.0, 1.31)
-    if _missing(runs, [h, m]):
-        r.status, r.details = "fail", [f"missing runs {_missing(runs, [h, m])}"]
-        return r
+    r = CheckResult(5, "mild fault: barely visible in time", "peak-to-peak <= 1.5x healthy (propeller shaft, "
+                    f"1500 rpm, 1.31 N·m) in >= {PASS_FRACTION:.0%} of gearboxes (restated for the population, "
+                    "issue 27: the first sidebands' rise is reported here and judged by check 6)")
+    if not runs.gearboxes:
+        return _no_gearboxes(r)
     sensor = "propeller_shaft_torque"
-    ratio = _ptp(runs, m, sensor) / _ptp(runs, h, sensor)
-    s = runs.summary(h)
-    sb = []
-    for sign in (-1, 1):
-        f0 = s["f_GMF"] + sign * s["f_MSH"]
-        a = {n: amplitude_near(*runs.spectrum(n, sensor), f0) for n in (h, m)}
-        sb.append(20 * math.log10(a[m] / a[h]))
-    r.figure = f"peak-to-peak {ratio:.2f}x healthy; sidebands {sb[0]:+.1f} / {sb[1]:+.1f} dB over healthy"
-    r.status = "pass" if ratio <= 1.5 and max(sb) >= 6.0 else "fail"
+    ratios, sbs, ok = [], [], {}
+    for g in runs.gearboxes:
+        h, m = case_name("healthy", 1500.0, 1.31, gearbox=g), case_name("mild", 1500.0, 1.31, gearbox=g)
+        if _missing(runs, [h, m]):
+            continue
+        ratio = _ptp(runs, m, sensor) / _ptp(runs, h, sensor)
+        s = runs.summary(h)
+        sb = []
+        for sign in (-1, 1):
+            f0 = s["f_GMF"] + sign * s["f_MSH"]
+            a = {n: amplitude_near(*runs.spectrum(n, sensor), f0) for n in (h, m)}
+            sb.append(20 * math.log10(a[m] / a[h]))
+        ratios.append(ratio)
+        sbs.append(max(sb))
+        ok[g] = ratio <= 1.5
+    frac, passed = by_fraction(ok, runs.gearboxes)
+    r.figure = (f"peak-to-peak {spread(ratios, '{:.2f}', 'x')} healthy, <= 1.5x in {frac}; the larger first "
+                f"sideband {spread(sbs, '{:+.1f}', ' dB')} over healthy, >= +6 dB in "
+                f"{sum(x >= 6.0 for x in sbs)} of {len(runs.gearboxes)}")
+    r.status = "pass" if passed else "fail"
     return r
 
 
@@ -298,53 +409,84 @@ def sideband_level(f: np.ndarray, A: np.ndarray, f_gmf: float, f_msh: float) -> 
     return sum(amplitude_near(f, A, f_gmf + k * f_msh) for k in (-1, 1))
 
 
+def _best_indicator(runs: Runs, pairs: list) -> tuple[str, float]:
+    """The indicator column separating the faulty runs of ``pairs`` [(healthy, faulty)] from their healthy
+    twins best (paired), and its separability."""
+    feats = [(runs.features(h), runs.features(f)) for h, f in pairs]
+    cols = sorted(set.intersection(*(set(a) & set(b) for a, b in feats))) if feats else []
+    best, sep = "", float("nan")
+    for col in cols:
+        hv = np.array([a[col] for a, _ in feats], dtype=float)
+        fv = np.array([b[col] for _, b in feats], dtype=float)
+        keep = np.isfinite(hv) & np.isfinite(fv)
+        if keep.sum() < len(feats):
+            continue
+        s = ci.separability(ci.paired_auc(hv, fv))
+        if not math.isfinite(sep) or s > sep:
+            best, sep = col, s
+    return best, sep
+
+
 def check_order(runs: Runs) -> CheckResult:
-    r = CheckResult(6, "sidebands ordered by severity", "f_GMF ± f_MSH sideband level healthy < mild < severe "
-                    "in all 54 cells (propeller shaft, the sum of the two first sidebands)")
-    bad, n_ok, margins = [], 0, []
+    r = CheckResult(6, "faults separable from healthy, per operating point",
+                    "mild and severe against healthy at each of the 18 operating points: the fraction of gearboxes "
+                    "separated by the best standard indicator (paired); severe >= 90 % (and above the chance level "
+                    "of the best of many indicators) at every point, mild at one point at least (the paper: "
+                    "distinguishable 'at appropriate speeds and loads'; restated for the population, issue 27)")
+    if not runs.gearboxes:
+        return _no_gearboxes(r)
+    cells, n_cols = {}, 0
     for n in SPEEDS_RPM:
         for t in LOADS_NM:
-            names = [case_name(h, n, t) for h in HEALTHS]
-            if _missing(runs, names):
-                bad.append(f"{n:g} rpm {t:g} N·m: missing runs")
-                continue
-            s = runs.summary(names[0])
-            lv = [sideband_level(*runs.spectrum(name, "propeller_shaft_torque"), s["f_GMF"], s["f_MSH"])
-                  for name in names]
-            if lv[0] < lv[1] < lv[2]:
-                n_ok += 1
-                margins.append((20 * math.log10(lv[1] / lv[0]), n, t))
-            else:
-                bad.append(f"{n:g} rpm {t:g} N·m: " + " / ".join(f"{v:.2e}" for v in lv))
-    r.figure = f"ordered in {n_ok} of 18 operating points (x 3 health states = 54 cells)"
-    if margins:
-        lo = min(margins)
-        r.figure += (f"; mild over healthy {lo[0]:+.1f} dB at least ({lo[1]:g} rpm, {lo[2]:g} N·m), "
-                     f"{max(margins)[0]:+.1f} dB at most")
-    r.details = bad
-    if bad:
-        r.details.append("why: the pinion's tooth position errors put healthy sidebands at f_GMF ± f_MSH of the "
-                         "mild fault's size; where they are larger, the mild fault does not show: "
-                         "docs/GEAR-CONTACT.md, 'Pitch errors and the mild fault'")
-    r.status = "pass" if n_ok == 18 else "fail"
+            for h in HEALTHS[1:]:
+                pairs = [(case_name("healthy", n, t, gearbox=g), case_name(h, n, t, gearbox=g)) for g in runs.gearboxes]
+                pairs = [p for p in pairs if not _missing(runs, p)]
+                col, sep = _best_indicator(runs, pairs) if pairs else ("", float("nan"))
+                # a gearbox whose runs are missing is not separated: the fraction is over every gearbox
+                frac = sep * len(pairs) / len(runs.gearboxes) if pairs else 0.0
+                cells[(h, n, t)] = {"indicator": col, "fraction": frac, "n": len(pairs)}
+                if pairs:
+                    n_cols = max(n_cols, len(runs.features(pairs[0][0])))
+    chance = ci.chance_separability(len(runs.gearboxes), max(n_cols, 1))
+    need = max(PASS_FRACTION, chance)
+    sev = [c["fraction"] >= need for (h, _, _), c in cells.items() if h == "severe"]
+    mild = [c["fraction"] >= need for (h, _, _), c in cells.items() if h == "mild"]
+    r.figure = (f"severe separable in >= {need:.0%} of gearboxes at {sum(sev)} of 18 points, mild at {sum(mild)} of 18 "
+                f"(fractions: severe {spread([c['fraction'] for (h, _, _), c in cells.items() if h == 'severe'], '{:.2f}')}, "
+                f"mild {spread([c['fraction'] for (h, _, _), c in cells.items() if h == 'mild'], '{:.2f}')}; "
+                f"chance level of the best of {n_cols} indicators over {len(runs.gearboxes)} gearboxes: {chance:.2f})")
+    r.details = ["", "| speed | load | mild: best indicator | mild: fraction | severe: best indicator | severe: fraction |",
+                 "|---|---|---|---|---|---|"]
+    for n in SPEEDS_RPM:
+        for t in LOADS_NM:
+            m, s = cells[("mild", n, t)], cells[("severe", n, t)]
+            r.details.append(f"| {n:g} rpm | {t:g} N·m | {m['indicator'] or '–'} | {m['fraction']:.2f} | "
+                             f"{s['indicator'] or '–'} | {s['fraction']:.2f} |")
+    r.data = {"cells": cells, "chance": chance, "need": need, "gearboxes": len(runs.gearboxes)}
+    r.status = "pass" if all(sev) and any(mild) else "fail"
     return r
 
 
 def check_speed(runs: Runs) -> CheckResult:
     r = CheckResult(7, "torque variation grows with speed", "drive-shaft torque std larger at 1500 than at 250 rpm, "
-                    "at each load (healthy)")
-    figs, ok = [], True
-    for t in LOADS_NM:
-        lo, hi = case_name("healthy", 250.0, t), case_name("healthy", 1500.0, t)
-        if _missing(runs, [lo, hi]):
-            ok = False
-            r.details.append(f"{t:g} N·m: missing runs")
-            continue
-        a, b = (runs.summary(n)["torque"]["drive_shaft_torque"]["std"] for n in (lo, hi))
-        figs.append(f"{t:g} N·m: {a:.2e} -> {b:.2e} N·m")
-        ok &= b > a
-    r.figure = "; ".join(figs)
-    r.status = "pass" if ok else "fail"
+                    f"at each load (healthy), in >= {PASS_FRACTION:.0%} of gearboxes")
+    if not runs.gearboxes:
+        return _no_gearboxes(r)
+    ok, growth = {}, []
+    for g in runs.gearboxes:
+        good = True
+        for t in LOADS_NM:
+            lo, hi = case_name("healthy", 250.0, t, gearbox=g), case_name("healthy", 1500.0, t, gearbox=g)
+            if _missing(runs, [lo, hi]):
+                good = False
+                continue
+            a, b = (runs.summary(n)["torque"]["drive_shaft_torque"]["std"] for n in (lo, hi))
+            growth.append(b / a)
+            good &= b > a
+        ok[g] = good
+    frac, passed = by_fraction(ok, runs.gearboxes)
+    r.figure = f"std at 1500 / 250 rpm {spread(growth, '{:.2f}', 'x')} (all loads); grows at every load in {frac}"
+    r.status = "pass" if passed else "fail"
     return r
 
 
@@ -357,7 +499,8 @@ def check_stiffness(runs: Runs) -> CheckResult:
     from gearcontact_fmu.params import TOOTH_COMPLIANCE_FACTOR, BevelGearParams
 
     r = CheckResult(8, "loaded mesh stiffness vs ISO 6336", "within 10 % of c_gamma (method B, with its "
-                    "low-load factor) at the paper's loads with tooth compliance on; single/double alternation kept")
+                    "low-load factor) at the paper's loads with tooth compliance on; single/double alternation kept. "
+                    "A calibration: the compliance factor was chosen for ISO 6336 (the same for every gearbox)")
     g = BevelGearParams()
     c_gamma = iso6336_stiffness(g)["c_gamma"]
     stiff = make_mesh_model("table", g)
@@ -376,41 +519,58 @@ def check_stiffness(runs: Runs) -> CheckResult:
                     f"{k0['mean']:.1f}; double/single {k['double_single']:.2f})")
     r.figure = f"largest deviation {100 * worst:.1f} %"
     r.details = figs
-    r.status = "pass" if ok else "fail"
+    r.status = "calibration" if ok else "fail"
     return r
+
 
 
 def check_peaks_compliance(runs: Runs) -> CheckResult:
     r = CheckResult(9, "severe-fault peaks with and without tooth compliance",
-                    "report (the paper: its stiff model overestimated these peaks)")
-    soft, stiff = case_name("severe", 1500.0, 1.31), STIFF_SEVERE
-    if _missing(runs, [soft, stiff]):
-        r.status, r.details = "fail", [f"missing runs {_missing(runs, [soft, stiff])}"]
+                    "report (the paper: its stiff model overestimated these peaks); 1500 rpm, 1.31 N·m, every gearbox")
+    if not runs.gearboxes:
+        return _no_gearboxes(r)
+    ratios = {"propeller_shaft_torque": [], "drive_shaft_torque": []}
+    for g in runs.gearboxes:
+        soft, stiff = case_name("severe", 1500.0, 1.31, gearbox=g), stiff_name(g)
+        if _missing(runs, [soft, stiff]):
+            r.details.append(f"gearbox {g}: missing runs {_missing(runs, [soft, stiff])}")
+            continue
+        for sensor in ratios:
+            ratios[sensor].append(_ptp(runs, soft, sensor) / _ptp(runs, stiff, sensor))
+    if not ratios["drive_shaft_torque"]:
+        r.status = "fail"
         return r
-    figs = []
-    for sensor in ("propeller_shaft_torque", "drive_shaft_torque"):
-        p = {n: _ptp(runs, n, sensor) for n in (soft, stiff)}
-        figs.append(f"{sensor.split('_')[0]} shaft peak-to-peak {p[stiff]:.3g} -> {p[soft]:.3g} N·m "
-                    f"({p[soft] / p[stiff]:.2f}x)")
-    r.figure = "without -> with compliance: " + "; ".join(figs)
+    r.figure = ("peak-to-peak with / without compliance: propeller shaft "
+                f"{spread(ratios['propeller_shaft_torque'], '{:.2f}', 'x')}, drive shaft "
+                f"{spread(ratios['drive_shaft_torque'], '{:.2f}', 'x')}")
     r.status = "report"
     return r
 
 
 def check_complete(runs: Runs, names: list, repeat: Runs | None) -> CheckResult:
     r = CheckResult(10, "every run completes and is reproducible from its seeds",
-                    "no failure; one scene run twice: bit-identical signals; other seeds: different signals")
+                    "no failure; one scene run twice: bit-identical signals; every gearbox's signals differ from "
+                    "every other's (1500 rpm, 1.31 N·m, healthy)")
     failed = [n for n in names if not runs.ok(n)]
-    a, c = REPEAT, "seed1_healthy_1500rpm_1.31Nm"
-    same = diff = False
-    if not _missing(runs, [a, c]) and repeat is not None and repeat.ok(a):
-        sa, sb, sc = (x.signals(n)["signals"] for x, n in ((runs, a), (repeat, a), (runs, c)))
-        same = all(np.array_equal(sa[k], sb[k]) for k in sa)
-        diff = any(not np.array_equal(sa[k], sc[k]) for k in sa if k in sc)
+    same = False
+    if runs.ok(REPEAT) and repeat is not None and repeat.ok(REPEAT):
+        sa, sb = runs.signals(REPEAT)["signals"], repeat.signals(REPEAT)["signals"]
+        same = set(sa) == set(sb) and all(np.array_equal(sa[k], sb[k]) for k in sa)
+    digests = {}
+    for g in runs.gearboxes:
+        name = case_name("healthy", 1500.0, 1.31, gearbox=g)
+        if runs.ok(name):
+            import hashlib
+
+            sig = runs.signals(name)["signals"]
+            digests[g] = hashlib.sha256(b"".join(np.ascontiguousarray(sig[k]).tobytes() for k in sorted(sig))).hexdigest()
+    distinct = len(set(digests.values()))
     r.figure = (f"{len(names) - len(failed)} of {len(names)} runs ok; same seed "
-                f"{'bit-identical' if same else 'DIFFERS'}; other seed {'differs' if diff else 'IDENTICAL'}")
+                f"{'bit-identical' if same else 'DIFFERS'}; {distinct} distinct signal sets of {len(runs.gearboxes)} "
+                "gearboxes")
     r.details = [f"failed: {n}: {runs.records.get(n, {}).get('error', 'missing')}" for n in failed]
-    r.status = "pass" if not failed and same and diff else "fail"
+    r.status = ("pass" if not failed and same and runs.gearboxes and distinct == len(runs.gearboxes)
+                else "fail")
     return r
 
 
@@ -428,11 +588,12 @@ def evaluate(manifest: dict, names: list, repeat_manifest: dict | None = None) -
 
 def check_record(runs: Runs) -> CheckResult:
     """Check 11: the healthy background against the rig's measured record (campaigns.record_check)."""
+    n = max(sum(name.startswith("record_gearbox") for name in runs.records), 1)
     r = CheckResult(11, "healthy background vs the rig's measured record",
                     "500 rpm, 1.31 N·m (2023 record): std within 1.5x on both shafts; propeller shaft f_GMF within "
                     "3 dB, the humps near 27 and 58 Hz, f_MSH, f_DSH and the floor near f_GMF within 6 dB "
-                    f"(median of {record_check.N_GEARBOXES} gearboxes)")
-    c = record_check.compare(runs)
+                    f"(the median of {n} gearboxes: the rule of issue 28; the fraction of gearboxes within is shown)")
+    c = record_check.compare(runs, n)
     if c["missing"]:
         r.status, r.details = "fail", [f"missing runs: {', '.join(c['missing'])}"]
         return r
@@ -479,13 +640,48 @@ def plot_spectra(manifest: dict, path: Path) -> Path | None:
     return _finish(plt, fig, path, "realistic grid, 1.31 N·m: spectra (Hann window)")
 
 
+def plot_separability(result: CheckResult, path: Path) -> Path | None:
+    """Check 6's map: per health state, the fraction of gearboxes the best indicator separates from healthy
+    at each speed and load, the indicator named in each cell."""
+    from drivetrain.run.outputs import _finish, _mpl
+
+    cells = result.data.get("cells")
+    if not cells:
+        return None
+    plt = _mpl()
+    fig, axes = plt.subplots(1, 2, figsize=(15, 4.2), sharey=True)
+    for ax, h in zip(axes, HEALTHS[1:]):
+        m = np.array([[cells[(h, n, t)]["fraction"] for n in SPEEDS_RPM] for t in LOADS_NM])
+        im = ax.imshow(m, vmin=0.5, vmax=1.0, cmap="viridis", origin="lower", aspect="auto")
+        for i, t in enumerate(LOADS_NM):
+            for j, n in enumerate(SPEEDS_RPM):
+                c = cells[(h, n, t)]
+                ax.text(j, i, f"{c['fraction']:.2f}\n{c['indicator'].replace('.', chr(10))}", ha="center",
+                        va="center", fontsize=5.5, color="w" if c["fraction"] < 0.8 else "k")
+        ax.set_xticks(range(len(SPEEDS_RPM)), [f"{n:g}" for n in SPEEDS_RPM])
+        ax.set_yticks(range(len(LOADS_NM)), [f"{t:g}" for t in LOADS_NM])
+        ax.set_xlabel("drive speed [rpm]")
+        ax.set_title(f"{h} vs healthy: fraction of {result.data['gearboxes']} gearboxes separated "
+                     f"(pass >= {result.data['need']:.2f}; chance {result.data['chance']:.2f})", fontsize=9)
+    axes[0].set_ylabel("load torque [N·m]")
+    fig.colorbar(im, ax=axes, shrink=0.8, label="best indicator's paired separability")
+    import warnings
+
+    with warnings.catch_warnings():           # the colorbar's axes do not take part in tight_layout: harmless
+        warnings.simplefilter("ignore", UserWarning)
+        return _finish(plt, fig, path, "check 6: where the paper's faults are separable from healthy")
+
+
 def report_markdown(results: list[CheckResult], meta: dict, figure: str | None,
-                    record_figure: str | None = None) -> str:
+                    record_figure: str | None = None, separability_figure: str | None = None) -> str:
     lines = ["# Validation against the paper's findings", "",
              "Generated by `drivetrain validate` (src/drivetrain/campaigns/validation.py); do not edit by hand.", "",
              f"- command: `{meta.get('command', '')}`",
              f"- scenes: {meta.get('n_scenes')} runs of {meta.get('duration_s'):g} s "
-             f"(settle {meta.get('settle_s'):g} s), realism effects: {', '.join(REALISM)} unless a check says",
+             f"(settle {meta.get('settle_s'):g} s) over {meta.get('gearboxes')} gearboxes (seeds 0..N-1: "
+             f"manufacturing, background, instruments), realism effects: {', '.join(REALISM)} unless a check says",
+             f"- pass rules are fractions of gearboxes ({PASS_FRACTION:.0%} unless a check says); figures are "
+             "distributions over the gearboxes: median (10th, 90th percentile)",
              f"- wall time: {meta.get('wall_time_s', float('nan')) / 60:.1f} min on {meta.get('workers')} worker(s)"
              + (f" (judged again from runs simulated earlier; their run times add up to "
                 f"{meta['runs_cpu_s'] / 60:.0f} min)" if meta.get("judge_only") else ""),
@@ -500,12 +696,14 @@ def report_markdown(results: list[CheckResult], meta: dict, figure: str | None,
     for r in results:
         if r.details:
             lines.append(f"**{r.number}. {r.title}**")
-            lines.extend(d if d.startswith("|") or not d else f"- {d}" for d in r.details[:20])
-            if len(r.details) > 20:
-                lines.append(f"- ... {len(r.details) - 20} more")
+            lines.extend(d if d.startswith("|") or not d else f"- {d}" for d in r.details[:40])
+            if len(r.details) > 40:
+                lines.append(f"- ... {len(r.details) - 40} more")
             lines.append("")
+    if separability_figure:
+        lines += ["## Where the faults are separable (check 6)", "", f"![separability]({separability_figure})", ""]
     if figure:
-        lines += ["## Spectra", "", f"![spectra]({figure})", ""]
+        lines += ["## Spectra (gearbox 0)", "", f"![spectra]({figure})", ""]
     if record_figure:
         lines += ["## The measured record and ours (check 11)", "", f"![record]({record_figure})", ""]
     return "\n".join(lines)

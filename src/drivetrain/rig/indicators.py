@@ -209,6 +209,33 @@ def separability(a: float) -> float:
     return float(max(a, 1.0 - a)) if math.isfinite(a) else float("nan")
 
 
+def chance_separability(gearboxes: int, indicators: int, level: float = 0.05) -> float:
+    """The best-of-``indicators`` separability that healthy-vs-healthy comparisons (each gearbox's indicator a
+    coin flip) exceed with probability ``level`` over ``gearboxes`` gearboxes, the indicators taken as
+    independent (correlated ones reach less): the chance level of paired separability (validate's check 6,
+    drivetrain detectability)."""
+    from scipy.stats import binom
+
+    for k in range(gearboxes // 2, gearboxes + 1):        # separability >= k / n: at least k one way
+        p_one = min(1.0, 2.0 * binom.sf(k - 1, gearboxes, 0.5)) if k > gearboxes / 2 else 1.0
+        if 1.0 - (1.0 - p_one) ** indicators <= level:
+            return k / gearboxes
+    return 1.0
+
+
+def chance_unpaired(healthy: int, faulty: int, indicators: int, level: float = 0.05) -> float:
+    """The best-of-``indicators`` unpaired separability that two samples of one population (``healthy`` and
+    ``faulty`` runs) reach with probability ``level``: the Mann-Whitney AUC's null law, normal about 1/2 with
+    variance (n1 + n2 + 1) / (12 n1 n2), the indicators taken as independent."""
+    from scipy.stats import norm
+
+    if healthy < 1 or faulty < 1:
+        return 1.0
+    sigma = math.sqrt((healthy + faulty + 1) / (12.0 * healthy * faulty))
+    p_one = 1.0 - (1.0 - level) ** (1.0 / max(indicators, 1))
+    return float(min(1.0, 0.5 + sigma * norm.isf(p_one / 2.0)))
+
+
 def signal_to_background_dB(faulty: np.ndarray, healthy: np.ndarray) -> float:
     """The fault's signal-to-background ratio [dB]: the energy of (faulty - healthy) over the healthy run's own
     variability (its variance), for two runs of one gearbox, operating point and noise record sample by sample
@@ -256,5 +283,5 @@ def points_per_revolution(fs: float, f_shaft: float) -> int:
     return max(64, 2 ** int(math.floor(math.log2(fs / f_shaft))))
 
 
-__all__ = ["auc", "paired_auc", "separability", "signal_to_background_dB", "paired_sbr", "METRICS", "tsa", "tsa_records", "split", "order_amplitudes", "mesh_orders", "indicators",
+__all__ = ["auc", "paired_auc", "separability", "chance_separability", "chance_unpaired", "signal_to_background_dB", "paired_sbr", "METRICS", "tsa", "tsa_records", "split", "order_amplitudes", "mesh_orders", "indicators",
            "envelope_band", "points_per_revolution", "SER_SIDEBANDS"]

@@ -38,6 +38,9 @@ def test_parquet_round_trip(sweep, tmp_path, capsys):
 
     assert main(["dataset", str(sweep), "--format", "parquet", "--out", str(tmp_path / "d.parquet")]) == 0
     df = pd.read_parquet(tmp_path / "d.parquet")                      # the one line of the docs
+    import pyarrow.parquet as pq
+
+    assert pq.ParquetFile(tmp_path / "d.parquet").num_row_groups == len(_written(sweep))   # written run by run
     for name, h in _written(sweep).items():
         part = df[df["run"] == name]
         np.testing.assert_array_equal(part["time_s"].to_numpy(), h["time"])

@@ -132,11 +132,11 @@ def test_stiffness_check_is_static_and_passes():
 
 @pytest.mark.slow
 def test_validate_command_on_short_runs(tmp_path):
-    """The whole command at 4 s per run over 2 gearboxes (133 runs, in-process): the checks that do not need
+    """The whole command at 4 s per run over 2 gearboxes (133 runs, native): the checks that do not need
     20 s pass, the report is written with every check and the figures."""
     report = tmp_path / "docs" / "VALIDATION.md"
     p = subprocess.run([sys.executable, "-m", "drivetrain", "validate", "--duration", "4", "--settle", "1",
-                        "--backend", "inprocess", "--gearboxes", "2", "--out", str(tmp_path / "out"), "--report", str(report), "--quiet"],
+                        "--backend", "native", "--gearboxes", "2", "--out", str(tmp_path / "out"), "--report", str(report), "--quiet"],
                        capture_output=True, text=True, timeout=3000)
     print(p.stdout[-3000:], p.stderr[-3000:])
     text = report.read_text()

@@ -130,33 +130,51 @@ def _label_columns(runs: list[dict]) -> list[str]:
     return cols
 
 
+def _arrow_type(values: list):
+    """One Arrow type for a label column from its values over all runs (None: null), text if they mix kinds."""
+    import pyarrow as pa
+
+    try:
+        return pa.array(values).type
+    except (pa.ArrowInvalid, pa.ArrowTypeError):
+        return pa.string()
+
+
+def _arrow_label(v, n: int, t):
+    import pyarrow as pa
+
+    if v is None:
+        return pa.nulls(n, type=t)
+    return pa.array([str(v) if pa.types.is_string(t) and not isinstance(v, str) else v] * n, type=t)
+
+
 def write_parquet(runs: list[dict], path: Path) -> Path:
+    """One row per sample, written run by run (one row group each: a run's repeated labels are built for that
+    run only, and parquet's dictionary encoding stores them once)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
     channels = sorted({c for r in runs for c in r["signals"]})
-    label_cols = _label_columns(runs)
-    tables = []
-    for r in runs:
-        n = len(r["time"])
-        cols = {"run": pa.array([r["name"]] * n).dictionary_encode(), "time_s": pa.array(r["time"])}
-        for c in channels:
-            x = r["signals"].get(c)
-            cols[c] = pa.array(np.asarray(x, dtype=float) if x is not None else np.full(n, np.nan))
-        for k in label_cols:
-            if k == "run":
-                continue
-            v = r["labels"].get(k)
-            arr = pa.array([v] * n) if v is not None else pa.nulls(n)
-            cols[f"label.{k}" if k in channels or k in ("time_s",) else k] = arr
-        tables.append(pa.table(cols))
-    table = pa.concat_tables(tables, promote_options="default")
+    label_cols = [k for k in _label_columns(runs) if k != "run"]
+    types = {k: _arrow_type([r["labels"].get(k) for r in runs]) for k in label_cols}
+    names = {k: f"label.{k}" if k in channels or k == "time_s" else k for k in label_cols}
     units = {c: next((r["units"].get(c, "") for r in runs if c in r["units"]), "") for c in channels}
-    table = table.replace_schema_metadata({"drivetrain.units": json.dumps(units),
-                                           "drivetrain.labels": json.dumps(label_cols)})
+    schema = pa.schema([("run", pa.dictionary(pa.int32(), pa.string())), ("time_s", pa.float64()),
+                        *((c, pa.float64()) for c in channels), *((names[k], types[k]) for k in label_cols)],
+                       metadata={"drivetrain.units": json.dumps(units),
+                                 "drivetrain.labels": json.dumps(["run", *label_cols])})
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
-    pq.write_table(table, tmp)
+    with pq.ParquetWriter(tmp, schema) as writer:
+        for r in runs:
+            n = len(r["time"])
+            cols = [pa.DictionaryArray.from_arrays(pa.array(np.zeros(n, dtype=np.int32)), pa.array([r["name"]])),
+                    pa.array(np.asarray(r["time"], dtype=float))]
+            for c in channels:
+                x = r["signals"].get(c)
+                cols.append(pa.array(np.asarray(x, dtype=float) if x is not None else np.full(n, np.nan)))
+            cols += [_arrow_label(r["labels"].get(k), n, types[k]) for k in label_cols]
+            writer.write_table(pa.Table.from_arrays(cols, schema=schema))
     tmp.replace(path)
     return path
 

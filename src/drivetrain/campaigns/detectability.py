@@ -264,7 +264,7 @@ def plot(verdict_rows: list[dict], study: Study, path: Path) -> Path:
     fams = [f.name for f in study.families]
     ops = [(s, l) for s in study.speeds for l in study.loads]
     fig, axes = plt.subplots(1, 3, figsize=(14, 0.35 * len(fams) + 2.5), gridspec_kw={"width_ratios": [1, 1, 0.03]})
-    for ax, key, title in ((axes[0], "paired", "paired (the same gearbox healthy)"),
+    for ax, key, title in ((axes[0], "paired", "paired (the gearbox's own healthy baseline)"),
                            (axes[1], "unpaired", "unpaired (any healthy gearbox)")):
         m = np.full((len(fams), len(ops)), np.nan)
         for r in verdict_rows:

@@ -430,7 +430,7 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
     from drivetrain.campaigns.dataset import DatasetError, export
 
     try:
-        path = export(args.sweep_dir, args.format, args.out)
+        path = export(args.sweep_dir, args.format, args.out, settled_only=args.settled_only)
     except DatasetError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -784,6 +784,9 @@ def _parser_dataset(sub) -> None:
     p.add_argument("sweep_dir", help="the --out directory of a sweep (with manifest.json)")
     p.add_argument("--format", choices=("parquet", "hdf5", "aalto"), default="parquet")
     p.add_argument("--out", default=None, help="output file (directory for aalto); default: inside SWEEP_DIR")
+    p.add_argument("--settled-only", action="store_true",
+                   help="leave out each run's samples before its time.settle_s (the start-up transient); without "
+                        "it they are kept and marked by the settled column")
     p.set_defaults(func=_cmd_dataset)
 
 def _parser_features(sub) -> None:

@@ -331,6 +331,47 @@ SCHEMA: dict[str, dict[str, Key]] = {
     },
 }
 
+def _on(path: str, *values) -> tuple:
+    return ((path, values or (True,)),)
+
+
+_LOAD, _DRIVE, _ORDERS = (_on("effects.load_torque_noise"), _on("effects.drive_torque_noise"),
+                          _on("effects.shaft_orders"))
+#: When a setting acts: a section or "section.key" -> its alternatives (any), each a tuple of conditions
+#: (all) ("section.key", the values that switch it on). A setting not listed always acts; a dataset leaves
+#: the label of one that does not act empty (drivetrain.campaigns.dataset), not its unused value.
+ACTS_WHEN: dict[str, tuple] = {
+    "manufacturing": (_on("effects.manufacturing_errors"),),
+    "manufacturing.profile_um": (_on("effects.manufacturing_errors") + _on("manufacturing.profile_errors"),),
+    "instruments": (_on("effects.sensors", "rig"),),
+    "tooth_compliance": (_on("effects.tooth_compliance"),),
+    "background.seed": (_LOAD, _DRIVE, _ORDERS),
+    "background.noise_band_Hz": (_LOAD, _DRIVE),
+    "background.load_noise_Nm_rtHz": (_LOAD,),
+    "background.drive_noise_Nm_rtHz": (_DRIVE,),
+    **{f"background.{k}": (_ORDERS,) for k in ("order_msh_1x_Nm", "order_msh_2x_Nm", "order_dsh_1x_Nm",
+                                               "order_dsh_2x_Nm", "planetary_mesh_Nm", "planetary_ring_teeth",
+                                               "orders_speed_exponent")},
+    **{f"background.{k}": (_on("effects.drive_control", "record"),) for k in ("drive_Kp", "drive_Ti_s")},
+    **{f"background.{k}": (_on("effects.couplings", "record"),)
+       for k in ("coupling_stiffness_scale", "coupling_damping_scale", "propeller_stiffness_scale",
+                 "propeller_damping_scale")},
+}
+
+
+def setting_acts(section: str, key: str, scene: dict) -> bool:
+    """Whether ``section.key`` acts in a resolved scene (its dict, ``Scene.to_dict()``): :data:`ACTS_WHEN`."""
+    rule = ACTS_WHEN.get(f"{section}.{key}", ACTS_WHEN.get(section))
+    if rule is None:
+        return True
+
+    def value(path):
+        sec, k = path.split(".", 1)
+        return (scene.get(sec) or {}).get(k)
+
+    return any(all(value(p) in values for p, values in alternative) for alternative in rule)
+
+
 #: Sections validated by drivetrain.scene.expect (expectations and how a scene is checked; docs/SCENARIOS.md).
 CHECK_SECTIONS = ("expect", "check")
 

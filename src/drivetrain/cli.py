@@ -310,7 +310,9 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     except ConfigurationError as exc:
         return _scene_errors(exc)
     failed = [r for r in manifest["runs"] if r["status"] != "ok"]
-    print(f"{len(manifest['runs']) - len(failed)}/{len(manifest['runs'])} runs ok; manifest: {manifest['path']}")
+    print(f"{len(manifest['runs']) - len(failed)}/{len(manifest['runs'])} runs ok in {manifest['wall_time_s']:.1f} s "
+          f"(preparation {manifest['preparation_s']:.1f} s: contact maps and FMU builds; {manifest['reused_runs']} "
+          f"reused); manifest: {manifest['path']}")
     for r in failed:
         print(f"  {r['name']}: {r['status']}: {r.get('error', '')}".rstrip(), file=sys.stderr)
     return 0 if not failed else 3

@@ -529,6 +529,7 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
     simulated time (:mod:`drivetrain.run.cost`) is refused, with every other such case, before anything
     runs; ``force`` runs them anyway.
     """
+    t0 = time.perf_counter()                 # the wall time counts the preparation (map and FMU builds) too
     out = Path(out_dir)
     names = [s.name for s in scenes]
     dup = sorted({n for n in names if names.count(n) > 1})
@@ -540,14 +541,18 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
     _check_writable(out)
     log = _LOG.warning if progress else None
     _prepare_fmus(scenes, all_specs, backend=backend, fmu_dir=fmu_dir, fmu_paths=fmu_paths, prepare=prepare, log=log)
+    preparation_s = time.perf_counter() - t0
     kept = _kept_records(out, grid_names, names)
     cases, reused = _cases(scenes, all_specs, out, skip_existing=skip_existing, backend=backend, fmu_dir=fmu_dir,
                            plots=plots, fmu_paths=fmu_paths, force=force)
+    if skip_existing and log:
+        log(f"resume: {len(reused)} of {len(scenes)} runs reused (finished, same fingerprint), {len(cases)} to run")
     manifest = _Manifest(out, scenes={s.name: s for s in scenes},
                          order={n: i for i, n in enumerate(grid_names or names)},
                          meta={"executor": "dask" if address else ("custom" if executor is not None
-                                                                    else "local processes"), "backend": backend},
-                         kept=kept)
+                                                                    else "local processes"), "backend": backend,
+                               "preparation_s": preparation_s, "reused_runs": len(reused)},
+                         kept=kept, t0=t0)
     manifest.runs = [manifest.annotate(r) for r in reused]
     _start_journal(out, kept + manifest.runs)
     manifest.write(not cases)

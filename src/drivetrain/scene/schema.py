@@ -113,6 +113,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "the name the run's noise records (instruments, background) are drawn with; two runs with one "
             "noise_name are measured with the same noise: a paired healthy run ([sweep.draw] paired_healthy)"),
             default_doc="the scene's name"),
+        "growth_stage": Key("int", None, minimum=0, doc=(
+            "the stage of a fault's life this run shows ([sweep.growth]; 0 = the first, or the healthy gearbox "
+            "before the fault): a label, nothing is simulated differently")),
+        "remaining_life": _f(None, "", "", (
+            "the fraction of the gearbox's life left at this stage ([sweep.growth]; 1 = new, towards 0 = failure): "
+            "a label for prognostics"), minimum=0.0, maximum=1.0),
     },
     "operating_point": {
         "drive_speed_rpm": _f(1500.0, "rpm", "speed", "drive-motor speed reference (drive shaft)", minimum=0.0),
@@ -389,6 +395,8 @@ class ScenarioInfo:
     name: str
     description: str
     noise_name: str | None
+    growth_stage: int | None
+    remaining_life: float | None
 
 
 @dataclass(frozen=True)

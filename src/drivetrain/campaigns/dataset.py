@@ -130,10 +130,10 @@ def collect(sweep_dir: Path | str, settled_only: bool = False) -> list[dict]:
 
 
 def _indicators(run: dict) -> dict:
-    """The run's condition indicators (campaigns.features.run_features: the columns of ``drivetrain features``),
+    """The run's condition indicators (rig.indicators.run_features: the columns of ``drivetrain features``),
     per-run columns of the dataset; none for a run without a constant drive speed (a speed profile moves
     the characteristic frequencies) or too short to judge."""
-    from drivetrain.campaigns.features import run_features
+    from drivetrain.rig.indicators import run_features
 
     lab = run["labels"]
     try:

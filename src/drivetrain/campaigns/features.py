@@ -16,65 +16,16 @@ fault's signal-to-background ratio (rig.indicators.signal_to_background_dB). Wri
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np
 
 from drivetrain.errors import DatasetError
 from drivetrain.rig import indicators as ci
-from drivetrain.rig.data import Z_PINION, Z_WHEEL
-from drivetrain.rig.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies
 
-#: the shafts whose gear is judged: name -> (encoder sensor, teeth, characteristic frequency of its speed)
-SHAFTS = {"pinion": ("enc4", Z_PINION, "f_MSH"), "wheel": ("enc5", Z_WHEEL, "f_PSH")}
-TORQUES = ("propeller_shaft_torque", "drive_shaft_torque")
-#: TSA records per run (NA4 and NB4 compare the last with the run's mean); fewer when the run is short
-RECORDS = 4
-#: the characteristic frequencies whose amplitude is a column (keys of rig.signals.characteristic_frequencies)
-LINES = ("f_PSH", "f_MSH", "f_DSH", "f_GMF", "f_GMF-f_MSH", "f_GMF+f_MSH")
 FEATURES_FILE = "features.parquet"
-
-
-def _line(cf: dict, name: str) -> float:
-    if "-" in name or "+" in name:
-        sign = 1.0 if "+" in name else -1.0
-        a, b = name.replace("+", "-").split("-")
-        return cf[a] + sign * cf[b]
-    return cf[name]
-
-
-def run_features(time: np.ndarray, signals: dict, settle_s: float, drive_speed_rpm: float) -> dict:
-    """The indicator columns of one run (module docstring); signals it lacks give no columns."""
-    t = np.asarray(time, dtype=float)
-    keep = t >= settle_s
-    if keep.sum() < 16:
-        raise ValueError(f"{int(keep.sum())} samples after the settling time {settle_s:g} s: too short")
-    fs = 1.0 / float(np.median(np.diff(t)))
-    cf = characteristic_frequencies(drive_speed_rpm)
-    out: dict = {}
-    for sig in TORQUES:
-        if sig not in signals:
-            continue
-        x = np.asarray(signals[sig], dtype=float)[keep]
-        f, a = amplitude_spectrum(x, fs)
-        for ln in LINES:
-            out[f"amp_{ln}.{sig}"] = amplitude_near(f, a, _line(cf, ln), 1)
-        for shaft, (enc, teeth, f_key) in SHAFTS.items():
-            if enc not in signals:
-                continue
-            angle = np.asarray(signals[enc], dtype=float)[keep]
-            angle = angle + 1e-12 * np.arange(len(angle))     # a quantised encoder repeats a count: make it increase
-            revs = (angle[-1] - angle[0]) / (2 * math.pi)
-            n_rec = max(1, min(RECORDS, int(revs // 2)))
-            pts = ci.points_per_revolution(fs, cf[f_key])
-            try:
-                recs = ci.tsa_records(x, angle, pts, n_rec)
-            except ValueError:
-                continue
-            for metric, value in ci.indicators(recs, teeth).items():
-                out[f"{metric}_{shaft}.{sig}"] = value
-    return out
+#: the per-run computation lives with the metrics (rig.indicators); its names stay importable from here
+SHAFTS, TORQUES, RECORDS, LINES, run_features = ci.SHAFTS, ci.TORQUES, ci.RECORDS, ci.LINES, ci.run_features
 
 
 def _iter_runs(directory: Path):

@@ -178,8 +178,8 @@ class Runs:
         return self._lru(self._spec, (name, sensor), lambda: amplitude_spectrum(*self.settled(name, sensor)))
 
     def features(self, name: str) -> dict:
-        """The condition indicators of a run (drivetrain.campaigns.features.run_features), kept."""
-        from drivetrain.campaigns.features import run_features
+        """The condition indicators of a run (rig.indicators.run_features), kept."""
+        from drivetrain.rig.indicators import run_features
 
         if name not in self._feat:
             d, s = self.signals(name), self.summary(name)

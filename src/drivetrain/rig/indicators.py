@@ -35,12 +35,20 @@ TSA of its own); the numerator is the last part's, the denominator the mean of a
 Maynard, "A review of vibration analysis methods for gearbox diagnostics and prognostics", 54th MFPT
 (2000); Samuel & Pines, J. Sound Vib. 282 (2005) 475-508; Hanna, Hatch et al., "Detection of wind turbine
 gear tooth defects using sideband energy ratio", China Wind Power (2011). Pure: arrays in, numbers out.
+
+:func:`run_features` applies them to one run: per torque transducer and per shaft whose encoder was recorded,
+the TSA records and their metrics, and the amplitudes at the characteristic frequencies: the columns of
+``drivetrain features`` and ``drivetrain dataset``. The chance levels (:func:`chance_separability`,
+:func:`chance_unpaired`) say what the best of many indicators reaches over a few gearboxes by chance.
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
+
+from drivetrain.rig.data import Z_PINION, Z_WHEEL
+from drivetrain.rig.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies
 
 #: indicator names, in column order
 METRICS = ("RMS", "CF", "kurtosis", "FM0", "FM4", "NA4", "NB4", "M6A", "M8A", "ER", "SLF", "SER")
@@ -283,5 +291,59 @@ def points_per_revolution(fs: float, f_shaft: float) -> int:
     return max(64, 2 ** int(math.floor(math.log2(fs / f_shaft))))
 
 
-__all__ = ["auc", "paired_auc", "separability", "chance_separability", "chance_unpaired", "signal_to_background_dB", "paired_sbr", "METRICS", "tsa", "tsa_records", "split", "order_amplitudes", "mesh_orders", "indicators",
+# --------------------------------------------------------------------------------------------------
+# the indicators of one run (the columns of drivetrain features and drivetrain dataset)
+# --------------------------------------------------------------------------------------------------
+
+#: the shafts whose gear is judged: name -> (encoder sensor, teeth, characteristic frequency of its speed)
+SHAFTS = {"pinion": ("enc4", Z_PINION, "f_MSH"), "wheel": ("enc5", Z_WHEEL, "f_PSH")}
+TORQUES = ("propeller_shaft_torque", "drive_shaft_torque")
+#: TSA records per run (NA4 and NB4 compare the last with the run's mean); fewer when the run is short
+RECORDS = 4
+#: the characteristic frequencies whose amplitude is a column (keys of rig.signals.characteristic_frequencies)
+LINES = ("f_PSH", "f_MSH", "f_DSH", "f_GMF", "f_GMF-f_MSH", "f_GMF+f_MSH")
+
+
+def _line(cf: dict, name: str) -> float:
+    if "-" in name or "+" in name:
+        sign = 1.0 if "+" in name else -1.0
+        a, b = name.replace("+", "-").split("-")
+        return cf[a] + sign * cf[b]
+    return cf[name]
+
+
+def run_features(time: np.ndarray, signals: dict, settle_s: float, drive_speed_rpm: float) -> dict:
+    """The indicator columns of one run (module docstring); signals it lacks give no columns."""
+    t = np.asarray(time, dtype=float)
+    keep = t >= settle_s
+    if keep.sum() < 16:
+        raise ValueError(f"{int(keep.sum())} samples after the settling time {settle_s:g} s: too short")
+    fs = 1.0 / float(np.median(np.diff(t)))
+    cf = characteristic_frequencies(drive_speed_rpm)
+    out: dict = {}
+    for sig in TORQUES:
+        if sig not in signals:
+            continue
+        x = np.asarray(signals[sig], dtype=float)[keep]
+        f, a = amplitude_spectrum(x, fs)
+        for ln in LINES:
+            out[f"amp_{ln}.{sig}"] = amplitude_near(f, a, _line(cf, ln), 1)
+        for shaft, (enc, teeth, f_key) in SHAFTS.items():
+            if enc not in signals:
+                continue
+            angle = np.asarray(signals[enc], dtype=float)[keep]
+            angle = angle + 1e-12 * np.arange(len(angle))     # a quantised encoder repeats a count: make it increase
+            revs = (angle[-1] - angle[0]) / (2 * math.pi)
+            n_rec = max(1, min(RECORDS, int(revs // 2)))
+            pts = points_per_revolution(fs, cf[f_key])
+            try:
+                recs = tsa_records(x, angle, pts, n_rec)
+            except ValueError:
+                continue
+            for metric, value in indicators(recs, teeth).items():
+                out[f"{metric}_{shaft}.{sig}"] = value
+    return out
+
+
+__all__ = ["run_features", "SHAFTS", "TORQUES", "RECORDS", "LINES", "auc", "paired_auc", "separability", "chance_separability", "chance_unpaired", "signal_to_background_dB", "paired_sbr", "METRICS", "tsa", "tsa_records", "split", "order_amplitudes", "mesh_orders", "indicators",
            "envelope_band", "points_per_revolution", "SER_SIDEBANDS"]

@@ -649,8 +649,8 @@ def plot_separability(result: CheckResult, path: Path) -> Path | None:
     if not cells:
         return None
     plt = _mpl()
-    fig, axes = plt.subplots(1, 2, figsize=(15, 4.2), sharey=True)
-    for ax, h in zip(axes, HEALTHS[1:]):
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2), gridspec_kw={"width_ratios": [1, 1, 0.03]})
+    for ax, h in zip(axes[:2], HEALTHS[1:]):
         m = np.array([[cells[(h, n, t)]["fraction"] for n in SPEEDS_RPM] for t in LOADS_NM])
         im = ax.imshow(m, vmin=0.5, vmax=1.0, cmap="viridis", origin="lower", aspect="auto")
         for i, t in enumerate(LOADS_NM):
@@ -664,12 +664,8 @@ def plot_separability(result: CheckResult, path: Path) -> Path | None:
         ax.set_title(f"{h} vs healthy: fraction of {result.data['gearboxes']} gearboxes separated "
                      f"(pass >= {result.data['need']:.2f}; chance {result.data['chance']:.2f})", fontsize=9)
     axes[0].set_ylabel("load torque [N·m]")
-    fig.colorbar(im, ax=axes, shrink=0.8, label="best indicator's paired separability")
-    import warnings
-
-    with warnings.catch_warnings():           # the colorbar's axes do not take part in tight_layout: harmless
-        warnings.simplefilter("ignore", UserWarning)
-        return _finish(plt, fig, path, "check 6: where the paper's faults are separable from healthy")
+    fig.colorbar(im, cax=axes[2], label="best indicator's paired separability")
+    return _finish(plt, fig, path, "check 6: where the paper's faults are separable from healthy")
 
 
 def report_markdown(results: list[CheckResult], meta: dict, figure: str | None,

@@ -167,3 +167,22 @@ def test_the_paper_faults_are_their_fault_specifications():
         b = apply_faults(mesh, g, health_faults(health), "pinion")
         np.testing.assert_array_equal(a.vertices, b.vertices)
         np.testing.assert_array_equal(a.faces, b.faces)
+
+
+@pytest.mark.parametrize("bad", ["../../escape", "/tmp/victim", "a/../../b", ".hidden"])
+def test_a_hostile_run_name_reads_and_writes_nothing_outside(sweep, tmp_path, capsys, bad):
+    """A manifest is data: a run name that is not a scene name (a path) is refused before any file is read
+    or written for it, with exit 2 and a message naming it (issue 33: `dataset --format aalto` wrote
+    escape.csv beside the sweep and victim.csv anywhere)."""
+    import shutil
+
+    d = tmp_path / "deep" / "sw"
+    shutil.copytree(sweep, d)
+    for f in (d / "manifest.json", d / "manifest.jsonl"):
+        if f.is_file():
+            f.write_text(f.read_text().replace('"toy1"', json.dumps(bad)))
+    before = {p for p in tmp_path.rglob("*")}
+    assert main(["dataset", str(d), "--format", "aalto", "--out", str(d / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "not a valid run name" in err and bad[:20] in err
+    assert {p for p in tmp_path.rglob("*")} == before            # nothing written anywhere

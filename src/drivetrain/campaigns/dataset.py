@@ -38,7 +38,7 @@ import numpy as np
 from drivetrain.errors import DatasetError  # noqa: F401  (re-exported)
 from drivetrain.run.outputs import read_hdf5, write_aalto_csv
 from drivetrain.campaigns.sweep import read_runs
-from drivetrain.scene.schema import setting_acts
+from drivetrain.scene.schema import NAME_RE, NAME_RULE, setting_acts
 from gearcontact_fmu.fault_specs import health_faults
 
 FORMATS = ("parquet", "hdf5", "aalto")
@@ -81,10 +81,18 @@ def run_records(sweep_dir: Path | str) -> list[dict]:
 
 
 def load_run(sweep_dir: Path | str, rec: dict) -> dict | None:
-    """One run of a sweep as {"name", "labels", "time", "signals", "units"}; None if it wrote no signals."""
+    """One run of a sweep as {"name", "labels", "time", "signals", "units"}; None if it wrote no signals. A
+    record's name becomes a path (the run's folder, an exported file's name): one that is not a valid
+    scene name (``..``, a slash, an absolute path) is refused, so whoever hands over a sweep directory
+    cannot make us read or write outside it."""
     name = rec.get("name")
-    sig = Path(sweep_dir) / str(name) / "signals.h5"
-    if not name or not sig.is_file():
+    if not name:
+        return None
+    if not isinstance(name, str) or not NAME_RE.fullmatch(name):
+        raise DatasetError(f"{sweep_dir}: a manifest record names its run {str(name)[:80]!r}: not a valid run name "
+                           f"({NAME_RULE}); nothing is read or written for it")
+    sig = Path(sweep_dir) / name / "signals.h5"
+    if not sig.is_file():
         return None
     return read_run(sig, rec)
 

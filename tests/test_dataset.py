@@ -186,3 +186,17 @@ def test_a_hostile_run_name_reads_and_writes_nothing_outside(sweep, tmp_path, ca
     err = capsys.readouterr().err
     assert "not a valid run name" in err and bad[:20] in err
     assert {p for p in tmp_path.rglob("*")} == before            # nothing written anywhere
+
+
+def test_a_dataset_out_that_cannot_take_it(sweep, tmp_path, capsys):
+    """An existing directory as the parquet file, or a place that cannot be written: exit 2, the path named,
+    no stray temporary file (issue 33: a traceback and taken.tmp)."""
+    taken = tmp_path / "taken"
+    taken.mkdir()
+    assert main(["dataset", str(sweep), "--out", str(taken)]) == 2
+    assert "a directory" in capsys.readouterr().err and list(taken.iterdir()) == []
+    blocked = tmp_path / "a_file"
+    blocked.write_text("x")
+    assert main(["dataset", str(sweep), "--out", str(blocked / "d.parquet")]) == 2
+    assert "cannot be written" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "taken"]

@@ -238,3 +238,30 @@ def test_a_bad_mesh_file_is_an_error_naming_it(tmp_path, capsys, name):
     rc, text = _rc(["run", str(ROOT / "scenarios" / "example.toml"), "--set", "gear.health=mesh", "--set",
                     f'gear.pinion_mesh="{f}"', "--set", "time.duration_s=0.2", "--out", str(tmp_path / "o")], capsys)
     assert rc == 2 and "Traceback" not in text and name in text, text[-2000:]
+
+
+def _bad_outs(tmp_path):
+    f = tmp_path / "a_file"
+    f.write_text("x")
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere" / "gone")
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    return {"existing file": f, "/dev/null": Path("/dev/null"), "dangling symlink": tmp_path / "dangling",
+            "read-only": ro / "sub", "300 characters": tmp_path / ("n" * 300)}
+
+
+@pytest.mark.parametrize("case", ["existing file", "/dev/null", "dangling symlink", "read-only", "300 characters"])
+def test_a_bad_out_is_refused_before_the_simulation(tmp_path, capsys, case):
+    """`drivetrain run --out` that cannot take the results is refused at once with its reason (issue 33: found
+    after the whole simulation, as a traceback)."""
+    import os
+    import time
+
+    out = _bad_outs(tmp_path)[case]
+    if case == "read-only" and os.geteuid() == 0:
+        pytest.skip("root writes into a read-only directory")
+    t0 = time.perf_counter()
+    rc, text = _rc(["run", str(ROOT / "scenarios" / "example.toml"), "--out", str(out), "--no-plots"], capsys)
+    assert rc == 2 and "output directory" in text and "Traceback" not in text, text[-1500:]
+    assert time.perf_counter() - t0 < 20                    # before the 20 s run, not after it

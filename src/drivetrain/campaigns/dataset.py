@@ -296,9 +296,18 @@ def export(sweep_dir: Path | str, fmt: str = "parquet", out: Path | str | None =
     samples before its ``time.settle_s``."""
     if fmt not in WRITERS:
         raise DatasetError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
-    runs = collect(sweep_dir, settled_only)
     path = Path(out) if out else Path(sweep_dir) / DEFAULT_NAMES[fmt]
-    return WRITERS[fmt](runs, path)
+    if fmt != "aalto" and path.is_dir():
+        raise DatasetError(f"{path}: a directory; the {fmt} dataset is one file (give its file name)")
+    runs = collect(sweep_dir, settled_only)
+    try:
+        return WRITERS[fmt](runs, path)
+    except OSError as exc:                     # a read-only place, a full disk: named, and no stray temporary
+        try:
+            path.with_name(path.name + ".tmp").unlink(missing_ok=True)
+        except OSError:
+            pass
+        raise DatasetError(f"{path}: the dataset cannot be written there ({exc.strerror or exc})") from None
 
 
 __all__ = ["run_records", "load_run", "read_run", "FORMATS", "DatasetError", "collect", "export", "run_labels", "write_parquet", "write_hdf5",

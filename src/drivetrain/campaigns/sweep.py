@@ -55,7 +55,7 @@ from drivetrain.run import cost as runcost
 from drivetrain.cosim import ConfigurationError
 from drivetrain.cosim import simulate as simulate_system
 from drivetrain.cosim import sources_hash
-from drivetrain.run.outputs import jsonable
+from drivetrain.run.outputs import check_output_dir, jsonable
 from drivetrain.run.runner import RunFailedError, assemble_scene, run_scene
 from drivetrain.scene.load import Scene, resolve
 from drivetrain.system import SystemSpec
@@ -252,18 +252,6 @@ MANIFEST_COLUMNS = ["name", "status", "health", "drive_speed_rpm", "load_torque_
                     "mean_drive_shaft_torque", "mean_propeller_shaft_torque", "failure_time_s", "failed_fmu",
                     "max_penetration_rel_umax", "min_substep_s", "n_refinements", "n_separations",
                     "separated_fraction", "signals", "summary", "error"]
-
-
-def _check_writable(out: Path) -> None:
-    """Refuse an output directory that cannot be written before any run (not after all of them)."""
-
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe = out / f".write-test-{os.getpid()}"
-        probe.write_text("")
-        probe.unlink()
-    except OSError as exc:
-        raise ConfigurationError(f"output directory {out}: not writable ({exc.strerror or exc})") from None
 
 
 def _reuse(scene: Scene, d: Path, fp: str) -> tuple[dict | None, str]:
@@ -538,7 +526,7 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
     all_specs = _specs_of(scenes, specs)
     if not force:
         _refuse_costly(scenes, all_specs, backend)
-    _check_writable(out)
+    check_output_dir(out)
     log = _LOG.warning if progress else None
     _prepare_fmus(scenes, all_specs, backend=backend, fmu_dir=fmu_dir, fmu_paths=fmu_paths, prepare=prepare, log=log)
     preparation_s = time.perf_counter() - t0

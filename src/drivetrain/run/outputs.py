@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import json
+import os
 import math
 from pathlib import Path
 from typing import Any
@@ -143,6 +144,31 @@ def _mpl():
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def check_output_dir(out: Path, expected_bytes: int = 0) -> None:
+    """Refuse an output directory that cannot take the results before any work, not after it: it is made
+    (parents too) and a probe file written and removed (an existing file, /dev/null, a dangling symlink, a
+    read-only place, a name too long all fail here, named), and its file system must have
+    ``expected_bytes`` free (twice, for the temporary files of atomic writes)."""
+    import shutil
+
+    from drivetrain.cosim import ConfigurationError
+
+    out = Path(out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        if not out.is_dir():
+            raise NotADirectoryError(20, "not a directory")
+        probe = out / f".write-test-{os.getpid()}"
+        probe.write_text("")
+        probe.unlink()
+        free = shutil.disk_usage(out).free
+    except OSError as exc:
+        raise ConfigurationError(f"output directory {str(out)[:300]}: not usable ({exc.strerror or exc})") from None
+    if expected_bytes and free < 2 * expected_bytes:
+        raise ConfigurationError(f"output directory {out}: {free / 1e6:.0f} MB free, the run writes about "
+                                 f"{expected_bytes / 1e6:.0f} MB (twice that is needed while files are replaced)")
 
 
 def _finish(plt, fig, path, title: str) -> Path:

@@ -532,6 +532,8 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
     :func:`measured_channels`, :func:`torque_spectra`, :func:`build_summary` -> :func:`write_run`.
     """
     log = log or _LOG.warning
+    if out_dir is not None:              # a bad --out is found now, not after the simulation
+        O.check_output_dir(Path(out_dir), expected_output_bytes(scene))
     plan = prepare_run(scene, spec, backend, fmu_paths, fmu_dir=fmu_dir, force=force, log=log)
     res, failed = simulate_plan(plan, fmu_dir=fmu_dir, build=build, progress=progress, log=log)
     ch = measured_channels(plan, res)
@@ -544,6 +546,13 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
     if failed is not None:
         raise RunFailedError(failed, result) from failed
     return result
+
+
+def expected_output_bytes(scene: Scene) -> int:
+    """About what a run writes: its samples of every written channel as doubles (and as CSV text, if asked)."""
+    n = int(scene.time.duration_s * scene.time.sample_rate_Hz) + 1
+    channels = len(scene.outputs.sensors) + len(scene.outputs.variables) + 1
+    return n * channels * 8 * (4 if scene.outputs.aalto_csv else 1)
 
 
 def write_run(result: RunResult, out_dir: str | Path, plots: bool = True, spectra: dict | None = None) -> dict:

@@ -85,6 +85,10 @@ SCRIPT = textwrap.dedent(r'''
                                                          call(lambda: f.doStep(0.0, H))]
                                        if STRINGS else ["n/a"]),
         "step_before_init": (False, lambda f: [call(lambda: f.doStep(0.0, H))]),
+        "nan_parameter": (False, lambda f: [call(lambda: f.setReal([vr(PARAM)], [math.nan])),
+                                            call(lambda: f.enterInitializationMode()),
+                                            call(lambda: f.exitInitializationMode()),
+                                            call(lambda: f.doStep(0.0, H))]),
         "step_after_terminate": (True, lambda f: [call(lambda: f.terminate()), call(lambda: f.doStep(H, H))]),
         "reset_and_run_again": (True, lambda f: [call(lambda: f.reset()),
                                                  call(lambda: f.setReal([vr(PARAM)], [float(V[PARAM].start)])),
@@ -122,6 +126,7 @@ EXPECT = {
     "string_parameter_after_init": (["refused"], "after initialization: fixed parameters"),
     "hostile_string_before_init": (["ok", "ok", "ok", "refused"], "%n%s%x%%"),
     "step_before_init": (["refused"], "before fmi2ExitInitializationMode"),
+    "nan_parameter": (["ok", "ok", "ok", "refused"], "parameters that are not finite numbers"),
     "step_after_terminate": (["ok", "refused"], "after fmi2Terminate"),
     "reset_and_run_again": (["ok"] * 6, None),
     "normal_steps_still_work": (["ok"] * 3, None),

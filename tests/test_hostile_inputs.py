@@ -265,3 +265,14 @@ def test_a_bad_out_is_refused_before_the_simulation(tmp_path, capsys, case):
     rc, text = _rc(["run", str(ROOT / "scenarios" / "example.toml"), "--out", str(out), "--no-plots"], capsys)
     assert rc == 2 and "output directory" in text and "Traceback" not in text, text[-1500:]
     assert time.perf_counter() - t0 < 20                    # before the 20 s run, not after it
+
+
+def test_a_deeply_nested_toml_is_a_scene_error(tmp_path, capsys):
+    """5000 nested arrays in a scene file or an override: a message, exit 2, no RecursionError traceback."""
+    f = tmp_path / "deep.toml"
+    f.write_text("[operating_point]\ndrive_speed_rpm = " + "[" * 5000 + "]" * 5000 + "\n")
+    rc, text = _rc(["run", str(f), "--out", str(tmp_path / "o")], capsys)
+    assert rc == 2 and "nested less deeply" in text and "Traceback" not in text, text[-800:]
+    rc, text = _rc(["run", str(ROOT / "scenarios" / "example.toml"), "--set",
+                    "time.duration_s=" + "[" * 5000 + "]" * 5000, "--out", str(tmp_path / "o")], capsys)
+    assert rc == 2 and "nested less deeply" in text and "Traceback" not in text, text[-800:]

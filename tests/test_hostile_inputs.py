@@ -276,3 +276,17 @@ def test_a_deeply_nested_toml_is_a_scene_error(tmp_path, capsys):
     rc, text = _rc(["run", str(ROOT / "scenarios" / "example.toml"), "--set",
                     "time.duration_s=" + "[" * 5000 + "]" * 5000, "--out", str(tmp_path / "o")], capsys)
     assert rc == 2 and "nested less deeply" in text and "Traceback" not in text, text[-800:]
+
+
+def test_a_huge_grid_is_refused_at_once(tmp_path, capsys):
+    """A grid of 10^6 cases is refused in well under a second, naming its size and the limit (issue 33: it
+    neither started nor was refused within 90 s)."""
+    import time
+
+    f = tmp_path / "huge.toml"
+    f.write_text('[sweep.axes]\n"operating_point.drive_speed_rpm" = [' + ", ".join(str(500.0 + i) for i in range(1000))
+                 + ']\n"operating_point.load_torque_Nm" = [' + ", ".join(str(0.1 + i / 1000) for i in range(1000)) + "]\n")
+    t0 = time.perf_counter()
+    rc, text = _rc(["sweep", str(f), "--out", str(tmp_path / "o")], capsys)
+    assert rc == 2 and "1000000 cases" in text and "at most 100000" in text, text[-800:]
+    assert time.perf_counter() - t0 < 10 and not (tmp_path / "o").exists()

@@ -293,10 +293,30 @@ def _growth_cases(case: dict, growth: dict):
         yield c, ("stage", stage), False
 
 
+#: the most cases one grid file expands to (a sweep of more is several grid files)
+MAX_GRID_CASES = 100_000
+
+
+def grid_size(grid: Grid) -> int:
+    """The number of cases a grid expands to, counted without expanding it."""
+    n = 1
+    for values in grid.axes.values():
+        n *= len(values)
+    if grid.draw is not None:
+        n *= int(grid.draw["n"]) * (2 if grid.draw.get("paired_healthy") else 1)
+    if grid.growth is not None:
+        n *= len(grid.growth["stages"]) + (1 if grid.growth.get("healthy") else 0)
+    return n
+
+
 def expand(raw: dict, grid: Grid, resolve_case: Callable[[dict], Scene], base_name: str, src: str) -> list[Scene]:
     """The grid's scenes, each validated by ``resolve_case`` (raw case data -> Scene) and named from the
     template (default ``{base}_{axis}_...``, plus ``_drawNNN`` for drawn cases). Every problem of every
     case is collected and raised together."""
+    n_cases = grid_size(grid)
+    if n_cases > MAX_GRID_CASES:              # refused at once: expanding it alone would take minutes
+        raise ScenarioError([(GRID_SECTION, f"{n_cases} cases", f"a grid of at most {MAX_GRID_CASES} cases "
+                              "(split it into several grid files, each its own sweep directory)")], src)
     scenes, problems, names = [], [], set()
     last_pair = ""
     template = grid.template or "_".join(["{base}"] + ["{" + k + "}" for k in grid.axes])

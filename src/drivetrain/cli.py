@@ -91,6 +91,22 @@ _FORCE_HELP = ("run even when the run is predicted to take more than 10x its sim
                "or its contact model longer than numerics.max_contact_hours")
 
 
+def _stop_on_signals() -> None:
+    """SIGINT (Ctrl-C) and SIGTERM end a running stepping loop at its next chunk of steps: the run is written
+    as "interrupted" with what it computed (exit 130). Outside the loop (preparation, writing) they interrupt
+    at once, and the output directory says "running", not "ok"."""
+    import signal
+
+    from drivetrain.cosim.master import request_stop
+
+    def handler(signum, frame):
+        if not request_stop(f"{signal.Signals(signum).name} received"):
+            raise KeyboardInterrupt
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, handler)
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from drivetrain.cosim import ConfigurationError, CosimError
     from drivetrain.scene.load import ScenarioError, load_scene
@@ -123,15 +139,20 @@ def _cmd_run(args: argparse.Namespace) -> int:
                   f"{args.backend!r}", file=sys.stderr)
             return 2
         args.backend = "native"
+    _stop_on_signals()
     try:
         res = run_scene(scene, out, backend=args.backend, progress=not args.quiet, fmu_dir=args.fmu_dir,
                         plots=False if args.no_plots else None, force=args.force, fmu_paths=fmu_paths or None)
     except ConfigurationError as exc:
         return _scene_errors(exc)
     except RunFailedError as exc:
-        print(f"error: {exc}", file=sys.stderr)
         r = exc.result
         f = r.summary["failure"]
+        if r.summary.get("status") == "interrupted":
+            print(f"interrupted at t = {f['time_s']:.9g} s ({f['cause']}); partial results (up to t = "
+                  f"{f['last_sample_time_s']:.9g} s, status \"interrupted\") written to {r.out_dir}/", file=sys.stderr)
+            return 130
+        print(f"error: {exc}", file=sys.stderr)
         names = [Path(p).name for p in [r.files.get("signals"), r.files.get("summary"), *r.files.get("plots", []),
                                          r.files.get("csv")] if p]
         print(f"  failed at t = {f['time_s']:.9g} s in FMU {f['component']!r} ({f['model']}, {f['function']}): "

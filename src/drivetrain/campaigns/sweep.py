@@ -264,6 +264,8 @@ def _reuse(scene: Scene, d: Path, fp: str) -> tuple[dict | None, str]:
         return None, "no finished run with a case.json there"
     if case.get("fingerprint") != fp:
         return None, "the scene or the model sources changed since that run"
+    if old.get("status") not in ("ok", "failed"):
+        return None, f"that run did not finish (its summary says {old.get('status')!r})"
     rec = {"name": scene.name, "labels": labels(scene.to_dict()), "status": old.get("status", "ok"),
            "skipped": True, "out_dir": str(d),
            "signals": str(d / "signals.h5"), "summary": str(d / "summary.json")}

@@ -106,9 +106,12 @@ def read_hdf5(path: Path | str) -> dict:
 
 
 def write_summary(path: Path, summary: dict) -> Path:
+    """summary.json, written whole or not at all (a temporary file renamed: a kill never tears it)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(jsonable(summary), indent=2, allow_nan=False) + "\n")
+    tmp = path.with_name(f".{path.name}.{os.getpid()}")
+    tmp.write_text(json.dumps(jsonable(summary), indent=2, allow_nan=False) + "\n")
+    os.replace(tmp, path)
     return path
 
 
@@ -169,6 +172,22 @@ def check_output_dir(out: Path, expected_bytes: int = 0) -> None:
     if expected_bytes and free < 2 * expected_bytes:
         raise ConfigurationError(f"output directory {out}: {free / 1e6:.0f} MB free, the run writes about "
                                  f"{expected_bytes / 1e6:.0f} MB (twice that is needed while files are replaced)")
+
+
+#: what a run writes into its output directory (plots: *.png)
+RUN_FILES = ("signals.h5", "summary.json", "sensors.csv")
+
+
+def mark_running(out: Path, name: str) -> None:
+    """Clear what an earlier run left in ``out`` (its signals, summary, CSV and plots: only our own file
+    names) and say that this run has started: a run that never finishes (killed) leaves "running", never an
+    earlier run's "ok" beside files of two runs."""
+    for f in RUN_FILES:
+        (out / f).unlink(missing_ok=True)
+    for png in out.glob("*.png"):
+        png.unlink()
+    write_summary(out / "summary.json", {"name": name, "status": "running",
+                                         "started": datetime.datetime.now().isoformat(timespec="seconds")})
 
 
 def _finish(plt, fig, path, title: str) -> Path:

@@ -166,6 +166,8 @@ _LEGITIMATE = {("scenario.description", '"a/b"'), ("scenario.description", '".."
                ("scenario.description", '"x\\u0000y"'), ("operating_point.drive_speed_rpm", "0"),
                ("operating_point.load_torque_Nm", "-1"), ("operating_point.load_torque_Nm", "0"),
                ("time.settle_s", "0"),
+               # a growth label: any stage, a gearbox at the end of its life
+               ("scenario.growth_stage", "0"), ("scenario.growth_stage", "100000000"), ("scenario.remaining_life", "0"),
                # no manufacturing errors of one kind, the finest grade, any seed, no measurement noise
                ("manufacturing.grade", "0"), ("manufacturing.runout_grade", "0"), ("manufacturing.seed", "0"), ("manufacturing.seed", "100000000"),
                ("manufacturing.single_pitch_um", "0"), ("manufacturing.runout_um", "0"), ("manufacturing.profile_um", "0"),

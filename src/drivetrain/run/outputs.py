@@ -149,26 +149,45 @@ def _mpl():
     return plt
 
 
-def check_output_dir(out: Path, expected_bytes: int = 0) -> None:
-    """Refuse an output directory that cannot take the results before any work, not after it: it is made
-    (parents too) and a probe file written and removed (an existing file, /dev/null, a dangling symlink, a
-    read-only place, a name too long all fail here, named), and its file system must have
-    ``expected_bytes`` free (twice, for the temporary files of atomic writes)."""
+def check_output_dir(out: Path, expected_bytes: int = 0, create: bool = True) -> None:
+    """Refuse an output directory that cannot take the results before any work, not after it: an existing
+    file, /dev/null, a dangling symlink, a read-only place, a name too long all fail here, named; its file
+    system must have ``expected_bytes`` free (twice, for the temporary files of atomic writes).
+    ``create``: make it (parents too) and write and remove a probe file; else only look (nothing is
+    written: the place it would be made in must be a writable directory)."""
     import shutil
 
     from drivetrain.cosim import ConfigurationError
 
     out = Path(out)
+
+    def refuse(why):
+        return ConfigurationError(f"output directory {str(out)[:300]}: not writable ({why})")
+
     try:
-        out.mkdir(parents=True, exist_ok=True)
-        if not out.is_dir():
-            raise NotADirectoryError(20, "not a directory")
-        probe = out / f".write-test-{os.getpid()}"
-        probe.write_text("")
-        probe.unlink()
-        free = shutil.disk_usage(out).free
+        if create:
+            out.mkdir(parents=True, exist_ok=True)
+            if not out.is_dir():
+                raise NotADirectoryError(20, "not a directory")
+            probe = out / f".write-test-{os.getpid()}"
+            probe.write_text("")
+            probe.unlink()
+            where = out
+        else:
+            if out.is_symlink() and not out.exists():
+                raise refuse("a symbolic link to nothing")
+            if any(len(part.encode()) > 255 for part in out.parts):
+                raise refuse("File name too long")
+            where = out
+            while not where.exists():
+                where = where.parent
+            if not where.is_dir():
+                raise refuse(f"{where} is not a directory")
+            if not os.access(where, os.W_OK | os.X_OK):
+                raise refuse(f"{where} is not writable")
+        free = shutil.disk_usage(where).free
     except OSError as exc:
-        raise ConfigurationError(f"output directory {str(out)[:300]}: not usable ({exc.strerror or exc})") from None
+        raise refuse(exc.strerror or exc) from None
     if expected_bytes and free < 2 * expected_bytes:
         raise ConfigurationError(f"output directory {out}: {free / 1e6:.0f} MB free, the run writes about "
                                  f"{expected_bytes / 1e6:.0f} MB (twice that is needed while files are replaced)")
@@ -182,6 +201,7 @@ def mark_running(out: Path, name: str) -> None:
     """Clear what an earlier run left in ``out`` (its signals, summary, CSV and plots: only our own file
     names) and say that this run has started: a run that never finishes (killed) leaves "running", never an
     earlier run's "ok" beside files of two runs."""
+    out.mkdir(parents=True, exist_ok=True)
     for f in RUN_FILES:
         (out / f).unlink(missing_ok=True)
     for png in out.glob("*.png"):

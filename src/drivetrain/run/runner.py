@@ -535,9 +535,10 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
     """
     log = log or _LOG.warning
     if out_dir is not None:              # a bad --out is found now, not after the simulation
-        O.check_output_dir(Path(out_dir), expected_output_bytes(scene))
-        O.mark_running(Path(out_dir), scene.name)
+        O.check_output_dir(Path(out_dir), expected_output_bytes(scene), create=False)
     plan = prepare_run(scene, spec, backend, fmu_paths, fmu_dir=fmu_dir, force=force, log=log)
+    if out_dir is not None:              # refusals write nothing; from here on the directory says "running"
+        O.mark_running(Path(out_dir), scene.name)
     res, failed = simulate_plan(plan, fmu_dir=fmu_dir, build=build, progress=progress, log=log)
     ch = measured_channels(plan, res)
     sp = torque_spectra(plan, ch)

@@ -292,3 +292,14 @@ def test_a_huge_grid_is_refused_at_once(tmp_path, capsys):
     rc, text = _rc(["sweep", str(f), "--out", str(tmp_path / "o")], capsys)
     assert rc == 2 and "1000000 cases" in text and "at most 100000" in text, text[-800:]
     assert time.perf_counter() - t0 < 10 and not (tmp_path / "o").exists()
+
+
+def test_a_corrupt_baseline_is_named(tmp_path):
+    """A baseline file that is not HDF5 (or not ours) fails with its path in the message (issue 33: "bad
+    superblock version number" alone)."""
+    from drivetrain.campaigns.baseline import read_baseline
+
+    bad = tmp_path / "example.baseline.h5"
+    bad.write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(200))
+    with pytest.raises(ValueError, match="example.baseline.h5: not a readable baseline file"):
+        read_baseline(bad)

@@ -303,3 +303,27 @@ def test_a_corrupt_baseline_is_named(tmp_path):
     bad.write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(200))
     with pytest.raises(ValueError, match="example.baseline.h5: not a readable baseline file"):
         read_baseline(bad)
+
+
+@pytest.mark.parametrize("edit, why", [("zero", "a measured torque > 0"), ("negative_speed", "a drive speed > 0")])
+def test_calibrate_refuses_rows_it_cannot_fit(tmp_path, capsys, edit, why):
+    """All-zero torques (issue 33: a scipy message naming no row) and a negative speed (accepted, 187 % error)
+    are refused naming the row."""
+    lines = MEASURED.read_text().splitlines()
+    hdr_i = next(i for i, ln in enumerate(lines) if ln and not ln.startswith("#"))
+    hdr = lines[hdr_i].split(",")
+    for i in range(hdr_i + 1, len(lines)):
+        if not lines[i] or lines[i].startswith("#"):
+            continue
+        f = lines[i].split(",")
+        if edit == "zero":
+            for k in ("T_DSH_Nm", "T_PSH_Nm"):
+                f[hdr.index(k)] = "0"
+        elif i == hdr_i + 1:
+            f[hdr.index("n_DSH_rpm")] = "-" + f[hdr.index("n_DSH_rpm")]
+        lines[i] = ",".join(f)
+    bad = tmp_path / "m.csv"
+    bad.write_text("\n".join(lines) + "\n")
+    rc, text = _rc(["calibrate", str(bad), "--out", str(tmp_path / "c.json")], capsys)
+    assert rc == 2 and why in text and "data row 1" in text and "Traceback" not in text, text[-800:]
+    assert not (tmp_path / "c.json").exists()

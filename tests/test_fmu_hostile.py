@@ -75,6 +75,7 @@ SCRIPT = textwrap.dedent(r'''
         "huge_step": (True, lambda f: [call(lambda: f.doStep(H, 1000.0))]),
         "time_jump": (True, lambda f: [call(lambda: f.doStep(5.0, H)), call(lambda: f.doStep(H, H))]),
         "time_back": (True, lambda f: [call(lambda: f.doStep(0.0, H))]),
+        "nan_time": (True, lambda f: [call(lambda: f.doStep(math.nan, H))]),
         "fixed_parameter_after_init": (True, lambda f: [call(lambda: f.setReal([vr(PARAM)], [1.0])),
                                                         call(lambda: f.doStep(H, H))]),
         "string_parameter_after_init": (True, lambda f: [call(lambda: f.setString([vr(STRINGS[0])], [HOSTILE]))]
@@ -122,6 +123,7 @@ EXPECT = {
     "huge_step": (["refused"], "sub-steps"),
     "time_jump": (["refused", "refused"], "the previous step ended at t = 8.33333333333e-05 s"),
     "time_back": (["refused"], "the previous step ended at"),
+    "nan_time": (["refused"], "must be a finite time"),
     "fixed_parameter_after_init": (["refused", "refused"], "after initialization: fixed parameters"),
     "string_parameter_after_init": (["refused"], "after initialization: fixed parameters"),
     "hostile_string_before_init": (["ok", "ok", "ok", "refused"], "%n%s%x%%"),

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -256,6 +257,8 @@ def load_mesh(path, units: str = "mm") -> SurfaceMesh:
 
     ext = _fmt(path)
     scale = _unit_scale(units)
+    if not Path(path).is_file():
+        raise MeshError(f"{path}: no such mesh file")
     try:
         tm = trimesh.load(str(path), file_type=ext, force="mesh", process=False)
         v = np.asarray(tm.vertices, dtype=np.float64).reshape(-1, 3)

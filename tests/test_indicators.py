@@ -222,9 +222,12 @@ def test_signal_to_background_ratio():
 
 
 def test_detectability_table_on_known_rows():
-    """The AUC table and verdicts on synthetic feature rows: an indicator that rises by 1 with the fault over a
-    gearbox spread of 3 is detectable paired (1.0) but not in a population (about 0.6); one that does not move
-    reads 0.5 both ways; the verdict follows the stated rule."""
+    """The AUC table and verdicts on synthetic feature rows of 20 gearboxes (a gearbox level, spread 3, and a
+    measurement noise, sd 0.5, shared by a faulty run and its same-noise healthy twin, another for the
+    baseline): an indicator that rises by 3 with the fault is detectable against the baseline (paired 1.0)
+    but not in a population; one that rises by 0.01 moves the same way in every gearbox with the noise shared
+    (own effect 1.0) yet is not detectable against a baseline measured with other noise; one that does not
+    move reads 0.5; the verdict follows the stated rule."""
     from drivetrain.campaigns import detectability as D
 
     fam = D.Family("void", "pinion", "default")
@@ -233,18 +236,24 @@ def test_detectability_table_on_known_rows():
     rows = []
     for gb in range(20):
         level = 3 * rng.standard_normal()
-        for f in (None, fam):
+        shared, other = 0.5 * rng.standard_normal(), 0.5 * rng.standard_normal()
+        for f in (D.BASELINE, None, fam):
             name = D.case_names(f, 1500.0, 1.31, gb)[0]
-            rows.append({"run": name, "FM4_pinion.propeller_shaft_torque": level + (1.0 if f else 0.0),
-                         "RMS_pinion.propeller_shaft_torque": level})
+            noise = other if f == D.BASELINE else shared
+            faulty = f not in (None, D.BASELINE)
+            rows.append({"run": name, "FM4_pinion.propeller_shaft_torque": level + noise + (3.0 if faulty else 0.0),
+                         "NA4_pinion.propeller_shaft_torque": level + noise + (0.01 if faulty else 0.0),
+                         "RMS_pinion.propeller_shaft_torque": level + noise})
     table = D.auc_table(rows, study)
     by = {r["indicator"]: r for r in table}
-    assert by["FM4_pinion.propeller_shaft_torque"]["paired_auc"] == 1.0
-    assert by["FM4_pinion.propeller_shaft_torque"]["unpaired_auc"] < 0.75
-    assert by["RMS_pinion.propeller_shaft_torque"]["paired_auc"] == 0.5
+    fm4, na4, rms = (by[f"{m}_pinion.propeller_shaft_torque"] for m in ("FM4", "NA4", "RMS"))
+    assert fm4["paired_auc"] == 1.0 and fm4["unpaired_auc"] < 0.85
+    assert na4["same_noise_auc"] == 1.0 and 0.2 < na4["paired_auc"] < 0.8
+    assert rms["same_noise_auc"] == 0.5
     (v,) = D.verdicts(table)
     assert v["detectable"] and not v["population"] and v["best_paired"] == "FM4_pinion.propeller_shaft_torque"
-    text = D.report_markdown([v], study, {"command": "x", "n_runs": 40, "workers": 1, "wall_time_s": 1.0}, None, "t.csv")
+    assert v["same_noise"] == 1.0
+    text = D.report_markdown([v], study, {"command": "x", "n_runs": 60, "workers": 1, "wall_time_s": 1.0}, None, "t.csv")
     assert "detectable against its own gearbox only" in text and "1 of 1" in text
 
 

@@ -6,6 +6,7 @@ and a missing optional piece does not break the others.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -91,20 +92,37 @@ _FORCE_HELP = ("run even when the run is predicted to take more than 10x its sim
                "or its contact model longer than numerics.max_contact_hours")
 
 
-def _stop_on_signals() -> None:
-    """SIGINT (Ctrl-C) and SIGTERM end a running stepping loop at its next chunk of steps: the run is written
-    as "interrupted" with what it computed (exit 130). Outside the loop (preparation, writing) they interrupt
-    at once, and the output directory says "running", not "ok"."""
+@contextlib.contextmanager
+def _stop_on_signals():
+    """While a run runs, SIGINT (Ctrl-C) and SIGTERM end its stepping loop at the next chunk of steps: the run
+    is written as "interrupted" with what it computed (exit 130). Outside the loop (preparation, writing) they
+    interrupt at once, and the output directory says "running", not "ok". A process forked meanwhile (a map
+    builder's pool worker) gets the signals' default action, as its parent expects; the handlers before are
+    restored afterwards."""
     import signal
+    import threading
 
     from drivetrain.cosim.master import request_stop
 
+    if threading.current_thread() is not threading.main_thread():     # only the main thread takes signals
+        yield
+        return
+    owner = os.getpid()
+
     def handler(signum, frame):
+        if os.getpid() != owner:                  # a forked child: die as the default says
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
         if not request_stop(f"{signal.Signals(signum).name} received"):
             raise KeyboardInterrupt
 
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, handler)
+    before = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, h in before.items():
+            signal.signal(sig, h)
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
@@ -139,10 +157,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
                   f"{args.backend!r}", file=sys.stderr)
             return 2
         args.backend = "native"
-    _stop_on_signals()
     try:
-        res = run_scene(scene, out, backend=args.backend, progress=not args.quiet, fmu_dir=args.fmu_dir,
-                        plots=False if args.no_plots else None, force=args.force, fmu_paths=fmu_paths or None)
+        with _stop_on_signals():
+            res = run_scene(scene, out, backend=args.backend, progress=not args.quiet, fmu_dir=args.fmu_dir,
+                            plots=False if args.no_plots else None, force=args.force, fmu_paths=fmu_paths or None)
     except ConfigurationError as exc:
         return _scene_errors(exc)
     except RunFailedError as exc:

@@ -512,8 +512,8 @@ def _cmd_detectability(args: argparse.Namespace) -> int:
         return _scene_errors(exc)
     runs_dir = Path(args.out) / "runs"
     try:
-        run_sweep(scenes, runs_dir, workers=args.workers, address=args.scheduler, backend=args.backend,
-                  fmu_dir=args.fmu_dir, skip_existing=args.resume, plots=False, progress=not args.quiet)
+        manifest = run_sweep(scenes, runs_dir, workers=args.workers, address=args.scheduler, backend=args.backend,
+                             fmu_dir=args.fmu_dir, skip_existing=args.resume, plots=False, progress=not args.quiet)
     except ConfigurationError as exc:
         return _scene_errors(exc)
     try:
@@ -530,7 +530,9 @@ def _cmd_detectability(args: argparse.Namespace) -> int:
     (report.parent / "figures").mkdir(parents=True, exist_ok=True)
     fig = D.plot(verdicts, study, report.parent / "figures" / f"{stem}.png")
     meta = {"command": _command_line("detectability"), "n_runs": len(scenes), "workers": args.workers or os.cpu_count(),
-            "wall_time_s": time.perf_counter() - t0}
+            "wall_time_s": time.perf_counter() - t0,
+            "reused": sum(bool(r.get("skipped")) for r in manifest.get("runs", [])),
+            "runs_time_s": sum(r.get("wall_time_s") or 0.0 for r in manifest.get("runs", []))}
     moved = None
     if args.compare:
         try:

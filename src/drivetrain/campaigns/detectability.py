@@ -264,7 +264,7 @@ def plot(verdict_rows: list[dict], study: Study, path: Path) -> Path:
     fams = [f.name for f in study.families]
     ops = [(s, l) for s in study.speeds for l in study.loads]
     fig, axes = plt.subplots(1, 3, figsize=(14, 0.35 * len(fams) + 2.5), gridspec_kw={"width_ratios": [1, 1, 0.03]})
-    for ax, key, title in ((axes[0], "paired", "paired (the same gearbox healthy)"),
+    for ax, key, title in ((axes[0], "paired", "paired (the gearbox's own healthy baseline)"),
                            (axes[1], "unpaired", "unpaired (any healthy gearbox)")):
         m = np.full((len(fams), len(ops)), np.nan)
         for r in verdict_rows:
@@ -293,7 +293,9 @@ def report_markdown(verdict_rows: list[dict], study: Study, meta: dict, figure: 
              f"- command: `{meta.get('command', '')}`",
              f"- runs: {meta.get('n_runs')} of {study.duration_s:g} s (settle {study.settle_s:g} s), "
              f"{study.gearboxes} gearboxes, background {study.background}",
-             f"- wall time: {meta.get('wall_time_s', float('nan')) / 60:.1f} min on {meta.get('workers')} worker(s)",
+             f"- wall time: {meta.get('wall_time_s', float('nan')) / 60:.1f} min on {meta.get('workers')} worker(s)"
+             + (f" (this invocation: {meta['reused']} of the runs reused from an earlier one; the runs' own times "
+                f"add up to {meta.get('runs_time_s', 0.0) / 60:.0f} min)" if meta.get("reused") else ""),
              f"- rule: detectable when the best indicator's paired separability >= {DETECTABLE}; separable in a "
              f"population when the best unpaired separability >= {DETECTABLE}; each raised to the chance level of "
              f"the best of this many indicators where that is higher (here: paired "

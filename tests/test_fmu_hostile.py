@@ -133,6 +133,9 @@ EXPECT = {
     "reset_and_run_again": (["ok"] * 6, None),
     "normal_steps_still_work": (["ok"] * 3, None),
 }
+#: cases the pythonfmu FMUs pass and the native builds do not yet (issue 33: NaN parameters and a NaN
+#: communication time in the C shells): tests/test_native_*.py leave them out and say so
+PYTHONFMU_ONLY = {"nan_parameter", "nan_time"}
 NO_STRINGS: set = set()          # models without a String parameter to abuse (each has node_phi_start)
 
 

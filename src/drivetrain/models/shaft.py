@@ -60,8 +60,10 @@ class FlexibleShaft(LineComponent):
         check_parameters(p)
         self.p = p
         n = int(p.n_elements)
-        if not 1 <= n <= MAX_ELEMENTS:
-            raise ValueError(f"n_elements must be 1..{MAX_ELEMENTS}, got {n}")
+        if n < 1:
+            raise ValueError(f"n_elements must be >= 1, got {n}")
+        if n > MAX_ELEMENTS:
+            raise ValueError(f"n_elements must be <= {MAX_ELEMENTS}, got {n}")
         for nm in ("J_a", "J_b", "k_shaft"):
             if not getattr(p, nm) > 0:
                 raise ValueError(f"{nm} must be > 0")

@@ -104,3 +104,99 @@ def test_faults_become_label_columns():
     assert (lab["fault0.kind"], lab["fault0.member"], lab["fault0.tooth"], lab["fault0.radius_mm"]) == (
         "pit", "wheel", 38, 1.5)
     assert (lab["fault1.kind"], lab["fault1.member"], lab["fault1.tooth"]) == ("missing_tooth", "pinion", 3)
+
+
+def test_labels_tell_the_truth(sweep, tmp_path):
+    """The severe run is labelled with its fault like a drawn one (fault0.kind missing_tooth on pinion tooth 0);
+    the healthy run has no fault; settings whose effect is off (manufacturing errors, rig instruments, the
+    background) are null, the ones that act are not; the settled column marks the samples after settle_s and
+    --settled-only keeps only those; every array in dataset.h5 has its unit."""
+    import h5py
+    import pandas as pd
+
+    assert main(["dataset", str(sweep), "--format", "parquet", "--out", str(tmp_path / "d.parquet")]) == 0
+    df = pd.read_parquet(tmp_path / "d.parquet")
+    severe, healthy = df[df["run"] == "toy1"], df[df["run"] == "toy0"]
+    assert set(severe["fault0.kind"]) == {"missing_tooth"} and set(severe["fault0.member"]) == {"pinion"}
+    assert set(severe["fault0.tooth"]) == {0} and healthy["fault0.kind"].isna().all()
+    for off in ("manufacturing.seed", "manufacturing.grade", "instruments.encoder_lines", "background.seed",
+                "background.drive_Kp", "tooth_compliance.factor"):
+        assert df[off].isna().all(), off
+    assert df["operating_point.drive_speed_rpm"].notna().all() and df["effects.sensors"].notna().all()
+    settle = df["time.settle_s"].iloc[0]
+    assert settle > 0 and (df["settled"] == (df["time_s"] >= settle)).all() and (~df["settled"]).any()
+    assert main(["dataset", str(sweep), "--out", str(tmp_path / "s.parquet"), "--settled-only"]) == 0
+    s = pd.read_parquet(tmp_path / "s.parquet")
+    assert s["settled"].all() and s["time_s"].min() >= settle and len(s) == int(df["settled"].sum())
+    assert main(["dataset", str(sweep), "--format", "hdf5", "--out", str(tmp_path / "d.h5")]) == 0
+    missing = []
+    with h5py.File(tmp_path / "d.h5") as f:
+        f.visititems(lambda name, obj: missing.append(name) if isinstance(obj, h5py.Dataset)
+                     and "unit" not in obj.attrs else None)
+        assert f["runs/toy0/time"].attrs["unit"] == "s"
+        assert f["labels/operating_point.drive_speed_rpm"].attrs["unit"] == "rpm"
+        assert f["labels/fault0.tooth"].attrs["unit"] == "1"
+    assert not missing, missing
+
+
+def test_acts_when_covers_every_background_constant():
+    """With every background effect off no background label survives, with each on its own constants do."""
+    from drivetrain.scene.load import resolve
+    from drivetrain.scene.schema import SCHEMA, setting_acts
+
+    off = resolve({}).to_dict()
+    assert not any(setting_acts("background", k, off) for k in SCHEMA["background"])
+    on = resolve({"effects": {"shaft_orders": True}}).to_dict()
+    assert setting_acts("background", "order_msh_1x_Nm", on) and setting_acts("background", "seed", on)
+    assert not setting_acts("background", "load_noise_Nm_rtHz", on)
+    prof = resolve({"effects": {"manufacturing_errors": True}}).to_dict()
+    assert setting_acts("manufacturing", "seed", prof) and not setting_acts("manufacturing", "profile_um", prof)
+
+
+def test_the_paper_faults_are_their_fault_specifications():
+    """mild and severe build the geometry of the specifications they are labelled with (the same mesh)."""
+    from gearcontact_fmu.fault_specs import health_faults
+    from gearcontact_fmu.faults import apply_faults, apply_health
+    from gearcontact_fmu.geometry import build_gear_mesh
+    from gearcontact_fmu.params import BevelGearParams, MeshResolution
+
+    g = BevelGearParams()
+    mesh = build_gear_mesh(g, "pinion", MeshResolution(profile=0.05e-3, face=1e-3))
+    for health in ("mild", "severe"):
+        a = apply_health(mesh, g, health, "pinion")
+        b = apply_faults(mesh, g, health_faults(health), "pinion")
+        np.testing.assert_array_equal(a.vertices, b.vertices)
+        np.testing.assert_array_equal(a.faces, b.faces)
+
+
+@pytest.mark.parametrize("bad", ["../../escape", "/tmp/victim", "a/../../b", ".hidden"])
+def test_a_hostile_run_name_reads_and_writes_nothing_outside(sweep, tmp_path, capsys, bad):
+    """A manifest is data: a run name that is not a scene name (a path) is refused before any file is read
+    or written for it, with exit 2 and a message naming it (issue 33: `dataset --format aalto` wrote
+    escape.csv beside the sweep and victim.csv anywhere)."""
+    import shutil
+
+    d = tmp_path / "deep" / "sw"
+    shutil.copytree(sweep, d)
+    for f in (d / "manifest.json", d / "manifest.jsonl"):
+        if f.is_file():
+            f.write_text(f.read_text().replace('"toy1"', json.dumps(bad)))
+    before = {p for p in tmp_path.rglob("*")}
+    assert main(["dataset", str(d), "--format", "aalto", "--out", str(d / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "not a valid run name" in err and bad[:20] in err
+    assert {p for p in tmp_path.rglob("*")} == before            # nothing written anywhere
+
+
+def test_a_dataset_out_that_cannot_take_it(sweep, tmp_path, capsys):
+    """An existing directory as the parquet file, or a place that cannot be written: exit 2, the path named,
+    no stray temporary file (issue 33: a traceback and taken.tmp)."""
+    taken = tmp_path / "taken"
+    taken.mkdir()
+    assert main(["dataset", str(sweep), "--out", str(taken)]) == 2
+    assert "a directory" in capsys.readouterr().err and list(taken.iterdir()) == []
+    blocked = tmp_path / "a_file"
+    blocked.write_text("x")
+    assert main(["dataset", str(sweep), "--out", str(blocked / "d.parquet")]) == 2
+    assert "cannot be written" in capsys.readouterr().err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "taken"]

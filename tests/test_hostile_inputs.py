@@ -166,6 +166,8 @@ _LEGITIMATE = {("scenario.description", '"a/b"'), ("scenario.description", '".."
                ("scenario.description", '"x\\u0000y"'), ("operating_point.drive_speed_rpm", "0"),
                ("operating_point.load_torque_Nm", "-1"), ("operating_point.load_torque_Nm", "0"),
                ("time.settle_s", "0"),
+               # a growth label: any stage, a gearbox at the end of its life
+               ("scenario.growth_stage", "0"), ("scenario.growth_stage", "100000000"), ("scenario.remaining_life", "0"),
                # no manufacturing errors of one kind, the finest grade, any seed, no measurement noise
                ("manufacturing.grade", "0"), ("manufacturing.runout_grade", "0"), ("manufacturing.seed", "0"), ("manufacturing.seed", "100000000"),
                ("manufacturing.single_pitch_um", "0"), ("manufacturing.runout_um", "0"), ("manufacturing.profile_um", "0"),
@@ -216,3 +218,112 @@ def test_cli_refuses_before_writing(tmp_path, capsys, key, value):
                     "--out", str(tmp_path / "out")], capsys)
     assert rc == 2 and key in text and "Traceback" not in text
     assert not (tmp_path / "out").exists() and list(tmp_path.iterdir()) == []
+
+
+_BAD_MESHES = {
+    "garbage.stl": lambda: bytes((i * 97 + 13) % 256 for i in range(3000)),
+    "face_index_out_of_range.obj": lambda: b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n",
+    "half_truncated.obj": lambda: b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2\n",
+    "truncated.stl": lambda: b"solid x\nfacet normal 0 0 1\nouter loop\nvertex 0 0 0\n",
+    "empty.obj": lambda: b"",
+    "nan.obj": lambda: b"v nan 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n",
+}
+
+
+@pytest.mark.parametrize("name", sorted(_BAD_MESHES))
+def test_a_bad_mesh_file_is_an_error_naming_it(tmp_path, capsys, name):
+    """Every unreadable or broken mesh file ends in a message naming the file and exit 2, wherever it is first
+    read (the contact-cost check reads it before any step), never a traceback (issue 33: 18 of 23 mesh
+    cases were tracebacks: IndexError, ValueError, a missing charset_normalizer)."""
+    f = tmp_path / name
+    f.write_bytes(_BAD_MESHES[name]())
+    rc, text = _rc(["run", str(ROOT / "scenarios" / "example.toml"), "--set", "gear.health=mesh", "--set",
+                    f'gear.pinion_mesh="{f}"', "--set", "time.duration_s=0.2", "--out", str(tmp_path / "o")], capsys)
+    assert rc == 2 and "Traceback" not in text and name in text, text[-2000:]
+
+
+def _bad_outs(tmp_path):
+    f = tmp_path / "a_file"
+    f.write_text("x")
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere" / "gone")
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    return {"existing file": f, "/dev/null": Path("/dev/null"), "dangling symlink": tmp_path / "dangling",
+            "read-only": ro / "sub", "300 characters": tmp_path / ("n" * 300)}
+
+
+@pytest.mark.parametrize("case", ["existing file", "/dev/null", "dangling symlink", "read-only", "300 characters"])
+def test_a_bad_out_is_refused_before_the_simulation(tmp_path, capsys, case):
+    """`drivetrain run --out` that cannot take the results is refused at once with its reason (issue 33: found
+    after the whole simulation, as a traceback)."""
+    import os
+    import time
+
+    out = _bad_outs(tmp_path)[case]
+    if case == "read-only" and os.geteuid() == 0:
+        pytest.skip("root writes into a read-only directory")
+    t0 = time.perf_counter()
+    rc, text = _rc(["run", str(ROOT / "scenarios" / "example.toml"), "--out", str(out), "--no-plots"], capsys)
+    assert rc == 2 and "output directory" in text and "Traceback" not in text, text[-1500:]
+    assert time.perf_counter() - t0 < 20                    # before the 20 s run, not after it
+
+
+def test_a_deeply_nested_toml_is_a_scene_error(tmp_path, capsys):
+    """5000 nested arrays in a scene file or an override: a message, exit 2, no RecursionError traceback."""
+    f = tmp_path / "deep.toml"
+    f.write_text("[operating_point]\ndrive_speed_rpm = " + "[" * 5000 + "]" * 5000 + "\n")
+    rc, text = _rc(["run", str(f), "--out", str(tmp_path / "o")], capsys)
+    assert rc == 2 and "nested less deeply" in text and "Traceback" not in text, text[-800:]
+    rc, text = _rc(["run", str(ROOT / "scenarios" / "example.toml"), "--set",
+                    "time.duration_s=" + "[" * 5000 + "]" * 5000, "--out", str(tmp_path / "o")], capsys)
+    assert rc == 2 and "nested less deeply" in text and "Traceback" not in text, text[-800:]
+
+
+def test_a_huge_grid_is_refused_at_once(tmp_path, capsys):
+    """A grid of 10^6 cases is refused in well under a second, naming its size and the limit (issue 33: it
+    neither started nor was refused within 90 s)."""
+    import time
+
+    f = tmp_path / "huge.toml"
+    f.write_text('[sweep.axes]\n"operating_point.drive_speed_rpm" = [' + ", ".join(str(500.0 + i) for i in range(1000))
+                 + ']\n"operating_point.load_torque_Nm" = [' + ", ".join(str(0.1 + i / 1000) for i in range(1000)) + "]\n")
+    t0 = time.perf_counter()
+    rc, text = _rc(["sweep", str(f), "--out", str(tmp_path / "o")], capsys)
+    assert rc == 2 and "1000000 cases" in text and "at most 100000" in text, text[-800:]
+    assert time.perf_counter() - t0 < 10 and not (tmp_path / "o").exists()
+
+
+def test_a_corrupt_baseline_is_named(tmp_path):
+    """A baseline file that is not HDF5 (or not ours) fails with its path in the message (issue 33: "bad
+    superblock version number" alone)."""
+    from drivetrain.campaigns.baseline import read_baseline
+
+    bad = tmp_path / "example.baseline.h5"
+    bad.write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(200))
+    with pytest.raises(ValueError, match="example.baseline.h5: not a readable baseline file"):
+        read_baseline(bad)
+
+
+@pytest.mark.parametrize("edit, why", [("zero", "a measured torque > 0"), ("negative_speed", "a drive speed > 0")])
+def test_calibrate_refuses_rows_it_cannot_fit(tmp_path, capsys, edit, why):
+    """All-zero torques (issue 33: a scipy message naming no row) and a negative speed (accepted, 187 % error)
+    are refused naming the row."""
+    lines = MEASURED.read_text().splitlines()
+    hdr_i = next(i for i, ln in enumerate(lines) if ln and not ln.startswith("#"))
+    hdr = lines[hdr_i].split(",")
+    for i in range(hdr_i + 1, len(lines)):
+        if not lines[i] or lines[i].startswith("#"):
+            continue
+        f = lines[i].split(",")
+        if edit == "zero":
+            for k in ("T_DSH_Nm", "T_PSH_Nm"):
+                f[hdr.index(k)] = "0"
+        elif i == hdr_i + 1:
+            f[hdr.index("n_DSH_rpm")] = "-" + f[hdr.index("n_DSH_rpm")]
+        lines[i] = ",".join(f)
+    bad = tmp_path / "m.csv"
+    bad.write_text("\n".join(lines) + "\n")
+    rc, text = _rc(["calibrate", str(bad), "--out", str(tmp_path / "c.json")], capsys)
+    assert rc == 2 and why in text and "data row 1" in text and "Traceback" not in text, text[-800:]
+    assert not (tmp_path / "c.json").exists()

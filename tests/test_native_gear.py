@@ -319,7 +319,7 @@ def test_hostile_calls(native):
     """The hostile FMI calls of tests/test_fmu_hostile.py on the native FMU: the same outcomes and log
     texts as the pythonfmu FMUs, but for a String parameter set before initialization, which is refused
     at once here (every String parameter of the native FMU is fixed by the build or an option list)."""
-    from test_fmu_hostile import EXPECT, SCRIPT
+    from test_fmu_hostile import EXPECT, PYTHONFMU_ONLY, SCRIPT
 
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
     r = subprocess.run([sys.executable, "-c", SCRIPT, str(native)], capture_output=True, text=True, timeout=300,
@@ -328,6 +328,8 @@ def test_hostile_calls(native):
     assert set(done) == set(EXPECT), (r.returncode, r.stderr[-2000:])
     expect = {**EXPECT, "hostile_string_before_init": (["refused", "ok", "ok", "refused"], "%n%s%x%%")}
     for case, (outcomes, text) in expect.items():
+        if case in PYTHONFMU_ONLY:
+            continue
         rec = done[case]
         assert rec["outcomes"] == outcomes, (case, rec)
         assert text is None or any(text in line for line in rec["log"]), (case, rec["log"])

@@ -314,6 +314,50 @@ def test_a_sample_rate_that_would_stretch_the_run_is_refused():
     assert "time.sample_rate_Hz" in str(e.value) and "16 output samples" in str(e.value)
 
 
+def test_grid_follows_a_fault_through_its_life(tmp_path):
+    """[sweep.growth]: per axes combination a healthy stage 0 and one case per stage, the same gearbox, each
+    stage's keys added to the last (a change of kind keeps only the placement), stage and remaining life as
+    scene keys; the shipped example expands; bad tables are reported together, never half-expanded."""
+    text = """
+[scenario]
+name = "life"
+[manufacturing]
+seed = 3
+[sweep.axes]
+"operating_point.drive_speed_rpm" = [500.0, 1500.0]
+[sweep.growth]
+healthy = true
+fault = { kind = "pit", member = "wheel", tooth = 38 }
+stages = [{ radius_mm = 0.5, depth_mm = 0.05 }, { radius_mm = 1.0 }, { kind = "spall", length_mm = 3.0 }]
+LIFE
+"""
+    f = tmp_path / "grid.toml"
+    f.write_text(text.replace("LIFE", "life = [0.5, 0.7, 0.9]"))
+    a = load_scenes(f)
+    assert [s.name for s in a] == [f"life_{v}_stage{k:02d}" for v in ("500.0", "1500.0") for k in range(4)]
+    assert [s.scenario.growth_stage for s in a[:4]] == [0, 1, 2, 3]
+    assert [s.scenario.remaining_life for s in a[:4]] == pytest.approx([1.0, 0.5, 0.3, 0.1])
+    assert a[0].gear.health == "healthy" and all(s.manufacturing.seed == 3 for s in a)
+    pit1, pit2, spall = (s.gear.faults[0] for s in a[1:4])
+    assert (pit1["radius_mm"], pit1["depth_mm"], pit2["radius_mm"], pit2["depth_mm"]) == (0.5, 0.05, 1.0, 0.05)
+    assert spall["kind"] == "spall" and spall["length_mm"] == 3.0 and "radius_mm" not in spall
+    assert (spall["member"], spall["tooth"]) == ("wheel", 38)
+    f.write_text(text.replace("LIFE", ""))                           # life spread evenly: stage i of n at (i+1)/(n+1)
+    assert [s.scenario.remaining_life for s in load_scenes(f)[1:4]] == pytest.approx([0.75, 0.5, 0.25])
+    shipped = load_scenes(SCENARIOS / "datasets" / "pit_growth.toml")
+    assert len(shipped) == 14 and shipped[-1].gear.faults[0]["kind"] == "spall"
+    f.write_text(text.replace("LIFE", "life = [0.9, 0.7]\n[sweep.draw]\nn = 2\nseed = 1\n"
+                              "[[sweep.draw.faults]]\nkind = \"pit\"").replace("radius_mm = 1.0", "radius_mm = -1.0"))
+    with pytest.raises(ScenarioError) as ei:
+        load_scenes(f)
+    msg = str(ei.value)
+    assert "sweep.growth.life" in msg and "either [sweep.draw] or [sweep.growth]" in msg, msg
+    f.write_text(text.replace("LIFE", "").replace("radius_mm = 1.0", "radius_mm = -1.0"))
+    with pytest.raises(ScenarioError) as ei:                        # a stage's fault is checked as a scene's
+        load_scenes(f)
+    assert "radius_mm" in str(ei.value)
+
+
 def test_grid_draws_random_faults_reproducibly(tmp_path):
     """[sweep.draw]: n cases per axes combination, each with faults drawn from the templates with the
     seed; the draws are in the resolved scenes (the run's labels) and the same on every load."""

@@ -109,6 +109,11 @@ def test_a_killed_sweep_resumes_without_loss_or_duplicates(tmp_path, full_sweep)
     names = [x["name"] for x in m["runs"]]
     assert m["complete"] is True and len(names) == 6 and len(set(names)) == 6
     assert {x["name"] for x in m["runs"] if x.get("skipped")} >= set(done_before)   # not run twice
+    # the resume says what it reused, and the wall time counts the preparation
+    reused = sum(bool(x.get("skipped")) for x in m["runs"])
+    assert m["reused_runs"] == reused                       # (the log says it too, unless --quiet)
+    assert 0.0 <= m["preparation_s"] <= m["wall_time_s"]
+    assert f"{reused} reused" in r.stdout and f"preparation {m['preparation_s']:.1f} s" in r.stdout
     for x in m["runs"]:
         a = read_hdf5(full / x["name"] / "signals.h5")["signals"]
         b = read_hdf5(killed / x["name"] / "signals.h5")["signals"]

@@ -6,6 +6,7 @@ and a missing optional piece does not break the others.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -91,6 +92,39 @@ _FORCE_HELP = ("run even when the run is predicted to take more than 10x its sim
                "or its contact model longer than numerics.max_contact_hours")
 
 
+@contextlib.contextmanager
+def _stop_on_signals():
+    """While a run runs, SIGINT (Ctrl-C) and SIGTERM end its stepping loop at the next chunk of steps: the run
+    is written as "interrupted" with what it computed (exit 130). Outside the loop (preparation, writing) they
+    interrupt at once, and the output directory says "running", not "ok". A process forked meanwhile (a map
+    builder's pool worker) gets the signals' default action, as its parent expects; the handlers before are
+    restored afterwards."""
+    import signal
+    import threading
+
+    from drivetrain.cosim.master import request_stop
+
+    if threading.current_thread() is not threading.main_thread():     # only the main thread takes signals
+        yield
+        return
+    owner = os.getpid()
+
+    def handler(signum, frame):
+        if os.getpid() != owner:                  # a forked child: die as the default says
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
+        if not request_stop(f"{signal.Signals(signum).name} received"):
+            raise KeyboardInterrupt
+
+    before = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for sig, h in before.items():
+            signal.signal(sig, h)
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
     from drivetrain.cosim import ConfigurationError, CosimError
     from drivetrain.scene.load import ScenarioError, load_scene
@@ -124,14 +158,19 @@ def _cmd_run(args: argparse.Namespace) -> int:
             return 2
         args.backend = "native"
     try:
-        res = run_scene(scene, out, backend=args.backend, progress=not args.quiet, fmu_dir=args.fmu_dir,
-                        plots=False if args.no_plots else None, force=args.force, fmu_paths=fmu_paths or None)
+        with _stop_on_signals():
+            res = run_scene(scene, out, backend=args.backend, progress=not args.quiet, fmu_dir=args.fmu_dir,
+                            plots=False if args.no_plots else None, force=args.force, fmu_paths=fmu_paths or None)
     except ConfigurationError as exc:
         return _scene_errors(exc)
     except RunFailedError as exc:
-        print(f"error: {exc}", file=sys.stderr)
         r = exc.result
         f = r.summary["failure"]
+        if r.summary.get("status") == "interrupted":
+            print(f"interrupted at t = {f['time_s']:.9g} s ({f['cause']}); partial results (up to t = "
+                  f"{f['last_sample_time_s']:.9g} s, status \"interrupted\") written to {r.out_dir}/", file=sys.stderr)
+            return 130
+        print(f"error: {exc}", file=sys.stderr)
         names = [Path(p).name for p in [r.files.get("signals"), r.files.get("summary"), *r.files.get("plots", []),
                                          r.files.get("csv")] if p]
         print(f"  failed at t = {f['time_s']:.9g} s in FMU {f['component']!r} ({f['model']}, {f['function']}): "
@@ -310,7 +349,9 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     except ConfigurationError as exc:
         return _scene_errors(exc)
     failed = [r for r in manifest["runs"] if r["status"] != "ok"]
-    print(f"{len(manifest['runs']) - len(failed)}/{len(manifest['runs'])} runs ok; manifest: {manifest['path']}")
+    print(f"{len(manifest['runs']) - len(failed)}/{len(manifest['runs'])} runs ok in {manifest['wall_time_s']:.1f} s "
+          f"(preparation {manifest['preparation_s']:.1f} s: contact maps and FMU builds; {manifest['reused_runs']} "
+          f"reused); manifest: {manifest['path']}")
     for r in failed:
         print(f"  {r['name']}: {r['status']}: {r.get('error', '')}".rstrip(), file=sys.stderr)
     return 0 if not failed else 3
@@ -430,7 +471,7 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
     from drivetrain.campaigns.dataset import DatasetError, export
 
     try:
-        path = export(args.sweep_dir, args.format, args.out)
+        path = export(args.sweep_dir, args.format, args.out, settled_only=args.settled_only)
     except DatasetError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -786,6 +827,9 @@ def _parser_dataset(sub) -> None:
     p.add_argument("sweep_dir", help="the --out directory of a sweep (with manifest.json)")
     p.add_argument("--format", choices=("parquet", "hdf5", "aalto"), default="parquet")
     p.add_argument("--out", default=None, help="output file (directory for aalto); default: inside SWEEP_DIR")
+    p.add_argument("--settled-only", action="store_true",
+                   help="leave out each run's samples before its time.settle_s (the start-up transient); without "
+                        "it they are kept and marked by the settled column")
     p.set_defaults(func=_cmd_dataset)
 
 def _parser_features(sub) -> None:
@@ -899,10 +943,15 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    from gearcontact_fmu.meshes import MeshError
+
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
         return 130
+    except MeshError as exc:             # a mesh file found unusable wherever it is read (the cost check, a build)
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -141,6 +141,18 @@ class CosimError(RuntimeError):
                          f"its log:\n{tail}")
 
 
+class RunInterrupted(CosimError):
+    """The run was asked to stop (the command line's SIGINT or SIGTERM, drivetrain.cosim.master.request_stop)
+    and ended at the next chunk of steps: ``partial`` holds what it computed (status "interrupted")."""
+
+    def __init__(self, reason: str, time_s: float):
+        super().__init__("(master)", "-", "the stepping loop", 0, time_s, [f"[interrupted] {reason}"])
+        self.reason = reason
+
+    def __str__(self) -> str:
+        return f"interrupted at t = {self.time:.9g} s ({self.reason})"
+
+
 class RunFailedError(CosimError):
     """An FMU failed during ``run_scene``. ``result``: the RunResult of the completed part (its summary
     has ``status = "failed"`` and the ``failure`` block; ``result.files`` lists what was written when an

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
+import math
 import os
 import sys
 from pathlib import Path
@@ -221,9 +222,13 @@ def _install_state_machine(slave, ref, model: str) -> None:
     def do_step(current_time, step_size):
         s = ref()
         t_next = s._fmi_t_next
-        if s._fmi_phase != "step" or (t_next is not None and s._failed is None
-                                      and abs(current_time - t_next) > 1e-3 * step_size + 1e-12 * abs(t_next)):
-            if s._fmi_phase == "terminated":
+        finite = math.isfinite(current_time)
+        if s._fmi_phase != "step" or not finite or (
+                t_next is not None and s._failed is None
+                and abs(current_time - t_next) > 1e-3 * step_size + 1e-12 * abs(t_next)):
+            if not finite:
+                why = "(the communication point must be a finite time)"
+            elif s._fmi_phase == "terminated":
                 why = "after fmi2Terminate"
             elif s._fmi_phase != "step":
                 why = "before fmi2ExitInitializationMode"

@@ -111,6 +111,21 @@ def health_problems(health, specs, z_pinion: int, z_wheel: int, health_key: str 
     return problems
 
 
+#: the paper's fault states as the fault specifications of the same geometry (gearcontact_fmu.faults.apply_health:
+#: mild = the flank-fracture void on pinion tooth 0 at the void's defaults, severe = pinion tooth 0 missing),
+#: so that their runs carry the labels a drawn fault carries
+PRESET_FAULTS = {"mild": ({"kind": "void", "member": "pinion", "tooth": 0},),
+                 "severe": ({"kind": "missing_tooth", "member": "pinion", "tooth": 0},)}
+
+
+def health_faults(health: str, specs=()) -> list[dict]:
+    """The normalised fault specifications of a health state: the listed ones for ``faults``, the presets'
+    for ``mild`` and ``severe``, none for ``healthy`` (and ``mesh``: a user's geometry has no specification)."""
+    if health == "faults":
+        return [normalised_spec(s) for s in specs or ()]
+    return [normalised_spec(s) for s in PRESET_FAULTS.get(health, ())]
+
+
 def normalised_spec(spec: dict) -> dict:
     """A specification with every default filled in (what a run records as its label)."""
     kind = spec["kind"]

@@ -15,6 +15,7 @@ refusal.
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -46,6 +47,10 @@ def stage_arguments(parameters: Mapping[str, Any]) -> tuple[tuple, dict]:
     """The positional and keyword arguments of :func:`gearcontact_fmu.stage.make_stage` (and of
     ``stage_mesh_model``) for these parameter values: (fidelity, gear, PCM, resolution) and health, mesh
     files, stage parameters and the fidelity's own keywords."""
+    bad = [f"{k} = {v!r}" for k, v in parameters.items()
+           if isinstance(v, float) and not math.isfinite(v)]
+    if bad:                         # NaN fails every comparison: it would pass a check or choose a branch silently
+        raise ValueError(f"parameters that are not finite numbers: {', '.join(bad)}")
     p = parameters
     gear = BevelGearParams(
         z_pinion=int(p["z_pinion"]), z_wheel=int(p["z_wheel"]), module=p["module"],

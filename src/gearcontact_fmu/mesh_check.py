@@ -159,7 +159,10 @@ def load_gear_mesh(path, params=None, role: str = "pinion", units: str = "mm", *
         if bad.any():
             warnings.warn(f"{path}: dropped {int(bad.sum())} degenerate (zero-area) faces", stacklevel=2)
             mesh = mesh.subset(~bad)
-    validate_gear_mesh(mesh, params, role, min_zone_fraction=min_zone_fraction)
+    try:
+        validate_gear_mesh(mesh, params, role, min_zone_fraction=min_zone_fraction)
+    except MeshError as exc:                     # the problem, and which file has it
+        raise MeshError(f"{path!s}: {exc}") from None
     if annotate:
         annotate_gear_mesh(mesh, params, role)
     mesh.meta.update({"role": role, "source": str(path), "units": units})

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -256,9 +257,19 @@ def load_mesh(path, units: str = "mm") -> SurfaceMesh:
 
     ext = _fmt(path)
     scale = _unit_scale(units)
-    tm = trimesh.load(str(path), file_type=ext, force="mesh", process=False)
-    v = np.asarray(tm.vertices, dtype=np.float64)
-    f = np.asarray(tm.faces, dtype=np.int64)
+    if not Path(path).is_file():
+        raise MeshError(f"{path}: no such mesh file")
+    try:
+        tm = trimesh.load(str(path), file_type=ext, force="mesh", process=False)
+        v = np.asarray(tm.vertices, dtype=np.float64).reshape(-1, 3)
+        f = np.asarray(tm.faces, dtype=np.int64).reshape(-1, 3)
+    except Exception as exc:  # noqa: BLE001 - whatever the reader meets in a file, the file is named
+        raise MeshError(f"{path}: not a readable {ext.upper()} file ({type(exc).__name__}: {exc})") from None
+    if f.size and (f.min() < 0 or f.max() >= len(v)):
+        raise MeshError(f"{path}: a face refers to vertex {int(f.max()) + 1 if f.max() >= len(v) else int(f.min())} "
+                        f"of {len(v)} (the file is truncated or its face indices are wrong)")
+    if not np.isfinite(v).all():
+        raise MeshError(f"{path}: vertex coordinates that are not finite numbers")
     if f.size:
         # merge exactly equal vertices (STL has none shared), keep face order
         uniq, inv = np.unique(v, axis=0, return_inverse=True)

@@ -237,10 +237,22 @@ def write_baseline(path: str | Path, entries: list[Entry], source: str | Path | 
 
 
 def read_baseline(path: str | Path) -> dict:
-    """{"attrs": {...}, "versions": {...}, "cases": {name: Entry}}."""
+    """{"attrs": {...}, "versions": {...}, "cases": {name: Entry}}. A file that is not a readable baseline
+    raises ValueError naming it (whatever h5py or the JSON reader met)."""
+    path = Path(path)
+    try:
+        return _read_baseline(path)
+    except ValueError as exc:
+        if str(path) in str(exc):
+            raise
+        raise ValueError(f"{path}: not a readable baseline file ({exc})") from None
+    except (OSError, KeyError, TypeError) as exc:
+        raise ValueError(f"{path}: not a readable baseline file ({type(exc).__name__}: {exc})") from None
+
+
+def _read_baseline(path: Path) -> dict:
     import h5py
 
-    path = Path(path)
     with h5py.File(path, "r") as f:
         attrs = {k: (v.decode() if isinstance(v, bytes) else v) for k, v in f.attrs.items()}
         if attrs.get("format") != FORMAT:

@@ -4,19 +4,28 @@
 records (``manifest.json``, with the journal ``manifest.jsonl`` of a killed sweep) and each listed run's ``signals.h5`` (completed runs, and the completed part of
 failed runs, marked by ``status``) and writes:
 
-- ``parquet``: one table, one row per sample: ``run``, ``time_s``, one column per channel (NaN where a
-  run did not record it), and the run's labels repeated on every row (pyarrow; dictionary-encoded, so
-  the repetition costs little). ``pandas.read_parquet("dataset.parquet")``.
+- ``parquet``: one table, one row per sample: ``run``, ``time_s``, ``settled`` (the sample is at or after
+  the run's ``time.settle_s``: outside the start-up transient), one column per channel (NaN where a run
+  did not record it), and the run's labels repeated on every row (pyarrow; written run by run, parquet's
+  dictionary encoding stores the repetition once); every column's unit in the schema metadata
+  ``drivetrain.units``. ``pandas.read_parquet("dataset.parquet")`` (pandas comes with the base install).
 - ``hdf5``: ``/labels/<label>`` (one entry per run, in run order; strings UTF-8) and
-  ``/runs/<run>/time`` and ``/runs/<run>/<channel>`` (unit in the dataset's ``unit`` attribute).
-  ``h5py.File("dataset.h5")``.
+  ``/runs/<run>/time``, ``/runs/<run>/settled`` and ``/runs/<run>/<channel>``; every array has its unit in
+  its ``unit`` attribute ("1" dimensionless, "" text or switches). ``h5py.File("dataset.h5")``.
 - ``aalto``: a directory with ``<run>.csv`` in the Aalto Gear Fault Dataset layout (time, enc1..enc5,
   Torq1, Torq2) and ``labels.csv`` (one row per run). ``pandas.read_csv("labels.csv")``.
+
+``--settled-only`` leaves the transient's samples out of every format.
 
 Labels of a run: ``run``, ``status``, ``failure_time_s``, ``energy_residual`` and every key of its
 resolved scene as ``section.key`` (operating point, gear health and fault mesh files, effects,
 numerics, time; lists such as speed profiles as JSON text), so a label names the setting exactly as a
-scene file does.
+scene file does. A setting that does not act in the run (drivetrain.scene.schema.ACTS_WHEN: the
+manufacturing draw without ``effects.manufacturing_errors``, the instruments with ideal sensors, a
+background constant whose effect is off) is empty (null), not its unused value. Each fault is
+``fault<i>.<key>`` (kind, member, tooth, flank, sizes), the paper's ``mild`` and ``severe`` as the fault
+specifications of their geometry (gearcontact_fmu.fault_specs.PRESET_FAULTS). The condition indicators
+of the run (campaigns.features) are per-run columns too.
 """
 from __future__ import annotations
 
@@ -29,6 +38,8 @@ import numpy as np
 from drivetrain.errors import DatasetError  # noqa: F401  (re-exported)
 from drivetrain.run.outputs import read_hdf5, write_aalto_csv
 from drivetrain.campaigns.sweep import read_runs
+from drivetrain.scene.schema import NAME_RE, NAME_RULE, setting_acts
+from gearcontact_fmu.fault_specs import health_faults
 
 FORMATS = ("parquet", "hdf5", "aalto")
 DEFAULT_NAMES = {"parquet": "dataset.parquet", "hdf5": "dataset.h5", "aalto": "dataset_aalto"}
@@ -49,9 +60,11 @@ def run_labels(name: str, record: dict, scene: dict, summary: dict | None) -> di
         if section in ("expect", "check") or not isinstance(keys, dict):
             continue
         for key, value in sorted(keys.items()):
-            labels[f"{section}.{key}"] = _label_value(value)
-    # each fault of health = "faults" also as columns of its own: fault0.kind, fault0.member, fault0.tooth, ...
-    for i, fault in enumerate((scene.get("gear") or {}).get("faults") or []):
+            labels[f"{section}.{key}"] = _label_value(value) if setting_acts(section, key, scene) else None
+    # each fault also as columns of its own (fault0.kind, fault0.member, fault0.tooth, its sizes ...), the
+    # paper's mild and severe as the specifications of their geometry
+    gear = scene.get("gear") or {}
+    for i, fault in enumerate(health_faults(gear.get("health", "healthy"), gear.get("faults") or ())):
         for key, value in fault.items():
             labels[f"fault{i}.{key}"] = _label_value(value)
     return labels
@@ -68,10 +81,18 @@ def run_records(sweep_dir: Path | str) -> list[dict]:
 
 
 def load_run(sweep_dir: Path | str, rec: dict) -> dict | None:
-    """One run of a sweep as {"name", "labels", "time", "signals", "units"}; None if it wrote no signals."""
+    """One run of a sweep as {"name", "labels", "time", "signals", "units"}; None if it wrote no signals. A
+    record's name becomes a path (the run's folder, an exported file's name): one that is not a valid
+    scene name (``..``, a slash, an absolute path) is refused, so whoever hands over a sweep directory
+    cannot make us read or write outside it."""
     name = rec.get("name")
-    sig = Path(sweep_dir) / str(name) / "signals.h5"
-    if not name or not sig.is_file():
+    if not name:
+        return None
+    if not isinstance(name, str) or not NAME_RE.fullmatch(name):
+        raise DatasetError(f"{sweep_dir}: a manifest record names its run {str(name)[:80]!r}: not a valid run name "
+                           f"({NAME_RULE}); nothing is read or written for it")
+    sig = Path(sweep_dir) / name / "signals.h5"
+    if not sig.is_file():
         return None
     return read_run(sig, rec)
 
@@ -91,12 +112,21 @@ def read_run(sig: Path, rec: dict) -> dict:
             "signals": h["signals"], "units": h["units"]}
 
 
-def collect(sweep_dir: Path | str) -> list[dict]:
-    """[{"name", "labels", "time", "signals", "units"}] of every run of the sweep that wrote signals."""
+def collect(sweep_dir: Path | str, settled_only: bool = False) -> list[dict]:
+    """[{"name", "labels", "time", "signals", "units", "settled"}] of every run of the sweep that wrote signals;
+    ``settled``: the samples at or after the run's ``time.settle_s`` (the others lie in the start-up
+    transient); ``settled_only``: only those samples."""
     d = Path(sweep_dir)
     runs = [r for r in (load_run(d, rec) for rec in run_records(d)) if r is not None]
     if not runs:
         raise DatasetError(f"{d}: the manifest lists no run with signals")
+    for r in runs:
+        r["settled"] = np.asarray(r["time"]) >= float(r["labels"].get("time.settle_s") or 0.0)
+        if settled_only:
+            keep = r.pop("settled")
+            r["time"] = np.asarray(r["time"])[keep]
+            r["signals"] = {k: np.asarray(v)[keep] for k, v in r["signals"].items()}
+            r["settled"] = np.ones(int(keep.sum()), dtype=bool)
     # a faulty run with its healthy twin ([sweep.draw] paired_healthy): the fault's signal-to-background ratio
     from drivetrain.rig.indicators import paired_sbr
 
@@ -121,6 +151,31 @@ def _indicators(run: dict) -> dict:
         return run_features(run["time"], run["signals"], float(lab.get("time.settle_s") or 0.0), speed)
     except (TypeError, ValueError):
         return {}
+
+
+#: units of label names by their suffix (scene keys carry theirs in the schema)
+_SUFFIX_UNITS = {"_mm": "mm", "_um": "um", "_s": "s", "_Hz": "Hz", "_rpm": "rpm", "_Nm": "N·m", "_dB": "dB",
+                 "_rad": "rad"}
+
+
+def label_unit(name: str, channel_units: dict) -> str:
+    """The unit of a label column: a scene key's from the schema; a fault size's or another suffixed name's
+    from its suffix; a condition indicator's from its signal (RMS and line amplitudes in the signal's unit,
+    SBR in dB, the other metrics dimensionless "1"); else "" (the writers make a number's "1")."""
+    from drivetrain.scene.schema import SCHEMA
+
+    head, _, tail = name.partition(".")
+    key = SCHEMA.get(head, {}).get(tail) if tail else None
+    if key is not None:
+        return key.unit or ("1" if key.type in ("float", "int") else "")
+    if tail and tail in channel_units and not head.startswith("fault"):        # an indicator of a signal
+        if head == "SBR_dB":
+            return "dB"
+        return channel_units[tail] if head.startswith(("amp_", "RMS_")) else "1"
+    leaf = tail or head
+    if leaf == "energy_residual":
+        return "1"
+    return next((u for suffix, u in _SUFFIX_UNITS.items() if leaf.endswith(suffix)), "")
 
 
 def _label_columns(runs: list[dict]) -> list[str]:
@@ -157,10 +212,13 @@ def write_parquet(runs: list[dict], path: Path) -> Path:
     channels = sorted({c for r in runs for c in r["signals"]})
     label_cols = [k for k in _label_columns(runs) if k != "run"]
     types = {k: _arrow_type([r["labels"].get(k) for r in runs]) for k in label_cols}
-    names = {k: f"label.{k}" if k in channels or k == "time_s" else k for k in label_cols}
+    names = {k: f"label.{k}" if k in channels or k in ("time_s", "settled") else k for k in label_cols}
     units = {c: next((r["units"].get(c, "") for r in runs if c in r["units"]), "") for c in channels}
+    units.update({"time_s": "s", "settled": "", **{names[k]: label_unit(k, units) or (
+        "1" if pa.types.is_integer(types[k]) or pa.types.is_floating(types[k]) else "") for k in label_cols}})
     schema = pa.schema([("run", pa.dictionary(pa.int32(), pa.string())), ("time_s", pa.float64()),
-                        *((c, pa.float64()) for c in channels), *((names[k], types[k]) for k in label_cols)],
+                        ("settled", pa.bool_()), *((c, pa.float64()) for c in channels),
+                        *((names[k], types[k]) for k in label_cols)],
                        metadata={"drivetrain.units": json.dumps(units),
                                  "drivetrain.labels": json.dumps(["run", *label_cols])})
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -169,7 +227,7 @@ def write_parquet(runs: list[dict], path: Path) -> Path:
         for r in runs:
             n = len(r["time"])
             cols = [pa.DictionaryArray.from_arrays(pa.array(np.zeros(n, dtype=np.int32)), pa.array([r["name"]])),
-                    pa.array(np.asarray(r["time"], dtype=float))]
+                    pa.array(np.asarray(r["time"], dtype=float)), pa.array(r["settled"])]
             for c in channels:
                 x = r["signals"].get(c)
                 cols.append(pa.array(np.asarray(x, dtype=float) if x is not None else np.full(n, np.nan)))
@@ -183,6 +241,7 @@ def write_hdf5(runs: list[dict], path: Path) -> Path:
     import h5py
 
     label_cols = _label_columns(runs)
+    channel_units = {c: u for r in runs for c, u in r["units"].items()}
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     with h5py.File(tmp, "w") as f:
@@ -199,10 +258,12 @@ def write_hdf5(runs: list[dict], path: Path) -> Path:
             else:
                 lab.create_dataset(k, data=["" if v is None else str(v) for v in vals],
                                    dtype=h5py.string_dtype("utf-8"))
+            lab[k].attrs["unit"] = label_unit(k, channel_units) or ("1" if lab[k].dtype.kind in "fiu" else "")
         grp = f.create_group("runs")
         for r in runs:
             g = grp.create_group(r["name"])
-            g.create_dataset("time", data=r["time"])
+            g.create_dataset("time", data=r["time"]).attrs["unit"] = "s"
+            g.create_dataset("settled", data=r["settled"]).attrs["unit"] = ""
             for c, x in r["signals"].items():
                 ds = g.create_dataset(c, data=x)
                 ds.attrs["unit"] = r["units"].get(c, "")
@@ -229,13 +290,24 @@ def write_aalto(runs: list[dict], path: Path) -> Path:
 WRITERS = {"parquet": write_parquet, "hdf5": write_hdf5, "aalto": write_aalto}
 
 
-def export(sweep_dir: Path | str, fmt: str = "parquet", out: Path | str | None = None) -> Path:
-    """Write the dataset of a sweep directory; returns the written path."""
+def export(sweep_dir: Path | str, fmt: str = "parquet", out: Path | str | None = None,
+           settled_only: bool = False) -> Path:
+    """Write the dataset of a sweep directory; returns the written path. ``settled_only``: leave out each run's
+    samples before its ``time.settle_s``."""
     if fmt not in WRITERS:
         raise DatasetError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
-    runs = collect(sweep_dir)
     path = Path(out) if out else Path(sweep_dir) / DEFAULT_NAMES[fmt]
-    return WRITERS[fmt](runs, path)
+    if fmt != "aalto" and path.is_dir():
+        raise DatasetError(f"{path}: a directory; the {fmt} dataset is one file (give its file name)")
+    runs = collect(sweep_dir, settled_only)
+    try:
+        return WRITERS[fmt](runs, path)
+    except OSError as exc:                     # a read-only place, a full disk: named, and no stray temporary
+        try:
+            path.with_name(path.name + ".tmp").unlink(missing_ok=True)
+        except OSError:
+            pass
+        raise DatasetError(f"{path}: the dataset cannot be written there ({exc.strerror or exc})") from None
 
 
 __all__ = ["run_records", "load_run", "read_run", "FORMATS", "DatasetError", "collect", "export", "run_labels", "write_parquet", "write_hdf5",

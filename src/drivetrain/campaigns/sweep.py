@@ -55,7 +55,7 @@ from drivetrain.run import cost as runcost
 from drivetrain.cosim import ConfigurationError
 from drivetrain.cosim import simulate as simulate_system
 from drivetrain.cosim import sources_hash
-from drivetrain.run.outputs import jsonable
+from drivetrain.run.outputs import check_output_dir, jsonable
 from drivetrain.run.runner import RunFailedError, assemble_scene, run_scene
 from drivetrain.scene.load import Scene, resolve
 from drivetrain.system import SystemSpec
@@ -254,18 +254,6 @@ MANIFEST_COLUMNS = ["name", "status", "health", "drive_speed_rpm", "load_torque_
                     "separated_fraction", "signals", "summary", "error"]
 
 
-def _check_writable(out: Path) -> None:
-    """Refuse an output directory that cannot be written before any run (not after all of them)."""
-
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe = out / f".write-test-{os.getpid()}"
-        probe.write_text("")
-        probe.unlink()
-    except OSError as exc:
-        raise ConfigurationError(f"output directory {out}: not writable ({exc.strerror or exc})") from None
-
-
 def _reuse(scene: Scene, d: Path, fp: str) -> tuple[dict | None, str]:
     """The manifest record of a finished run in ``d`` when it computed the same thing (fingerprint), else
     (None, why it runs again)."""
@@ -276,6 +264,8 @@ def _reuse(scene: Scene, d: Path, fp: str) -> tuple[dict | None, str]:
         return None, "no finished run with a case.json there"
     if case.get("fingerprint") != fp:
         return None, "the scene or the model sources changed since that run"
+    if old.get("status") not in ("ok", "failed"):
+        return None, f"that run did not finish (its summary says {old.get('status')!r})"
     rec = {"name": scene.name, "labels": labels(scene.to_dict()), "status": old.get("status", "ok"),
            "skipped": True, "out_dir": str(d),
            "signals": str(d / "signals.h5"), "summary": str(d / "summary.json")}
@@ -529,6 +519,7 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
     simulated time (:mod:`drivetrain.run.cost`) is refused, with every other such case, before anything
     runs; ``force`` runs them anyway.
     """
+    t0 = time.perf_counter()                 # the wall time counts the preparation (map and FMU builds) too
     out = Path(out_dir)
     names = [s.name for s in scenes]
     dup = sorted({n for n in names if names.count(n) > 1})
@@ -537,17 +528,21 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
     all_specs = _specs_of(scenes, specs)
     if not force:
         _refuse_costly(scenes, all_specs, backend)
-    _check_writable(out)
+    check_output_dir(out)
     log = _LOG.warning if progress else None
     _prepare_fmus(scenes, all_specs, backend=backend, fmu_dir=fmu_dir, fmu_paths=fmu_paths, prepare=prepare, log=log)
+    preparation_s = time.perf_counter() - t0
     kept = _kept_records(out, grid_names, names)
     cases, reused = _cases(scenes, all_specs, out, skip_existing=skip_existing, backend=backend, fmu_dir=fmu_dir,
                            plots=plots, fmu_paths=fmu_paths, force=force)
+    if skip_existing and log:
+        log(f"resume: {len(reused)} of {len(scenes)} runs reused (finished, same fingerprint), {len(cases)} to run")
     manifest = _Manifest(out, scenes={s.name: s for s in scenes},
                          order={n: i for i, n in enumerate(grid_names or names)},
                          meta={"executor": "dask" if address else ("custom" if executor is not None
-                                                                    else "local processes"), "backend": backend},
-                         kept=kept)
+                                                                    else "local processes"), "backend": backend,
+                               "preparation_s": preparation_s, "reused_runs": len(reused)},
+                         kept=kept, t0=t0)
     manifest.runs = [manifest.annotate(r) for r in reused]
     _start_journal(out, kept + manifest.runs)
     manifest.write(not cases)

@@ -52,7 +52,7 @@ from drivetrain.cosim.fmus import FMUInfo, ensure_fmus, load_fmu_info
 from drivetrain.cosim.plan import ExchangePlan, check_comm_step, check_system, is_profile, split_ref
 from drivetrain.cosim.slaves import FmiCallbacks, FmiSlave, InprocSlave, Slave
 from drivetrain.cosim.stepper import CALLS, Stepper, load_stepper
-from drivetrain.errors import FMI_STATUS, ConfigurationError, CosimError
+from drivetrain.errors import FMI_STATUS, ConfigurationError, CosimError, RunInterrupted
 from drivetrain.rig.signals import decimate
 from drivetrain.system import SystemSpec
 
@@ -84,7 +84,7 @@ class CosimResult:
     warnings: list[str]
     logs: dict[str, list[str]]             # per component: its log lines (last 500)
     raw: dict[str, np.ndarray] | None = None   # internal-rate records if requested ("time" + y names)
-    status: str = "ok"                     # "ok" | "failed" (then: the completed part only)
+    status: str = "ok"                     # "ok" | "failed" | "interrupted" (then: the completed part only)
     setup_time_s: float = 0.0              # checks + FMU loading + instantiation + initialisation (map builds)
     loop_cpu_time_s: float | None = None   # the stepping loop's CPU time of this process (less sensitive to
     #                                        other processes on a shared machine than loop_time_s)
@@ -165,6 +165,24 @@ def _energy_reads(plan: ExchangePlan, slaves: Sequence[Slave]) -> list[dict]:
 
 #: steps per chunk of the loop: the observers (snapshots, progress, stop_check, the clock) act between chunks
 CHUNK_STEPS = 4096
+
+
+class _StopRequest:
+    """A process-wide request to end the running stepping loop at its next chunk of steps (the command line's
+    SIGINT/SIGTERM handler, :func:`request_stop`): the run ends "interrupted" with what it computed. A
+    KeyboardInterrupt raised inside an FMU's callback can be swallowed; this request cannot."""
+
+    reason: str | None = None
+    in_loop: bool = False
+
+
+def request_stop(reason: str) -> bool:
+    """Ask the running stepping loop to stop at its next chunk; False when no loop runs (then the caller
+    interrupts as it would otherwise)."""
+    if not _StopRequest.in_loop:
+        return False
+    _StopRequest.reason = reason
+    return True
 
 
 @dataclass(frozen=True)
@@ -443,16 +461,22 @@ class _Loop:
             stop_check: Callable[[], bool] | None) -> None:
         step_chunk = self._python_chunk if self.stepper is None else self._c_chunk
         k = 0
-        while k < n_steps:
-            t_chunk = time.perf_counter()
-            k_end = recorder.chunk_end(self.slaves, k, min(n_steps, k + CHUNK_STEPS))
-            step_chunk(k, k_end)
-            self.k = k_end
-            clock.chunk(t_chunk, k_end - k)
-            progress.update(k_end - k)
-            k = k_end
-            if stop_check is not None and stop_check():
-                raise KeyboardInterrupt
+        _StopRequest.reason, _StopRequest.in_loop = None, True
+        try:
+            while k < n_steps:
+                t_chunk = time.perf_counter()
+                k_end = recorder.chunk_end(self.slaves, k, min(n_steps, k + CHUNK_STEPS))
+                step_chunk(k, k_end)
+                self.k = k_end
+                clock.chunk(t_chunk, k_end - k)
+                progress.update(k_end - k)
+                k = k_end
+                if _StopRequest.reason is not None and k < n_steps:
+                    raise RunInterrupted(_StopRequest.reason, k * self.H)
+                if stop_check is not None and stop_check():
+                    raise KeyboardInterrupt
+        finally:
+            _StopRequest.reason, _StopRequest.in_loop = None, False
 
     def _python_chunk(self, k: int, k_end: int) -> None:
         H, y, rec, y_rec, u_in = self.H, self.xc.y, self.rec, self.xc.y[:self.xc.ny], self.xc.u[:self.xc.nu]
@@ -680,7 +704,7 @@ class Master:
             real_time_factor=T_done / loop_time if loop_time > 0 else float("inf"),
             setup_time_s=clock.t0 - t_wall0, loop_cpu_time_s=clock.cpu_s,
             backend=self.backend, energy=audit, fmus=fmus, warnings=list(plan.warnings), logs=logs, raw=raw,
-            status="ok" if fail is None else "failed",
+            status="ok" if fail is None else "interrupted" if isinstance(fail, RunInterrupted) else "failed",
             failure=None if fail is None else _failure_record(stop, t_out[-1]), final=recorder.final_values,
             snapshots=recorder.snapshots)
         if fail is not None:

@@ -585,6 +585,21 @@ def loss_slope(w, T_trans, c_v, T_c, w_c, a):
 # what the three components share
 # ------------------------------------------------------------------------------------------------
 
+#: the most shaft elements a line model builds (a host's 2**31 - 1 would hang the build)
+MAX_ELEMENTS = 1000
+
+
+def check_parameters(p) -> None:
+    """Refuse, before anything is built, parameter values no model can use: numbers that are not finite
+    (NaN fails every comparison, so a NaN stiffness would silently read as "no spring")."""
+    import dataclasses
+
+    bad = [f"{f.name} = {getattr(p, f.name)!r}" for f in dataclasses.fields(p)
+           if isinstance(getattr(p, f.name), float) and not math.isfinite(getattr(p, f.name))]
+    if bad:
+        raise ValueError(f"parameters that are not finite numbers: {', '.join(bad)}")
+
+
 class LineComponent:
     """What the three components share: a LineModel ``line``, outputs by FMU variable name."""
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivetrain.errors import ComponentError
-from drivetrain.models.line import Law, LineComponent, LineModel, Port
+from drivetrain.models.line import Law, LineComponent, LineModel, Port, check_parameters
 from drivetrain.models.parameters import (energy_correction_parameter, max_substep_parameter, node_start_parameter,
                                           output_torque_parameter, parameter, parse_profile, rig_parameter)
 from drivetrain.system import INERTIA, SPRING
@@ -83,6 +83,7 @@ class MotorLoad(LineComponent):
     PORTS = {"drive": SPRING, "load": INERTIA}              #: port name -> kind (the FMU's flanges)
 
     def __init__(self, p: MotorLoadParams):
+        check_parameters(p)
         self.p = p
         for nm in ("J_motor", "J_flywheel", "J_load", "ratio_pg", "k_c1"):
             if not getattr(p, nm) > 0:

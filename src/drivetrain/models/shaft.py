@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drivetrain.models.line import LineComponent, LineModel, Port
+from drivetrain.models.line import MAX_ELEMENTS, LineComponent, LineModel, Port, check_parameters
 from drivetrain.models.parameters import (energy_correction_parameter, max_substep_parameter, node_start_parameter,
                                           output_torque_parameter, parameter, rig_parameter)
 from drivetrain.system import INERTIA, SPRING
@@ -57,10 +57,13 @@ class FlexibleShaft(LineComponent):
     PORTS = {"flange_a": INERTIA, "flange_b": SPRING}       #: port name -> kind (the FMU's flanges)
 
     def __init__(self, p: FlexibleShaftParams):
+        check_parameters(p)
         self.p = p
         n = int(p.n_elements)
         if n < 1:
             raise ValueError(f"n_elements must be >= 1, got {n}")
+        if n > MAX_ELEMENTS:
+            raise ValueError(f"n_elements must be <= {MAX_ELEMENTS}, got {n}")
         for nm in ("J_a", "J_b", "k_shaft"):
             if not getattr(p, nm) > 0:
                 raise ValueError(f"{nm} must be > 0")

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from drivetrain.models.line import Law, LineComponent, LineModel, Port, loss_torque
+from drivetrain.models.line import Law, LineComponent, LineModel, Port, check_parameters, loss_torque
 from drivetrain.models.parameters import max_substep_parameter, node_start_parameter, parameter, rig_parameter
 from drivetrain.system import INERTIA
 
@@ -44,6 +44,7 @@ class UpperTransmission(LineComponent):
     PORTS = {"flange_a": INERTIA, "flange_b": INERTIA}     #: port name -> kind (the FMU's flanges)
 
     def __init__(self, p: UpperTransmissionParams):
+        check_parameters(p)
         self.p = p
         if not (p.ratio > 0 and p.J_in >= 0 and p.J_out >= 0):
             raise ValueError("ratio must be > 0 and J_in, J_out >= 0")

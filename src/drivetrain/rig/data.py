@@ -517,9 +517,17 @@ def read_measured(path: str | Path | None = None) -> dict:
             continue
         for k in need:
             try:
-                float(r[col[k]])
+                v = float(r[col[k]])
             except ValueError:
                 problems.append(f"data row {n - 1}: {k} = {r[col[k]]!r} is not a number")
+                continue
+            if not math.isfinite(v):
+                problems.append(f"data row {n - 1}: {k} = {r[col[k]]!r} is not a finite number")
+            elif k == "n_DSH_rpm" and not v > 0:
+                problems.append(f"data row {n - 1}: n_DSH_rpm = {v:g}: a drive speed > 0 rpm (the rig turns one way)")
+            elif k in ("T_DSH_Nm", "T_PSH_Nm") and not v > 0:
+                problems.append(f"data row {n - 1}: {k} = {v:g}: a measured torque > 0 N·m (the drive loads the "
+                                "shafts; a zero or negative mean torque cannot be fitted)")
     if problems:
         raise ValueError(f"{p}: " + "; ".join(problems))
     data = {}

@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import json
+import os
 import math
 from pathlib import Path
 from typing import Any
@@ -105,9 +106,12 @@ def read_hdf5(path: Path | str) -> dict:
 
 
 def write_summary(path: Path, summary: dict) -> Path:
+    """summary.json, written whole or not at all (a temporary file renamed: a kill never tears it)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(jsonable(summary), indent=2, allow_nan=False) + "\n")
+    tmp = path.with_name(f".{path.name}.{os.getpid()}")
+    tmp.write_text(json.dumps(jsonable(summary), indent=2, allow_nan=False) + "\n")
+    os.replace(tmp, path)
     return path
 
 
@@ -143,6 +147,67 @@ def _mpl():
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def check_output_dir(out: Path, expected_bytes: int = 0, create: bool = True) -> None:
+    """Refuse an output directory that cannot take the results before any work, not after it: an existing
+    file, /dev/null, a dangling symlink, a read-only place, a name too long all fail here, named; its file
+    system must have ``expected_bytes`` free (twice, for the temporary files of atomic writes).
+    ``create``: make it (parents too) and write and remove a probe file; else only look (nothing is
+    written: the place it would be made in must be a writable directory)."""
+    import shutil
+
+    from drivetrain.cosim import ConfigurationError
+
+    out = Path(out)
+
+    def refuse(why):
+        return ConfigurationError(f"output directory {str(out)[:300]}: not writable ({why})")
+
+    try:
+        if create:
+            out.mkdir(parents=True, exist_ok=True)
+            if not out.is_dir():
+                raise NotADirectoryError(20, "not a directory")
+            probe = out / f".write-test-{os.getpid()}"
+            probe.write_text("")
+            probe.unlink()
+            where = out
+        else:
+            if out.is_symlink() and not out.exists():
+                raise refuse("a symbolic link to nothing")
+            if any(len(part.encode()) > 255 for part in out.parts):
+                raise refuse("File name too long")
+            where = out
+            while not where.exists():
+                where = where.parent
+            if not where.is_dir():
+                raise refuse(f"{where} is not a directory")
+            if not os.access(where, os.W_OK | os.X_OK):
+                raise refuse(f"{where} is not writable")
+        free = shutil.disk_usage(where).free
+    except OSError as exc:
+        raise refuse(exc.strerror or exc) from None
+    if expected_bytes and free < 2 * expected_bytes:
+        raise ConfigurationError(f"output directory {out}: {free / 1e6:.0f} MB free, the run writes about "
+                                 f"{expected_bytes / 1e6:.0f} MB (twice that is needed while files are replaced)")
+
+
+#: what a run writes into its output directory (plots: *.png)
+RUN_FILES = ("signals.h5", "summary.json", "sensors.csv")
+
+
+def mark_running(out: Path, name: str) -> None:
+    """Clear what an earlier run left in ``out`` (its signals, summary, CSV and plots: only our own file
+    names) and say that this run has started: a run that never finishes (killed) leaves "running", never an
+    earlier run's "ok" beside files of two runs."""
+    out.mkdir(parents=True, exist_ok=True)
+    for f in RUN_FILES:
+        (out / f).unlink(missing_ok=True)
+    for png in out.glob("*.png"):
+        png.unlink()
+    write_summary(out / "summary.json", {"name": name, "status": "running",
+                                         "started": datetime.datetime.now().isoformat(timespec="seconds")})
 
 
 def _finish(plt, fig, path, title: str) -> Path:

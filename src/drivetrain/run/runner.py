@@ -23,7 +23,7 @@ import numpy as np
 
 from drivetrain import __version__
 from drivetrain.cosim import CosimResult, Master
-from drivetrain.errors import ConfigurationError, CosimError, RunFailedError  # noqa: F401  (re-exported)
+from drivetrain.errors import ConfigurationError, CosimError, RunFailedError, RunInterrupted  # noqa: F401  (re-exported)
 from drivetrain.models import stability
 from drivetrain.rig import instruments
 from drivetrain.rig.data import RIG_SENSORS, TORQUE_SENSORS
@@ -368,7 +368,9 @@ def simulate_plan(plan: RunPlan, *, fmu_dir, build: bool, progress: bool, log):
             raise
         failed, res = exc, exc.partial
     plan.warnings.extend(res.warnings)
-    if failed is not None:
+    if isinstance(failed, RunInterrupted):
+        plan.warnings.append(f"the run was {failed}; results up to t = {res.time[-1]:.9g} s")
+    elif failed is not None:
         plan.warnings.append(f"the run failed at t = {failed.time:.9g} s ({failed.component}: "
                              f"{res.failure['cause']}); results up to t = {res.time[-1]:.9g} s")
     return res, failed
@@ -532,7 +534,11 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
     :func:`measured_channels`, :func:`torque_spectra`, :func:`build_summary` -> :func:`write_run`.
     """
     log = log or _LOG.warning
+    if out_dir is not None:              # a bad --out is found now, not after the simulation
+        O.check_output_dir(Path(out_dir), expected_output_bytes(scene), create=False)
     plan = prepare_run(scene, spec, backend, fmu_paths, fmu_dir=fmu_dir, force=force, log=log)
+    if out_dir is not None:              # refusals write nothing; from here on the directory says "running"
+        O.mark_running(Path(out_dir), scene.name)
     res, failed = simulate_plan(plan, fmu_dir=fmu_dir, build=build, progress=progress, log=log)
     ch = measured_channels(plan, res)
     sp = torque_spectra(plan, ch)
@@ -544,6 +550,13 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
     if failed is not None:
         raise RunFailedError(failed, result) from failed
     return result
+
+
+def expected_output_bytes(scene: Scene) -> int:
+    """About what a run writes: its samples of every written channel as doubles (and as CSV text, if asked)."""
+    n = int(scene.time.duration_s * scene.time.sample_rate_Hz) + 1
+    channels = len(scene.outputs.sensors) + len(scene.outputs.variables) + 1
+    return n * channels * 8 * (4 if scene.outputs.aalto_csv else 1)
 
 
 def write_run(result: RunResult, out_dir: str | Path, plots: bool = True, spectra: dict | None = None) -> dict:

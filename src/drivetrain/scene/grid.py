@@ -3,7 +3,9 @@
 ``axes`` list values for some keys; the grid is the Cartesian product of those values. ``[sweep.draw]``
 adds ``n`` cases with randomly drawn faults and/or background parameters (``[sweep.draw.background]``:
 domain randomisation of the measured background) per axes combination (one seeded generator for the
-whole grid: reproducible). ``name`` is a template for the case names (:func:`case_name`), and
+whole grid: reproducible). ``[sweep.growth]`` follows one fault through its life instead: per axes
+combination one case per stage of its sizes (a pit growing, becoming a spall, a crack lengthening), the
+same gearbox throughout, each labelled with ``scenario.growth_stage`` and ``scenario.remaining_life``. ``name`` is a template for the case names (:func:`case_name`), and
 ``[sweep.expect."<case name pattern>"]`` adds checks to the cases it matches. Each case is validated by
 the ``resolve`` the loader passes in (:func:`drivetrain.scene.load.load_scenes`); every problem of every
 case is reported together.
@@ -26,7 +28,8 @@ from drivetrain.scene.schema import NAME_RE, NAME_RULE, SCHEMA, Scene
 from gearcontact_fmu.fault_specs import draw_faults, draw_rule_problems, draw_value, rule_problem
 
 GRID_SECTION = "sweep"
-GRID_KEYS = {"axes", "name", "draw"}
+GRID_KEYS = {"axes", "name", "draw", "growth"}
+GROWTH_KEYS = {"fault", "stages", "life", "healthy"}
 DRAW_KEYS = {"n", "seed", "faults", "background", "paired_healthy"}
 #: the largest seed a ``seed = "any"`` rule of [sweep.draw.background] draws
 MAX_DRAWN_SEED = 2 ** 31 - 1
@@ -45,6 +48,7 @@ class Grid:
     template: str | None
     draw: dict | None
     expect: dict | None
+    growth: dict | None = None
 
 
 def split_grid(raw: dict, src: str) -> Grid | None:
@@ -58,12 +62,18 @@ def split_grid(raw: dict, src: str) -> Grid | None:
     expect = grid.pop("expect", None)
     for k in grid:
         if k not in GRID_KEYS:
-            problems.append((f"{GRID_SECTION}.{k}", grid[k], "a known key of [sweep]: axes, name, draw"))
-    draw = grid.get("draw")
+            problems.append((f"{GRID_SECTION}.{k}", grid[k], "a known key of [sweep]: axes, name, draw, growth"))
+    draw, growth = grid.get("draw"), grid.get("growth")
     if draw is not None:
         problems.extend(_draw_problems(draw))
-    axes = grid.get("axes", {} if draw is not None else None)
-    if not isinstance(axes, dict) or not (axes or draw is not None):
+    if growth is not None:
+        problems.extend(_growth_problems(growth))
+        if draw is not None:
+            problems.append((f"{GRID_SECTION}.growth", "[sweep.growth]", "either [sweep.draw] or [sweep.growth], "
+                             "not both: a growth sequence follows one fault of one gearbox"))
+    generated = draw is not None or growth is not None
+    axes = grid.get("axes", {} if generated else None)
+    if not isinstance(axes, dict) or not (axes or generated):
         problems.append((f"{GRID_SECTION}.axes", axes, 'a table {"section.key" = [value, ...]} with at least one axis'))
         axes = {}
     for k, vals in axes.items():
@@ -77,7 +87,54 @@ def split_grid(raw: dict, src: str) -> Grid | None:
         problems.append((f"{GRID_SECTION}.name", template, "a name template string, e.g. \"run_{gear.health}\""))
     if problems:
         raise ScenarioError(problems, src)
-    return Grid(axes, template, draw, expect)
+    return Grid(axes, template, draw, expect, growth)
+
+
+def _growth_problems(growth) -> list:
+    """Problems of ``[sweep.growth]``: ``fault`` (a fault specification's fixed keys: kind, member, tooth, ...),
+    ``stages`` (a list of tables, each the keys that change at that stage: sizes, or the kind), ``life``
+    (optional: the fraction of the life used at each stage, increasing in [0, 1)) and ``healthy`` (optional:
+    a stage 0 without the fault). The merged specifications are checked with the rest of each case."""
+    key = f"{GRID_SECTION}.growth"
+    if not isinstance(growth, dict):
+        return [(key, growth, "a table [sweep.growth] with fault = {...} and stages = [{...}, ...]")]
+    problems = [(f"{key}.{k}", v, "a key of [sweep.growth]: fault, stages, life, healthy")
+                for k, v in growth.items() if k not in GROWTH_KEYS]
+    if not isinstance(growth.get("fault"), dict) or "kind" not in growth.get("fault", {}):
+        problems.append((f"{key}.fault", growth.get("fault"), "a fault table with its kind, e.g. "
+                         "{kind = \"pit\", member = \"wheel\", tooth = 38}"))
+    stages = growth.get("stages")
+    if not isinstance(stages, list) or not stages or not all(isinstance(x, dict) for x in stages):
+        problems.append((f"{key}.stages", stages, "a non-empty list of tables, each the fault's keys at that stage"))
+        stages = []
+    life = growth.get("life")
+    if life is not None:
+        ok = (isinstance(life, list) and len(life) == len(stages) and all(
+            isinstance(x, (int, float)) and not isinstance(x, bool) and 0.0 <= x < 1.0 for x in life)
+            and all(a < b for a, b in zip(life, life[1:])))
+        if not ok:
+            problems.append((f"{key}.life", life, f"one fraction of the life used per stage ({len(stages)}), "
+                             "increasing, each in [0, 1)"))
+    if not isinstance(growth.get("healthy", False), bool):
+        problems.append((f"{key}.healthy", growth["healthy"], "true or false"))
+    return problems
+
+
+def growth_stages(growth: dict) -> list[tuple[int, float, dict | None]]:
+    """The stages of a ``[sweep.growth]``: (stage number, remaining life, fault specification or None for the
+    healthy stage 0). The remaining life is 1 - the life used: ``life`` if given, else the stages spread
+    evenly over the life (stage i of n: (i + 1) / (n + 1) used); the healthy stage has all of it."""
+    stages = growth["stages"]
+    n = len(stages)
+    life = growth.get("life") or [(i + 1) / (n + 1) for i in range(n)]
+    out: list[tuple[int, float, dict | None]] = [(0, 1.0, None)] if growth.get("healthy") else []
+    spec: dict = dict(growth["fault"])
+    for i, stage in enumerate(stages):
+        spec = {**spec, **stage}
+        if "kind" in stage and stage["kind"] != growth["fault"]["kind"]:        # a pit becoming a spall: the
+            spec = {k: spec[k] for k in ("member", "tooth", "flank") if k in spec} | dict(stage)   # new kind's sizes
+        out.append((len(out), 1.0 - float(life[i]), dict(spec)))
+    return out
 
 
 def _draw_problems(draw) -> list:
@@ -199,6 +256,9 @@ def _cases(raw: dict, grid: Grid):
         for k, v in zip(keys, combo):
             sec, key = k.split(".")
             case.setdefault(sec, {})[key] = v
+        if grid.growth is not None:
+            yield from _growth_cases(case, grid.growth)
+            continue
         healthy = copy.deepcopy(case) if d is not None and draw.get("paired_healthy") else None
         if d is not None and draw.get("faults"):
             case.setdefault("gear", {}).update(
@@ -217,10 +277,46 @@ def _cases(raw: dict, grid: Grid):
             yield healthy, d, True
 
 
+def _growth_cases(case: dict, growth: dict):
+    """The cases of one axes combination through the fault's life (:func:`growth_stages`): the same gearbox,
+    the fault's specification of each stage, its stage and remaining life as scene keys (labels)."""
+    for stage, remaining, spec in growth_stages(growth):
+        c = copy.deepcopy(case)
+        gear = c.setdefault("gear", {})
+        if spec is None:
+            gear.update(health="healthy")
+            gear.pop("faults", None)
+        else:
+            gear.update(health="faults", faults=[spec])
+        c.setdefault("scenario", {}).pop("name", None)
+        c["scenario"].update(growth_stage=stage, remaining_life=remaining)
+        yield c, ("stage", stage), False
+
+
+#: the most cases one grid file expands to (a sweep of more is several grid files)
+MAX_GRID_CASES = 100_000
+
+
+def grid_size(grid: Grid) -> int:
+    """The number of cases a grid expands to, counted without expanding it."""
+    n = 1
+    for values in grid.axes.values():
+        n *= len(values)
+    if grid.draw is not None:
+        n *= int(grid.draw["n"]) * (2 if grid.draw.get("paired_healthy") else 1)
+    if grid.growth is not None:
+        n *= len(grid.growth["stages"]) + (1 if grid.growth.get("healthy") else 0)
+    return n
+
+
 def expand(raw: dict, grid: Grid, resolve_case: Callable[[dict], Scene], base_name: str, src: str) -> list[Scene]:
     """The grid's scenes, each validated by ``resolve_case`` (raw case data -> Scene) and named from the
     template (default ``{base}_{axis}_...``, plus ``_drawNNN`` for drawn cases). Every problem of every
     case is collected and raised together."""
+    n_cases = grid_size(grid)
+    if n_cases > MAX_GRID_CASES:              # refused at once: expanding it alone would take minutes
+        raise ScenarioError([(GRID_SECTION, f"{n_cases} cases", f"a grid of at most {MAX_GRID_CASES} cases "
+                              "(split it into several grid files, each its own sweep directory)")], src)
     scenes, problems, names = [], [], set()
     last_pair = ""
     template = grid.template or "_".join(["{base}"] + ["{" + k + "}" for k in grid.axes])
@@ -231,10 +327,12 @@ def expand(raw: dict, grid: Grid, resolve_case: Callable[[dict], Scene], base_na
             problems.extend(exc.problems)
             continue
         nm = case_name(template, base_name, sc, src)
-        if d is not None:
+        if isinstance(d, tuple):              # a growth stage
+            nm += f"_stage{d[1]:02d}"
+        elif d is not None:
             nm += f"_draw{d:03d}"
         pair = None
-        if d is not None and grid.draw.get("paired_healthy"):
+        if d is not None and grid.draw is not None and grid.draw.get("paired_healthy"):
             # the faulty case comes first; its healthy twin (next) is named and measured after it
             if twin:
                 pair, nm = last_pair, last_pair + "_healthy"

@@ -389,6 +389,8 @@ def parse_override(text: str) -> tuple[list[str], Any]:
         parsed = tomllib.loads(f"v = {value}")["v"]
     except tomllib.TOMLDecodeError:
         parsed = value
+    except RecursionError:
+        raise ScenarioError([(key, value[:60] + "...", "a value nested less deeply")]) from None
     return parts, parsed
 
 
@@ -420,6 +422,9 @@ def read_toml(path: Path | str) -> dict:
     except UnicodeDecodeError as exc:
         raise ScenarioError([("(file)", str(path), f"a UTF-8 text file (TOML); byte {exc.start} is not UTF-8 "
                              "(a binary file?)")], str(path)) from None
+    except RecursionError:
+        raise ScenarioError([("(file)", str(path), "TOML nested less deeply (arrays or tables nested thousands "
+                             "of levels deep)")], str(path)) from None
     except OSError as exc:
         raise ScenarioError([("(file)", str(path), f"a readable file ({exc.strerror or exc})")], str(path)) from None
 

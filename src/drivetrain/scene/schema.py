@@ -113,6 +113,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "the name the run's noise records (instruments, background) are drawn with; two runs with one "
             "noise_name are measured with the same noise: a paired healthy run ([sweep.draw] paired_healthy)"),
             default_doc="the scene's name"),
+        "growth_stage": Key("int", None, minimum=0, doc=(
+            "the stage of a fault's life this run shows ([sweep.growth]; 0 = the first, or the healthy gearbox "
+            "before the fault): a label, nothing is simulated differently")),
+        "remaining_life": _f(None, "", "", (
+            "the fraction of the gearbox's life left at this stage ([sweep.growth]; 1 = new, towards 0 = failure): "
+            "a label for prognostics"), minimum=0.0, maximum=1.0),
     },
     "operating_point": {
         "drive_speed_rpm": _f(1500.0, "rpm", "speed", "drive-motor speed reference (drive shaft)", minimum=0.0),
@@ -331,6 +337,47 @@ SCHEMA: dict[str, dict[str, Key]] = {
     },
 }
 
+def _on(path: str, *values) -> tuple:
+    return ((path, values or (True,)),)
+
+
+_LOAD, _DRIVE, _ORDERS = (_on("effects.load_torque_noise"), _on("effects.drive_torque_noise"),
+                          _on("effects.shaft_orders"))
+#: When a setting acts: a section or "section.key" -> its alternatives (any), each a tuple of conditions
+#: (all) ("section.key", the values that switch it on). A setting not listed always acts; a dataset leaves
+#: the label of one that does not act empty (drivetrain.campaigns.dataset), not its unused value.
+ACTS_WHEN: dict[str, tuple] = {
+    "manufacturing": (_on("effects.manufacturing_errors"),),
+    "manufacturing.profile_um": (_on("effects.manufacturing_errors") + _on("manufacturing.profile_errors"),),
+    "instruments": (_on("effects.sensors", "rig"),),
+    "tooth_compliance": (_on("effects.tooth_compliance"),),
+    "background.seed": (_LOAD, _DRIVE, _ORDERS),
+    "background.noise_band_Hz": (_LOAD, _DRIVE),
+    "background.load_noise_Nm_rtHz": (_LOAD,),
+    "background.drive_noise_Nm_rtHz": (_DRIVE,),
+    **{f"background.{k}": (_ORDERS,) for k in ("order_msh_1x_Nm", "order_msh_2x_Nm", "order_dsh_1x_Nm",
+                                               "order_dsh_2x_Nm", "planetary_mesh_Nm", "planetary_ring_teeth",
+                                               "orders_speed_exponent")},
+    **{f"background.{k}": (_on("effects.drive_control", "record"),) for k in ("drive_Kp", "drive_Ti_s")},
+    **{f"background.{k}": (_on("effects.couplings", "record"),)
+       for k in ("coupling_stiffness_scale", "coupling_damping_scale", "propeller_stiffness_scale",
+                 "propeller_damping_scale")},
+}
+
+
+def setting_acts(section: str, key: str, scene: dict) -> bool:
+    """Whether ``section.key`` acts in a resolved scene (its dict, ``Scene.to_dict()``): :data:`ACTS_WHEN`."""
+    rule = ACTS_WHEN.get(f"{section}.{key}", ACTS_WHEN.get(section))
+    if rule is None:
+        return True
+
+    def value(path):
+        sec, k = path.split(".", 1)
+        return (scene.get(sec) or {}).get(k)
+
+    return any(all(value(p) in values for p, values in alternative) for alternative in rule)
+
+
 #: Sections validated by drivetrain.scene.expect (expectations and how a scene is checked; docs/SCENARIOS.md).
 CHECK_SECTIONS = ("expect", "check")
 
@@ -348,6 +395,8 @@ class ScenarioInfo:
     name: str
     description: str
     noise_name: str | None
+    growth_stage: int | None
+    remaining_life: float | None
 
 
 @dataclass(frozen=True)

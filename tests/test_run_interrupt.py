@@ -1,0 +1,80 @@
+"""A run into an existing --out says what it is: "running" from its start (an earlier run's files cleared), an
+interrupt (SIGINT, SIGTERM) ends it "interrupted" with what it computed, exit 130; only a finished run says
+"ok" (issue 33). Each case is a subprocess (signals)."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from drivetrain.cosim import ensure_fmus
+from drivetrain.run.outputs import read_hdf5
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def fmu_dir(tmp_path_factory):
+    d = tmp_path_factory.mktemp("fmus_interrupt")
+    ensure_fmus(["GearContact", "FlexibleShaft", "UpperTransmission", "MotorLoad"], d)
+    return d
+
+
+def _start(out: Path, fmu_dir: Path, duration: float = 60.0):
+    return subprocess.Popen([sys.executable, "-m", "drivetrain", "run", str(ROOT / "scenarios" / "example.toml"),
+                             "--set", f"time.duration_s={duration}", "--set", "effects.mesh_contact=\"ideal\"",
+                             "--no-plots", "--backend", "inprocess", "--fmu-dir", str(fmu_dir), "--out", str(out),
+                             "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def _status(out: Path):
+    try:
+        return json.loads((out / "summary.json").read_text()).get("status")
+    except (OSError, ValueError):
+        return None
+
+
+def _wait_stepping(p, out: Path, seconds: float) -> None:
+    """Until the run has been stepping a while (its summary says running; the loop then takes seconds)."""
+    t0 = time.time()
+    while _status(out) != "running" and time.time() - t0 < 120 and p.poll() is None:
+        time.sleep(0.05)
+    time.sleep(seconds)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_an_interrupted_run_keeps_what_it_computed(tmp_path, fmu_dir, sig):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "summary.json").write_text(json.dumps({"status": "ok"}))       # an earlier run's
+    (out / "sensors.csv").write_text("time\n0\n")
+    p = _start(out, fmu_dir)
+    _wait_stepping(p, out, 10.0)
+    assert p.poll() is None, p.communicate()
+    p.send_signal(sig)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130, err[-2000:]
+    assert "interrupted at t =" in err and "Traceback" not in err, err[-2000:]
+    s = json.loads((out / "summary.json").read_text())
+    assert s["status"] == "interrupted" and signal.Signals(sig).name in s["failure"]["cause"]
+    t = read_hdf5(out / "signals.h5")["time"]
+    assert 0 < t[-1] < 60.0
+    csv = out / "sensors.csv"                     # the earlier run's is gone (this run may write its own)
+    assert not csv.exists() or csv.read_text() != "time\n0\n"
+
+
+def test_a_killed_rerun_never_says_ok(tmp_path, fmu_dir):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "summary.json").write_text(json.dumps({"status": "ok"}))
+    p = _start(out, fmu_dir)
+    _wait_stepping(p, out, 1.0)
+    os.kill(p.pid, signal.SIGKILL)
+    p.communicate()
+    assert _status(out) == "running"

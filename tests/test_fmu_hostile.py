@@ -7,6 +7,7 @@ the case it was in and all after it fail, naming the exit code, instead of killi
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import textwrap
@@ -147,8 +148,11 @@ def results(tmp_path_factory):
 
     def of(model):
         if model not in cache:
+            # numba caches of their own: the host's and the FMU's code in one interpreter with the source tree's
+            # caches has crashed this subprocess (MotorLoad, rc -11) after other tests wrote them
+            env = {**os.environ, "NUMBA_CACHE_DIR": str(fmu_dir / "numba-cache")}
             r = subprocess.run([sys.executable, "-c", SCRIPT, str(fmu_dir / f"{model}.fmu")],
-                               capture_output=True, text=True, timeout=600)
+                               capture_output=True, text=True, timeout=600, env=env)
             done, started = {}, None
             for ln in r.stdout.splitlines():
                 try:

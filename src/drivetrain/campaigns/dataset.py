@@ -158,10 +158,15 @@ _SUFFIX_UNITS = {"_mm": "mm", "_um": "um", "_s": "s", "_Hz": "Hz", "_rpm": "rpm"
                  "_rad": "rad"}
 
 
-def label_unit(name: str, channel_units: dict) -> str:
+def label_unit(name: str, channel_units: dict, numeric: bool = False) -> str:
     """The unit of a label column: a scene key's from the schema; a fault size's or another suffixed name's
     from its suffix; a condition indicator's from its signal (RMS and line amplitudes in the signal's unit,
-    SBR in dB, the other metrics dimensionless "1"); else "" (the writers make a number's "1")."""
+    SBR in dB, the other metrics dimensionless "1"); else "1" for a ``numeric`` column, "" for text."""
+    unit = _named_unit(name, channel_units)
+    return unit or ("1" if numeric else "")
+
+
+def _named_unit(name: str, channel_units: dict) -> str:
     from drivetrain.scene.schema import SCHEMA
 
     head, _, tail = name.partition(".")
@@ -214,8 +219,8 @@ def write_parquet(runs: list[dict], path: Path) -> Path:
     types = {k: _arrow_type([r["labels"].get(k) for r in runs]) for k in label_cols}
     names = {k: f"label.{k}" if k in channels or k in ("time_s", "settled") else k for k in label_cols}
     units = {c: next((r["units"].get(c, "") for r in runs if c in r["units"]), "") for c in channels}
-    units.update({"time_s": "s", "settled": "", **{names[k]: label_unit(k, units) or (
-        "1" if pa.types.is_integer(types[k]) or pa.types.is_floating(types[k]) else "") for k in label_cols}})
+    units.update({"time_s": "s", "settled": "", **{names[k]: label_unit(
+        k, units, numeric=pa.types.is_integer(types[k]) or pa.types.is_floating(types[k])) for k in label_cols}})
     schema = pa.schema([("run", pa.dictionary(pa.int32(), pa.string())), ("time_s", pa.float64()),
                         ("settled", pa.bool_()), *((c, pa.float64()) for c in channels),
                         *((names[k], types[k]) for k in label_cols)],
@@ -258,7 +263,7 @@ def write_hdf5(runs: list[dict], path: Path) -> Path:
             else:
                 lab.create_dataset(k, data=["" if v is None else str(v) for v in vals],
                                    dtype=h5py.string_dtype("utf-8"))
-            lab[k].attrs["unit"] = label_unit(k, channel_units) or ("1" if lab[k].dtype.kind in "fiu" else "")
+            lab[k].attrs["unit"] = label_unit(k, channel_units, numeric=lab[k].dtype.kind in "fiu")
         grp = f.create_group("runs")
         for r in runs:
             g = grp.create_group(r["name"])

@@ -55,7 +55,7 @@ from drivetrain.run import cost as runcost
 from drivetrain.cosim import ConfigurationError
 from drivetrain.cosim import simulate as simulate_system
 from drivetrain.cosim import sources_hash
-from drivetrain.run.outputs import check_output_dir, jsonable
+from drivetrain.run.outputs import check_output_dir, clear_run_files, jsonable
 from drivetrain.run.runner import RunFailedError, assemble_scene, run_scene
 from drivetrain.scene.load import Scene, resolve
 from drivetrain.system import SystemSpec
@@ -93,8 +93,8 @@ def labels(scene: dict) -> dict:
     return {"health": gear.get("health"), "faults": list(gear.get("faults") or [])}
 
 
-#: files a run writes into its directory (cleared before the run, so nothing stale stays beside it)
-RUN_OUTPUTS = ("signals.h5", "summary.json", "sensors.csv", "case.json")
+#: the sweep's own file in a run's directory, beside the run's (run.outputs.RUN_FILES): cleared before the run
+CASE_FILE = "case.json"
 
 
 def fingerprint(scene: Scene, fmu_paths: dict | None = None) -> str:
@@ -114,13 +114,6 @@ def fingerprint(scene: Scene, fmu_paths: dict | None = None) -> str:
 def _content_digest(path: str, mtime_ns: int, size: int) -> str:
     """SHA-256 of a file, once per (path, modification time, size) in a process."""
     return file_sha256(path)
-
-
-def _clear_run_dir(d: Path) -> None:
-    for name in RUN_OUTPUTS:
-        (d / name).unlink(missing_ok=True)
-    for png in d.glob("*.png"):
-        png.unlink()
 
 
 def _scene_of(case: dict) -> Scene:
@@ -152,8 +145,8 @@ def simulate(case: dict) -> dict:
         scene = _scene_of(case)
         d = Path(case["out_dir"])
         d.mkdir(parents=True, exist_ok=True)
-        _clear_run_dir(d)
-        (d / "case.json").write_text(json.dumps({"name": case["name"], "fingerprint": case.get("fingerprint"),
+        clear_run_files(d, extra=(CASE_FILE,))
+        (d / CASE_FILE).write_text(json.dumps({"name": case["name"], "fingerprint": case.get("fingerprint"),
                                                  "scene": case["scene"], "source": case.get("source"),
                                                  "overrides": case.get("overrides", [])}, indent=1, default=str))
         plots = case.get("plots")
@@ -258,7 +251,7 @@ def _reuse(scene: Scene, d: Path, fp: str) -> tuple[dict | None, str]:
     """The manifest record of a finished run in ``d`` when it computed the same thing (fingerprint), else
     (None, why it runs again)."""
     try:
-        case = json.loads((d / "case.json").read_text())
+        case = json.loads((d / CASE_FILE).read_text())
         old = json.loads((d / "summary.json").read_text())
     except (OSError, ValueError):
         return None, "no finished run with a case.json there"
@@ -389,7 +382,7 @@ def _prepare_fmus(scenes: list[Scene], all_specs: list, *, backend: str, fmu_dir
     if backend == "native" and fmu_paths is None:
         # compiled once here (one gear build per contact map), found in the cache by every worker (without a
         # compiler each run falls back to the pythonfmu FMUs and says so)
-        from drivetrain.cosim.native_line import native_fmus, toolchain_problems
+        from drivetrain.cosim.native_line import toolchain_problems
 
         if not toolchain_problems():
             _native_builds(all_specs, Path(fmu_dir) / "native", log)

@@ -16,8 +16,8 @@ from __future__ import annotations
 import dataclasses
 import datetime
 import json
-import os
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -197,15 +197,20 @@ def check_output_dir(out: Path, expected_bytes: int = 0, create: bool = True) ->
 RUN_FILES = ("signals.h5", "summary.json", "sensors.csv")
 
 
-def mark_running(out: Path, name: str) -> None:
-    """Clear what an earlier run left in ``out`` (its signals, summary, CSV and plots: only our own file
-    names) and say that this run has started: a run that never finishes (killed) leaves "running", never an
-    earlier run's "ok" beside files of two runs."""
-    out.mkdir(parents=True, exist_ok=True)
-    for f in RUN_FILES:
+def clear_run_files(out: Path, extra: tuple[str, ...] = ()) -> None:
+    """Remove what an earlier run left in ``out``: :data:`RUN_FILES`, its plots and ``extra`` names (only our
+    own file names)."""
+    for f in (*RUN_FILES, *extra):
         (out / f).unlink(missing_ok=True)
     for png in out.glob("*.png"):
         png.unlink()
+
+
+def mark_running(out: Path, name: str) -> None:
+    """Clear what an earlier run left in ``out`` and say that this run has started: a run that never finishes
+    (killed) leaves "running", never an earlier run's "ok" beside files of two runs."""
+    out.mkdir(parents=True, exist_ok=True)
+    clear_run_files(out)
     write_summary(out / "summary.json", {"name": name, "status": "running",
                                          "started": datetime.datetime.now().isoformat(timespec="seconds")})
 

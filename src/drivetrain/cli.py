@@ -940,10 +940,25 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _map_build_bar(desc: str, total: int, *, triangles: int = 0, workers: int = 1):
+    """The progress bar of a contact-map build, with the cost model's estimate; shown after 1 s."""
+    from tqdm import tqdm
+
+    from gearcontact_fmu.cost import hours, map_row_seconds
+
+    estimate_s = 0.5 * total * map_row_seconds(triangles) / max(1, workers)
+    return tqdm(total=total, desc=f"{desc}, estimated {hours(estimate_s)}", unit=" flank rows", file=sys.stderr,
+                delay=1.0, leave=False)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    from gearcontact_fmu import progress
     from gearcontact_fmu.meshes import MeshError
+
+    if not getattr(args, "quiet", False):
+        progress.set_factory(_map_build_bar)
 
     try:
         return int(args.func(args) or 0)

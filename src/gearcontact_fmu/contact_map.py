@@ -50,9 +50,11 @@ from gearcontact_fmu.mesh_model import (N_OUT, OUT_CONTACT_AREA, OUT_DISSIPATED_
                                         OUT_MAX_PENETRATION, OUT_N_CONTACT, OUT_NORMAL_FORCE, OUT_PEAK_PRESSURE,
                                         OUT_STATUS, OUT_TAU_PINION, OUT_TAU_WHEEL, MeshModel)
 from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCMParams, file_sha256, params_hash
+from gearcontact_fmu.progress import Silent, reporter as progress_reporter
 
-#: part of every cache key: raised when the map content or the file format changes (6: content digest)
-MAP_VERSION = 6
+#: part of every cache key: raised when the map content or the file format changes (6: content digest; 7:
+#: faulty maps built from the healthy map, on its approach nodes)
+MAP_VERSION = 7
 # channels stored per grid node
 CH_TAU_P, CH_TAU_W, CH_N, CH_AREA, CH_PEAK, CH_PEN, CH_FN, CH_EEL, CH_DAMP, CH_FRIC_P, CH_FRIC_W = range(11)
 N_CH = 11
@@ -112,22 +114,36 @@ def _approach_grid(pair, grid: MapGrid) -> tuple[np.ndarray, dict]:
     return a, {"span": float(span), "s_backlash": float(s_b), "base_radius": float(geometry.mean_base_radius(pair.gear))}
 
 
-def compute_map(pair, grid: MapGrid = MapGrid(), progress: bool = False) -> ContactMap:
+def compute_map(pair, grid: MapGrid = MapGrid(), progress: bool = False,
+                healthy: ContactMap | None = None) -> ContactMap:
     """Tabulate the online PCM engine over (theta, flank, approach beyond each angle's onset).
 
-    Rows are computed one pinion pitch (a "block" of ``points_per_pitch`` rows) at a time, and only
-    where the pair differs from its neighbour a pitch away (see :func:`_tabulate_by_pitch`)."""
+    ``healthy``: the map of the same gear, PCM parameters, resolution and grid with healthy teeth. With
+    it, a pair of generated gears with faults is built incrementally (:func:`_tabulate_incremental`):
+    the healthy rows, with only the rows and flanks in which a faulty tooth meets its partner computed
+    again; the approach nodes are the healthy map's (a property of the healthy teeth at max_torque).
+    Without it, rows are computed one pinion pitch (a "block" of ``points_per_pitch`` rows) at a time,
+    and only where the pair differs from its neighbour a pitch away (see :func:`_tabulate_by_pitch`).
+    ``progress``: report the rows as they are computed to the hook set by :func:`set_progress_factory`."""
     n_rev = pairing_revolutions(pair.gear, wheel_periodic=_faulty_teeth(pair, "wheel") == [])
     n_theta = grid.points_per_pitch * pair.gear.z_pinion * n_rev
     theta = np.linspace(0.0, 2 * math.pi * n_rev, n_theta, endpoint=False)
-    a, ainfo = _approach_grid(pair, grid)
     t0 = time.perf_counter()
-    onset, vals, pinfo = _tabulate_by_pitch(pair, theta, a, grid, n_rev)
+    result = None
+    if healthy is not None:
+        a = healthy.a
+        ainfo = {k: healthy.info[k] for k in ("span", "s_backlash", "base_radius")}
+        result = _tabulate_incremental(pair, healthy, theta, a, grid, n_rev, progress)
+    else:
+        a, ainfo = _approach_grid(pair, grid)
+    if result is None:
+        result = _tabulate_by_pitch(pair, theta, a, grid, n_rev, progress)
+    onset, vals, pinfo = result
     info = {**ainfo, "build_seconds": time.perf_counter() - t0, "n_theta": n_theta, "n_s": len(a),
             "pinion_revolutions": n_rev,
             "onset_drive": float(np.min(onset[:, SIDE_DRIVE])), "onset_coast": float(np.max(onset[:, SIDE_COAST])),
             "onset_drive_max": float(np.max(onset[:, SIDE_DRIVE])),
-            "evaluations": 6 * pinfo["rows_computed"] * len(a), **pinfo, **pair.info, "health": pair.health}
+            "evaluations": 3 * pinfo["flank_rows_computed"] * len(a), **pinfo, **pair.info, "health": pair.health}
     return ContactMap(theta, a, onset, vals, pair.gear, pair.pcm, grid, info)
 
 
@@ -173,7 +189,7 @@ def _blocks_equal(ref_on, ref_v, on, v, scale) -> bool:
                 and np.all(np.abs(v - ref_v) <= BLOCK_REL_TOL * scale))
 
 
-def _tabulate_by_pitch(pair, theta, a, grid: MapGrid, n_rev: int = 1):
+def _tabulate_by_pitch(pair, theta, a, grid: MapGrid, n_rev: int = 1, progress: bool = False):
     """Onsets and values of every row, computing as few pitch blocks as the geometry allows.
 
     Turning the pinion by one pitch and the wheel by one wheel pitch leaves the mesh coordinate s
@@ -183,27 +199,26 @@ def _tabulate_by_pitch(pair, theta, a, grid: MapGrid, n_rev: int = 1):
     blocks are computed, then their neighbours outward until a neighbour equals the healthy block
     (the block farthest from every fault). A fault block that equals the healthy block means the
     window was guessed wrong, and everything is computed, as for user meshes."""
-    z1 = pair.gear.z_pinion
-    n_blocks = z1 * n_rev
+    n_blocks = pair.gear.z_pinion * n_rev
     per = grid.points_per_pitch
     rows = lambda blocks: np.concatenate([np.arange(b * per, (b + 1) * per) for b in blocks])  # noqa: E731
-    f_pin, f_whl = _faulty_teeth(pair, "pinion"), _faulty_teeth(pair, "wheel")
 
     def compute(blocks):
         idx = rows(blocks)
-        return _tabulate(pair, theta[idx], a, grid), idx
+        return _tabulate(pair, theta[idx], a, grid, progress=progress), idx
 
     def everything():
-        onset, vals = _tabulate(pair, theta, a, grid)
-        return onset, vals, {"rows_computed": len(theta), "blocks_computed": n_blocks, "tiled_from_block": None}
+        onset, vals = _tabulate(pair, theta, a, grid, progress=progress)
+        return onset, vals, {"built": "every row", "rows_computed": len(theta), "flank_rows_computed": 2 * len(theta),
+                             "blocks_computed": n_blocks, "tiled_from_block": None}
 
-    if f_pin is None or f_whl is None:
+    fw = _fault_window(pair, n_blocks)
+    if fw is None:
         return everything()
-    centres = [k + m * z1 for k in f_pin for m in range(n_rev)] + [_wheel_block(j, n_blocks) for j in f_whl]
-    window = sorted({b % n_blocks for c in centres for b in (c - 1, c)})
-    dist = lambda b: min(min((b - w) % n_blocks, (w - b) % n_blocks) for w in window) if window else 0  # noqa: E731
-    healthy = max(range(n_blocks), key=lambda b: (dist(b), -b)) if window else 0
-    if window and dist(healthy) < 2:
+    f_pin, f_whl, window, healthy, far_dist = fw
+    centres = [k + m * pair.gear.z_pinion for k in f_pin for m in range(n_rev)] + \
+        [_wheel_block(j, n_blocks) for j in f_whl]
+    if window and far_dist < 2:
         return everything()              # faults all round: no healthy block to tile from
     (on_h, v_h), _ = compute([healthy])
     onset = np.tile(on_h, (n_blocks, 1))
@@ -223,8 +238,96 @@ def _tabulate_by_pitch(pair, theta, a, grid: MapGrid, n_rev: int = 1):
         if window and not all(differs & {(c - 1) % n_blocks, c % n_blocks} for c in centres):
             return everything()          # a fault is not where its tooth says
         todo = sorted({n % n_blocks for b in differs for n in (b - 1, b + 1)} - done)
-    return onset, vals, {"rows_computed": len(done) * per, "blocks_computed": len(done),
+    return onset, vals, {"built": "by pitch", "rows_computed": len(done) * per,
+                         "flank_rows_computed": 2 * len(done) * per, "blocks_computed": len(done),
                          "tiled_from_block": healthy, "fault_blocks": sorted(differs)}
+
+
+#: the contact table of an incremental build looks this much beyond the deepest approach node (the faulty
+#: tooth is re-meshed, so its elements may meet the partner a little before the healthy tooth's would)
+TOUCH_MARGIN = 1.05
+
+
+def _contact_teeth(pair, theta_pinion: float, s: float) -> tuple[set, set]:
+    """The pinion and wheel teeth with an element in contact at pinion angle ``theta_pinion`` and mesh
+    coordinate ``s`` (static): the elements the engine found in contact, mapped from its tree order to
+    the meshes' faces and their teeth."""
+    out = np.zeros(N_OUT)
+    pair.evaluate(theta_pinion, pair.wheel_angle(theta_pinion, s), 0.0, 0.0, out)
+    n = int(out[OUT_N_CONTACT])
+    if n == 0:
+        return set(), set()
+    base, target = pair.bodies[0], pair.bodies[1]
+    slots = pair.data.work.active[:n]
+    pinion_faces = base.order[slots]
+    wheel_faces = target.order[pair.data.work.best_j[slots]]
+    return (set(np.unique(pair.pinion.face_tooth[pinion_faces]).tolist()),
+            set(np.unique(pair.wheel.face_tooth[wheel_faces]).tolist()))
+
+
+def _fault_window(pair, n_blocks: int):
+    """(pinion faulty teeth, wheel faulty teeth, the pitch blocks where they are in mesh, the block
+    farthest from all of them, its distance in blocks); None when a gear is not made of rotated copies
+    of one tooth (a user mesh)."""
+    z1 = pair.gear.z_pinion
+    n_rev = n_blocks // z1
+    f_pin, f_whl = _faulty_teeth(pair, "pinion"), _faulty_teeth(pair, "wheel")
+    if f_pin is None or f_whl is None:
+        return None
+    centres = [k + m * z1 for k in f_pin for m in range(n_rev)] + [_wheel_block(j, n_blocks) for j in f_whl]
+    window = sorted({b % n_blocks for c in centres for b in (c - 1, c)})
+    dist = lambda b: min(min((b - w) % n_blocks, (w - b) % n_blocks) for w in window) if window else 0  # noqa: E731
+    far = max(range(n_blocks), key=lambda b: (dist(b), -b)) if window else 0
+    return f_pin, f_whl, window, far, dist(far)
+
+
+def _tabulate_incremental(pair, healthy: ContactMap, theta, a, grid: MapGrid, n_rev: int, progress: bool = False):
+    """The healthy map's rows, with the flank rows in which a faulty tooth meets its partner computed again.
+
+    Contact forces are sums over the elements in contact, and every fault removes material. Where the
+    healthy tooth at a faulty tooth's place touches nothing over a row's whole approach range (the deepest
+    node, ``TOUCH_MARGIN`` beyond), the faulty one touches nothing either: that row's onset and values are
+    the healthy ones, element for element. Where it touches, the row is computed afresh with the faulty
+    pair, exactly as a full build computes it (its onset may move: after a missing tooth the next tooth
+    touches later). Which teeth touch in which row is read once on a pitch block far from every fault
+    (``_contact_teeth`` at the healthy onsets) and carried to the other blocks by the pitch shift: a
+    block later, pinion tooth t + 1 and wheel tooth w + 1 stand where t and w stood.
+
+    Returns None (the caller builds by pitch blocks) when the pair has no such far block or a gear is not
+    made of rotated copies of one tooth."""
+    z1, z2 = pair.gear.z_pinion, pair.gear.z_wheel
+    per = grid.points_per_pitch
+    n_blocks = z1 * n_rev
+    fw = _fault_window(pair, n_blocks)
+    if fw is None or healthy.values.shape[0] != per * z1:
+        return None
+    f_pin, f_whl, window, far, far_dist = fw
+    if window and far_dist < 2:
+        return None
+    onset = np.tile(healthy.onset, (n_rev, 1))
+    vals = np.tile(healthy.values, (n_rev, 1, 1, 1))
+    depth = TOUCH_MARGIN * float(a[-1])
+    sides = np.zeros((len(theta), 2), dtype=bool)
+    f_pin, f_whl = set(f_pin), set(f_whl)
+    for i in range(per):
+        r = far * per + i
+        for side, sign in ((SIDE_DRIVE, 1.0), (SIDE_COAST, -1.0)):
+            pins, whls = _contact_teeth(pair, float(theta[r]), float(onset[r, side]) + sign * depth)
+            for b in range(n_blocks):
+                d = b - far
+                if any((t + d) % z1 in f_pin for t in pins) or any((w + d) % z2 in f_whl for w in whls):
+                    sides[b * per + i, side] = True
+    rows = np.flatnonzero(sides.any(axis=1))
+    if len(rows):
+        on_r, v_r = _tabulate(pair, theta[rows], a, grid, sides=sides[rows], progress=progress)
+        keep = sides[rows]
+        for side in (SIDE_DRIVE, SIDE_COAST):
+            sel = rows[keep[:, side]]
+            onset[sel, side] = on_r[keep[:, side], side]
+            vals[sel, side] = v_r[keep[:, side], side]
+    return onset, vals, {"built": "incremental", "rows_computed": int(len(rows)),
+                         "flank_rows_computed": int(sides.sum()), "tiled_from_block": None,
+                         "contact_table_block": far, "fault_blocks": sorted({int(r) // per for r in rows})}
 
 
 def map_workers() -> int:
@@ -232,35 +335,53 @@ def map_workers() -> int:
     return max(1, int(os.environ.get("BEVEL_MAP_WORKERS", os.cpu_count() or 1)))
 
 
-def _tabulate(pair, theta, a, grid: MapGrid, workers: int | None = None):
-    """Tabulate in parallel over pinion-angle chunks (fork: the workers inherit the built pair)."""
+def _progress(pair, flank_rows: int, workers: int, enabled: bool):
+    if not enabled:
+        return Silent()
+    return progress_reporter(f"contact map ({pair.health})", flank_rows, triangles=sum(pair.info.values()),
+                             workers=workers)
+
+
+def _tabulate(pair, theta, a, grid: MapGrid, workers: int | None = None, sides=None, progress: bool = False):
+    """Tabulate in parallel over pinion-angle chunks (fork: the workers inherit the built pair).
+    ``sides`` (n, 2) bool: the flanks of each row to compute (default both; the others stay zero)."""
     import multiprocessing as mp
 
+    if sides is None:
+        sides = np.ones((len(theta), 2), dtype=bool)
     if workers is None:
         workers = map_workers()
     workers = max(1, min(workers, len(theta)))
-    if workers == 1 or "fork" not in mp.get_all_start_methods():
-        return _tabulate_rows(pair, theta, a, grid)
-    chunks = np.array_split(np.arange(len(theta)), 4 * workers)
-    global _FORK_STATE
-    _FORK_STATE = (pair, theta, a, grid)
+    bar = _progress(pair, int(sides.sum()), workers, progress)
     try:
-        with mp.get_context("fork").Pool(workers) as pool:
-            parts = pool.map(_tabulate_chunk, chunks)
+        if workers == 1 or "fork" not in mp.get_all_start_methods():
+            return _tabulate_rows(pair, theta, a, grid, sides, bar)
+        n_chunks = min(len(theta), max(4 * workers, len(theta) // 6))
+        chunks = np.array_split(np.arange(len(theta)), n_chunks)
+        global _FORK_STATE
+        _FORK_STATE = (pair, theta, a, grid, sides)
+        parts = []
+        try:
+            with mp.get_context("fork").Pool(workers) as pool:
+                for idx, part in zip(chunks, pool.imap(_tabulate_chunk, chunks)):
+                    parts.append(part)
+                    bar.update(int(sides[idx].sum()))
+        finally:
+            _FORK_STATE = None
+        return (np.concatenate([p[0] for p in parts], axis=0), np.concatenate([p[1] for p in parts], axis=0))
     finally:
-        _FORK_STATE = None
-    return (np.concatenate([p[0] for p in parts], axis=0), np.concatenate([p[1] for p in parts], axis=0))
+        bar.close()
 
 
 _FORK_STATE = None
 
 
 def _tabulate_chunk(idx):
-    pair, theta, a, grid = _FORK_STATE
-    return _tabulate_rows(pair, theta[idx], a, grid)
+    pair, theta, a, grid, sides = _FORK_STATE
+    return _tabulate_rows(pair, theta[idx], a, grid, sides[idx])
 
 
-def _tabulate_rows(pair, theta, a, grid: MapGrid):
+def _tabulate_rows(pair, theta, a, grid: MapGrid, sides=None, bar=None):
     z1, z2 = pair.gear.z_pinion, pair.gear.z_wheel
     pcm = pair.pcm
     s_b = geometry.backlash_angle(pair.gear)
@@ -279,11 +400,15 @@ def _tabulate_rows(pair, theta, a, grid: MapGrid):
     consts = (float(z1), float(z2), sdot, float(w_ref), float(pcm.c_compression))
     for i, th in enumerate(theta):
         for side, sign in ((SIDE_DRIVE, 1.0), (SIDE_COAST, -1.0)):
+            if sides is not None and not sides[i, side]:
+                continue
             on = contact_onset(pair, th, int(sign), max_approach=grid.max_approach)
             if not math.isfinite(on):
                 on = sign * s_far                        # nothing touches within the range
             onset[i, side] = on
             _tabulate_side((data_el, data_dm, data_fr), th, on, sign, a, consts, vals[i, side], out)
+            if bar is not None:
+                bar.update(1)
     return onset, vals
 
 
@@ -402,10 +527,23 @@ def wheel_faults(health: str, fault_kwargs: dict | None) -> list:
     return [f for f in (fault_kwargs or {}).get("faults", []) if normalised_spec(f)["member"] == "wheel"]
 
 
-def _build_map(gear, pcm, resolution, health, mesh_files, mesh_units, grid, fault_kwargs) -> ContactMap:
+def incremental_from_healthy(gear, health: str, mesh_files, fault_kwargs) -> bool:
+    """Whether a configuration's map is built from the healthy map (:func:`_tabulate_incremental`):
+    generated gears with generated faults, whose healthy teeth are the healthy gear's. Not with a mesh
+    file, nor with a wheel pit, for which every pinion tooth gets extra face rows
+    (faults.partner_face_bands) and so differs from the healthy pinion."""
+    from gearcontact_fmu import faults
+
+    if health == "healthy" or any((mesh_files or {}).values()) or health not in faults.GENERATED_HEALTH:
+        return False
+    return not faults.partner_face_bands(gear, (fault_kwargs or {}).get("faults", []), "pinion")
+
+
+def _build_map(gear, pcm, resolution, health, mesh_files, mesh_units, grid, fault_kwargs,
+               healthy: ContactMap | None = None) -> ContactMap:
     pair = build_pcm_pair(gear, pcm, resolution, health, mesh_files.get("pinion"), mesh_files.get("wheel"),
                           mesh_units, friction=True, damping=True, fault_kwargs=fault_kwargs)
-    return compute_map(pair, grid)
+    return compute_map(pair, grid, progress=True, healthy=healthy)
 
 
 def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
@@ -447,6 +585,11 @@ def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
             os.replace(path, Path(str(path) + ".damaged"))
     if not build:
         return None
+    healthy = None
+    if incremental_from_healthy(gear, health, mesh_files, fault_kwargs):
+        # a faulty map is the healthy one (shipped or cached, whatever ``use_cache`` says for this map)
+        # with the faulty teeth's rows computed again
+        healthy = get_map(gear, pcm, resolution, "healthy", None, grid)
     if use_cache:
         # one build per map: a second process asking for the same map waits and reads the first's
         from gearcontact_fmu.locks import file_lock
@@ -457,10 +600,10 @@ def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
                     return cached()
                 except ContactMapFileError:
                     pass            # damaged meanwhile: built again below
-            cmap = _build_map(gear, pcm, resolution, health, mesh_files, mesh_units, grid, fault_kwargs)
+            cmap = _build_map(gear, pcm, resolution, health, mesh_files, mesh_units, grid, fault_kwargs, healthy)
             save_map(cmap, path)
     else:
-        cmap = _build_map(gear, pcm, resolution, health, mesh_files, mesh_units, grid, fault_kwargs)
+        cmap = _build_map(gear, pcm, resolution, health, mesh_files, mesh_units, grid, fault_kwargs, healthy)
     cmap.info["cache"] = str(path)
     cmap.info["from_cache"] = False
     if problem:

@@ -114,6 +114,18 @@ def probe(pair, pinion_speed_rad_s: float, substep_s: float, n_substeps: int = 1
     return row, sub
 
 
+#: one contact-map row (both flanks) of the default pair [s] and that pair's triangles, measured on the
+#: 2-core machine (issue 29): the progress bar's estimate before the first rows are timed
+MAP_ROW_S = 0.10
+MAP_ROW_TRIANGLES = 504_000
+
+
+def map_row_seconds(triangles: int) -> float:
+    """Estimated seconds per contact-map row (both flanks) of a pair of ``triangles``, by the growth law
+    (the progress bar of a map build says it before the first rows are timed)."""
+    return MAP_ROW_S * (max(triangles, 1) / MAP_ROW_TRIANGLES) ** COST_EXPONENT
+
+
 def estimate(triangles: int, *, build_s: float = 0.0, row_s: float = 0.0, substep_s: float = 0.0,
              map_rows: int = 0, map_workers: int = 1, n_substeps: float = 0.0) -> CostEstimate:
     """Pair build, map build (``map_rows`` rows over ``map_workers`` processes) and loop (``n_substeps``)."""

@@ -35,7 +35,7 @@ def healthy():
     return cm.compute_map(build_pcm_pair(GEAR, PCM, RES), GRID)
 
 
-def _compare(faults, healthy, built="incremental"):
+def _compare(faults, healthy, built="healthy map + fault rows"):
     pair = build_pcm_pair(GEAR, PCM, RES, health="faults", fault_kwargs={"faults": faults})
     inc = cm.compute_map(pair, GRID, healthy=healthy)
     assert inc.info["built"] == built
@@ -44,9 +44,10 @@ def _compare(faults, healthy, built="incremental"):
     worst = (np.abs(inc.values - vals) / np.where(scale > 0, scale, 1.0)).max()
     assert worst <= REL_TOL, f"{faults}: largest difference {worst:.2e} of the channel scale"
     np.testing.assert_allclose(inc.onset, onset, rtol=0, atol=ONSET_TOL)
-    # the fault is really in the map (the check can fail): its rows differ from the healthy ones
-    n_rev = len(inc.theta) // len(healthy.theta)
-    tiled = np.tile(healthy.values, (n_rev, 1, 1, 1))
+    # the fault is really in the map (the check can fail): some rows differ from the healthy pitch tiled
+    per = GRID.points_per_pitch
+    far = inc.info["contact_table_block"]
+    tiled = np.tile(vals[far * per:(far + 1) * per], (len(inc.theta) // per, 1, 1, 1))
     assert np.abs(vals[..., cm.CH_TAU_P] - tiled[..., cm.CH_TAU_P]).max() > 1e-4 * scale[cm.CH_TAU_P]
     return inc
 
@@ -59,10 +60,12 @@ def test_incremental_map_equals_every_row(kind, member, healthy):
     if kind == "wear":
         spec["depth_um"] = 60.0          # the default 20 µm wears less than the coarse mesh resolves here
     if kind == "pit" and member == "wheel":
-        # a wheel pit gives every pinion tooth extra face rows: not the healthy pinion, built by pitch blocks
+        # a wheel pit gives every pinion tooth extra face rows: not the healthy pinion; its own healthy
+        # pitch block is computed and tiled, then the fault rows
         assert not cm.incremental_from_healthy(GEAR, "faults", None, {"faults": [spec]})
-        return
-    inc = _compare([spec], healthy)
+        inc = _compare([spec], None, built="one pitch + fault rows")
+    else:
+        inc = _compare([spec], healthy)
     # only the rows where the faulty tooth meets its partner: a few pitches, once (a wheel tooth meets the
     # pinion once in the four revolutions of the map)
     assert 0 < inc.info["flank_rows_computed"] <= 2 * 4 * GRID.points_per_pitch

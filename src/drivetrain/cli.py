@@ -664,7 +664,8 @@ def _add_execution_options(p: argparse.ArgumentParser,
     """Where and how the runs of a many-run command execute: --workers, --scheduler, --backend, --fmu-dir."""
     p.add_argument("--workers", type=_positive_int, default=None, help=workers_help)
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                   help="Dask scheduler address (tcp://host:8786); default: local process pool")
+                   help="Dask scheduler address (tcp://host:8786), or 'local' for a Dask cluster of --workers "
+                        "processes started by the command; default: local process pool")
     p.add_argument("--backend", choices=BACKENDS, default="fmi")
     p.add_argument("--fmu-dir", default="fmus")
 
@@ -901,7 +902,8 @@ def _parser_stress(sub) -> None:
     p.add_argument("--out", default="out/stress", help="output directory (default: out/stress)")
     p.add_argument("--workers", type=_positive_int, default=None, help="local worker processes (default: CPU count)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                   help="Dask scheduler address (tcp://host:8786); default: local process pool")
+                   help="Dask scheduler address (tcp://host:8786), or 'local' for a Dask cluster of --workers "
+                        "processes started by the command; default: local process pool")
     p.add_argument("--resume", action="store_true", help="do not rerun runs whose summary.json exists")
     p.add_argument("--halving-subset", type=int, default=10, metavar="K",
                    help="also run every K-th random scene with half the communication step (0: none; default 10)")

@@ -118,26 +118,21 @@ def compute_map(pair, grid: MapGrid = MapGrid(), progress: bool = False,
                 healthy: ContactMap | None = None) -> ContactMap:
     """Tabulate the online PCM engine over (theta, flank, approach beyond each angle's onset).
 
-    ``healthy``: the map of the same gear, PCM parameters, resolution and grid with healthy teeth. With
-    it, a pair of generated gears with faults is built incrementally (:func:`_tabulate_incremental`):
-    the healthy rows, with only the rows and flanks in which a faulty tooth meets its partner computed
-    again; the approach nodes are the healthy map's (a property of the healthy teeth at max_torque).
-    Without it, rows are computed one pinion pitch (a "block" of ``points_per_pitch`` rows) at a time,
-    and only where the pair differs from its neighbour a pitch away (see :func:`_tabulate_by_pitch`).
-    ``progress``: report the rows as they are computed to the hook set by :func:`set_progress_factory`."""
+    Only what differs from a healthy pitch is computed (:func:`_tabulate_by_pitch`): the healthy rows
+    (``healthy``, the map of the same gear, PCM parameters, resolution and grid with healthy teeth, or
+    else one pitch block of this pair far from its faults, tiled), and the flank rows in which a faulty
+    tooth meets its partner. With ``healthy`` the approach nodes are its own (a property of the healthy
+    teeth at max_torque). ``progress``: report the rows as they are computed (:mod:`.progress`)."""
     n_rev = pairing_revolutions(pair.gear, wheel_periodic=_faulty_teeth(pair, "wheel") == [])
     n_theta = grid.points_per_pitch * pair.gear.z_pinion * n_rev
     theta = np.linspace(0.0, 2 * math.pi * n_rev, n_theta, endpoint=False)
     t0 = time.perf_counter()
-    result = None
     if healthy is not None:
         a = healthy.a
         ainfo = {k: healthy.info[k] for k in ("span", "s_backlash", "base_radius")}
-        result = _tabulate_incremental(pair, healthy, theta, a, grid, n_rev, progress)
     else:
         a, ainfo = _approach_grid(pair, grid)
-    if result is None:
-        result = _tabulate_by_pitch(pair, theta, a, grid, n_rev, progress)
+    result = _tabulate_by_pitch(pair, theta, a, grid, n_rev, progress, healthy)
     onset, vals, pinfo = result
     info = {**ainfo, "build_seconds": time.perf_counter() - t0, "n_theta": n_theta, "n_s": len(a),
             "pinion_revolutions": n_rev,
@@ -145,15 +140,6 @@ def compute_map(pair, grid: MapGrid = MapGrid(), progress: bool = False,
             "onset_drive_max": float(np.max(onset[:, SIDE_DRIVE])),
             "evaluations": 3 * pinfo["flank_rows_computed"] * len(a), **pinfo, **pair.info, "health": pair.health}
     return ContactMap(theta, a, onset, vals, pair.gear, pair.pcm, grid, info)
-
-
-# A block counts as equal to the healthy block when every channel agrees to this fraction of the
-# channel's largest magnitude and the onsets to BLOCK_ONSET_TOL rad. Healthy teeth are rotated copies
-# of one tooth, so equal blocks differ by rounding only: measured on the default meshes, at most 1e-8
-# of the channel scale (the damping probe, a difference quotient) and 5e-12 for the torques, onsets
-# identical; a faulty tooth in mesh changes a block by 3e-3 (mild) to 1e-1 (severe).
-BLOCK_REL_TOL = 1e-6
-BLOCK_ONSET_TOL = 1e-9
 
 
 def pairing_revolutions(gear: BevelGearParams, wheel_periodic: bool) -> int:
@@ -182,65 +168,6 @@ def _wheel_block(tooth: int, n_blocks: int) -> int:
     """Pitch block in which wheel ``tooth`` meets the pinion at the centre of the mesh (block b
     spans pinion angles [b, b + 1) pitches; the wheel turns one wheel pitch per block)."""
     return int(tooth) % n_blocks
-
-
-def _blocks_equal(ref_on, ref_v, on, v, scale) -> bool:
-    return bool(np.all(np.abs(on - ref_on) <= BLOCK_ONSET_TOL)
-                and np.all(np.abs(v - ref_v) <= BLOCK_REL_TOL * scale))
-
-
-def _tabulate_by_pitch(pair, theta, a, grid: MapGrid, n_rev: int = 1, progress: bool = False):
-    """Onsets and values of every row, computing as few pitch blocks as the geometry allows.
-
-    Turning the pinion by one pitch and the wheel by one wheel pitch leaves the mesh coordinate s
-    unchanged, so a pair of healthy gears has the same map rows a pitch apart: one block is computed
-    and tiled. A fault on pinion tooth k is in mesh near theta = k pitches (blocks k-1 and k, in every
-    pinion revolution of the map), one on wheel tooth j near block j of the pairing period; those
-    blocks are computed, then their neighbours outward until a neighbour equals the healthy block
-    (the block farthest from every fault). A fault block that equals the healthy block means the
-    window was guessed wrong, and everything is computed, as for user meshes."""
-    n_blocks = pair.gear.z_pinion * n_rev
-    per = grid.points_per_pitch
-    rows = lambda blocks: np.concatenate([np.arange(b * per, (b + 1) * per) for b in blocks])  # noqa: E731
-
-    def compute(blocks):
-        idx = rows(blocks)
-        return _tabulate(pair, theta[idx], a, grid, progress=progress), idx
-
-    def everything():
-        onset, vals = _tabulate(pair, theta, a, grid, progress=progress)
-        return onset, vals, {"built": "every row", "rows_computed": len(theta), "flank_rows_computed": 2 * len(theta),
-                             "blocks_computed": n_blocks, "tiled_from_block": None}
-
-    fw = _fault_window(pair, n_blocks)
-    if fw is None:
-        return everything()
-    f_pin, f_whl, window, healthy, far_dist = fw
-    centres = [k + m * pair.gear.z_pinion for k in f_pin for m in range(n_rev)] + \
-        [_wheel_block(j, n_blocks) for j in f_whl]
-    if window and far_dist < 2:
-        return everything()              # faults all round: no healthy block to tile from
-    (on_h, v_h), _ = compute([healthy])
-    onset = np.tile(on_h, (n_blocks, 1))
-    vals = np.tile(v_h, (n_blocks, 1, 1, 1))
-    done = {healthy}
-    scale = np.abs(v_h).reshape(-1, v_h.shape[-1]).max(axis=0)
-    differs = set()
-    todo = [b for b in window if b != healthy]
-    while todo:
-        (on_b, v_b), idx = compute(todo)
-        onset[idx], vals[idx] = on_b, v_b
-        for q, b in enumerate(todo):
-            sl = slice(q * per, (q + 1) * per)
-            done.add(b)
-            if not _blocks_equal(on_h, v_h, on_b[sl], v_b[sl], scale):
-                differs.add(b)
-        if window and not all(differs & {(c - 1) % n_blocks, c % n_blocks} for c in centres):
-            return everything()          # a fault is not where its tooth says
-        todo = sorted({n % n_blocks for b in differs for n in (b - 1, b + 1)} - done)
-    return onset, vals, {"built": "by pitch", "rows_computed": len(done) * per,
-                         "flank_rows_computed": 2 * len(done) * per, "blocks_computed": len(done),
-                         "tiled_from_block": healthy, "fault_blocks": sorted(differs)}
 
 
 #: the contact table of an incremental build looks this much beyond the deepest approach node (the faulty
@@ -281,42 +208,60 @@ def _fault_window(pair, n_blocks: int):
     return f_pin, f_whl, window, far, dist(far)
 
 
-def _tabulate_incremental(pair, healthy: ContactMap, theta, a, grid: MapGrid, n_rev: int, progress: bool = False):
-    """The healthy map's rows, with the flank rows in which a faulty tooth meets its partner computed again.
+def _tabulate_by_pitch(pair, theta, a, grid: MapGrid, n_rev: int = 1, progress: bool = False,
+                       healthy: ContactMap | None = None):
+    """Onsets and values of every row, computing as few rows as the geometry allows.
+
+    Turning the pinion by one pitch and the wheel by one wheel pitch leaves the mesh coordinate s
+    unchanged, and generated teeth are rotated copies of one tooth, so a pair of healthy gears has the same
+    rows a pitch apart: one block (``points_per_pitch`` rows) is computed and tiled. With faults, the
+    healthy rows are the ``healthy`` map's or, without it, the block farthest from every fault, tiled; then
+    the flank rows in which a faulty tooth meets its partner are computed again:
 
     Contact forces are sums over the elements in contact, and every fault removes material. Where the
-    healthy tooth at a faulty tooth's place touches nothing over a row's whole approach range (the deepest
+    healthy tooth at a faulty tooth's place touches nothing over a row's whole approach range (its deepest
     node, ``TOUCH_MARGIN`` beyond), the faulty one touches nothing either: that row's onset and values are
     the healthy ones, element for element. Where it touches, the row is computed afresh with the faulty
     pair, exactly as a full build computes it (its onset may move: after a missing tooth the next tooth
-    touches later). Which teeth touch in which row is read once on a pitch block far from every fault
-    (``_contact_teeth`` at the healthy onsets) and carried to the other blocks by the pitch shift: a
+    touches later). Which teeth touch in which row is read once, on the block far from every fault
+    (:func:`_contact_teeth` at the healthy onsets), and carried to the other blocks by the pitch shift: a
     block later, pinion tooth t + 1 and wheel tooth w + 1 stand where t and w stood.
 
-    Returns None (the caller builds by pitch blocks) when the pair has no such far block or a gear is not
-    made of rotated copies of one tooth."""
+    Every row is computed when a gear is not made of rotated copies of one tooth (a mesh file) or when the
+    faults leave no block two pitches away from all of them."""
     z1, z2 = pair.gear.z_pinion, pair.gear.z_wheel
     per = grid.points_per_pitch
     n_blocks = z1 * n_rev
     fw = _fault_window(pair, n_blocks)
-    if fw is None or healthy.values.shape[0] != per * z1:
-        return None
-    f_pin, f_whl, window, far, far_dist = fw
-    if window and far_dist < 2:
-        return None
-    onset = np.tile(healthy.onset, (n_rev, 1))
-    vals = np.tile(healthy.values, (n_rev, 1, 1, 1))
-    depth = TOUCH_MARGIN * float(a[-1])
+    if fw is None or (fw[2] and fw[4] < 2):
+        onset, vals = _tabulate(pair, theta, a, grid, progress=progress)
+        return onset, vals, {"built": "every row", "rows_computed": len(theta), "flank_rows_computed": 2 * len(theta),
+                             "tiled_from_block": None, "fault_blocks": None}
+    f_pin, f_whl, window, far, _ = fw
+    info = {"rows_computed": 0, "flank_rows_computed": 0}
+    if healthy is not None and healthy.values.shape[0] == per * z1 and len(healthy.a) == len(a):
+        base_on, base_v = healthy.onset, healthy.values
+        info.update(built="healthy map + fault rows", tiled_from_block=None)
+    else:
+        idx = np.arange(far * per, (far + 1) * per)
+        on_b, v_b = _tabulate(pair, theta[idx], a, grid, progress=progress)
+        base_on, base_v = np.tile(on_b, (z1, 1)), np.tile(v_b, (z1, 1, 1, 1))
+        info.update(built="one pitch + fault rows" if window else "one pitch", tiled_from_block=far,
+                    rows_computed=per, flank_rows_computed=2 * per)
+    onset = np.tile(base_on, (n_rev, 1))
+    vals = np.tile(base_v, (n_rev, 1, 1, 1))
     sides = np.zeros((len(theta), 2), dtype=bool)
-    f_pin, f_whl = set(f_pin), set(f_whl)
-    for i in range(per):
-        r = far * per + i
-        for side, sign in ((SIDE_DRIVE, 1.0), (SIDE_COAST, -1.0)):
-            pins, whls = _contact_teeth(pair, float(theta[r]), float(onset[r, side]) + sign * depth)
-            for b in range(n_blocks):
-                d = b - far
-                if any((t + d) % z1 in f_pin for t in pins) or any((w + d) % z2 in f_whl for w in whls):
-                    sides[b * per + i, side] = True
+    if window:
+        depth = TOUCH_MARGIN * float(a[-1])
+        f_pin, f_whl = set(f_pin), set(f_whl)
+        for i in range(per):
+            r = far * per + i
+            for side, sign in ((SIDE_DRIVE, 1.0), (SIDE_COAST, -1.0)):
+                pins, whls = _contact_teeth(pair, float(theta[r]), float(onset[r, side]) + sign * depth)
+                for b in range(n_blocks):
+                    d = b - far
+                    if any((t + d) % z1 in f_pin for t in pins) or any((w + d) % z2 in f_whl for w in whls):
+                        sides[b * per + i, side] = True
     rows = np.flatnonzero(sides.any(axis=1))
     if len(rows):
         on_r, v_r = _tabulate(pair, theta[rows], a, grid, sides=sides[rows], progress=progress)
@@ -325,9 +270,10 @@ def _tabulate_incremental(pair, healthy: ContactMap, theta, a, grid: MapGrid, n_
             sel = rows[keep[:, side]]
             onset[sel, side] = on_r[keep[:, side], side]
             vals[sel, side] = v_r[keep[:, side], side]
-    return onset, vals, {"built": "incremental", "rows_computed": int(len(rows)),
-                         "flank_rows_computed": int(sides.sum()), "tiled_from_block": None,
-                         "contact_table_block": far, "fault_blocks": sorted({int(r) // per for r in rows})}
+    info["rows_computed"] += int(len(rows))
+    info["flank_rows_computed"] += int(sides.sum())
+    info.update(contact_table_block=far if window else None, fault_blocks=sorted({int(r) // per for r in rows}))
+    return onset, vals, info
 
 
 def map_workers() -> int:
@@ -528,7 +474,7 @@ def wheel_faults(health: str, fault_kwargs: dict | None) -> list:
 
 
 def incremental_from_healthy(gear, health: str, mesh_files, fault_kwargs) -> bool:
-    """Whether a configuration's map is built from the healthy map (:func:`_tabulate_incremental`):
+    """Whether a configuration's map is built from the healthy map (:func:`_tabulate_by_pitch`):
     generated gears with generated faults, whose healthy teeth are the healthy gear's. Not with a mesh
     file, nor with a wheel pit, for which every pinion tooth gets extra face rows
     (faults.partner_face_bands) and so differs from the healthy pinion."""

@@ -3,8 +3,9 @@
 One picklable ``simulate(case)`` function runs a case in whatever process it lands in. FMUs are never
 pickled: each worker process extracts and loads them once (the master's per-process caches) and reuses
 them for every case it runs. The executor is a local ``concurrent.futures.ProcessPoolExecutor`` by
-default, or ``distributed.Client(address).get_executor()`` when a Dask scheduler address is given; the
-same function runs unchanged on both. Before any case is dispatched the parent assembles every scene
+default, or ``distributed.Client(address).get_executor()`` when a Dask scheduler address is given (or a
+``LocalCluster`` the sweep starts and stops, for the address ``"local"``); the same function runs unchanged
+on both. Before any case is dispatched the parent assembles every scene
 (the workers run exactly these SystemSpecs), builds missing or stale FMUs once, and prepares the disk
 caches that component initialisation would build (contact maps of ``table`` gears: Dask workers are
 daemonic processes and cannot start the map builder's process pool). Never do several processes write one HDF5: each run writes its own directory.
@@ -182,7 +183,20 @@ def simulate(case: dict) -> dict:
     return rec
 
 
+#: ``address`` that starts a Dask cluster on this machine for the sweep (and stops it at the end)
+LOCAL_DASK = "local"
+
+
 def _executor(workers: int | None, address: str | None):
+    """(executor, what to close after it: a Dask client, and the cluster the sweep started, or None)."""
+    if address == LOCAL_DASK:
+        from distributed import Client, LocalCluster
+
+        # one single-threaded worker process per core, no dashboard: a sweep's own cluster
+        cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                               dashboard_address=None)
+        client = Client(cluster)
+        return client.get_executor(), _Closing(client, cluster)
     if address:
         from distributed import Client
 
@@ -192,6 +206,17 @@ def _executor(workers: int | None, address: str | None):
 
     workers = workers or os.cpu_count() or 1
     return cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")), None
+
+
+class _Closing:
+    """Closes several things in order (a Dask client, then the cluster the sweep started)."""
+
+    def __init__(self, *things):
+        self.things = things
+
+    def close(self) -> None:
+        for t in self.things:
+            t.close()
 
 
 def _specs_of(scenes: list[Scene], specs: dict | None) -> list:
@@ -502,7 +527,8 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
     """Run every scene; returns the manifest (written to out_dir/manifest.json and .csv after every
     finished run, ``complete`` once all are done).
 
-    ``workers``: local processes (default: CPU count); ``address``: Dask scheduler (then Dask's executor);
+    ``workers``: local processes (default: CPU count); ``address``: Dask scheduler (then Dask's executor;
+    ``"local"``: a Dask cluster of ``workers`` processes on this machine, started and stopped here);
     ``executor``: any concurrent.futures-style executor to use instead. ``specs``: {scene name: SystemSpec}
     to bypass the assembler (tests); ``fmu_paths``: explicit FMUs (no building). ``prepare``: build the
     components' disk caches (contact maps) in this process first (:func:`prepare_caches`). ``plots``:
@@ -532,7 +558,8 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
         log(f"resume: {len(reused)} of {len(scenes)} runs reused (finished, same fingerprint), {len(cases)} to run")
     manifest = _Manifest(out, scenes={s.name: s for s in scenes},
                          order={n: i for i, n in enumerate(grid_names or names)},
-                         meta={"executor": "dask" if address else ("custom" if executor is not None
+                         meta={"executor": ("dask (local cluster)" if address == LOCAL_DASK else "dask") if address
+                               else ("custom" if executor is not None
                                                                     else "local processes"), "backend": backend,
                                "preparation_s": preparation_s, "reused_runs": len(reused)},
                          kept=kept, t0=t0)

@@ -116,7 +116,7 @@ def probe(pair, pinion_speed_rad_s: float, substep_s: float, n_substeps: int = 1
 
 #: one contact-map row (both flanks) of the default pair [s] and that pair's triangles, measured on the
 #: 2-core machine (issue 29): the progress bar's estimate before the first rows are timed
-MAP_ROW_S = 0.10
+MAP_ROW_S = 0.045
 MAP_ROW_TRIANGLES = 504_000
 
 

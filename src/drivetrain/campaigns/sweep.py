@@ -236,12 +236,15 @@ def _cache_shaping(parameters: dict) -> dict:
 
 
 def prepare_caches(specs: list, fmu_dir: str | Path = "fmus", fmu_paths: dict | None = None,
-                   log=None) -> int:
-    """Initialise once, in this (non-daemonic) process, every distinct component configuration whose
-    initialisation builds a disk cache (GearContact ``fidelity = "table"``: the contact map), so that
-    worker processes only read caches. Dask worker processes are daemonic and cannot start the map
-    builder's process pool. Returns the number of configurations prepared; failures are left to the runs
-    (they report them with the FMU's log)."""
+                   log=None, workers: int | None = None) -> int:
+    """Initialise once, in this (non-daemonic) process or its children, every distinct component
+    configuration whose initialisation builds a disk cache (GearContact ``fidelity = "table"``: the contact
+    map), so that worker processes only read caches. Dask worker processes are daemonic and cannot start the
+    map builder's process pool. Several configurations are prepared side by side, one per process of a
+    pool of ``workers`` (default: the CPU count), each building its map on one core: a map build has serial
+    parts (the meshes, the contact table, the pool start) that one build alone leaves the other cores idle
+    for. Returns the number of configurations prepared; failures are left to the runs (they report them
+    with the FMU's log)."""
 
     seen, todo = set(), []
     for spec in specs:
@@ -251,18 +254,66 @@ def prepare_caches(specs: list, fmu_dir: str | Path = "fmus", fmu_paths: dict | 
                 if key not in seen:
                     seen.add(key)
                     todo.append((c, spec.comm_step))
-    for comp, H in todo:
-        if log:
-            log(f"preparing {comp.model} ({comp.name}: fidelity {comp.parameters.get('fidelity')}, "
-                f"health {comp.parameters.get('health', '?')})")
-        one = SystemSpec(components=[comp], connections=[], comm_step=H)
-        try:
-            simulate_system(one, H, 1.0 / H, backend="inprocess", fmu_dir=fmu_dir, fmu_paths=fmu_paths, build=False,
-                            progress=False)
-        except Exception as exc:  # the run of the case will report it properly
+    workers = max(1, min(workers or os.cpu_count() or 1, len(todo)))
+    if workers == 1:
+        for comp, H in todo:
             if log:
-                log(f"  preparation failed ({type(exc).__name__}); the runs will report it")
+                log(f"preparing {comp.model} ({comp.name}: fidelity {comp.parameters.get('fidelity')}, "
+                    f"health {comp.parameters.get('health', '?')})")
+            problem = _prepare_one(comp, H, fmu_dir, fmu_paths)
+            if problem and log:
+                log(f"  preparation failed ({problem}); the runs will report it")
+        return len(todo)
+    import multiprocessing as mp
+
+    t0 = time.perf_counter()
+    if log:
+        log(f"preparing {len(todo)} component configurations (contact maps) in {workers} processes")
+    ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+    # a multiprocessing pool (its processes single-core map builders): on an interrupt it is terminated at
+    # once, not waited for, and its processes ignore SIGINT (the parent reports the stop)
+    pool = ctx.Pool(workers, initializer=_one_core_builder)
+    try:
+        jobs = [(comp, H, fmu_dir, fmu_paths) for comp, H in todo]
+        for k, (name, problem) in enumerate(pool.imap_unordered(_prepare_job, jobs), 1):
+            if log and (problem or k == len(todo) or k % max(1, len(todo) // 10) == 0):
+                log(f"  {k}/{len(todo)} prepared ({time.perf_counter() - t0:.0f} s)"
+                    + (f"; {name} failed ({problem}): the run will report it" if problem else ""))
+        pool.close()
+    except BaseException:
+        pool.terminate()
+        raise
+    finally:
+        pool.join()
     return len(todo)
+
+
+def _prepare_job(job) -> tuple[str, str | None]:
+    comp = job[0]
+    return comp.name, _prepare_one(*job)
+
+
+def _one_core_builder() -> None:
+    """Initializer of a preparation process: its map builds run on its own core, without progress bars;
+    SIGINT is the parent's to handle."""
+    import signal
+
+    from gearcontact_fmu import progress
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    os.environ["BEVEL_MAP_WORKERS"] = "1"
+    progress.set_factory(None)
+
+
+def _prepare_one(comp, H: float, fmu_dir, fmu_paths) -> str | None:
+    """Initialise one component in this process (which builds its disk cache); None, or why it failed."""
+    one = SystemSpec(components=[comp], connections=[], comm_step=H)
+    try:
+        simulate_system(one, H, 1.0 / H, backend="inprocess", fmu_dir=fmu_dir, fmu_paths=fmu_paths, build=False,
+                        progress=False)
+    except Exception as exc:  # the run of the case will report it properly
+        return type(exc).__name__
+    return None
 
 
 MANIFEST_COLUMNS = ["name", "status", "health", "drive_speed_rpm", "load_torque_Nm", "mesh_contact",

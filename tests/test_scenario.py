@@ -406,3 +406,33 @@ face_position = { uniform = [0.2, 0.8] }
     msg = str(ei.value)
     for part in ("sweep.draw.seed", "sweep.draw.faults[0].size_mm", "sweep.draw.faults[0].radius_mm"):
         assert part in msg, msg
+
+
+def test_grid_draw_gives_each_case_its_own_gearbox(tmp_path):
+    """[sweep.draw] gearboxes = true: the manufacturing seed is the case's number in the grid (a paired
+    healthy twin shares its faulty case's); without it every case keeps the base scene's seed."""
+    text = """
+[scenario]
+name = "fleet"
+[manufacturing]
+seed = 5
+[sweep.axes]
+"operating_point.drive_speed_rpm" = [500.0, 1500.0]
+[sweep.draw]
+n = 3
+seed = 1
+GEARBOXES
+paired_healthy = true
+[[sweep.draw.faults]]
+kind = "pit"
+"""
+    f = tmp_path / "grid.toml"
+    f.write_text(text.replace("GEARBOXES", "gearboxes = true"))
+    scenes = load_scenes(f)
+    assert [s.manufacturing.seed for s in scenes] == [0, 0, 1, 1, 2, 2, 3, 3, 4, 4, 5, 5]
+    assert [s.gear.health for s in scenes[:2]] == ["faults", "healthy"]
+    f.write_text(text.replace("GEARBOXES", ""))
+    assert {s.manufacturing.seed for s in load_scenes(f)} == {5}
+    f.write_text(text.replace("GEARBOXES", 'gearboxes = "yes"'))
+    with pytest.raises(ScenarioError, match="sweep.draw.gearboxes"):
+        load_scenes(f)

@@ -30,7 +30,7 @@ from gearcontact_fmu.fault_specs import draw_faults, draw_rule_problems, draw_va
 GRID_SECTION = "sweep"
 GRID_KEYS = {"axes", "name", "draw", "growth"}
 GROWTH_KEYS = {"fault", "stages", "life", "healthy"}
-DRAW_KEYS = {"n", "seed", "faults", "background", "paired_healthy"}
+DRAW_KEYS = {"n", "seed", "faults", "background", "paired_healthy", "gearboxes"}
 #: the largest seed a ``seed = "any"`` rule of [sweep.draw.background] draws
 MAX_DRAWN_SEED = 2 ** 31 - 1
 #: the second word of the background draws' seed (numpy SeedSequence entropy [seed, this])
@@ -144,8 +144,10 @@ def _draw_problems(draw) -> list:
     key = f"{GRID_SECTION}.draw"
     if not isinstance(draw, dict):
         return [(key, draw, "a table [sweep.draw] with n, seed and [[sweep.draw.faults]] or [sweep.draw.background]")]
-    problems = [(f"{key}.{k}", v, "a key of [sweep.draw]: n, seed, faults, background, paired_healthy")
+    problems = [(f"{key}.{k}", v, "a key of [sweep.draw]: n, seed, faults, background, paired_healthy, gearboxes")
                 for k, v in draw.items() if k not in DRAW_KEYS]
+    if not isinstance(draw.get("gearboxes", False), bool):
+        problems.append((f"{key}.gearboxes", draw["gearboxes"], "true (each drawn case its own gearbox) or false"))
     if not isinstance(draw.get("paired_healthy", False), bool):
         problems.append((f"{key}.paired_healthy", draw["paired_healthy"], "true or false"))
     elif draw.get("paired_healthy") and not draw.get("faults"):
@@ -251,11 +253,14 @@ def _cases(raw: dict, grid: Grid):
     # the background's own stream: adding [sweep.draw.background] leaves the faults' draws as they were
     rng_bg = np.random.default_rng([draw["seed"], BACKGROUND_STREAM]) if draw else None
     draws = range(draw["n"]) if draw else [None]
-    for combo, d in itertools.product(itertools.product(*(grid.axes[k] for k in keys)), draws):
+    for number, (combo, d) in enumerate(itertools.product(itertools.product(*(grid.axes[k] for k in keys)), draws)):
         case = copy.deepcopy(raw)
         for k, v in zip(keys, combo):
             sec, key = k.split(".")
             case.setdefault(sec, {})[key] = v
+        if d is not None and draw.get("gearboxes"):
+            # each drawn case its own gearbox: manufacturing seed = the case's number in the grid (0, 1, ...)
+            case.setdefault("manufacturing", {})["seed"] = number
         if grid.growth is not None:
             yield from _growth_cases(case, grid.growth)
             continue

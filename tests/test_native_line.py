@@ -390,24 +390,31 @@ def test_hostile_calls(native, model):
     import os
     import sys
 
-    from test_fmu_hostile import EXPECT, NO_STRINGS, PYTHONFMU_ONLY, SCRIPT
+    from test_fmu_hostile import EXPECT, NATIVE_EXPECT, PYTHONFMU_ONLY, SCRIPT, not_applicable
 
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
     r = subprocess.run([sys.executable, "-c", SCRIPT, str(native[model])], capture_output=True, text=True,
                        timeout=300, env=env)
     done = {rec["case"]: rec for rec in map(json.loads, filter(None, r.stdout.splitlines())) if "case" in rec}
     assert set(done) == set(EXPECT), (r.returncode, r.stderr[-2000:])
-    for case, (outcomes, text) in EXPECT.items():
+    for case, (outcomes, text) in {**EXPECT, **NATIVE_EXPECT}.items():
         if case in PYTHONFMU_ONLY:
             continue
         rec = done[case]
         if rec["outcomes"] == ["n/a"]:
-            assert model in NO_STRINGS and "string" in case
+            assert not_applicable(model, case), (model, case)
             continue
         assert rec["outcomes"] == outcomes, (case, rec)
         assert text is None or any(text in line for line in rec["log"]), (case, rec["log"])
         if outcomes.count("refused") == 0:
             assert not any(line.startswith("[error]") for line in rec["log"]), (case, rec["log"])
+
+
+@pytest.mark.parametrize("model", MODELS)
+def test_a_wrong_guid_and_a_second_free_do_not_hurt_the_host(native, model):
+    from test_fmu_hostile import check_lifecycle
+
+    check_lifecycle(native[model])
 
 
 # ---- building, caching, the command line -------------------------------------------------------------------

@@ -78,3 +78,38 @@ def test_a_killed_rerun_never_says_ok(tmp_path, fmu_dir):
     os.kill(p.pid, signal.SIGKILL)
     p.communicate()
     assert _status(out) == "running"
+
+
+def test_ctrl_c_during_a_sweep_stops_it_without_tracebacks(tmp_path, fmu_dir):
+    """Ctrl-C reaches every process of the terminal: the sweep's workers end the runs they are stepping as
+    "interrupted" (what they computed written), start no other, print no traceback; the sweep exits 130 at
+    once, its manifest written; --resume then runs what is missing. Issue 33: each worker printed its
+    KeyboardInterrupt traceback, and the parent waited for the queued runs."""
+    grid = tmp_path / "grid.toml"
+    grid.write_text((ROOT / "scenarios" / "example.toml").read_text() + """
+[sweep.axes]
+"operating_point.drive_speed_rpm" = [500.0, 750.0, 1000.0, 1250.0, 1500.0]
+""")
+    out = tmp_path / "sweep"
+    cmd = [sys.executable, "-m", "drivetrain", "sweep", str(grid), "--set", "time.duration_s=60",
+           "--set", "effects.mesh_contact=\"ideal\"", "--no-plots", "--backend", "inprocess", "--fmu-dir", str(fmu_dir),
+           "--out", str(out), "--workers", "2", "--quiet"]
+    # a terminal's Ctrl-C: SIGINT to the whole process group (SIGINT at its default, as in a shell)
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    t0 = time.time()
+    while time.time() - t0 < 180 and p.poll() is None and not any(
+            _status(d) == "running" for d in out.glob("*/") if d.is_dir()):
+        time.sleep(0.1)
+    time.sleep(5.0)                                   # the runs are stepping
+    assert p.poll() is None, p.communicate()
+    os.killpg(p.pid, signal.SIGINT)
+    t_sig = time.time()
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130, err[-2000:]
+    assert time.time() - t_sig < 30, "the sweep waited for its queued runs"
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err[-3000:]
+    statuses = {d.name: _status(d) for d in out.iterdir() if d.is_dir()}
+    assert "interrupted" in statuses.values(), statuses
+    assert len(statuses) < 5 and "ok" not in statuses.values(), statuses      # the rest never started
+    assert json.loads((out / "manifest.json").read_text())["complete"] is False

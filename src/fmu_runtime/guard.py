@@ -139,6 +139,9 @@ def guard_value_references(slave, model: str) -> None:
                                  if getattr(v.causality, "name", "") == "input"
                                  or getattr(v.variability, "name", "") == "tunable")
     slave._fmi_phase = "instantiated"
+    # Integer variables with declared bounds (drivetrain.models.fmishell.Integer: min, max)
+    bounded = {vr: (getattr(v, "min", None), getattr(v, "max", None)) for vr, v in slave.vars.items()
+               if getattr(v, "min", None) is not None or getattr(v, "max", None) is not None}
 
     def fail(msg):
         enter_error_state(ref(), msg)
@@ -159,6 +162,12 @@ def guard_value_references(slave, model: str) -> None:
                                    if vr in slave.vars else f"{vr} (no such variable)" for vr in bad)
                 fail(f"{model}: {_call} with value references that are not {_vtype} variables of this FMU: "
                      f"{detail}; the instance is now in its error state")
+            if _setter and _vtype == "Integer" and bounded:
+                for vr, x in zip(vrs, args[0]):
+                    lo, hi = bounded.get(vr, (None, None))
+                    if (lo is not None and x < lo) or (hi is not None and x > hi):
+                        fail(f"{model}: {_call} of {slave.vars[vr].name} = {x}: outside its declared range "
+                             f"[{lo}, {hi}]; the instance is now in its error state")
             if _setter and slave._fmi_phase in _AFTER_INIT and not settable_in_step.issuperset(vrs):
                 names = ", ".join(slave.vars[vr].name for vr in vrs if vr not in settable_in_step)
                 fail(f"{model}: {_call} of {names} after initialization: fixed parameters can only be set "
@@ -198,6 +207,23 @@ def _install_state_machine(slave, ref, model: str) -> None:
         if s._fmi_phase == "initialization":
             refresh(s)
         return step_get_real(vrs)
+
+    def setup_experiment(start_time, stop_time=None, tolerance=None):
+        # a start time that is not finite or a stop time before it: the error state (the call itself cannot
+        # answer fmi2Error: an exception here is fmi2Fatal in pythonfmu's export library), every step refused
+        s = ref()
+        msg = None
+        if not math.isfinite(start_time):
+            msg = (f"{model}: fmi2SetupExperiment with start time {start_time!r}: the start time must be a finite "
+                   "time; the instance is now in its error state")
+        elif stop_time is not None and not stop_time >= start_time:
+            msg = (f"{model}: fmi2SetupExperiment with stop time {stop_time!r} s before the start time "
+                   f"{start_time!r} s; the instance is now in its error state")
+        if msg is not None:
+            if s._failed is None:
+                enter_error_state(s, msg)
+            return None
+        return cls.setup_experiment(s, start_time, stop_time, tolerance)
 
     def enter_initialization_mode():
         s = ref()
@@ -246,6 +272,7 @@ def _install_state_machine(slave, ref, model: str) -> None:
             s._fmi_t_next = current_time + step_size
         return ok
 
+    slave.setup_experiment = setup_experiment
     slave.enter_initialization_mode = enter_initialization_mode
     slave.exit_initialization_mode = exit_initialization_mode
     slave.terminate = terminate

@@ -136,12 +136,37 @@ def _summary_fields(s: dict) -> dict:
     }
 
 
+#: set in a local worker process once it got SIGINT or SIGTERM: it starts no further run
+_WORKER_STOPPING = False
+
+
+def _worker_signals() -> None:
+    """Initializer of a local sweep worker: SIGINT (a Ctrl-C reaches every process of the terminal) and
+    SIGTERM end the run it is stepping as "interrupted", with what it computed written; a worker that is
+    not stepping (between runs, reading or writing) exits at once (its run directory says "running", and
+    ``--resume`` runs it again). Either way no traceback: the parent stops the sweep and says so."""
+    import signal
+
+    from drivetrain.cosim.master import request_stop
+
+    def handler(signum, frame):
+        global _WORKER_STOPPING
+        _WORKER_STOPPING = True
+        if not request_stop(f"{signal.Signals(signum).name} received"):
+            os._exit(128 + signum)
+
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, handler)
+
+
 def simulate(case: dict) -> dict:
     """Run one case in this process; never raises (errors are reported in the returned record)."""
 
     t0 = time.perf_counter()
     rec: dict[str, Any] = {"name": case["name"], "out_dir": case["out_dir"], "pid": os.getpid(),
                            "labels": labels(case["scene"])}
+    if _WORKER_STOPPING:                  # this worker was told to stop: no new run
+        return {**rec, "status": "interrupted", "error": "the sweep was interrupted before this run started"}
     try:
         scene = _scene_of(case)
         d = Path(case["out_dir"])
@@ -205,7 +230,8 @@ def _executor(workers: int | None, address: str | None):
     import multiprocessing as mp
 
     workers = workers or os.cpu_count() or 1
-    return cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")), None
+    return cf.ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
+                                  initializer=_worker_signals), None
 
 
 class _Closing:
@@ -624,6 +650,10 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
             executor, client = _executor(workers, address)
         try:
             _run_cases(cases, manifest, executor, progress)
+        except BaseException:
+            if own:                          # interrupted: the runs not started are cancelled, not waited for
+                executor.shutdown(wait=True, cancel_futures=True)
+            raise
         finally:
             if own:
                 executor.shutdown(wait=True)

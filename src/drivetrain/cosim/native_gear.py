@@ -279,7 +279,8 @@ def native_model_description(model: str, slave, rows: list[dict], guid: str, *, 
             attrs["initial"] = "exact"
         sv = ET.SubElement(mv, "ScalarVariable", attrs)
         start = real_start(float(r["start"])) if r["type"] == "Real" else xml_start(r)
-        ET.SubElement(sv, r["type"], start=start)
+        bounds = {k: str(int(r[k])) for k in ("min", "max") if r["type"] == "Integer" and r.get(k) is not None}
+        ET.SubElement(sv, r["type"], start=start, **bounds)
     ms = ET.SubElement(root, "ModelStructure")
     outs = ET.SubElement(ms, "Outputs")
     for i, r in enumerate(rows):

@@ -75,7 +75,7 @@ def variables(slave) -> list[dict]:
     for vr, v in sorted(slave.vars.items()):
         rows.append({"vr": vr, "name": v.name, "type": type(v).__name__, "causality": v.causality.name,
                      "variability": getattr(v.variability, "name", None) if v.variability is not None else None,
-                     "start": getattr(slave, v.name)})
+                     "start": getattr(slave, v.name), "min": getattr(v, "min", None), "max": getattr(v, "max", None)})
     assert [r["vr"] for r in rows] == list(range(len(rows))), "value references must be 0..n-1"
     return rows
 
@@ -106,12 +106,14 @@ def write_header(model: str, rows: list[dict], guid: str, path: Path) -> None:
              f"#define LN_RPM {c_double(RPM)}",
              f"#define LN_PORT_NAMES {{{', '.join(c_string(p) for p in ports)}}}", "", *vr_enum(rows)]
     lines += ["", "static const LnVar LN_VARS[LN_N_VARS] = {",
-              "    /* name, type, is_input, is_parameter, is_output, real, int, string start */"]
+              "    /* name, type, is_input, is_parameter, is_output, real, int, string start, int min, int max */"]
     for r in rows:
         real, integer, string = start_literals(r)
+        lo = "INT_MIN" if r.get("min") is None else str(int(r["min"]))
+        hi = "INT_MAX" if r.get("max") is None else str(int(r["max"]))
         lines.append(f"    {{{c_string(r['name'])}, \"{r['type']}\", {int(r['causality'] == 'input')}, "
                      f"{int(r['causality'] == 'parameter')}, {int(r['causality'] == 'output')}, "
-                     f"{real}, {integer}, {string}}},")
+                     f"{real}, {integer}, {string}, {lo}, {hi}}},")
     lines += ["};", "", "#endif", ""]
     path.write_text("\n".join(lines))
 

@@ -25,13 +25,14 @@ import math
 import operator
 import weakref
 
-from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real, String
+from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Real, String
+from pythonfmu import Integer as _PlainInteger
 from pythonfmu.enums import Fmi2Status
 
 from drivetrain.errors import ComponentError
 from drivetrain.models import components as C
 from drivetrain.models.motors import RPM
-from drivetrain.models.parameters import parameter_description, parameter_unit, params_from
+from drivetrain.models.parameters import parameter_bounds, parameter_description, parameter_unit, params_from
 from drivetrain.system import INERTIA, SPRING
 from fmu_runtime.guard import enter_error_state, fmi_text, guard_value_references, restore_shell_state, shell_state
 from gearcontact_fmu.params import DEFAULT_COMM_STEP_S
@@ -181,6 +182,24 @@ def port_outputs(model: str) -> list[str]:
     return out + list(OUTPUTS[model]) + list(ENERGY)
 
 
+class Integer(_PlainInteger):
+    """pythonfmu's Integer variable with the bounds FMI lets it declare (``min``, ``max``): written to the
+    modelDescription and checked when a host sets it (fmu_runtime.guard). The class keeps pythonfmu's name:
+    the guard and the native builds tell variable types by it."""
+
+    def __init__(self, name: str, start=None, *, min=None, max=None, **kwargs):
+        super().__init__(name, start, **kwargs)
+        self.min, self.max = min, max
+
+    def to_xml(self):
+        parent = super().to_xml()
+        element = parent.find("Integer")
+        for key in ("min", "max"):
+            if getattr(self, key) is not None:
+                element.set(key, str(int(getattr(self, key))))
+        return parent
+
+
 def init_slave(slave, model: str, slave_kwargs: dict | None = None) -> None:
     """Register the variables of ``model`` on a pythonfmu slave (called from its ``__init__``)."""
     if slave_kwargs is not None:
@@ -201,7 +220,8 @@ def init_slave(slave, model: str, slave_kwargs: dict | None = None) -> None:
             raise TypeError(f"boolean parameter {f.name} not supported")
         if isinstance(v, int):
             setattr(slave, f.name, v)
-            slave.register_variable(Integer(f.name, causality=P, variability=F))
+            lo, hi = parameter_bounds(f)
+            slave.register_variable(Integer(f.name, causality=P, variability=F, min=lo, max=hi))
         elif isinstance(v, str):
             setattr(slave, f.name, v)
             slave.register_variable(String(f.name, causality=P, variability=F))

@@ -29,9 +29,15 @@ def rig_parameter(model: str, name: str, unit: str | None, description: str):
                  metadata={"unit": unit, "description": description})
 
 
-def parameter(default, unit: str | None, description: str):
-    """A parameter with a fixed default."""
-    return field(default=default, metadata={"unit": unit, "description": description})
+def parameter(default, unit: str | None, description: str, *, min=None, max=None):
+    """A parameter with a fixed default; ``min``/``max``: the bounds an Integer parameter's FMU variable
+    declares and refuses a value outside of (when it is set)."""
+    return field(default=default, metadata={"unit": unit, "description": description, "min": min, "max": max})
+
+
+def parameter_bounds(f) -> tuple:
+    """(min, max) a parameter field declares (None: unbounded)."""
+    return f.metadata.get("min"), f.metadata.get("max")
 
 
 def parameter_unit(f) -> str | None:
@@ -55,7 +61,7 @@ def output_torque_parameter():
 
 def energy_correction_parameter():
     return parameter(1, None, "1: energy-conserving correction of the spring-side flange torque (returns the "
-                              "measured work mismatch of the cut over 10 ms); 0: off")
+                              "measured work mismatch of the cut over 10 ms); 0: off", min=0, max=1)
 
 
 def node_start_parameter(state: str, unit: str):

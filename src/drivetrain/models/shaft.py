@@ -36,7 +36,7 @@ class FlexibleShaftParams:
     d_shaft: float = rig_parameter("FlexibleShaft", "d_shaft", "N.m.s/rad", "damping of the whole thin shaft")
     J_shaft: float = rig_parameter("FlexibleShaft", "J_shaft", "kg.m2",
                         "inertia of the whole thin shaft (distributed over its elements)")
-    n_elements: int = parameter(4, None, "number of equal shaft elements")
+    n_elements: int = parameter(4, None, "number of equal shaft elements", min=1, max=MAX_ELEMENTS)
     mass_model: int = parameter(0, None, "element inertia: 0 = lumped (J_e/2 at each end), 1 = consistent "
                                   "(J_e/6 [[2,1],[1,2]])")
     max_substep: float = max_substep_parameter()

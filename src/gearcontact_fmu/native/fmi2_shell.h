@@ -106,6 +106,60 @@ static void shell_defaults(Inst *c) {
     c->last_ok = 0.0;
 }
 
+/* ---- live instances: a second fmi2FreeInstance of one instance (a host's error) is harmless ----
+ * Every instance handed out is listed until it is freed; fmi2FreeInstance frees only a listed one. The list
+ * is guarded by a spin lock (hosts may instantiate from several threads; GCC/Clang builtins, else unguarded). */
+static Inst **shell_live = NULL;
+static size_t shell_n_live = 0, shell_cap_live = 0;
+#if defined(__GNUC__)
+static volatile int shell_live_lock = 0;
+#define SHELL_LOCK() while (__sync_lock_test_and_set(&shell_live_lock, 1)) {}
+#define SHELL_UNLOCK() __sync_lock_release(&shell_live_lock)
+#else
+#define SHELL_LOCK()
+#define SHELL_UNLOCK()
+#endif
+
+/* list c as live; 0 when there is no memory for the list (then the instance is not handed out) */
+static int shell_register(Inst *c) {
+    int ok = 1;
+    SHELL_LOCK();
+    if (shell_n_live == shell_cap_live) {
+        size_t cap = shell_cap_live ? 2 * shell_cap_live : 16;
+        Inst **grown = (Inst **)realloc(shell_live, cap * sizeof *grown);
+        if (grown) { shell_live = grown; shell_cap_live = cap; } else ok = 0;
+    }
+    if (ok) shell_live[shell_n_live++] = c;
+    SHELL_UNLOCK();
+    return ok;
+}
+
+/* 1 and c no longer listed when c was live (free it now), else 0 (freed already, or never handed out) */
+static int shell_release(Inst *c) {
+    int found = 0;
+    SHELL_LOCK();
+    for (size_t i = 0; i < shell_n_live; i++)
+        if (shell_live[i] == c) { shell_live[i] = shell_live[--shell_n_live]; found = 1; break; }
+    SHELL_UNLOCK();
+    return found;
+}
+
+/* fmi2SetupExperiment's checks: fmi2OK, or fmi2Error (logged, the instance failed) for a start time that is
+ * not finite or a stop time before it */
+static fmi2Status shell_setup(Inst *c, double start, int stop_defined, double stop) {
+    if (!isfinite(start)) {
+        fail(c, "%s: fmi2SetupExperiment with start time %s: the start time must be a finite time; the instance "
+             "is now in its error state", SHELL_MODEL_NAME, pyfloat(start).s);
+        return fmi2Error;
+    }
+    if (stop_defined && !(stop >= start)) {
+        fail(c, "%s: fmi2SetupExperiment with stop time %s s before the start time %s s; the instance is now in "
+             "its error state", SHELL_MODEL_NAME, pyfloat(stop).s, pyfloat(start).s);
+        return fmi2Error;
+    }
+    return fmi2OK;
+}
+
 /* fmi2Instantiate's checks: the new instance (name, callbacks, logging set), or NULL (logged) */
 static Inst *shell_instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
                                const fmi2CallbackFunctions *functions, fmi2Boolean loggingOn) {
@@ -145,6 +199,16 @@ fmi2Status fmi2Terminate(fmi2Component comp) {
 
 /* fmi2DoStep's refusals: 1 (logged, the instance failed) when no step may be taken now */
 static int shell_step_refused(Inst *c, double t, double H) {
+    if (!isfinite(t)) {
+        const char *why = "(the communication point must be a finite time)";
+        if (c->failed)
+            logf_(c, fmi2Error, "logStatusError", "%s: fmi2DoStep at t = %s s %s; the instance is now in its error "
+                  "state", SHELL_MODEL_NAME, pyfloat(t).s, why);
+        else
+            fail(c, "%s: fmi2DoStep at t = %s s %s; the instance is now in its error state", SHELL_MODEL_NAME,
+                 pyfloat(t).s, why);
+        return 1;
+    }
     if (c->phase != PH_STEP || (c->have_t_next && !c->failed
                                 && fabs(t - c->t_next) > 1e-3 * H + 1e-12 * fabs(c->t_next))) {
         char why[256];
@@ -252,6 +316,11 @@ fmi2Status fmi2SetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t
     for (size_t i = 0; i < nvr; i++) {
         CHECK_VR("fmi2SetReal", "Real")
         if (!settable_now(c, v, "fmi2SetReal")) return fmi2Error;
+        if (!v->is_input && !isfinite(value[i])) {
+            fail(c, "%s: fmi2SetReal of %s = %s: parameters that are not finite numbers are refused; the instance "
+                 "is now in its error state", SHELL_MODEL_NAME, v->name, pyfloat(value[i]).s);
+            return fmi2Error;
+        }
         if (shell_accept_real(c, v, value[i]) != fmi2OK) return fmi2Error;
         c->r[vr[i]] = value[i];
     }

@@ -1020,12 +1020,17 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
         return NULL;
     }
     set_defaults(c);
+    if (!shell_register(c)) {
+        map_free(c->map);
+        free(c);
+        return NULL;
+    }
     return (fmi2Component)c;
 }
 
 void fmi2FreeInstance(fmi2Component comp) {
     Inst *c = (Inst *)comp;
-    if (!c) return;
+    if (!c || !shell_release(c)) return;          /* NULL, or freed already: nothing to do */
     map_free(c->map);
     free(c->values_eff);
     free(c->a_eff);
@@ -1035,9 +1040,10 @@ void fmi2FreeInstance(fmi2Component comp) {
 
 fmi2Status fmi2SetupExperiment(fmi2Component comp, fmi2Boolean toleranceDefined, fmi2Real tolerance,
                                fmi2Real startTime, fmi2Boolean stopTimeDefined, fmi2Real stopTime) {
-    (void)toleranceDefined; (void)tolerance; (void)stopTimeDefined; (void)stopTime;
-    ((Inst *)comp)->t0 = startTime;
-    return fmi2OK;
+    (void)toleranceDefined; (void)tolerance;
+    fmi2Status st = shell_setup((Inst *)comp, startTime, stopTimeDefined, stopTime);
+    if (st == fmi2OK) ((Inst *)comp)->t0 = startTime;
+    return st;
 }
 
 fmi2Status fmi2EnterInitializationMode(fmi2Component comp) {

@@ -27,6 +27,7 @@
  * Build: gcc -O3 -fPIC -shared -std=c99 -ffp-contract=off -I. line_native.c -o <Model>.so -lm
  */
 #include <float.h>
+#include <limits.h>
 #include <math.h>
 #include <stdarg.h>
 #include <stddef.h>
@@ -55,6 +56,7 @@ typedef struct {
     double real_start;
     int int_start;
     const char *string_start;
+    int int_min, int_max;        /* an Integer's declared range (INT_MIN, INT_MAX: unbounded) */
 } LnVar;
 
 #define LN_FLEXIBLE_SHAFT 1
@@ -810,8 +812,11 @@ static int comp_build(Inst *c, char *why, size_t nwhy) {
     if (!(R(J_a) > 0)) { snprintf(why, nwhy, "ValueError: J_a must be > 0"); return 0; }
     if (!(R(J_b) > 0)) { snprintf(why, nwhy, "ValueError: J_b must be > 0"); return 0; }
     if (!(R(k_shaft) > 0)) { snprintf(why, nwhy, "ValueError: k_shaft must be > 0"); return 0; }
-    if (ne > 100000) { snprintf(why, nwhy, "ValueError: n_elements = %lld: the native FMU takes at most 100000",
-                                (long long)ne); return 0; }
+    if (ne > LN_VARS[VR_n_elements].int_max) {
+        snprintf(why, nwhy, "ValueError: n_elements must be <= %d, got %lld", LN_VARS[VR_n_elements].int_max,
+                 (long long)ne);
+        return 0;
+    }
     double ke = (double)ne * R(k_shaft);
     double cee = (double)ne * R(d_shaft);
     double Je = R(J_shaft) / (double)ne;
@@ -1211,6 +1216,8 @@ static int publish(Inst *c, int initial, char *why, size_t nwhy) {
     return 1;
 }
 
+static void free_instance_memory(Inst *c);
+
 fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
                               fmi2String fmuResourceLocation, const fmi2CallbackFunctions *functions,
                               fmi2Boolean visible, fmi2Boolean loggingOn) {
@@ -1218,12 +1225,15 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     Inst *c = shell_instantiate(instanceName, fmuType, fmuGUID, functions, loggingOn);
     if (!c) return NULL;
     set_defaults(c);
+    if (!shell_register(c)) {
+        free_instance_memory(c);
+        return NULL;
+    }
     return (fmi2Component)c;
 }
 
-void fmi2FreeInstance(fmi2Component comp) {
-    Inst *c = (Inst *)comp;
-    if (!c) return;
+/* frees an instance's memory (listed or not) */
+static void free_instance_memory(Inst *c) {
     for (int i = 0; i < LN_N_VARS; i++) free(c->sv[i]);
     profile_free(&c->speed_profile);
     profile_free(&c->load_profile);
@@ -1231,10 +1241,16 @@ void fmi2FreeInstance(fmi2Component comp) {
     free(c);
 }
 
+void fmi2FreeInstance(fmi2Component comp) {
+    Inst *c = (Inst *)comp;
+    if (!c || !shell_release(c)) return;          /* NULL, or freed already: nothing to do */
+    free_instance_memory(c);
+}
+
 fmi2Status fmi2SetupExperiment(fmi2Component comp, fmi2Boolean toleranceDefined, fmi2Real tolerance,
                                fmi2Real startTime, fmi2Boolean stopTimeDefined, fmi2Real stopTime) {
-    (void)comp; (void)toleranceDefined; (void)tolerance; (void)startTime; (void)stopTimeDefined; (void)stopTime;
-    return fmi2OK;
+    (void)toleranceDefined; (void)tolerance;
+    return shell_setup((Inst *)comp, startTime, stopTimeDefined, stopTime);
 }
 
 fmi2Status fmi2EnterInitializationMode(fmi2Component comp) {
@@ -1318,7 +1334,11 @@ static fmi2Status shell_accept_real(Inst *c, const LnVar *v, double x) {
 }
 
 static fmi2Status shell_accept_integer(Inst *c, const LnVar *v, int x) {
-    (void)x;
+    if (x < v->int_min || x > v->int_max) {
+        fail(c, "%s: fmi2SetInteger of %s = %d: outside its declared range [%d, %d]; the instance is now in its "
+             "error state", LN_MODEL_NAME, v->name, x, v->int_min, v->int_max);
+        return fmi2Error;
+    }
     if (v->is_parameter) c->dirty = 1;
     return fmi2OK;
 }

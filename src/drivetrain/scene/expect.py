@@ -662,7 +662,11 @@ def parse_checks(raw_expect, raw_check, values: dict, base_dir: Path | str, prob
     variables = outputs.get("variables") if isinstance(outputs.get("variables"), (tuple, list)) else ()
     channels = tuple(RIG_SENSORS) + tuple(v for v in variables if v not in RIG_SENSORS)
     op = values.get("operating_point", {})
-    op_ok = all(isinstance(op.get(k), (int, float)) for k in ("drive_speed_rpm", "load_torque_Nm"))
+    profile = op.get("speed_profile_rpm")
+    # the operating point as far as it is valid (a bad value is reported by its own section's check)
+    profile_ok = not profile or (isinstance(profile, (list, tuple)) and all(
+        isinstance(p, (list, tuple)) and len(p) == 2 and all(_number(x) for x in p) for p in profile))
+    op_ok = profile_ok and all(_number(op.get(k)) for k in ("drive_speed_rpm", "load_torque_Nm"))
     tm = values.get("time", {})
     duration = tm.get("duration_s") if isinstance(tm.get("duration_s"), (int, float)) else None
     fs = tm.get("sample_rate_Hz") if isinstance(tm.get("sample_rate_Hz"), (int, float)) else None

@@ -327,3 +327,23 @@ def test_calibrate_refuses_rows_it_cannot_fit(tmp_path, capsys, edit, why):
     rc, text = _rc(["calibrate", str(bad), "--out", str(tmp_path / "c.json")], capsys)
     assert rc == 2 and why in text and "data row 1" in text and "Traceback" not in text, text[-800:]
     assert not (tmp_path / "c.json").exists()
+
+
+def test_a_file_size_limit_is_a_message_not_a_traceback(tmp_path):
+    """`ulimit -f` (issue 33: a traceback from inside the FMU build or fmpy's unpacking): the command names the
+    operation and the limit, exits 1, and the output directory does not say ok."""
+    import resource
+    import subprocess
+    import sys
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_FSIZE, (150_000, 150_000))
+
+    r = subprocess.run([sys.executable, "-m", "drivetrain", "run", str(ROOT / "scenarios" / "example.toml"),
+                        "--set", "time.duration_s=0.05", "--out", str(tmp_path / "o"), "--no-plots", "--quiet",
+                        "--fmu-dir", str(tmp_path / "fmus")], capture_output=True, text=True, preexec_fn=limit,
+                       timeout=300)
+    assert r.returncode == 1, (r.returncode, r.stderr[-2000:])
+    assert "Traceback" not in r.stderr and "File too large" in r.stderr and "ulimit -f" in r.stderr, r.stderr[-2000:]
+    summary = tmp_path / "o" / "summary.json"
+    assert not summary.exists() or '"ok"' not in summary.read_text()

@@ -7,9 +7,11 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import json
 import math
 import os
+import shutil
 import sys
 from pathlib import Path
 
@@ -969,6 +971,23 @@ def main(argv: list[str] | None = None) -> int:
     except MeshError as exc:             # a mesh file found unusable wherever it is read (the cost check, a build)
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except (OSError, shutil.Error) as exc:
+        # the system refused a file operation (a full disk, a file-size limit, permissions) where no command
+        # checks beforehand, e.g. while an FMU is built or unpacked: its own words, no traceback
+        print(f"error: {_os_error_text(exc)}", file=sys.stderr)
+        return 1
+
+
+def _os_error_text(exc: BaseException) -> str:
+    """What a failed file operation says, once (shutil.Error lists every file that failed)."""
+    hints = {errno.EFBIG: " (a file-size limit: see ulimit -f)", errno.ENOSPC: " (the disk is full)",
+             errno.EDQUOT: " (a disk quota)"}
+    if isinstance(exc, shutil.Error) and exc.args and isinstance(exc.args[0], list) and exc.args[0]:
+        src, dst, why = exc.args[0][0]        # shutil keeps each file's OSError as text: "[Errno 27] ..."
+        more = len(exc.args[0]) - 1
+        hint = next((h for n, h in hints.items() if f"[Errno {n}]" in str(why)), "")
+        return f"could not copy {src} to {dst}: {why}{hint}" + (f" (and {more} more files)" if more else "")
+    return f"{exc}{hints.get(getattr(exc, 'errno', None), '')}"
 
 
 if __name__ == "__main__":

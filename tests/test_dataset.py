@@ -200,3 +200,21 @@ def test_a_dataset_out_that_cannot_take_it(sweep, tmp_path, capsys):
     assert main(["dataset", str(sweep), "--out", str(blocked / "d.parquet")]) == 2
     assert "cannot be written" in capsys.readouterr().err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "taken"]
+
+
+def test_the_export_holds_one_run_at_a_time(sweep, tmp_path, monkeypatch):
+    """A dataset of thousands of runs is never held in memory (issue 29): ``collect`` keeps labels only, and
+    each writer reads a run's samples when it writes that run, once. Counted: every signals.h5 is read
+    once for the labels and once more by the writer, and the collected runs hold no arrays."""
+    from drivetrain.campaigns import dataset as D
+
+    reads = []
+    original = D.read_run
+    monkeypatch.setattr(D, "read_run", lambda sig, rec: reads.append(sig) or original(sig, rec))
+    runs = D.collect(sweep)
+    assert runs and all(not any(isinstance(v, np.ndarray) for v in r.values()) for r in runs)
+    assert all(set(r) == {"name", "labels", "units", "channels", "n", "_source"} for r in runs)
+    n_runs = len(runs)
+    assert len(reads) == n_runs
+    D.write_parquet(runs, tmp_path / "d.parquet")
+    assert len(reads) == 2 * n_runs and sorted(reads[n_runs:]) == sorted(reads[:n_runs])

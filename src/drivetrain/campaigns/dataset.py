@@ -113,28 +113,66 @@ def read_run(sig: Path, rec: dict) -> dict:
 
 
 def collect(sweep_dir: Path | str, settled_only: bool = False) -> list[dict]:
-    """[{"name", "labels", "time", "signals", "units", "settled"}] of every run of the sweep that wrote signals;
-    ``settled``: the samples at or after the run's ``time.settle_s`` (the others lie in the start-up
-    transient); ``settled_only``: only those samples."""
+    """[{"name", "labels", "units", "channels", "n"}] of every run of the sweep that wrote signals, without
+    the signals: a dataset of thousands of runs is never held in memory. The labels include the condition
+    indicators and, for a faulty run with a healthy twin ([sweep.draw] paired_healthy), the fault's
+    signal-to-background ratio, each computed from the run's signals as it is read. :func:`run_data` reads
+    a run's samples again when a writer needs them. ``settled_only``: ``n`` counts the samples at or after
+    the run's ``time.settle_s`` (the others lie in the start-up transient)."""
     d = Path(sweep_dir)
-    runs = [r for r in (load_run(d, rec) for rec in run_records(d)) if r is not None]
+    runs = []
+    for rec in run_records(d):
+        r = load_run(d, rec)
+        if r is None:
+            continue
+        time_s, signals, _ = _samples(r, settled_only)
+        r["labels"].update(_indicators(r))
+        runs.append({"name": r["name"], "labels": r["labels"], "units": r["units"], "channels": sorted(signals),
+                     "n": len(time_s), "_source": (d, rec)})
     if not runs:
         raise DatasetError(f"{d}: the manifest lists no run with signals")
-    for r in runs:
-        r["settled"] = np.asarray(r["time"]) >= float(r["labels"].get("time.settle_s") or 0.0)
-        if settled_only:
-            keep = r.pop("settled")
-            r["time"] = np.asarray(r["time"])[keep]
-            r["signals"] = {k: np.asarray(v)[keep] for k, v in r["signals"].items()}
-            r["settled"] = np.ones(int(keep.sum()), dtype=bool)
-    # a faulty run with its healthy twin ([sweep.draw] paired_healthy): the fault's signal-to-background ratio
+    _add_paired_sbr(runs)
+    return runs
+
+
+def _samples(run: dict, settled_only: bool) -> tuple:
+    """(time, signals, settled mask) of a loaded run, only its settled samples if ``settled_only``."""
+    time_s = np.asarray(run["time"])
+    settled = time_s >= float(run["labels"].get("time.settle_s") or 0.0)
+    signals = {k: np.asarray(v) for k, v in run["signals"].items()}
+    if settled_only:
+        return time_s[settled], {k: v[settled] for k, v in signals.items()}, np.ones(int(settled.sum()), dtype=bool)
+    return time_s, signals, settled
+
+
+def run_data(run: dict, settled_only: bool = False) -> tuple:
+    """(time, signals, settled mask) of a collected run, read from its signals.h5 again."""
+    sweep_dir, rec = run["_source"]
+    loaded = load_run(sweep_dir, rec)
+    if loaded is None:
+        raise DatasetError(f"{sweep_dir / run['name']}: its signals.h5 disappeared while the dataset was written")
+    return _samples(loaded, settled_only)
+
+
+def _add_paired_sbr(runs: list[dict]) -> None:
+    """The SBR labels of the runs with a healthy twin (only those pairs' signals are read, a pair at a time)."""
     from drivetrain.rig.indicators import paired_sbr
 
-    sbr = paired_sbr(runs, ("propeller_shaft_torque", "drive_shaft_torque"))
+    by_pair: dict = {}
     for r in runs:
-        r["labels"].update({f"SBR_dB.{sig}": v for sig, v in sbr.get(r["name"], {}).items()})
-        r["labels"].update(_indicators(r))
-    return runs
+        key = r["labels"].get("scenario.noise_name")
+        if key:
+            by_pair.setdefault(key, []).append(r)
+    for members in by_pair.values():
+        if len(members) < 2:
+            continue
+        loaded = []
+        for r in members:
+            time_s, signals, _ = run_data(r)
+            loaded.append({"name": r["name"], "labels": r["labels"], "time": time_s, "signals": signals})
+        sbr = paired_sbr(loaded, ("propeller_shaft_torque", "drive_shaft_torque"))
+        for r in members:
+            r["labels"].update({f"SBR_dB.{sig}": v for sig, v in sbr.get(r["name"], {}).items()})
 
 
 def _indicators(run: dict) -> dict:
@@ -208,13 +246,13 @@ def _arrow_label(v, n: int, t):
     return pa.array([str(v) if pa.types.is_string(t) and not isinstance(v, str) else v] * n, type=t)
 
 
-def write_parquet(runs: list[dict], path: Path) -> Path:
+def write_parquet(runs: list[dict], path: Path, settled_only: bool = False) -> Path:
     """One row per sample, written run by run (one row group each: a run's repeated labels are built for that
     run only, and parquet's dictionary encoding stores them once)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    channels = sorted({c for r in runs for c in r["signals"]})
+    channels = sorted({c for r in runs for c in r["channels"]})
     label_cols = [k for k in _label_columns(runs) if k != "run"]
     types = {k: _arrow_type([r["labels"].get(k) for r in runs]) for k in label_cols}
     names = {k: f"label.{k}" if k in channels or k in ("time_s", "settled") else k for k in label_cols}
@@ -230,11 +268,12 @@ def write_parquet(runs: list[dict], path: Path) -> Path:
     tmp = path.with_name(path.name + ".tmp")
     with pq.ParquetWriter(tmp, schema) as writer:
         for r in runs:
-            n = len(r["time"])
+            time_s, signals, settled = run_data(r, settled_only)
+            n = len(time_s)
             cols = [pa.DictionaryArray.from_arrays(pa.array(np.zeros(n, dtype=np.int32)), pa.array([r["name"]])),
-                    pa.array(np.asarray(r["time"], dtype=float)), pa.array(r["settled"])]
+                    pa.array(np.asarray(time_s, dtype=float)), pa.array(settled)]
             for c in channels:
-                x = r["signals"].get(c)
+                x = signals.get(c)
                 cols.append(pa.array(np.asarray(x, dtype=float) if x is not None else np.full(n, np.nan)))
             cols += [_arrow_label(r["labels"].get(k), n, types[k]) for k in label_cols]
             writer.write_table(pa.Table.from_arrays(cols, schema=schema))
@@ -242,7 +281,7 @@ def write_parquet(runs: list[dict], path: Path) -> Path:
     return path
 
 
-def write_hdf5(runs: list[dict], path: Path) -> Path:
+def write_hdf5(runs: list[dict], path: Path, settled_only: bool = False) -> Path:
     import h5py
 
     label_cols = _label_columns(runs)
@@ -266,24 +305,26 @@ def write_hdf5(runs: list[dict], path: Path) -> Path:
             lab[k].attrs["unit"] = label_unit(k, channel_units, numeric=lab[k].dtype.kind in "fiu")
         grp = f.create_group("runs")
         for r in runs:
+            time_s, signals, settled = run_data(r, settled_only)
             g = grp.create_group(r["name"])
-            g.create_dataset("time", data=r["time"]).attrs["unit"] = "s"
-            g.create_dataset("settled", data=r["settled"]).attrs["unit"] = ""
-            for c, x in r["signals"].items():
+            g.create_dataset("time", data=time_s).attrs["unit"] = "s"
+            g.create_dataset("settled", data=settled).attrs["unit"] = ""
+            for c, x in signals.items():
                 ds = g.create_dataset(c, data=x)
                 ds.attrs["unit"] = r["units"].get(c, "")
     tmp.replace(path)
     return path
 
 
-def write_aalto(runs: list[dict], path: Path) -> Path:
+def write_aalto(runs: list[dict], path: Path, settled_only: bool = False) -> Path:
     import csv
 
 
     path.mkdir(parents=True, exist_ok=True)
     label_cols = _label_columns(runs)
     for r in runs:
-        write_aalto_csv(path / f"{r['name']}.csv", r["time"], r["signals"])
+        time_s, signals, _ = run_data(r, settled_only)
+        write_aalto_csv(path / f"{r['name']}.csv", time_s, signals)
     with open(path / "labels.csv", "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=label_cols)
         w.writeheader()
@@ -306,7 +347,7 @@ def export(sweep_dir: Path | str, fmt: str = "parquet", out: Path | str | None =
         raise DatasetError(f"{path}: a directory; the {fmt} dataset is one file (give its file name)")
     runs = collect(sweep_dir, settled_only)
     try:
-        return WRITERS[fmt](runs, path)
+        return WRITERS[fmt](runs, path, settled_only)
     except OSError as exc:                     # a read-only place, a full disk: named, and no stray temporary
         try:
             path.with_name(path.name + ".tmp").unlink(missing_ok=True)
@@ -315,5 +356,5 @@ def export(sweep_dir: Path | str, fmt: str = "parquet", out: Path | str | None =
         raise DatasetError(f"{path}: the dataset cannot be written there ({exc.strerror or exc})") from None
 
 
-__all__ = ["run_records", "load_run", "read_run", "FORMATS", "DatasetError", "collect", "export", "run_labels", "write_parquet", "write_hdf5",
+__all__ = ["run_records", "load_run", "read_run", "run_data", "FORMATS", "DatasetError", "collect", "export", "run_labels", "write_parquet", "write_hdf5",
            "write_aalto"]

@@ -218,3 +218,62 @@ def test_the_export_holds_one_run_at_a_time(sweep, tmp_path, monkeypatch):
     assert len(reads) == n_runs
     D.write_parquet(runs, tmp_path / "d.parquet")
     assert len(reads) == 2 * n_runs and sorted(reads[n_runs:]) == sorted(reads[:n_runs])
+
+
+def test_a_growth_grid_runs_and_exports_with_its_stage_labels(tmp_path):
+    """Issue 29 on a real sweep (the drivetrain's own models, not toy specs): a pinion pit grows and becomes a
+    spall in one gearbox; every stage is a run labelled with its stage, remaining life and the fault's sizes
+    (fault0.*), the healthy stage with empty fault labels; the labels of effects that are off are empty; the
+    settled column marks the samples after settle_s; units in the parquet schema. Coarse meshes and map so
+    that the three contact maps cost seconds."""
+    import pandas as pd
+    import pyarrow.parquet as pq
+
+    from drivetrain.campaigns.dataset import export
+    from drivetrain.campaigns.sweep import run_sweep
+    from drivetrain.scene.load import load_scenes
+
+    grid = tmp_path / "growth.toml"
+    grid.write_text("""
+[scenario]
+name = "life"
+[operating_point]
+drive_speed_rpm = 1000.0
+load_torque_Nm = 1.31
+[time]
+duration_s = 0.3
+settle_s = 0.1
+[numerics]
+profile_element_mm = 0.3
+face_element_mm = 3.0
+map_points_per_pitch = 8
+map_approach_points = 8
+[outputs]
+plots = false
+[sweep.growth]
+healthy = true
+fault = { kind = "pit", member = "pinion", tooth = 4, face_position = 0.5 }
+stages = [{ radius_mm = 1.0, depth_mm = 0.1 }, { kind = "spall", length_mm = 3.0, width_mm = 4.0, depth_mm = 0.1 }]
+life = [0.5, 0.9]
+""")
+    scenes = load_scenes(grid)
+    man = run_sweep(scenes, tmp_path / "sw", workers=1, backend="inprocess", fmu_dir=tmp_path / "fmus", progress=False)
+    assert [r["status"] for r in man["runs"]] == ["ok"] * 3, man["runs"]
+    path = export(tmp_path / "sw", "parquet")
+    df = pd.read_parquet(path)
+    per_run = df.groupby("run").first()
+    assert list(per_run["scenario.growth_stage"]) == [0, 1, 2]
+    assert list(per_run["scenario.remaining_life"]) == pytest.approx([1.0, 0.5, 0.1])
+    assert pd.isna(per_run["fault0.kind"].iloc[0]) and list(per_run["fault0.kind"].iloc[1:]) == ["pit", "spall"]
+    assert per_run["fault0.radius_mm"].iloc[1] == 1.0 and pd.isna(per_run["fault0.radius_mm"].iloc[2])
+    assert per_run["fault0.length_mm"].iloc[2] == 3.0 and set(per_run["fault0.tooth"].iloc[1:]) == {4}
+    assert per_run["gear.health"].tolist() == ["healthy", "faults", "faults"]
+    # effects that are off leave their settings empty (ideal sensors: no instrument noise labels)
+    instrument_cols = [c for c in df.columns if c.startswith("instruments.")]
+    assert instrument_cols and all(per_run[c].isna().all() for c in instrument_cols)
+    first = df[df["run"] == per_run.index[0]]
+    assert not first["settled"].iloc[0] and first["settled"].iloc[-1]
+    assert (first.loc[first["settled"], "time_s"] >= 0.1 - 1e-12).all()
+    units = json.loads(pq.read_schema(path).metadata[b"drivetrain.units"])
+    assert units["time_s"] == "s" and units["fault0.radius_mm"] == "mm" and units["propeller_shaft_torque"] == "N.m"
+    assert units["operating_point.load_torque_Nm"] == "N.m"          # one spelling per unit in a dataset

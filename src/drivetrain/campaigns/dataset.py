@@ -192,8 +192,12 @@ def _indicators(run: dict) -> dict:
 
 
 #: units of label names by their suffix (scene keys carry theirs in the schema)
-_SUFFIX_UNITS = {"_mm": "mm", "_um": "um", "_s": "s", "_Hz": "Hz", "_rpm": "rpm", "_Nm": "N·m", "_dB": "dB",
+_SUFFIX_UNITS = {"_mm": "mm", "_um": "um", "_s": "s", "_Hz": "Hz", "_rpm": "rpm", "_Nm": "N.m", "_dB": "dB",
                  "_rad": "rad"}
+
+
+#: the scene schema's spelling of a unit -> the one the signals (and FMUs) use
+_SIGNAL_SPELLING = {"N·m": "N.m", "mN·m": "mN.m", "kN·m": "kN.m"}
 
 
 def label_unit(name: str, channel_units: dict, numeric: bool = False) -> str:
@@ -201,6 +205,8 @@ def label_unit(name: str, channel_units: dict, numeric: bool = False) -> str:
     from its suffix; a condition indicator's from its signal (RMS and line amplitudes in the signal's unit,
     SBR in dB, the other metrics dimensionless "1"); else "1" for a ``numeric`` column, "" for text."""
     unit = _named_unit(name, channel_units)
+    # one spelling per unit in a dataset: the signals' (the FMUs' "N.m"), also for the scene's "N·m"
+    unit = _SIGNAL_SPELLING.get(unit, unit)
     return unit or ("1" if numeric else "")
 
 

@@ -29,6 +29,10 @@ def steps_per_output(comm_step: float, output_rate_Hz: float) -> tuple[int, str 
     Returns (steps per output sample, None), or (0, what H should be, with the nearest divisor)."""
     period = 1.0 / output_rate_Hz
     r = period / comm_step
+    if not math.isfinite(r) or r > 1e15:
+        # a step so short against the period (a subnormal step, say) that no integer ratio can be told apart
+        return 0, (f"a step that divides the output period 1/{output_rate_Hz:g} Hz = {period:.10g} s into at most "
+                   f"1e15 steps (period/H = {r:.3g})")
     n = round(r)
     if n >= 1 and abs(r - n) <= 1e-6 * max(r, 1.0):
         return int(n), None

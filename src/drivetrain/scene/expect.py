@@ -626,7 +626,7 @@ def parse_check_options(raw, base_dir: Path, channels: tuple, problems: list) ->
             else:
                 kw[k] = v
         elif k == "baseline":
-            if not isinstance(v, str) or not v:
+            if not isinstance(v, str) or not v or "\x00" in v:
                 problems.append((name, v, CHECK_KEYS[k]))
             else:
                 p = Path(v).expanduser()

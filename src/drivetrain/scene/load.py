@@ -118,8 +118,8 @@ def _check_value(key: str, spec: Key, value: Any, base_dir: Path, problems) -> A
             return None
         return value
     if t == "path":
-        if not isinstance(value, str) or not value:
-            problems.append((key, value, "a file path (string)"))
+        if not isinstance(value, str) or not value or "\x00" in value:
+            problems.append((key, value, "a file path (a non-empty string without NUL characters)"))
             return None
         p = Path(value).expanduser()
         if not p.is_absolute():

@@ -93,6 +93,14 @@ SCRIPT = textwrap.dedent(r'''
                                                  call(lambda: f.exitInitializationMode()),
                                                  call(lambda: f.doStep(0.0, H))]
                                if BOUNDED else ["n/a"]),
+        "hostile_mesh_path": (False, lambda f: [call(lambda: f.setString([vr("fidelity")], ["pcm"])),
+                                                call(lambda: f.setString([vr("health")], ["mesh"])),
+                                                call(lambda: f.setString([vr("pinion_mesh_file")],
+                                                                         ["/nonexistent/%n%s.obj"])),
+                                                call(lambda: f.enterInitializationMode()),
+                                                call(lambda: f.exitInitializationMode()),
+                                                call(lambda: f.doStep(0.0, H))]
+                              if "pinion_mesh_file" in V else ["n/a"]),
         "step_before_init": (False, lambda f: [call(lambda: f.doStep(0.0, H))]),
         "nan_parameter": (False, lambda f: [call(lambda: f.setReal([vr(PARAM)], [math.nan])),
                                             call(lambda: f.enterInitializationMode()),
@@ -197,6 +205,7 @@ EXPECT = {
     "string_parameter_after_init": (["refused"], "after initialization: fixed parameters"),
     "hostile_string_before_init": (["ok", "ok", "ok", "refused"], "%n%s%x%%"),
     "integer_beyond_max": (["refused", "ok", "ok", "refused"], "outside its declared range"),
+    "hostile_mesh_path": (["ok", "ok", "ok", "ok", "ok", "refused"], "/nonexistent/%n%s.obj: no such mesh file"),
     "step_before_init": (["refused"], "before fmi2ExitInitializationMode"),
     "nan_parameter": (["ok", "ok", "ok", "refused"], "parameters that are not finite numbers"),
     "stop_before_start": (["ok", "ok", "ok", "refused"], "stop time 0.5 s before the start time 1.0 s"),
@@ -212,6 +221,8 @@ NATIVE_EXPECT = {
     "nan_parameter": (["refused", "ok", "ok", "refused"], "parameters that are not finite numbers"),
     "stop_before_start": (["refused", "ok", "ok", "refused"], "stop time 0.5 s before the start time 1.0 s"),
     "nan_start_time": (["refused", "ok", "ok", "refused"], "the start time must be a finite time"),
+    # the native gear is fidelity table with the built meshes: fidelity, health and mesh files are fixed by the build
+    "hostile_mesh_path": (["refused", "refused", "refused", "ok", "ok", "refused"], "this FMU was built with"),
 }
 #: cases the pythonfmu FMUs pass and the native builds do not (none since issue 33)
 PYTHONFMU_ONLY: set = set()
@@ -223,7 +234,8 @@ NO_BOUNDED_INTEGERS = {"GearContact", "UpperTransmission"}
 
 def not_applicable(model: str, case: str) -> bool:
     """A case that has nothing to abuse in this model (its outcome is "n/a")."""
-    return (model in NO_STRINGS and "string" in case) or (model in NO_BOUNDED_INTEGERS and case == "integer_beyond_max")
+    return ((model in NO_STRINGS and "string" in case) or (model in NO_BOUNDED_INTEGERS and case == "integer_beyond_max")
+            or (model != "GearContact" and case == "hostile_mesh_path"))
 
 
 @pytest.fixture(scope="module")

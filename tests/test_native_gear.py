@@ -399,3 +399,23 @@ def test_example_system_with_the_native_gear(native, tmp_path):
         a, b = nat.raw[name], ref.raw[name]
         assert len(a) == len(b) == 12001
         assert np.max(np.abs(a - b)) <= 1e-6 * np.max(np.abs(b)), name
+
+
+@needs_gcc
+def test_a_build_from_a_running_scene_keeps_at_rest_defaults(native, gear):
+    """Issue 30: `build-native SCENE` baked the scene's running state into the FMU's defaults
+    (pinion_w_start = 52.36, initial_state = parameters), so the FMU run alone with its defaults started with
+    large transients, unlike every other build of the same gear. The running state is the host's to set."""
+    from fmpy import read_model_description
+
+    from drivetrain.cosim.native_gear import _probe_slave, is_running_state
+
+    assert gear["pinion_w_start"] != 0.0 and gear["initial_state"] != _probe_slave().initial_state   # a running scene
+    slave = _probe_slave()
+    starts = {v.name: v.start for v in read_model_description(str(native)).modelVariables}
+    state = [n for n in starts if is_running_state(n)]
+    assert "pinion_w_start" in state and "initial_state" in state
+    for name in state:
+        default = getattr(slave, name)
+        assert (float(starts[name]) == float(default) if isinstance(default, float) else starts[name] == str(default)), \
+            (name, starts[name], default)

@@ -181,6 +181,11 @@ def c_double(x: float) -> str:
     return f"{x.hex()} /* {x!r} */"
 
 
+def is_running_state(name: str) -> bool:
+    """A parameter that says where a run starts (angles, speeds, twists, how to start), not what the gear is."""
+    return name.endswith("_start") or name == "initial_state"
+
+
 def _variables(slave, parameters: dict) -> list[dict]:
     """Every variable of the slave with its value reference, type, causality, start and role."""
     rows = []
@@ -191,6 +196,10 @@ def _variables(slave, parameters: dict) -> list[dict]:
         causality = v.causality.name
         if v.name in counters:
             start = 0.0
+        elif is_running_state(v.name):
+            # at rest, wherever the FMU is built: a scene's running state goes into the host's parameter
+            # values (the SSP's, our master's), never into the FMU's defaults (issue 30)
+            start = getattr(slave, v.name)
         else:
             start = parameters.get(v.name, getattr(slave, v.name))
         role = "runtime"

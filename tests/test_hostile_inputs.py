@@ -347,3 +347,11 @@ def test_a_file_size_limit_is_a_message_not_a_traceback(tmp_path):
     assert "Traceback" not in r.stderr and "File too large" in r.stderr and "ulimit -f" in r.stderr, r.stderr[-2000:]
     summary = tmp_path / "o" / "summary.json"
     assert not summary.exists() or '"ok"' not in summary.read_text()
+
+
+def test_version(capsys):
+    """`drivetrain --version` (issue 31) says the version, the Python and where the package is."""
+    from drivetrain import __version__
+
+    rc, text = _rc(["--version"], capsys)
+    assert rc == 0 and f"drivetrain {__version__}" in text and "Python" in text

@@ -936,7 +936,11 @@ _PARSERS = (_parser_build_fmus, _parser_run, _parser_build_native_gear, _parser_
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from drivetrain import __version__
+
     parser = argparse.ArgumentParser(prog="drivetrain", description=__doc__.splitlines()[0])
+    parser.add_argument("--version", action="version", version=(
+        f"drivetrain {__version__} (Python {sys.version.split()[0]}, {Path(__file__).resolve().parent})"))
     sub = parser.add_subparsers(dest="command", required=True)
     for add in _PARSERS:
         add(sub)

@@ -161,7 +161,8 @@ def test_sources_compile_with_the_documented_command(native, gear, tmp_path):
     ref = _drive(*_open(native, gear), 50)
     so.unlink()
     subprocess.run(["gcc", "-O3", "-fPIC", "-shared", "-std=c99", "-ffp-contract=off", f"-I{d / 'sources'}",
-                    str(d / "sources" / "gearcontact_native.c"), "-o", str(so), "-lm"], check=True)
+                    str(d / "sources" / "gearcontact_native.c"), str(d / "sources" / "gearcontact_values.c"),
+                    "-o", str(so), "-lm"], check=True)
     md = fmpy.read_model_description(str(native))
     s = FMU2Slave(guid=md.guid, unzipDirectory=str(d), modelIdentifier="GearContact", instanceName="src")
     s.instantiate()

@@ -71,19 +71,9 @@
 #define UNLIKELY(c) (c)
 #endif
 
-/* one variable of the model description (the table GC_VARS, indexed by value reference, is generated) */
-typedef struct {
-    const char *name;
-    const char *type;            /* "Real" | "Integer" | "Boolean" | "String" */
-    int is_input, is_parameter, is_counter;
-    int nan_on_failure;          /* an output that becomes NaN when the instance fails (NAN_ON_FAILURE) */
-    int fixed_by_build;          /* a parameter the contact map depends on: only its built value is accepted */
-    double real_start;
-    int int_start;               /* Integer and Boolean */
-    const char *string_start;
-} GcVar;
-
-#include "gearcontact_build.h"
+#include "gearcontact_var.h"     /* GcVar: one variable of the model description */
+#include "gearcontact_build.h"   /* the value references and constants; GC_VARS and GC_GUID are declared there
+                                    and defined in the build's gearcontact_values.c */
 
 /* ============================================================================================== */
 /* 1. The contact map resource                                                                     */

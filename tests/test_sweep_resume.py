@@ -183,3 +183,31 @@ def test_a_sweep_prepares_each_contact_map_once():
     assert gear("manufacturing.seed=7", "operating_point.drive_speed_rpm=500") == base
     assert gear("gear.health=mild") != base
     assert not any(k.endswith("_start") or k == "manufacturing_errors" for k in base)
+
+
+def test_an_interrupted_dask_sweep_cancels_instead_of_failing(tmp_path, full_sweep, monkeypatch):
+    """An interrupted sweep on Dask (--scheduler ADDRESS or local): Dask's executor has no cancel_futures, so
+    the shutdown that cancels the runs not started must be its own (wait=False), and the interrupt itself
+    reaches the caller; it used to be replaced by a TypeError. The client (and a local cluster) is closed."""
+    import drivetrain.campaigns.sweep as S
+    from drivetrain.scene.load import load_scenes
+
+    calls = []
+
+    class DaskLike:                                   # distributed's ClientExecutor.shutdown(self, wait=True)
+        def shutdown(self, wait=True):
+            calls.append(("shutdown", wait))
+
+    class Client:
+        def close(self):
+            calls.append(("close",))
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(S, "_executor", lambda workers, address: (DaskLike(), Client()))
+    monkeypatch.setattr(S, "_run_cases", interrupted)
+    grid, fmu_dir, _ = full_sweep
+    with pytest.raises(KeyboardInterrupt):
+        S.run_sweep(load_scenes(grid), tmp_path / "sw", address="local", fmu_dir=fmu_dir, progress=False)
+    assert calls == [("shutdown", False), ("close",)]

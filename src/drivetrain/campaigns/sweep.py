@@ -39,6 +39,7 @@ outputs before its run writes.
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
 import csv
 import functools
 import json
@@ -218,10 +219,13 @@ def _executor(workers: int | None, address: str | None):
         from distributed import Client, LocalCluster
 
         # one single-threaded worker process per core, no dashboard: a sweep's own cluster
+        closing = contextlib.ExitStack()          # closed in reverse: the client, then the cluster
         cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
                                dashboard_address=None)
+        closing.callback(cluster.close)
         client = Client(cluster)
-        return client.get_executor(), _Closing(client, cluster)
+        closing.callback(client.close)
+        return client.get_executor(), closing
     if address:
         from distributed import Client
 
@@ -234,15 +238,23 @@ def _executor(workers: int | None, address: str | None):
                                   initializer=_worker_signals), None
 
 
-class _Closing:
-    """Closes several things in order (a Dask client, then the cluster the sweep started)."""
+def _shut_down(executor, interrupted: bool) -> None:
+    """End the sweep's own executor: after the last run, waiting for it; after an interruption, cancelling the
+    runs not started instead of waiting for them (a local worker ends the run it is stepping: it got the
+    signal too). Dask's executor cancels on ``wait=False``; it has no ``cancel_futures``."""
+    if not interrupted:
+        executor.shutdown(wait=True)
+    elif isinstance(executor, cf.ProcessPoolExecutor):
+        executor.shutdown(wait=True, cancel_futures=True)
+    else:
+        executor.shutdown(wait=False)
 
-    def __init__(self, *things):
-        self.things = things
 
-    def close(self) -> None:
-        for t in self.things:
-            t.close()
+def _executor_name(address: str | None, executor) -> str:
+    """How the runs execute, for the manifest."""
+    if address:
+        return "dask (local cluster)" if address == LOCAL_DASK else "dask"
+    return "custom" if executor is not None else "local processes"
 
 
 def _specs_of(scenes: list[Scene], specs: dict | None) -> list:
@@ -635,9 +647,7 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
         log(f"resume: {len(reused)} of {len(scenes)} runs reused (finished, same fingerprint), {len(cases)} to run")
     manifest = _Manifest(out, scenes={s.name: s for s in scenes},
                          order={n: i for i, n in enumerate(grid_names or names)},
-                         meta={"executor": ("dask (local cluster)" if address == LOCAL_DASK else "dask") if address
-                               else ("custom" if executor is not None
-                                                                    else "local processes"), "backend": backend,
+                         meta={"executor": _executor_name(address, executor), "backend": backend,
                                "preparation_s": preparation_s, "reused_runs": len(reused)},
                          kept=kept, t0=t0)
     manifest.runs = [manifest.annotate(r) for r in reused]
@@ -648,15 +658,13 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
         own = executor is None
         if own:
             executor, client = _executor(workers, address)
+        interrupted = True
         try:
             _run_cases(cases, manifest, executor, progress)
-        except BaseException:
-            if own:                          # interrupted: the runs not started are cancelled, not waited for
-                executor.shutdown(wait=True, cancel_futures=True)
-            raise
+            interrupted = False
         finally:
             if own:
-                executor.shutdown(wait=True)
+                _shut_down(executor, interrupted)
             if client is not None:
                 client.close()
     return manifest.write(True)

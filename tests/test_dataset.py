@@ -213,7 +213,7 @@ def test_the_export_holds_one_run_at_a_time(sweep, tmp_path, monkeypatch):
     monkeypatch.setattr(D, "read_run", lambda sig, rec: reads.append(sig) or original(sig, rec))
     runs = D.collect(sweep)
     assert runs and all(not any(isinstance(v, np.ndarray) for v in r.values()) for r in runs)
-    assert all(set(r) == {"name", "labels", "units", "channels", "n", "_source"} for r in runs)
+    assert all(set(r) == {"name", "labels", "units", "channels", "_source"} for r in runs)
     n_runs = len(runs)
     assert len(reads) == n_runs
     D.write_parquet(runs, tmp_path / "d.parquet")

@@ -112,23 +112,21 @@ def read_run(sig: Path, rec: dict) -> dict:
             "signals": h["signals"], "units": h["units"]}
 
 
-def collect(sweep_dir: Path | str, settled_only: bool = False) -> list[dict]:
-    """[{"name", "labels", "units", "channels", "n"}] of every run of the sweep that wrote signals, without
-    the signals: a dataset of thousands of runs is never held in memory. The labels include the condition
+def collect(sweep_dir: Path | str) -> list[dict]:
+    """[{"name", "labels", "units", "channels"}] of every run of the sweep that wrote signals, without the
+    signals: a dataset of thousands of runs is never held in memory. The labels include the condition
     indicators and, for a faulty run with a healthy twin ([sweep.draw] paired_healthy), the fault's
     signal-to-background ratio, each computed from the run's signals as it is read. :func:`run_data` reads
-    a run's samples again when a writer needs them. ``settled_only``: ``n`` counts the samples at or after
-    the run's ``time.settle_s`` (the others lie in the start-up transient)."""
+    a run's samples again when a writer needs them."""
     d = Path(sweep_dir)
     runs = []
     for rec in run_records(d):
         r = load_run(d, rec)
         if r is None:
             continue
-        time_s, signals, _ = _samples(r, settled_only)
         r["labels"].update(_indicators(r))
-        runs.append({"name": r["name"], "labels": r["labels"], "units": r["units"], "channels": sorted(signals),
-                     "n": len(time_s), "_source": (d, rec)})
+        runs.append({"name": r["name"], "labels": r["labels"], "units": r["units"], "channels": sorted(r["signals"]),
+                     "_source": (d, rec)})
     if not runs:
         raise DatasetError(f"{d}: the manifest lists no run with signals")
     _add_paired_sbr(runs)
@@ -156,14 +154,9 @@ def run_data(run: dict, settled_only: bool = False) -> tuple:
 
 def _add_paired_sbr(runs: list[dict]) -> None:
     """The SBR labels of the runs with a healthy twin (only those pairs' signals are read, a pair at a time)."""
-    from drivetrain.rig.indicators import paired_sbr
+    from drivetrain.rig.indicators import paired_sbr, twin_groups
 
-    by_pair: dict = {}
-    for r in runs:
-        key = r["labels"].get("scenario.noise_name")
-        if key:
-            by_pair.setdefault(key, []).append(r)
-    for members in by_pair.values():
+    for members in twin_groups(runs):
         if len(members) < 2:
             continue
         loaded = []
@@ -351,7 +344,7 @@ def export(sweep_dir: Path | str, fmt: str = "parquet", out: Path | str | None =
     path = Path(out) if out else Path(sweep_dir) / DEFAULT_NAMES[fmt]
     if fmt != "aalto" and path.is_dir():
         raise DatasetError(f"{path}: a directory; the {fmt} dataset is one file (give its file name)")
-    runs = collect(sweep_dir, settled_only)
+    runs = collect(sweep_dir)
     try:
         return WRITERS[fmt](runs, path, settled_only)
     except OSError as exc:                     # a read-only place, a full disk: named, and no stray temporary

@@ -261,16 +261,22 @@ def signal_to_background_dB(faulty: np.ndarray, healthy: np.ndarray) -> float:
     return float(10.0 * math.log10(diff / var))
 
 
-def paired_sbr(runs: list[dict], signals: tuple[str, ...]) -> dict:
-    """{faulty run name: {signal: SBR dB}} of the runs with a healthy twin: runs sharing a
-    ``scenario.noise_name`` label, one healthy, compared after the settling time (``time.settle_s``)."""
+def twin_groups(runs: list[dict]) -> list[list[dict]]:
+    """The runs measured with one noise record (sharing a ``scenario.noise_name`` label: a faulty run and its
+    healthy twin), group by group; only the labels are read."""
     by_pair: dict = {}
     for r in runs:
         key = r["labels"].get("scenario.noise_name")
         if key:
             by_pair.setdefault(key, []).append(r)
+    return list(by_pair.values())
+
+
+def paired_sbr(runs: list[dict], signals: tuple[str, ...]) -> dict:
+    """{faulty run name: {signal: SBR dB}} of the runs with a healthy twin (:func:`twin_groups`, one of them
+    healthy), compared after the settling time (``time.settle_s``)."""
     out = {}
-    for members in by_pair.values():
+    for members in twin_groups(runs):
         healthy = [r for r in members if r["labels"].get("gear.health") == "healthy"]
         if len(healthy) != 1:
             continue
@@ -345,5 +351,5 @@ def run_features(time: np.ndarray, signals: dict, settle_s: float, drive_speed_r
     return out
 
 
-__all__ = ["run_features", "SHAFTS", "TORQUES", "RECORDS", "LINES", "auc", "paired_auc", "separability", "chance_separability", "chance_unpaired", "signal_to_background_dB", "paired_sbr", "METRICS", "tsa", "tsa_records", "split", "order_amplitudes", "mesh_orders", "indicators",
+__all__ = ["run_features", "SHAFTS", "TORQUES", "RECORDS", "LINES", "auc", "paired_auc", "separability", "chance_separability", "chance_unpaired", "signal_to_background_dB", "twin_groups", "paired_sbr", "METRICS", "tsa", "tsa_records", "split", "order_amplitudes", "mesh_orders", "indicators",
            "envelope_band", "points_per_revolution", "SER_SIDEBANDS"]

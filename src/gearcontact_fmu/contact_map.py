@@ -132,8 +132,7 @@ def compute_map(pair, grid: MapGrid = MapGrid(), progress: bool = False,
         ainfo = {k: healthy.info[k] for k in ("span", "s_backlash", "base_radius")}
     else:
         a, ainfo = _approach_grid(pair, grid)
-    result = _tabulate_by_pitch(pair, theta, a, grid, n_rev, progress, healthy)
-    onset, vals, pinfo = result
+    onset, vals, pinfo = _tabulate_by_pitch(pair, theta, a, grid, n_rev, progress, healthy)
     info = {**ainfo, "build_seconds": time.perf_counter() - t0, "n_theta": n_theta, "n_s": len(a),
             "pinion_revolutions": n_rev,
             "onset_drive": float(np.min(onset[:, SIDE_DRIVE])), "onset_coast": float(np.max(onset[:, SIDE_COAST])),
@@ -233,13 +232,13 @@ def _tabulate_by_pitch(pair, theta, a, grid: MapGrid, n_rev: int = 1, progress: 
     per = grid.points_per_pitch
     n_blocks = z1 * n_rev
     fw = _fault_window(pair, n_blocks)
-    if fw is None or (fw[2] and fw[4] < 2):
+    f_pin, f_whl, window, far, far_dist = fw if fw is not None else ((), (), (), 0, 0)
+    if fw is None or (window and far_dist < 2):
         onset, vals = _tabulate(pair, theta, a, grid, progress=progress)
         return onset, vals, {"built": "every row", "rows_computed": len(theta), "flank_rows_computed": 2 * len(theta),
                              "tiled_from_block": None, "fault_blocks": None}
-    f_pin, f_whl, window, far, _ = fw
     info = {"rows_computed": 0, "flank_rows_computed": 0}
-    if healthy is not None and healthy.values.shape[0] == per * z1 and len(healthy.a) == len(a):
+    if healthy is not None and healthy.values.shape[0] == per * z1:
         base_on, base_v = healthy.onset, healthy.values
         info.update(built="healthy map + fault rows", tiled_from_block=None)
     else:

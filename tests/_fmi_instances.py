@@ -47,3 +47,14 @@ def set_values(s, vr, params):
             s.setBoolean(ref, [bool(v)])
         else:
             s.setString(ref, [str(v)])
+
+
+def get_values(s, vr, names):
+    """Numeric variables by name (Real, Integer counters, Boolean switches) as floats, each read with its
+    declared type's get call."""
+    out = []
+    for n in names:
+        t, ref = vr[n].type, [vr[n].valueReference]
+        get = {"Real": s.getReal, "Integer": s.getInteger, "Boolean": s.getBoolean}[t]
+        out.append(float(get(ref)[0]))
+    return out

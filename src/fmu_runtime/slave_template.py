@@ -44,6 +44,8 @@ class {model}(Fmi2Slave):
     version = "0.1.0"
     units = fmishell.UNITS          # read by drivetrain.cosim.build (modelDescription units)
     variable_descriptions = fmishell.variable_descriptions("{model}")   # and descriptions
+    bounds = fmishell.bounds("{model}")          # read by drivetrain.cosim.build (min/max)
+    initial_dependencies = fmishell.initial_dependencies("{model}")   # (InitialUnknowns)
     default_experiment = fmishell.DEFAULT_EXPERIMENT
     can_get_and_set_fmu_state = True   # read by drivetrain.cosim.build (canGetAndSetFMUstate)
 

@@ -145,6 +145,10 @@ class MeshResolution:
 TOOTH_COMPLIANCE_FACTOR = 4.5
 
 
+
+#: the contact-map grid's node counts the builder accepts (MapGrid; the FMU declares them as min/max)
+MAP_GRID_RANGE = (2, 4096)
+
 @dataclass(frozen=True)
 class MapGrid:
     """Grid of the fixed-axis contact map (fidelity "table"; gearcontact_fmu.contact_map)."""
@@ -161,8 +165,9 @@ class MapGrid:
     def __post_init__(self):
         for name in ("points_per_pitch", "s_points"):
             v = getattr(self, name)
-            if isinstance(v, bool) or int(v) != v or not 2 <= v <= 4096:
-                raise ValueError(f"contact-map grid: {name} must be an integer in 2..4096, got {v!r}")
+            lo, hi = MAP_GRID_RANGE
+            if isinstance(v, bool) or int(v) != v or not lo <= v <= hi:
+                raise ValueError(f"contact-map grid: {name} must be an integer in {lo}..{hi}, got {v!r}")
 
 
 def params_hash(*objs) -> str:

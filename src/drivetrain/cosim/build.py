@@ -88,6 +88,19 @@ NAME_UNITS: tuple[tuple[str, str], ...] = (
 )
 
 
+#: the physical quantity of a unit: the modelDescription's <TypeDefinitions> declare one SimpleType per entry
+#: used (name = quantity, as the FMI Reference FMUs and Modelica.Units.SI name them) and every Real of that
+#: unit refers to it with declaredType. Units without an entry (counts "1", option values) keep the unit only.
+QUANTITIES: dict[str, str] = {
+    "N.m": "Torque", "rad": "Angle", "rad/s": "AngularVelocity", "rad/s2": "AngularAcceleration",
+    "rpm": "AngularVelocity_rpm", "J": "Energy", "W": "Power", "s": "Time", "Hz": "Frequency", "m": "Length",
+    "mm": "Length_mm", "m2": "Area", "m/s": "Velocity", "kg": "Mass", "kg.m2": "MomentOfInertia", "N": "Force",
+    "N.m/rad": "RotationalSpringConstant", "N.m.s/rad": "RotationalDampingConstant", "N/m": "TranslationalSpringConstant",
+    "N.s/m": "TranslationalDampingConstant", "Pa": "Pressure", "N.s/m3": "PressureDampingCoefficient",
+    "N/m3": "PressureStiffness", "A": "Current", "V": "Voltage",
+}
+
+
 def unit_for(name: str, overrides: dict | None = None) -> str | None:
     """Unit of a variable: the slave's ``units`` entry, else the naming table, else None.
     Dimensionless variables have the unit "1"; an empty entry means none."""
@@ -208,7 +221,8 @@ def documentation_html(model: str, description: str, requirements: str) -> str:
 
 def postprocess_model_description(fmu: Path, units: dict | None = None,
                                   output_dependencies: dict | None = None, model: str = "",
-                                  description: str = "", variable_descriptions: dict | None = None) -> None:
+                                  description: str = "", variable_descriptions: dict | None = None,
+                                  bounds: dict | None = None, initial_dependencies: dict | None = None) -> None:
     """Add units, UnitDefinitions and output dependencies in place, and the
     runtime requirements and documentation (resources/requirements.txt, documentation/index.html)."""
     fmu = Path(fmu)
@@ -217,7 +231,8 @@ def postprocess_model_description(fmu: Path, units: dict | None = None,
         for item in zin.infolist():
             data = zin.read(item.filename)
             if item.filename == "modelDescription.xml":
-                data = edit_model_description(data, units or {}, output_dependencies or {}, variable_descriptions or {})
+                data = edit_model_description(data, units or {}, output_dependencies or {}, variable_descriptions or {},
+                                              bounds, initial_dependencies)
             if item.filename in ("resources/requirements.txt", "documentation/index.html"):
                 continue
             zout.writestr(item, data)
@@ -227,26 +242,66 @@ def postprocess_model_description(fmu: Path, units: dict | None = None,
     tmp.replace(fmu)
 
 
-def edit_model_description(data: bytes, units: dict, output_dependencies: dict, descriptions: dict) -> bytes:
-    """modelDescription.xml with the descriptions, units, UnitDefinitions and output dependencies of
-    the module docstring (also used for the native GearContact, drivetrain.cosim.native_gear)."""
+def _number(value, kind: str) -> str:
+    return str(int(value)) if kind == "Integer" else repr(float(value))
+
+
+def _dependencies(spec, inputs: list, parameters: list) -> list:
+    """Names from a dependency declaration: a list of names, "inputs", "parameters" or "inputs+parameters"."""
+    if isinstance(spec, str):
+        groups = {"inputs": inputs, "parameters": parameters}
+        return [n for g in spec.split("+") for n in groups[g.strip()]]
+    return list(spec)
+
+
+def edit_model_description(data: bytes, units: dict, output_dependencies: dict, descriptions: dict,
+                           bounds: dict | None = None, initial_dependencies: dict | None = None) -> bytes:
+    """modelDescription.xml with the descriptions, units, UnitDefinitions, TypeDefinitions, bounds, initial
+    values and dependencies of the module docstring (also used for the native FMUs, drivetrain.cosim.native_gear
+    and native_line): one place for both builds.
+
+    - ``bounds``: name -> (min, max) (None: unbounded), written as ``min``/``max`` of the Real or Integer: the
+      range the code refuses values outside of (one declaration, read by the code and written here);
+    - every output is ``initial="calculated"`` without a start value (FMI 2.0, section 2.2.7: its value is
+      computed by the FMU in initialization mode; the Reference FMUs declare their outputs so), and listed
+      in ``<ModelStructure><InitialUnknowns>`` (section 2.2.8) with the knowns it is computed from:
+      ``initial_dependencies`` (output -> names, "inputs", "parameters" or "inputs+parameters"); by default
+      every input and every parameter (the start state follows the flange inputs and the parameters);
+    - Integer and Boolean outputs are ``variability="discrete"`` (they change at communication points only).
+    """
     root = ET.fromstring(data)
+    bounds = bounds or {}
+    initial_dependencies = initial_dependencies or {}
     svs = list(root.find("ModelVariables"))
     used = set()
     for sv in svs:
-        text = descriptions.get(sv.get("name"))
+        name = sv.get("name")
+        text = descriptions.get(name)
         if text:
             sv.set("description", text)
-        real = sv.find("Real")
-        if real is None:
+        kind = sv[0].tag if len(sv) else ""
+        value = sv[0] if len(sv) else None
+        if name in bounds and kind in ("Real", "Integer"):
+            for key, b in zip(("min", "max"), bounds[name]):
+                if b is not None:
+                    value.set(key, _number(b, kind))
+        if sv.get("causality") == "output":
+            sv.set("initial", "calculated")
+            if value is not None and "start" in value.attrib:
+                del value.attrib["start"]
+            if kind in ("Integer", "Boolean", "String"):
+                sv.set("variability", "discrete")
+        if kind != "Real":
             continue
-        u = unit_for(sv.get("name"), units)
+        u = unit_for(name, units)
         if u:
             if u not in UNIT_DEFS:
-                raise ValueError(f"unit {u!r} of {sv.get('name')} is not in fmubuild.UNIT_DEFS")
-            real.set("unit", u)
+                raise ValueError(f"unit {u!r} of {name} is not in fmubuild.UNIT_DEFS")
+            value.set("unit", u)
             used.add(u)
-    for old in root.findall("UnitDefinitions"):
+            if u in QUANTITIES:
+                value.set("declaredType", QUANTITIES[u])
+    for old in root.findall("UnitDefinitions") + root.findall("TypeDefinitions"):
         root.remove(old)
     if used:
         ud = ET.Element("UnitDefinitions")
@@ -256,16 +311,24 @@ def edit_model_description(data: bytes, units: dict, output_dependencies: dict, 
             if u in UNIT_FACTORS:
                 attrs["factor"] = repr(UNIT_FACTORS[u])
             ET.SubElement(unit, "BaseUnit", attrs)
+        td = ET.Element("TypeDefinitions")
+        for u in sorted((u for u in used if u in QUANTITIES), key=lambda x: QUANTITIES[x]):
+            st = ET.SubElement(td, "SimpleType", name=QUANTITIES[u])
+            ET.SubElement(st, "Real", quantity=QUANTITIES[u].split("_")[0], unit=u)
         children = list(root)
         idx = next(i for i, c in enumerate(children)
-                   if c.tag in ("TypeDefinitions", "LogCategories", "DefaultExperiment", "VendorAnnotations",
-                                "ModelVariables"))
+                   if c.tag in ("LogCategories", "DefaultExperiment", "VendorAnnotations", "ModelVariables"))
         root.insert(idx, ud)
+        if len(td):
+            root.insert(idx + 1, td)
     # output dependencies (indices are 1-based positions in ModelVariables)
     index = {sv.get("name"): i + 1 for i, sv in enumerate(svs)}
     inputs = [sv.get("name") for sv in svs if sv.get("causality") == "input"]
+    parameters = [sv.get("name") for sv in svs if sv.get("causality") == "parameter"]
     ms = root.find("ModelStructure")
-    outs = ms.find("Outputs") if ms is not None else None
+    if ms is None:
+        ms = ET.SubElement(root, "ModelStructure")
+    outs = ms.find("Outputs")
     if outs is not None:
         for unk in outs.findall("Unknown"):
             name = svs[int(unk.get("index")) - 1].get("name")
@@ -277,6 +340,18 @@ def edit_model_description(data: bytes, units: dict, output_dependencies: dict, 
                 unk.set("dependenciesKind", " ".join("dependent" for _ in deps))
             elif "dependenciesKind" in unk.attrib:
                 del unk.attrib["dependenciesKind"]
+    for old in ms.findall("InitialUnknowns"):
+        ms.remove(old)
+    calculated = [sv for sv in svs if sv.get("causality") == "output" and sv.get("initial") == "calculated"]
+    if calculated:
+        iu = ET.Element("InitialUnknowns")
+        for sv in calculated:
+            deps = _dependencies(initial_dependencies.get(sv.get("name"), "inputs+parameters"), inputs, parameters)
+            idx = sorted(index[d] for d in dict.fromkeys(deps))
+            # no dependenciesKind: "dependent" (not a linear factor), the default
+            ET.SubElement(iu, "Unknown", {"index": str(index[sv.get("name")]), "dependencies": " ".join(map(str, idx))})
+        pos = [i for i, c in enumerate(ms) if c.tag in ("Outputs", "Derivatives")]
+        ms.insert(pos[-1] + 1 if pos else 0, iu)
     ET.indent(root)
     return ET.tostring(root, encoding="UTF-8", xml_declaration=True)
 
@@ -296,7 +371,9 @@ def build_fmu(script: Path, out_dir: Path) -> Path:
     fmu = Path(fmu)
     postprocess_model_description(fmu, getattr(cls, "units", None), getattr(cls, "output_dependencies", None),
                                   model=cls.__name__, description=getattr(cls, "description", ""),
-                                  variable_descriptions=getattr(cls, "variable_descriptions", None))
+                                  variable_descriptions=getattr(cls, "variable_descriptions", None),
+                                  bounds=getattr(cls, "bounds", None),
+                                  initial_dependencies=getattr(cls, "initial_dependencies", None))
     return fmu
 
 

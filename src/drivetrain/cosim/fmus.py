@@ -43,6 +43,12 @@ class VarInfo:
     variability: str
     unit: str | None
     initial: str | None
+    start: str | None = None  # the declared start value as written in the modelDescription
+
+    @property
+    def constant(self) -> bool:
+        """A constant (variability "constant": e.g. a parameter a native build fixed): never set by a host."""
+        return self.variability == "constant"
 
 
 @dataclass
@@ -81,7 +87,7 @@ def load_fmu_info(path: Path | str) -> FMUInfo:
             if unit is None and v.declaredType is not None:
                 unit = getattr(v.declaredType, "unit", None)
             variables[v.name] = VarInfo(v.name, v.valueReference, v.type, v.causality, v.variability,
-                                        _norm_unit(unit), v.initial)
+                                        _norm_unit(unit), v.initial, v.start)
         info = FMUInfo(md.modelName, path, md.guid, md.coSimulation.modelIdentifier, variables, md)
         _INFO_CACHE[key] = info
     return info

@@ -112,18 +112,23 @@ def failure_cause(exc: CosimError) -> str:
     return f"{exc.function} returned {st} (the FMU logged nothing)"
 
 
+#: the FMI types read as numbers (Slave.get_values): measurements, counters, switches
+NUMERIC_TYPES = ("Real", "Integer", "Boolean")
+
+
 def _real_outputs(info: FMUInfo) -> list[str]:
-    return [n for n, v in info.variables.items() if v.causality == "output" and v.type == "Real"]
+    """Every numeric output (Real, and the Integer counters and Boolean flags) of an FMU."""
+    return [n for n, v in info.variables.items() if v.causality == "output" and v.type in NUMERIC_TYPES]
 
 
 def _readable(plan: ExchangePlan, names: Sequence[str]) -> list[str]:
-    """The "component.variable" names (Real) that exist in the plan's FMUs."""
+    """The "component.variable" names (numeric: Real, Integer, Boolean) that exist in the plan's FMUs."""
     infos = {c.name: info for c, info in zip(plan.comps, plan.infos)}
     out = []
     for ref in dict.fromkeys(names):
         comp, vn = split_ref(ref)
         v = infos[comp].variables.get(vn) if comp in infos else None
-        if v is not None and v.type == "Real":
+        if v is not None and v.type in NUMERIC_TYPES:
             out.append(ref)
     return out
 
@@ -133,7 +138,7 @@ def _read_guarded(slave: Slave, names: Sequence[str]) -> dict[str, float] | None
     if not names or slave.fatal:
         return None
     try:
-        return {n: float(v) for n, v in zip(names, slave.get_reals(list(names)))}
+        return {n: float(v) for n, v in zip(names, slave.get_values(list(names)))}
     except Exception:  # noqa: BLE001 - reading after a failure must never mask the failure
         return None
 
@@ -399,7 +404,7 @@ class _Stop:
 
 
 def _failed_outputs(slaves: Sequence[Slave], plan: ExchangePlan) -> dict[str, dict | None]:
-    """Every FMU's Real outputs as it still exposes them after a failure (None where it cannot answer)."""
+    """Every FMU's numeric outputs as it still exposes them after a failure (None where it cannot answer)."""
     return {s.name: _read_guarded(s, _real_outputs(info)) for s, info in zip(slaves, plan.infos)}
 
 
@@ -621,7 +626,7 @@ class Master:
 
         ``record``: "component.variable" names (Real) to return. ``progress``: tqdm bar (default: on
         when the run has more than 50 000 steps). ``keep_raw``: also return the internal-rate records.
-        ``final``: "component.variable" names (Real, any causality) read once after the last step (and
+        ``final``: "component.variable" names (numeric: Real, Integer, Boolean; any causality) read once after the last step (and
         at a failure) into ``CosimResult.final``, e.g. cumulative counters; names the FMUs do not have
         are skipped. ``snapshots``: times [s] at which the same names are also read (at the
         communication point nearest each, chunk boundaries: no cost per step), into

@@ -17,8 +17,9 @@ produces for component "gear", or any subset; the rest take the pythonfmu slave'
    ``sources/`` so other platforms can compile it.
 
 Parameters the map depends on (geometry, PCM constants, resolution, health, faults, mesh files, map
-grid, manufacturing errors, u_max) are fixed by the build: the FMU declares the built value as start
-and refuses another one with fmi2Error and a message.
+grid, manufacturing errors, u_max) are fixed by the build: the FMU declares them as constants (causality
+"local", variability "constant", the built value as start: FMI 2.0 section 2.2.7) and refuses any
+fmi2Set of them with fmi2Error and a message.
 """
 from __future__ import annotations
 
@@ -65,7 +66,8 @@ IGNORED_PARAMETERS = frozenset({"mesh_damping_ratio", "mesh_phase"})
 #: neutral values of the runtime parameters that act on the map's data, used when the map is built
 NEUTRAL = {"friction": True, "contact_damping": True, "tooth_compliance": 1.0}
 
-FIXED_NOTE = " [fixed by this native build: the contact map was computed with it; another value is refused]"
+FIXED_NOTE = (" [fixed by this native build: the contact map was computed with it; declared a constant, "
+              "setting it is refused]")
 IGNORED_NOTE = " [not used at fidelity table]"
 
 
@@ -295,7 +297,12 @@ def native_model_description(model: str, slave, rows: list[dict], guid: str, *, 
     mv = ET.SubElement(root, "ModelVariables")
     for r in rows:
         attrs = {"name": r["name"], "valueReference": str(r["vr"]), "causality": r["causality"]}
-        if r["causality"] == "parameter":
+        if r.get("role") == "fixed":
+            # baked into this build (the contact map depends on it): a constant no host can set, FMI 2.0
+            # section 2.2.7 (causality "local" with variability "constant", initial "exact": "the value of the
+            # variable never changes"; fmi2SetXXX is not allowed on it, table of section 2.2.7 / 4.2.4)
+            attrs.update(causality="local", variability="constant")
+        elif r["causality"] == "parameter":
             attrs["variability"] = "fixed"
         elif r["type"] != "Real":
             attrs["variability"] = "discrete"
@@ -311,7 +318,7 @@ def native_model_description(model: str, slave, rows: list[dict], guid: str, *, 
         if r["causality"] == "output":
             ET.SubElement(outs, "Unknown", index=str(i + 1))
     return edit_model_description(ET.tostring(root, encoding="UTF-8", xml_declaration=True), cls.units, {},
-                                  descriptions)
+                                  descriptions, getattr(cls, "bounds", None), getattr(cls, "initial_dependencies", None))
 
 
 def model_description(slave, rows: list[dict], guid: str) -> bytes:

@@ -41,6 +41,28 @@ def _type_ok(vtype: str, value) -> str | None:
     return f"a supported type (not {vtype})"
 
 
+def same_as_start(v, value) -> bool:
+    """The value equals the variable's declared start (a constant's value: a host does not set it)."""
+    if v.start is None:
+        return False
+    try:
+        if v.type == "Real":
+            return float(value) == float(v.start)
+        if v.type in ("Integer", "Enumeration"):
+            return int(value) == int(v.start)
+        if v.type == "Boolean":
+            return bool(value) == (str(v.start).strip().lower() in ("true", "1"))
+        return os.fspath(value) == str(v.start)
+    except (TypeError, ValueError):
+        return False
+
+
+def settable(values: dict, variables: dict) -> dict:
+    """The values a host sets: all but the FMU's constants (checked equal to their start, :func:`same_as_start`,
+    by check_system)."""
+    return {n: v for n, v in values.items() if n not in variables or not variables[n].constant}
+
+
 def is_profile(value) -> bool:
     """A time profile: rows [t, value], as a list of pairs, an (n, 2) numpy array, or an object that becomes one
     when read (``__array__`` and ``shape``: rig.background.GeneratedProfile)."""
@@ -106,7 +128,13 @@ def _check_parameters(c: ComponentSpec, var: dict, problems: list[str]) -> None:
             problems.append(f"{c.name}.{pname}: no such variable in {c.model} (parameters: "
                             + ", ".join(n for n, x in var.items() if x.causality == "parameter") + ")")
             continue
-        if v.causality != "parameter" or v.variability == "constant":
+        if v.constant:
+            if not same_as_start(v, value):
+                problems.append(f"{c.name}.{pname} = {value!r}: {c.model} was built with {pname} = {v.start} "
+                                "(a constant of this FMU, e.g. a native GearContact's contact-map parameter: "
+                                "rebuild it with the new value)")
+            continue
+        if v.causality != "parameter":
             problems.append(f"{c.name}.{pname}: not a settable parameter (causality {v.causality}, "
                             f"variability {v.variability})")
             continue

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from drivetrain.cosim.fmus import FMUInfo, extracted_dir
+from drivetrain.cosim.plan import settable
 from drivetrain.errors import FMI_STATUS, ConfigurationError, CosimError
 from drivetrain.system import ComponentSpec
 
@@ -143,6 +144,24 @@ class Slave:
     def set_parameters(self, params: dict) -> None: ...
     def set_values(self, names: list[str], values: list) -> None: ...
     def get_reals(self, names: list[str]) -> list[float]: ...
+
+    def get_values(self, names: list[str]) -> list[float]:
+        """The values of numeric variables of any type (Real, Integer, Boolean: a counter, a switch) as floats,
+        one get call per type, in the order of ``names``."""
+        by_type: dict[str, list[int]] = {}
+        for i, n in enumerate(names):
+            by_type.setdefault(self.info.variables[n].type, []).append(i)
+        out = [0.0] * len(names)
+        for typ, idx in by_type.items():
+            got = self._get_typed(typ, [names[i] for i in idx])
+            for i, v in zip(idx, got):
+                out[i] = float(v)
+        return out
+
+    def _get_typed(self, typ: str, names: list[str]) -> list:
+        if typ == "Real":
+            return self.get_reals(names)
+        raise NotImplementedError(typ)
     def setup(self, stop_time: float) -> None: ...
     def enter_init(self) -> None: ...
     def exit_init(self) -> None: ...
@@ -180,7 +199,7 @@ class FmiSlave(Slave):
 
     def set_parameters(self, params):
         by_type: dict[str, tuple[list, list]] = {}
-        for n, v in params.items():
+        for n, v in settable(params, self.info.variables).items():
             vi = self.info.variables[n]
             by_type.setdefault(vi.type, ([], []))
             by_type[vi.type][0].append(vi.vr)
@@ -199,6 +218,16 @@ class FmiSlave(Slave):
 
     def get_reals(self, names):
         return self._call("fmi2GetReal", self.fmu.getReal, [self.info.variables[n].vr for n in names])
+
+    def _get_typed(self, typ, names):
+        vrs = [self.info.variables[n].vr for n in names]
+        if typ == "Real":
+            return self.get_reals(names)
+        if typ in ("Integer", "Enumeration"):
+            return self._call("fmi2GetInteger", self.fmu.getInteger, vrs)
+        if typ == "Boolean":
+            return self._call("fmi2GetBoolean", self.fmu.getBoolean, vrs)
+        raise ConfigurationError(f"{self.name}: {', '.join(names)}: {typ} variables are not numbers")
 
     def enter_init(self):
         self._call("fmi2EnterInitializationMode", self.fmu.enterInitializationMode)
@@ -354,6 +383,16 @@ class InprocSlave(Slave):
 
     def get_reals(self, names):
         return self._guard("get_real", lambda: self.obj.get_real([self._vr(n) for n in names]))
+
+    def _get_typed(self, typ, names):
+        vrs = [self._vr(n) for n in names]
+        if typ == "Real":
+            return self.get_reals(names)
+        if typ in ("Integer", "Enumeration"):
+            return self._guard("get_integer", lambda: self.obj.get_integer(vrs))
+        if typ == "Boolean":
+            return self._guard("get_boolean", lambda: self.obj.get_boolean(vrs))
+        raise ConfigurationError(f"{self.name}: {', '.join(names)}: {typ} variables are not numbers")
 
     def enter_init(self):
         self._guard("enter_initialization_mode", self.obj.enter_initialization_mode)

@@ -113,6 +113,8 @@ def export_container(scene, path: str | Path, fmu_dir: str | Path = "fmus", spec
         for name, value in bound_values(c).items():
             if name not in descriptions[c.model]:
                 continue                                   # named by system_problems
+            if descriptions[c.model][name][1] == "local":
+                continue                                   # a constant of the FMU (a native gear's map parameter)
             vtype = descriptions[c.model][name][0]
             try:
                 text = value_text(vtype, value)

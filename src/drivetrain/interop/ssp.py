@@ -122,6 +122,8 @@ def ssv_text(component, variables: dict) -> str:
     """The parameter set of one instance: its parameters and constant inputs, typed as its FMU declares."""
     rows = []
     for name, value in bound_values(component).items():
+        if variables[name][1] == "local":
+            continue          # a constant of the FMU (a native gear's contact-map parameter): not settable
         vtype = variables[name][0]
         try:
             text = value_text(vtype, value)

@@ -25,7 +25,7 @@ import math
 import operator
 import weakref
 
-from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Real, String
+from pythonfmu import Boolean, DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Real, String
 from pythonfmu import Integer as _PlainInteger
 from pythonfmu.enums import Fmi2Status
 
@@ -161,6 +161,27 @@ def _units() -> dict:
 UNITS = _units()
 
 
+def bounds(model: str) -> dict:
+    """Parameter name -> (min, max) of a drivetrain FMU (the modelDescription's min/max, drivetrain.cosim.build):
+    the bounds its parameter fields declare and the ones its component refuses unless > 0."""
+    _, pcls = C.COMPONENTS[model]
+    positive = getattr(pcls, "POSITIVE_FIELDS", ())
+    out = {f.name: parameter_bounds(f, positive) for f in dataclasses.fields(pcls)}
+    return {n: b for n, b in out.items() if b != (None, None)}
+
+
+def initial_dependencies(model: str) -> dict:
+    """Output -> what it depends on in initialization mode (modelDescription InitialUnknowns): the
+    inertia-side angles and speeds are the component's start state (parameters only); every other output
+    also takes the inputs set before fmi2ExitInitializationMode (the spring-side torques from the flange
+    inputs, the energies from both)."""
+    out = {}
+    for p, kind in PORTS[model].items():
+        if kind == INERTIA:
+            out[f"{p}_phi"] = out[f"{p}_w"] = "parameters"
+    return out
+
+
 def variable_descriptions(model: str) -> dict:
     """Variable name -> description of a drivetrain FMU (modelDescription ``description``)."""
     out = {name: text for name, (_, text) in variable_table(model).items()}
@@ -217,8 +238,9 @@ def init_slave(slave, model: str, slave_kwargs: dict | None = None) -> None:
         v = getattr(defaults, f.name)
         slave._param_names.append(f.name)
         if isinstance(v, bool):
-            raise TypeError(f"boolean parameter {f.name} not supported")
-        if isinstance(v, int):
+            setattr(slave, f.name, v)
+            slave.register_variable(Boolean(f.name, causality=P, variability=F))
+        elif isinstance(v, int):
             setattr(slave, f.name, v)
             lo, hi = parameter_bounds(f)
             slave.register_variable(Integer(f.name, causality=P, variability=F, min=lo, max=hi))

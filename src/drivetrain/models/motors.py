@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -55,7 +56,7 @@ class MotorLoadParams:
     pg_a: float = rig_parameter("MotorLoad", "pg_a", "1", "planetary loss law: load-dependent share")
     load_mode: int = parameter(0, None, "load motor law: 0 = torque setting (the rig; regularised below load_w_reg so "
                                  "that it brakes but never drives), 1 = viscous torque equal to the setting at "
-                                 "load_w_nom (the paper)")
+                                 "load_w_nom (the paper)", min=0, max=1)
     load_w_reg: float = parameter(0.05, "rad/s", "load_mode 0: speed below which the load torque is regularised")
     load_w_nom: float = parameter(1.0, "rad/s", "load_mode 1: speed at which the viscous load equals the setting")
     speed_profile: str = parameter("", None, "drive speed reference over time as 't0:v0; t1:v1; ...' [s:rpm], linear "
@@ -64,7 +65,9 @@ class MotorLoadParams:
                                      "load_torque input")
     max_substep: float = max_substep_parameter()
     output_torque: str = output_torque_parameter()
-    energy_correction: int = energy_correction_parameter()
+    energy_correction: bool = energy_correction_parameter()
+    #: the parameters the component refuses unless > 0 (its check and the FMU's declared min)
+    POSITIVE_FIELDS: ClassVar[tuple] = ("J_motor", "J_flywheel", "J_load", "ratio_pg", "k_c1")
     phi0_motor: float = parameter(0.0, "rad", "initial angle of the drive motor")
     w0: float = parameter(0.0, "rad/s", "initial speed of the drive side")
     tau0: float = parameter(0.0, "N.m", "initial torque through the drive couplings (sets their initial twist)")
@@ -85,7 +88,7 @@ class MotorLoad(LineComponent):
     def __init__(self, p: MotorLoadParams):
         check_parameters(p)
         self.p = p
-        for nm in ("J_motor", "J_flywheel", "J_load", "ratio_pg", "k_c1"):
+        for nm in MotorLoadParams.POSITIVE_FIELDS:
             if not getattr(p, nm) > 0:
                 raise ValueError(f"{nm} must be > 0")
         if int(p.load_mode) not in (0, 1):

@@ -19,6 +19,11 @@ import numpy as np
 from drivetrain.rig import data as rig
 
 
+#: the smallest positive double: the inclusive FMI ``min`` that says "> 0" exactly (FMI 2.0 has no exclusive
+#: bounds; no double lies between 0 and this one)
+POSITIVE = math.ulp(0.0)
+
+
 def _rig_default(model: str, name: str):
     return rig.default_parameters(model)[name]
 
@@ -35,9 +40,13 @@ def parameter(default, unit: str | None, description: str, *, min=None, max=None
     return field(default=default, metadata={"unit": unit, "description": description, "min": min, "max": max})
 
 
-def parameter_bounds(f) -> tuple:
-    """(min, max) a parameter field declares (None: unbounded)."""
-    return f.metadata.get("min"), f.metadata.get("max")
+def parameter_bounds(f, positive=()) -> tuple:
+    """(min, max) a parameter field declares (None: unbounded); a field named in ``positive`` (the parameter
+    class's ``POSITIVE_FIELDS``, the ones its component refuses unless > 0) has min :data:`POSITIVE`."""
+    lo, hi = f.metadata.get("min"), f.metadata.get("max")
+    if f.name in positive and lo is None:
+        lo = POSITIVE
+    return lo, hi
 
 
 def parameter_unit(f) -> str | None:
@@ -51,7 +60,8 @@ def parameter_description(f) -> str:
 
 # parameters every line model has, declared once
 def max_substep_parameter():
-    return parameter(1e-5, "s", "largest internal sub-step; sub-steps per communication step = ceil(H / max_substep)")
+    return parameter(1e-5, "s", "largest internal sub-step; sub-steps per communication step = ceil(H / max_substep)",
+                     min=POSITIVE)
 
 
 def output_torque_parameter():
@@ -60,8 +70,8 @@ def output_torque_parameter():
 
 
 def energy_correction_parameter():
-    return parameter(1, None, "1: energy-conserving correction of the spring-side flange torque (returns the "
-                              "measured work mismatch of the cut over 10 ms); 0: off", min=0, max=1)
+    return parameter(True, None, "true: energy-conserving correction of the spring-side flange torque (returns "
+                                 "the measured work mismatch of the cut over 10 ms); false: off")
 
 
 def node_start_parameter(state: str, unit: str):

@@ -4,6 +4,7 @@ shaft in equal elements (docs/DRIVETRAIN.md)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -41,7 +42,9 @@ class FlexibleShaftParams:
                                   "(J_e/6 [[2,1],[1,2]])")
     max_substep: float = max_substep_parameter()
     output_torque: str = output_torque_parameter()
-    energy_correction: int = energy_correction_parameter()
+    energy_correction: bool = energy_correction_parameter()
+    #: the parameters the component refuses unless > 0 (its check and the FMU's declared min)
+    POSITIVE_FIELDS: ClassVar[tuple] = ("J_a", "J_b", "k_shaft")
     phi0: float = parameter(0.0, "rad", "initial angle of the line (all nodes, before twist)")
     w0: float = parameter(0.0, "rad/s", "initial speed of the line")
     tau0: float = parameter(0.0, "N.m", "initial torque through the line (sets the initial twist of every spring)")
@@ -64,7 +67,7 @@ class FlexibleShaft(LineComponent):
             raise ValueError(f"n_elements must be >= 1, got {n}")
         if n > MAX_ELEMENTS:
             raise ValueError(f"n_elements must be <= {MAX_ELEMENTS}, got {n}")
-        for nm in ("J_a", "J_b", "k_shaft"):
+        for nm in FlexibleShaftParams.POSITIVE_FIELDS:
             if not getattr(p, nm) > 0:
                 raise ValueError(f"{nm} must be > 0")
         ke = n * p.k_shaft

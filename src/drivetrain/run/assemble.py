@@ -162,7 +162,7 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     if eff.shaft_flexibility == "flexible":
         ds = dict(part.params["drive_shaft"])
         ds.update(n_elements=int(eff.shaft_elements), max_substep=csub, phi0=th_next, w0=w, tau0=ss.T_dsh,
-                  energy_correction=int(bool(num.energy_correction)))
+                  energy_correction=bool(num.energy_correction))
         fs = FlexibleShaft(params_from(FlexibleShaftParams, ds))
         th_ut = th_next - ss.T_dsh * fs.compliance_to_port()
         comps.append(("drive_shaft", "FlexibleShaft", ds))
@@ -187,7 +187,7 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
         theta_w += mesh_offset(errors, theta_p, theta_w) / rig.LOWER_RATIO
     phi_b = theta_w - twist_b
     gear.update(twist_a_start=twist_a, twist_b_start=twist_b)
-    mo.update(max_substep=csub, energy_correction=int(bool(num.energy_correction)), phi0_motor=th_motor, w0=w,
+    mo.update(max_substep=csub, energy_correction=bool(num.energy_correction), phi0_motor=th_motor, w0=w,
               tau0=ss.T_dsh, phi0_load=phi_b, w0_load=ss.w_prop,
               load_w_nom=ss.w_prop if ss.w_prop > 0 else 1.0)
 

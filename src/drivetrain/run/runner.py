@@ -165,7 +165,7 @@ def stability_summary(res: CosimResult, spec: SystemSpec, time_s: float, energy_
 def failure_summary(res: CosimResult, spec: SystemSpec) -> dict | None:
     """``summary["failure"]`` of a failed run: the master's failure record (``time_s``, ``component``,
     ``model``, ``function``, ``status``, ``cause``, ``log``, ``steps_completed``,
-    ``last_sample_time_s``) with ``outputs`` = the failed FMU's Real outputs read after the failure
+    ``last_sample_time_s``) with ``outputs`` = the failed FMU's numeric outputs read after the failure
     (None if it could not answer) and ``gear_state`` = the gear FMU's outputs (pinion/wheel angle and
     speed, max_penetration, the stability counters, ...; None without a readable gear FMU)."""
     if res.failure is None:

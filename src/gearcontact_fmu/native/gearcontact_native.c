@@ -1068,6 +1068,16 @@ static void publish(Inst *c) {
     r[VR_energy_supplied] = 0.0;
 }
 
+/* the Integer counters (n_substeps, n_refinements, n_separations: fmi2GetInteger reads iv[]) from the
+ * stage's tallies, saturating at INT_MAX like the pythonfmu GearContact (its INT_MAX); after the build and
+ * after every step, failed ones included (the counters then describe the failure) */
+static int count_of(double x) { return x >= 2147483647.0 ? 2147483647 : (int)(int64_t)x; }
+static void sync_counters(Inst *c) {
+    c->iv[VR_n_substeps] = c->built ? count_of(c->res[RNSUB]) : 0;
+    c->iv[VR_n_refinements] = c->built ? count_of(c->res[RNREF]) : 0;
+    c->iv[VR_n_separations] = c->built ? count_of(c->res[RNSEP]) : 0;
+}
+
 /* the stage from the parameters (GearStage.__init__ + initialize); 0 with the instance failed */
 static int build_stage(Inst *c) {
     double *r = c->r;
@@ -1160,6 +1170,7 @@ static int build_stage(Inst *c) {
     c->res[RPEN] = isfinite(pen) ? pen : 0.0;
     c->res[RINC] = -1.0;
     c->built = 1;
+    sync_counters(c);
     return 1;
 }
 
@@ -1211,6 +1222,7 @@ static int stage_step(Inst *c, double t, double H) {
     double e0 = 0.5 * par[PJP] * (x[2] * x[2]) + 0.5 * par[PJW] * (x[3] * x[3]) + 0.5 * par[PKA] * (da_ * da_)
                 + 0.5 * par[PKB] * (db_ * db_) + c->out[OUT_ELASTIC_ENERGY];
     int code = advance(&c->td, c->scheme, c->x, par, u, H, n_sub, c->out, c->res, &c->pf_j, &c->pf_side);
+    sync_counters(c);
     if (code != CODE_OK) {
         double tf = t + c->res[RTF];
         if (code == CODE_NONFINITE_INPUT)
@@ -1258,10 +1270,7 @@ static double counter(const Inst *c, fmi2ValueReference vr) {
     switch (vr) {
     case VR_peak_penetration: return res[RPEN];
     case VR_min_substep: return isfinite(res[RDTMIN]) ? res[RDTMIN] : 0.0;
-    case VR_n_substeps: return (double)(int64_t)res[RNSUB];
-    case VR_n_refinements: return (double)(int64_t)res[RNREF];
     case VR_separated_time: return res[RTSEP];
-    case VR_n_separations: return (double)(int64_t)res[RNSEP];
     case VR_coupling_energy_error: return 0.0 + c->corr.mismatch[0] + c->corr.mismatch[1];
     default: return c->r[vr];
     }
@@ -1291,15 +1300,16 @@ static const char *shortest(char *buf, size_t n, double x) {
 }
 
 static fmi2Status refuse_fixed(Inst *c, const GcVar *v, const char *value, const char *built) {
-    fail(c, "GearContact (native): parameter %s = %s refused: this FMU was built with %s = %s, and the contact "
-         "map compiled into it depends on it (rebuild it: drivetrain build-native-gear SCENE, or use the "
-         "pythonfmu GearContact)", v->name, value, v->name, built);
+    fail(c, "GearContact (native): parameter %s = %s refused: this FMU was built with %s = %s, a constant of "
+         "this build (causality local, variability constant: not settable), and the contact map compiled into "
+         "it depends on it (rebuild it: drivetrain build-native-gear SCENE, or use the pythonfmu GearContact)",
+         v->name, value, v->name, built);
     return fmi2Error;
 }
 
-/* a parameter fixed by the build: only its built value is accepted */
+/* a parameter fixed by the build is a constant (modelDescription.xml): every fmi2Set of it is refused */
 static fmi2Status shell_accept_real(Inst *c, const GcVar *v, double x) {
-    if (v->fixed_by_build && !(x == v->real_start)) {
+    if (v->fixed_by_build) {
         char a[40], b[40];
         return refuse_fixed(c, v, shortest(a, sizeof a, x), shortest(b, sizeof b, v->real_start));
     }
@@ -1307,7 +1317,7 @@ static fmi2Status shell_accept_real(Inst *c, const GcVar *v, double x) {
 }
 
 static fmi2Status shell_accept_integer(Inst *c, const GcVar *v, int x) {
-    if (v->fixed_by_build && x != v->int_start) {
+    if (v->fixed_by_build) {
         char a[24], b[24];
         snprintf(a, sizeof a, "%d", (int)x);
         snprintf(b, sizeof b, "%d", v->int_start);
@@ -1332,7 +1342,7 @@ static fmi2Status shell_set_string(Inst *c, const GcVar *v, fmi2ValueReference v
         if (vr == VR_scheme) c->scheme_sel = found;
         else if (vr == VR_output_torque) c->output_sel = found;
         else c->initial_sel = found;
-    } else if (strcmp(s, v->string_start) != 0) {
+    } else if (v->fixed_by_build) {
         /* fidelity, mode, health, faults, manufacturing errors, mesh files: what the map was built from */
         return refuse_fixed(c, v, s, v->string_start);
     }

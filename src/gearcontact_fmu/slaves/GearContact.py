@@ -18,6 +18,7 @@ Package import: the installed ``gearcontact_fmu`` when importable, else the copy
 ``resources/_bundled`` (``BEVEL_FMU_USE_BUNDLED=1`` forces the bundled copy).
 """
 import importlib.util
+import math
 import os
 import sys
 from pathlib import Path
@@ -40,7 +41,7 @@ from pythonfmu import Boolean, DefaultExperiment, Fmi2Causality, Fmi2Initial, Fm
 from pythonfmu.enums import Fmi2Status  # noqa: E402
 
 from fmu_runtime.guard import enter_error_state, fmi_text, guard_value_references, restore_shell_state, shell_state  # noqa: E402,E501
-from gearcontact_fmu.params import DEFAULT_COMM_STEP_S  # noqa: E402
+from gearcontact_fmu.params import DEFAULT_COMM_STEP_S, MAP_GRID_RANGE  # noqa: E402
 
 PACKAGE_ORIGIN = str(Path(gearcontact_fmu.__file__).resolve().parent)
 #: values of the ``initial_state`` parameter (the first is the default)
@@ -67,9 +68,14 @@ class Var(NamedTuple):
     unit: str            # Real only ("1": dimensionless)
     default: Any         # a literal, From(...) or Counter(...)
     description: str
+    bounds: tuple = (None, None)   # (min, max): the values the code refuses outside of (modelDescription min/max)
 
 
 PARAMETER, INPUT, OUTPUT = "parameter", "input", "output"
+#: the smallest positive double: FMI's inclusive min for "> 0" (drivetrain.models.parameters.POSITIVE)
+POSITIVE = math.ulp(0.0)
+#: the largest fmi2Integer: a counter saturates there (2**31 - 1 sub-steps: ~6 h at 1e-5 s)
+INT_MAX = 2 ** 31 - 1
 
 #: every variable of the FMU, in value-reference order
 VARIABLES = (
@@ -98,9 +104,9 @@ VARIABLES = (
     Var("z_pinion", "Integer", PARAMETER, "", From("gear", "z_pinion"), "pinion teeth"),
     Var("z_wheel", "Integer", PARAMETER, "", From("gear", "z_wheel"), "wheel teeth"),
     Var("map_points_per_pitch", "Integer", PARAMETER, "", From("grid", "points_per_pitch"),
-        "table: contact-map nodes along the pinion angle per pinion pitch"),
+        "table: contact-map nodes along the pinion angle per pinion pitch", MAP_GRID_RANGE),
     Var("map_approach_points", "Integer", PARAMETER, "", From("grid", "s_points"),
-        "table: contact-map nodes per flank along the approach beyond the contact onset"),
+        "table: contact-map nodes per flank along the approach beyond the contact onset", MAP_GRID_RANGE),
     Var("friction", "Boolean", PARAMETER, "", True, "tooth friction in the mesh (false: not evaluated)"),
     Var("contact_damping", "Boolean", PARAMETER, "", True, "contact damping in the mesh (false: not evaluated)"),
     Var("energy_correction", "Boolean", PARAMETER, "", From("stage", "energy_correction"),
@@ -122,14 +128,16 @@ VARIABLES = (
         "PCM surface-mesh element size along the tooth profile"),
     Var("face_element_size", "Real", PARAMETER, "m", From("resolution", "face"),
         "PCM surface-mesh element size along the face width"),
-    Var("J_pinion", "Real", PARAMETER, "kg.m2", From("stage", "J_pinion"), "pinion-side inertia of the stage"),
-    Var("J_wheel", "Real", PARAMETER, "kg.m2", From("stage", "J_wheel"), "wheel-side inertia of the stage"),
+    Var("J_pinion", "Real", PARAMETER, "kg.m2", From("stage", "J_pinion"), "pinion-side inertia of the stage",
+        (POSITIVE, None)),
+    Var("J_wheel", "Real", PARAMETER, "kg.m2", From("stage", "J_wheel"), "wheel-side inertia of the stage",
+        (POSITIVE, None)),
     Var("k_a", "Real", PARAMETER, "N.m/rad", From("stage", "k_a"), "stiffness of the flange_a - pinion port spring"),
     Var("d_a", "Real", PARAMETER, "N.m.s/rad", From("stage", "d_a"), "damping of the flange_a - pinion port"),
     Var("k_b", "Real", PARAMETER, "N.m/rad", From("stage", "k_b"), "stiffness of the flange_b - wheel port spring"),
     Var("d_b", "Real", PARAMETER, "N.m.s/rad", From("stage", "d_b"), "damping of the flange_b - wheel port"),
     Var("max_substep", "Real", PARAMETER, "s", From("stage", "max_substep"),
-        "largest internal sub-step; sub-steps per communication step = ceil(H / max_substep)"),
+        "largest internal sub-step; sub-steps per communication step = ceil(H / max_substep)", (POSITIVE, None)),
     Var("module", "Real", PARAMETER, "m", From("gear", "module"), "outer transverse module"),
     Var("pressure_angle", "Real", PARAMETER, "rad", From("gear", "pressure_angle"), "pressure angle"),
     Var("shaft_angle", "Real", PARAMETER, "rad", From("gear", "shaft_angle"), "shaft angle"),
@@ -141,7 +149,7 @@ VARIABLES = (
         "circumferential backlash on the outer pitch circle"),
     Var("tip_radius", "Real", PARAMETER, "m", From("gear", "tip_radius"), "tip rounding radius"),
     Var("tooth_compliance", "Real", PARAMETER, "1", 1.0,
-        "total mesh approach per PCM layer approach (table only; 1 = the layers alone)"),
+        "total mesh approach per PCM layer approach (table only; 1 = the layers alone)", (1.0, None)),
     Var("mesh_damping_ratio", "Real", PARAMETER, "1", 0.05, "analytic mesh: damping ratio of the mesh mode"),
     Var("mesh_phase", "Real", PARAMETER, "rad", 0.0,
         "analytic mesh: pinion angle at which a drive flank passes the pitch point"),
@@ -190,13 +198,13 @@ VARIABLES = (
         "stability counter: largest element penetration since t = 0"),
     Var("min_substep", "Real", OUTPUT, "s", Counter("min_substep"),
         "stability counter: smallest accepted sub-step since t = 0"),
-    Var("n_substeps", "Real", OUTPUT, "1", Counter("n_substeps_total"),
+    Var("n_substeps", "Integer", OUTPUT, "", Counter("n_substeps_total"),
         "stability counter: accepted sub-steps since t = 0"),
-    Var("n_refinements", "Real", OUTPUT, "1", Counter("n_refinements"),
+    Var("n_refinements", "Integer", OUTPUT, "", Counter("n_refinements"),
         "stability counter: sub-step halvings since t = 0"),
     Var("separated_time", "Real", OUTPUT, "s", Counter("separated_time"),
         "stability counter: time out of contact since t = 0"),
-    Var("n_separations", "Real", OUTPUT, "1", Counter("n_separations"),
+    Var("n_separations", "Integer", OUTPUT, "", Counter("n_separations"),
         "stability counter: contact-loss events since t = 0"),
     Var("coupling_energy_error", "Real", OUTPUT, "J", Counter("coupling_energy_error"),
         "work mismatch of the two flange cuts since t = 0 not yet corrected"),
@@ -226,11 +234,17 @@ class GearContact(Fmi2Slave):
     # read by drivetrain.cosim.build and nativebuild (modelDescription units and descriptions)
     units = {v.name: v.unit for v in VARIABLES if v.unit}
     variable_descriptions = {v.name: v.description for v in VARIABLES}
+    bounds = {v.name: v.bounds for v in VARIABLES if v.bounds != (None, None)}          # (min/max)
+    # InitialUnknowns: at exit of initialization every output follows the flange inputs (initial_state
+    # inputs) and the parameters; energy_supplied is 0 whatever they are (no source inside)
+    initial_dependencies = {"energy_supplied": []}
 
     INPUTS = tuple(v.name for v in VARIABLES if v.causality == INPUT)
     # the outputs published after every step
     OUTPUTS = tuple(v.name for v in VARIABLES if v.causality == OUTPUT and v.type == "Real"
                     and not isinstance(v.default, Counter))
+    # the counts among the counters (Integer outputs)
+    INTEGER_COUNTERS = frozenset(v.name for v in VARIABLES if isinstance(v.default, Counter) and v.type == "Integer")
     # after a failure: NaN (the state outputs keep the last completed step, see ``error``)
     NAN_ON_FAILURE = tuple(n for n in OUTPUTS if n not in ("pinion_phi", "pinion_w", "wheel_phi", "wheel_w"))
     # stability counters of the stage and the pending coupling mismatch, cumulative since t = 0: read from
@@ -247,14 +261,20 @@ class GearContact(Fmi2Slave):
         for v in VARIABLES:
             kind = _TYPES[v.type]
             if isinstance(v.default, Counter):
+                count = v.type == "Integer"
+                extra = {"variability": Fmi2Variability.discrete} if count else {}
                 self.register_variable(kind(v.name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact,
-                                            getter=(lambda prop=v.default.prop: self._counter(prop))))
+                                            getter=(lambda prop=v.default.prop, c=count: self._counter(prop, c)),
+                                            **extra))
                 continue
             d = v.default
             setattr(self, v.name, getattr(sources[d.source], d.attribute) if isinstance(d, From) else d)
             if v.causality == PARAMETER:
-                self.register_variable(kind(v.name, causality=Fmi2Causality.parameter,
-                                            variability=Fmi2Variability.fixed))
+                var = kind(v.name, causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed)
+                if v.type == "Integer":
+                    # an Integer set outside its declared range is refused when set (fmu_runtime.guard)
+                    var.min, var.max = v.bounds
+                self.register_variable(var)
             elif v.causality == INPUT:
                 self.register_variable(kind(v.name, causality=Fmi2Causality.input))
             else:
@@ -328,14 +348,17 @@ class GearContact(Fmi2Slave):
         self._stage.initialize(self._t0, p_phi - ta, p_w, w_phi - tb, w_w, theta_pinion=p_phi,
                                theta_wheel=w_phi, omega_pinion=p_w, omega_wheel=w_w)
 
-    def _counter(self, prop):
+    def _counter(self, prop, count=False):
+        """A stability counter from the stage; ``count``: an Integer output (saturating at INT_MAX; -1 when
+        it cannot be read, the Integer's NaN)."""
         st = self._stage
         if st is None:
-            return 0.0
+            return 0 if count else 0.0
         try:
-            return float(getattr(st, prop))
+            v = getattr(st, prop)
+            return min(int(v), INT_MAX) if count else float(v)
         except Exception:  # noqa: BLE001 - a getter must never raise into the host
-            return float("nan")
+            return -1 if count else float("nan")
 
     def _fail(self, msg):
         """Enter the error state (fmu_runtime.guard.enter_error_state; NAN_ON_FAILURE become NaN)."""

@@ -1,0 +1,219 @@
+"""What the modelDescription of every FMU declares, in both builds (issue 30, item 4), as the FMI 2.0 standard
+and the FMI Reference FMUs (modelica/Reference-FMUs) have it: outputs computed in initialization mode are
+``initial="calculated"`` without a start value and listed in ``<ModelStructure><InitialUnknowns>`` with the
+knowns they are computed from; counts are Integer, switches Boolean; a ``min``/``max`` where the code refuses
+values; ``<TypeDefinitions>`` with the physical quantities that the Real variables refer to; the native
+GearContact's parameters fixed by its build are constants no host can set. Each FMU also passes
+``fmpy validate`` (fmpy.validation.validate_fmu)."""
+import math
+import shutil
+import zipfile
+from pathlib import Path
+from xml.etree import ElementTree as ET
+
+import pytest
+
+fmpy = pytest.importorskip("fmpy")
+from fmpy.fmi1 import FMICallException  # noqa: E402
+from _fmi_instances import KEEP, get_values, open_instance  # noqa: E402
+
+MODELS = ("GearContact", "FlexibleShaft", "UpperTransmission", "MotorLoad")
+H = 1.0 / 12000.0
+_KEEP = KEEP
+
+
+@pytest.fixture(scope="module")
+def fmus(tmp_path_factory):
+    """{(build, model): path} for build "pythonfmu" and, with gcc, "native"."""
+    from drivetrain.cosim.build import build_all
+
+    out = {("pythonfmu", p.stem): p for p in build_all(tmp_path_factory.mktemp("py"))}
+    if shutil.which("gcc") is not None:
+        from drivetrain.cosim.native_gear import build_native_gear
+        from drivetrain.cosim.native_line import MODELS as LINE_MODELS
+        from drivetrain.cosim.native_line import build_native_line
+
+        d = tmp_path_factory.mktemp("native")
+        for m in LINE_MODELS:
+            out[("native", m)] = build_native_line(m, d / f"{m}.fmu")
+        out[("native", "GearContact")] = build_native_gear({}, d / "GearContact.fmu")
+    return out
+
+
+def _root(path):
+    with zipfile.ZipFile(path) as z:
+        return ET.fromstring(z.read("modelDescription.xml"))
+
+
+def _each(fmus):
+    return [(key, path, _root(path)) for key, path in sorted(fmus.items())]
+
+
+def test_every_fmu_validates(fmus):
+    from fmpy.validation import validate_fmu
+
+    assert len(fmus) in (4, 8)
+    for key, path in fmus.items():
+        assert validate_fmu(str(path)) == [], key
+
+
+def test_outputs_are_calculated_and_initial_unknowns_name_their_knowns(fmus):
+    """FMI 2.0 section 2.2.7/2.2.8: an output the FMU computes at initialization has initial "calculated" (no
+    start), and InitialUnknowns lists exactly those outputs, in index order, each with dependencies on
+    knowns only (inputs and parameters)."""
+    for key, _, root in _each(fmus):
+        svs = list(root.find("ModelVariables"))
+        outputs = [i + 1 for i, sv in enumerate(svs) if sv.get("causality") == "output"]
+        for i in outputs:
+            sv = svs[i - 1]
+            assert sv.get("initial") == "calculated" and sv[0].get("start") is None, (key, sv.get("name"))
+        iu = root.find("ModelStructure").find("InitialUnknowns")
+        assert iu is not None, key
+        listed = [int(u.get("index")) for u in iu]
+        assert listed == outputs, key
+        knowns = {i + 1 for i, sv in enumerate(svs) if sv.get("causality") in ("input", "parameter")}
+        inputs = {i + 1 for i, sv in enumerate(svs) if sv.get("causality") == "input"}
+        deps = {svs[int(u.get("index")) - 1].get("name"): {int(d) for d in u.get("dependencies").split()}
+                for u in iu}
+        assert all(d <= knowns for d in deps.values()), key
+        # the torques follow the flange inputs (a spring-side port's start torque); the inertia-side angles
+        # and speeds of the drivetrain components are their start state, from the parameters alone
+        assert inputs and any(d & inputs for d in deps.values()), key
+        if "flange_b_tau" in deps or "drive_tau" in deps:
+            assert deps.get("flange_b_tau", deps.get("drive_tau")) & inputs, key
+        if key[1] != "GearContact":
+            from drivetrain.models.fmishell import PORTS
+            from drivetrain.system import INERTIA
+
+            for port, kind in PORTS[key[1]].items():
+                if kind == INERTIA:
+                    assert deps[f"{port}_phi"] and not deps[f"{port}_phi"] & inputs, (key, port)
+        else:
+            assert deps["energy_supplied"] == set() and deps["flange_a_tau"] >= inputs
+
+
+def test_counts_are_integer_and_switches_boolean(fmus):
+    for key, _, root in _each(fmus):
+        v = {sv.get("name"): sv for sv in root.find("ModelVariables")}
+        if key[1] != "UpperTransmission":           # (no spring-side port: nothing to correct)
+            assert v["energy_correction"][0].tag == "Boolean", key
+        if key[1] == "GearContact":
+            for n in ("n_substeps", "n_refinements", "n_separations"):
+                assert v[n][0].tag == "Integer" and v[n].get("variability") == "discrete", (key, n)
+            assert v["friction"][0].tag == v["contact_damping"][0].tag == "Boolean"
+        # no other count declared Real with unit "1" (n_contact is the contact-map's interpolated count of
+        # contact elements at fidelity table: a fractional number, Real by right)
+        reals = [n for n, sv in v.items() if n.startswith("n_") and sv[0].tag == "Real"]
+        assert reals in ([], ["n_contact"]), (key, reals)
+
+
+def test_bounds_are_the_ones_the_code_checks(fmus):
+    from drivetrain.models.parameters import POSITIVE
+    from gearcontact_fmu.params import MAP_GRID_RANGE
+
+    assert POSITIVE > 0.0 and math.nextafter(0.0, 1.0) == POSITIVE          # min = POSITIVE means "> 0"
+    expect = {
+        "GearContact": {"J_pinion": (POSITIVE, None), "J_wheel": (POSITIVE, None), "max_substep": (POSITIVE, None),
+                        "tooth_compliance": (1.0, None), "map_points_per_pitch": MAP_GRID_RANGE,
+                        "map_approach_points": MAP_GRID_RANGE},
+        "FlexibleShaft": {"max_substep": (POSITIVE, None), "J_a": (POSITIVE, None), "k_shaft": (POSITIVE, None),
+                          "n_elements": (1, 1000)},
+        "UpperTransmission": {"max_substep": (POSITIVE, None)},
+        "MotorLoad": {"max_substep": (POSITIVE, None), "J_motor": (POSITIVE, None), "k_c1": (POSITIVE, None),
+                      "ratio_pg": (POSITIVE, None), "load_mode": (0, 1)},
+    }
+    for key, _, root in _each(fmus):
+        v = {sv.get("name"): sv for sv in root.find("ModelVariables")}
+        for name, (lo, hi) in expect[key[1]].items():
+            el = v[name][0]
+            got = tuple(None if el.get(k) is None else float(el.get(k)) for k in ("min", "max"))
+            assert got == (lo, hi), (key, name, got)
+
+
+def test_type_definitions_carry_the_quantities(fmus):
+    from drivetrain.cosim.build import QUANTITIES
+
+    for key, _, root in _each(fmus):
+        types = {st.get("name"): st[0] for st in root.find("TypeDefinitions")}
+        for name, unit in (("Torque", "N.m"), ("Angle", "rad"), ("AngularVelocity", "rad/s"), ("Energy", "J")):
+            assert (types[name].get("quantity"), types[name].get("unit")) == (name, unit), (key, name)
+        for sv in root.find("ModelVariables"):
+            el = sv[0]
+            if el.tag == "Real" and el.get("unit") in QUANTITIES:
+                t = el.get("declaredType")
+                assert t == QUANTITIES[el.get("unit")] and types[t].get("unit") == el.get("unit"), (key, sv.get("name"))
+        v = {sv.get("name"): sv[0] for sv in root.find("ModelVariables")}
+        assert v["energy_stored"].get("declaredType") == "Energy"
+
+
+def test_the_native_gears_build_parameters_are_constants(fmus):
+    """FMI 2.0 section 2.2.7: a value a host cannot change is causality local, variability constant."""
+    if ("native", "GearContact") not in fmus:
+        pytest.skip("gcc not installed")
+    from drivetrain.cosim.native_gear import IGNORED_PARAMETERS, RUNTIME_PARAMETERS
+
+    v = {sv.get("name"): sv for sv in _root(fmus[("native", "GearContact")]).find("ModelVariables")}
+    py = {sv.get("name"): sv for sv in _root(fmus[("pythonfmu", "GearContact")]).find("ModelVariables")}
+    params = [n for n, sv in py.items() if sv.get("causality") == "parameter"]
+    fixed = [n for n in params if n not in RUNTIME_PARAMETERS | IGNORED_PARAMETERS]
+    assert len(fixed) >= 25
+    for n in fixed:
+        assert (v[n].get("causality"), v[n].get("variability")) == ("local", "constant"), n
+        assert v[n][0].get("start") is not None, n
+    for n in RUNTIME_PARAMETERS:
+        assert (v[n].get("causality"), v[n].get("variability")) == ("parameter", "fixed"), n
+    s, vr = open_instance(fmus[("native", "GearContact")], None, "const")
+    with pytest.raises(FMICallException):            # even the built value: a constant is not set
+        s.setReal([vr["module"].valueReference], [float(vr["module"].start)])
+    assert "a constant of this build" in s.log_lines()
+
+
+def _steps(path, params, n):
+    s, vr = open_instance(path, params, "steps")
+    s.setupExperiment(startTime=0.0)
+    s.enterInitializationMode()
+    s.exitInitializationMode()
+    names = ("n_substeps", "n_refinements", "n_separations", "energy_correction")
+    first = get_values(s, vr, names)
+    for k in range(n):
+        s.doStep(k * H, H)
+    return first, get_values(s, vr, names)
+
+
+def test_the_counters_count_in_both_builds(fmus):
+    """n_substeps = steps x ceil(H / max_substep), read with fmi2GetInteger; energy_correction with
+    fmi2GetBoolean."""
+    builds = [b for b in ("pythonfmu", "native") if (b, "GearContact") in fmus]
+    for build in builds:
+        params = {"fidelity": "analytic"} if build == "pythonfmu" else {}
+        first, last = _steps(fmus[(build, "GearContact")], params, 12)
+        assert first[:3] == [0.0, 0.0, 0.0] and first[3] == 1.0, build
+        assert last[0] == 12 * math.ceil(H / 1e-5) and last[1] >= 0 and last[2] >= 0, (build, last)
+
+
+@pytest.mark.xfail(strict=True, reason="issue 30: the assembler starts the mesh at the analytic model's static "
+                   "deflection (drivetrain.run.assemble.initial_mesh_deflection, T / K_mean), which the table map "
+                   "does not share: at t = 0 the mesh carries 5.63 N.m on the pinion (22.5 on the wheel) against "
+                   "the port spring's 3.76 N.m; a fix changes every table run (bit-identity hashes re-stored)")
+def test_the_gear_starts_in_balance_on_the_example_scene():
+    """The t = 0 outputs of the gear as the master starts it: the mesh torque on the pinion balances the port
+    spring (steady start), and the wheel's is ratio times the pinion's (the mesh balance; independent
+    oracle: 15.03 N.m steady on the propeller shaft, docs/DRIVETRAIN.md)."""
+    import tempfile
+
+    from drivetrain.cosim.build import slave_class
+    from drivetrain.run.runner import assemble_scene
+    from drivetrain.scene.load import load_scene
+
+    root = Path(__file__).resolve().parents[1]
+    spec = assemble_scene(load_scene(root / "scenarios" / "example.toml", ["time.duration_s=0.01"]))
+    g = spec.components_of("GearContact")[0]
+    cls = slave_class(root / "src" / "gearcontact_fmu" / "slaves" / "GearContact.py")
+    s = cls(instance_name="t0", resources=tempfile.gettempdir())
+    for k, x in g.parameters.items():
+        setattr(s, k, x)
+    s.enter_initialization_mode()
+    s.exit_initialization_mode()
+    assert s.mesh_torque_wheel == pytest.approx(-4.0 * s.mesh_torque_pinion, rel=1e-9)     # the mesh balance
+    assert s.mesh_torque_pinion == pytest.approx(s.flange_a_tau, rel=0.01)                 # the pinion's
+    assert s.mesh_torque_wheel == pytest.approx(15.03, rel=0.01)

@@ -233,6 +233,14 @@ def write_header(rows: list[dict], path: Path) -> None:
              f"#define GC_FD_SPEED {c_double(sp.fd_speed)}",
              *coupling_defines(),
              f"#define GC_MFG_CENTRE {c_double(manufacturing.CENTRE)}", "", *vr_enum(rows), "",
+             "/* with FMI2_FUNCTION_PREFIX (several source FMUs in one binary, fmi2Functions.h), the build's two",
+             "   global tables are named apart like the fmi2 functions */",
+             "#if defined(FMI2_FUNCTION_PREFIX)",
+             "#define GC_PASTE_(a, b) a##b",
+             "#define GC_PASTE(a, b) GC_PASTE_(a, b)",
+             "#define GC_GUID GC_PASTE(FMI2_FUNCTION_PREFIX, GC_GUID)",
+             "#define GC_VARS GC_PASTE(FMI2_FUNCTION_PREFIX, GC_VARS)",
+             "#endif", "",
              "/* this build's GUID and variable table (gearcontact_values.c) */",
              "extern const char GC_GUID[];",
              "extern const GcVar GC_VARS[GC_N_VARS];", "", "#endif", ""]
@@ -405,10 +413,11 @@ def copy_shared_sources(src: Path) -> None:
 
 
 def fmi_header_dir() -> Path:
-    """fmpy's copy of the FMI 2.0 headers."""
-    import fmpy
-
-    return Path(fmpy.__file__).resolve().parent / "c-code"
+    """The FMI 2.0.5 headers as the Modelica Association ships them (github.com/modelica/fmi-standard, tag
+    v2.0.5, headers/, 2-clause BSD: kept in gearcontact_fmu/native). fmpy's copy, used before issue 30, has
+    ``fmi2FullName`` changed to ignore ``FMI2_FUNCTION_PREFIX``: two source FMUs compiled into one binary
+    then clashed on every fmi2 symbol. With these, ``-DFMI2_FUNCTION_PREFIX=<model>_`` names them apart."""
+    return NATIVE_DIR
 
 
 def compile_command(src_dir: Path, out: Path, cc: str = "gcc", source: str = C_SOURCE, inputs=None) -> list[str]:

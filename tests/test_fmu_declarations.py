@@ -250,3 +250,34 @@ def test_function_prefix_links_several_source_fmus_into_one_binary(fmus, tmp_pat
         assert fn() == b"2.0"
         assert hasattr(lib, f"{model}_fmi2DoStep") and hasattr(lib, f"{model}_fmi2Instantiate")
     assert not hasattr(lib, "fmi2GetVersion")
+
+
+def test_hosts_leave_the_constants_alone(tmp_path):
+    """The native gear's constants are neither in the SSP's parameter set nor set by our master (its check
+    accepts the scene's value when it equals the built one and names the difference otherwise)."""
+    if shutil.which("gcc") is None:
+        pytest.skip("gcc not installed")
+    from drivetrain.cosim.fmus import load_fmu_info
+    from drivetrain.cosim.plan import _check_parameters
+    from drivetrain.interop.ssp import export_ssp
+    from drivetrain.run.runner import assemble_scene
+    from drivetrain.scene.load import load_scene
+
+    root = Path(__file__).resolve().parents[1]
+    scene = load_scene(root / "scenarios" / "example.toml", ["time.duration_s=0.01"])
+    spec = assemble_scene(scene)
+    path = export_ssp(scene, tmp_path / "system.ssp", fmu_dir=tmp_path / "fmus", spec=spec, native=True)
+    with zipfile.ZipFile(path) as z:
+        ssv = z.read("resources/gear.ssv").decode()
+        fmu = tmp_path / "GearContact.fmu"
+        fmu.write_bytes(z.read("resources/GearContact.fmu"))
+    assert 'name="J_pinion"' in ssv and 'name="health"' not in ssv and 'name="fidelity"' not in ssv
+    gear = spec.components_of("GearContact")[0]
+    variables = load_fmu_info(fmu).variables
+    assert variables["health"].constant and gear.parameters["health"] == "healthy"
+    problems = []
+    _check_parameters(gear, variables, problems)
+    assert problems == []
+    gear.parameters["map_points_per_pitch"] = 64
+    _check_parameters(gear, variables, problems)
+    assert len(problems) == 1 and "was built with map_points_per_pitch = 48" in problems[0], problems

@@ -45,13 +45,17 @@ class {model}(Fmi2Slave):
     units = fmishell.UNITS          # read by drivetrain.cosim.build (modelDescription units)
     variable_descriptions = fmishell.variable_descriptions("{model}")   # and descriptions
     bounds = fmishell.bounds("{model}")          # read by drivetrain.cosim.build (min/max)
-    initial_dependencies = fmishell.initial_dependencies("{model}")   # (InitialUnknowns)
     default_experiment = fmishell.DEFAULT_EXPERIMENT
     can_get_and_set_fmu_state = True   # read by drivetrain.cosim.build (canGetAndSetFMUstate)
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         fmishell.init_slave(self, "{model}", kwargs)
+
+    @classmethod
+    def initial_dependencies(cls):
+        """read by drivetrain.cosim.build (InitialUnknowns): found by running the initialization"""
+        return fmishell.initial_dependencies(cls)
 
     def enter_initialization_mode(self):
         fmishell.enter_init(self)

@@ -356,6 +356,13 @@ def edit_model_description(data: bytes, units: dict, output_dependencies: dict, 
     return ET.tostring(root, encoding="UTF-8", xml_declaration=True)
 
 
+def declared_initial_dependencies(cls) -> dict | None:
+    """A slave class's ``initial_dependencies``: a dict, or a class method that finds them (the drivetrain
+    component slaves run their initialization, fmishell.initial_dependencies)."""
+    deps = getattr(cls, "initial_dependencies", None)
+    return deps() if callable(deps) else deps
+
+
 def build_fmu(script: Path, out_dir: Path) -> Path:
     """Build one FMU from a slave script (see the module docstring)."""
     from pythonfmu.builder import FmuBuilder
@@ -373,7 +380,7 @@ def build_fmu(script: Path, out_dir: Path) -> Path:
                                   model=cls.__name__, description=getattr(cls, "description", ""),
                                   variable_descriptions=getattr(cls, "variable_descriptions", None),
                                   bounds=getattr(cls, "bounds", None),
-                                  initial_dependencies=getattr(cls, "initial_dependencies", None))
+                                  initial_dependencies=declared_initial_dependencies(cls))
     return fmu
 
 

@@ -282,7 +282,7 @@ def native_model_description(model: str, slave, rows: list[dict], guid: str, *, 
     """modelDescription.xml of a native FMU: the pythonfmu slave's variables (same names, types and value
     references), units and ``descriptions`` (drivetrain.cosim.build's post-processing), the C source, ``note``
     after the slave's description, ``real_start`` formatting the Real start values."""
-    from drivetrain.cosim.build import edit_model_description
+    from drivetrain.cosim.build import declared_initial_dependencies, edit_model_description
 
     cls = type(slave)
     de = cls.default_experiment
@@ -326,7 +326,7 @@ def native_model_description(model: str, slave, rows: list[dict], guid: str, *, 
         if r["causality"] == "output":
             ET.SubElement(outs, "Unknown", index=str(i + 1))
     return edit_model_description(ET.tostring(root, encoding="UTF-8", xml_declaration=True), cls.units, {},
-                                  descriptions, getattr(cls, "bounds", None), getattr(cls, "initial_dependencies", None))
+                                  descriptions, getattr(cls, "bounds", None), declared_initial_dependencies(cls))
 
 
 def model_description(slave, rows: list[dict], guid: str) -> bytes:

@@ -152,8 +152,12 @@ def _check_toolchain(cc: str) -> list[str]:
 
 
 def _line_sources() -> list[Path]:
-    """The files a line FMU's fingerprint hashes: its C source, the shared headers, this module."""
-    return [NATIVE_DIR / C_SOURCE, *(SHARED_DIR / name for name in SHARED_HEADERS), Path(__file__)]
+    """The files a line FMU's fingerprint hashes: its C source, the shared and FMI headers, this module and the
+    modelDescription writers (native_gear.native_model_description, build.edit_model_description)."""
+    from drivetrain.cosim.native_gear import FMI_HEADERS
+
+    return [NATIVE_DIR / C_SOURCE, *(SHARED_DIR / name for name in (*SHARED_HEADERS, *FMI_HEADERS)), Path(__file__),
+            Path(__file__).with_name("native_gear.py"), Path(__file__).with_name("build.py")]
 
 
 def _fingerprint(model: str, rows: list[dict], cc: str) -> str:
@@ -255,6 +259,7 @@ def _gear_fingerprint_now(text: str, pkg: Path, files: list[Path], builder: Path
         h.update(f.relative_to(pkg).as_posix().encode())
         h.update(f.read_bytes())
     h.update(builder.read_bytes())
+    h.update(builder.with_name("build.py").read_bytes())      # the modelDescription writer
     return h.hexdigest()
 
 
@@ -264,7 +269,7 @@ def _gear_fingerprint(parameters: dict) -> str:
     files (:data:`_FINGERPRINTS`)."""
     text = json.dumps(parameters, sort_keys=True, default=str)
     pkg, files, builder = _gear_sources()
-    return _memo(("gear", text, _file_stamps([*files, builder])),
+    return _memo(("gear", text, _file_stamps([*files, builder, builder.with_name("build.py")])),
                  lambda: _gear_fingerprint_now(text, pkg, files, builder))
 
 

@@ -170,16 +170,30 @@ def bounds(model: str) -> dict:
     return {n: b for n, b in out.items() if b != (None, None)}
 
 
-def initial_dependencies(model: str) -> dict:
-    """Output -> what it depends on in initialization mode (modelDescription InitialUnknowns): the
-    inertia-side angles and speeds are the component's start state (parameters only); every other output
-    also takes the inputs set before fmi2ExitInitializationMode (the spring-side torques from the flange
-    inputs, the energies from both)."""
-    out = {}
-    for p, kind in PORTS[model].items():
-        if kind == INERTIA:
-            out[f"{p}_phi"] = out[f"{p}_w"] = "parameters"
-    return out
+def initial_dependencies(slave_cls) -> dict:
+    """Output -> the knowns it is computed from in initialization mode (modelDescription InitialUnknowns,
+    drivetrain.cosim.build): every parameter, and the inputs that move it, found by running the slave's
+    initialization (enter, inputs set, exit) once with the inputs at their start values and once per input
+    with that one moved: what the code does, not a second declaration. E.g. a spring-side flange torque
+    depends on the flange's angle and speed inputs, an inertia-side angle on the parameters only."""
+    import tempfile
+
+    def initial_outputs(moved: str | None) -> dict:
+        s = slave_cls(instance_name="initial-dependencies", resources=tempfile.gettempdir())
+        s.enter_initialization_mode()
+        if moved is not None:
+            setattr(s, moved, float(getattr(s, moved)) + 0.37 * (1 + s._inputs.index(moved)))
+        s.exit_initialization_mode()
+        if s._failed is not None:
+            raise RuntimeError(f"{slave_cls.__name__}: initialization failed while probing its dependencies: "
+                               f"{s._failed}")
+        return {n: getattr(s, n) for n in s._outputs}
+
+    base = initial_outputs(None)
+    moved = {n: initial_outputs(n) for n in slave_cls(instance_name="probe", resources=tempfile.gettempdir())._inputs}
+    params = slave_cls(instance_name="probe", resources=tempfile.gettempdir())._param_names
+    return {out: [n for n, vals in moved.items() if vals[out] != value] + list(params)
+            for out, value in base.items()}
 
 
 def variable_descriptions(model: str) -> dict:

@@ -236,8 +236,11 @@ class GearContact(Fmi2Slave):
     variable_descriptions = {v.name: v.description for v in VARIABLES}
     bounds = {v.name: v.bounds for v in VARIABLES if v.bounds != (None, None)}          # (min/max)
     # InitialUnknowns: at exit of initialization every output follows the flange inputs (initial_state
-    # inputs) and the parameters; energy_supplied is 0 whatever they are (no source inside)
-    initial_dependencies = {"energy_supplied": []}
+    # inputs) and the parameters, but these: 0 whatever they are (no source inside; the sums and counts
+    # since t = 0, the smallest sub-step before the first step, the pending coupling work)
+    initial_dependencies = {n: [] for n in ("energy_supplied", "energy_dissipated", "n_substeps", "n_refinements",
+                                            "n_separations", "separated_time", "min_substep",
+                                            "coupling_energy_error")}
 
     INPUTS = tuple(v.name for v in VARIABLES if v.causality == INPUT)
     # the outputs published after every step

@@ -90,6 +90,11 @@ def test_outputs_are_calculated_and_initial_unknowns_name_their_knowns(fmus):
                     assert deps[f"{port}_phi"] and not deps[f"{port}_phi"] & inputs, (key, port)
         else:
             assert deps["energy_supplied"] == set() and deps["flange_a_tau"] >= inputs
+            assert deps["n_substeps"] == set() and deps["pinion_w"] >= inputs
+        if key[1] in ("FlexibleShaft", "MotorLoad"):      # exactly the inputs that move it (a spring-side port)
+            name = {i + 1: sv.get("name") for i, sv in enumerate(svs)}
+            port = "flange_b" if key[1] == "FlexibleShaft" else "drive"
+            assert {name[i] for i in deps[f"{port}_tau"] & inputs} == {f"{port}_phi", f"{port}_w"}, key
 
 
 def test_counts_are_integer_and_switches_boolean(fmus):

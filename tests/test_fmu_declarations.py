@@ -122,7 +122,7 @@ def test_bounds_are_the_ones_the_code_checks(fmus):
                         "tooth_compliance": (1.0, None), "map_points_per_pitch": MAP_GRID_RANGE,
                         "map_approach_points": MAP_GRID_RANGE},
         "FlexibleShaft": {"max_substep": (POSITIVE, None), "J_a": (POSITIVE, None), "k_shaft": (POSITIVE, None),
-                          "n_elements": (1, 1000)},
+                          "n_elements": (1, 1000), "mass_model": (0, 1)},
         "UpperTransmission": {"max_substep": (POSITIVE, None)},
         "MotorLoad": {"max_substep": (POSITIVE, None), "J_motor": (POSITIVE, None), "k_c1": (POSITIVE, None),
                       "ratio_pg": (POSITIVE, None), "load_mode": (0, 1)},

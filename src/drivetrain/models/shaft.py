@@ -39,7 +39,7 @@ class FlexibleShaftParams:
                         "inertia of the whole thin shaft (distributed over its elements)")
     n_elements: int = parameter(4, None, "number of equal shaft elements", min=1, max=MAX_ELEMENTS)
     mass_model: int = parameter(0, None, "element inertia: 0 = lumped (J_e/2 at each end), 1 = consistent "
-                                  "(J_e/6 [[2,1],[1,2]])")
+                                  "(J_e/6 [[2,1],[1,2]])", min=0, max=1)
     max_substep: float = max_substep_parameter()
     output_torque: str = output_torque_parameter()
     energy_correction: bool = energy_correction_parameter()
@@ -67,6 +67,8 @@ class FlexibleShaft(LineComponent):
             raise ValueError(f"n_elements must be >= 1, got {n}")
         if n > MAX_ELEMENTS:
             raise ValueError(f"n_elements must be <= {MAX_ELEMENTS}, got {n}")
+        if int(p.mass_model) not in (0, 1):
+            raise ValueError(f"mass_model must be 0 (lumped) or 1 (consistent), got {p.mass_model}")
         for nm in FlexibleShaftParams.POSITIVE_FIELDS:
             if not getattr(p, nm) > 0:
                 raise ValueError(f"{nm} must be > 0")

@@ -148,6 +148,9 @@ TOOTH_COMPLIANCE_FACTOR = 4.5
 
 #: the contact-map grid's node counts the builder accepts (MapGrid; the FMU declares them as min/max)
 MAP_GRID_RANGE = (2, 4096)
+#: the smallest positive double: the inclusive FMI ``min`` that says "> 0" exactly (FMI 2.0 has no exclusive
+#: bounds; no double lies between 0 and this one). Declared by every FMU parameter the code refuses unless > 0
+POSITIVE = math.ulp(0.0)
 
 @dataclass(frozen=True)
 class MapGrid:

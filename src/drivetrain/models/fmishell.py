@@ -189,10 +189,10 @@ def initial_dependencies(slave_cls) -> dict:
                                f"{s._failed}")
         return {n: getattr(s, n) for n in s._outputs}
 
+    probe = slave_cls(instance_name="initial-dependencies", resources=tempfile.gettempdir())
     base = initial_outputs(None)
-    moved = {n: initial_outputs(n) for n in slave_cls(instance_name="probe", resources=tempfile.gettempdir())._inputs}
-    params = slave_cls(instance_name="probe", resources=tempfile.gettempdir())._param_names
-    return {out: [n for n, vals in moved.items() if vals[out] != value] + list(params)
+    moved = {n: initial_outputs(n) for n in probe._inputs}
+    return {out: [n for n, vals in moved.items() if vals[out] != value] + list(probe._param_names)
             for out, value in base.items()}
 
 

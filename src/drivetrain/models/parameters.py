@@ -17,11 +17,7 @@ from dataclasses import field, fields
 import numpy as np
 
 from drivetrain.rig import data as rig
-
-
-#: the smallest positive double: the inclusive FMI ``min`` that says "> 0" exactly (FMI 2.0 has no exclusive
-#: bounds; no double lies between 0 and this one)
-POSITIVE = math.ulp(0.0)
+from gearcontact_fmu.params import POSITIVE  # the FMI min of "> 0" (declared once there)
 
 
 def _rig_default(model: str, name: str):

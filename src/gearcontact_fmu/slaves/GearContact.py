@@ -18,7 +18,6 @@ Package import: the installed ``gearcontact_fmu`` when importable, else the copy
 ``resources/_bundled`` (``BEVEL_FMU_USE_BUNDLED=1`` forces the bundled copy).
 """
 import importlib.util
-import math
 import os
 import sys
 from pathlib import Path
@@ -41,7 +40,7 @@ from pythonfmu import Boolean, DefaultExperiment, Fmi2Causality, Fmi2Initial, Fm
 from pythonfmu.enums import Fmi2Status  # noqa: E402
 
 from fmu_runtime.guard import enter_error_state, fmi_text, guard_value_references, restore_shell_state, shell_state  # noqa: E402,E501
-from gearcontact_fmu.params import DEFAULT_COMM_STEP_S, MAP_GRID_RANGE  # noqa: E402
+from gearcontact_fmu.params import DEFAULT_COMM_STEP_S, MAP_GRID_RANGE, POSITIVE  # noqa: E402
 
 PACKAGE_ORIGIN = str(Path(gearcontact_fmu.__file__).resolve().parent)
 #: values of the ``initial_state`` parameter (the first is the default)
@@ -72,8 +71,6 @@ class Var(NamedTuple):
 
 
 PARAMETER, INPUT, OUTPUT = "parameter", "input", "output"
-#: the smallest positive double: FMI's inclusive min for "> 0" (drivetrain.models.parameters.POSITIVE)
-POSITIVE = math.ulp(0.0)
 #: the largest fmi2Integer: a counter saturates there (2**31 - 1 sub-steps: ~6 h at 1e-5 s)
 INT_MAX = 2 ** 31 - 1
 

@@ -44,7 +44,7 @@ class {model}(Fmi2Slave):
     version = "0.1.0"
     units = fmishell.UNITS          # read by drivetrain.cosim.build (modelDescription units)
     variable_descriptions = fmishell.variable_descriptions("{model}")   # and descriptions
-    default_experiment = fmishell.DEFAULT_EXPERIMENT
+    default_experiment = fmishell.DEFAULT_EXPERIMENTS["{model}"]
     can_get_and_set_fmu_state = True   # read by drivetrain.cosim.build (canGetAndSetFMUstate)
 
     def __init__(self, **kwargs):

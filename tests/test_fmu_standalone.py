@@ -131,6 +131,8 @@ def test_the_fmu_documents_itself_from_its_model_description(fmu):
     assert "fmpy.simulate_fmu" in page and EXAMPLE_CSV in page
     assert "documentation/reference.png" in names and 'src="reference.png"' in page
     assert EXAMPLE_CSV in names
+    with zipfile.ZipFile(fmu) as z:                    # FMI 2.0's entry point: the same page
+        assert z.read("documentation/_main.html").decode() == page
     if fmu.parent.name.startswith("native"):
         assert req is None
     else:                                              # ranges the project declares, not this machine's versions

@@ -24,6 +24,8 @@ rendered from ``fmu_runtime.slave_template`` into a temporary directory, one per
      pythonfmu). The native GearContact (``drivetrain.cosim.native_gear``) says "false";
    - ``canGetAndSetFMUstate="true"`` where the slave class says ``can_get_and_set_fmu_state = True``
      (it then implements ``_get_fmu_state``/``_set_fmu_state``; pythonfmu keeps the snapshot object).
+3. Add what the FMU ships for a user (``drivetrain.cosim.fmu_docs``, from the final modelDescription):
+   ``documentation/index.html``, the example input, the reference plot, ``resources/requirements.txt``.
 
 Slave module names must be unique across FMUs (pythonfmu issue #228); build_all checks it.
 Built FMUs are outputs, not sources (``fmus/*.fmu`` is git-ignored).

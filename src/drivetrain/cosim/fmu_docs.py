@@ -318,8 +318,9 @@ PLOT_NOTE = ("The plot is committed with the sources (src/drivetrain/cosim/refer
 
 
 def fmu_extras(xml: bytes, host_note: str) -> dict[str, bytes]:
-    """The files an FMU ships beside its model (path in the FMU -> bytes): documentation/index.html, the
-    example input, the reference plot and, for a pythonfmu FMU, resources/requirements.txt."""
+    """The files an FMU ships beside its model (path in the FMU -> bytes): documentation/index.html (and the same
+    page as documentation/_main.html, FMI 2.0's entry point), the example input, the reference plot and, for a
+    pythonfmu FMU, resources/requirements.txt."""
     desc = read_description(xml)
     out = {}
     try:
@@ -329,8 +330,9 @@ def fmu_extras(xml: bytes, host_note: str) -> dict[str, bytes]:
     plot = reference_plot(desc.model, desc.native)
     if plot.is_file():
         out[REFERENCE_PNG] = plot.read_bytes()
-    out["documentation/index.html"] = documentation_html(desc, REFERENCE_PNG if plot.is_file() else None, PLOT_NOTE,
-                                                         host_note).encode()
+    page = documentation_html(desc, REFERENCE_PNG if plot.is_file() else None, PLOT_NOTE, host_note).encode()
+    out["documentation/index.html"] = page
+    out["documentation/_main.html"] = page           # FMI 2.0's name of the entry point (FMI 3.0: index.html)
     if not desc.native:
         out["resources/requirements.txt"] = requirements_text().encode()
     return out

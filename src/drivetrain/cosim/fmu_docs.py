@@ -290,7 +290,7 @@ def documentation_html(desc: Description, plot: str | None, plot_note: str, host
         "[rad/s] and <code>_tau</code> [N.m]; angles, speeds and torques are positive in the shaft's positive sense "
         "(the rig turns positively in normal operation). A connection joins a spring-side flange to an "
         "inertia-side flange: phi to phi, w to w, tau back to tau, no sign flips.</p>"
-        f"<ul>{ports}</ul>{gear}"
+        f"<ul>{ports}</ul>{gear}" + (f"<p>{SIGN_NOTES[desc.model]}</p>" if desc.model in SIGN_NOTES else "") +
         "<h2>Standalone example</h2><p>The DefaultExperiment "
         f"({desc.start_time:g} .. {desc.stop_time:g} s, communication step {desc.step_size:.6g} s) with "
         f"<code>{EXAMPLE_CSV}</code>: the rig's example operating point (drive motor {EXAMPLE_SPEED_RPM:g} rpm, "
@@ -305,6 +305,25 @@ def documentation_html(desc: Description, plot: str | None, plot_note: str, host
         f"<h2>What a host needs</h2><p>{host_note}</p>"
         "<h2>Variables</h2><table><tr><th>name</th><th>causality</th><th>variability</th><th>type</th><th>unit</th>"
         "<th>start</th><th>description</th></tr>" + "".join(rows) + "</table></body></html>\n")
+
+
+#: per model: the signs of its port torques in normal operation (the rig driven by its motor) and what the
+#: standalone example shows of them
+SIGN_NOTES = {
+    "FlexibleShaft": ("In normal operation <code>flange_a_tau &gt; 0</code> (the motor's coupling drives the shaft), "
+                      "<code>flange_b_tau &gt; 0</code> (the shaft drives the upper gearbox) and the shaft is twisted "
+                      "forward: <code>flange_a_phi - flange_b_phi = T (1/k_t + 1/k_c + 1/k_shaft)</code> in steady "
+                      "operation, as in the example."),
+    "UpperTransmission": ("In normal operation <code>flange_a_tau &gt; 0</code> (the drive shaft drives it), "
+                          "<code>flange_b_tau &lt; 0</code> (the gear stage resists); <code>flange_b</code> turns at "
+                          "<code>flange_a / ratio</code> in its own positive sense. Driven by torques alone (the "
+                          "example) it runs up to the speed where its loss balances them."),
+    "MotorLoad": ("In normal operation <code>drive_tau &gt; 0</code> (the motor drives the drive shaft) and "
+                  "<code>load_tau &gt; 0</code> (the gear stage drives the propeller mass against the load motor). "
+                  "In the example the drive shaft is prescribed at the setpoint speed, so it holds the motor there "
+                  "and the PI controller's integral stays where the ramp left it: <code>drive_tau</code> is small "
+                  "and may be negative."),
+}
 
 
 def reference_plot(model: str, native: bool) -> Path:

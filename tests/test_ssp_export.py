@@ -13,6 +13,7 @@ import xml.etree.ElementTree as ET
 import zipfile
 from pathlib import Path
 
+import numpy as np
 import pytest
 from _hosts import assert_matches, master_torques, run_host, schedule, torque_refs
 
@@ -85,6 +86,119 @@ def test_the_archive_holds_the_assembled_system(exported, fmu_dir):
             assert kinds[(a, va)] == "output" and kinds[(b, vb)] == "input"
         assert len(kinds) == 2 * len(links)          # connectors only for connected variables
         assert {f"resources/{c.name}.ssv" for c in spec.components} <= names
+
+
+def _units(el):
+    """name -> {base unit: exponent, factor, offset} of an ssd:Units / ssv:Units element."""
+    out = {}
+    for u in el.findall("ssc:Unit", NS):
+        b = u.find("ssc:BaseUnit", NS)
+        out[u.get("name")] = ({k: int(b.get(k, 0)) for k in ("kg", "m", "s", "A", "K", "mol", "cd", "rad")}
+                              | {"factor": float(b.get("factor", 1)), "offset": float(b.get("offset", 0))})
+    return out
+
+
+def test_the_archive_carries_units_and_unit_definitions(exported, fmu_dir):
+    """Our own reader: every Real connector and parameter value has its FMU's unit, each file defines the units
+    it uses as the FMUs define them (SI base units), and fmpy's schemas (SSP 1.0) accept every file."""
+    import fmpy
+    from fmpy.ssp.ssd import read_ssd, read_ssv
+
+    scene, spec, path = exported
+    fmus = {c.model: fmpy.read_model_description(str(Path(fmu_dir) / f"{c.model}.fmu")) for c in spec.components}
+    declared = {m: {v.name: v for v in md.modelVariables} for m, md in fmus.items()}
+    defined = {}
+    for md in fmus.values():
+        for u in md.unitDefinitions:
+            b = u.baseUnit
+            defined[u.name] = ({k: getattr(b, k) for k in ("kg", "m", "s", "A", "K", "mol", "cd", "rad")}
+                               | {"factor": b.factor, "offset": b.offset})
+    read_ssd(str(path), validate=True)
+    with zipfile.ZipFile(path) as z:
+        ssd = ET.fromstring(z.read(SSD_NAME))
+        ssd_units = _units(ssd.find("ssd:Units", NS))
+        n_real = 0
+        for el in ssd.findall("ssd:System/ssd:Elements/ssd:Component", NS):
+            model = Path(el.get("source")).stem
+            for conn in el.findall("ssd:Connectors/ssd:Connector", NS):
+                real = conn.find("ssc:Real", NS)
+                assert real is not None and real.get("unit") == declared[model][conn.get("name")].unit
+                assert ssd_units[real.get("unit")] == defined[real.get("unit")]
+                n_real += 1
+        assert n_real == 6 * len(spec.connections) and {"rad", "rad/s", "N.m"} <= set(ssd_units)
+        for c in spec.components:
+            read_ssv(str(path), resource=f"resources/{c.name}.ssv", validate=True)
+            ssv = ET.fromstring(z.read(f"resources/{c.name}.ssv"))
+            units = _units(ssv.find("ssv:Units", NS))
+            for p in ssv.findall("ssv:Parameters/ssv:Parameter", NS):
+                var = declared[c.model][p.get("name")]
+                (v,) = list(p)
+                if var.type == "Real":
+                    assert v.get("unit") == var.unit and units[var.unit] == defined[var.unit], (c.name, var.name)
+                    assert float(v.get("value")) == float({**c.parameters, **c.inputs}[var.name])
+                else:
+                    assert v.get("unit") is None
+    # the parameters a reader needs units for most: the gear's port springs and start state, the motor's speed
+    gear = ET.fromstring(zipfile.ZipFile(path).read("resources/gear.ssv"))
+    got = {p.get("name"): list(p)[0].get("unit") for p in gear.findall("ssv:Parameters/ssv:Parameter", NS)}
+    assert got["k_a"] == "N.m/rad" and got["pinion_w_start"] == "rad/s" and got["twist_a_start"] == "rad"
+
+
+def test_ssp_1_0_has_no_standard_step_size(exported):
+    """The step size stays in the FixedStepMaster annotation: SSP 1.0's DefaultExperiment takes startTime and
+    stopTime only (fmpy's copy of the schema refuses a stepSize there)."""
+    from fmpy.ssp.ssd import validate_tree
+
+    _, spec, path = exported
+    ssd = ET.fromstring(zipfile.ZipFile(path).read(SSD_NAME))
+    exp = ssd.find("ssd:DefaultExperiment", NS)
+    exp.set("stepSize", repr(spec.comm_step))
+    from lxml import etree
+
+    with pytest.raises(Exception, match="stepSize"):
+        validate_tree(etree.fromstring(ET.tostring(ssd)), "SystemStructureDescription.xsd")
+
+
+def test_fmpy_runner_reads_what_the_docs_say(exported):
+    """fmpy's own SSP runner (fmpy.ssp.simulation.simulate_ssp) against drivetrain.interop.ssp.FMPY_RUNNER_IGNORES
+    and docs/FMU.md: it ignores the parameter files (an idle system: all gear torques 0, where our master's gear
+    carries the load from the first step), runs 1 s at 10 ms without stop time and step, refuses a String in
+    its own parameter_set and sets a Boolean 'false' to true. The docs say each of these."""
+    from types import SimpleNamespace
+
+    from fmpy.ssp.simulation import set_value, simulate_ssp
+    from fmpy.ssp.ssd import ParameterSet, find_components, read_ssd
+
+    from drivetrain.interop.ssp import FMPY_RUNNER_IGNORES
+
+    scene, spec, path = exported
+    gear = next(c for c in spec.components if c.model == "GearContact")
+    assert abs(gear.parameters["twist_b_start"] * gear.parameters["k_b"]) > 10.0       # what the archive holds
+    res = simulate_ssp(str(path), stop_time=20 * spec.comm_step, step_size=spec.comm_step)
+    for name in ("gear.flange_a_tau", "gear.flange_b_tau", "motors.load_w", "drive_shaft.flange_b_tau"):
+        assert np.all(res[name] == 0.0), name                                   # idle: no parameter applied
+    res = simulate_ssp(str(path))
+    assert res["time"][-1] == pytest.approx(0.99) and res["time"][1] == pytest.approx(0.01)   # not 0 .. 0.5 s
+    params = []                      # the archive's own values, named as simulate_ssp's parameter_set wants them
+    for c in find_components(read_ssd(str(path)).system):
+        for b in c.parameterBindings:
+            for values in b.parameterValues:
+                for p in values.parameters:
+                    p.name = f"{c.name}.{p.name}"
+                    params.append(p)
+    assert len(params) == sum(len(c.parameters) + len(c.inputs) for c in spec.components)
+    with pytest.raises(Exception, match="Unsupported type: String"):
+        simulate_ssp(str(path), stop_time=spec.comm_step, step_size=spec.comm_step,
+                     parameter_set=ParameterSet(parameters=params))
+    got = []
+    fake = SimpleNamespace(variables={"b": SimpleNamespace(type="Boolean", valueReference=0)},
+                           fmu=SimpleNamespace(setBoolean=lambda vr, values: got.extend(values)))
+    set_value(fake, "b", "false")
+    assert got == [True]
+    docs = " ".join((ROOT / "docs" / "FMU.md").read_text().split())
+    for claim in FMPY_RUNNER_IGNORES:
+        assert " ".join(claim.split()) in docs, claim
+    assert "fmpy, OMSimulator, libcosim and Ecos read alike" not in docs
 
 
 def test_time_profiles_go_to_the_parameters_that_carry_them(tmp_path, fmu_dir):

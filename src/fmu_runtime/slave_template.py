@@ -45,7 +45,7 @@ class {model}(Fmi2Slave):
     units = fmishell.UNITS          # read by drivetrain.cosim.build (modelDescription units)
     variable_descriptions = fmishell.variable_descriptions("{model}")   # and descriptions
     bounds = fmishell.bounds("{model}")          # read by drivetrain.cosim.build (min/max)
-    default_experiment = fmishell.DEFAULT_EXPERIMENT
+    default_experiment = fmishell.DEFAULT_EXPERIMENTS["{model}"]
     can_get_and_set_fmu_state = True   # read by drivetrain.cosim.build (canGetAndSetFMUstate)
 
     def __init__(self, **kwargs):

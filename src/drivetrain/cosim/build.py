@@ -24,6 +24,8 @@ rendered from ``fmu_runtime.slave_template`` into a temporary directory, one per
      pythonfmu). The native GearContact (``drivetrain.cosim.native_gear``) says "false";
    - ``canGetAndSetFMUstate="true"`` where the slave class says ``can_get_and_set_fmu_state = True``
      (it then implements ``_get_fmu_state``/``_set_fmu_state``; pythonfmu keeps the snapshot object).
+3. Add what the FMU ships for a user (``drivetrain.cosim.fmu_docs``, from the final modelDescription):
+   ``documentation/index.html``, the example input, the reference plot, ``resources/requirements.txt``.
 
 Slave module names must be unique across FMUs (pythonfmu issue #228); build_all checks it.
 Built FMUs are outputs, not sources (``fmus/*.fmu`` is git-ignored).
@@ -187,58 +189,42 @@ def slave_class(script: Path):
 
 
 
-def runtime_requirements() -> str:
-    """``resources/requirements.txt`` of every FMU: the Python packages its code imports in the host
-    process, pinned to the versions it was built and tested with."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    lines = ["# Python packages this FMU imports in the host's Python process (a CPython with the",
-             f"# pythonfmu export runtime, Python {sys.version_info.major}.{sys.version_info.minor} here).",
-             "# Install them with: python -m pip install -r requirements.txt"]
-    for pkg in RUNTIME_PACKAGES:
-        try:
-            lines.append(f"{pkg}=={version(pkg)}")
-        except PackageNotFoundError:
-            lines.append(pkg)
-    return "\n".join(lines) + "\n"
-
-
-def documentation_html(model: str, description: str, requirements: str) -> str:
-    """``documentation/index.html``: what the FMU is and what a host needs to run it."""
-    import html
-
-    req = html.escape(requirements)
-    return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(model)}</title></head><body>"
-            f"<h1>{html.escape(model)}</h1><p>{html.escape(description or '')}</p>"
-            "<h2>What a host needs</h2><p>This FMU is built with pythonfmu 0.7.0: its binary embeds the "
-            "host's CPython and imports the model's Python packages there (they are bundled in "
-            "<code>resources/_bundled</code>; their own dependencies are not). The host process must be "
-            "able to load libpython and import the packages below (<code>resources/requirements.txt</code>); "
-            "a tool without a Python runtime cannot run it. The first instantiation in a process compiles "
-            "the numba kernels (seconds). Log messages need logging on (debug logging in fmpy).</p>"
-            f"<pre>{req}</pre></body></html>\n")
+#: what a host needs to run a pythonfmu FMU (documentation/index.html, drivetrain.cosim.fmu_docs)
+HOST_NOTE = ("This FMU is built with pythonfmu 0.7.0: its binary embeds the host's CPython and imports the model's "
+             "Python packages there (they are bundled in <code>resources/_bundled</code>; their own dependencies are "
+             "not). The host process must be able to load libpython and import the packages of "
+             "<code>resources/requirements.txt</code>; a tool without a Python runtime cannot run it (the native "
+             "builds can). The first instance in a process loads the numba kernels from numba's cache or, without "
+             "one, compiles them (GearContact: up to tens of seconds; it says so in its log first). Log messages "
+             "need logging on (debug logging in fmpy).")
 
 
 def postprocess_model_description(fmu: Path, units: dict | None = None,
                                   output_dependencies: dict | None = None, model: str = "",
                                   description: str = "", variable_descriptions: dict | None = None,
                                   bounds: dict | None = None, initial_dependencies: dict | None = None) -> None:
-    """Add units, UnitDefinitions and output dependencies in place, and the
-    runtime requirements and documentation (resources/requirements.txt, documentation/index.html)."""
+    """Add units, UnitDefinitions and output dependencies in place, and what the FMU ships for a user
+    (drivetrain.cosim.fmu_docs: resources/requirements.txt, documentation/index.html from the final
+    modelDescription, the example input, the reference plot)."""
+    from drivetrain.cosim.fmu_docs import fmu_extras
+
     fmu = Path(fmu)
     tmp = fmu.with_name(fmu.name + ".tmp")
-    with zipfile.ZipFile(fmu) as zin, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zout:
-        for item in zin.infolist():
-            data = zin.read(item.filename)
+    with zipfile.ZipFile(fmu) as zin:
+        items = [(item, zin.read(item.filename)) for item in zin.infolist()]
+    xml = next(data for item, data in items if item.filename == "modelDescription.xml")
+    xml = edit_model_description(xml, units or {}, output_dependencies or {}, variable_descriptions or {},
+                                 bounds, initial_dependencies)
+    extras = fmu_extras(xml, HOST_NOTE)
+    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zout:
+        for item, data in items:
             if item.filename == "modelDescription.xml":
-                data = edit_model_description(data, units or {}, output_dependencies or {}, variable_descriptions or {},
-                                              bounds, initial_dependencies)
-            if item.filename in ("resources/requirements.txt", "documentation/index.html"):
+                data = xml
+            if item.filename in extras:
                 continue
             zout.writestr(item, data)
-        req = runtime_requirements()
-        zout.writestr("resources/requirements.txt", req)
-        zout.writestr("documentation/index.html", documentation_html(model or fmu.stem, description, req))
+        for name, data in extras.items():
+            zout.writestr(name, data)
     tmp.replace(fmu)
 
 

@@ -345,7 +345,8 @@ def compile_and_pack(tmp: Path, model: str, sources, cc: str, out: Path, log, ab
     modelDescription.xml written): compile binaries/linux64/<model>.so from ``sources`` (a file name or
     several; ``prebuilt``: {source: its object file}, linked instead of compiled), write
     documentation/index.html (``about_html``, then how to compile the sources elsewhere) and zip the tree to
-    ``out`` (written to a part file first, then renamed: never half an FMU)."""
+    ``out`` (written to a part file first, then renamed: never half an FMU). The documentation, example input
+    and reference plot: drivetrain.cosim.fmu_docs, from the modelDescription written."""
     sources = (sources,) if isinstance(sources, str) else tuple(sources)
     prebuilt = prebuilt or {}
     src = tmp / "sources"
@@ -356,12 +357,13 @@ def compile_and_pack(tmp: Path, model: str, sources, cc: str, out: Path, log, ab
     proc = subprocess.run(cmd, capture_output=True, text=True)
     if proc.returncode != 0:
         raise NativeBuildError([f"compiling the native {model} failed ({' '.join(map(str, cmd))}):\n{proc.stderr}"])
-    (tmp / "documentation").mkdir()
-    (tmp / "documentation" / "index.html").write_text(
-        f"<html><body><h1>{model} (native)</h1><p>{about_html}</p><p>The sources (<code>sources/</code>) compile "
-        "on other platforms with "
-        f"<code>cc -O3 -fPIC -shared -std=c99 -ffp-contract=off -I. {' '.join(sources)} -o {model}.so -lm</code>."
-        "</p></body></html>\n")
+    from drivetrain.cosim.fmu_docs import fmu_extras
+
+    host = (f"{about_html}</p><p>The sources (<code>sources/</code>) compile on other platforms with "
+            f"<code>cc -O3 -fPIC -shared -std=c99 -ffp-contract=off -I. {' '.join(sources)} -o {model}.so -lm</code>.")
+    for name, data in fmu_extras((tmp / "modelDescription.xml").read_bytes(), host).items():
+        (tmp / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp / name).write_bytes(data)
     out.parent.mkdir(parents=True, exist_ok=True)
     part = out.with_name(out.name + f".{os.getpid()}.part")
     with zipfile.ZipFile(part, "w", zipfile.ZIP_DEFLATED) as z:

@@ -151,13 +151,21 @@ def _check_toolchain(cc: str) -> list[str]:
     return problems
 
 
+def _doc_sources() -> list[Path]:
+    """What every native FMU ships beside its model (drivetrain.cosim.fmu_docs: documentation, example input,
+    the committed reference plots): part of every fingerprint."""
+    from drivetrain.cosim.fmu_docs import PLOT_DIR
+
+    return [Path(__file__).with_name("fmu_docs.py"), *sorted(PLOT_DIR.glob("*.png"))]
+
+
 def _line_sources() -> list[Path]:
-    """The files a line FMU's fingerprint hashes: its C source, the shared and FMI headers, this module and the
-    modelDescription writers (native_gear.native_model_description, build.edit_model_description)."""
+    """The files a line FMU's fingerprint hashes: its C source, the shared and FMI headers, this module, the
+    modelDescription writers (native_gear.native_model_description, build.edit_model_description) and the docs."""
     from drivetrain.cosim.native_gear import FMI_HEADERS
 
     return [NATIVE_DIR / C_SOURCE, *(SHARED_DIR / name for name in (*SHARED_HEADERS, *FMI_HEADERS)), Path(__file__),
-            Path(__file__).with_name("native_gear.py"), Path(__file__).with_name("build.py")]
+            Path(__file__).with_name("native_gear.py"), Path(__file__).with_name("build.py"), *_doc_sources()]
 
 
 def _fingerprint(model: str, rows: list[dict], cc: str) -> str:
@@ -233,8 +241,7 @@ def build_native_line(model: str, out: str | Path | None = None, *, cc: str | No
         write_header(model, rows, guid, src / BUILD_HEADER)
         (tmp / "modelDescription.xml").write_bytes(model_description(model, slave, rows, guid))
         compile_and_pack(tmp, model, C_SOURCE, cc, out, log,
-                         f"{type(slave).description}</p><p>Compiled C: no Python needed; every parameter settable "
-                         "before and in initialization mode.")
+                         "Compiled C: no Python needed; every parameter settable before and in initialization mode.")
     if log:
         log(f"wrote {out}: native {model}")
     return out
@@ -260,6 +267,8 @@ def _gear_fingerprint_now(text: str, pkg: Path, files: list[Path], builder: Path
         h.update(f.read_bytes())
     h.update(builder.read_bytes())
     h.update(builder.with_name("build.py").read_bytes())      # the modelDescription writer
+    for f in _doc_sources():
+        h.update(f.read_bytes())
     return h.hexdigest()
 
 
@@ -269,7 +278,7 @@ def _gear_fingerprint(parameters: dict) -> str:
     files (:data:`_FINGERPRINTS`)."""
     text = json.dumps(parameters, sort_keys=True, default=str)
     pkg, files, builder = _gear_sources()
-    return _memo(("gear", text, _file_stamps([*files, builder, builder.with_name("build.py")])),
+    return _memo(("gear", text, _file_stamps([*files, builder, builder.with_name("build.py"), *_doc_sources()])),
                  lambda: _gear_fingerprint_now(text, pkg, files, builder))
 
 

@@ -3,19 +3,23 @@
 What: ``export_ssp(scene, path)`` writes one ``.ssp`` (a zip) holding
 
 * ``SystemStructure.ssd``: one component per FMU of the assembled system (instance names as in our
-  master: motors, drive_shaft, upper, gear), a connector for every connected variable and the
-  connections of each flange (inertia side phi, w -> spring side; spring side tau -> inertia side),
-  the default experiment (0 .. the scene's duration) and the communication step (OpenModelica's
-  FixedStepMaster annotation; libcosim takes its step from the caller: pass the same one);
+  master: motors, drive_shaft, upper, gear), a connector for every connected variable with the type and
+  unit its FMU declares, the connections of each flange (inertia side phi, w -> spring side; spring side
+  tau -> inertia side), the unit definitions (``ssd:Units``: SI base-unit exponents and factor, as the FMUs
+  define them), the default experiment (0 .. the scene's duration) and the communication step
+  (OpenModelica's FixedStepMaster annotation: SSP 1.0 has no standard element for a step size, its
+  DefaultExperiment takes startTime and stopTime only; libcosim and Ecos take the step from the caller:
+  pass the same one);
 * ``resources/<Model>.fmu``: the FMUs, as built from this checkout;
 * ``resources/<instance>.ssv``: the assembled, calibrated parameter values of each instance and its
-  constant inputs (speed reference, load torque), one parameter set per component, all with the same
-  set name.
+  constant inputs (speed reference, load torque), each Real with the unit its FMU declares and the
+  file's own ``ssv:Units``, one parameter set per component, all with the same set name.
 
-Why this shape: it is the subset of SSP 1.0 that fmpy, OMSimulator, libcosim and Ecos read alike
-(docs/FMU.md): version 1.0, component-to-component connections only, connectors only for connected or
-bound variables, parameters in per-component .ssv files. Variable types come from each FMU's own model
-description, so a parameter is written as the type the FMU declares.
+Why this shape: it is the subset of SSP 1.0 that OMSimulator, libcosim and Ecos read (docs/FMU.md):
+version 1.0, component-to-component connections only, connectors only for connected or bound
+variables, parameters in per-component .ssv files. Variable types and units come from each FMU's own
+model description, so a parameter is written as the type the FMU declares. fmpy's own SSP runner
+(``fmpy.ssp.simulation.simulate_ssp``) reads the structure only: :data:`FMPY_RUNNER_IGNORES`.
 
 Time profiles (a speed ramp, a load step): our master feeds them as inputs, SSP 1.0 has no signal
 table every host reads. MotorLoad carries them itself (``speed_profile``, ``load_profile``:
@@ -30,6 +34,7 @@ from __future__ import annotations
 import math
 import zipfile
 from pathlib import Path
+from typing import NamedTuple
 from xml.sax.saxutils import quoteattr
 
 from fmpy import read_model_description
@@ -49,6 +54,26 @@ _NS = ('xmlns:ssd="http://ssp-standard.org/SSP1/SystemStructureDescription" '
        'xmlns:oms="https://raw.githubusercontent.com/OpenModelica/OMSimulator/master/schema/oms.xsd"')
 _SSV_TYPE = {"Real": "Real", "Integer": "Integer", "Enumeration": "Integer", "Boolean": "Boolean",
              "String": "String"}
+_BASE_UNITS = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
+#: what fmpy's SSP runner (fmpy.ssp.simulation.simulate_ssp, read in fmpy 0.3.32) does not read of the archive;
+#: docs/FMU.md says the same and tests/test_ssp_export.py checks both against fmpy's behaviour
+FMPY_RUNNER_IGNORES = (
+    "the parameter bindings (the .ssv files): it parses them, but applies only the parameter_set "
+    "argument of simulate_ssp (names 'instance.variable'), and sets no String there (it raises "
+    "'Unsupported type: String')",
+    "the DefaultExperiment: without stop_time it runs 1 s, without step_size at stop_time / 100",
+    "the communication step (the FixedStepMaster annotation)",
+    "the units (connectors and parameter values are taken as they are)",
+    "a Boolean value's text: it sets a Boolean to value != 0.0, so 'false' becomes true",
+    "the values of connected variables during initialization: every connector starts at 0",
+)
+
+
+class FmuVar(NamedTuple):
+    """A variable as its FMU declares it (``fmu_variables``)."""
+    type: str
+    causality: str
+    unit: str | None
 
 
 def value_text(vtype: str, value) -> str:
@@ -113,47 +138,91 @@ def system_problems(spec: SystemSpec, descriptions: dict) -> list[str]:
 
 
 def fmu_variables(fmu_path: Path) -> dict:
-    """name -> (type, causality) from an FMU's model description."""
+    """name -> FmuVar(type, causality, unit) from an FMU's model description (the unit of a declared type
+    when the variable names none)."""
     md = read_model_description(str(fmu_path))
-    return {v.name: (v.type, v.causality) for v in md.modelVariables}
+    return {v.name: FmuVar(v.type, v.causality, v.unit or getattr(v.declaredType, "unit", None) or None)
+            for v in md.modelVariables}
 
 
-def ssv_text(component, variables: dict) -> str:
-    """The parameter set of one instance: its parameters and constant inputs, typed as its FMU declares."""
+def fmu_unit_definitions(fmu_path: Path) -> dict:
+    """unit name -> {base unit: exponent, "factor": f, "offset": o} from an FMU's UnitDefinitions."""
+    md = read_model_description(str(fmu_path))
+    out = {}
+    for u in md.unitDefinitions:
+        b = u.baseUnit
+        out[u.name] = ({k: int(getattr(b, k)) for k in _BASE_UNITS} | {"factor": float(b.factor), "offset": float(b.offset)}
+                       if b is not None else {"factor": 1.0, "offset": 0.0})
+    return out
+
+
+def units_xml(prefix: str, names, definitions: dict, indent: str) -> str:
+    """``<{prefix}:Units>`` with the ssc:Unit of every unit in ``names`` (SI base-unit exponents, factor, offset:
+    only those that differ from the defaults). Empty when ``names`` is."""
     rows = []
+    for name in sorted(set(names)):
+        d = definitions.get(name)
+        if d is None:
+            raise ConfigurationError([f"unit {name!r}: no FMU of the system defines it"])
+        attrs = " ".join(f'{k}="{v}"' for k, v in d.items() if k in _BASE_UNITS and v)
+        attrs += "".join(f' {k}="{d[k]!r}"' for k, default in (("factor", 1.0), ("offset", 0.0)) if d[k] != default)
+        rows.append(f'{indent}  <ssc:Unit name={quoteattr(name)}><ssc:BaseUnit {attrs.strip()}/></ssc:Unit>'
+                    .replace("<ssc:BaseUnit />", "<ssc:BaseUnit/>"))
+    if not rows:
+        return ""
+    return f"{indent}<{prefix}:Units>\n" + "\n".join(rows) + f"\n{indent}</{prefix}:Units>\n"
+
+
+def ssv_text(component, variables: dict, definitions: dict | None = None) -> str:
+    """The parameter set of one instance: its parameters and constant inputs, typed as its FMU declares, each
+    Real with its FMU's unit (defined in the file's own ssv:Units, from ``definitions``)."""
+    rows = []
+    used = []
     for name, value in bound_values(component).items():
         if variables[name][1] == "local":
             continue          # a constant of the FMU (a native gear's contact-map parameter): not settable
-        vtype = variables[name][0]
+        var = variables[name]
+        vtype, unit = var[0], (var[2] if len(var) > 2 else None)
         try:
             text = value_text(vtype, value)
         except (TypeError, ValueError) as exc:
             raise ConfigurationError([f"{component.name}.{name} = {value!r}: {exc}"]) from None
+        unit_attr = ""
+        if vtype == "Real" and unit and definitions is not None:
+            unit_attr = f" unit={quoteattr(unit)}"
+            used.append(unit)
         rows.append(f'    <ssv:Parameter name={quoteattr(name)}>\n'
-                    f'      <ssv:{_SSV_TYPE[vtype]} value={quoteattr(text)}/>\n'
+                    f'      <ssv:{_SSV_TYPE[vtype]} value={quoteattr(text)}{unit_attr}/>\n'
                     f'    </ssv:Parameter>')
     return ('<?xml version="1.0" encoding="UTF-8"?>\n'
             '<ssv:ParameterSet xmlns:ssv="http://ssp-standard.org/SSP1/SystemStructureParameterValues" '
+            'xmlns:ssc="http://ssp-standard.org/SSP1/SystemStructureCommon" '
             f'version="1.0" name="{PARAMETER_SET}">\n  <ssv:Parameters>\n' + "\n".join(rows)
-            + "\n  </ssv:Parameters>\n</ssv:ParameterSet>\n")
+            + "\n  </ssv:Parameters>\n" + units_xml("ssv", used, definitions or {}, "  ") + "</ssv:ParameterSet>\n")
 
 
-def ssd_text(spec: SystemSpec, name: str, stop_time_s: float, descriptions: dict) -> str:
-    """The system structure: components with their connectors and parameter bindings, connections,
-    the fixed communication step and the default experiment."""
+def ssd_text(spec: SystemSpec, name: str, stop_time_s: float, descriptions: dict,
+             definitions: dict | None = None) -> str:
+    """The system structure: components with their connectors (type and unit as the FMU declares them) and
+    parameter bindings, connections, the fixed communication step, the unit definitions (from
+    ``definitions``: unit -> base units, :func:`fmu_unit_definitions`) and the default experiment."""
     links = system_connections(spec)
     connected: dict[str, list[str]] = {c.name: [] for c in spec.components}
     for a, va, b, vb in links:
         connected[a].append(va)
         connected[b].append(vb)
     elements = []
+    used = []
     for c in spec.components:
         md = descriptions[c.model]
         conns = []
         for var in sorted(connected[c.name]):
-            vtype, causality = md[var]               # the kind the FMU itself declares
+            vtype, causality = md[var][:2]               # the kind the FMU itself declares
+            unit = md[var][2] if len(md[var]) > 2 and vtype == "Real" and definitions is not None else None
+            if unit:
+                used.append(unit)
             conns.append(f'          <ssd:Connector name={quoteattr(var)} kind="{causality}">'
-                         f'<ssc:{_SSV_TYPE[vtype]}/></ssd:Connector>')
+                         f'<ssc:{_SSV_TYPE[vtype]}{f" unit={quoteattr(unit)}" if unit else ""}/></ssd:Connector>')
         elements.append(
             f'      <ssd:Component name={quoteattr(c.name)} type="application/x-fmu-sharedlibrary" '
             f'source="resources/{c.model}.fmu">\n        <ssd:Connectors>\n' + "\n".join(conns)
@@ -173,6 +242,7 @@ def ssd_text(spec: SystemSpec, name: str, stop_time_s: float, descriptions: dict
             f'            <oms:FixedStepMaster description="oms-ma" stepSize="{H}"/>\n'
             '          </oms:SimulationInformation>\n        </oms:Annotations>\n'
             '      </ssc:Annotation>\n    </ssd:Annotations>\n  </ssd:System>\n'
+            + units_xml("ssd", used, definitions or {}, "  ") +
             f'  <ssd:DefaultExperiment startTime="0.0" stopTime="{float(stop_time_s)!r}"/>\n'
             '</ssd:SystemStructureDescription>\n')
 
@@ -218,8 +288,13 @@ def export_ssp(scene, path: str | Path, fmu_dir: str | Path = "fmus", spec: Syst
     spec, fmus, descriptions, problems = system_fmus(scene, fmu_dir, spec, build, log, native)
     if problems:
         raise ConfigurationError(problems)
-    ssd = ssd_text(spec, scene.name, scene.time.duration_s, descriptions)
-    ssvs = {c.name: ssv_text(c, descriptions[c.model]) for c in spec.components}
+    definitions = {}
+    for m, p in fmus.items():
+        for unit, d in fmu_unit_definitions(p).items():
+            if definitions.setdefault(unit, d) != d:
+                raise ConfigurationError([f"unit {unit!r}: {m}.fmu defines it otherwise than another FMU of the system"])
+    ssd = ssd_text(spec, scene.name, scene.time.duration_s, descriptions, definitions)
+    ssvs = {c.name: ssv_text(c, descriptions[c.model], definitions) for c in spec.components}
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".part")
     try:

@@ -39,6 +39,14 @@ from gearcontact_fmu.params import DEFAULT_COMM_STEP_S
 
 #: the modelDescription's DefaultExperiment of every drivetrain FMU: the step they are validated at
 DEFAULT_EXPERIMENT = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=DEFAULT_COMM_STEP_S)
+#: per model: the DefaultExperiment, long enough for the shipped example input (drivetrain.cosim.fmu_docs: the
+#: operating point ramped in over 0.25 s) to settle: UpperTransmission, driven by torques alone, reaches its speed
+#: through its loss law (time constant about 0.2 s at speed). No tolerance: the models integrate with fixed sub-steps.
+DEFAULT_EXPERIMENTS = {
+    "FlexibleShaft": DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=DEFAULT_COMM_STEP_S),
+    "UpperTransmission": DefaultExperiment(start_time=0.0, stop_time=2.0, step_size=DEFAULT_COMM_STEP_S),
+    "MotorLoad": DefaultExperiment(start_time=0.0, stop_time=2.0, step_size=DEFAULT_COMM_STEP_S),
+}
 
 #: per model: ports (name -> drivetrain.system.SPRING | INERTIA, as the component declares them), extra
 #: inputs, outputs, parameter units

@@ -20,8 +20,9 @@ from drivetrain.system import BACKENDS
 
 def _cmd_build_fmus(args: argparse.Namespace) -> int:
     from drivetrain.cosim.build import build_all
+    from drivetrain.cosim.fmus import fmu_dir_or_default
 
-    paths = build_all(args.out, only=args.only)
+    paths = build_all(fmu_dir_or_default(args.out), only=args.only)
     for p in paths:
         print(p)
     try:  # record the sources the FMUs were built from, so that `drivetrain run` sees them as fresh
@@ -563,7 +564,7 @@ def _stress_command(args: argparse.Namespace) -> str:
                                 ("--duration-random", "duration_random", 1.5), ("--duration-pcm", "duration_pcm", 0.1),
                                 ("--duration-paper", "duration_paper", None), ("--fidelities", "fidelities", None),
                                 ("--paper-grid", "paper_grid", None), ("--backend", "backend", "fmi"),
-                                ("--fmu-dir", "fmu_dir", "fmus")):
+                                ("--fmu-dir", "fmu_dir", None)):
         v = getattr(args, attr)
         if v != default:
             words += [flag, str(v)]
@@ -661,6 +662,11 @@ def _cmd_baseline(args: argparse.Namespace) -> int:
     return 0 if not bad else 3
 
 
+#: the help of every --fmu-dir (its default: drivetrain.cosim.fmus.default_fmu_dir)
+_FMU_DIR_HELP = ("where the FMUs are, built on demand (default: the source checkout's fmus/, or fmus/ in the "
+                 "user-level cache $BEVEL_CACHE_DIR or ~/.cache/bevel-drivetrain; never the current folder)")
+
+
 def _add_execution_options(p: argparse.ArgumentParser,
                            workers_help: str = "local worker processes (default: CPU count)") -> None:
     """Where and how the runs of a many-run command execute: --workers, --scheduler, --backend, --fmu-dir."""
@@ -669,7 +675,7 @@ def _add_execution_options(p: argparse.ArgumentParser,
                    help="Dask scheduler address (tcp://host:8786), or 'local' for a Dask cluster of --workers "
                         "processes started by the command; default: local process pool")
     p.add_argument("--backend", choices=BACKENDS, default="fmi")
-    p.add_argument("--fmu-dir", default="fmus")
+    p.add_argument("--fmu-dir", default=None, help=_FMU_DIR_HELP)
 
 
 def _percent(text: str) -> float:
@@ -695,8 +701,9 @@ def _positive_int(text: str) -> int:
 
 
 def _parser_build_fmus(sub) -> None:
-    p = sub.add_parser("build-fmus", help="build every FMU of the project into fmus/ (or --out DIR)")
-    p.add_argument("--out", default="fmus", help="output directory (default: fmus)")
+    p = sub.add_parser("build-fmus", help="build every FMU of the project into the FMU directory runs use (or --out DIR)")
+    p.add_argument("--out", default=None, help="output directory, where only the FMUs are written (default: the "
+                                               "FMU directory runs use; docs/MASTER.md)")
     p.add_argument("--only", nargs="*", default=None, help="build only these FMUs (model names)")
     p.set_defaults(func=_cmd_build_fmus)
 
@@ -709,7 +716,7 @@ def _parser_run(sub) -> None:
     p.add_argument("--case", default=None, help="with a grid file: the name of the case to run")
     p.add_argument("--backend", choices=BACKENDS, default="fmi",
                    help="fmi: FMUs through fmpy (default); inprocess: the same slave classes without FMI")
-    p.add_argument("--fmu-dir", default="fmus", help="where the FMUs are (built on demand; default: fmus)")
+    p.add_argument("--fmu-dir", default=None, help=_FMU_DIR_HELP)
     p.add_argument("--fmu", action="append", metavar="MODEL=PATH",
                    help="use this FMU file for a model instead of the one in --fmu-dir, e.g. "
                         "GearContact=fmus/native/GearContact.fmu (drivetrain build-native-gear; repeatable)")
@@ -751,7 +758,7 @@ def _parser_export_ssp(sub) -> None:
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a scene key (repeatable)")
     p.add_argument("--case", default=None, help="with a grid file: the name of the case to export")
     p.add_argument("--out", default=None, help="the archive (default: <scene name>.ssp)")
-    p.add_argument("--fmu-dir", default="fmus", help="where the FMUs are (built on demand; default: fmus)")
+    p.add_argument("--fmu-dir", default=None, help=_FMU_DIR_HELP)
     p.add_argument("--native", action="store_true",
                    help="the compiled FMUs (no Python needed in the host; built once in FMU_DIR/native; a gear "
                         "of another fidelity than table keeps its pythonfmu FMU, with a message)")
@@ -919,7 +926,7 @@ def _parser_stress(sub) -> None:
                    help="comma-separated mesh_contact fidelities the random scenes may use (default: all)")
     p.add_argument("--paper-grid", default=None, metavar="TOML", help="the paper grid (default: scenarios/paper/paper.toml)")
     p.add_argument("--backend", choices=BACKENDS, default="fmi")
-    p.add_argument("--fmu-dir", default="fmus")
+    p.add_argument("--fmu-dir", default=None, help=_FMU_DIR_HELP)
     p.add_argument("--only", nargs="*", default=None, metavar="PATTERN",
                    help="run only the cases whose name matches (e.g. rnd_s0_0042 'paper_severe_*')")
     p.add_argument("--report-only", action="store_true",

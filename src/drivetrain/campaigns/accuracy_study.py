@@ -127,7 +127,7 @@ def _records_on_disk(run_dir: Path, runs: list) -> list[dict]:
 
 
 def run_study(out_dir: Path | str, scenes=None, settings=None, *, workers: int | None = None,
-              address: str | None = None, resume: bool = False, fmu_dir: str | Path = "fmus",
+              address: str | None = None, resume: bool = False, fmu_dir: str | Path | None = None,
               backend: str = "fmi", progress: bool = True, meta: dict | None = None,
               evaluate_only: bool = False) -> dict:
     """Run (or, with ``resume``, complete) the study into ``out_dir/runs`` and evaluate it. Online-PCM

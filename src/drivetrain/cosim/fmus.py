@@ -169,16 +169,23 @@ STAMP_FILE = ".sources-hash.json"
 _CHECKED: dict[str, set] = {}     # fmu_dir -> models found fresh (or built) in this process
 
 
+def source_checkout() -> Path | None:
+    """The root of the source checkout the package runs from (``<root>/src/drivetrain`` beside
+    ``<root>/pyproject.toml``), or None for an installed package."""
+    root = Path(drivetrain.__file__).resolve().parents[2]
+    if (root / "pyproject.toml").is_file() and (root / "src" / "drivetrain").is_dir():
+        return root
+    return None
+
+
 def default_fmu_dir() -> Path:
     """Where FMUs are built and kept unless a caller names a directory, wherever the code runs from: the
     source checkout's ``fmus/`` when the package runs from one (``<root>/src/drivetrain`` beside
     ``<root>/pyproject.toml``: the developer's, git-ignored, one per checkout so that two checkouts with
     different sources never rebuild each other's FMUs), else ``<cache_dir()>/fmus`` (an installed package:
     the user-level cache, like the contact maps and the native FMUs)."""
-    root = Path(drivetrain.__file__).resolve().parents[2]
-    if (root / "pyproject.toml").is_file() and (root / "src" / "drivetrain").is_dir():
-        return root / "fmus"
-    return cache_dir() / "fmus"
+    root = source_checkout()
+    return root / "fmus" if root is not None else cache_dir() / "fmus"
 
 
 def fmu_dir_or_default(fmu_dir: str | Path | None) -> Path:

@@ -227,3 +227,14 @@ def test_eigen_reports_overdamped_modes_as_such(capsys):
     assert all((r["zeta"] >= 1) == r["overdamped"] for r in rows)
     f, _, ls, fd, _ = modes(spec, controller=False, damped=True)
     assert len(fd) == len(rows) - len(over)               # one complex pair per oscillating mode
+
+
+def test_the_accuracy_report_states_costs_against_the_scenes_defaults():
+    """The study's report says what a tolerance's choice costs against the scene as it runs without one."""
+    from test_accuracy import _results
+
+    from drivetrain.campaigns import accuracy_study as S
+
+    md = S.report_markdown({**_results(), "meta": {}}, {})
+    assert "Within 5 % / 5 dB: cheapest `fast` (0.9 s/s, 0.45x the scene's defaults, 0.23x the reference)." in md
+    assert "`--update-shipped` rewrites this page" in md

@@ -140,6 +140,7 @@ def test_update_shipped_needs_a_checkout(tmp_path, monkeypatch, capsys):
     monkeypatch.chdir(tmp_path)
     assert main(["validate", "--update-shipped", "--judge-only", "--out", "out", "--quiet"]) == 2
     assert main(["accuracy-cost", "--update-shipped", "--evaluate-only", "--out", "out", "--quiet"]) == 2
+    assert main(["detectability", "--update-shipped", "--out", "out", "--quiet"]) == 2
     assert "--update-shipped rewrites the shipped reports of a source checkout" in capsys.readouterr().err
     assert not any(tmp_path.iterdir())
 
@@ -172,6 +173,29 @@ def test_accuracy_cost_writes_into_out_and_the_shipped_files_only_when_asked(tmp
     assert main(["accuracy-cost", "--out", "out2", "--quiet", "--update-shipped"]) == 0
     assert '"healthy_1500rpm"' in shipped.read_text()
     assert (checkout / "docs" / "ACCURACY-COST.md").is_file() and (checkout / "docs" / "figures").is_dir()
+
+
+def test_detectability_writes_its_report_into_out(tmp_path, monkeypatch):
+    """``detectability`` (its runs and features replaced by one canned AUC row) writes report, AUC table and
+    figure into --out, not docs/ of the current folder; the shipped docs/DETECTABILITY.md stays."""
+    import drivetrain.campaigns.features as FE
+    import drivetrain.campaigns.sweep as SW
+    from drivetrain.campaigns import detectability as D
+    from drivetrain.cli import main
+
+    monkeypatch.setattr(SW, "run_sweep", lambda *a, **k: {"runs": []})
+    monkeypatch.setattr(FE, "features", lambda d: [])
+    monkeypatch.setattr(D, "auc_table", lambda rows, study: [
+        {"family": "void_pinion_default", "kind": "void", "member": "pinion", "size": "default", "speed_rpm": 1500.0,
+         "load_Nm": 1.31, "indicator": "FM4_pinion.propeller_shaft_torque", "n": 2, "paired_auc": 0.85,
+         "unpaired_auc": 0.4}])
+    shipped = (ROOT / "docs" / "DETECTABILITY.md").read_bytes()
+    monkeypatch.chdir(tmp_path)
+    assert main(["detectability", "--kinds", "void", "--members", "pinion", "--sizes", "default", "--speeds", "1500",
+                 "--loads", "1.31", "--gearboxes", "2", "--out", "out", "--quiet"]) == 0
+    assert _tree(tmp_path) == {"out", "out/DETECTABILITY.md", "out/detectability_auc.csv", "out/figures",
+                               "out/figures/detectability.png"}
+    assert (ROOT / "docs" / "DETECTABILITY.md").read_bytes() == shipped
 
 
 # ------------------------------------------------------------------------------------------------

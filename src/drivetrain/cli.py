@@ -530,6 +530,9 @@ def _cmd_detectability(args: argparse.Namespace) -> int:
     from drivetrain.scene.load import ScenarioError
 
     t0 = time.perf_counter()
+    shipped = _shipped_docs(args)       # refused before any run when there is no checkout to write into
+    if shipped is None:
+        return 2
     fams = D.families(args.kinds, tuple(args.members), tuple(args.sizes))
     study = D.Study(fams, tuple(args.speeds), tuple(args.loads), args.gearboxes, args.duration, args.settle,
                     args.background, tuple(args.set or ()))
@@ -550,7 +553,7 @@ def _cmd_detectability(args: argparse.Namespace) -> int:
         return 2
     table = D.auc_table(rows, study)
     verdicts = D.verdicts(table)
-    report = Path(args.report)
+    report = Path(args.report) if args.report else (shipped or Path(args.out)) / "DETECTABILITY.md"
     report.parent.mkdir(parents=True, exist_ok=True)
     stem = report.stem.lower()
     csv_path = D.write_table_csv(table, report.parent / f"{stem}_auc.csv")
@@ -889,9 +892,12 @@ def _parser_detectability(sub) -> None:
     from gearcontact_fmu.fault_specs import FAULT_KINDS
 
     p = sub.add_parser("detectability", help="the fault families over gearboxes: paired and unpaired AUC of every "
-                                             "indicator -> docs/DETECTABILITY.md")
+                                             "indicator -> OUT/DETECTABILITY.md (docs/ with --update-shipped)")
     p.add_argument("--out", default="out/detectability", help="run directory (default: out/detectability)")
-    p.add_argument("--report", default="docs/DETECTABILITY.md", help="the report (default: docs/DETECTABILITY.md)")
+    p.add_argument("--report", default=None, help="the report, its AUC table and figure beside it (default: "
+                                                  "OUT/DETECTABILITY.md; with --update-shipped the checkout's docs/)")
+    p.add_argument("--update-shipped", action="store_true",
+                   help="write the shipped report, docs/DETECTABILITY.md of the source checkout, with its table and figure")
     p.add_argument("--gearboxes", type=_positive_int, default=GEARBOXES,
                    help=f"gearboxes (seeds) per cell (default: {GEARBOXES})")
     p.add_argument("--kinds", nargs="+", choices=tuple(FAULT_KINDS), default=None, help="fault kinds (default: all)")

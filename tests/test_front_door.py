@@ -62,6 +62,23 @@ def test_fmus_are_kept_where_the_package_says_not_in_the_current_folder(tmp_path
     assert F.fmu_dir_or_default("mine") == Path("mine")
 
 
+def test_a_run_as_a_dataframe_carries_its_units():
+    import numpy as np
+
+    from drivetrain.run.runner import RunResult
+    from drivetrain.scene.load import load_scene
+
+    scene = load_scene(EXAMPLE, ["time.settle_s=0.5"])
+    t = np.arange(4) * 0.25
+    r = RunResult(scene=scene, summary={}, time=t, signals={"drive_shaft_torque": t * 2, "gear.n_contact": t},
+                  units={"drive_shaft_torque": "N.m"}, sources={}, cosim=None, spec=None)
+    df = r.to_dataframe()
+    assert list(df.columns) == ["drive_shaft_torque", "gear.n_contact"] and df.index.name == "time_s"
+    assert df.attrs["units"] == {"time_s": "s", "drive_shaft_torque": "N.m", "gear.n_contact": ""}
+    assert list(r.to_dataframe(settled_only=True).index) == [0.5, 0.75]
+    assert df["drive_shaft_torque"].iloc[-1] == 1.5
+
+
 def _readme_api_code() -> str:
     section = README.read_text().split("## Python API (notebooks)", 1)[1].split("\n## ", 1)[0]
     blocks = re.findall(r"```python\n(.*?)```", section, re.S)

@@ -11,6 +11,7 @@ import pytest
 from _cosim_test_fmus import build_test_fmus
 import drivetrain.cosim as M
 from drivetrain.cosim import ConfigurationError, CosimError, Master, simulate
+from drivetrain.cosim.fmus import stamp_path
 from drivetrain.system import ComponentSpec, Connection, SystemSpec
 
 H12 = 1.0 / 12000.0
@@ -155,15 +156,20 @@ def test_profile_input_drives_unconnected_input(fmus):
     assert any("a.flange is not connected" in w for w in r.warnings)
 
 
-def test_staleness_keyed_on_source_hash(tmp_path, fmus):
+def test_staleness_keyed_on_source_hash(tmp_path, fmus, monkeypatch):
+    """The stamp (and the build lock) live in the user-level cache, keyed by the directory: the FMU
+    directory holds the FMUs only."""
+    monkeypatch.setenv("BEVEL_CACHE_DIR", str(tmp_path / "cache"))
     d = tmp_path / "fmus"
     d.mkdir()
     assert M.stale_models(["MTSpring"], d) == ["MTSpring"]          # missing
     (d / "MTSpring.fmu").write_bytes(fmus["MTSpring"].read_bytes())
     assert M.stale_models(["MTSpring"], d) == ["MTSpring"]          # no stamp
-    (d / M.STAMP_FILE).write_text(json.dumps({"MTSpring": M.sources_hash()}))
+    M.record_built(d, [d / "MTSpring.fmu"])
     assert M.stale_models(["MTSpring"], d) == []
-    (d / M.STAMP_FILE).write_text(json.dumps({"MTSpring": "0" * 64}))
+    assert sorted(p.name for p in d.iterdir()) == ["MTSpring.fmu"]
+    assert stamp_path(d).is_file() and tmp_path / "cache" in stamp_path(d).parents
+    stamp_path(d).write_text(json.dumps({"MTSpring": "0" * 64}))
     assert M.stale_models(["MTSpring"], d) == ["MTSpring"]          # other sources
     with pytest.raises(ConfigurationError, match="Nothing"):
         M.ensure_fmus(["MTSpring", "Nothing"], d, build=False)

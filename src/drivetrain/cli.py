@@ -20,8 +20,9 @@ from drivetrain.system import BACKENDS
 
 def _cmd_build_fmus(args: argparse.Namespace) -> int:
     from drivetrain.cosim.build import build_all
+    from drivetrain.cosim.fmus import fmu_dir_or_default
 
-    paths = build_all(args.out, only=args.only)
+    paths = build_all(fmu_dir_or_default(args.out), only=args.only)
     for p in paths:
         print(p)
     try:  # record the sources the FMUs were built from, so that `drivetrain run` sees them as fresh
@@ -233,10 +234,13 @@ def _cmd_eigen(args: argparse.Namespace) -> int:
     print(f"natural frequencies of {scene.name}: shafts {eff.shaft_flexibility}"
           f"{f' ({eff.shaft_elements} elements)' if eff.shaft_flexibility == 'flexible' else ''}, gear "
           f"{eff.mesh_contact} ({'rigid mesh' if eff.mesh_contact == 'ideal' else 'ISO 6336 mean mesh stiffness'}); "
-          "free-free mechanical system (PI controller and losses excluded), undamped")
-    print(f"{'mode':>4} {'f [Hz]':>10} {'zeta':>7}  dominant strain / kinetic energy")
+          "free-free mechanical system (PI controller and losses excluded)")
+    print("f: undamped natural frequency; zeta: damping ratio of the mode with the shafts', mesh's and cuts' "
+          "damping (overdamped: zeta >= 1, the mode does not oscillate)")
+    print(f"{'mode':>4} {'f [Hz]':>10} {'zeta':>18}  dominant strain / kinetic energy")
     for r in rows:
-        print(f"{r['mode']:>4} {r['f_Hz']:>10.2f} {r['zeta']:>7.3f}  {r['strain']} ({100 * r['strain_share']:.0f} %)"
+        zeta = f"{r['zeta']:.3g} (overdamped)" if r["overdamped"] else f"{r['zeta']:.3f}"
+        print(f"{r['mode']:>4} {r['f_Hz']:>10.2f} {zeta:>18}  {r['strain']} ({100 * r['strain_share']:.0f} %)"
               f" / {r['kinetic']} ({100 * r['kinetic_share']:.0f} %)")
     reps, rho = check_cuts(spec, raise_on_unstable=False)
     print(f"cuts at H = {spec.comm_step:.6g} s (stable if the spectral radius is <= 1):")
@@ -369,6 +373,21 @@ def _command_line(subcommand: str) -> str:
     return "drivetrain " + " ".join(shlex.quote(a) for a in argv[argv.index(subcommand):])
 
 
+def _shipped_docs(args: argparse.Namespace) -> Path | bool | None:
+    """Where a report command writes: False without ``--update-shipped`` (its --out directory), else the
+    source checkout's docs/ directory; None (after an error message) when the package is not a checkout."""
+    if not args.update_shipped:
+        return False
+    from drivetrain.cosim.fmus import source_checkout
+
+    root = source_checkout()
+    if root is None or not (root / "docs").is_dir():
+        print("error: --update-shipped rewrites the shipped reports of a source checkout; this package is "
+              "installed (give --report/--results instead)", file=sys.stderr)
+        return None
+    return root / "docs"
+
+
 def _cmd_validate(args: argparse.Namespace) -> int:
     import time
 
@@ -378,6 +397,9 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     from drivetrain.campaigns.sweep import run_sweep
 
     t0 = time.perf_counter()
+    shipped = _shipped_docs(args)       # refused before any run when there is no checkout to write into
+    if shipped is None:
+        return 2
     base = Path(args.scene) if args.scene else Path(__file__).resolve().parents[2] / "scenarios" / "example.toml"
     try:
         scenes = V.scenes(base, args.duration, args.settle if args.settle is not None else min(2.0, 0.2 * args.duration),
@@ -403,7 +425,7 @@ def _cmd_validate(args: argparse.Namespace) -> int:
         except ConfigurationError as exc:
             return _scene_errors(exc)
     results = V.evaluate(manifest, [s.name for s in scenes], repeat)
-    report = Path(args.report)
+    report = Path(args.report) if args.report else (shipped or Path(args.out)) / "VALIDATION.md"
     report.parent.mkdir(parents=True, exist_ok=True)
     fig_path = report.parent / "figures" / "validation_spectra.png"
     fig_path.parent.mkdir(parents=True, exist_ok=True)
@@ -435,6 +457,9 @@ def _cmd_accuracy_cost(args: argparse.Namespace) -> int:
     from drivetrain.run.outputs import jsonable
 
     t0 = time.perf_counter()
+    shipped = _shipped_docs(args)       # refused before any run when there is no checkout to write into
+    if shipped is None:
+        return 2
     command = _command_line("accuracy-cost")
     meta = {"command": command, "duration_s": STUDY_DURATION_S, "settle_s": STUDY_SETTLE_S,
             "workers": args.workers or os.cpu_count(), "backend": args.backend}
@@ -448,7 +473,7 @@ def _cmd_accuracy_cost(args: argparse.Namespace) -> int:
     except ConfigurationError as exc:
         return _scene_errors(exc)
     results["meta"]["wall_time_s"] = time.perf_counter() - t0
-    results_path = Path(args.results) if args.results else RESULTS_FILE
+    results_path = Path(args.results) if args.results else RESULTS_FILE if shipped else Path(args.out) / RESULTS_FILE.name
     if args.evaluate_only:              # the runs are the earlier study's: keep how they were made
         try:
             earlier = json.loads(results_path.read_text()).get("meta", {})
@@ -456,7 +481,7 @@ def _cmd_accuracy_cost(args: argparse.Namespace) -> int:
             earlier = {}
         results["meta"].update({k: earlier[k] for k in ("command", "wall_time_s", "workers") if k in earlier})
         results["meta"]["evaluated_again_with"] = command
-    report = Path(args.report)
+    report = Path(args.report) if args.report else (shipped or Path(args.out)) / "ACCURACY-COST.md"
     report.parent.mkdir(parents=True, exist_ok=True)
     figures = S.plot_pareto(results, report.parent / "figures")
     results_path.parent.mkdir(parents=True, exist_ok=True)
@@ -505,6 +530,9 @@ def _cmd_detectability(args: argparse.Namespace) -> int:
     from drivetrain.scene.load import ScenarioError
 
     t0 = time.perf_counter()
+    shipped = _shipped_docs(args)       # refused before any run when there is no checkout to write into
+    if shipped is None:
+        return 2
     fams = D.families(args.kinds, tuple(args.members), tuple(args.sizes))
     study = D.Study(fams, tuple(args.speeds), tuple(args.loads), args.gearboxes, args.duration, args.settle,
                     args.background, tuple(args.set or ()))
@@ -525,7 +553,7 @@ def _cmd_detectability(args: argparse.Namespace) -> int:
         return 2
     table = D.auc_table(rows, study)
     verdicts = D.verdicts(table)
-    report = Path(args.report)
+    report = Path(args.report) if args.report else (shipped or Path(args.out)) / "DETECTABILITY.md"
     report.parent.mkdir(parents=True, exist_ok=True)
     stem = report.stem.lower()
     csv_path = D.write_table_csv(table, report.parent / f"{stem}_auc.csv")
@@ -563,7 +591,7 @@ def _stress_command(args: argparse.Namespace) -> str:
                                 ("--duration-random", "duration_random", 1.5), ("--duration-pcm", "duration_pcm", 0.1),
                                 ("--duration-paper", "duration_paper", None), ("--fidelities", "fidelities", None),
                                 ("--paper-grid", "paper_grid", None), ("--backend", "backend", "fmi"),
-                                ("--fmu-dir", "fmu_dir", "fmus")):
+                                ("--fmu-dir", "fmu_dir", None)):
         v = getattr(args, attr)
         if v != default:
             words += [flag, str(v)]
@@ -661,6 +689,11 @@ def _cmd_baseline(args: argparse.Namespace) -> int:
     return 0 if not bad else 3
 
 
+#: the help of every --fmu-dir (its default: drivetrain.cosim.fmus.default_fmu_dir)
+_FMU_DIR_HELP = ("where the FMUs are, built on demand (default: the source checkout's fmus/, or fmus/ in the "
+                 "user-level cache $BEVEL_CACHE_DIR or ~/.cache/bevel-drivetrain; never the current folder)")
+
+
 def _add_execution_options(p: argparse.ArgumentParser,
                            workers_help: str = "local worker processes (default: CPU count)") -> None:
     """Where and how the runs of a many-run command execute: --workers, --scheduler, --backend, --fmu-dir."""
@@ -669,7 +702,7 @@ def _add_execution_options(p: argparse.ArgumentParser,
                    help="Dask scheduler address (tcp://host:8786), or 'local' for a Dask cluster of --workers "
                         "processes started by the command; default: local process pool")
     p.add_argument("--backend", choices=BACKENDS, default="fmi")
-    p.add_argument("--fmu-dir", default="fmus")
+    p.add_argument("--fmu-dir", default=None, help=_FMU_DIR_HELP)
 
 
 def _percent(text: str) -> float:
@@ -695,8 +728,9 @@ def _positive_int(text: str) -> int:
 
 
 def _parser_build_fmus(sub) -> None:
-    p = sub.add_parser("build-fmus", help="build every FMU of the project into fmus/ (or --out DIR)")
-    p.add_argument("--out", default="fmus", help="output directory (default: fmus)")
+    p = sub.add_parser("build-fmus", help="build every FMU of the project into the FMU directory runs use (or --out DIR)")
+    p.add_argument("--out", default=None, help="output directory, where only the FMUs are written (default: the "
+                                               "FMU directory runs use; docs/MASTER.md)")
     p.add_argument("--only", nargs="*", default=None, help="build only these FMUs (model names)")
     p.set_defaults(func=_cmd_build_fmus)
 
@@ -709,7 +743,7 @@ def _parser_run(sub) -> None:
     p.add_argument("--case", default=None, help="with a grid file: the name of the case to run")
     p.add_argument("--backend", choices=BACKENDS, default="fmi",
                    help="fmi: FMUs through fmpy (default); inprocess: the same slave classes without FMI")
-    p.add_argument("--fmu-dir", default="fmus", help="where the FMUs are (built on demand; default: fmus)")
+    p.add_argument("--fmu-dir", default=None, help=_FMU_DIR_HELP)
     p.add_argument("--fmu", action="append", metavar="MODEL=PATH",
                    help="use this FMU file for a model instead of the one in --fmu-dir, e.g. "
                         "GearContact=fmus/native/GearContact.fmu (drivetrain build-native-gear; repeatable)")
@@ -751,7 +785,7 @@ def _parser_export_ssp(sub) -> None:
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a scene key (repeatable)")
     p.add_argument("--case", default=None, help="with a grid file: the name of the case to export")
     p.add_argument("--out", default=None, help="the archive (default: <scene name>.ssp)")
-    p.add_argument("--fmu-dir", default="fmus", help="where the FMUs are (built on demand; default: fmus)")
+    p.add_argument("--fmu-dir", default=None, help=_FMU_DIR_HELP)
     p.add_argument("--native", action="store_true",
                    help="the compiled FMUs (no Python needed in the host; built once in FMU_DIR/native; a gear "
                         "of another fidelity than table keeps its pythonfmu FMU, with a message)")
@@ -793,11 +827,15 @@ def _parser_sweep(sub) -> None:
 def _parser_validate(sub) -> None:
     from drivetrain.campaigns import GEARBOXES
 
-    p = sub.add_parser("validate", help="run the checks against the paper's findings and write docs/VALIDATION.md")
+    p = sub.add_parser("validate", help="run the checks against the paper's findings and write their report "
+                                        "(OUT/VALIDATION.md; docs/VALIDATION.md with --update-shipped)")
     p.add_argument("scene", nargs="?", default=None, help="base scene (default: scenarios/example.toml)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key of every scene")
     p.add_argument("--out", default="out/validate", help="run directory (default: out/validate)")
-    p.add_argument("--report", default="docs/VALIDATION.md", help="the report (default: docs/VALIDATION.md)")
+    p.add_argument("--report", default=None,
+                   help="the report (default: OUT/VALIDATION.md; with --update-shipped the checkout's docs/VALIDATION.md)")
+    p.add_argument("--update-shipped", action="store_true",
+                   help="write the shipped report, docs/VALIDATION.md of the source checkout, and its figures")
     p.add_argument("--duration", type=float, default=20.0, help="simulated seconds per run (default: 20, the paper's)")
     p.add_argument("--settle", type=float, default=None, help="settling time excluded (default: min(2 s, 20 %%))")
     p.add_argument("--gearboxes", type=_positive_int, default=GEARBOXES,
@@ -811,13 +849,19 @@ def _parser_validate(sub) -> None:
 
 def _parser_accuracy_cost(sub) -> None:
     p = sub.add_parser("accuracy-cost", help="the accuracy-cost study: every setting against a converged reference "
-                                             "per scene; writes docs/ACCURACY-COST.md, its plots and the shipped results")
+                                             "per scene; writes its report, plots and results into OUT (the shipped "
+                                             "docs/ACCURACY-COST.md and data file with --update-shipped)")
     p.add_argument("--scenes", nargs="*", default=None, metavar="NAME", help="studied scenes (default: all)")
     p.add_argument("--settings", nargs="*", default=None, metavar="NAME",
                    help="settings (default: all; the reference always runs)")
     p.add_argument("--out", default="out/accuracy", help="run directory (default: out/accuracy)")
-    p.add_argument("--report", default="docs/ACCURACY-COST.md", help="the report (default: docs/ACCURACY-COST.md)")
-    p.add_argument("--results", default=None, help="where the results go (default: the package's data file)")
+    p.add_argument("--report", default=None, help="the report (default: OUT/ACCURACY-COST.md; with --update-shipped "
+                                                   "the checkout's docs/ACCURACY-COST.md)")
+    p.add_argument("--results", default=None, help="where the results go (default: OUT/accuracy_cost.json; with "
+                                                    "--update-shipped the package's data file, which run --tolerance reads)")
+    p.add_argument("--update-shipped", action="store_true",
+                   help="write the shipped files: the package's results (read by run --tolerance) and the checkout's "
+                        "docs/ACCURACY-COST.md with its figures")
     _add_execution_options(p)
     p.add_argument("--resume", action="store_true", help="reuse finished runs of the same scenes and settings")
     p.add_argument("--evaluate-only", action="store_true",
@@ -848,9 +892,12 @@ def _parser_detectability(sub) -> None:
     from gearcontact_fmu.fault_specs import FAULT_KINDS
 
     p = sub.add_parser("detectability", help="the fault families over gearboxes: paired and unpaired AUC of every "
-                                             "indicator -> docs/DETECTABILITY.md")
+                                             "indicator -> OUT/DETECTABILITY.md (docs/ with --update-shipped)")
     p.add_argument("--out", default="out/detectability", help="run directory (default: out/detectability)")
-    p.add_argument("--report", default="docs/DETECTABILITY.md", help="the report (default: docs/DETECTABILITY.md)")
+    p.add_argument("--report", default=None, help="the report, its AUC table and figure beside it (default: "
+                                                  "OUT/DETECTABILITY.md; with --update-shipped the checkout's docs/)")
+    p.add_argument("--update-shipped", action="store_true",
+                   help="write the shipped report, docs/DETECTABILITY.md of the source checkout, with its table and figure")
     p.add_argument("--gearboxes", type=_positive_int, default=GEARBOXES,
                    help=f"gearboxes (seeds) per cell (default: {GEARBOXES})")
     p.add_argument("--kinds", nargs="+", choices=tuple(FAULT_KINDS), default=None, help="fault kinds (default: all)")
@@ -919,7 +966,7 @@ def _parser_stress(sub) -> None:
                    help="comma-separated mesh_contact fidelities the random scenes may use (default: all)")
     p.add_argument("--paper-grid", default=None, metavar="TOML", help="the paper grid (default: scenarios/paper/paper.toml)")
     p.add_argument("--backend", choices=BACKENDS, default="fmi")
-    p.add_argument("--fmu-dir", default="fmus")
+    p.add_argument("--fmu-dir", default=None, help=_FMU_DIR_HELP)
     p.add_argument("--only", nargs="*", default=None, metavar="PATTERN",
                    help="run only the cases whose name matches (e.g. rnd_s0_0042 'paper_severe_*')")
     p.add_argument("--report-only", action="store_true",

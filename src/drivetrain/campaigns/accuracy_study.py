@@ -9,7 +9,7 @@ import json
 import math
 from pathlib import Path
 
-from drivetrain.run.accuracy import (REFERENCE, SETTINGS, STUDY_DURATION_S, STUDY_SCENES, STUDY_SETTLE_S, Setting, compare,
+from drivetrain.run.accuracy import (DEFAULT, REFERENCE, SETTINGS, STUDY_DURATION_S, STUDY_SCENES, STUDY_SETTLE_S, Setting, compare,
                                  health_class, run_name, study_overrides, within)
 from drivetrain.run.outputs import read_hdf5
 from drivetrain.run.runner import assemble_scene
@@ -127,7 +127,7 @@ def _records_on_disk(run_dir: Path, runs: list) -> list[dict]:
 
 
 def run_study(out_dir: Path | str, scenes=None, settings=None, *, workers: int | None = None,
-              address: str | None = None, resume: bool = False, fmu_dir: str | Path = "fmus",
+              address: str | None = None, resume: bool = False, fmu_dir: str | Path | None = None,
               backend: str = "fmi", progress: bool = True, meta: dict | None = None,
               evaluate_only: bool = False) -> dict:
     """Run (or, with ``resume``, complete) the study into ``out_dir/runs`` and evaluate it. Online-PCM
@@ -251,7 +251,8 @@ def report_markdown(results: dict, figures: dict[str, str]) -> str:
     meta = results.get("meta", {})
     out = ["# What accuracy costs in time", "",
            f"Regenerate: `{meta.get('command', 'drivetrain accuracy-cost')}` ({meta.get('wall_time_s', 0) / 60:.0f} min "
-           f"on {meta.get('workers', '?')} workers here; `--resume` reuses finished runs). Each scene runs "
+           f"on {meta.get('workers', '?')} workers here; `--resume` reuses finished runs; the report goes to `--out`, "
+           "`--update-shipped` rewrites this page and the results `run --tolerance` reads). Each scene runs "
            f"{meta.get('duration_s', STUDY_DURATION_S):g} s, of which the last "
            f"{meta.get('duration_s', STUDY_DURATION_S) - meta.get('settle_s', STUDY_SETTLE_S):g} s are compared "
            "with the same scene's reference run.", ""]
@@ -297,10 +298,13 @@ def report_markdown(results: dict, figures: dict[str, str]) -> str:
                   and (s == REFERENCE or within(r.get("errors") or {}, T))]
             if ok:
                 best = min(ok, key=lambda s: rows[s]["loop_s_per_s"])
+                cost = rows[best]["loop_s_per_s"]
+                own = (rows.get(DEFAULT) or {}).get("loop_s_per_s")      # what the scene costs as it is
+                vs = ([f"{cost / own:.2g}x the scene's defaults"] if own else []) + \
+                     ([f"{cost / ref_cost:.2g}x the reference"] if ref_cost else [])
                 out.append("")
-                out.append(f"Within {T:g} % / {T:g} dB: cheapest `{best}` "
-                           f"({rows[best]['loop_s_per_s']:.3g} s/s"
-                           + (f", {rows[best]['loop_s_per_s'] / ref_cost:.2g}x the reference)." if ref_cost else ")."))
+                out.append(f"Within {T:g} % / {T:g} dB: cheapest `{best}` ({cost:.3g} s/s"
+                           + "".join(f", {v}" for v in vs) + ").")
     out += ["", *_overview(results), "", *GUIDE]
     return "\n".join(out) + "\n"
 

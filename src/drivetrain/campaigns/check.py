@@ -113,7 +113,7 @@ class CheckReport:
 # --------------------------------------------------------------------------------------------------
 
 
-def run_case(scene: Scene, out_dir: str | Path | None = None, *, fmu_dir: str | Path = "fmus",
+def run_case(scene: Scene, out_dir: str | Path | None = None, *, fmu_dir: str | Path | None = None,
              backend: str = "fmi", plots: bool = False) -> CaseRun:
     """Run one scene in this process; an FMU failure gives the completed part (status "failed")."""
 
@@ -139,7 +139,7 @@ def _read_run(scene: Scene, rec: dict) -> CaseRun:
     return CaseRun(scene, summary, out_dir=Path(rec["out_dir"]))
 
 
-def run_cases(scenes: list[Scene], out_dir: str | Path, *, fmu_dir: str | Path = "fmus", backend: str = "fmi",
+def run_cases(scenes: list[Scene], out_dir: str | Path, *, fmu_dir: str | Path | None = None, backend: str = "fmi",
               workers: int | None = None, address: str | None = None, progress: bool = False,
               log: Callable[[str], None] | None = None) -> list[CaseRun]:
     """Run the scenes: one in this process, several through the sweep machinery (processes or Dask)."""
@@ -237,7 +237,7 @@ def load_baseline_for(path: str | Path, scenes: list[Scene], baseline_dir: str |
 
 
 def check_scenes(path: str | Path, scenes: list[Scene], *, out_dir: str | Path | None = None,
-                 baseline_dir: str | Path | None = None, fmu_dir: str | Path = "fmus", backend: str = "fmi",
+                 baseline_dir: str | Path | None = None, fmu_dir: str | Path | None = None, backend: str = "fmi",
                  workers: int | None = None, address: str | None = None, plots: bool = True,
                  progress: bool = False, log: Callable[[str], None] | None = None) -> CheckReport:
     """Run and check these cases of the scene file ``path`` (e.g. a subset of a grid)."""
@@ -341,7 +341,7 @@ class BaselineResult:
 
 def baseline_file(path: str | Path, overrides=(), *, only: list[str] | None = None,
                   baseline_dir: str | Path | None = None, out_dir: str | Path | None = None,
-                  fmu_dir: str | Path = "fmus", backend: str = "fmi", workers: int | None = None,
+                  fmu_dir: str | Path | None = None, backend: str = "fmi", workers: int | None = None,
                   address: str | None = None, progress: bool = False, allow_failed: bool = False,
                   log: Callable[[str], None] | None = None) -> BaselineResult:
     """Run every case (or ``only``) of a scene file and store their compact references in its baseline

@@ -908,7 +908,7 @@ def run_stress(out_dir: Path | str = "out/stress", *, set_name: str = "all", n_r
                halving_subset: int = DEFAULT_HALVING_SUBSET, duration_random_s: float = DEFAULT_DURATION_S,
                duration_pcm_s: float = DEFAULT_DURATION_PCM_S, duration_paper_s: float | None = None,
                fidelities=None, paper_grid=None, n_fault_meshes: int = N_FAULT_MESHES,
-               fmu_dir: Path | str = "fmus", backend: str = "fmi", progress: bool = False, only=None,
+               fmu_dir: Path | str | None = None, backend: str = "fmi", progress: bool = False, only=None,
                command: str | None = None, log: Callable[[str], None] | None = None) -> dict:
     """Run the campaign into ``out_dir`` and return the record written to stress.json (see the module
     docstring). ``resume``: finished runs of the same scene and model sources are not rerun (the sweep's

@@ -57,6 +57,7 @@ from drivetrain.run import cost as runcost
 from drivetrain.cosim import ConfigurationError
 from drivetrain.cosim import simulate as simulate_system
 from drivetrain.cosim import sources_hash
+from drivetrain.cosim.fmus import fmu_dir_or_default
 from drivetrain.run.outputs import check_output_dir, clear_run_files, jsonable
 from drivetrain.run.runner import RunFailedError, assemble_scene, run_scene
 from drivetrain.scene.load import Scene, resolve
@@ -68,7 +69,7 @@ from gearcontact_fmu.params import file_sha256
 _LOG = logging.getLogger(__name__)
 
 
-def make_case(scene: Scene, out_dir: Path, *, backend: str = "fmi", fmu_dir: str | Path = "fmus",
+def make_case(scene: Scene, out_dir: Path, *, backend: str = "fmi", fmu_dir: str | Path | None = None,
               plots: bool | None = None, spec=None, fmu_paths: dict | None = None, force: bool = False) -> dict:
     """A picklable description of one run (the scene as plain data, not the Scene object). ``plots``:
     None = as the scene says (``outputs.plots``), False = never."""
@@ -79,7 +80,7 @@ def make_case(scene: Scene, out_dir: Path, *, backend: str = "fmi", fmu_dir: str
         "overrides": list(scene.overrides),
         "out_dir": str(out_dir),
         "backend": backend,
-        "fmu_dir": str(Path(fmu_dir).resolve()),
+        "fmu_dir": str(fmu_dir_or_default(fmu_dir).resolve()),
         "plots": plots,
         "fingerprint": fingerprint(scene, fmu_paths),
         "spec": spec,
@@ -178,7 +179,7 @@ def simulate(case: dict) -> dict:
                                                  "overrides": case.get("overrides", [])}, indent=1, default=str))
         plots = case.get("plots")
         res = run_scene(scene, case["out_dir"], backend=case.get("backend", "fmi"), progress=False,
-                        fmu_dir=case.get("fmu_dir", "fmus"), spec=case.get("spec"),
+                        fmu_dir=case.get("fmu_dir"), spec=case.get("spec"),
                         fmu_paths=case.get("fmu_paths"), plots=None if plots is None else bool(plots),
                         build=False, log=lambda m: None, force=bool(case.get("force")))
         rec.update({
@@ -273,7 +274,7 @@ def _cache_shaping(parameters: dict) -> dict:
             if not (k.endswith("_start") or k in ("initial_state", "manufacturing_errors"))}
 
 
-def prepare_caches(specs: list, fmu_dir: str | Path = "fmus", fmu_paths: dict | None = None,
+def prepare_caches(specs: list, fmu_dir: str | Path | None = None, fmu_paths: dict | None = None,
                    log=None, workers: int | None = None) -> int:
     """Initialise once, in this (non-daemonic) process or its children, every distinct component
     configuration whose initialisation builds a disk cache (GearContact ``fidelity = "table"``: the contact
@@ -499,7 +500,7 @@ def _prepare_fmus(scenes: list[Scene], all_specs: list, *, backend: str, fmu_dir
         from drivetrain.cosim.native_line import toolchain_problems
 
         if not toolchain_problems():
-            _native_builds(all_specs, Path(fmu_dir) / "native", log)
+            _native_builds(all_specs, fmu_dir_or_default(fmu_dir) / "native", log)
 
 
 def _native_builds(all_specs: list, cache_dir: Path, log) -> None:
@@ -609,7 +610,7 @@ def _run_cases(cases: list[dict], manifest: _Manifest, executor, progress: bool)
 
 
 def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None = None, address: str | None = None,
-              backend: str = "fmi", fmu_dir: str | Path = "fmus", skip_existing: bool = False,
+              backend: str = "fmi", fmu_dir: str | Path | None = None, skip_existing: bool = False,
               plots: bool | None = None, progress: bool = True, specs: dict[str, Any] | None = None,
               fmu_paths: dict | None = None, executor=None, prepare: bool = True,
               grid_names: list[str] | None = None, force: bool = False) -> dict:

@@ -370,8 +370,9 @@ def build_fmu(script: Path, out_dir: Path) -> Path:
     return fmu
 
 
-def build_all(out_dir: str | Path = "fmus", only=None) -> list[Path]:
-    """Build every slave script into ``out_dir``; ``only``: model names (script stems) to build."""
+def build_all(out_dir: str | Path, only=None) -> list[Path]:
+    """Build every slave script into ``out_dir`` (only the FMUs are written there); ``only``: model names
+    (script stems) to build."""
     with tempfile.TemporaryDirectory(prefix="fmuslaves_") as tmp:
         scripts = find_slave_scripts(Path(tmp) / "slaves")
         if only:

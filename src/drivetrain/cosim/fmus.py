@@ -1,9 +1,12 @@
 """FMUs on disk: build when missing or stale, the staleness stamp, extraction, model descriptions.
 
+- ``default_fmu_dir()``: where FMUs are built and kept unless a caller names a directory (never the current
+  folder): a source checkout's own ``fmus/``, else the user-level cache ``<cache_dir()>/fmus``.
 - ``ensure_fmus(models, fmu_dir)``: the paths of the models' FMUs; a missing FMU, or one built from other
   package sources than the current ones (``sources_hash``: SHA-256 of the sources that run inside FMUs,
-  recorded per model in ``<fmu_dir>/.sources-hash.json``), is (re)built with ``drivetrain.cosim.build``
-  under a file lock, and the stamp is written (``record_built``, the one writer of the stamp).
+  recorded per model in the directory's stamp), is (re)built with ``drivetrain.cosim.build`` under a file
+  lock, and the stamp is written (``record_built``, the one writer of the stamp). The stamp and the lock
+  live in the user-level cache (``stamp_path``), keyed by the directory: an FMU directory holds FMUs only.
 - ``extracted_dir(path)``: ``fmpy.extract`` once per FMU file and process, under a private root.
 - ``load_fmu_info(path)``: the model description as plain data (``FMUInfo``, ``VarInfo``).
 """
@@ -25,7 +28,7 @@ import fmu_runtime
 import gearcontact_fmu
 from drivetrain.cosim.bundle import fmu_files
 from drivetrain.errors import ConfigurationError
-from gearcontact_fmu.locks import file_lock
+from gearcontact_fmu.locks import cache_dir, file_lock
 
 PORT_VARS = ("phi", "w", "tau")
 PORT_UNITS = {"phi": "rad", "w": "rad/s", "tau": "N.m"}
@@ -167,13 +170,50 @@ def sources_hash() -> str:
     return _sources_hash_cached(tuple(stamp))
 
 
+#: the suffix of an FMU directory's stamp file (in the user-level cache, :func:`stamp_path`)
 STAMP_FILE = ".sources-hash.json"
 _CHECKED: dict[str, set] = {}     # fmu_dir -> models found fresh (or built) in this process
 
 
+def source_checkout() -> Path | None:
+    """The root of the source checkout the package runs from (``<root>/src/drivetrain`` beside
+    ``<root>/pyproject.toml``), or None for an installed package."""
+    root = Path(drivetrain.__file__).resolve().parents[2]
+    if (root / "pyproject.toml").is_file() and (root / "src" / "drivetrain").is_dir():
+        return root
+    return None
+
+
+def default_fmu_dir() -> Path:
+    """Where FMUs are built and kept unless a caller names a directory, wherever the code runs from: the
+    source checkout's ``fmus/`` when the package runs from one (``<root>/src/drivetrain`` beside
+    ``<root>/pyproject.toml``: the developer's, git-ignored, one per checkout so that two checkouts with
+    different sources never rebuild each other's FMUs), else ``<cache_dir()>/fmus`` (an installed package:
+    the user-level cache, like the contact maps and the native FMUs)."""
+    root = source_checkout()
+    return root / "fmus" if root is not None else cache_dir() / "fmus"
+
+
+def fmu_dir_or_default(fmu_dir: str | Path | None) -> Path:
+    """``fmu_dir`` as a path; None: :func:`default_fmu_dir`."""
+    return Path(fmu_dir) if fmu_dir is not None else default_fmu_dir()
+
+
+def stamp_path(fmu_dir: str | Path) -> Path:
+    """The staleness stamp of an FMU directory, in the user-level cache (its lock: the same path with
+    ``.lock``): keyed by the directory's absolute path, so that the directory itself holds only FMUs."""
+    d = Path(fmu_dir).resolve()
+    key = hashlib.sha256(str(d).encode()).hexdigest()[:16]
+    return cache_dir() / "fmu-stamps" / f"{d.name or 'root'}-{key}{STAMP_FILE}"
+
+
+def _lock_path(fmu_dir: Path) -> Path:
+    return stamp_path(fmu_dir).with_suffix(".lock")
+
+
 def _read_stamp(fmu_dir: Path) -> dict:
     try:
-        return json.loads((fmu_dir / STAMP_FILE).read_text())
+        return json.loads(stamp_path(fmu_dir).read_text())
     except (OSError, ValueError):
         return {}
 
@@ -187,10 +227,11 @@ def stale_models(models: Sequence[str], fmu_dir: Path | str) -> list[str]:
             if not (fmu_dir / f"{m}.fmu").is_file() or stamp.get(m) != current]
 
 
-def ensure_fmus(models: Sequence[str], fmu_dir: Path | str = "fmus", build: bool = True,
+def ensure_fmus(models: Sequence[str], fmu_dir: Path | str | None = None, build: bool = True,
                 log: Callable[[str], None] | None = None) -> dict[str, Path]:
-    """Paths of the FMUs of ``models``, building missing or stale ones with ``build_all``."""
-    fmu_dir = Path(fmu_dir)
+    """Paths of the FMUs of ``models``, building missing or stale ones with ``build_all`` (``fmu_dir`` None:
+    :func:`default_fmu_dir`)."""
+    fmu_dir = fmu_dir_or_default(fmu_dir)
     models = list(dict.fromkeys(models))
     if build:
         # checked once per process and directory: the package code this process runs (FMUs use the
@@ -199,7 +240,7 @@ def ensure_fmus(models: Sequence[str], fmu_dir: Path | str = "fmus", build: bool
         fresh = _CHECKED.setdefault(key, set())
         todo_check = [m for m in models if m not in fresh or not (fmu_dir / f"{m}.fmu").is_file()]
     if build and todo_check:
-        with file_lock(fmu_dir / ".build.lock"):
+        with file_lock(_lock_path(fmu_dir)):
             todo = stale_models(todo_check, fmu_dir)
             if todo:
                 current = sources_hash()
@@ -239,14 +280,17 @@ def _write_stamp(fmu_dir: Path, paths: Sequence[str | Path], current: str) -> No
         p = Path(p)
         if p.suffix == ".fmu" and p.is_file() and p.parent.resolve() == fmu_dir.resolve():
             stamp[p.stem] = current
-    tmp = fmu_dir / (STAMP_FILE + f".{os.getpid()}")
+    path = stamp_path(fmu_dir)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + f".{os.getpid()}")
     tmp.write_text(json.dumps(stamp, indent=1, sort_keys=True))
-    os.replace(tmp, fmu_dir / STAMP_FILE)
+    os.replace(tmp, path)
 
 
-def record_built(fmu_dir: str | Path, paths: Sequence[str | Path]) -> None:
-    """Record that these FMUs were just built from the current sources (staleness stamp)."""
-    fmu_dir = Path(fmu_dir)
+def record_built(fmu_dir: str | Path | None, paths: Sequence[str | Path]) -> None:
+    """Record that these FMUs were just built from the current sources (staleness stamp; ``fmu_dir`` None:
+    :func:`default_fmu_dir`)."""
+    fmu_dir = fmu_dir_or_default(fmu_dir)
     current = sources_hash()
-    with file_lock(fmu_dir / ".build.lock"):
+    with file_lock(_lock_path(fmu_dir)):
         _write_stamp(fmu_dir, paths, current)

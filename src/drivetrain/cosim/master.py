@@ -4,7 +4,7 @@ What it does, in order (see ``docs/MASTER.md``):
 
 1. **Resolve FMUs** for the models in the :class:`~drivetrain.system.SystemSpec` (``fmus/<Model>.fmu``).
    A missing FMU, or one built from other package sources than the current ones (a SHA-256 of the
-   package sources, recorded per model in ``<fmu_dir>/.sources-hash.json``), is (re)built with
+   package sources, recorded per model in the directory's stamp, ``fmus.stamp_path``), is (re)built with
    ``drivetrain.cosim.build.build_all`` under a file lock.
 2. **Check** everything from the model descriptions, before instantiating: every connection joins a
    spring-side port (inputs ``phi``, ``w``; output ``tau``) to an inertia-side port (input ``tau``;
@@ -48,7 +48,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from drivetrain.cosim.energy import energy_audit, energy_unavailable
-from drivetrain.cosim.fmus import FMUInfo, ensure_fmus, load_fmu_info
+from drivetrain.cosim.fmus import FMUInfo, ensure_fmus, fmu_dir_or_default, load_fmu_info
 from drivetrain.cosim.plan import ExchangePlan, check_comm_step, check_system, is_profile, split_ref
 from drivetrain.cosim.slaves import FmiCallbacks, FmiSlave, InprocSlave, Slave
 from drivetrain.cosim.stepper import CALLS, Stepper, load_stepper
@@ -550,20 +550,20 @@ class Master:
     Parameters
     ----------
     spec : the system (components, connections, comm_step).
-    fmu_dir : where ``<Model>.fmu`` live and are built on demand (default ``fmus``).
+    fmu_dir : where ``<Model>.fmu`` live and are built on demand (default None: ``fmus.default_fmu_dir()``).
     backend : ``"fmi"`` (fmpy FMU2Slave) or ``"inprocess"`` (the same slave classes without FMI).
     fmu_paths : explicit ``{model: path}``; these are used as they are (no building).
     build : build missing/stale FMUs with ``drivetrain.cosim.build.build_all``.
     """
 
-    def __init__(self, spec: SystemSpec, fmu_dir: str | Path = "fmus", backend: str = "fmi",
+    def __init__(self, spec: SystemSpec, fmu_dir: str | Path | None = None, backend: str = "fmi",
                  fmu_paths: dict[str, str | Path] | None = None, build: bool = True,
                  log: Callable[[str], None] | None = None):
         if backend not in ("fmi", "inprocess"):
             raise ConfigurationError(f"backend {backend!r}: expected 'fmi' or 'inprocess'")
         self.spec = spec
         self.backend = backend
-        self.fmu_dir = Path(fmu_dir)
+        self.fmu_dir = fmu_dir_or_default(fmu_dir)
         self.fmu_paths = {k: Path(v) for k, v in (fmu_paths or {}).items()}
         self.build = build
         self._log = log or (_LOG.warning)
@@ -719,7 +719,7 @@ class Master:
 
 
 def simulate(spec: SystemSpec, duration_s: float, output_rate_Hz: float, record: Sequence[str] = (), *,
-             backend: str = "fmi", fmu_dir: str | Path = "fmus", fmu_paths=None, build: bool = True,
+             backend: str = "fmi", fmu_dir: str | Path | None = None, fmu_paths=None, build: bool = True,
              progress: bool | None = None, anti_alias: str = "fir", keep_raw: bool = False,
              final: Sequence[str] = (), snapshots: Sequence[float] = ()) -> CosimResult:
     """One-call form of :class:`Master`."""

@@ -10,7 +10,7 @@ causality, start values), units and descriptions are read from the pythonfmu sla
 
 Unlike the native GearContact (its contact map is computed from the scene's gear, so it is built per
 contact map), these FMUs do not depend on the scene: every parameter stays settable. One build serves every
-scene; :func:`native_fmus` keeps them in a cache directory (default ``fmus/native``) under a name that holds
+scene; :func:`native_fmus` keeps them in a cache directory (default :func:`default_native_dir`) under a name that holds
 a hash of what the FMU is made of (the C sources, the generated variable table, the compiler call), so a
 second run finds them and a changed source builds anew. The GearContact there is keyed by the same kind of
 hash plus the parameters that shape its contact map (:func:`build_fixed`) and the contact-map code; the
@@ -50,8 +50,14 @@ MODEL_CODES = {"FlexibleShaft": 1, "UpperTransmission": 2, "MotorLoad": 3}
 NATIVE_DIR = Path(__file__).resolve().parent / "native"
 C_SOURCE = "line_native.c"
 BUILD_HEADER = "line_build.h"
-#: the default cache of native FMUs (drivetrain run --native)
-CACHE_DIR = Path("fmus") / "native"
+
+
+def default_native_dir() -> Path:
+    """The default cache of native FMUs (drivetrain run --native): ``native/`` in the default FMU
+    directory (:func:`drivetrain.cosim.fmus.default_fmu_dir`), never the current folder."""
+    from drivetrain.cosim.fmus import default_fmu_dir
+
+    return default_fmu_dir() / "native"
 
 
 def _probe_slave(model: str):
@@ -220,7 +226,7 @@ def build_native_line(model: str, out: str | Path | None = None, *, cc: str | No
                       log: Callable[[str], None] | None = None) -> Path:
     """Build the native FMU of ``model`` (FlexibleShaft | UpperTransmission | MotorLoad); returns its path.
     Refusals (another model, no compiler, a failed compile) raise NativeBuildError with every problem."""
-    out = Path(out) if out is not None else CACHE_DIR / f"{model}.fmu"
+    out = Path(out) if out is not None else default_native_dir() / f"{model}.fmu"
     if out.suffix != ".fmu":
         raise NativeBuildError([f"--out {out}: the FMU file name must end in .fmu"])
     cc = cc or os.environ.get("CC", "gcc")
@@ -320,7 +326,7 @@ def build_native_fmus(spec, out_dir: str | Path, *, log: Callable[[str], None] |
     return paths
 
 
-def native_fmus(spec, cache_dir: str | Path = CACHE_DIR, *,
+def native_fmus(spec, cache_dir: str | Path | None = None, *,
                 log: Callable[[str], None] | None = None) -> tuple[dict[str, Path], str | None]:
     """The native FMUs for a run of the system ``spec`` (a scene's SystemSpec), built once and kept in
     ``cache_dir`` under names holding their fingerprints (``<Model>-<hash>.fmu``; the gear's includes the
@@ -329,7 +335,7 @@ def native_fmus(spec, cache_dir: str | Path = CACHE_DIR, *,
     pythonfmu GearContact). ``log``: one line when something was built."""
     from drivetrain.cosim.native_gear import build_native_gear
 
-    cache_dir = Path(cache_dir)
+    cache_dir = Path(cache_dir) if cache_dir is not None else default_native_dir()
     cc = os.environ.get("CC", "gcc")
     builds = {}                    # model -> (path, build function or None when cached)
     for model in MODELS:

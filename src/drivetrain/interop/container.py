@@ -83,7 +83,7 @@ def container_outputs(scene, outputs: dict | None = None) -> dict[str, tuple[str
     return {name: tuple(ref.split(".", 1)) for name, ref in chosen.items()}
 
 
-def export_container(scene, path: str | Path, fmu_dir: str | Path = "fmus", spec: SystemSpec | None = None,
+def export_container(scene, path: str | Path, fmu_dir: str | Path | None = None, spec: SystemSpec | None = None,
                      outputs: dict | None = None, build: bool = True, log=None, native: bool = False) -> Path:
     """Write the scene's assembled system as one FMU container at ``path`` (module docstring). The
     embedded FMUs come from ``fmu_dir`` (built when missing or stale); ``outputs`` adds container

@@ -39,7 +39,7 @@ from xml.sax.saxutils import quoteattr
 
 from fmpy import read_model_description
 
-from drivetrain.cosim.fmus import ensure_fmus
+from drivetrain.cosim.fmus import ensure_fmus, fmu_dir_or_default
 from drivetrain.cosim.plan import is_profile
 from drivetrain.errors import ConfigurationError
 from drivetrain.models.fmishell import INPUT_PROFILES
@@ -264,7 +264,7 @@ def system_fmus(scene, fmu_dir, spec: SystemSpec | None = None, build: bool = Tr
         missing = toolchain_problems()
         if missing:
             raise ConfigurationError([f"native FMUs: {m}" for m in missing])
-        built, note = native_fmus(spec, Path(fmu_dir) / "native", log=log)
+        built, note = native_fmus(spec, fmu_dir_or_default(fmu_dir) / "native", log=log)
         if note and log:
             log(f"native FMUs: {note}")
         fmus = {m: p for m, p in built.items() if m in models}
@@ -275,7 +275,7 @@ def system_fmus(scene, fmu_dir, spec: SystemSpec | None = None, build: bool = Tr
     return spec, fmus, descriptions, system_problems(spec, descriptions)
 
 
-def export_ssp(scene, path: str | Path, fmu_dir: str | Path = "fmus", spec: SystemSpec | None = None,
+def export_ssp(scene, path: str | Path, fmu_dir: str | Path | None = None, spec: SystemSpec | None = None,
                build: bool = True, log=None, native: bool = False) -> Path:
     """Write the scene's assembled system as an SSP 1.0 archive at ``path`` (module docstring). The
     FMUs come from ``fmu_dir`` (built when missing or stale); ``native``: the compiled FMUs (a host then

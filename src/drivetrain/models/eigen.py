@@ -403,8 +403,34 @@ def cosim_radius(spec: SystemSpec, blocks: dict | None = None, H: float | None =
 # CLI
 # ------------------------------------------------------------------------------------------------
 
+def _mode_damping(f: np.ndarray, V: np.ndarray, ls, fd: np.ndarray, zeta: np.ndarray) -> list[tuple[float, bool]]:
+    """(damping ratio, overdamped) of every undamped mode. The modal projection ``x'Cx / (2 w x'Mx)`` says
+    whether the mode oscillates at all: >= 1 is overdamped (its state-space eigenvalues are real: no
+    frequency, no oscillation), reported with that ratio. An oscillating mode takes the exact ratio of
+    the complex eigenvalue nearest in frequency (each eigenvalue given to one mode only, within 25 %),
+    else the projection's."""
+    out: list[tuple[float, bool]] = []
+    free = list(range(len(fd)))
+    for m in range(len(f)):
+        x, w = V[:, m], 2.0 * math.pi * f[m]
+        z_proj = float(x @ ls.C @ x / (2.0 * w * (x @ ls.M @ x)))
+        if z_proj >= 1.0:
+            out.append((z_proj, True))
+            continue
+        near = [j for j in free if abs(fd[j] / f[m] - 1.0) < 0.25]
+        if near:
+            j = min(near, key=lambda j: abs(fd[j] / f[m] - 1.0))
+            free.remove(j)
+            out.append((float(zeta[j]), False))
+        else:
+            out.append((z_proj, False))
+    return out
+
+
 def describe_modes(spec: SystemSpec, n_modes: int = 10, gear: str = "auto") -> list[dict]:
-    """Frequencies with the dominant strain (which spring) and kinetic energy (which node) per mode."""
+    """Per mode: the undamped natural frequency ``f_Hz``, the damping ratio ``zeta`` of the damped system
+    (shafts', mesh's and cuts' damping; PI controller and losses excluded) and ``overdamped`` (zeta >= 1:
+    the mode does not oscillate), the dominant strain (which spring) and kinetic energy (which node)."""
     f, V, ls, fd, zeta = modes(spec, gear, controller=False, damped=True)
     K, M = ls.K, ls.M
     blocks = blocks_from_spec(spec, gear, operating=False)
@@ -435,19 +461,15 @@ def describe_modes(spec: SystemSpec, n_modes: int = 10, gear: str = "auto") -> l
         v[offs[ic] + pi.node] -= pi.ratio
         springs.append((f"cut {conn.spring}->{conn.inertia}", ps.k, v))
     out = []
+    damping = _mode_damping(f, V, ls, fd, zeta)
     for m in range(min(n_modes, len(f))):
         x = V[:, m]
         se = np.array([kk * (v @ x) ** 2 for _, kk, v in springs])
         ke = np.diag(M) * x ** 2
         si = int(np.argmax(se))
         ki = int(np.argmax(ke))
-        # damping ratio of the damped eigenvalue closest in |lambda| (overdamped modes have none)
-        zm = float("nan")
-        if len(fd):
-            j = int(np.argmin(np.abs(fd - f[m])))
-            if abs(fd[j] / f[m] - 1.0) < 0.25:
-                zm = float(zeta[j])
-        out.append({"mode": m + 1, "f_Hz": float(f[m]), "zeta": zm,
+        zm, over = damping[m]
+        out.append({"mode": m + 1, "f_Hz": float(f[m]), "zeta": zm, "overdamped": over,
                     "strain": springs[si][0], "strain_share": float(se[si] / se.sum()),
                     "kinetic": ls.labels[ki], "kinetic_share": float(ke[ki] / ke.sum())})
     return out

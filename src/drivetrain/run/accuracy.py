@@ -33,7 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from drivetrain.rig.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies, to_db
-from drivetrain.scene.load import with_overrides
+from drivetrain.scene.load import parse_override, with_overrides
+from drivetrain.scene.schema import default_of
 from gearcontact_fmu.mesh_model import PAPER_HEALTH
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -210,11 +211,22 @@ class Choice:
     loop_s_per_s: float
     why: str
     candidates: list = field(default_factory=list)
+    #: the studied setting the scene runs as it is (None: its numerics are none of the studied ones; then
+    #: ``own_loop_s_per_s`` is the studied defaults')
+    own_setting: str | None = None
+    own_loop_s_per_s: float | None = None
+
+    @property
+    def cost_vs_own(self) -> float | None:
+        """The chosen setting's cost over the scene's own setting's (> 1: the choice costs more)."""
+        own = self.own_loop_s_per_s
+        return self.loop_s_per_s / own if own else None
 
     def to_dict(self) -> dict:
         return {"setting": self.setting, "studied_scene": self.studied_scene, "tolerance_pct": self.tolerance_pct,
                 "overrides": list(self.overrides), "errors": self.errors, "loop_s_per_s": self.loop_s_per_s,
-                "why": self.why}
+                "own_setting": self.own_setting, "own_loop_s_per_s": self.own_loop_s_per_s,
+                "cost_vs_own": self.cost_vs_own, "why": self.why}
 
 
 def load_results(path: Path | str | None = None) -> dict:
@@ -263,6 +275,44 @@ def within(errors: dict, tolerance_pct: float) -> bool:
     return True
 
 
+def _setting_values(s: Setting) -> dict:
+    """{"section.key": value} of a setting's overrides."""
+    return {".".join(parts): value for parts, value in map(parse_override, s.overrides)}
+
+
+def _same(a, b) -> bool:
+    numbers = all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in (a, b))
+    if numbers:
+        return math.isclose(float(a), float(b), rel_tol=1e-9, abs_tol=0.0)
+    return a == b
+
+
+def own_setting(scene) -> str | None:
+    """The studied setting the scene runs as it is: the one whose values of every key a setting changes
+    (the others at their defaults) are the scene's; None when the scene's are none of them."""
+    raw = scene.to_dict()
+    values = {name: _setting_values(s) for name, s in SETTINGS.items()}
+    keys = sorted({k for v in values.values() for k in v})
+    current = {k: raw.get(k.split(".", 1)[0], {}).get(k.split(".", 1)[1], default_of(k)) for k in keys}
+    for name, v in values.items():
+        if all(_same(current[k], v.get(k, default_of(k))) for k in keys):
+            return name
+    return None
+
+
+def _cost_words(cost: float, own: str | None, own_cost: float | None, ref_cost: float | None) -> str:
+    """The chosen setting's cost against the scene's own setting (and the reference's, for scale)."""
+    words = f"{cost:.3g} s per simulated s"
+    if own_cost:
+        whose = (f"the scene's own setting ({own}: {own_cost:.3g} s per simulated s)" if own else
+                 f"the studied defaults ({own_cost:.3g} s per simulated s; the scene's own numerics were not studied)")
+        ratio = cost / own_cost
+        words += f", {ratio:.2g}x {whose}" + (": it costs more, for accuracy" if ratio > 1.0 else "")
+    if ref_cost:
+        words += f"; the converged reference costs {ref_cost:.3g}"
+    return words
+
+
 def choose(scene, tolerance_pct: float, results: dict | None = None) -> Choice:
     """The cheapest choosable setting whose measured error for the closest studied scene is within the
     tolerance (the reference, which always is, when nothing cheaper is)."""
@@ -278,11 +328,13 @@ def choose(scene, tolerance_pct: float, results: dict | None = None) -> Choice:
     cost, s = ok[0]
     r = rows[s]
     ref_cost = rows.get(REFERENCE, {}).get("loop_s_per_s")
+    own = own_setting(scene)
+    own_cost = (rows.get(own if own is not None else DEFAULT) or {}).get("loop_s_per_s")
     why = (f"cheapest of {len(ok)} settings within {tolerance_pct:g} % (mean torques, fluctuation) and "
            f"{tolerance_pct:g} dB (GMF, sidebands) for the studied scene {name}: {SETTINGS[s].what}; "
-           f"{cost:.3g} s per simulated s" + (f" ({cost / ref_cost:.2g}x the reference)" if ref_cost else ""))
+           + _cost_words(cost, own, own_cost, ref_cost))
     return Choice(s, name, float(tolerance_pct), SETTINGS[s].overrides, r.get("errors") or {}, cost, why,
-                  [x[1] for x in ok])
+                  [x[1] for x in ok], own, own_cost)
 
 
 def apply_tolerance(scene) -> tuple:
@@ -296,4 +348,4 @@ def apply_tolerance(scene) -> tuple:
 
 
 __all__ = ["SETTINGS", "STUDY_SCENES", "Setting", "compare", "choose", "apply_tolerance", "closest_scene",
-           "load_results", "within", "run_name", "study_overrides", "health_class", "RESULTS_FILE"]
+           "load_results", "within", "run_name", "study_overrides", "health_class", "RESULTS_FILE", "own_setting"]

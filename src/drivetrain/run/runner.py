@@ -89,6 +89,20 @@ class RunResult:
         """Samples of a channel after the settling time."""
         return self.signals[name][self.time >= self.scene.time.settle_s]
 
+    def to_dataframe(self, settled_only: bool = False):
+        """The channels as a pandas DataFrame: index ``time_s`` (the output sample times), one column per
+        channel (sensor name or "component.variable", as in ``signals``); every column's unit, and the
+        index's ("s"), in ``df.attrs["units"]`` (the units as the FMUs spell them, e.g. "N.m", "rad/s").
+        ``settled_only``: the samples after ``time.settle_s`` only."""
+        import pandas as pd
+
+        keep = self.time >= self.scene.time.settle_s if settled_only else slice(None)
+        df = pd.DataFrame({name: np.asarray(x)[keep] for name, x in self.signals.items()},
+                          index=pd.Index(np.asarray(self.time)[keep], name="time_s"))
+        df.attrs["units"] = {"time_s": "s", **{name: self.units.get(name, "") for name in self.signals}}
+        df.attrs["scene"] = self.scene.name
+        return df
+
 
 def stability_summary(res: CosimResult, spec: SystemSpec, time_s: float, energy_residual,
                       settle_s: float = 0.0) -> dict:
@@ -319,6 +333,7 @@ def _choose_backend(plan: RunPlan, fmu_dir, log) -> None:
         raise ConfigurationError([f"backend {plan.backend!r}: expected one of {', '.join(BACKENDS)}"])
     if plan.backend != "native":
         return
+    from drivetrain.cosim.fmus import fmu_dir_or_default
     from drivetrain.cosim.native_line import native_fmus, toolchain_problems
 
     missing = toolchain_problems()
@@ -326,7 +341,7 @@ def _choose_backend(plan: RunPlan, fmu_dir, log) -> None:
         note = f"{'; '.join(missing)}: the run uses the pythonfmu FMUs (backend fmi)"
         plan.backend = "fmi"
     else:
-        native, note = native_fmus(plan.spec, Path(fmu_dir) / "native", log=log)
+        native, note = native_fmus(plan.spec, fmu_dir_or_default(fmu_dir) / "native", log=log)
         plan.fmu_paths = {**native, **(plan.fmu_paths or {})}
     if note:
         plan.warnings.append(f"backend native: {note}")
@@ -516,7 +531,7 @@ def build_summary(plan: RunPlan, res: CosimResult, failed: CosimError | None, ch
 
 
 def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "fmi", progress: bool = True,
-              *, fmu_dir: str | Path = "fmus", spec: SystemSpec | None = None,
+              *, fmu_dir: str | Path | None = None, spec: SystemSpec | None = None,
               fmu_paths: dict | None = None, plots: bool | None = None, build: bool = True,
               log=None, force: bool = False) -> RunResult:
     """Simulate a validated scene and (if out_dir) write signals.h5, summary.json, plots and CSV.

@@ -25,6 +25,11 @@ rendered from ``fmu_runtime.slave_template`` into a temporary directory, one per
    - ``canGetAndSetFMUstate="true"`` where the slave class says ``can_get_and_set_fmu_state = True``
      (it then implements ``_get_fmu_state``/``_set_fmu_state``; pythonfmu keeps the snapshot object).
 
+3. The FMI wrapper (``drivetrain.cosim.fmi_wrapper``): a small C binary compiled from the final
+   modelDescription.xml becomes ``binaries/linux64/<id>.so`` and loads pythonfmu's export library, renamed
+   next to it; it refuses with fmi2Error what FMI calls an error and never lets a host reach a released slave.
+   Without a C compiler the FMU keeps the bare export library, with a warning.
+
 Slave module names must be unique across FMUs (pythonfmu issue #228); build_all checks it.
 Built FMUs are outputs, not sources (``fmus/*.fmu`` is git-ignored).
 """
@@ -35,6 +40,7 @@ import re
 import shutil
 import sys
 import tempfile
+import warnings
 import zipfile
 from pathlib import Path
 from xml.etree import ElementTree as ET
@@ -297,6 +303,14 @@ def build_fmu(script: Path, out_dir: Path) -> Path:
     postprocess_model_description(fmu, getattr(cls, "units", None), getattr(cls, "output_dependencies", None),
                                   model=cls.__name__, description=getattr(cls, "description", ""),
                                   variable_descriptions=getattr(cls, "variable_descriptions", None))
+    # last, from the final modelDescription.xml: the FMI wrapper in front of pythonfmu's export library
+    # (drivetrain.cosim.fmi_wrapper; without a C compiler the FMU keeps the bare library, and says so here)
+    from drivetrain.cosim.fmi_wrapper import wrap_pythonfmu_binary
+
+    why = wrap_pythonfmu_binary(fmu)
+    if why:
+        warnings.warn(f"{fmu.name}: built WITHOUT the FMI wrapper ({why}): pythonfmu's export library answers a "
+                      "refused call with fmi2Fatal and a host that calls on crashes (docs/FMU.md)", stacklevel=2)
     return fmu
 
 

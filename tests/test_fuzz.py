@@ -338,17 +338,14 @@ def line_fmus(tmp_path_factory):
 def test_fuzz_fmi_call_sequences_pythonfmu(line_fmus, model, request):
     """Random FMI call sequences (hostile values, calls out of order) on the pythonfmu FMUs: the host survives
     every one. Value references are of the call's type, and a sequence ends at its first refused call (as a
-    host must after fmi2Fatal, which is what pythonfmu answers for a refusal): see the next test."""
+    host would after fmi2Fatal): the next test calls on.""" 
     _fmi_fuzz(line_fmus / f"{model}.fmu", _n(40, request), SEED + 3, unknown_refs=False, go_on=False)
 
 
-@pytest.mark.xfail(strict=True, reason="issue 30 (open): a refused call (an unknown or mistyped value reference, a "
-                                       "fixed parameter after initialization) raises in the slave, pythonfmu's export "
-                                       "library answers fmi2Fatal and destroys the instance, and a host that calls it "
-                                       "again crashes")
 def test_fuzz_fmi_unknown_references_pythonfmu(line_fmus):
-    """Sequences that call on after a refusal crash the pythonfmu FMUs (found by this fuzz pass; the native
-    builds survive them, below). Kept on record until issue 30 wraps or replaces the export library."""
+    """Sequences that call on after a refusal, with unknown and mistyped value references: the pythonfmu FMUs
+    crashed here until issue 30 (pythonfmu answered fmi2Fatal and released the slave; the next call crashed);
+    their FMI wrapper now refuses with fmi2Error and the host goes on (as with the native builds, below)."""
     _fmi_fuzz(line_fmus / "FlexibleShaft.fmu", 40, SEED + 3, unknown_refs=True, go_on=True)
 
 

@@ -28,6 +28,7 @@ import zipfile
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
+from drivetrain.cosim.fmi_headers import copy_fmi_headers
 from fmu_runtime.guard import EXPORT_LIBRARY
 
 WRAPPER_SOURCE = Path(__file__).resolve().parent / "native" / "pythonfmu_wrapper.c"
@@ -109,8 +110,6 @@ def wrap_pythonfmu_binary(fmu: str | Path, cc: str | None = None) -> str | None:
     """Put the FMI wrapper in front of the export library of the pythonfmu FMU ``fmu`` (in place). Returns
     None when done, else why the FMU keeps pythonfmu's bare export library (no compiler, another platform, a
     compile error)."""
-    from drivetrain.cosim.native_gear import fmi_header_dir
-
     fmu = Path(fmu)
     cc = cc or os.environ.get("CC", "gcc")
     problems = toolchain_problems(cc)
@@ -127,8 +126,7 @@ def wrap_pythonfmu_binary(fmu: str | Path, cc: str | None = None) -> str | None:
         return f"{fmu.name} has no {binary}"
     with tempfile.TemporaryDirectory(prefix="fmi_wrapper_") as tmp:
         tmp = Path(tmp)
-        for name in ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h"):
-            shutil.copy2(fmi_header_dir() / name, tmp / name)
+        copy_fmi_headers(tmp)
         (tmp / WRAPPER_HEADER).write_text(wrapper_table(md))
         out = tmp / "wrapper.so"
         cmd = compile_command(tmp, out, cc)

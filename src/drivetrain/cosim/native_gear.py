@@ -40,6 +40,7 @@ import numpy as np
 
 import gearcontact_fmu
 from gearcontact_fmu.params import GEAR_MODEL
+from drivetrain.cosim.fmi_headers import FMI_HEADERS, copy_fmi_headers
 from drivetrain.errors import NativeBuildError
 
 NATIVE_DIR = Path(gearcontact_fmu.__file__).resolve().parent / "native"
@@ -51,7 +52,6 @@ SHARED_HEADERS = ("coupling_correction.h", "fmi2_shell.h")
 BUILD_HEADER = "gearcontact_build.h"
 VAR_HEADER = "gearcontact_var.h"          #: GcVar (package data, shipped in sources/)
 VALUES_SOURCE = "gearcontact_values.c"     #: generated per build: GC_GUID and GC_VARS
-FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 MAP_RESOURCE = "contact_map.bin"
 
 #: parameters the C model reads at initialization: settable as in the pythonfmu GearContact
@@ -389,45 +389,11 @@ def _code_object(src: Path, cc: str, log) -> Path:
     return obj
 
 
-#: fmpy's fmi2Functions.h names the functions without a prefix whatever FMI2_FUNCTION_PREFIX says; the standard
-#: header's rule (FMI 2.0.x) is put back, so that a source FMU compiled with -DFMI2_FUNCTION_PREFIX=Model_ exports
-#: Model_fmi2Instantiate ... and several can be linked into one binary
-_NO_PREFIX = "#define fmi2FullName(name) name\n"
-_PREFIX_RULE = ("#ifdef FMI2_FUNCTION_PREFIX\n"
-                "#define fmi2Paste(a,b)     a ## b\n"
-                "#define fmi2PasteB(a,b)    fmi2Paste(a,b)\n"
-                "#define fmi2FullName(name) fmi2PasteB(FMI2_FUNCTION_PREFIX, name)\n"
-                "#else\n"
-                "#define fmi2FullName(name) name\n"
-                "#endif\n")
-
-
-def fmi2_functions_header() -> str:
-    """fmi2Functions.h as shipped in sources/: fmpy's copy with FMI2_FUNCTION_PREFIX honoured."""
-    text = (fmi_header_dir() / "fmi2Functions.h").read_text()
-    if "FMI2_FUNCTION_PREFIX, name" in text:
-        return text
-    if _NO_PREFIX not in text:
-        raise NativeBuildError(["fmpy's fmi2Functions.h has no fmi2FullName definition to make prefix-aware"])
-    return text.replace(_NO_PREFIX, _PREFIX_RULE, 1)
-
-
 def copy_shared_sources(src: Path) -> None:
     """Into a native FMU's sources/: the shared headers and the FMI 2.0 headers."""
     for name in SHARED_HEADERS:
         shutil.copy2(NATIVE_DIR / name, src / name)
-    for name in FMI_HEADERS:
-        if name == "fmi2Functions.h":
-            (src / name).write_text(fmi2_functions_header())
-        else:
-            shutil.copy2(fmi_header_dir() / name, src / name)
-
-
-def fmi_header_dir() -> Path:
-    """fmpy's copy of the FMI 2.0 headers."""
-    import fmpy
-
-    return Path(fmpy.__file__).resolve().parent / "c-code"
+    copy_fmi_headers(src)
 
 
 def compile_command(src_dir: Path, out: Path, cc: str = "gcc", source: str = C_SOURCE, inputs=None) -> list[str]:

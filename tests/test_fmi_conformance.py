@@ -343,29 +343,68 @@ def test_pythonfmu_fmus_are_wrapped(fmus):
             assert "_fmi_wrapper_failed" not in z.read("modelDescription.xml").decode()
 
 
-def test_two_source_fmus_link_into_one_binary(fmus, tmp_path):
-    """FMI2_FUNCTION_PREFIX is honoured by the shipped sources: a native gear and a native line, each compiled with
-    its own prefix, link into one shared library whose two FMUs both run."""
+def test_two_source_fmus_link_into_one_binary_and_both_run(fmus, tmp_path):
+    """FMI2_FUNCTION_PREFIX is honoured by the shipped sources: a native gear and a native shaft, each compiled with
+    its own prefix, link into one shared library (nothing unprefixed is exported); both FMUs are instantiated
+    from it and step (the gear reads its map from its own resources)."""
     import ctypes
+    import pathlib
     import zipfile
 
-    objs = []
+    from fmpy import read_model_description
+
+    from drivetrain.cosim.slaves import FmiCallbacks
+
+    objs, units = [], {}
     for m, prefix in (("GearContact", "Gear_"), ("FlexibleShaft", "Shaft_")):
-        src = tmp_path / m
+        root = tmp_path / m
         with zipfile.ZipFile(fmus[("native", m)]) as z:
-            z.extractall(src, [n for n in z.namelist() if n.startswith("sources/")])
-        for c in sorted((src / "sources").glob("*.c")):
+            z.extractall(root)
+        units[prefix] = (root, read_model_description(str(fmus[("native", m)])))
+        for c in sorted((root / "sources").glob("*.c")):
             obj = tmp_path / f"{m}_{c.stem}.o"
-            subprocess.run(["gcc", "-O2", "-fPIC", "-std=c99", "-fvisibility=hidden", f"-DFMI2_FUNCTION_PREFIX={prefix}",
-                            f"-I{src / 'sources'}", "-c", str(c), "-o", str(obj)], check=True)
+            subprocess.run(["gcc", "-O2", "-fPIC", "-std=c99", "-ffp-contract=off", "-fvisibility=hidden",
+                            f"-DFMI2_FUNCTION_PREFIX={prefix}", f"-I{root / 'sources'}", "-c", str(c), "-o", str(obj)],
+                           check=True)
             objs.append(str(obj))
     lib = tmp_path / "both.so"
     subprocess.run(["gcc", "-shared", *objs, "-o", str(lib), "-lm"], check=True)
+    exported = subprocess.run(["nm", "-D", "--defined-only", str(lib)], capture_output=True, text=True).stdout
+    names = [ln.split()[-1] for ln in exported.splitlines() if ln.strip()]
+    assert names and all(n.startswith(("Gear_", "Shaft_")) for n in names if "fmi2" in n or "GC_" in n), names
+    assert not any(n.startswith("fmi2") for n in names)
     dll = ctypes.CDLL(str(lib))
-    for prefix in ("Gear_", "Shaft_"):
-        f = getattr(dll, f"{prefix}fmi2GetVersion")
-        f.restype = ctypes.c_char_p
-        assert f() == b"2.0"
-        assert hasattr(dll, f"{prefix}fmi2DoStep") and hasattr(dll, f"{prefix}fmi2Instantiate")
-    with pytest.raises(AttributeError):
-        dll.fmi2Instantiate                      # nothing unprefixed: no clash with a third FMU
+    cb = FmiCallbacks()
+    for prefix, (root, md) in units.items():
+        fn = lambda name: getattr(dll, prefix + name)  # noqa: E731
+        fn("fmi2Instantiate").restype = ctypes.c_void_p
+        c = fn("fmi2Instantiate")(prefix.encode(), 1, md.guid.encode(), pathlib.Path(root, "resources").as_uri().encode(),
+                                  ctypes.byref(cb.struct), 0, 0)
+        assert c, prefix
+        c = ctypes.c_void_p(c)
+        fn("fmi2DoStep").argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_double, ctypes.c_int]
+        fn("fmi2SetupExperiment").argtypes = [ctypes.c_void_p, ctypes.c_int, ctypes.c_double, ctypes.c_double,
+                                              ctypes.c_int, ctypes.c_double]
+        assert fn("fmi2SetupExperiment")(c, 0, 0.0, 0.0, 0, 0.0) == OK
+        assert fn("fmi2EnterInitializationMode")(c) == OK and fn("fmi2ExitInitializationMode")(c) == OK
+        assert [fn("fmi2DoStep")(c, k * 1e-4, 1e-4, 1) for k in range(3)] == [OK] * 3, prefix
+        out = next(v.valueReference for v in md.modelVariables if v.causality == "output" and v.type == "Real")
+        vr, val = (ctypes.c_uint * 1)(out), (ctypes.c_double * 1)()
+        assert fn("fmi2GetReal")(c, vr, ctypes.c_size_t(1), val) == OK
+        assert fn("fmi2Terminate")(c) == OK
+        fn("fmi2FreeInstance")(c)
+
+
+def test_without_a_compiler_the_fmu_keeps_pythonfmus_library_and_the_build_warns(tmp_path, monkeypatch):
+    """No C compiler at build time: the FMU is built with pythonfmu's bare export library and a warning says so
+    (docs/FMU.md, Build)."""
+    import zipfile
+
+    from drivetrain.cosim.build import build_all
+
+    monkeypatch.setenv("CC", "no-such-cc-here")
+    with pytest.warns(UserWarning, match="built WITHOUT the FMI wrapper.*no-such-cc-here"):
+        (fmu,) = build_all(tmp_path, only=["MotorLoad"])
+    with zipfile.ZipFile(fmu) as z:
+        assert "binaries/linux64/MotorLoad.so" in z.namelist()
+        assert not any("pythonfmu-export" in n for n in z.namelist())

@@ -292,7 +292,19 @@ FMI_SCRIPT = textwrap.dedent(r'''
         "getString": lambda f: call(f, "getString", [vr("String")]),
         "terminate": lambda f: call(f, "terminate"),
         "reset": lambda f: call(f, "reset"),
+        # FMU states of the instance: taken, restored, serialized (freed at the end of the sequence)
+        "getState": lambda f: get_state(f),
+        "setState": lambda f: call(f, "setFMUstate", rng.choice(STATES)) if STATES else "n/a",
+        "serialize": lambda f: call(f, "serializeFMUstate", rng.choice(STATES)) if STATES else "n/a",
     }
+    STATES = []
+
+    def get_state(f):
+        try:
+            STATES.append(f.getFMUstate())
+            return "ok"
+        except Exception:
+            return "refused"
     NAMES = sorted(OPS)
     for k in range(n):
         f = FMU2Slave(guid=md.guid, unzipDirectory=DIR, modelIdentifier=md.coSimulation.modelIdentifier,
@@ -308,7 +320,10 @@ FMI_SCRIPT = textwrap.dedent(r'''
             if outcomes[-1][1] == "refused" and not go_on:
                 break
         if go_on or outcomes[-1][1] != "refused":
+            for st in STATES:
+                call(f, "freeFMUstate", st)
             f.fmi2FreeInstance(f.component)
+        STATES.clear()
         print(json.dumps({"sequence": k, "ops": outcomes}), flush=True)
     print(json.dumps({"done": n}), flush=True)
 ''')

@@ -10,7 +10,7 @@
  * Reference FMUs. What it refuses, it refuses with fmi2Error and a logged reason, in the words of the native
  * builds' shell (gearcontact_fmu/native/fmi2_shell.h):
  *   - unknown or mistyped value references, setting an output or a constant, a fixed parameter after
- *     initialization, a parameter that is not a finite number, a value outside the declared min/max:
+ *     initialization, a Real parameter that is not a finite number, an Integer outside its declared min/max:
  *     the instance enters its error state (the slave is told through the hidden String variable
  *     WRAPPER_VR_FAIL, so that its outputs become NaN and its "error" output says why);
  *   - calls in the wrong state (fmi2SetupExperiment / fmi2EnterInitializationMode not right after
@@ -507,7 +507,7 @@ fmi2Status fmi2SetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t
                  "is now in its error state", WRAPPER_MODEL, v->name, pyfloat(value[i]).s);
             return fmi2Error;
         }
-        if (!in_range(c, v, "fmi2SetReal", value[i], pyfloat(value[i]).s)) return fmi2Error;
+        /* a Real outside its declared min/max is left to the model (its own message, as in the native builds) */
     }
     return inner_status(c, "fmi2SetReal", F.SetReal(c->inner, vr, nvr, value));
 }

@@ -136,8 +136,8 @@ SCRIPT = textwrap.dedent(r'''
 
 #: host errors the native builds survive (run by tests/test_native_*.py, each in a subprocess of its own):
 #: a wrong GUID is refused at fmi2Instantiate (fmpy raises), a second fmi2FreeInstance of one instance is
-#: harmless. The pythonfmu FMUs cannot refuse either: pythonfmu's export library neither passes the GUID to
-#: the slave nor guards its instance against a second free (docs/FMU.md says so).
+#: harmless. The pythonfmu FMUs do the same since issue 30 (their FMI wrapper checks the GUID and keeps the list
+#: of live instances; pythonfmu's export library does neither): tests/test_fmi_conformance.py.
 LIFECYCLE = textwrap.dedent(r'''
     import json, sys, warnings
     warnings.simplefilter("ignore")
@@ -208,20 +208,17 @@ EXPECT = {
     "integer_beyond_max": (["refused", "ok", "ok", "refused"], "outside its declared range"),
     "hostile_mesh_path": (["ok", "ok", "ok", "ok", "ok", "refused"], "/nonexistent/%n%s.obj: no such mesh file"),
     "step_before_init": (["refused"], "before fmi2ExitInitializationMode"),
-    "nan_parameter": (["ok", "ok", "ok", "refused"], "parameters that are not finite numbers"),
-    "stop_before_start": (["ok", "ok", "ok", "refused"], "stop time 0.5 s before the start time 1.0 s"),
-    "nan_start_time": (["ok", "ok", "ok", "refused"], "the start time must be a finite time"),
+    "nan_parameter": (["refused", "ok", "ok", "refused"], "parameters that are not finite numbers"),
+    "stop_before_start": (["refused", "ok", "ok", "refused"], "stop time 0.5 s before the start time 1.0 s"),
+    "nan_start_time": (["refused", "ok", "ok", "refused"], "the start time must be a finite time"),
     "step_after_terminate": (["ok", "refused"], "after fmi2Terminate"),
     "reset_and_run_again": (["ok"] * 6, None),
     "normal_steps_still_work": (["ok"] * 3, None),
 }
-#: where the native builds answer otherwise, and better: the call itself is refused with fmi2Error (the
-#: pythonfmu export library answers fmi2Fatal for an exception, so the pythonfmu FMUs accept the call, enter
-#: their error state and refuse the next step); tests/test_native_*.py use these
+#: where the native builds answer otherwise; tests/test_native_*.py use these. (nan_parameter, stop_before_start
+#: and nan_start_time were here until issue 30: the pythonfmu FMUs accepted the call and refused the next step;
+#: their FMI wrapper now refuses the call itself with fmi2Error, as the native builds do.)
 NATIVE_EXPECT = {
-    "nan_parameter": (["refused", "ok", "ok", "refused"], "parameters that are not finite numbers"),
-    "stop_before_start": (["refused", "ok", "ok", "refused"], "stop time 0.5 s before the start time 1.0 s"),
-    "nan_start_time": (["refused", "ok", "ok", "refused"], "the start time must be a finite time"),
     # the native gear is fidelity table with the built meshes: fidelity, health and mesh files are fixed by the build
     "hostile_mesh_path": (["refused", "refused", "refused", "ok", "ok", "refused"], "this FMU was built with"),
 }

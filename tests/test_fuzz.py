@@ -292,7 +292,19 @@ FMI_SCRIPT = textwrap.dedent(r'''
         "getString": lambda f: call(f, "getString", [vr("String")]),
         "terminate": lambda f: call(f, "terminate"),
         "reset": lambda f: call(f, "reset"),
+        # FMU states of the instance: taken, restored, serialized (freed at the end of the sequence)
+        "getState": lambda f: get_state(f),
+        "setState": lambda f: call(f, "setFMUstate", rng.choice(STATES)) if STATES else "n/a",
+        "serialize": lambda f: call(f, "serializeFMUstate", rng.choice(STATES)) if STATES else "n/a",
     }
+    STATES = []
+
+    def get_state(f):
+        try:
+            STATES.append(f.getFMUstate())
+            return "ok"
+        except Exception:
+            return "refused"
     NAMES = sorted(OPS)
     for k in range(n):
         f = FMU2Slave(guid=md.guid, unzipDirectory=DIR, modelIdentifier=md.coSimulation.modelIdentifier,
@@ -308,7 +320,10 @@ FMI_SCRIPT = textwrap.dedent(r'''
             if outcomes[-1][1] == "refused" and not go_on:
                 break
         if go_on or outcomes[-1][1] != "refused":
+            for st in STATES:
+                call(f, "freeFMUstate", st)
             f.fmi2FreeInstance(f.component)
+        STATES.clear()
         print(json.dumps({"sequence": k, "ops": outcomes}), flush=True)
     print(json.dumps({"done": n}), flush=True)
 ''')
@@ -338,17 +353,14 @@ def line_fmus(tmp_path_factory):
 def test_fuzz_fmi_call_sequences_pythonfmu(line_fmus, model, request):
     """Random FMI call sequences (hostile values, calls out of order) on the pythonfmu FMUs: the host survives
     every one. Value references are of the call's type, and a sequence ends at its first refused call (as a
-    host must after fmi2Fatal, which is what pythonfmu answers for a refusal): see the next test."""
+    host would after fmi2Fatal): the next test calls on.""" 
     _fmi_fuzz(line_fmus / f"{model}.fmu", _n(40, request), SEED + 3, unknown_refs=False, go_on=False)
 
 
-@pytest.mark.xfail(strict=True, reason="issue 30 (open): a refused call (an unknown or mistyped value reference, a "
-                                       "fixed parameter after initialization) raises in the slave, pythonfmu's export "
-                                       "library answers fmi2Fatal and destroys the instance, and a host that calls it "
-                                       "again crashes")
 def test_fuzz_fmi_unknown_references_pythonfmu(line_fmus):
-    """Sequences that call on after a refusal crash the pythonfmu FMUs (found by this fuzz pass; the native
-    builds survive them, below). Kept on record until issue 30 wraps or replaces the export library."""
+    """Sequences that call on after a refusal, with unknown and mistyped value references: the pythonfmu FMUs
+    crashed here until issue 30 (pythonfmu answered fmi2Fatal and released the slave; the next call crashed);
+    their FMI wrapper now refuses with fmi2Error and the host goes on (as with the native builds, below)."""
     _fmi_fuzz(line_fmus / "FlexibleShaft.fmu", 40, SEED + 3, unknown_refs=True, go_on=True)
 
 
@@ -376,6 +388,6 @@ def test_fuzz_fmi_call_sequences_gear(tmp_path):
     from drivetrain.cosim.native_line import toolchain_problems
 
     ensure_fmus(["GearContact"], tmp_path)
-    _fmi_fuzz(tmp_path / "GearContact.fmu", 200, SEED + 5, unknown_refs=False, go_on=False)
+    _fmi_fuzz(tmp_path / "GearContact.fmu", 200, SEED + 5)      # calls on after refusals (issue 30: the wrapper)
     if not toolchain_problems():
         _fmi_fuzz(build_native_gear({}, tmp_path / "native" / "GearContact.fmu"), 400, SEED + 6)

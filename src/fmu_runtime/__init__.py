@@ -2,7 +2,8 @@
 
 - ``guard``: the work-around for pythonfmu 0.7.0's exit-time double release, the FMI logger's text
   escaping (user text is never a printf format) and the value-reference guard (FMI 2.0 error
-  semantics for unknown value references).
+  semantics for unknown value references), and the slave's side of the FMI wrapper built in front of
+  pythonfmu's export library (``EXPORT_LIBRARY``, the hidden ``FAIL_CHANNEL``; drivetrain.cosim.fmi_wrapper).
 - ``slave_template``: the one template the drivetrain component slaves (FlexibleShaft,
   UpperTransmission, MotorLoad) are generated from at build time (``drivetrain.cosim.build``).
 - :func:`check_runtime`: the first thing a slave script does after finding its packages: it names

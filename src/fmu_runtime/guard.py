@@ -40,6 +40,14 @@ _USE_COUNT_OFFSET = 8                # _Sp_counted_base: vptr, int _M_use_count,
 
 _GUARDED: dict[str, bool] = {}
 
+#: the file name of pythonfmu's export library inside an FMU whose binary is the FMI wrapper
+#: (drivetrain.cosim.shim: ``binaries/linux64/<modelIdentifier>.so`` is then the wrapper, which loads this)
+EXPORT_LIBRARY = "{}.pythonfmu-export.so"
+#: the hidden String variable through which the wrapper puts the slave into its error state when it refused
+#: a call itself (registered last, only in an instance the export library made: its value reference is the
+#: number of declared variables; not in modelDescription.xml)
+FAIL_CHANNEL = "_fmi_wrapper_failed"
+
 
 def _mapping_base(path: Path) -> int | None:
     real = os.path.realpath(path)
@@ -58,7 +66,10 @@ def pin_export_library_state(slave_kwargs: dict, model_identifier: str) -> bool:
         return False
     if os.environ.get("BEVEL_FMU_NO_EXIT_GUARD", "").strip() not in ("", "0"):
         return False
-    lib_path = Path(str(slave_kwargs.get("resources", ""))).parent / "binaries" / "linux64" / f"{model_identifier}.so"
+    lib_dir = Path(str(slave_kwargs.get("resources", ""))).parent / "binaries" / "linux64"
+    lib_path = lib_dir / EXPORT_LIBRARY.format(model_identifier)       # behind the FMI wrapper
+    if not lib_path.is_file():
+        lib_path = lib_dir / f"{model_identifier}.so"                   # an FMU built without the wrapper
     key = os.path.realpath(lib_path)
     if key in _GUARDED:
         return _GUARDED[key]
@@ -89,10 +100,11 @@ def fmi_text(text: str) -> str:
     return str(text).replace("%", "%%")
 
 
-def enter_error_state(slave, msg: str) -> None:
+def enter_error_state(slave, msg: str, log: bool = True) -> None:
     """The one way an instance fails: later steps are refused (``slave._failed``), its ``error`` output
     says why, the outputs named in ``slave.NAN_ON_FAILURE`` become NaN (a host that goes on passes NaN,
-    not a stale, finite value), and the message is logged with status error."""
+    not a stale, finite value), and the message is logged with status error (``log``; the FMI wrapper
+    logs the calls it refuses itself)."""
     import math
 
     from pythonfmu.enums import Fmi2Status
@@ -101,7 +113,8 @@ def enter_error_state(slave, msg: str) -> None:
     slave.error = msg
     for name in getattr(slave, "NAN_ON_FAILURE", ()):
         setattr(slave, name, math.nan)
-    slave.log(fmi_text(msg), Fmi2Status.error)
+    if log:
+        slave.log(fmi_text(msg), Fmi2Status.error)
 
 
 #: the shell's own attributes an FMU state holds (besides the variables and the model)
@@ -122,13 +135,38 @@ _ACCESSORS = {"get_real": "Real", "set_real": "Real", "get_integer": "Integer", 
               "get_boolean": "Boolean", "set_boolean": "Boolean", "get_string": "String", "set_string": "String"}
 
 
-def guard_value_references(slave, model: str) -> None:
+def _register_fail_channel(slave) -> None:
+    """The hidden String variable :data:`FAIL_CHANNEL` (see there): setting a message enters the error state
+    without a second log line; "" does nothing (an FMU state restores the error state itself)."""
+    import weakref
+
+    from pythonfmu.enums import Fmi2Causality, Fmi2Variability
+    from pythonfmu.variables import String
+
+    ref = weakref.ref(slave)
+
+    def setter(msg):
+        s = ref()
+        if msg and s is not None and getattr(s, "_failed", None) is None:
+            enter_error_state(s, str(msg), log=False)
+
+    slave.register_variable(String(FAIL_CHANNEL, causality=Fmi2Causality.parameter,
+                                   variability=Fmi2Variability.tunable, getter=lambda: "", setter=setter))
+
+
+def guard_value_references(slave, model: str, exported: bool = False) -> None:
     """Check every value reference a host passes to ``fmi2Get*``/``fmi2Set*`` before pythonfmu looks it
     up. An unknown reference (or one of another type) is logged with the references and what exists, the
     instance enters its error state (``slave._failed``: every later ``doStep`` is refused) and the call
     fails. Without this, pythonfmu answered fmi2Fatal with only "PyObject_CallMethod" in the log and
-    then accepted the next doStep as if nothing had happened."""
+    then accepted the next doStep as if nothing had happened.
+    ``exported``: the export library made this instance (its ``logger`` keyword): the hidden
+    :data:`FAIL_CHANNEL` of the FMI wrapper is registered (last: its value reference is the number of declared
+    variables)."""
     import weakref
+
+    if exported:
+        _register_fail_channel(slave)
 
     # the wrappers live on the instance: they hold it weakly and call the class's function, so that the
     # instance is not kept alive by a reference cycle (freed by the garbage collector at some later time,

@@ -27,6 +27,11 @@ rendered from ``fmu_runtime.slave_template`` into a temporary directory, one per
 3. Add what the FMU ships for a user (``drivetrain.cosim.fmu_docs``, from the final modelDescription):
    ``documentation/index.html``, the example input, the reference plot, ``resources/requirements.txt``.
 
+4. The FMI wrapper (``drivetrain.cosim.fmi_wrapper``): a small C binary compiled from the final
+   modelDescription.xml becomes ``binaries/linux64/<id>.so`` and loads pythonfmu's export library, renamed
+   next to it; it refuses with fmi2Error what FMI calls an error and never lets a host reach a released slave.
+   Without a C compiler the FMU keeps the bare export library, with a warning.
+
 Slave module names must be unique across FMUs (pythonfmu issue #228); build_all checks it.
 Built FMUs are outputs, not sources (``fmus/*.fmu`` is git-ignored).
 """
@@ -37,6 +42,7 @@ import re
 import shutil
 import sys
 import tempfile
+import warnings
 import zipfile
 from pathlib import Path
 from xml.etree import ElementTree as ET
@@ -367,6 +373,14 @@ def build_fmu(script: Path, out_dir: Path) -> Path:
                                   variable_descriptions=getattr(cls, "variable_descriptions", None),
                                   bounds=getattr(cls, "bounds", None),
                                   initial_dependencies=declared_initial_dependencies(cls))
+    # last, from the final modelDescription.xml: the FMI wrapper in front of pythonfmu's export library
+    # (drivetrain.cosim.fmi_wrapper; without a C compiler the FMU keeps the bare library, and says so here)
+    from drivetrain.cosim.fmi_wrapper import wrap_pythonfmu_binary
+
+    why = wrap_pythonfmu_binary(fmu)
+    if why:
+        warnings.warn(f"{fmu.name}: built WITHOUT the FMI wrapper ({why}): pythonfmu's export library answers a "
+                      "refused call with fmi2Fatal and a host that calls on crashes (docs/FMU.md)", stacklevel=2)
     return fmu
 
 

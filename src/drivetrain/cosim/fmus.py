@@ -157,6 +157,9 @@ def _sources_hash_cached(stamp: tuple) -> str:
             h.update(f"{pkg}/{rel.as_posix()}\0".encode())
             h.update(f.read_bytes())
             h.update(b"\0")
+    from drivetrain.cosim.fmi_wrapper import WRAPPER_SOURCE          # the C binary in front of every FMU
+
+    h.update(WRAPPER_SOURCE.read_bytes())
     return h.hexdigest()
 
 
@@ -167,6 +170,10 @@ def sources_hash() -> str:
         for f in sorted(d.rglob("*.py")):
             st = f.stat()
             stamp.append((str(f), st.st_mtime_ns, st.st_size))
+    from drivetrain.cosim.fmi_wrapper import WRAPPER_SOURCE
+
+    st = WRAPPER_SOURCE.stat()
+    stamp.append((str(WRAPPER_SOURCE), st.st_mtime_ns, st.st_size))
     return _sources_hash_cached(tuple(stamp))
 
 

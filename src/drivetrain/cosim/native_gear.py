@@ -41,6 +41,7 @@ import numpy as np
 
 import gearcontact_fmu
 from gearcontact_fmu.params import GEAR_MODEL
+from drivetrain.cosim.fmi_headers import FMI_HEADERS, copy_fmi_headers
 from drivetrain.errors import NativeBuildError
 
 NATIVE_DIR = Path(gearcontact_fmu.__file__).resolve().parent / "native"
@@ -52,7 +53,6 @@ SHARED_HEADERS = ("coupling_correction.h", "fmi2_shell.h")
 BUILD_HEADER = "gearcontact_build.h"
 VAR_HEADER = "gearcontact_var.h"          #: GcVar (package data, shipped in sources/)
 VALUES_SOURCE = "gearcontact_values.c"     #: generated per build: GC_GUID and GC_VARS
-FMI_HEADERS = ("fmi2Functions.h", "fmi2FunctionTypes.h", "fmi2TypesPlatform.h")
 MAP_RESOURCE = "contact_map.bin"
 
 #: parameters the C model reads at initialization: settable as in the pythonfmu GearContact
@@ -410,16 +410,7 @@ def copy_shared_sources(src: Path) -> None:
     """Into a native FMU's sources/: the shared headers and the FMI 2.0 headers."""
     for name in SHARED_HEADERS:
         shutil.copy2(NATIVE_DIR / name, src / name)
-    for name in FMI_HEADERS:
-        shutil.copy2(fmi_header_dir() / name, src / name)
-
-
-def fmi_header_dir() -> Path:
-    """The FMI 2.0.5 headers as the Modelica Association ships them (github.com/modelica/fmi-standard, tag
-    v2.0.5, headers/, 2-clause BSD: kept in gearcontact_fmu/native). fmpy's copy, used before issue 30, has
-    ``fmi2FullName`` changed to ignore ``FMI2_FUNCTION_PREFIX``: two source FMUs compiled into one binary
-    then clashed on every fmi2 symbol. With these, ``-DFMI2_FUNCTION_PREFIX=<model>_`` names them apart."""
-    return NATIVE_DIR
+    copy_fmi_headers(src)
 
 
 def compile_command(src_dir: Path, out: Path, cc: str = "gcc", source: str = C_SOURCE, inputs=None) -> list[str]:

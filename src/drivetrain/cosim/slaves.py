@@ -236,6 +236,7 @@ class FmiSlave(Slave):
 
     def exit_init(self):
         self._call("fmi2ExitInitializationMode", self.fmu.exitInitializationMode)
+        self.stepping = True
 
     def bind(self, in_names, out_names, u: np.ndarray, u_off: int, y: np.ndarray, y_off: int):
         """Raw per-step calls on preallocated buffers (no allocation, no Python-level conversion)."""
@@ -264,7 +265,8 @@ class FmiSlave(Slave):
     def teardown(self):
         errors = []
         if self.instantiated:
-            if self.initialized and not self.fatal:
+            # fmi2Terminate only from step mode (the FMI 2.0 state machine: refused in initialization mode)
+            if getattr(self, "stepping", False) and not self.fatal:
                 try:
                     self.fmu.terminate()
                 except Exception as exc:

@@ -296,7 +296,7 @@ def init_slave(slave, model: str, slave_kwargs: dict | None = None) -> None:
     slave._comp = None
     slave._built_with = None
     slave._failed = None
-    guard_value_references(slave, model)
+    guard_value_references(slave, model, exported="logger" in (slave_kwargs or {}))
 
 
 #: outputs computed when a host reads them, not at every step (the master reads them at the start and

@@ -106,6 +106,36 @@ static void shell_defaults(Inst *c) {
     c->last_ok = 0.0;
 }
 
+/* ---- the FMI 2.0 co-simulation state machine (as the Reference FMUs have it) ----
+ * A call in the wrong state is refused with fmi2Error and a logged reason; the state is unchanged. The same
+ * rules and words as the pythonfmu FMUs' wrapper (drivetrain/cosim/native/pythonfmu_wrapper.c). */
+static const char *SHELL_PHASE_NAMES[] = {"the instantiated state (before fmi2EnterInitializationMode)",
+                                          "initialization mode", "step mode", "the terminated state"};
+
+static fmi2Status shell_state_error(Inst *c, const char *call, const char *allowed) {
+    logf_(c, fmi2Error, "logStatusError", "%s: %s in %s: allowed only %s (FMI 2.0 co-simulation state machine); the "
+          "call is refused", SHELL_MODEL_NAME, call, SHELL_PHASE_NAMES[c->phase], allowed);
+    return fmi2Error;
+}
+
+/* fmi2EnterInitializationMode's part: fmi2OK and initialization mode, or refused */
+static fmi2Status shell_enter(Inst *c) {
+    if (c->phase != PH_INSTANTIATED)
+        return shell_state_error(c, "fmi2EnterInitializationMode", "once, after fmi2Instantiate or fmi2Reset");
+    c->phase = PH_INIT;
+    c->have_t_next = 0;
+    return fmi2OK;
+}
+
+/* fmi2ExitInitializationMode's part: fmi2OK and step mode, or refused */
+static fmi2Status shell_exit(Inst *c) {
+    if (c->phase != PH_INIT)
+        return shell_state_error(c, "fmi2ExitInitializationMode",
+                                 "in initialization mode (after fmi2EnterInitializationMode)");
+    c->phase = PH_STEP;
+    return fmi2OK;
+}
+
 /* ---- live instances: a second fmi2FreeInstance of one instance (a host's error) is harmless ----
  * Every instance handed out is listed until it is freed; fmi2FreeInstance frees only a listed one. The list
  * is guarded by a spin lock (hosts may instantiate from several threads; GCC/Clang builtins, else unguarded). */
@@ -147,6 +177,8 @@ static int shell_release(Inst *c) {
 /* fmi2SetupExperiment's checks: fmi2OK, or fmi2Error (logged, the instance failed) for a start time that is
  * not finite or a stop time before it */
 static fmi2Status shell_setup(Inst *c, double start, int stop_defined, double stop) {
+    if (c->phase != PH_INSTANTIATED)
+        return shell_state_error(c, "fmi2SetupExperiment", "after fmi2Instantiate or fmi2Reset");
     if (!isfinite(start)) {
         fail(c, "%s: fmi2SetupExperiment with start time %s: the start time must be a finite time; the instance "
              "is now in its error state", SHELL_MODEL_NAME, pyfloat(start).s);
@@ -193,42 +225,40 @@ fmi2Status fmi2SetDebugLogging(fmi2Component comp, fmi2Boolean loggingOn, size_t
 }
 
 fmi2Status fmi2Terminate(fmi2Component comp) {
-    ((Inst *)comp)->phase = PH_TERMINATED;
+    Inst *c = (Inst *)comp;
+    if (c->phase != PH_STEP)
+        return shell_state_error(c, "fmi2Terminate", "once, in step mode (after fmi2ExitInitializationMode)");
+    c->phase = PH_TERMINATED;
     return fmi2OK;
 }
 
-/* fmi2DoStep's refusals: 1 (logged, the instance failed) when no step may be taken now */
+/* fmi2DoStep's refusals: 1 (logged, the instance failed; the caller answers fmi2Error) when no step may be taken
+ * now: before initialization, after fmi2Terminate, a time or step size that is not a finite time (> 0 for the
+ * step), a time that is not where the previous step ended, or in the error state */
 static int shell_step_refused(Inst *c, double t, double H) {
-    if (!isfinite(t)) {
-        const char *why = "(the communication point must be a finite time)";
-        if (c->failed)
-            logf_(c, fmi2Error, "logStatusError", "%s: fmi2DoStep at t = %s s %s; the instance is now in its error "
-                  "state", SHELL_MODEL_NAME, pyfloat(t).s, why);
-        else
-            fail(c, "%s: fmi2DoStep at t = %s s %s; the instance is now in its error state", SHELL_MODEL_NAME,
-                 pyfloat(t).s, why);
-        return 1;
-    }
-    if (c->phase != PH_STEP || (c->have_t_next && !c->failed
-                                && fabs(t - c->t_next) > 1e-3 * H + 1e-12 * fabs(c->t_next))) {
-        char why[256];
-        if (c->phase == PH_TERMINATED) snprintf(why, sizeof why, "after fmi2Terminate");
-        else if (c->phase != PH_STEP) snprintf(why, sizeof why, "before fmi2ExitInitializationMode");
-        else snprintf(why, sizeof why, "but the previous step ended at t = %.12g s (communication points must "
-                      "follow each other; to go back, restore an FMU state)", c->t_next);
-        if (c->failed)
-            logf_(c, fmi2Error, "logStatusError", "%s: fmi2DoStep at t = %.12g s %s; the instance is now "
-                  "in its error state", SHELL_MODEL_NAME, t, why);
-        else
-            fail(c, "%s: fmi2DoStep at t = %.12g s %s; the instance is now in its error state", SHELL_MODEL_NAME,
-                 t, why);
-        return 1;
-    }
-    if (c->failed) {
+    char why[256];
+    why[0] = 0;
+    if (c->phase == PH_TERMINATED) snprintf(why, sizeof why, "after fmi2Terminate");
+    else if (c->phase != PH_STEP) snprintf(why, sizeof why, "before fmi2ExitInitializationMode");
+    else if (!isfinite(t)) snprintf(why, sizeof why, "(the communication point must be a finite time)");
+    else if (!(H > 0.0) || !isfinite(H))
+        snprintf(why, sizeof why, "with step size %s s (the communication step size must be a positive finite time)",
+                 pyfloat(H).s);
+    else if (c->failed) {
         logf_(c, fmi2Error, "logStatusError", "%s is in the error state: %s", SHELL_MODEL_NAME, c->failmsg);
         return 1;
-    }
-    return 0;
+    } else if (c->have_t_next && fabs(t - c->t_next) > 1e-3 * H + 1e-12 * fabs(c->t_next))
+        snprintf(why, sizeof why, "but the previous step ended at t = %.12g s (communication points must follow each "
+                 "other; to go back, restore an FMU state)", c->t_next);
+    if (!why[0]) return 0;
+    char at[48];
+    if (isfinite(t)) snprintf(at, sizeof at, "%.12g", t); else snprintf(at, sizeof at, "%s", pyfloat(t).s);
+    if (c->failed)
+        logf_(c, fmi2Error, "logStatusError", "%s: fmi2DoStep at t = %s s %s; the instance is now in its error state",
+              SHELL_MODEL_NAME, at, why);
+    else
+        fail(c, "%s: fmi2DoStep at t = %s s %s; the instance is now in its error state", SHELL_MODEL_NAME, at, why);
+    return 1;
 }
 
 /* a step from t to t + H done */
@@ -251,6 +281,14 @@ static fmi2Status bad_vr(Inst *c, const char *call, fmi2ValueReference vr, const
          v ? " " : "", v ? v->name : "");
     return fmi2Error;
 }
+
+/* getters: not before fmi2EnterInitializationMode; setters: not after fmi2Terminate (state unchanged) */
+#define CHECK_GET_PHASE(call)                                                                  \
+    if (c->phase == PH_INSTANTIATED)                                                           \
+        return shell_state_error(c, call, "after fmi2EnterInitializationMode (the start values are in " \
+                                 "modelDescription.xml)");
+#define CHECK_SET_PHASE(call)                                                                  \
+    if (c->phase == PH_TERMINATED) return shell_state_error(c, call, "before fmi2Terminate (or after fmi2Reset)");
 
 #define CHECK_VR(call, want)                                                                   \
     const SHELL_VAR *v = var_of(vr[i]);                                                        \
@@ -275,6 +313,7 @@ static int settable_now(Inst *c, const SHELL_VAR *v, const char *call) {
 
 fmi2Status fmi2GetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]) {
     Inst *c = (Inst *)comp;
+    CHECK_GET_PHASE("fmi2GetReal")
     shell_before_get_real(c);
     for (size_t i = 0; i < nvr; i++) {
         CHECK_VR("fmi2GetReal", "Real")
@@ -285,6 +324,7 @@ fmi2Status fmi2GetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t
 
 fmi2Status fmi2GetInteger(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[]) {
     Inst *c = (Inst *)comp;
+    CHECK_GET_PHASE("fmi2GetInteger")
     for (size_t i = 0; i < nvr; i++) {
         CHECK_VR("fmi2GetInteger", "Integer")
         value[i] = c->iv[vr[i]];
@@ -294,6 +334,7 @@ fmi2Status fmi2GetInteger(fmi2Component comp, const fmi2ValueReference vr[], siz
 
 fmi2Status fmi2GetBoolean(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, fmi2Boolean value[]) {
     Inst *c = (Inst *)comp;
+    CHECK_GET_PHASE("fmi2GetBoolean")
     for (size_t i = 0; i < nvr; i++) {
         CHECK_VR("fmi2GetBoolean", "Boolean")
         value[i] = c->iv[vr[i]] ? fmi2True : fmi2False;
@@ -303,6 +344,7 @@ fmi2Status fmi2GetBoolean(fmi2Component comp, const fmi2ValueReference vr[], siz
 
 fmi2Status fmi2GetString(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, fmi2String value[]) {
     Inst *c = (Inst *)comp;
+    CHECK_GET_PHASE("fmi2GetString")
     for (size_t i = 0; i < nvr; i++) {
         CHECK_VR("fmi2GetString", "String")
         if (vr[i] == VR_error) value[i] = c->failed ? c->failmsg : "";
@@ -313,6 +355,7 @@ fmi2Status fmi2GetString(fmi2Component comp, const fmi2ValueReference vr[], size
 
 fmi2Status fmi2SetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]) {
     Inst *c = (Inst *)comp;
+    CHECK_SET_PHASE("fmi2SetReal")
     for (size_t i = 0; i < nvr; i++) {
         CHECK_VR("fmi2SetReal", "Real")
         if (!settable_now(c, v, "fmi2SetReal")) return fmi2Error;
@@ -329,6 +372,7 @@ fmi2Status fmi2SetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t
 
 fmi2Status fmi2SetInteger(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, const fmi2Integer value[]) {
     Inst *c = (Inst *)comp;
+    CHECK_SET_PHASE("fmi2SetInteger")
     for (size_t i = 0; i < nvr; i++) {
         CHECK_VR("fmi2SetInteger", "Integer")
         if (!settable_now(c, v, "fmi2SetInteger")) return fmi2Error;
@@ -340,6 +384,7 @@ fmi2Status fmi2SetInteger(fmi2Component comp, const fmi2ValueReference vr[], siz
 
 fmi2Status fmi2SetBoolean(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, const fmi2Boolean value[]) {
     Inst *c = (Inst *)comp;
+    CHECK_SET_PHASE("fmi2SetBoolean")
     for (size_t i = 0; i < nvr; i++) {
         CHECK_VR("fmi2SetBoolean", "Boolean")
         if (!settable_now(c, v, "fmi2SetBoolean")) return fmi2Error;
@@ -350,6 +395,7 @@ fmi2Status fmi2SetBoolean(fmi2Component comp, const fmi2ValueReference vr[], siz
 
 fmi2Status fmi2SetString(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, const fmi2String value[]) {
     Inst *c = (Inst *)comp;
+    CHECK_SET_PHASE("fmi2SetString")
     for (size_t i = 0; i < nvr; i++) {
         CHECK_VR("fmi2SetString", "String")
         if (!settable_now(c, v, "fmi2SetString")) return fmi2Error;

@@ -1037,10 +1037,7 @@ fmi2Status fmi2SetupExperiment(fmi2Component comp, fmi2Boolean toleranceDefined,
 }
 
 fmi2Status fmi2EnterInitializationMode(fmi2Component comp) {
-    Inst *c = (Inst *)comp;
-    c->phase = PH_INIT;
-    c->have_t_next = 0;
-    return fmi2OK;
+    return shell_enter((Inst *)comp);
 }
 
 /* outputs from the stage (GearContact._publish); only after a successful step */
@@ -1176,7 +1173,8 @@ static int build_stage(Inst *c) {
 
 fmi2Status fmi2ExitInitializationMode(fmi2Component comp) {
     Inst *c = (Inst *)comp;
-    c->phase = PH_STEP;
+    fmi2Status st = shell_exit(c);
+    if (st != fmi2OK) return st;
     c->last_ok = c->t0;
     if (c->failed) return fmi2OK;       /* already logged; the first doStep is refused */
     if (build_stage(c)) {
@@ -1255,7 +1253,7 @@ static int stage_step(Inst *c, double t, double H) {
 fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real t, fmi2Real H, fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
     (void)noSetFMUStatePriorToCurrentPoint;
     Inst *c = (Inst *)comp;
-    if (shell_step_refused(c, t, H)) return fmi2Discard;
+    if (shell_step_refused(c, t, H)) return fmi2Error;       /* misuse, or the error state */
     if (!stage_step(c, t, H)) return fmi2Discard;
     publish(c);
     shell_step_done(c, t, H);

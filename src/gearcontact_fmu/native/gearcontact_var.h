@@ -15,4 +15,12 @@ typedef struct {
     const char *string_start;
 } GcVar;
 
+/* compiled with FMI2_FUNCTION_PREFIX (several source FMUs linked into one binary): the build's two tables are
+ * prefixed like the FMI functions, so that two GearContact builds do not clash */
+#ifdef FMI2_FUNCTION_PREFIX
+#include "fmi2Functions.h"
+#define GC_GUID fmi2FullName(GC_GUID)
+#define GC_VARS fmi2FullName(GC_VARS)
+#endif
+
 #endif

@@ -314,7 +314,7 @@ class GearContact(Fmi2Slave):
                                             **extra))
         self._stage = None
         self._failed = None          # message once the instance is in the error state
-        guard_value_references(self, "GearContact")
+        guard_value_references(self, "GearContact", exported="logger" in kwargs)
         self._t0 = 0.0
 
     # ---- FMI callbacks --------------------------------------------------------------------------

@@ -1255,15 +1255,16 @@ fmi2Status fmi2SetupExperiment(fmi2Component comp, fmi2Boolean toleranceDefined,
 
 fmi2Status fmi2EnterInitializationMode(fmi2Component comp) {
     Inst *c = (Inst *)comp;
-    c->phase = PH_INIT;
-    c->have_t_next = 0;
+    fmi2Status st = shell_enter(c);
+    if (st != fmi2OK) return st;
     if (!c->failed) build(c);
     return fmi2OK;
 }
 
 fmi2Status fmi2ExitInitializationMode(fmi2Component comp) {
     Inst *c = (Inst *)comp;
-    c->phase = PH_STEP;
+    fmi2Status st = shell_exit(c);
+    if (st != fmi2OK) return st;
     c->last_ok = 0.0;
     if (c->failed) return fmi2OK;       /* already logged; the first doStep is refused */
     if (!c->built || c->dirty) {
@@ -1295,7 +1296,7 @@ fmi2Status fmi2Reset(fmi2Component comp) {
 fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real t, fmi2Real H, fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
     (void)noSetFMUStatePriorToCurrentPoint;
     Inst *c = (Inst *)comp;
-    if (shell_step_refused(c, t, H)) return fmi2Discard;
+    if (shell_step_refused(c, t, H)) return fmi2Error;       /* misuse, or the error state */
     char why[1536];
     if (!inputs_finite(c, t, why, sizeof why)) {
         fail(c, "%s: do_step at t = %.9g s failed: %s", LN_MODEL_NAME, t, why);

@@ -157,10 +157,24 @@ def _sources_hash_cached(stamp: tuple) -> str:
             h.update(f"{pkg}/{rel.as_posix()}\0".encode())
             h.update(f.read_bytes())
             h.update(b"\0")
-    from drivetrain.cosim.fmi_wrapper import WRAPPER_SOURCE          # the C binary in front of every FMU
-
-    h.update(WRAPPER_SOURCE.read_bytes())
+    for f in _packaging_files():
+        h.update(f"{f.name}\0".encode())
+        h.update(f.read_bytes())
     return h.hexdigest()
+
+
+def _packaging_files() -> list[Path]:
+    """What the build puts into a pythonfmu FMU besides the package sources: the FMI wrapper (its C source and
+    the FMI headers), the modelDescription writer and the documentation with its committed reference plots.
+    A change to any of them rebuilds the FMUs as a change of the sources does."""
+    from drivetrain.cosim.fmi_headers import FMI_HEADERS, fmi_header_dir
+    from drivetrain.cosim.fmi_wrapper import WRAPPER_SOURCE
+    from drivetrain.cosim.fmu_docs import PLOT_DIR
+
+    here = Path(__file__).parent
+    return [WRAPPER_SOURCE, *(fmi_header_dir() / n for n in FMI_HEADERS),
+            *(here / f"{m}.py" for m in ("build", "fmi_headers", "fmi_wrapper", "fmu_docs")),
+            *sorted(PLOT_DIR.glob("*.png"))]
 
 
 def sources_hash() -> str:
@@ -170,10 +184,9 @@ def sources_hash() -> str:
         for f in sorted(d.rglob("*.py")):
             st = f.stat()
             stamp.append((str(f), st.st_mtime_ns, st.st_size))
-    from drivetrain.cosim.fmi_wrapper import WRAPPER_SOURCE
-
-    st = WRAPPER_SOURCE.stat()
-    stamp.append((str(WRAPPER_SOURCE), st.st_mtime_ns, st.st_size))
+    for f in _packaging_files():
+        st = f.stat()
+        stamp.append((str(f), st.st_mtime_ns, st.st_size))
     return _sources_hash_cached(tuple(stamp))
 
 

@@ -428,7 +428,7 @@ def against_baseline_figure(cur: Entry, base: Entry | None, channels: list[str],
     n = max(1, len(channels))
     fig = new_figure(13, 2.6 * n + 0.9)
     axes = fig.subplots(n, 1 if base is None else 2, squeeze=False)
-    place_axes(fig, axes, left=0.9, top=0.75, wgap=0.8, hgap=0.85)
+    place_axes(fig, axes, left=0.9, top=0.95, wgap=0.9, hgap=0.85)
     for i, c in enumerate(channels):
         ax = axes[i, 0]
         x = cur.signals.get(c)
@@ -449,6 +449,7 @@ def against_baseline_figure(cur: Entry, base: Entry | None, channels: list[str],
                 bx.text(0.01, 0.97, textwrap.fill(note, 70), transform=bx.transAxes, va="top", fontsize=7,
                         color="C3", bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})
             bx.set_xlabel("time [s]")
+            bx.set_ylabel(f"Δ {c} [{cur.units.get(c, '')}]", fontsize=8)
             bx.grid(alpha=0.3)
         for label, lo, hi in (expectations or {}).get(c, []):
             if lo is not None and hi is not None and lo != hi:

@@ -388,6 +388,11 @@ def _mark(ax, freqs, lo, hi, label, **style):
 def _log_limits(ax, A: np.ndarray) -> None:
     """y-limits of a log axis from the data drawn (its smallest and largest positive value, a margin each
     side; down to the double-precision resolution of the largest, 1e-16 of it)."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullLocator
+
+    ax.yaxis.set_major_locator(LogLocator(numticks=7))
+    ax.yaxis.set_minor_locator(NullLocator())   # 8 minor ticks a decade over 15 decades: most of a plot's time
+    ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:.0e}"))      # 1e-12: plain text, no mathtext
     pos = A[np.isfinite(A) & (A > 0)]
     if not len(pos):
         return
@@ -425,7 +430,10 @@ def spectra_figure(spectra: dict[str, tuple[np.ndarray, np.ndarray]], cf: dict, 
             ax.plot(fx, Ax, lw=0.6, color="k")
             ax.set_yscale("log")
             if j == 1:
+                from matplotlib.ticker import FuncFormatter
+
                 ax.set_xscale("log")
+                ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
             _log_limits(ax, A[m])
             _mark(ax, cf["harmonics"], lo, hi, "k·f_GMF", color="C3", lw=0.8, ls="--", alpha=0.8)
             sb = [s[e] for s in cf["sidebands"][:n_sidebands] for e in ("lower", "upper")]

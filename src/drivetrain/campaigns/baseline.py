@@ -39,7 +39,7 @@ import numpy as np
 
 from drivetrain import __version__
 from drivetrain.scene.expect import CheckOptions, Outcome, _fmt, freqs_of, frequency_value, spectrum_levels
-from drivetrain.run.outputs import jsonable, new_figure, now_iso, place_axes, save_figure
+from drivetrain.run.outputs import jsonable, new_figure, now_iso, place_axes, save_figure, suptitle, title_margin
 from drivetrain.rig.data import TORQUE_SENSORS
 from drivetrain.rig.signals import decimate
 
@@ -426,9 +426,9 @@ def against_baseline_figure(cur: Entry, base: Entry | None, channels: list[str],
     (``expectations``: channel -> [(label, lo, hi)]) drawn as lines/bands. Returns the Figure."""
     channels = [c for c in channels if c in cur.signals] or list(cur.signals)[:2]
     n = max(1, len(channels))
-    fig = new_figure(13, 2.6 * n + 0.9)
+    fig = new_figure(13, 2.6 * n + 0.5 + title_margin(title))
     axes = fig.subplots(n, 1 if base is None else 2, squeeze=False)
-    place_axes(fig, axes, left=0.9, top=0.95, wgap=0.9, hgap=0.85)
+    place_axes(fig, axes, left=0.9, top=title_margin(title), wgap=0.9, hgap=0.85)
     for i, c in enumerate(channels):
         ax = axes[i, 0]
         x = cur.signals.get(c)
@@ -462,13 +462,14 @@ def against_baseline_figure(cur: Entry, base: Entry | None, channels: list[str],
         ax.set_xlabel("time [s]")
         ax.grid(alpha=0.3)
         ax.legend(loc="upper right", fontsize=8)
+    suptitle(fig, title)
     return fig
 
 
 def plot_against_baseline(path: str | Path, cur: Entry, base: Entry | None, channels: list[str],
                           title: str = "", expectations: dict | None = None) -> Path:
     """:func:`against_baseline_figure` written to ``path`` (PNG)."""
-    return save_figure(against_baseline_figure(cur, base, channels, expectations=expectations), path, title)
+    return save_figure(against_baseline_figure(cur, base, channels, title, expectations), path)
 
 
 __all__ = ["FORMAT", "SUFFIX", "Entry", "make_entry", "write_baseline", "read_baseline", "compare",

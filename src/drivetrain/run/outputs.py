@@ -249,14 +249,19 @@ def place_axes(fig, axes, *, left: float, right: float = 0.25, top: float, botto
                         wspace=wgap / aw if nc > 1 else 0.2, hspace=hgap / ah if nr > 1 else 0.2)
 
 
-def _suptitle(fig, title: str) -> None:
+def title_margin(title: str) -> float:
+    """The top margin [in] a figure title of this many lines needs (9.5 pt)."""
+    return 0.3 + 0.17 * (title.count("\n") + 1 if title else 0)
+
+
+def suptitle(fig, title: str) -> None:
+    """The figure's title at its top (the axes leave :func:`title_margin` for it)."""
     if title:
         fig.suptitle(title, fontsize=9.5, y=1 - 0.08 / fig.get_figheight(), va="top")
 
 
-def save_figure(fig, path, title: str = "") -> Path:
-    """Title, write the PNG (the layout is the figure's own: :func:`place_axes`)."""
-    _suptitle(fig, title)
+def save_figure(fig, path) -> Path:
+    """Write the PNG (the layout is the figure's own: :func:`place_axes`)."""
     fig.savefig(path, dpi=PLOT_DPI)
     return Path(path)
 
@@ -323,16 +328,18 @@ def run_title(scene, what: str, failed_at_s: float | None = None) -> str:
     head = f"{scene.name}: {what}"
     if failed_at_s is not None:
         head += f" (FAILED at t = {failed_at_s:.6g} s)"
-    return f"{head}\n{speed}, {load} · {health}\neffects: {', '.join(effects) or 'none'}"
+    effects_line = textwrap.fill(", ".join(effects) or "none", 120, initial_indent="effects: ", break_long_words=False,
+                                 break_on_hyphens=False)
+    return f"{head}\n{speed}, {load} · {health}\n{effects_line}"
 
 
 def torques_figure(time: np.ndarray, torques: dict[str, np.ndarray], settle_s: float, cf: dict, title: str = ""):
     """Torque waveforms: whole run (settling shaded; a min/max envelope per pixel column, :func:`envelope`) and
     a zoom on the last two middle-shaft revolutions (every sample). Returns the Figure."""
     n = max(1, len(torques))
-    fig = new_figure(13, 2.6 * n + 0.9)
+    fig = new_figure(13, 2.6 * n + 0.5 + title_margin(title))
     axes = fig.subplots(n, 2, squeeze=False, gridspec_kw={"width_ratios": [1.4, 1]})
-    place_axes(fig, axes, left=0.85, top=0.95, wgap=0.8, hgap=0.85)
+    place_axes(fig, axes, left=0.85, top=title_margin(title), wgap=0.8, hgap=0.85)
     t = np.asarray(time)
     T = t[-1] if len(t) else 0.0
     zoom = min(2.0 / cf["f_MSH"] if cf.get("f_MSH", 0) > 0 else 0.25, max(T - settle_s, T * 0.5))
@@ -356,14 +363,14 @@ def torques_figure(time: np.ndarray, torques: dict[str, np.ndarray], settle_s: f
                      fontsize=9)
         ax.set_xlabel("time [s]")
         ax.grid(alpha=0.3)
-    _suptitle(fig, title)
+    suptitle(fig, title)
     return fig
 
 
 def plot_torques(path: Path, time: np.ndarray, torques: dict[str, np.ndarray], settle_s: float, cf: dict,
                  title: str = "") -> Path:
     """:func:`torques_figure` written to ``path`` (PNG)."""
-    return save_figure(torques_figure(time, torques, settle_s, cf), path, title)
+    return save_figure(torques_figure(time, torques, settle_s, cf, title), path)
 
 
 #: the shaft orders the shaft-order panel marks: k = 1..4 of f_PSH and f_MSH, 1..3 of f_DSH
@@ -411,9 +418,9 @@ def spectra_figure(spectra: dict[str, tuple[np.ndarray, np.ndarray]], cf: dict, 
     from drivetrain.rig.signals import AMPLITUDE_CONVENTION
 
     n = max(1, len(spectra))
-    fig = new_figure(17, 2.9 * n + 0.95)
+    fig = new_figure(17, 2.9 * n + 0.5 + title_margin(title))
     axes = fig.subplots(n, 3, squeeze=False, gridspec_kw={"width_ratios": [1.5, 1, 1]})
-    place_axes(fig, axes, left=1.15, top=0.95, wgap=0.65, hgap=0.85)
+    place_axes(fig, axes, left=1.15, top=title_margin(title), wgap=0.65, hgap=0.85)
     gmf, fm = cf["f_GMF"], cf["f_MSH"]
     lowpass_Hz = 5.0 * gmf if lowpass_Hz is None else lowpass_Hz
     for i, (name, (f, A)) in enumerate(spectra.items()):
@@ -456,14 +463,14 @@ def spectra_figure(spectra: dict[str, tuple[np.ndarray, np.ndarray]], cf: dict, 
             if j == 0:
                 ax.set_ylabel(f"{name} [N·m]\n" + textwrap.fill(AMPLITUDE_CONVENTION, 34, break_on_hyphens=False), fontsize=8)
             ax.legend(loc="upper right", fontsize=6.5)
-    _suptitle(fig, title)
+    suptitle(fig, title)
     return fig
 
 
 def plot_spectra(path: Path, spectra: dict[str, tuple[np.ndarray, np.ndarray]], cf: dict, title: str = "",
                  n_sidebands: int = 3) -> Path:
     """:func:`spectra_figure` written to ``path`` (PNG)."""
-    return save_figure(spectra_figure(spectra, cf, n_sidebands=n_sidebands), path, title)
+    return save_figure(spectra_figure(spectra, cf, title, n_sidebands=n_sidebands), path)
 
 
 def now_iso() -> str:

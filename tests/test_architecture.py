@@ -77,6 +77,20 @@ def test_only_the_cli_and_the_plots_print():
     assert not found, "print() outside the CLI: " + ", ".join(found)
 
 
+def test_only_the_plotting_module_imports_matplotlib():
+    """Every plot goes through drivetrain.run.outputs (its backend, its layout), the only module that
+    imports matplotlib; the others take their figures from it."""
+    found = []
+    for m, p in _modules().items():
+        if m == "drivetrain.run.outputs":
+            continue
+        for node in ast.walk(ast.parse(p.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            found += [f"{m}:{node.lineno} imports {n}" for n in names if n.split(".")[0] == "matplotlib"]
+    assert not found, "matplotlib outside drivetrain.run.outputs: " + ", ".join(found)
+
+
 # ------------------------------------------------------------------------------------------------
 # the wings of drivetrain (docs/ARCHITECTURE.md): each imports only its own wing and those below it
 # ------------------------------------------------------------------------------------------------

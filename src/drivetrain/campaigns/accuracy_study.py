@@ -339,10 +339,9 @@ def _overview(results: dict) -> list[str]:
 
 def plot_pareto(results: dict, out_dir: Path) -> dict[str, str]:
     """One PNG per scene: error (row_error) against cost, the Pareto front marked. {scene: file name}."""
-    import matplotlib
+    from drivetrain.run.outputs import _mpl
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    plt = _mpl()
 
     out_dir.mkdir(parents=True, exist_ok=True)
     files = {}

@@ -30,6 +30,7 @@ from __future__ import annotations
 import json
 import math
 import platform
+import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -38,7 +39,7 @@ import numpy as np
 
 from drivetrain import __version__
 from drivetrain.scene.expect import CheckOptions, Outcome, _fmt, freqs_of, frequency_value, spectrum_levels
-from drivetrain.run.outputs import _finish, _mpl, jsonable, now_iso
+from drivetrain.run.outputs import jsonable, new_figure, now_iso, place_axes, save_figure, suptitle, title_margin
 from drivetrain.rig.data import TORQUE_SENSORS
 from drivetrain.rig.signals import decimate
 
@@ -387,16 +388,47 @@ def compare(base: Entry, cur: Entry, options: CheckOptions | None = None) -> lis
 # --------------------------------------------------------------------------------------------------
 
 
-def plot_against_baseline(path: str | Path, cur: Entry, base: Entry | None, channels: list[str],
-                          title: str = "", expectations: dict | None = None) -> Path:
-    """Each channel of this run against its baseline (top) and their difference (bottom); without a
-    baseline, the channel alone with the expected values/ranges of its failed expectations
-    (``expectations``: channel -> [(label, lo, hi)]) drawn as lines/bands."""
+def time_overlap(a: np.ndarray, b: np.ndarray) -> tuple[float, float] | None:
+    """The time span two time bases share, (start, end) [s], or None if they share none."""
+    if not len(a) or not len(b):
+        return None
+    lo, hi = max(float(a[0]), float(b[0])), min(float(a[-1]), float(b[-1]))
+    return (lo, hi) if hi >= lo else None
 
-    plt = _mpl()
+
+def _span(t: np.ndarray) -> str:
+    fs = (len(t) - 1) / (t[-1] - t[0]) if len(t) > 1 and t[-1] > t[0] else float("nan")
+    return f"{t[0]:.4g}–{t[-1]:.4g} s" + (f" at {fs:.5g} Hz" if math.isfinite(fs) else "") if len(t) else "no samples"
+
+
+def difference_on_overlap(cur_t: np.ndarray, cur_x: np.ndarray, base_t: np.ndarray, base_x: np.ndarray):
+    """(t, this run − baseline, note) on the baseline's samples inside the time both runs cover: nothing is
+    extrapolated (``np.interp`` would hold this run's last value past its end). ``note`` says how the time
+    bases differ, "" when they are the same."""
+    cur_t, base_t = np.asarray(cur_t, dtype=float), np.asarray(base_t, dtype=float)
+    same = len(cur_t) == len(base_t) and np.allclose(cur_t, base_t, rtol=0, atol=1e-9)
+    if same:
+        return base_t, np.asarray(cur_x) - np.asarray(base_x), ""
+    note = f"time bases differ: this run {_span(cur_t)}, baseline {_span(base_t)}"
+    span = time_overlap(cur_t, base_t)
+    if span is None:
+        return base_t[:0], base_t[:0], note + "; no common time"
+    m = (base_t >= span[0] - 1e-12) & (base_t <= span[1] + 1e-12)
+    xa = np.interp(base_t[m], cur_t, cur_x)
+    return base_t[m], xa - np.asarray(base_x)[m], note + f"; difference over the common {span[0]:.4g}–{span[1]:.4g} s only"
+
+
+def against_baseline_figure(cur: Entry, base: Entry | None, channels: list[str], title: str = "",
+                            expectations: dict | None = None):
+    """Each channel of this run against its baseline (left) and their difference (right) over the time both
+    cover (:func:`difference_on_overlap`; the panel says so when the time bases differ); without a
+    baseline, the channel alone with the expected values/ranges of its failed expectations
+    (``expectations``: channel -> [(label, lo, hi)]) drawn as lines/bands. Returns the Figure."""
     channels = [c for c in channels if c in cur.signals] or list(cur.signals)[:2]
     n = max(1, len(channels))
-    fig, axes = plt.subplots(n, 1 if base is None else 2, figsize=(13, 3.2 * n), squeeze=False)
+    fig = new_figure(13, 2.6 * n + 0.5 + title_margin(title))
+    axes = fig.subplots(n, 1 if base is None else 2, squeeze=False)
+    place_axes(fig, axes, left=0.9, top=title_margin(title), wgap=0.9, hgap=0.85)
     for i, c in enumerate(channels):
         ax = axes[i, 0]
         x = cur.signals.get(c)
@@ -405,12 +437,19 @@ def plot_against_baseline(path: str | Path, cur: Entry, base: Entry | None, chan
         if base is not None and c in base.signals:
             ax.plot(base.time, base.signals[c], lw=0.8, color="C3", ls="--", label="baseline")
             bx = axes[i, 1]
+            note = ""
             if x is not None:
-                xa = np.interp(base.time, cur.time, x)
-                bx.plot(base.time, xa - base.signals[c], lw=0.8, color="k")
+                td, d, note = difference_on_overlap(cur.time, x, base.time, base.signals[c])
+                bx.plot(td, d, lw=0.8, color="k")
+            if len(base.time):
+                bx.set_xlim(float(base.time[0]), float(base.time[-1]))
             bx.axvspan(0, base.settle_s, color="0.9")
             bx.set_title("this run − baseline", fontsize=9)
+            if note:
+                bx.text(0.01, 0.97, textwrap.fill(note, 70), transform=bx.transAxes, va="top", fontsize=7,
+                        color="C3", bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "none"})
             bx.set_xlabel("time [s]")
+            bx.set_ylabel(f"Δ {c} [{cur.units.get(c, '')}]", fontsize=8)
             bx.grid(alpha=0.3)
         for label, lo, hi in (expectations or {}).get(c, []):
             if lo is not None and hi is not None and lo != hi:
@@ -423,9 +462,16 @@ def plot_against_baseline(path: str | Path, cur: Entry, base: Entry | None, chan
         ax.set_xlabel("time [s]")
         ax.grid(alpha=0.3)
         ax.legend(loc="upper right", fontsize=8)
-    return _finish(plt, fig, path, title)
+    suptitle(fig, title)
+    return fig
+
+
+def plot_against_baseline(path: str | Path, cur: Entry, base: Entry | None, channels: list[str],
+                          title: str = "", expectations: dict | None = None) -> Path:
+    """:func:`against_baseline_figure` written to ``path`` (PNG)."""
+    return save_figure(against_baseline_figure(cur, base, channels, title, expectations), path)
 
 
 __all__ = ["FORMAT", "SUFFIX", "Entry", "make_entry", "write_baseline", "read_baseline", "compare",
            "baseline_path", "scene_changes", "version_changes", "summary_metrics", "spectrum_frequencies",
-           "plot_against_baseline", "versions"]
+           "plot_against_baseline", "against_baseline_figure", "difference_on_overlap", "time_overlap", "versions"]

@@ -24,7 +24,7 @@ import numpy as np
 from drivetrain.campaigns import baseline as B
 from drivetrain.scene.expect import Outcome, _fmt, evaluate
 from drivetrain.cosim import ConfigurationError, CosimError
-from drivetrain.run.outputs import jsonable, read_hdf5
+from drivetrain.run.outputs import jsonable, read_hdf5, run_title
 from drivetrain.run.runner import RunFailedError, run_scene
 from drivetrain.scene.load import Scene, load_scenes
 from drivetrain.campaigns.sweep import run_sweep
@@ -218,8 +218,8 @@ def check_run(run: CaseRun, *, base: B.Entry | None = None, baseline_file: str |
         try:
             p = Path(plot_dir) / f"check_{scene.name}.png"
             p.parent.mkdir(parents=True, exist_ok=True)
-            B.plot_against_baseline(p, cur, base, chans, title=f"{scene.name}: {len(cc.failures)} check(s) failed"
-                                    + (" (dashed: baseline)" if base is not None else ""),
+            what = f"{len(cc.failures)} check(s) failed" + (" (dashed: baseline)" if base is not None else "")
+            B.plot_against_baseline(p, cur, base, chans, title=run_title(scene, what),
                                     expectations=_expectation_bands(scene, cc.failures))
             cc.plots.append(str(p))
         except Exception as exc:  # noqa: BLE001 - the plot is a help, the verdict stands without it

@@ -142,6 +142,10 @@ def lowpass(x: np.ndarray, fs: float, f_cut: float, order: int = SPECTRUM_LOWPAS
     return _sig.sosfiltfilt(sos, x, axis=0)
 
 
+#: what :func:`amplitude_spectrum` computes, as its plots' axis says it
+AMPLITUDE_CONVENTION = "single-sided peak amplitude, 2|X|/Σw (Hann window, amplitude-corrected)"
+
+
 def amplitude_spectrum(x: np.ndarray, fs: float, lowpass_Hz: float | None = None,
                        detrend: str = "mean") -> tuple[np.ndarray, np.ndarray]:
     """Single-sided amplitude spectrum with a Hann window (amplitude-corrected).

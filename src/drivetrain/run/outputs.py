@@ -18,6 +18,7 @@ import datetime
 import json
 import math
 import os
+import textwrap
 from pathlib import Path
 from typing import Any
 
@@ -225,23 +226,132 @@ def _finish(plt, fig, path, title: str) -> Path:
     return Path(path)
 
 
-def plot_torques(path: Path, time: np.ndarray, torques: dict[str, np.ndarray], settle_s: float, cf: dict,
-                 title: str = "") -> Path:
-    """Torque waveforms: whole run (settling shaded) and a zoom on the last two middle-shaft revolutions."""
-    plt = _mpl()
+#: resolution of the run's plots (PNG)
+PLOT_DPI = 110
+
+
+def new_figure(width_in: float, height_in: float):
+    """A matplotlib Figure outside pyplot's global state (nothing to close; pyplot is not imported)."""
+    from matplotlib.figure import Figure
+
+    return Figure(figsize=(width_in, height_in), dpi=PLOT_DPI)
+
+
+def place_axes(fig, axes, *, left: float, right: float = 0.25, top: float, bottom: float = 0.5,
+               wgap: float = 0.7, hgap: float = 0.8) -> None:
+    """Margins and gaps of a grid of Axes in inches, set once: a fixed layout instead of ``tight_layout``,
+    which draws the whole figure once more only to measure it (half the time a plot took)."""
+    W, H = fig.get_size_inches()
+    nr, nc = np.shape(axes)
+    aw = (W - left - right - (nc - 1) * wgap) / nc
+    ah = (H - top - bottom - (nr - 1) * hgap) / nr
+    fig.subplots_adjust(left=left / W, right=1 - right / W, top=1 - top / H, bottom=bottom / H,
+                        wspace=wgap / aw if nc > 1 else 0.2, hspace=hgap / ah if nr > 1 else 0.2)
+
+
+def title_margin(title: str) -> float:
+    """The top margin [in] a figure title of this many lines needs (9.5 pt)."""
+    return 0.3 + 0.17 * (title.count("\n") + 1 if title else 0)
+
+
+def suptitle(fig, title: str) -> None:
+    """The figure's title at its top (the axes leave :func:`title_margin` for it)."""
+    if title:
+        fig.suptitle(title, fontsize=9.5, y=1 - 0.08 / fig.get_figheight(), va="top")
+
+
+def save_figure(fig, path) -> Path:
+    """Write the PNG (the layout is the figure's own: :func:`place_axes`)."""
+    fig.savefig(path, dpi=PLOT_DPI)
+    return Path(path)
+
+
+def pixel_columns(ax) -> int:
+    """How many pixel columns the Axes ``ax`` spans in the saved PNG."""
+    fig = ax.figure
+    return max(16, int(ax.get_position().width * fig.get_figwidth() * PLOT_DPI))
+
+
+def envelope(x: np.ndarray, y: np.ndarray, columns: int) -> tuple[np.ndarray, np.ndarray]:
+    """The samples a plot of ``y`` over ``columns`` pixel columns needs: per column of consecutive samples its
+    smallest and largest value, in their order (a min/max envelope: a single-sample peak is kept, at most
+    2 · columns points are drawn). NaN samples are skipped; a column of NaN stays a gap. Short traces as
+    they are."""
+    x, y = np.asarray(x), np.asarray(y, dtype=float)
+    n = len(y)
+    if n <= 4 * columns:
+        return x, y
+    k = -(-n // columns)
+    rows = -(-n // k)
+    yy = np.full(rows * k, np.nan)
+    yy[:n] = y
+    yy = yy.reshape(rows, k)
+    nan = np.isnan(yy)
+    i_lo = np.where(nan, np.inf, yy).argmin(axis=1)
+    i_hi = np.where(nan, -np.inf, yy).argmax(axis=1)
+    base = np.arange(rows) * k
+    idx = np.column_stack([np.minimum(i_lo, i_hi), np.maximum(i_lo, i_hi)]) + base[:, None]
+    idx = idx.ravel()
+    idx = idx[idx < n]
+    return x[idx], y[idx]
+
+
+def _fault_text(health: str, faults) -> str:
+    from gearcontact_fmu.fault_specs import health_faults
+
+    found = health_faults(health, faults or ())
+    words = [f"{f['kind']} {f['member']} tooth {f['tooth']}" + (f" {f['flank']}" if f.get("flank") else "")
+             for f in found]
+    return f"{health}: " + "; ".join(words) if words else health
+
+
+def run_title(scene, what: str, failed_at_s: float | None = None) -> str:
+    """A run's plot title: the scene and what the plot shows, then the operating point (final speed, load),
+    the gear's health and faults and the active effects by their scene keys (switches that are on; the
+    settings of the others that act)."""
+    from drivetrain.scene.schema import setting_acts
+
+    d = scene.to_dict()
+    op = scene.operating_point
+    speed = f"{op.final_speed_rpm:g} rpm" + (" (profile)" if op.speed_profile_rpm else "")
+    load = (f"load {op.load_profile_Nm[-1][1]:g} N·m (profile)" if op.load_profile_Nm
+            else f"load {op.load_torque_Nm:g} N·m")
+    g = scene.gear
+    health = _fault_text(g.health, g.faults)
+    if g.health == "mesh":
+        health += ": " + ", ".join(Path(str(m)).name for m in (g.pinion_mesh, g.wheel_mesh) if m)
+    effects = []
+    for key, value in (d.get("effects") or {}).items():
+        if not setting_acts("effects", key, d) or value is False:
+            continue
+        effects.append(key if value is True else f"{key}={value}")
+    head = f"{scene.name}: {what}"
+    if failed_at_s is not None:
+        head += f" (FAILED at t = {failed_at_s:.6g} s)"
+    effects_line = textwrap.fill(", ".join(effects) or "none", 120, initial_indent="effects: ", break_long_words=False,
+                                 break_on_hyphens=False)
+    return f"{head}\n{speed}, {load} · {health}\n{effects_line}"
+
+
+def torques_figure(time: np.ndarray, torques: dict[str, np.ndarray], settle_s: float, cf: dict, title: str = ""):
+    """Torque waveforms: whole run (settling shaded; a min/max envelope per pixel column, :func:`envelope`) and
+    a zoom on the last two middle-shaft revolutions (every sample). Returns the Figure."""
     n = max(1, len(torques))
-    fig, axes = plt.subplots(n, 2, figsize=(13, 3.2 * n), squeeze=False,
-                             gridspec_kw={"width_ratios": [1.4, 1]})
+    fig = new_figure(13, 2.6 * n + 0.5 + title_margin(title))
+    axes = fig.subplots(n, 2, squeeze=False, gridspec_kw={"width_ratios": [1.4, 1]})
+    place_axes(fig, axes, left=0.85, top=title_margin(title), wgap=0.8, hgap=0.85)
     t = np.asarray(time)
     T = t[-1] if len(t) else 0.0
     zoom = min(2.0 / cf["f_MSH"] if cf.get("f_MSH", 0) > 0 else 0.25, max(T - settle_s, T * 0.5))
     for i, (name, x) in enumerate(torques.items()):
+        x = np.asarray(x)
         ax = axes[i, 0]
-        ax.plot(t, x, lw=0.6)
+        ax.plot(*envelope(t, x, pixel_columns(ax)), lw=0.6)
         ax.axvspan(0, settle_s, color="0.9", label="settling (excluded)")
         m = t >= settle_s
         if m.any():
-            ax.axhline(float(np.mean(x[m])), color="C3", lw=0.8, ls="--", label=f"mean {np.mean(x[m]):.4g} N·m")
+            mean = float(np.mean(x[m]))
+            ax.axhline(mean, color="C3", lw=0.8, ls="--", label=f"mean {mean:.4g} N·m")
         ax.set_ylabel(f"{name} [N·m]")
         ax.set_xlabel("time [s]")
         ax.legend(loc="upper right", fontsize=8)
@@ -253,48 +363,114 @@ def plot_torques(path: Path, time: np.ndarray, torques: dict[str, np.ndarray], s
                      fontsize=9)
         ax.set_xlabel("time [s]")
         ax.grid(alpha=0.3)
-    return _finish(plt, fig, path, title)
+    suptitle(fig, title)
+    return fig
+
+
+def plot_torques(path: Path, time: np.ndarray, torques: dict[str, np.ndarray], settle_s: float, cf: dict,
+                 title: str = "") -> Path:
+    """:func:`torques_figure` written to ``path`` (PNG)."""
+    return save_figure(torques_figure(time, torques, settle_s, cf, title), path)
+
+
+#: the shaft orders the shaft-order panel marks: k = 1..4 of f_PSH and f_MSH, 1..3 of f_DSH
+SHAFT_ORDERS = (("f_PSH", "C4", 4), ("f_MSH", "C1", 4), ("f_DSH", "C0", 3))
+
+
+def shaft_order_band(cf: dict, df: float) -> tuple[float, float]:
+    """The shaft-order panel's frequency range [Hz] (a log axis): from a quarter of f_PSH (not below one
+    frequency bin) to 3.5 drive-shaft orders (at least ten bins), below the mesh frequency."""
+    lo = max(df, 0.25 * cf["f_PSH"])
+    return lo, max(min(max(3.5 * cf["f_DSH"], 10.0 * df), 0.8 * cf["f_GMF"]), 2.0 * lo)
+
+
+def _mark(ax, freqs, lo, hi, label, **style):
+    first = True
+    for f in freqs:
+        if lo <= f <= hi:
+            ax.axvline(f, label=label if first else None, **style)
+            first = False
+
+
+def _log_limits(ax, A: np.ndarray) -> None:
+    """y-limits of a log axis from the data drawn (its smallest and largest positive value, a margin each
+    side; down to the double-precision resolution of the largest, 1e-16 of it)."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullLocator
+
+    ax.yaxis.set_major_locator(LogLocator(numticks=7))
+    ax.yaxis.set_minor_locator(NullLocator())   # 8 minor ticks a decade over 15 decades: most of a plot's time
+    ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:.0e}"))      # 1e-12: plain text, no mathtext
+    pos = A[np.isfinite(A) & (A > 0)]
+    if not len(pos):
+        return
+    top = float(pos.max())
+    ax.set_ylim(max(float(pos.min()), top * 1e-16) / 3.0, top * 3.0)
+
+
+def spectra_figure(spectra: dict[str, tuple[np.ndarray, np.ndarray]], cf: dict, title: str = "",
+                   n_sidebands: int = 3, lowpass_Hz: float | None = None):
+    """Amplitude spectra as :func:`drivetrain.rig.signals.amplitude_spectrum` computes them (the axis says the
+    convention), per channel three panels: 0 to 5.5 × f_GMF (the low-pass edge marked; a min/max envelope per
+    pixel column), the shaft orders on a log frequency axis (k·f_PSH, k·f_MSH, k·f_DSH: :data:`SHAFT_ORDERS`)
+    and the sidebands f_GMF ± k·f_MSH. Nothing is
+    clipped: bins that are exactly zero are left out (a log axis has no zero), the y-limits follow the
+    data. Returns the Figure."""
+    from drivetrain.rig.signals import AMPLITUDE_CONVENTION
+
+    n = max(1, len(spectra))
+    fig = new_figure(17, 2.9 * n + 0.5 + title_margin(title))
+    axes = fig.subplots(n, 3, squeeze=False, gridspec_kw={"width_ratios": [1.5, 1, 1]})
+    place_axes(fig, axes, left=1.15, top=title_margin(title), wgap=0.65, hgap=0.85)
+    gmf, fm = cf["f_GMF"], cf["f_MSH"]
+    lowpass_Hz = 5.0 * gmf if lowpass_Hz is None else lowpass_Hz
+    for i, (name, (f, A)) in enumerate(spectra.items()):
+        f = np.asarray(f, dtype=float)
+        A = np.where(np.asarray(A, dtype=float) > 0, A, np.nan)     # a zero has no logarithm: left out, not raised
+        df = f[1] - f[0] if len(f) > 1 else 1.0
+        bands = ((0.0, 5.5 * gmf), shaft_order_band(cf, df),
+                 (gmf - (n_sidebands + 1.5) * fm, gmf + (n_sidebands + 1.5) * fm))
+        for j, (lo, hi) in enumerate(bands):
+            ax = axes[i, j]
+            lo = max(lo, 0.0)
+            m = (f >= lo) & (f <= hi)
+            fx, Ax = (envelope(f[m], A[m], pixel_columns(ax)) if j == 0 else (f[m], A[m]))
+            ax.plot(fx, Ax, lw=0.6, color="k")
+            ax.set_yscale("log")
+            if j == 1:
+                from matplotlib.ticker import FuncFormatter
+
+                ax.set_xscale("log")
+                ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+            _log_limits(ax, A[m])
+            _mark(ax, cf["harmonics"], lo, hi, "k·f_GMF", color="C3", lw=0.8, ls="--", alpha=0.8)
+            sb = [s[e] for s in cf["sidebands"][:n_sidebands] for e in ("lower", "upper")]
+            _mark(ax, sb, lo, hi, "f_GMF ± k·f_MSH", color="C2", lw=0.7, ls=":")
+            if j == 1:
+                for key, col, k_max in SHAFT_ORDERS:
+                    _mark(ax, [k * cf[key] for k in range(1, k_max + 1)], lo, hi,
+                          f"k·{key}, k ≤ {k_max} ({key} = {cf[key]:.3g} Hz)", color=col, lw=0.8, ls="-.", alpha=0.7)
+            else:
+                for key, col in (("f_DSH", "C0"), ("f_MSH", "C1"), ("f_PSH", "C4")):
+                    _mark(ax, [cf[key]], lo, hi, f"{key} = {cf[key]:.3g} Hz", color=col, lw=0.8, ls="-.")
+            if j == 0:
+                _mark(ax, [lowpass_Hz], lo, hi, f"low-pass edge {lowpass_Hz:.4g} Hz", color="0.5", lw=1.0, ls="-")
+            ax.set_xlim(lo, hi)
+            ax.set_xlabel("frequency [Hz]")
+            ax.grid(alpha=0.3)
+            ax.set_title(("Hann window, low-pass 5 × f_GMF; " if j == 0 else "shaft orders; " if j == 1
+                          else "around f_GMF: sidebands ± k·f_MSH; ") + f"f_GMF = {gmf:.4g} Hz, bin {df:.3g} Hz",
+                         fontsize=8.5)
+            if j == 0:
+                ax.set_ylabel(f"{name} [N·m]\n" + textwrap.fill(AMPLITUDE_CONVENTION, 34, break_on_hyphens=False), fontsize=8)
+            ax.legend(loc="upper right", fontsize=6.5)
+    suptitle(fig, title)
+    return fig
 
 
 def plot_spectra(path: Path, spectra: dict[str, tuple[np.ndarray, np.ndarray]], cf: dict, title: str = "",
                  n_sidebands: int = 3) -> Path:
-    """Amplitude spectra (Hann, low-pass 5 × GMF) with the characteristic frequencies and the
-    sidebands f_GMF ± k·f_MSH marked."""
-    plt = _mpl()
-    n = max(1, len(spectra))
-    fig, axes = plt.subplots(n, 2, figsize=(13, 3.4 * n), squeeze=False, gridspec_kw={"width_ratios": [1.5, 1]})
-    gmf, fm = cf["f_GMF"], cf["f_MSH"]
-    fmax = 5.5 * gmf
-    for i, (name, (f, A)) in enumerate(spectra.items()):
-        for j, (lo, hi) in enumerate(((0.0, fmax), (gmf - (n_sidebands + 1.5) * fm, gmf + (n_sidebands + 1.5) * fm))):
-            ax = axes[i, j]
-            m = (f >= max(lo, 0.0)) & (f <= hi)
-            ax.semilogy(f[m], np.maximum(A[m], 1e-12), lw=0.6, color="k")
-            first = True
-            for k, h in enumerate(cf["harmonics"], start=1):
-                if lo <= h <= hi:
-                    ax.axvline(h, color="C3", lw=0.8, ls="--", alpha=0.8,
-                               label="k·f_GMF" if first else None)
-                    first = False
-            first = True
-            for sb in cf["sidebands"][:n_sidebands]:
-                for fs_ in (sb["lower"], sb["upper"]):
-                    if lo <= fs_ <= hi:
-                        ax.axvline(fs_, color="C2", lw=0.7, ls=":", label="f_GMF ± k·f_MSH" if first else None)
-                        first = False
-            for key, col in (("f_DSH", "C0"), ("f_MSH", "C1"), ("f_PSH", "C4")):
-                if lo <= cf[key] <= hi:
-                    ax.axvline(cf[key], color=col, lw=0.8, ls="-.", label=f"{key} = {cf[key]:.3g} Hz")
-            ax.set_xlim(max(lo, 0.0), hi)
-            ax.set_xlabel("frequency [Hz]")
-            ax.grid(alpha=0.3, which="both")
-            if j == 0:
-                ax.set_ylabel(f"{name} [N·m]")
-                ax.set_title(f"Hann window, low-pass 5 × GMF; GMF = {gmf:.4g} Hz", fontsize=9)
-            else:
-                ax.set_title("around GMF: sidebands ± k·f_MSH", fontsize=9)
-            ax.legend(loc="upper right", fontsize=7)
-    return _finish(plt, fig, path, title)
+    """:func:`spectra_figure` written to ``path`` (PNG)."""
+    return save_figure(spectra_figure(spectra, cf, title, n_sidebands=n_sidebands), path)
 
 
 def now_iso() -> str:

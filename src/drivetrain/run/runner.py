@@ -587,16 +587,14 @@ def write_run(result: RunResult, out_dir: str | Path, plots: bool = True, spectr
     failed = result.status != "ok"
     if plots:
         torques = {n: result.signals[n] for n in TORQUE_SENSORS if n in result.signals}
-        title = f"{scene.name}: torque waveforms"
-        if failed:
-            title += f" (FAILED at t = {result.summary['failure']['time_s']:.6g} s)"
+        failed_at = result.summary["failure"]["time_s"] if failed else None
         try:
             if torques:
-                plot_files.append(str(O.plot_torques(out / "torques.png", result.time, torques,
-                                                     scene.time.settle_s, cf, title=title)))
+                plot_files.append(str(O.plot_torques(out / "torques.png", result.time, torques, scene.time.settle_s,
+                                                     cf, title=O.run_title(scene, "torque waveforms", failed_at))))
             if spectra:
                 plot_files.append(str(O.plot_spectra(out / "spectra.png", spectra, cf,
-                                                     title=f"{scene.name}: spectra")))
+                                                     title=O.run_title(scene, "amplitude spectra", failed_at))))
         except Exception as exc:    # noqa: BLE001 - a failed run's plots are optional: keep the data
             if not failed:
                 raise

@@ -13,6 +13,7 @@ import math
 import os
 import shutil
 import sys
+import time
 from pathlib import Path
 
 from drivetrain.system import BACKENDS
@@ -159,10 +160,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
                   f"{args.backend!r}", file=sys.stderr)
             return 2
         args.backend = "native"
+    said = _Said()
     try:
         with _stop_on_signals():
             res = run_scene(scene, out, backend=args.backend, progress=not args.quiet, fmu_dir=args.fmu_dir,
-                            plots=False if args.no_plots else None, force=args.force, fmu_paths=fmu_paths or None)
+                            plots=False if args.no_plots else None, force=args.force, fmu_paths=fmu_paths or None,
+                            started=args.started, log=said)
     except ConfigurationError as exc:
         return _scene_errors(exc)
     except RunFailedError as exc:
@@ -186,12 +189,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         return 3
     s = res.summary
     if not args.quiet:
-        tb = s["time_breakdown_s"]
-        print(f"{scene.name}: {s['sim_time_s']:g} s simulated in {s['wall_time_s']:.3g} s: co-simulation loop "
-              f"{tb['loop']:.3g} s (real-time factor {s['real_time_factor']:.3g}, {s['us_per_step']:.1f} us/step, "
-              f"{s['n_fmus']} FMUs), FMU setup {tb['fmu_setup'] + tb['native_build']:.3g} s (builds, maps, "
-              f"initialisation), "
-              f"assembly {tb['assemble_and_check']:.3g} s, post-processing {tb['postprocess']:.3g} s")
+        print(f"{scene.name}: {s['sim_time_s']:g} s simulated in {s['wall_time_s']:.3g} s wall: "
+              + _run_time_parts(s))
         for name, st in s["torque"].items():
             print(f"  {name}: mean {st['mean']:.4g} N·m, RMS {st['rms']:.4g} N·m")
         print(f"  f_DSH {s['f_DSH']:.4g} Hz, f_MSH {s['f_MSH']:.4g} Hz, f_PSH {s['f_PSH']:.4g} Hz, "
@@ -208,11 +207,38 @@ def _cmd_run(args: argparse.Namespace) -> int:
             print(f"  warning: energy residual above 1 %; largest in FMU {w!r} "
                   f"({s['energy']['per_fmu'][w]['residual_J']:.4g} J of {s['energy']['reference_J']:.4g} J)")
         for w in s["warnings"]:
-            print(f"  warning: {w}")
+            if f"warning: {w}" not in said.lines:          # each warning once: not again if said while running
+                print(f"  warning: {w}")
         print(f"  wrote {out}/: " + ", ".join(Path(p).name for p in [res.files['signals'], res.files['summary'],
                                                                        *res.files.get('plots', []),
                                                                        *([res.files['csv']] if 'csv' in res.files else [])]))
     return 0
+
+
+class _Said:
+    """The ``log`` of a run from the command line: each message once on stderr, remembered (the report after
+    the run does not repeat a warning already said while it ran)."""
+
+    def __init__(self):
+        self.lines: set[str] = set()
+
+    def __call__(self, message: str) -> None:
+        if message not in self.lines:
+            self.lines.add(message)
+            print(message, file=sys.stderr)
+
+
+def _run_time_parts(s: dict) -> str:
+    """The parts of a run's wall time (summary.json ``time_breakdown_s``: they add up to ``wall_time_s``)."""
+    tb = s["time_breakdown_s"]
+    rtf = f"real-time factor {s['real_time_factor']:.3g}, " if s.get("real_time_factor") else ""
+    parts = [f"start-up {tb['startup']:.3g} s (interpreter, imports, scene)",
+             f"assembly and checks {tb['assemble_and_check']:.3g} s", f"native build {tb['native_build']:.3g} s",
+             f"FMU setup {tb['fmu_setup']:.3g} s (loading, maps, initialisation)",
+             f"co-simulation loop {tb['loop']:.3g} s ({rtf}{s['us_per_step']:.1f} us/step, {s['n_fmus']} FMUs)",
+             f"post-processing {tb['postprocess']:.3g} s", f"writing files {tb['write'] or 0.0:.3g} s",
+             f"plots {tb['plots'] or 0.0:.3g} s"]
+    return ", ".join(parts)
 
 
 def _cmd_eigen(args: argparse.Namespace) -> int:
@@ -370,8 +396,6 @@ def _command_line(subcommand: str) -> str:
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
-    import time
-
     from drivetrain.campaigns import validation as V
     from drivetrain.cosim import ConfigurationError
     from drivetrain.scene.load import ScenarioError
@@ -427,8 +451,6 @@ def _cmd_validate(args: argparse.Namespace) -> int:
 
 
 def _cmd_accuracy_cost(args: argparse.Namespace) -> int:
-    import time
-
     from drivetrain.campaigns import accuracy_study as S
     from drivetrain.run.accuracy import RESULTS_FILE, STUDY_DURATION_S, STUDY_SETTLE_S
     from drivetrain.cosim import ConfigurationError
@@ -495,8 +517,6 @@ def _cmd_features(args: argparse.Namespace) -> int:
 
 
 def _cmd_detectability(args: argparse.Namespace) -> int:
-    import time
-
     from drivetrain.campaigns import detectability as D
     from drivetrain.campaigns.features import features
     from drivetrain.campaigns.sweep import run_sweep
@@ -948,10 +968,13 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _map_build_bar(desc: str, total: int, *, triangles: int = 0, workers: int = 1):
-    """The progress bar of a contact-map build, with the cost model's estimate; shown after 1 s."""
+def _map_build_bar(desc: str, total: int, *, triangles: int | None = None, workers: int = 1, unit: str = " steps"):
+    """The progress bar of a long library step: a contact-map build (``triangles`` given), with the cost
+    model's estimate, shown after 1 s; any other (e.g. writing a run's files), shown after 2 s."""
     from tqdm import tqdm
 
+    if triangles is None:
+        return tqdm(total=total, desc=desc, unit=unit, file=sys.stderr, delay=2.0, leave=False)
     from gearcontact_fmu.cost import hours, map_row_seconds
 
     estimate_s = 0.5 * total * map_row_seconds(triangles) / max(1, workers)
@@ -959,14 +982,58 @@ def _map_build_bar(desc: str, total: int, *, triangles: int = 0, workers: int = 
                 delay=1.0, leave=False)
 
 
+def _wall_line(args: argparse.Namespace, parts: list[tuple[str, float]]) -> str:
+    """"wall time W s: start-up S s, <part> s, ..., other O s": where a command's wall time went, from the
+    process start (args.started) to now; start-up runs to the command's start (args.t_command), ``parts``
+    are the command's measured phases after it, ``other`` what none of them holds (shown above 1 %)."""
+    now = time.perf_counter()
+    wall = now - args.started
+    items = [("start-up", args.t_command - args.started), *parts]
+    rest = wall - sum(v for _, v in items)
+    if rest > 0.01 * wall:
+        items.append(("other", rest))
+    return f"wall time {wall:.3g} s: " + ", ".join(f"{name} {v:.3g} s" for name, v in items)
+
+
 def main(argv: list[str] | None = None) -> int:
+    from drivetrain.run.timing import process_start
+
+    # the wall time the commands print counts from the process start (start-up included) when this is the
+    # process's command line; from this call when called with arguments (e.g. in a test's process)
+    started = process_start() if argv is None else time.perf_counter()
     parser = build_parser()
     args = parser.parse_args(argv)
     from gearcontact_fmu import progress
-    from gearcontact_fmu.meshes import MeshError
 
     if not getattr(args, "quiet", False):
         progress.set_factory(_map_build_bar)
+    args.started = started
+    args.t_command = time.perf_counter()
+    rc = _run_command(args)
+    if argv is None:                     # this process's command line: end it now (see _exit)
+        _exit(rc)
+    return rc
+
+
+def _exit(rc: int) -> None:
+    """End the process once the command is done: flush, run the atexit handlers (logging, multiprocessing,
+    temporary directories, ...), then ``os._exit``, without the interpreter's module teardown, which costs
+    0.5-1 s after a run (numba, matplotlib, fmpy, scipy; measured) and is not part of any result."""
+    import atexit
+
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(rc)
+
+
+def _run_command(args: argparse.Namespace) -> int:
+    """The subcommand, with the error exits every command shares."""
+    from gearcontact_fmu.meshes import MeshError
 
     try:
         return int(args.func(args) or 0)

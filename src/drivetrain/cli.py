@@ -369,6 +369,7 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
         scenes = [s for s in scenes if any(fnmatch.fnmatch(s.name, pat) for pat in args.only)]
     from drivetrain.campaigns.sweep import run_sweep
 
+    t_sweep = time.perf_counter()
     try:
         manifest = run_sweep(scenes, args.out, workers=args.workers, address=args.scheduler,
                              backend=args.backend, fmu_dir=args.fmu_dir, skip_existing=args.skip_existing,
@@ -380,6 +381,9 @@ def _cmd_sweep(args: argparse.Namespace) -> int:
     print(f"{len(manifest['runs']) - len(failed)}/{len(manifest['runs'])} runs ok in {manifest['wall_time_s']:.1f} s "
           f"(preparation {manifest['preparation_s']:.1f} s: contact maps and FMU builds; {manifest['reused_runs']} "
           f"reused); manifest: {manifest['path']}")
+    prep = manifest["preparation_s"]
+    print("  " + _wall_line(args, [("scenes and imports", t_sweep - args.t_command), ("preparation", prep),
+                                   ("runs", manifest["wall_time_s"] - prep)]))
     for r in failed:
         print(f"  {r['name']}: {r['status']}: {r.get('error', '')}".rstrip(), file=sys.stderr)
     return 0 if not failed else 3
@@ -401,13 +405,13 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     from drivetrain.scene.load import ScenarioError
     from drivetrain.campaigns.sweep import run_sweep
 
-    t0 = time.perf_counter()
     base = Path(args.scene) if args.scene else Path(__file__).resolve().parents[2] / "scenarios" / "example.toml"
     try:
         scenes = V.scenes(base, args.duration, args.settle if args.settle is not None else min(2.0, 0.2 * args.duration),
                           tuple(args.set or ()), gearboxes=args.gearboxes)
     except ScenarioError as exc:
         return _scene_errors(exc)
+    t_runs = time.perf_counter()
     if args.judge_only:                 # the runs exist: judge them again (e.g. after a judge changed)
         try:
             manifest, repeat = (json.loads((Path(args.out) / d / "manifest.json").read_text())
@@ -426,7 +430,9 @@ def _cmd_validate(args: argparse.Namespace) -> int:
                                progress=False)
         except ConfigurationError as exc:
             return _scene_errors(exc)
+    t_eval = time.perf_counter()
     results = V.evaluate(manifest, [s.name for s in scenes], repeat)
+    t_plots = time.perf_counter()
     report = Path(args.report)
     report.parent.mkdir(parents=True, exist_ok=True)
     fig_path = report.parent / "figures" / "validation_spectra.png"
@@ -436,8 +442,9 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     sep_fig = V.plot_separability(next(r for r in results if r.number == 6),
                                   fig_path.parent / "validation_separability.png")
     command = _command_line("validate")
+    t_report = time.perf_counter()
     meta = {"command": command, "n_scenes": len(scenes), "duration_s": args.duration, "gearboxes": args.gearboxes,
-            "settle_s": scenes[0].time.settle_s, "wall_time_s": time.perf_counter() - t0,
+            "settle_s": scenes[0].time.settle_s, "wall_time_s": t_report - args.started,
             "workers": args.workers or os.cpu_count(), "judge_only": args.judge_only,
             "runs_cpu_s": sum(r.get("elapsed_s") or 0.0 for r in manifest.get("runs", []) + repeat.get("runs", []))}
     fig_rel = os.path.relpath(fig, report.parent) if fig else None
@@ -447,6 +454,9 @@ def _cmd_validate(args: argparse.Namespace) -> int:
     for r in results:
         print(f"{r.number:2d} {r.status:8s} {r.title}: {r.figure}")
     print(f"wrote {report} ({meta['wall_time_s'] / 60:.1f} min)")
+    print("  " + _wall_line(args, [("scenes", t_runs - args.t_command), ("runs", t_eval - t_runs),
+                                   ("judging", t_plots - t_eval), ("plots", t_report - t_plots),
+                                   ("report", time.perf_counter() - t_report)]))
     return 0 if all(r.status != "fail" for r in results) else 3
 
 
@@ -456,7 +466,6 @@ def _cmd_accuracy_cost(args: argparse.Namespace) -> int:
     from drivetrain.cosim import ConfigurationError
     from drivetrain.run.outputs import jsonable
 
-    t0 = time.perf_counter()
     command = _command_line("accuracy-cost")
     meta = {"command": command, "duration_s": STUDY_DURATION_S, "settle_s": STUDY_SETTLE_S,
             "workers": args.workers or os.cpu_count(), "backend": args.backend}
@@ -469,7 +478,8 @@ def _cmd_accuracy_cost(args: argparse.Namespace) -> int:
         return 2
     except ConfigurationError as exc:
         return _scene_errors(exc)
-    results["meta"]["wall_time_s"] = time.perf_counter() - t0
+    t_study = time.perf_counter()
+    results["meta"]["wall_time_s"] = t_study - args.started
     results_path = Path(args.results) if args.results else RESULTS_FILE
     if args.evaluate_only:              # the runs are the earlier study's: keep how they were made
         try:
@@ -488,6 +498,8 @@ def _cmd_accuracy_cost(args: argparse.Namespace) -> int:
         ok = sum(r.get("status") == "ok" for r in sc["rows"].values())
         print(f"{name}: {ok}/{len(sc['rows'])} settings ran")
     print(f"wrote {report}, {results_path} ({results['meta']['wall_time_s'] / 60:.1f} min)")
+    print("  " + _wall_line(args, [("runs and evaluation", t_study - args.t_command),
+                                   ("plots and report", time.perf_counter() - t_study)]))
     return 0
 
 
@@ -524,7 +536,6 @@ def _cmd_detectability(args: argparse.Namespace) -> int:
     from drivetrain.errors import DatasetError
     from drivetrain.scene.load import ScenarioError
 
-    t0 = time.perf_counter()
     fams = D.families(args.kinds, tuple(args.members), tuple(args.sizes))
     study = D.Study(fams, tuple(args.speeds), tuple(args.loads), args.gearboxes, args.duration, args.settle,
                     args.background, tuple(args.set or ()))
@@ -533,16 +544,19 @@ def _cmd_detectability(args: argparse.Namespace) -> int:
     except ScenarioError as exc:
         return _scene_errors(exc)
     runs_dir = Path(args.out) / "runs"
+    t_runs = time.perf_counter()
     try:
         manifest = run_sweep(scenes, runs_dir, workers=args.workers, address=args.scheduler, backend=args.backend,
                              fmu_dir=args.fmu_dir, skip_existing=args.resume, plots=False, progress=not args.quiet)
     except ConfigurationError as exc:
         return _scene_errors(exc)
+    t_features = time.perf_counter()
     try:
         rows = features(runs_dir)
     except DatasetError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    t_report = time.perf_counter()
     table = D.auc_table(rows, study)
     verdicts = D.verdicts(table)
     report = Path(args.report)
@@ -552,7 +566,7 @@ def _cmd_detectability(args: argparse.Namespace) -> int:
     (report.parent / "figures").mkdir(parents=True, exist_ok=True)
     fig = D.plot(verdicts, study, report.parent / "figures" / f"{stem}.png")
     meta = {"command": _command_line("detectability"), "n_runs": len(scenes), "workers": args.workers or os.cpu_count(),
-            "wall_time_s": time.perf_counter() - t0,
+            "wall_time_s": time.perf_counter() - args.started,
             "reused": sum(bool(r.get("skipped")) for r in manifest.get("runs", [])),
             "runs_time_s": sum(r.get("wall_time_s") or 0.0 for r in manifest.get("runs", []))}
     moved = None
@@ -569,6 +583,9 @@ def _cmd_detectability(args: argparse.Namespace) -> int:
     det = sum(v["detectable"] for v in verdicts)
     print(f"{det} of {len(verdicts)} cells carry a detectable signal (paired); wrote {report} "
           f"({meta['wall_time_s'] / 60:.1f} min)")
+    print("  " + _wall_line(args, [("scenes", t_runs - args.t_command), ("runs", t_features - t_runs),
+                                   ("indicators", t_report - t_features),
+                                   ("statistics, plot and report", time.perf_counter() - t_report)]))
     return 0
 
 
@@ -620,6 +637,7 @@ def _cmd_stress(args: argparse.Namespace) -> int:
     print(f"{tot['runs']} runs: {tot['pass']} pass, {tot['fail']} fail, {tot['refused']} refused before running "
           f"(predicted unstable); {len(pairs)} halving pairs, {sum(p['outcome'] == 'fail' for p in pairs)} outside "
           f"the limits; wall time {rec['wall_time_s']:.0f} s; report: {out / 'stress.md'}")
+    print("  " + _wall_line(args, [("campaign", time.perf_counter() - args.t_command)]))
     for r in rec["runs"]:
         if r["outcome"] == "fail":
             print(f"  FAIL {r['name']}: " + "; ".join(r["reasons"]), file=sys.stderr)
@@ -641,6 +659,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
         return _scene_errors(exc)
     log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
     cases = []
+    t_runs = time.perf_counter()
     try:
         for path, scenes in files:
             if scenes:
@@ -649,11 +668,14 @@ def _cmd_check(args: argparse.Namespace) -> int:
                                       address=args.scheduler, progress=not args.quiet, log=log).cases
     except (ConfigurationError, ValueError, OSError) as exc:
         return _scene_errors(exc)
+    t_report = time.perf_counter()
     report = CheckReport(cases)
     print(format_table(report, all_rows=args.all))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(report.to_dict(), indent=1))
+    print(_wall_line(args, [("scenes and imports", t_runs - args.t_command), ("runs and checks", t_report - t_runs),
+                            ("report", time.perf_counter() - t_report)]))
     return 0 if report.ok else 1
 
 
@@ -665,6 +687,7 @@ def _cmd_baseline(args: argparse.Namespace) -> int:
 
     log = (lambda m: None) if args.quiet else (lambda m: print(m, file=sys.stderr))
     bad = 0
+    t_runs = time.perf_counter()
     for path in args.scenes:
         try:
             r = baseline_file(path, args.set or (), only=args.only, baseline_dir=args.baseline_dir,
@@ -678,6 +701,7 @@ def _cmd_baseline(args: argparse.Namespace) -> int:
         for name, why in r.failed.items():
             print(f"  {name}: not stored: {why}", file=sys.stderr)
         bad += len(r.failed)
+    print(_wall_line(args, [("scenes, runs and baselines", time.perf_counter() - t_runs)]))
     return 0 if not bad else 3
 
 
@@ -992,7 +1016,7 @@ def _wall_line(args: argparse.Namespace, parts: list[tuple[str, float]]) -> str:
     rest = wall - sum(v for _, v in items)
     if rest > 0.01 * wall:
         items.append(("other", rest))
-    return f"wall time {wall:.3g} s: " + ", ".join(f"{name} {v:.3g} s" for name, v in items)
+    return f"wall time {wall:.2f} s: " + ", ".join(f"{name} {v:.2f} s" for name, v in items)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -231,9 +231,7 @@ def build_native_line(model: str, out: str | Path | None = None, *, cc: str | No
         compile_and_pack(tmp, model, C_SOURCE, cc, out, log,
                          f"{type(slave).description}</p><p>Compiled C: no Python needed; every parameter settable "
                          "before and in initialization mode.")
-    if log:
-        log(f"wrote {out}: native {model}")
-    return out
+    return out          # the caller says what it wrote (build-native said "wrote" twice)
 
 
 # ------------------------------------------------------------------------------------------------

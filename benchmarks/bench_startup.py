@@ -1,8 +1,8 @@
 """Start-up and a short run as a user waits for them: ``drivetrain run --help``, ``import drivetrain.run``
 (and ``drivetrain.run.runner``, what ``drivetrain run`` loads) and a warm 0.5 s native run of the example
 with plots, each in a fresh process and timed from outside (best of the rounds); for the run also the wall
-time the command printed itself (it should be the measured one: issue 31). docs/ARCHITECTURE.md ("Start-up
-and the printed times") has the figures.
+time the command printed itself (it should be the measured one: issue 31). docs/MASTER.md ("Where a command's wall
+time goes") has the figures.
 
     python benchmarks/bench_startup.py                     # this tree, about 1 minute on 2 cores
     python benchmarks/bench_startup.py --against REV       # this tree and git revision REV, side by side

@@ -86,3 +86,16 @@ def test_many_run_commands_account_for_their_wall_time(tmp_path, drivetrain_fmu_
     wall, parts = _wall_line(r.stdout)
     assert parts[0] > 0.05                   # the start-up: interpreter and imports before the command
     _close_to_outside(wall, outside)
+
+
+def test_run_help_imports_nothing_heavy(tmp_path):
+    """``drivetrain run --help`` (and every command's parser) loads no numerical library: scipy.signal alone
+    cost 3.7 s of a 6 s start-up on a busy machine (issue 31; now imported where a filter is first used)."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")])}
+    r = subprocess.run([sys.executable, "-X", "importtime", "-m", "drivetrain", "run", "--help"], cwd=tmp_path,
+                       env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0 and "--native" in r.stdout, r.stderr[-2000:]
+    loaded = {ln.rsplit("|", 1)[1].strip() for ln in r.stderr.splitlines() if ln.startswith("import time:")}
+    heavy = sorted(m for m in loaded if m.split(".")[0] in ("scipy", "numba", "matplotlib", "h5py", "fmpy",
+                                                            "pandas", "pythonfmu", "dask"))
+    assert not heavy, heavy

@@ -1009,12 +1009,12 @@ def _map_build_bar(desc: str, total: int, *, triangles: int | None = None, worke
 def _wall_line(args: argparse.Namespace, parts: list[tuple[str, float]]) -> str:
     """"wall time W s: start-up S s, <part> s, ..., other O s": where a command's wall time went, from the
     process start (args.started) to now; start-up runs to the command's start (args.t_command), ``parts``
-    are the command's measured phases after it, ``other`` what none of them holds (shown above 1 %)."""
+    are the command's measured phases after it, ``other`` what none of them holds (shown from 0.01 s)."""
     now = time.perf_counter()
     wall = now - args.started
     items = [("start-up", args.t_command - args.started), *parts]
     rest = wall - sum(v for _, v in items)
-    if rest > 0.01 * wall:
+    if rest >= 0.005:
         items.append(("other", rest))
     return f"wall time {wall:.2f} s: " + ", ".join(f"{name} {v:.2f} s" for name, v in items)
 

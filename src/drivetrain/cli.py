@@ -636,7 +636,7 @@ def _cmd_stress(args: argparse.Namespace) -> int:
     pairs = rec["pairs"]
     print(f"{tot['runs']} runs: {tot['pass']} pass, {tot['fail']} fail, {tot['refused']} refused before running "
           f"(predicted unstable); {len(pairs)} halving pairs, {sum(p['outcome'] == 'fail' for p in pairs)} outside "
-          f"the limits; wall time {rec['wall_time_s']:.0f} s; report: {out / 'stress.md'}")
+          f"the limits; report: {out / 'stress.md'}")
     print("  " + _wall_line(args, [("campaign", time.perf_counter() - args.t_command)]))
     for r in rec["runs"]:
         if r["outcome"] == "fail":

@@ -1009,10 +1009,16 @@ def _map_build_bar(desc: str, total: int, *, triangles: int | None = None, worke
 def _wall_line(args: argparse.Namespace, parts: list[tuple[str, float]]) -> str:
     """"wall time W s: start-up S s, <part> s, ..., other O s": where a command's wall time went, from the
     process start (args.started) to now; start-up runs to the command's start (args.t_command), ``parts``
-    are the command's measured phases after it, ``other`` what none of them holds (shown from 0.01 s)."""
+    are the command's measured phases after it, ``other`` what none of them holds (shown from 0.01 s).
+    The command's last step: the FMUs it unpacked are removed first (a part of its own), not at the exit."""
+    items = [("start-up", args.t_command - args.started), *parts]
+    fmus = sys.modules.get("drivetrain.cosim.fmus")       # loaded: FMUs may have been unpacked
+    if fmus is not None and args.own_process:             # (not in a caller's process: its FMUs may be alive)
+        t0 = time.perf_counter()
+        fmus.remove_extracted()
+        items.append(("removing unpacked FMUs", time.perf_counter() - t0))
     now = time.perf_counter()
     wall = now - args.started
-    items = [("start-up", args.t_command - args.started), *parts]
     rest = wall - sum(v for _, v in items)
     if rest >= 0.005:
         items.append(("other", rest))
@@ -1031,7 +1037,7 @@ def main(argv: list[str] | None = None) -> int:
 
     if not getattr(args, "quiet", False):
         progress.set_factory(_map_build_bar)
-    args.started = started
+    args.started, args.own_process = started, argv is None
     args.t_command = time.perf_counter()
     rc = _run_command(args)
     if argv is None:                     # this process's command line: end it now (see _exit)

@@ -3,9 +3,9 @@ runs in a fresh process, its wall time is measured from outside, and the printed
 summary.json's ``time_breakdown_s``) add up to it.
 
 The allowance: what a command cannot time is what comes after its last line: printing it, the atexit
-handlers (removing the extracted pythonfmu FMUs: 0.1-0.3 s measured on a loaded 2-core machine), the
-kernel's teardown of the process, and this side's spawn and wait; the start is read from /proc (10 ms
-ticks). So the measured wall time may exceed the printed one by 5 % + 0.4 s, and never fall short of it by
+handlers (for ``run``: removing the unpacked FMUs; the other commands remove them before their line), the
+kernel's teardown of the process, and this side's spawn and wait (measured: 0.06-0.11 s on a loaded
+2-core machine); the start is read from /proc (10 ms ticks). So the measured wall time may exceed the printed one by 5 % + 0.4 s, and never fall short of it by
 more than 5 % + 0.05 s. Before this accounting, ``run`` printed 0.28 s for a run of 3.4 s (start-up, plots
 and writing left out) and ``check`` printed no time at all.
 """

@@ -23,7 +23,8 @@ class Silent:
 def set_factory(factory) -> None:
     """Install (None: remove) the reporter factory: ``factory(desc, total, **info)`` returns an object with
     ``update(n)`` and ``close()`` (a tqdm bar fits). ``info`` of a contact-map build: ``triangles`` of the
-    pair and ``workers`` (processes), for an estimate by ``gearcontact_fmu.cost.map_row_seconds``."""
+    pair and ``workers`` (processes), for an estimate by ``gearcontact_fmu.cost.map_row_seconds``; of any
+    other step (native builds, writing a run's files): ``unit`` (what is counted)."""
     global _FACTORY
     _FACTORY = factory
 

@@ -114,11 +114,12 @@ class CheckReport:
 
 
 def run_case(scene: Scene, out_dir: str | Path | None = None, *, fmu_dir: str | Path | None = None,
-             backend: str = "fmi", plots: bool = False) -> CaseRun:
-    """Run one scene in this process; an FMU failure gives the completed part (status "failed")."""
+             backend: str = "fmi", plots: bool = False, progress: bool = False) -> CaseRun:
+    """Run one scene in this process; an FMU failure gives the completed part (status "failed").
+    ``progress``: the run's bars (the loop's after 2 s)."""
 
     try:
-        res = run_scene(scene, out_dir, backend=backend, progress=False, fmu_dir=fmu_dir, plots=plots,
+        res = run_scene(scene, out_dir, backend=backend, progress=progress, fmu_dir=fmu_dir, plots=plots,
                         log=lambda m: None)
     except RunFailedError as exc:
         res = exc.result
@@ -147,7 +148,7 @@ def run_cases(scenes: list[Scene], out_dir: str | Path, *, fmu_dir: str | Path |
     if len(scenes) == 1 and address is None:
         if log:
             log(f"running {scenes[0].name}")
-        return [run_case(scenes[0], out / scenes[0].name, fmu_dir=fmu_dir, backend=backend)]
+        return [run_case(scenes[0], out / scenes[0].name, fmu_dir=fmu_dir, backend=backend, progress=progress)]
 
     man = run_sweep(scenes, out, workers=workers, address=address, backend=backend, fmu_dir=fmu_dir,
                     plots=False, progress=progress)

@@ -47,7 +47,6 @@ import zipfile
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
-from fmu_runtime import RUNTIME_PACKAGES
 
 SRC_ROOT = Path(__file__).resolve().parents[2]          # src/
 PACKAGES = ("gearcontact_fmu", "drivetrain", "fmu_runtime")

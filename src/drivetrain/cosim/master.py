@@ -330,15 +330,16 @@ class _Recorder:
 
 
 class _Progress:
-    """The progress reporter: a tqdm bar, by default for runs of more than 50 000 steps."""
+    """The progress reporter: a tqdm bar, by default (``show`` None) for every run whose loop lasts more than
+    2 s (it appears then); ``show`` True: from the start; False: none."""
 
     def __init__(self, grid: _Grid, show: bool | None):
         self.bar = None
-        if (grid.n_steps > 50_000) if show is None else bool(show):
+        if show is not False:
             from tqdm import tqdm
 
             self.bar = tqdm(total=grid.n_steps, unit="step", unit_scale=True, desc=f"co-sim {grid.T:g} s",
-                            mininterval=0.5, leave=False)
+                            mininterval=0.5, leave=False, delay=0.0 if show else 2.0)
 
     def update(self, n: int) -> None:
         if self.bar is not None:
@@ -624,8 +625,8 @@ class Master:
             snapshots: Sequence[float] = ()) -> CosimResult:
         """Simulate ``duration_s`` and return the recorded variables at ``output_rate_Hz``.
 
-        ``record``: "component.variable" names (Real) to return. ``progress``: tqdm bar (default: on
-        when the run has more than 50 000 steps). ``keep_raw``: also return the internal-rate records.
+        ``record``: "component.variable" names (Real) to return. ``progress``: tqdm bar (default: shown
+        once the loop has lasted 2 s; True: from the start; False: none). ``keep_raw``: also return the internal-rate records.
         ``final``: "component.variable" names (numeric: Real, Integer, Boolean; any causality) read once after the last step (and
         at a failure) into ``CosimResult.final``, e.g. cumulative counters; names the FMUs do not have
         are skipped. ``snapshots``: times [s] at which the same names are also read (at the

@@ -470,7 +470,8 @@ def build_native_gear(parameters: dict | None = None, out: str | Path = "fmus/na
                          prebuilt={C_SOURCE: _code_object(src, cc, log)})
     if log:
         info = arrays["info"]
-        log(f"wrote {out}: map {arrays['values'].shape[0]} x {arrays['values'].shape[2]} nodes "
+        # what went in; the writing of ``out`` is its caller's to say (build-native said "wrote" twice)
+        log(f"{GEAR_MODEL}: contact map {arrays['values'].shape[0]} x {arrays['values'].shape[2]} nodes "
             f"({'from the cache' if info.get('from_cache') else 'built'}), "
             f"{'with' if arrays['te'] is not None else 'no'} manufacturing errors")
     return out

@@ -248,9 +248,7 @@ def build_native_line(model: str, out: str | Path | None = None, *, cc: str | No
         (tmp / "modelDescription.xml").write_bytes(model_description(model, slave, rows, guid))
         compile_and_pack(tmp, model, C_SOURCE, cc, out, log,
                          "Compiled C: no Python needed; every parameter settable before and in initialization mode.")
-    if log:
-        log(f"wrote {out}: native {model}")
-    return out
+    return out          # the caller says what it wrote (build-native said "wrote" twice)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -349,11 +347,16 @@ def native_fmus(spec, cache_dir: str | Path | None = None, *,
                                  functools.partial(build_native_gear, fixed, path))
     todo = {m: b for m, (_, b) in builds.items() if b is not None}
     if todo:
+        from gearcontact_fmu.progress import reporter
+
         t0 = time.perf_counter()
+        bar = reporter(f"native FMUs: building {', '.join(todo)}", len(todo), unit=" FMUs")   # after 2 s (CLI)
         # the compilers run side by side (each build writes its own file, atomically)
         with concurrent.futures.ThreadPoolExecutor(max_workers=max(1, min(len(todo), os.cpu_count() or 1))) as ex:
-            for future in [ex.submit(b) for b in todo.values()]:
+            for future in concurrent.futures.as_completed([ex.submit(b) for b in todo.values()]):
                 future.result()
+                bar.update(1)
+        bar.close()
         if log:
             log(f"native FMUs: built {', '.join(todo)} into {cache_dir} in {time.perf_counter() - t0:.1f} s "
                 "(kept for later runs)")

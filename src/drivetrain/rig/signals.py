@@ -17,8 +17,21 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
-from scipy import signal as _sig
 
+from drivetrain.rig.data import UPPER_RATIO, Z_PINION, Z_WHEEL
+
+
+class _Scipy:
+    """``scipy.signal``, imported when first used (its import costs 0.6 s, several seconds on a busy machine:
+    a command that needs no filter, e.g. ``drivetrain run --help``, does not pay it)."""
+
+    def __getattr__(self, name):
+        from scipy import signal
+
+        return getattr(signal, name)
+
+
+_sig = _Scipy()
 from drivetrain.rig.data import UPPER_RATIO, Z_PINION, Z_WHEEL
 
 FIR_PASS_FRACTION = 0.7      # pass-band edge as a fraction of the output Nyquist frequency

@@ -36,6 +36,7 @@ from drivetrain.scene.load import Scene
 from drivetrain.system import BACKENDS, SystemSpec
 from gearcontact_fmu.fault_specs import FaultGeometryError
 from gearcontact_fmu.params import GEAR_MODEL
+from gearcontact_fmu.progress import reporter
 
 #: messages for the user (progress, warnings); the CLI passes its own ``log``, a library caller sees them
 #: through Python logging (on stderr when logging is not configured)
@@ -240,6 +241,7 @@ class RunPlan:
     t_start: float = 0.0                # perf_counter marks: the call, the native build, the master
     t_native: float = 0.0
     t_master: float = 0.0
+    t_started: float = 0.0              # where the wall time starts: the process start (CLI) or t_start
 
     @property
     def record(self) -> list[str]:
@@ -349,16 +351,18 @@ def _choose_backend(plan: RunPlan, fmu_dir, log) -> None:
 
 
 def prepare_run(scene: Scene, spec: SystemSpec | None, backend: str, fmu_paths: dict | None, *, fmu_dir,
-                force: bool, log) -> RunPlan:
+                force: bool, log, started: float | None = None) -> RunPlan:
     """Everything before the first step: the tolerance's setting, the assembly (unless ``spec`` is given),
-    the cost and contact checks, the channels, the backend and its FMUs. Raises ConfigurationError."""
+    the cost and contact checks, the channels, the backend and its FMUs. Raises ConfigurationError.
+    ``started``: the perf_counter reading the wall time counts from (default: now)."""
     t_start = _time.perf_counter()
     choice = None
     if spec is None:
         scene, choice = _tolerance_setting(scene, log)
         spec = assemble_scene(scene)
     plan = RunPlan(scene=scene, spec=spec, backend=backend, fmu_paths=fmu_paths, sources={}, contact_cost=[],
-                   contact_range=None, choice=choice, t_start=t_start)
+                   contact_range=None, choice=choice, t_start=t_start,
+                   t_started=t_start if started is None else min(started, t_start))
     _check_cost(plan, force, log)
     plan.sources = _sources(scene, spec, plan.warnings)
     plan.t_native = _time.perf_counter()
@@ -453,9 +457,14 @@ def torque_spectra(plan: RunPlan, ch: Channels) -> Spectra:
 
 
 def _timing(plan: RunPlan, res: CosimResult) -> dict:
-    """The summary's timing entries (wall time from the call to now)."""
-    wall = _time.perf_counter() - plan.t_start
+    """The summary's timing entries: the wall time from ``plan.t_started`` (the process start when the
+    command line runs it, else the call) to now, and its parts, which add up to it (``write`` and ``plots``
+    are filled in, and the wall time extended by them, when the files are written: :func:`write_run`)."""
+    now = _time.perf_counter()
+    startup = plan.t_start - plan.t_started
     before = plan.t_master - plan.t_start
+    run_part = now - plan.t_start
+    wall = now - plan.t_started
     return {
         "wall_time_s": wall,
         "sim_time_s": res.sim_time_s,
@@ -464,11 +473,13 @@ def _timing(plan: RunPlan, res: CosimResult) -> dict:
         "real_time_factor_wall": res.sim_time_s / wall if wall > 0 else None,
         "loop_time_s": res.loop_time_s,
         "loop_cpu_time_s": res.loop_cpu_time_s,
-        "time_breakdown_s": {"assemble_and_check": plan.t_native - plan.t_start,
+        "time_breakdown_s": {"startup": startup,
+                             "assemble_and_check": plan.t_native - plan.t_start,
                              "native_build": plan.t_master - plan.t_native,
                              "fmu_setup": res.setup_time_s,
                              "loop": res.loop_time_s,
-                             "postprocess": max(0.0, wall - before - res.setup_time_s - res.loop_time_s)},
+                             "postprocess": max(0.0, run_part - before - res.setup_time_s - res.loop_time_s),
+                             "write": None, "plots": None},
     }
 
 
@@ -533,8 +544,12 @@ def build_summary(plan: RunPlan, res: CosimResult, failed: CosimError | None, ch
 def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "fmi", progress: bool = True,
               *, fmu_dir: str | Path | None = None, spec: SystemSpec | None = None,
               fmu_paths: dict | None = None, plots: bool | None = None, build: bool = True,
-              log=None, force: bool = False) -> RunResult:
+              log=None, force: bool = False, started: float | None = None) -> RunResult:
     """Simulate a validated scene and (if out_dir) write signals.h5, summary.json, plots and CSV.
+
+    ``started``: a ``time.perf_counter()`` reading the summary's wall time counts from (the command line
+    passes its process start, :func:`drivetrain.run.timing.process_start`, so that ``time_breakdown_s``
+    holds the start-up too); default: this call. The parts of ``time_breakdown_s`` add up to ``wall_time_s``.
 
     ``spec``: use this system instead of ``assemble(scene)`` (tests, custom systems).
     ``fmu_paths``: explicit {model: path} (no building). ``plots``: override ``scene.outputs.plots``.
@@ -549,9 +564,11 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
     :func:`measured_channels`, :func:`torque_spectra`, :func:`build_summary` -> :func:`write_run`.
     """
     log = log or _LOG.warning
+    started = _time.perf_counter() if started is None else started
     if out_dir is not None:              # a bad --out is found now, not after the simulation
         O.check_output_dir(Path(out_dir), expected_output_bytes(scene), create=False)
-    plan = prepare_run(scene, spec, backend, fmu_paths, fmu_dir=fmu_dir, force=force, log=log)
+    plan = prepare_run(scene, spec, backend, fmu_paths, fmu_dir=fmu_dir, force=force, log=log,
+                       started=started)
     if out_dir is not None:              # refusals write nothing; from here on the directory says "running"
         O.mark_running(Path(out_dir), scene.name)
     res, failed = simulate_plan(plan, fmu_dir=fmu_dir, build=build, progress=progress, log=log)
@@ -561,7 +578,8 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
     result = RunResult(scene=plan.scene, summary=summary, time=ch.time, signals=ch.signals, units=ch.units,
                        sources=plan.sources, cosim=res, spec=plan.spec)
     if out_dir is not None:
-        write_run(result, out_dir, plots=plan.scene.outputs.plots if plots is None else plots, spectra=sp.spectra)
+        write_run(result, out_dir, plots=plan.scene.outputs.plots if plots is None else plots, spectra=sp.spectra,
+                  progress=progress)
     if failed is not None:
         raise RunFailedError(failed, result) from failed
     return result
@@ -574,8 +592,23 @@ def expected_output_bytes(scene: Scene) -> int:
     return n * channels * 8 * (4 if scene.outputs.aalto_csv else 1)
 
 
-def write_run(result: RunResult, out_dir: str | Path, plots: bool = True, spectra: dict | None = None) -> dict:
-    """Write signals.h5, summary.json, plots and (if asked) sensors.csv into out_dir."""
+def _account_writing(summary: dict, plots_s: float, write_s: float) -> None:
+    """The writing's part of the summary's times: ``time_breakdown_s`` ``plots`` and ``write`` (the data
+    files), ``write_time_s`` (both), and the wall time and its real-time factor grown by them (the
+    computing part, ``wall_time_s`` without them, is kept from the first call)."""
+    tb = summary["time_breakdown_s"]
+    computed = summary["wall_time_s"] - (tb.get("plots") or 0.0) - (tb.get("write") or 0.0)
+    tb["plots"], tb["write"] = plots_s, write_s
+    summary["write_time_s"] = plots_s + write_s
+    summary["wall_time_s"] = wall = computed + plots_s + write_s
+    summary["real_time_factor_wall"] = summary["sim_time_s"] / wall if wall > 0 else None
+
+
+def write_run(result: RunResult, out_dir: str | Path, plots: bool = True, spectra: dict | None = None,
+              progress: bool = False) -> dict:
+    """Write signals.h5, summary.json, plots and (if asked) sensors.csv into out_dir (``progress``: through
+    gearcontact_fmu.progress, i.e. a bar when a front end installed one). Adds ``write`` and ``plots`` to the
+    summary's ``time_breakdown_s`` and their time to its ``wall_time_s``."""
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -583,6 +616,8 @@ def write_run(result: RunResult, out_dir: str | Path, plots: bool = True, spectr
     files: dict[str, Any] = {"signals": str(out / "signals.h5"), "summary": str(out / "summary.json")}
     t_w = _time.perf_counter()
     plot_files = []
+    # a bar when the files take long (the command line's, shown after a few seconds)
+    steps = reporter(f"writing {out}", 2 if plots else 1, unit=" files") if progress else None
     cf = result.summary["characteristic_frequencies"]
     failed = result.status != "ok"
     if plots:
@@ -599,12 +634,14 @@ def write_run(result: RunResult, out_dir: str | Path, plots: bool = True, spectr
             if not failed:
                 raise
             result.summary["warnings"].append(f"plots of the failed run skipped: {type(exc).__name__}: {exc}")
+        if steps is not None:
+            steps.update(1)
+    t_plots = _time.perf_counter() - t_w
     files["plots"] = plot_files
     if scene.outputs.aalto_csv:
         files["csv"] = str(O.write_aalto_csv(out / "sensors.csv", result.time, result.signals))
     result.summary["files"] = {k: (Path(v).name if isinstance(v, str) else [Path(x).name for x in v])
                                for k, v in files.items()}
-    result.summary["write_time_s"] = _time.perf_counter() - t_w
     meta = {}
     for name, src in result.sources.items():
         kind = "sensor" if name in RIG_SENSORS else "variable"
@@ -619,8 +656,14 @@ def write_run(result: RunResult, out_dir: str | Path, plots: bool = True, spectr
         "settle_s": scene.time.settle_s, "duration_s": result.cosim.sim_time_s,
         "status": result.status,
     }
+    _account_writing(result.summary, t_plots, _time.perf_counter() - t_w - t_plots)
     O.write_hdf5(out / "signals.h5", result.time, result.signals, meta, attrs, dtype=scene.outputs.dtype)
+    # summary.json counts the HDF5 file too (the copy inside signals.h5 is written before it is timed)
+    _account_writing(result.summary, t_plots, _time.perf_counter() - t_w - t_plots)
     O.write_summary(out / "summary.json", result.summary)
+    if steps is not None:
+        steps.update(1)
+        steps.close()
     result.out_dir = out
     result.files = files
     return files

@@ -609,11 +609,14 @@ def make_table_data(cmap: ContactMap, friction: bool = True, damping: bool = Tru
 
 def make_table_model(gear_params=None, pcm_params=None, resolution=None, health="healthy",
                      mesh_files=None, mesh_units="mm", friction=True, damping=True, grid=None, faults=(),
-                     tooth_compliance: float = 1.0, **kw):
+                     tooth_compliance: float = 1.0, build: bool = True, **kw):
     """MeshModel of the precomputed contact map (fidelity "table"); ``tooth_compliance``: the series
-    factor of :func:`make_table_data` (1 = the layers alone, the paper's model)."""
+    factor of :func:`make_table_data` (1 = the layers alone, the paper's model). ``build=False``: only a
+    cached or shipped map (LookupError when there is none)."""
     cmap = get_map(gear_params, pcm_params, resolution, health, mesh_files, grid, mesh_units,
-                   fault_kwargs=fault_kwargs_of(health, faults))
+                   fault_kwargs=fault_kwargs_of(health, faults), build=build)
+    if cmap is None:
+        raise LookupError("the contact map of this configuration is not cached (build=False)")
     return MeshModel(eval=table_eval, data=make_table_data(cmap, friction, damping, float(tooth_compliance)),
                      fidelity="table", kind="mesh", info={**cmap.info, "tooth_compliance": float(tooth_compliance)})
 

@@ -118,6 +118,34 @@ def initial_mesh_deflection(T_msh: float, fidelity: str) -> float:
         return 0.0
 
 
+#: ``metadata["mesh_start"]`` when the mesh starts at the analytic guess because the table map is not cached
+#: yet (drivetrain.run.runner assembles again once the contact checks have built it)
+MESH_START_GUESS = "guess: contact map not cached"
+
+
+def start_mesh_model(gear: dict):
+    """(the mesh model whose static deflection the gear starts at, how the start was found): the model the
+    GearContact FMU builds from these parameters (``fmu_parameters.build_mesh_model`` over the slave's
+    defaults), from a cached or shipped contact map only (nothing is built here: the cost checks come
+    after the assembly). ``pcm`` starts at its table map, the same contact law tabulated (building the
+    online pair costs seconds, its first evaluation a compile). (None, reason) for the ideal gear (no
+    mesh coordinate) and when the map is not cached."""
+    fidelity = str(gear.get("fidelity", "")).strip().lower()
+    if fidelity == "ideal":
+        return None, "rigid"
+    from gearcontact_fmu.fmu_parameters import stage_arguments
+    from gearcontact_fmu.slaves.GearContact import parameter_values
+    from gearcontact_fmu.stage import stage_mesh_model
+
+    args, kw = stage_arguments(parameter_values({**gear, "fidelity": "table" if fidelity == "pcm" else fidelity}))
+    if fidelity in ("table", "pcm"):
+        kw["build"] = False
+    try:
+        return stage_mesh_model(*args, **kw), f"balanced on the {'table' if fidelity == 'pcm' else fidelity} model"
+    except LookupError:
+        return None, MESH_START_GUESS
+
+
 #: Internal sub-step of the linear components [s] (implicit midpoint: A-stable; 1e-5 s resolves their
 #: in-band modes, < 1.5 kHz, to better than 0.1 % in frequency). ``numerics.max_substep_s`` of the scene
 #: is the gear stage's sub-step (the stiff mesh needs it); the components use the smaller of this and H.
@@ -180,7 +208,15 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     theta_w = (theta_p - s0) / rig.LOWER_RATIO
     # the gear's manufacturing errors, read once from its parameter (the JSON the FMU receives)
     errors = errors_of(gear.get("manufacturing_errors"))
-    if errors is not None:
+    # the mesh at its own static deflection: where the model the FMU steps puts the port spring's torque
+    # on the pinion (errors and friction included); s0 only brackets the search
+    model, mesh_start = start_mesh_model(gear)
+    if model is not None:
+        from gearcontact_fmu.fidelity import balanced_wheel_angle
+
+        theta_w = balanced_wheel_angle(model, rig.LOWER_RATIO, theta_p, float(gear["k_a"]) * twist_a,
+                                       ss.w_middle, ss.w_prop, s_guess=s0)
+    elif errors is not None:
         # the errors offset the mesh coordinate by Delta(theta_p, theta_w): start where the offset mesh sits at s0
         from gearcontact_fmu.manufacturing import mesh_offset
 
@@ -216,6 +252,7 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
         "manufacturing_errors": errors.to_dict() if errors is not None else None,
         "calibration": part.calibration,
         "fmus": [c.model for c in components],
+        "mesh_start": mesh_start,
         "substeps": {"gear": sub, "components": csub},
         "warnings": [],
     }

@@ -123,13 +123,18 @@ def initial_mesh_deflection(T_msh: float, fidelity: str) -> float:
 MESH_START_GUESS = "guess: contact map not cached"
 
 
-def start_mesh_model(gear: dict):
+MESH_START_PCM_GUESS = "guess: no shipped contact map of this pcm geometry"
+
+
+def start_mesh_model(gear: dict, build_map: bool = False):
     """(the mesh model whose static deflection the gear starts at, how the start was found): the model the
-    GearContact FMU builds from these parameters (``fmu_parameters.build_mesh_model`` over the slave's
-    defaults), from a cached or shipped contact map only (nothing is built here: the cost checks come
-    after the assembly). ``pcm`` starts at its table map, the same contact law tabulated (building the
-    online pair costs seconds, its first evaluation a compile). (None, reason) for the ideal gear (no
-    mesh coordinate) and when the map is not cached."""
+    GearContact FMU builds from these parameters (``fmu_parameters.build_mesh_model``'s translation over
+    the slave's defaults). A table map is taken from the cache or the shipped maps only, unless
+    ``build_map`` (the cost checks come after the assembly; drivetrain.run.runner assembles again with
+    ``build_map`` after them). ``pcm`` starts at its shipped table map, the same contact law tabulated
+    (building the online pair costs seconds, its first evaluation a compile; only a shipped map, so the
+    start does not depend on what a cache holds). (None, reason) for the ideal gear (no mesh
+    coordinate) and when there is no map to use."""
     fidelity = str(gear.get("fidelity", "")).strip().lower()
     if fidelity == "ideal":
         return None, "rigid"
@@ -139,11 +144,11 @@ def start_mesh_model(gear: dict):
 
     args, kw = stage_arguments(parameter_values({**gear, "fidelity": "table" if fidelity == "pcm" else fidelity}))
     if fidelity in ("table", "pcm"):
-        kw["build"] = False
+        kw["build"] = "shipped" if fidelity == "pcm" else bool(build_map)
     try:
         return stage_mesh_model(*args, **kw), f"balanced on the {'table' if fidelity == 'pcm' else fidelity} model"
     except LookupError:
-        return None, MESH_START_GUESS
+        return None, MESH_START_PCM_GUESS if fidelity == "pcm" else MESH_START_GUESS
 
 
 #: Internal sub-step of the linear components [s] (implicit midpoint: A-stable; 1e-5 s resolves their
@@ -153,14 +158,16 @@ COMPONENT_SUBSTEP = 1e-5
 
 
 def assemble(scene, calibration: dict | str | None = None, check: bool = True,
-             component_substep: float | None = None) -> SystemSpec:
+             component_substep: float | None = None, build_map: bool = False) -> SystemSpec:
     """Build the SystemSpec for a resolved Scene.
 
     ``calibration``: a calibration dict or a JSON file written by ``drivetrain calibrate`` (default:
     $DRIVETRAIN_CALIBRATION, else the shipped ``drivetrain/data/calibration.json``). ``check``: refuse
     unstable cuts (before any step) with :class:`drivetrain.errors.ConfigurationError`.
     ``component_substep``: internal sub-step of MotorLoad, FlexibleShaft and UpperTransmission
-    (default min(COMPONENT_SUBSTEP, H); the gear stage uses ``numerics.max_substep_s``)."""
+    (default min(COMPONENT_SUBSTEP, H); the gear stage uses ``numerics.max_substep_s``). ``build_map``: build
+    a table gear's contact map when it is not cached, to start the mesh at its deflection (the runner, after
+    its cost checks); otherwise such a gear starts at the analytic guess (``metadata["mesh_start"]``)."""
     eff = scene.effects
     num = scene.numerics
     op = scene.operating_point
@@ -210,7 +217,7 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     errors = errors_of(gear.get("manufacturing_errors"))
     # the mesh at its own static deflection: where the model the FMU steps puts the port spring's torque
     # on the pinion (errors and friction included); s0 only brackets the search
-    model, mesh_start = start_mesh_model(gear)
+    model, mesh_start = start_mesh_model(gear, build_map)
     if model is not None:
         from gearcontact_fmu.fidelity import balanced_wheel_angle
 

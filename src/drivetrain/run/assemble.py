@@ -12,12 +12,13 @@ The parameters come from :func:`drivetrain.rig.data.partition` (the lumped publi
 coupling stiffness and losses); every cut is checked by :func:`drivetrain.models.stability.check_cuts` before the
 spec is returned (an unstable cut is refused with the numbers). The initial state is the steady state
 at the initial speed and load (every spring pre-twisted, the gear's port springs and mesh included;
-the PI integrator pre-loaded), so a constant-speed scene starts at its operating point (first 50 ms
-within 0.1 % of the steady torques on the example scene).
+the PI integrator pre-loaded; the mesh at the static deflection of its own model), so a constant-speed
+scene starts at its operating point (first 50 ms within 0.1 % of the steady torques on the example scene).
 
 ``metadata``: ``sensors`` (rig sensor -> "component.variable"), ``characteristic`` (frequencies from
 the final drive speed), ``fidelity`` (component -> fidelity), ``partition`` (bodies and cuts),
-``cuts`` (the stability report of every cut), ``steady_state``, ``calibration``.
+``cuts`` (the stability report of every cut), ``steady_state``, ``calibration``, ``mesh_start`` (how the
+mesh's start deflection was found: :func:`start_mesh_model`).
 """
 from __future__ import annotations
 
@@ -104,7 +105,9 @@ def _gear_parameters(scene, part: rig.Partition, max_substep: float) -> dict:
 def initial_mesh_deflection(T_msh: float, fidelity: str) -> float:
     """Pinion-referred mesh coordinate s = theta_p - (z2/z1) theta_w of the loaded flank at the steady
     middle-shaft torque (drive flank backlash/2 + T/K_mean; a reversed load, T < 0, loads the coast
-    flank: -backlash/2 + T/K_mean); 0 for the ideal gear."""
+    flank: -backlash/2 + T/K_mean); 0 for the ideal gear. The analytic estimate: it brackets the search for
+    the mesh model's own static deflection (:func:`start_mesh_model`) and is the start when there is no
+    model to search (``metadata["mesh_start"]``)."""
     if fidelity == "ideal":
         return 0.0
     try:

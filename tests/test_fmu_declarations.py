@@ -255,6 +255,29 @@ def test_the_mesh_starts_at_its_own_static_deflection(overrides):
     assert s.mesh_torque_wheel == pytest.approx(ss["T_psh"], rel=WHEEL_RATIO_REL)
 
 
+def test_a_map_not_cached_at_assembly_is_balanced_on_after_the_cost_checks(monkeypatch, tmp_path):
+    """The assembler builds no contact map (the cost refusal comes after it): a table gear whose map is not
+    cached starts at the analytic guess there, and the runner assembles again with the map once its checks
+    passed, so a first run starts like every later one."""
+    from drivetrain.run import assemble as asm
+    from drivetrain.run.runner import prepare_run
+    from drivetrain.scene.load import load_scene
+
+    real = asm.start_mesh_model
+    calls = []
+
+    def not_cached_yet(gear, build_map=False):
+        calls.append(build_map)
+        return real(gear, build_map) if build_map else (None, asm.MESH_START_GUESS)
+
+    monkeypatch.setattr(asm, "start_mesh_model", not_cached_yet)
+    scene = load_scene(Path(__file__).resolve().parents[1] / "scenarios" / "example.toml", ["time.duration_s=0.01"])
+    assert asm.assemble(scene).metadata["mesh_start"] == asm.MESH_START_GUESS
+    plan = prepare_run(scene, None, "inprocess", None, fmu_dir=tmp_path, force=False, log=lambda m: None)
+    assert calls == [False, False, True]
+    assert plan.spec.metadata["mesh_start"] == "balanced on the table model"
+
+
 def test_function_prefix_links_several_source_fmus_into_one_binary(fmus, tmp_path):
     """FMI 2.0 section 2.1.1 / fmi2Functions.h: a source FMU compiled with FMI2_FUNCTION_PREFIX names its
     functions <prefix>fmi2...; the shipped headers (the Modelica Association's 2.0.5, not fmpy's copy, which

@@ -221,6 +221,9 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     # the mesh at its own static deflection: where the model the FMU steps puts the port spring's torque
     # on the pinion (errors and friction included); s0 only brackets the search
     model, mesh_start = start_mesh_model(gear, build_map)
+    if ss.T_msh == 0.0:
+        # unloaded: every position inside the backlash balances; the drive flank's onset, as always
+        model, mesh_start = None, "unloaded: at the drive flank's onset"
     if model is not None:
         from gearcontact_fmu.fidelity import balanced_wheel_angle
 

@@ -154,6 +154,33 @@ def start_mesh_model(gear: dict, build_map: bool = False):
         return None, MESH_START_PCM_GUESS if fidelity == "pcm" else MESH_START_GUESS
 
 
+def start_wheel_angle(gear: dict, ss, theta_p: float, errors, build_map: bool = False) -> tuple[float, str]:
+    """(the wheel's start angle, how it was found: ``metadata["mesh_start"]``): the mesh at the static
+    deflection of its own model (:func:`start_mesh_model`), where it puts the port spring's steady torque
+    on the pinion at ``theta_p`` (errors and friction at the start speeds included); the analytic guess
+    :func:`initial_mesh_deflection` brackets the search, and is the start when there is no model to search
+    or no load (every position inside the backlash balances: the drive flank's onset, as always)."""
+    fidelity = str(gear.get("fidelity", "")).strip().lower()
+    s0 = initial_mesh_deflection(ss.T_msh, fidelity)
+    model, how = start_mesh_model(gear, build_map)
+    if ss.T_msh == 0.0:
+        model, how = None, "unloaded: at the drive flank's onset"
+    if model is not None:
+        from gearcontact_fmu.fidelity import balanced_wheel_angle
+
+        k_a = float(gear["k_a"])
+        tau_port = k_a * (-ss.T_msh / k_a)             # the port spring's torque on the pinion, as twisted
+        return balanced_wheel_angle(model, rig.LOWER_RATIO, theta_p, tau_port, ss.w_middle, ss.w_prop,
+                                    s_guess=s0), how
+    theta_w = (theta_p - s0) / rig.LOWER_RATIO
+    if errors is not None:
+        # the errors offset the mesh coordinate by Delta(theta_p, theta_w): start where the offset mesh sits at s0
+        from gearcontact_fmu.manufacturing import mesh_offset
+
+        theta_w += mesh_offset(errors, theta_p, theta_w) / rig.LOWER_RATIO
+    return theta_w, how
+
+
 #: Internal sub-step of the linear components [s] (implicit midpoint: A-stable; 1e-5 s resolves their
 #: in-band modes, < 1.5 kHz, to better than 0.1 % in frequency). ``numerics.max_substep_s`` of the scene
 #: is the gear stage's sub-step (the stiff mesh needs it); the components use the smaller of this and H.
@@ -211,29 +238,12 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     gear = _gear_parameters(scene, part, sub)
     # the stage's port springs carry the steady through torques from the start: the pinion lags the
     # body at flange_a by T_msh / k_a (the stage resists the drive), the wheel leads the propeller
-    # body by T_psh / k_b; the mesh sits at its static deflection s0 between them
+    # body by T_psh / k_b; the mesh sits at its own static deflection between them (start_wheel_angle)
     twist_a, twist_b = -ss.T_msh / float(gear["k_a"]), ss.T_psh / float(gear["k_b"])
     theta_p = phi_a + twist_a
-    s0 = initial_mesh_deflection(ss.T_msh, eff.mesh_contact)
-    theta_w = (theta_p - s0) / rig.LOWER_RATIO
     # the gear's manufacturing errors, read once from its parameter (the JSON the FMU receives)
     errors = errors_of(gear.get("manufacturing_errors"))
-    # the mesh at its own static deflection: where the model the FMU steps puts the port spring's torque
-    # on the pinion (errors and friction included); s0 only brackets the search
-    model, mesh_start = start_mesh_model(gear, build_map)
-    if ss.T_msh == 0.0:
-        # unloaded: every position inside the backlash balances; the drive flank's onset, as always
-        model, mesh_start = None, "unloaded: at the drive flank's onset"
-    if model is not None:
-        from gearcontact_fmu.fidelity import balanced_wheel_angle
-
-        theta_w = balanced_wheel_angle(model, rig.LOWER_RATIO, theta_p, float(gear["k_a"]) * twist_a,
-                                       ss.w_middle, ss.w_prop, s_guess=s0)
-    elif errors is not None:
-        # the errors offset the mesh coordinate by Delta(theta_p, theta_w): start where the offset mesh sits at s0
-        from gearcontact_fmu.manufacturing import mesh_offset
-
-        theta_w += mesh_offset(errors, theta_p, theta_w) / rig.LOWER_RATIO
+    theta_w, mesh_start = start_wheel_angle(gear, ss, theta_p, errors, build_map)
     phi_b = theta_w - twist_b
     gear.update(twist_a_start=twist_a, twist_b_start=twist_b)
     mo.update(max_substep=csub, energy_correction=bool(num.energy_correction), phi0_motor=th_motor, w0=w,

@@ -213,10 +213,12 @@ def test_matches_the_pythonfmu_gearcontact(native, pyfmu, gear, extra):
     _check_close(rel)
 
 
-@pytest.mark.parametrize("name, factor", [("J_pinion", 1 + 1e-9), ("k_b", 1 + 1e-9)])
+@pytest.mark.parametrize("name, factor", [("J_pinion", 1 + 1e-9), ("k_b", 1 + 1e-8)])
 def test_the_comparison_sees_a_wrong_parameter(native, pyfmu, gear, name, factor):
-    """The bounds have teeth: a parameter off by 1e-9 relative in one FMU breaks them (measured: the
-    coupling torques move by 2e-7 (J_pinion) and 3e-8 (k_b) relative)."""
+    """The bounds have teeth: a parameter off by 1e-9 (J_pinion) or 1e-8 (k_b) relative in one FMU breaks
+    them. Measured, per 1e-9: the coupling torques move by 2e-7 (J_pinion) and 5e-9 (k_b) relative; k_b
+    moved them by 3e-8 while the mesh started off its balance and rang (issue 30: it now starts at its
+    own static deflection, and a stiffer or softer port spring only shifts the steady twist)."""
     a = _drive(*_open(native, gear), 1200)
     b = _drive(*_open(pyfmu, {**gear, name: gear[name] * factor}), 1200)
     rel = dict(zip(COMPARED, _rel(a, b)))

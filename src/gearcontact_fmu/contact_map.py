@@ -491,6 +491,11 @@ def _build_map(gear, pcm, resolution, health, mesh_files, mesh_units, grid, faul
     return compute_map(pair, grid, progress=True, healthy=healthy)
 
 
+def map_file_name(gear, pcm, resolution, health, mesh_files, grid, mesh_units, fault_kwargs) -> str:
+    """The file name of a configuration's map, in the cache and among the shipped ones (SEED_DIR)."""
+    return f"contactmap-{cache_key(gear, pcm, resolution, health, mesh_files, grid, fault_kwargs, mesh_units)}.npz"
+
+
 def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
             resolution: MeshResolution | None = None, health: str = "healthy", mesh_files=None,
             grid: MapGrid | None = None, mesh_units: str = "mm", use_cache: bool = True,
@@ -502,8 +507,7 @@ def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
     resolution = resolution or MeshResolution()
     grid = grid or MapGrid()
     mesh_files = {k: v for k, v in (mesh_files or {}).items() if v}
-    key = cache_key(gear, pcm, resolution, health, mesh_files, grid, fault_kwargs, mesh_units)
-    path = cache_dir() / f"contactmap-{key}.npz"
+    path = cache_dir() / map_file_name(gear, pcm, resolution, health, mesh_files, grid, mesh_units, fault_kwargs)
     n_rev = pairing_revolutions(gear, wheel_periodic=not (mesh_files.get("wheel") or wheel_faults(health, fault_kwargs)))
 
     def cached() -> ContactMap:
@@ -609,11 +613,19 @@ def make_table_data(cmap: ContactMap, friction: bool = True, damping: bool = Tru
 
 def make_table_model(gear_params=None, pcm_params=None, resolution=None, health="healthy",
                      mesh_files=None, mesh_units="mm", friction=True, damping=True, grid=None, faults=(),
-                     tooth_compliance: float = 1.0, **kw):
+                     tooth_compliance: float = 1.0, build: bool = True, **kw):
     """MeshModel of the precomputed contact map (fidelity "table"); ``tooth_compliance``: the series
-    factor of :func:`make_table_data` (1 = the layers alone, the paper's model)."""
+    factor of :func:`make_table_data` (1 = the layers alone, the paper's model). ``build=False``: only a
+    cached or shipped map, ``build="shipped"``: only a shipped one (LookupError when there is none)."""
+    fault_kwargs = fault_kwargs_of(health, faults)
+    if build == "shipped" and not (SEED_DIR / map_file_name(
+            gear_params or BevelGearParams(), pcm_params or PCMParams(), resolution or MeshResolution(), health,
+            {k: v for k, v in (mesh_files or {}).items() if v}, grid or MapGrid(), mesh_units, fault_kwargs)).exists():
+        raise LookupError("no contact map of this configuration is shipped")
     cmap = get_map(gear_params, pcm_params, resolution, health, mesh_files, grid, mesh_units,
-                   fault_kwargs=fault_kwargs_of(health, faults))
+                   fault_kwargs=fault_kwargs, build=bool(build))
+    if cmap is None:
+        raise LookupError("the contact map of this configuration is not cached (build=False)")
     return MeshModel(eval=table_eval, data=make_table_data(cmap, friction, damping, float(tooth_compliance)),
                      fidelity="table", kind="mesh", info={**cmap.info, "tooth_compliance": float(tooth_compliance)})
 

@@ -124,3 +124,39 @@ def static_mesh_stiffness(model: MeshModel, gear: BevelGearParams, torque_Nm: fl
         ks.append(k_rot / rb ** 2 * 1e-6 / (gear.face_width * 1e3))     # N/(mm um)
     k = np.array(ks)
     return {"k": k, "mean": float(k.mean()), "double_single": float(k.max() / k.min())}
+
+
+def balanced_wheel_angle(model: MeshModel, ratio: float, theta_pinion: float, tau_pinion: float,
+                         omega_pinion: float = 0.0, omega_wheel: float = 0.0, s_guess: float | None = None) -> float:
+    """The wheel angle at which this compliant mesh model, at ``theta_pinion`` and the given speeds, puts
+    exactly ``tau_pinion`` [N m] on the pinion (the mesh's own static deflection at that angle: a root
+    search along the mesh coordinate s = theta_pinion - ratio theta_wheel, on the very kernel a stage steps
+    with, manufacturing errors and friction at these speeds included). ``tau_pinion`` < 0 loads the drive
+    flank (the mesh resists a driving pinion), > 0 the coast flank; 0 puts the pinion at the backlash
+    centre. ``s_guess``: where to start bracketing (e.g. the analytic T / K_mean)."""
+    from scipy.optimize import brentq
+
+    from gearcontact_fmu.mesh_model import N_OUT, OUT_TAU_PINION
+
+    out = np.zeros(N_OUT)
+    tp, wp, ww, target = float(theta_pinion), float(omega_pinion), float(omega_wheel), float(tau_pinion)
+
+    def residual(s):
+        model.eval(model.data, tp, (tp - s) / ratio, wp, ww, out)
+        return out[OUT_TAU_PINION] - target
+
+    if target == 0.0:
+        return tp / ratio
+    sign = 1.0 if target < 0.0 else -1.0            # the flank that carries it: drive (s > 0) or coast
+    free = 0.0                                     # the backlash centre: no contact, the residual is -target
+    step = abs(s_guess) if s_guess else 1e-3
+    far = sign * step
+    for _ in range(60):                            # widen until the flank carries more than the load
+        if residual(far) * residual(free) < 0.0:
+            break
+        free, far = far, far + sign * step
+        step *= 2.0
+    else:
+        raise ValueError(f"the mesh model carries no {target:.6g} N m on the pinion within s = {far:.3g} rad")
+    s = brentq(residual, min(free, far), max(free, far), xtol=1e-16, rtol=4 * np.finfo(float).eps, maxiter=200)
+    return (tp - s) / ratio

@@ -12,12 +12,13 @@ The parameters come from :func:`drivetrain.rig.data.partition` (the lumped publi
 coupling stiffness and losses); every cut is checked by :func:`drivetrain.models.stability.check_cuts` before the
 spec is returned (an unstable cut is refused with the numbers). The initial state is the steady state
 at the initial speed and load (every spring pre-twisted, the gear's port springs and mesh included;
-the PI integrator pre-loaded), so a constant-speed scene starts at its operating point (first 50 ms
-within 0.1 % of the steady torques on the example scene).
+the PI integrator pre-loaded; the mesh at the static deflection of its own model), so a constant-speed
+scene starts at its operating point (first 50 ms within 0.1 % of the steady torques on the example scene).
 
 ``metadata``: ``sensors`` (rig sensor -> "component.variable"), ``characteristic`` (frequencies from
 the final drive speed), ``fidelity`` (component -> fidelity), ``partition`` (bodies and cuts),
-``cuts`` (the stability report of every cut), ``steady_state``, ``calibration``.
+``cuts`` (the stability report of every cut), ``steady_state``, ``calibration``, ``mesh_start`` (how the
+mesh's start deflection was found: :func:`start_mesh_model`).
 """
 from __future__ import annotations
 
@@ -104,7 +105,9 @@ def _gear_parameters(scene, part: rig.Partition, max_substep: float) -> dict:
 def initial_mesh_deflection(T_msh: float, fidelity: str) -> float:
     """Pinion-referred mesh coordinate s = theta_p - (z2/z1) theta_w of the loaded flank at the steady
     middle-shaft torque (drive flank backlash/2 + T/K_mean; a reversed load, T < 0, loads the coast
-    flank: -backlash/2 + T/K_mean); 0 for the ideal gear."""
+    flank: -backlash/2 + T/K_mean); 0 for the ideal gear. The analytic estimate: it brackets the search for
+    the mesh model's own static deflection (:func:`start_mesh_model`) and is the start when there is no
+    model to search (``metadata["mesh_start"]``)."""
     if fidelity == "ideal":
         return 0.0
     try:
@@ -118,6 +121,66 @@ def initial_mesh_deflection(T_msh: float, fidelity: str) -> float:
         return 0.0
 
 
+#: ``metadata["mesh_start"]`` when the mesh starts at the analytic guess because the table map is not cached
+#: yet (drivetrain.run.runner assembles again once the contact checks have built it)
+MESH_START_GUESS = "guess: contact map not cached"
+
+
+MESH_START_PCM_GUESS = "guess: no shipped contact map of this pcm geometry"
+
+
+def start_mesh_model(gear: dict, build_map: bool = False):
+    """(the mesh model whose static deflection the gear starts at, how the start was found): the model the
+    GearContact FMU builds from these parameters (``fmu_parameters.build_mesh_model``'s translation over
+    the slave's defaults). A table map is taken from the cache or the shipped maps only, unless
+    ``build_map`` (the cost checks come after the assembly; drivetrain.run.runner assembles again with
+    ``build_map`` after them). ``pcm`` starts at its shipped table map, the same contact law tabulated
+    (building the online pair costs seconds, its first evaluation a compile; only a shipped map, so the
+    start does not depend on what a cache holds). (None, reason) for the ideal gear (no mesh
+    coordinate) and when there is no map to use."""
+    fidelity = str(gear.get("fidelity", "")).strip().lower()
+    if fidelity == "ideal":
+        return None, "rigid"
+    from gearcontact_fmu.fmu_parameters import stage_arguments
+    from gearcontact_fmu.slaves.GearContact import parameter_values
+    from gearcontact_fmu.stage import stage_mesh_model
+
+    args, kw = stage_arguments(parameter_values({**gear, "fidelity": "table" if fidelity == "pcm" else fidelity}))
+    if fidelity in ("table", "pcm"):
+        kw["build"] = "shipped" if fidelity == "pcm" else bool(build_map)
+    try:
+        return stage_mesh_model(*args, **kw), f"balanced on the {'table' if fidelity == 'pcm' else fidelity} model"
+    except LookupError:
+        return None, MESH_START_PCM_GUESS if fidelity == "pcm" else MESH_START_GUESS
+
+
+def start_wheel_angle(gear: dict, ss, theta_p: float, errors, build_map: bool = False) -> tuple[float, str]:
+    """(the wheel's start angle, how it was found: ``metadata["mesh_start"]``): the mesh at the static
+    deflection of its own model (:func:`start_mesh_model`), where it puts the port spring's steady torque
+    on the pinion at ``theta_p`` (errors and friction at the start speeds included); the analytic guess
+    :func:`initial_mesh_deflection` brackets the search, and is the start when there is no model to search
+    or no load (every position inside the backlash balances: the drive flank's onset, as always)."""
+    fidelity = str(gear.get("fidelity", "")).strip().lower()
+    s0 = initial_mesh_deflection(ss.T_msh, fidelity)
+    model, how = start_mesh_model(gear, build_map)
+    if ss.T_msh == 0.0:
+        model, how = None, "unloaded: at the drive flank's onset"
+    if model is not None:
+        from gearcontact_fmu.fidelity import balanced_wheel_angle
+
+        k_a = float(gear["k_a"])
+        tau_port = k_a * (-ss.T_msh / k_a)             # the port spring's torque on the pinion, as twisted
+        return balanced_wheel_angle(model, rig.LOWER_RATIO, theta_p, tau_port, ss.w_middle, ss.w_prop,
+                                    s_guess=s0), how
+    theta_w = (theta_p - s0) / rig.LOWER_RATIO
+    if errors is not None:
+        # the errors offset the mesh coordinate by Delta(theta_p, theta_w): start where the offset mesh sits at s0
+        from gearcontact_fmu.manufacturing import mesh_offset
+
+        theta_w += mesh_offset(errors, theta_p, theta_w) / rig.LOWER_RATIO
+    return theta_w, how
+
+
 #: Internal sub-step of the linear components [s] (implicit midpoint: A-stable; 1e-5 s resolves their
 #: in-band modes, < 1.5 kHz, to better than 0.1 % in frequency). ``numerics.max_substep_s`` of the scene
 #: is the gear stage's sub-step (the stiff mesh needs it); the components use the smaller of this and H.
@@ -125,14 +188,16 @@ COMPONENT_SUBSTEP = 1e-5
 
 
 def assemble(scene, calibration: dict | str | None = None, check: bool = True,
-             component_substep: float | None = None) -> SystemSpec:
+             component_substep: float | None = None, build_map: bool = False) -> SystemSpec:
     """Build the SystemSpec for a resolved Scene.
 
     ``calibration``: a calibration dict or a JSON file written by ``drivetrain calibrate`` (default:
     $DRIVETRAIN_CALIBRATION, else the shipped ``drivetrain/data/calibration.json``). ``check``: refuse
     unstable cuts (before any step) with :class:`drivetrain.errors.ConfigurationError`.
     ``component_substep``: internal sub-step of MotorLoad, FlexibleShaft and UpperTransmission
-    (default min(COMPONENT_SUBSTEP, H); the gear stage uses ``numerics.max_substep_s``)."""
+    (default min(COMPONENT_SUBSTEP, H); the gear stage uses ``numerics.max_substep_s``). ``build_map``: build
+    a table gear's contact map when it is not cached, to start the mesh at its deflection (the runner, after
+    its cost checks); otherwise such a gear starts at the analytic guess (``metadata["mesh_start"]``)."""
     eff = scene.effects
     num = scene.numerics
     op = scene.operating_point
@@ -173,18 +238,12 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     gear = _gear_parameters(scene, part, sub)
     # the stage's port springs carry the steady through torques from the start: the pinion lags the
     # body at flange_a by T_msh / k_a (the stage resists the drive), the wheel leads the propeller
-    # body by T_psh / k_b; the mesh sits at its static deflection s0 between them
+    # body by T_psh / k_b; the mesh sits at its own static deflection between them (start_wheel_angle)
     twist_a, twist_b = -ss.T_msh / float(gear["k_a"]), ss.T_psh / float(gear["k_b"])
     theta_p = phi_a + twist_a
-    s0 = initial_mesh_deflection(ss.T_msh, eff.mesh_contact)
-    theta_w = (theta_p - s0) / rig.LOWER_RATIO
     # the gear's manufacturing errors, read once from its parameter (the JSON the FMU receives)
     errors = errors_of(gear.get("manufacturing_errors"))
-    if errors is not None:
-        # the errors offset the mesh coordinate by Delta(theta_p, theta_w): start where the offset mesh sits at s0
-        from gearcontact_fmu.manufacturing import mesh_offset
-
-        theta_w += mesh_offset(errors, theta_p, theta_w) / rig.LOWER_RATIO
+    theta_w, mesh_start = start_wheel_angle(gear, ss, theta_p, errors, build_map)
     phi_b = theta_w - twist_b
     gear.update(twist_a_start=twist_a, twist_b_start=twist_b)
     mo.update(max_substep=csub, energy_correction=bool(num.energy_correction), phi0_motor=th_motor, w0=w,
@@ -216,6 +275,7 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
         "manufacturing_errors": errors.to_dict() if errors is not None else None,
         "calibration": part.calibration,
         "fmus": [c.model for c in components],
+        "mesh_start": mesh_start,
         "substeps": {"gear": sub, "components": csub},
         "warnings": [],
     }

@@ -357,13 +357,20 @@ def prepare_run(scene: Scene, spec: SystemSpec | None, backend: str, fmu_paths: 
     ``started``: the perf_counter reading the wall time counts from (default: now)."""
     t_start = _time.perf_counter()
     choice = None
-    if spec is None:
+    assembled = spec is None
+    if assembled:
         scene, choice = _tolerance_setting(scene, log)
         spec = assemble_scene(scene)
     plan = RunPlan(scene=scene, spec=spec, backend=backend, fmu_paths=fmu_paths, sources={}, contact_cost=[],
                    contact_range=None, choice=choice, t_start=t_start,
                    t_started=t_start if started is None else min(started, t_start))
     _check_cost(plan, force, log)
+    from drivetrain.run.assemble import MESH_START_GUESS, assemble
+
+    if assembled and spec.metadata.get("mesh_start") == MESH_START_GUESS:
+        # past the cost checks the table map may be built (the run needs it): the mesh starts at its own
+        # deflection (drivetrain.run.assemble.start_mesh_model), as on every later run of this scene
+        plan.spec = spec = assemble(scene, build_map=True)
     plan.sources = _sources(scene, spec, plan.warnings)
     plan.t_native = _time.perf_counter()
     _choose_backend(plan, fmu_dir, log)

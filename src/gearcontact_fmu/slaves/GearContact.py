@@ -217,6 +217,17 @@ def _default_sources() -> dict:
             "grid": MapGrid()}
 
 
+def parameter_values(given=None) -> dict:
+    """Every parameter's value as an instance holds it before anything is set: ``given`` (name -> value)
+    where it names a parameter, else the declared default (what ``fmu_parameters.build_mesh_model``
+    takes, e.g. for the assembler's start state, drivetrain.run.assemble)."""
+    given = given or {}
+    sources = _default_sources()
+    return {v.name: given[v.name] if v.name in given else
+            (getattr(sources[v.default.source], v.default.attribute) if isinstance(v.default, From) else v.default)
+            for v in VARIABLES if v.causality == PARAMETER}
+
+
 _TYPES = {"Real": Real, "Integer": Integer, "Boolean": Boolean, "String": String}
 _FIRST_BUILD = [True]       # the first stage build in this process loads or compiles the numba kernels
 

@@ -279,3 +279,20 @@ def test_the_accuracy_report_states_costs_against_the_scenes_defaults():
     md = S.report_markdown({**_results(), "meta": {}}, {})
     assert "Within 5 % / 5 dB: cheapest `fast` (0.9 s/s, 0.45x the scene's defaults, 0.23x the reference)." in md
     assert "`--update-shipped` rewrites this page" in md
+
+
+def test_build_native_without_out_writes_to_the_fmu_directory_not_the_current_folder(tmp_path):
+    """``build-native SCENE`` with no --out: the FMUs go to native/ of the FMU directory (a source checkout's
+    fmus/, else the user-level cache), as ``run --native`` finds them; the current folder stays empty (it
+    wrote ./fmus/native before)."""
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(drivetrain.__file__).parents[1]),
+                                                        os.environ.get("PYTHONPATH", "")])}
+    p = subprocess.run([sys.executable, "-m", "drivetrain", "build-native", str(EXAMPLE)],
+                       cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr
+    assert _tree(cwd) == set()
+    wrote = re.findall(r"wrote (\S+\.fmu)", p.stdout + p.stderr)
+    assert len(wrote) == 4, p.stdout + p.stderr
+    assert all(Path(w).parent.resolve() == (F.default_fmu_dir() / "native").resolve() for w in wrote), wrote

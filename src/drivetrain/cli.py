@@ -75,7 +75,7 @@ def _cmd_build_native_gear(args: argparse.Namespace) -> int:
     from drivetrain.run.assemble import gear_parameters
 
     def write(scene, log):
-        path = build_native_gear(gear_parameters(scene), args.out, log=log)
+        path = build_native_gear(gear_parameters(scene), args.out or _native_dir() / "GearContact.fmu", log=log)
         return [f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB): native GearContact of {scene.name} (table, stage)"]
 
     return _write_from_scene(args, write, "the FMU")
@@ -86,7 +86,7 @@ def _cmd_build_native(args: argparse.Namespace) -> int:
     from drivetrain.run.runner import assemble_scene
 
     def write(scene, log):
-        paths = build_native_fmus(assemble_scene(scene), args.out, log=log)
+        paths = build_native_fmus(assemble_scene(scene), args.out or _native_dir(), log=log)
         return [f"wrote {path}: native {model}" for model, path in paths.items()]
 
     return _write_from_scene(args, write, "the FMUs")
@@ -416,6 +416,14 @@ def _shipped_docs(args: argparse.Namespace) -> Path | bool | None:
               "installed (give --report/--results instead)", file=sys.stderr)
         return None
     return root / "docs"
+
+
+def _native_dir() -> Path:
+    """Where build-native and build-native-gear write by default: the FMU directory's native/ (never the current
+    folder unless it is that directory)."""
+    from drivetrain.cosim.fmus import default_fmu_dir
+
+    return default_fmu_dir() / "native"
 
 
 def _cmd_validate(args: argparse.Namespace) -> int:
@@ -809,8 +817,9 @@ def _parser_build_native_gear(sub) -> None:
     p.add_argument("scene", help="scene file (.toml); a grid file needs --case")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a scene key (repeatable)")
     p.add_argument("--case", default=None, help="with a grid file: the name of the case")
-    p.add_argument("--out", default="fmus/native/GearContact.fmu",
-                   help="the FMU file (default: fmus/native/GearContact.fmu)")
+    p.add_argument("--out", default=None,
+                   help="the FMU file (default: native/GearContact.fmu in the FMU directory, whatever the current "
+                        "folder: a source checkout's fmus/, else the user-level cache)")
     p.set_defaults(func=_cmd_build_native_gear)
 
 def _parser_build_native(sub) -> None:
@@ -819,7 +828,9 @@ def _parser_build_native(sub) -> None:
     p.add_argument("scene", help="scene file (.toml); a grid file needs --case")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a scene key (repeatable)")
     p.add_argument("--case", default=None, help="with a grid file: the name of the case")
-    p.add_argument("--out", default="fmus/native", help="the directory of the FMUs (default: fmus/native)")
+    p.add_argument("--out", default=None, help="the directory of the FMUs (default: native/ in the FMU directory, "
+                                               "whatever the current folder: a source checkout's fmus/, else the "
+                                               "user-level cache)")
     p.set_defaults(func=_cmd_build_native)
 
 def _parser_export_ssp(sub) -> None:

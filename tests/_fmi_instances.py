@@ -58,3 +58,21 @@ def get_values(s, vr, names):
         get = {"Real": s.getReal, "Integer": s.getInteger, "Boolean": s.getBoolean}[t]
         out.append(float(get(ref)[0]))
     return out
+
+
+def case_records(stdout: str) -> tuple[dict, str | None]:
+    """A case subprocess's JSON lines: ({case name: record}, the last case started). Non-JSON lines (a
+    library printing) are skipped; a case started without a record is the one that crashed."""
+    import json
+
+    done, started = {}, None
+    for ln in stdout.splitlines():
+        try:
+            rec = json.loads(ln)
+        except ValueError:
+            continue
+        if "start" in rec:
+            started = rec["start"]
+        elif "case" in rec:
+            done[rec["case"]] = rec
+    return done, started

@@ -12,13 +12,14 @@ are these cases.
 """
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
 import textwrap
 
 import pytest
+
+from _fmi_instances import case_records
 
 fmpy = pytest.importorskip("fmpy")
 
@@ -247,16 +248,8 @@ def _run(path, build: str, cases: list[str]) -> dict:
     while todo:
         r = subprocess.run([sys.executable, "-c", SCRIPT, str(path), build, ",".join(todo)], capture_output=True,
                            text=True, timeout=600, env=env)
-        started = None
-        for ln in r.stdout.splitlines():
-            try:
-                rec = json.loads(ln)
-            except ValueError:
-                continue
-            if "start" in rec:
-                started = rec["start"]
-            elif "case" in rec:
-                done[rec["case"]] = rec
+        got, started = case_records(r.stdout)
+        done.update(got)
         if r.returncode == 0:
             for c in todo:
                 done.setdefault(c, {"crash": "no result", "stderr": r.stderr[-2000:]})

@@ -14,6 +14,8 @@ import textwrap
 
 import pytest
 
+from _fmi_instances import case_records
+
 from drivetrain.cosim import ensure_fmus
 
 MODELS = ("GearContact", "FlexibleShaft", "UpperTransmission", "MotorLoad")
@@ -249,16 +251,7 @@ def results(tmp_path_factory):
             env = {**os.environ, "NUMBA_CACHE_DIR": str(fmu_dir / "numba-cache")}
             r = subprocess.run([sys.executable, "-c", SCRIPT, str(fmu_dir / f"{model}.fmu")],
                                capture_output=True, text=True, timeout=600, env=env)
-            done, started = {}, None
-            for ln in r.stdout.splitlines():
-                try:
-                    rec = json.loads(ln)
-                except ValueError:
-                    continue
-                if "start" in rec:
-                    started = rec["start"]
-                elif "case" in rec:
-                    done[rec["case"]] = rec
+            done, started = case_records(r.stdout)
             cache[model] = (done, f"subprocess rc {r.returncode}, last case started: {started}\n"
                                   f"{r.stderr[-1500:]}")
         return cache[model]

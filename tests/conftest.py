@@ -45,3 +45,23 @@ def native_cache_dir(tmp_path_factory):
     native FMUs without testing their build or its cache: each build (the example's gear: ~5 s) happens
     once per session. Tests of the build and the cache use a directory of their own."""
     return tmp_path_factory.mktemp("native_session")
+
+
+@pytest.fixture(scope="session")
+def fmus_both_builds(drivetrain_fmu_dir, tmp_path_factory):
+    """{(build, model): path} of the four FMUs in both builds, built once per session for the tests that read
+    or run them without testing their build: "pythonfmu" (ensure_fmus into the session's FMU directory) and,
+    with a C toolchain, "native" (GearContact with its at-rest defaults). Without a toolchain the native
+    entries are absent (and the pythonfmu FMUs carry no FMI wrapper)."""
+    from drivetrain.cosim import ensure_fmus
+    from drivetrain.cosim.native_gear import build_native_gear
+    from drivetrain.cosim.native_line import MODELS as LINE_MODELS, build_native_line, toolchain_problems
+
+    models = ("GearContact", *LINE_MODELS)
+    out = {("pythonfmu", m): p for m, p in ensure_fmus(list(models), drivetrain_fmu_dir).items()}
+    if not toolchain_problems():
+        d = tmp_path_factory.mktemp("native_both_builds")
+        for m in LINE_MODELS:
+            out[("native", m)] = build_native_line(m, d / f"{m}.fmu")
+        out[("native", "GearContact")] = build_native_gear({}, d / "GearContact.fmu")
+    return out

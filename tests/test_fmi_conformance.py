@@ -264,21 +264,13 @@ def _run(path, build: str, cases: list[str]) -> dict:
 
 
 @pytest.fixture(scope="module")
-def fmus(tmp_path_factory):
-    """{(build, model): path}: the pythonfmu FMUs (ensure_fmus) and the native builds, built once per module."""
-    from drivetrain.cosim import ensure_fmus
-    from drivetrain.cosim.native_gear import build_native_gear
-    from drivetrain.cosim.native_line import build_native_line, toolchain_problems
+def fmus(fmus_both_builds):
+    """{(build, model): path}: both builds of the four FMUs (the session's, tests/conftest.py)."""
+    from drivetrain.cosim.native_line import toolchain_problems
 
     if toolchain_problems():
         pytest.skip("no C toolchain (the FMI wrapper and the native builds need one): " + "; ".join(toolchain_problems()))
-    d = tmp_path_factory.mktemp("conformance")
-    ensure_fmus(list(MODELS), d / "pythonfmu")
-    out = {("pythonfmu", m): d / "pythonfmu" / f"{m}.fmu" for m in MODELS}
-    for m in MODELS:
-        target = d / "native" / f"{m}.fmu"
-        out[("native", m)] = build_native_gear({}, target) if m == "GearContact" else build_native_line(m, target)
-    return out
+    return fmus_both_builds
 
 
 @pytest.fixture(scope="module")

@@ -23,21 +23,9 @@ _KEEP = KEEP
 
 
 @pytest.fixture(scope="module")
-def fmus(tmp_path_factory):
-    """{(build, model): path} for build "pythonfmu" and, with gcc, "native"."""
-    from drivetrain.cosim.build import build_all
-
-    out = {("pythonfmu", p.stem): p for p in build_all(tmp_path_factory.mktemp("py"))}
-    if shutil.which("gcc") is not None:
-        from drivetrain.cosim.native_gear import build_native_gear
-        from drivetrain.cosim.native_line import MODELS as LINE_MODELS
-        from drivetrain.cosim.native_line import build_native_line
-
-        d = tmp_path_factory.mktemp("native")
-        for m in LINE_MODELS:
-            out[("native", m)] = build_native_line(m, d / f"{m}.fmu")
-        out[("native", "GearContact")] = build_native_gear({}, d / "GearContact.fmu")
-    return out
+def fmus(fmus_both_builds):
+    """{(build, model): path} for build "pythonfmu" and, with a C toolchain, "native" (tests/conftest.py)."""
+    return fmus_both_builds
 
 
 def _root(path):

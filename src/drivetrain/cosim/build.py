@@ -205,8 +205,7 @@ HOST_NOTE = ("This FMU is built with pythonfmu 0.7.0: its binary embeds the host
 
 
 def postprocess_model_description(fmu: Path, units: dict | None = None,
-                                  output_dependencies: dict | None = None, model: str = "",
-                                  description: str = "", variable_descriptions: dict | None = None,
+                                  output_dependencies: dict | None = None, variable_descriptions: dict | None = None,
                                   bounds: dict | None = None, initial_dependencies: dict | None = None) -> None:
     """Add units, UnitDefinitions and output dependencies in place, and what the FMU ships for a user
     (drivetrain.cosim.fmu_docs: resources/requirements.txt, documentation/index.html from the final
@@ -237,14 +236,6 @@ def _number(value, kind: str) -> str:
     return str(int(value)) if kind == "Integer" else repr(float(value))
 
 
-def _dependencies(spec, inputs: list, parameters: list) -> list:
-    """Names from a dependency declaration: a list of names, "inputs", "parameters" or "inputs+parameters"."""
-    if isinstance(spec, str):
-        groups = {"inputs": inputs, "parameters": parameters}
-        return [n for g in spec.split("+") for n in groups[g.strip()]]
-    return list(spec)
-
-
 def edit_model_description(data: bytes, units: dict, output_dependencies: dict, descriptions: dict,
                            bounds: dict | None = None, initial_dependencies: dict | None = None) -> bytes:
     """modelDescription.xml with the descriptions, units, UnitDefinitions, TypeDefinitions, bounds, initial
@@ -256,7 +247,7 @@ def edit_model_description(data: bytes, units: dict, output_dependencies: dict, 
     - every output is ``initial="calculated"`` without a start value (FMI 2.0, section 2.2.7: its value is
       computed by the FMU in initialization mode; the Reference FMUs declare their outputs so), and listed
       in ``<ModelStructure><InitialUnknowns>`` (section 2.2.8) with the knowns it is computed from:
-      ``initial_dependencies`` (output -> names, "inputs", "parameters" or "inputs+parameters"); by default
+      ``initial_dependencies`` (output -> names); by default
       every input and every parameter (the start state follows the flange inputs and the parameters);
     - Integer and Boolean outputs are ``variability="discrete"`` (they change at communication points only).
     """
@@ -337,7 +328,7 @@ def edit_model_description(data: bytes, units: dict, output_dependencies: dict, 
     if calculated:
         iu = ET.Element("InitialUnknowns")
         for sv in calculated:
-            deps = _dependencies(initial_dependencies.get(sv.get("name"), "inputs+parameters"), inputs, parameters)
+            deps = initial_dependencies.get(sv.get("name"), inputs + parameters)
             idx = sorted(index[d] for d in dict.fromkeys(deps))
             # no dependenciesKind: "dependent" (not a linear factor), the default
             ET.SubElement(iu, "Unknown", {"index": str(index[sv.get("name")]), "dependencies": " ".join(map(str, idx))})
@@ -368,7 +359,6 @@ def build_fmu(script: Path, out_dir: Path) -> Path:
                                    canGetAndSetFMUstate=bool(getattr(cls, "can_get_and_set_fmu_state", False)))
     fmu = Path(fmu)
     postprocess_model_description(fmu, getattr(cls, "units", None), getattr(cls, "output_dependencies", None),
-                                  model=cls.__name__, description=getattr(cls, "description", ""),
                                   variable_descriptions=getattr(cls, "variable_descriptions", None),
                                   bounds=getattr(cls, "bounds", None),
                                   initial_dependencies=declared_initial_dependencies(cls))

@@ -37,9 +37,7 @@ from drivetrain.system import INERTIA, SPRING
 from fmu_runtime.guard import enter_error_state, fmi_text, guard_value_references, restore_shell_state, shell_state
 from gearcontact_fmu.params import DEFAULT_COMM_STEP_S
 
-#: the modelDescription's DefaultExperiment of every drivetrain FMU: the step they are validated at
-DEFAULT_EXPERIMENT = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=DEFAULT_COMM_STEP_S)
-#: per model: the DefaultExperiment, long enough for the shipped example input (drivetrain.cosim.fmu_docs: the
+#: per model: the modelDescription's DefaultExperiment (the step the FMUs are validated at), long enough for the shipped example input (drivetrain.cosim.fmu_docs: the
 #: operating point ramped in over 0.25 s) to settle: UpperTransmission, driven by torques alone, reaches its speed
 #: through its loss law (time constant about 0.2 s at speed). No tolerance: the models integrate with fixed sub-steps.
 DEFAULT_EXPERIMENTS = {
@@ -186,7 +184,8 @@ def initial_dependencies(slave_cls) -> dict:
     depends on the flange's angle and speed inputs, an inertia-side angle on the parameters only."""
     import tempfile
 
-    def initial_outputs(moved: str | None) -> dict:
+    def initial_outputs(moved: str | None):
+        """The outputs after initialization with ``moved`` moved, and the instance."""
         s = slave_cls(instance_name="initial-dependencies", resources=tempfile.gettempdir())
         s.enter_initialization_mode()
         if moved is not None:
@@ -195,11 +194,10 @@ def initial_dependencies(slave_cls) -> dict:
         if s._failed is not None:
             raise RuntimeError(f"{slave_cls.__name__}: initialization failed while probing its dependencies: "
                                f"{s._failed}")
-        return {n: getattr(s, n) for n in s._outputs}
+        return {n: getattr(s, n) for n in s._outputs}, s
 
-    probe = slave_cls(instance_name="initial-dependencies", resources=tempfile.gettempdir())
-    base = initial_outputs(None)
-    moved = {n: initial_outputs(n) for n in probe._inputs}
+    base, probe = initial_outputs(None)
+    moved = {n: initial_outputs(n)[0] for n in probe._inputs}
     return {out: [n for n, vals in moved.items() if vals[out] != value] + list(probe._param_names)
             for out, value in base.items()}
 

@@ -285,8 +285,6 @@ class GearContact(Fmi2Slave):
     # the outputs published after every step
     OUTPUTS = tuple(v.name for v in VARIABLES if v.causality == OUTPUT and v.type == "Real"
                     and not isinstance(v.default, Counter))
-    # the counts among the counters (Integer outputs)
-    INTEGER_COUNTERS = frozenset(v.name for v in VARIABLES if isinstance(v.default, Counter) and v.type == "Integer")
     # after a failure: NaN (the state outputs keep the last completed step, see ``error``)
     NAN_ON_FAILURE = tuple(n for n in OUTPUTS if n not in ("pinion_phi", "pinion_w", "wheel_phi", "wheel_w"))
     # stability counters of the stage and the pending coupling mismatch, cumulative since t = 0: read from

@@ -35,6 +35,7 @@ from pathlib import Path
 from drivetrain.run.assemble import sensor_map
 from drivetrain.models.parameters import parse_profile
 from drivetrain.errors import ConfigurationError
+from drivetrain.cosim.plan import settable
 from drivetrain.interop.ssp import bound_values, system_connections, system_fmus, value_text
 from drivetrain.system import SystemSpec
 
@@ -110,12 +111,10 @@ def export_container(scene, path: str | Path, fmu_dir: str | Path | None = None,
             problems.append(f"output {name}: {inst}.{var} does not exist")
     starts = []
     for c in spec.components:
-        for name, value in bound_values(c).items():
+        for name, value in settable(bound_values(c), descriptions[c.model]).items():
             if name not in descriptions[c.model]:
                 continue                                   # named by system_problems
-            if descriptions[c.model][name][1] == "local":
-                continue                                   # a constant of the FMU (a native gear's map parameter)
-            vtype = descriptions[c.model][name][0]
+            vtype = descriptions[c.model][name].type
             try:
                 text = value_text(vtype, value)
                 if vtype == "String":

@@ -34,13 +34,10 @@ from __future__ import annotations
 import math
 import zipfile
 from pathlib import Path
-from typing import NamedTuple
 from xml.sax.saxutils import quoteattr
 
-from fmpy import read_model_description
-
-from drivetrain.cosim.fmus import ensure_fmus, fmu_dir_or_default
-from drivetrain.cosim.plan import is_profile
+from drivetrain.cosim.fmus import ensure_fmus, fmu_dir_or_default, load_fmu_info
+from drivetrain.cosim.plan import is_profile, settable
 from drivetrain.errors import ConfigurationError
 from drivetrain.models.fmishell import INPUT_PROFILES
 from drivetrain.run.runner import assemble_scene
@@ -67,13 +64,6 @@ FMPY_RUNNER_IGNORES = (
     "a Boolean value's text: it sets a Boolean to value != 0.0, so 'false' becomes true",
     "the values of connected variables during initialization: every connector starts at 0",
 )
-
-
-class FmuVar(NamedTuple):
-    """A variable as its FMU declares it (``fmu_variables``)."""
-    type: str
-    causality: str
-    unit: str | None
 
 
 def value_text(vtype: str, value) -> str:
@@ -137,19 +127,10 @@ def system_problems(spec: SystemSpec, descriptions: dict) -> list[str]:
     return problems
 
 
-def fmu_variables(fmu_path: Path) -> dict:
-    """name -> FmuVar(type, causality, unit) from an FMU's model description (the unit of a declared type
-    when the variable names none)."""
-    md = read_model_description(str(fmu_path))
-    return {v.name: FmuVar(v.type, v.causality, v.unit or getattr(v.declaredType, "unit", None) or None)
-            for v in md.modelVariables}
-
-
 def fmu_unit_definitions(fmu_path: Path) -> dict:
     """unit name -> {base unit: exponent, "factor": f, "offset": o} from an FMU's UnitDefinitions."""
-    md = read_model_description(str(fmu_path))
     out = {}
-    for u in md.unitDefinitions:
+    for u in load_fmu_info(fmu_path).description.unitDefinitions:
         b = u.baseUnit
         out[u.name] = ({k: int(getattr(b, k)) for k in _BASE_UNITS} | {"factor": float(b.factor), "offset": float(b.offset)}
                        if b is not None else {"factor": 1.0, "offset": 0.0})
@@ -173,22 +154,20 @@ def units_xml(prefix: str, names, definitions: dict, indent: str) -> str:
     return f"{indent}<{prefix}:Units>\n" + "\n".join(rows) + f"\n{indent}</{prefix}:Units>\n"
 
 
-def ssv_text(component, variables: dict, definitions: dict | None = None) -> str:
-    """The parameter set of one instance: its parameters and constant inputs, typed as its FMU declares, each
-    Real with its FMU's unit (defined in the file's own ssv:Units, from ``definitions``)."""
+def ssv_text(component, variables: dict, definitions: dict) -> str:
+    """The parameter set of one instance: its parameters and constant inputs but the FMU's constants
+    (plan.settable), typed as its FMU declares (``variables``: name -> fmus.VarInfo), each Real with its FMU's
+    unit (defined in the file's own ssv:Units, from ``definitions``)."""
     rows = []
     used = []
-    for name, value in bound_values(component).items():
-        if variables[name][1] == "local":
-            continue          # a constant of the FMU (a native gear's contact-map parameter): not settable
-        var = variables[name]
-        vtype, unit = var[0], (var[2] if len(var) > 2 else None)
+    for name, value in settable(bound_values(component), variables).items():
+        vtype, unit = variables[name].type, variables[name].unit
         try:
             text = value_text(vtype, value)
         except (TypeError, ValueError) as exc:
             raise ConfigurationError([f"{component.name}.{name} = {value!r}: {exc}"]) from None
         unit_attr = ""
-        if vtype == "Real" and unit and definitions is not None:
+        if vtype == "Real" and unit:
             unit_attr = f" unit={quoteattr(unit)}"
             used.append(unit)
         rows.append(f'    <ssv:Parameter name={quoteattr(name)}>\n'
@@ -198,11 +177,10 @@ def ssv_text(component, variables: dict, definitions: dict | None = None) -> str
             '<ssv:ParameterSet xmlns:ssv="http://ssp-standard.org/SSP1/SystemStructureParameterValues" '
             'xmlns:ssc="http://ssp-standard.org/SSP1/SystemStructureCommon" '
             f'version="1.0" name="{PARAMETER_SET}">\n  <ssv:Parameters>\n' + "\n".join(rows)
-            + "\n  </ssv:Parameters>\n" + units_xml("ssv", used, definitions or {}, "  ") + "</ssv:ParameterSet>\n")
+            + "\n  </ssv:Parameters>\n" + units_xml("ssv", used, definitions, "  ") + "</ssv:ParameterSet>\n")
 
 
-def ssd_text(spec: SystemSpec, name: str, stop_time_s: float, descriptions: dict,
-             definitions: dict | None = None) -> str:
+def ssd_text(spec: SystemSpec, name: str, stop_time_s: float, descriptions: dict, definitions: dict) -> str:
     """The system structure: components with their connectors (type and unit as the FMU declares them) and
     parameter bindings, connections, the fixed communication step, the unit definitions (from
     ``definitions``: unit -> base units, :func:`fmu_unit_definitions`) and the default experiment."""
@@ -217,8 +195,8 @@ def ssd_text(spec: SystemSpec, name: str, stop_time_s: float, descriptions: dict
         md = descriptions[c.model]
         conns = []
         for var in sorted(connected[c.name]):
-            vtype, causality = md[var][:2]               # the kind the FMU itself declares
-            unit = md[var][2] if len(md[var]) > 2 and vtype == "Real" and definitions is not None else None
+            vtype, causality = md[var].type, md[var].causality       # the kind the FMU itself declares
+            unit = md[var].unit if vtype == "Real" else None
             if unit:
                 used.append(unit)
             conns.append(f'          <ssd:Connector name={quoteattr(var)} kind="{causality}">'
@@ -242,7 +220,7 @@ def ssd_text(spec: SystemSpec, name: str, stop_time_s: float, descriptions: dict
             f'            <oms:FixedStepMaster description="oms-ma" stepSize="{H}"/>\n'
             '          </oms:SimulationInformation>\n        </oms:Annotations>\n'
             '      </ssc:Annotation>\n    </ssd:Annotations>\n  </ssd:System>\n'
-            + units_xml("ssd", used, definitions or {}, "  ") +
+            + units_xml("ssd", used, definitions, "  ") +
             f'  <ssd:DefaultExperiment startTime="0.0" stopTime="{float(stop_time_s)!r}"/>\n'
             '</ssd:SystemStructureDescription>\n')
 
@@ -250,7 +228,7 @@ def ssd_text(spec: SystemSpec, name: str, stop_time_s: float, descriptions: dict
 def system_fmus(scene, fmu_dir, spec: SystemSpec | None = None, build: bool = True, log=None,
                 native: bool = False):
     """What an export of the scene's system starts from: the assembled spec (given or assembled here),
-    its FMUs (built when missing or stale), each model's variables (name -> (type, causality)) and
+    its FMUs (built when missing or stale), each model's variables (name -> fmus.VarInfo) and
     every problem of binding the spec to them (:func:`system_problems`). ``native``: the compiled FMUs
     (drivetrain.cosim.native_line, kept in ``<fmu_dir>/native``) wherever there is one; a gear that is not
     fidelity table keeps its pythonfmu FMU (``log`` says so); no C compiler is a ConfigurationError."""
@@ -271,7 +249,7 @@ def system_fmus(scene, fmu_dir, spec: SystemSpec | None = None, build: bool = Tr
     rest = [m for m in models if m not in fmus]
     if rest:
         fmus.update(ensure_fmus(rest, fmu_dir, build=build, log=log))
-    descriptions = {m: fmu_variables(fmus[m]) for m in dict.fromkeys(models)}
+    descriptions = {m: load_fmu_info(fmus[m]).variables for m in dict.fromkeys(models)}
     return spec, fmus, descriptions, system_problems(spec, descriptions)
 
 

@@ -139,11 +139,14 @@ class Slave:
     model: str
     log: _Log
     initialized: bool = False
+    stepping: bool = False          # past exitInitializationMode (FMI's step mode: terminate is allowed)
     fatal: bool = False
 
     def set_parameters(self, params: dict) -> None: ...
     def set_values(self, names: list[str], values: list) -> None: ...
     def get_reals(self, names: list[str]) -> list[float]: ...
+    def get_integers(self, names: list[str]) -> list[int]: ...
+    def get_booleans(self, names: list[str]) -> list[bool]: ...
 
     def get_values(self, names: list[str]) -> list[float]:
         """The values of numeric variables of any type (Real, Integer, Boolean: a counter, a switch) as floats,
@@ -161,7 +164,11 @@ class Slave:
     def _get_typed(self, typ: str, names: list[str]) -> list:
         if typ == "Real":
             return self.get_reals(names)
-        raise NotImplementedError(typ)
+        if typ in ("Integer", "Enumeration"):
+            return self.get_integers(names)
+        if typ == "Boolean":
+            return self.get_booleans(names)
+        raise ConfigurationError(f"{self.name}: {', '.join(names)}: {typ} variables are not numbers")
 
     def setup(self, stop_time: float) -> None: ...
     def enter_init(self) -> None: ...
@@ -220,15 +227,11 @@ class FmiSlave(Slave):
     def get_reals(self, names):
         return self._call("fmi2GetReal", self.fmu.getReal, [self.info.variables[n].vr for n in names])
 
-    def _get_typed(self, typ, names):
-        vrs = [self.info.variables[n].vr for n in names]
-        if typ == "Real":
-            return self.get_reals(names)
-        if typ in ("Integer", "Enumeration"):
-            return self._call("fmi2GetInteger", self.fmu.getInteger, vrs)
-        if typ == "Boolean":
-            return self._call("fmi2GetBoolean", self.fmu.getBoolean, vrs)
-        raise ConfigurationError(f"{self.name}: {', '.join(names)}: {typ} variables are not numbers")
+    def get_integers(self, names):
+        return self._call("fmi2GetInteger", self.fmu.getInteger, [self.info.variables[n].vr for n in names])
+
+    def get_booleans(self, names):
+        return self._call("fmi2GetBoolean", self.fmu.getBoolean, [self.info.variables[n].vr for n in names])
 
     def enter_init(self):
         self._call("fmi2EnterInitializationMode", self.fmu.enterInitializationMode)
@@ -266,7 +269,7 @@ class FmiSlave(Slave):
         errors = []
         if self.instantiated:
             # fmi2Terminate only from step mode (the FMI 2.0 state machine: refused in initialization mode)
-            if getattr(self, "stepping", False) and not self.fatal:
+            if self.stepping and not self.fatal:
                 try:
                     self.fmu.terminate()
                 except Exception as exc:
@@ -387,15 +390,11 @@ class InprocSlave(Slave):
     def get_reals(self, names):
         return self._guard("get_real", lambda: self.obj.get_real([self._vr(n) for n in names]))
 
-    def _get_typed(self, typ, names):
-        vrs = [self._vr(n) for n in names]
-        if typ == "Real":
-            return self.get_reals(names)
-        if typ in ("Integer", "Enumeration"):
-            return self._guard("get_integer", lambda: self.obj.get_integer(vrs))
-        if typ == "Boolean":
-            return self._guard("get_boolean", lambda: self.obj.get_boolean(vrs))
-        raise ConfigurationError(f"{self.name}: {', '.join(names)}: {typ} variables are not numbers")
+    def get_integers(self, names):
+        return self._guard("get_integer", lambda: self.obj.get_integer([self._vr(n) for n in names]))
+
+    def get_booleans(self, names):
+        return self._guard("get_boolean", lambda: self.obj.get_boolean([self._vr(n) for n in names]))
 
     def enter_init(self):
         self._guard("enter_initialization_mode", self.obj.enter_initialization_mode)

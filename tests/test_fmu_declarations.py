@@ -266,6 +266,37 @@ def test_a_map_not_cached_at_assembly_is_balanced_on_after_the_cost_checks(monke
     assert plan.spec.metadata["mesh_start"] == "balanced on the table model"
 
 
+def test_a_sweep_starts_a_map_not_cached_at_assembly_balanced_too(monkeypatch, tmp_path):
+    """The same rule in a sweep: it assembles every scene before preparing the maps, and then assembles again
+    the gears that started at the guess, so a sweep's runs start as `drivetrain run` starts them, whatever
+    the cache held (the runs it hands to its workers are recorded here instead of run)."""
+    from drivetrain.campaigns import sweep as S
+    from drivetrain.run import assemble as asm
+    from drivetrain.scene.load import load_scene
+
+    real = asm.start_mesh_model
+    cached = {"map": False}
+
+    def cached_after_preparation(gear, build_map=False):
+        return real(gear, build_map) if build_map or cached["map"] else (None, asm.MESH_START_GUESS)
+
+    def prepared(*args, **kwargs):
+        cached["map"] = True
+
+    handed = []
+
+    def record(scenes, specs, out, **kwargs):
+        handed.extend(specs)
+        return [], []
+
+    monkeypatch.setattr(asm, "start_mesh_model", cached_after_preparation)
+    monkeypatch.setattr(S, "_prepare_fmus", prepared)
+    monkeypatch.setattr(S, "_cases", record)
+    scene = load_scene(Path(__file__).resolve().parents[1] / "scenarios" / "example.toml", ["time.duration_s=0.01"])
+    S.run_sweep([scene], tmp_path / "out", progress=False)
+    assert [sp.metadata["mesh_start"] for sp in handed] == ["balanced on the table model"]
+
+
 def test_function_prefix_links_several_source_fmus_into_one_binary(fmus, tmp_path):
     """FMI 2.0 section 2.1.1 / fmi2Functions.h: a source FMU compiled with FMI2_FUNCTION_PREFIX names its
     functions <prefix>fmi2...; the shipped headers (the Modelica Association's 2.0.5, not fmpy's copy, which

@@ -59,7 +59,7 @@ from drivetrain.cosim import simulate as simulate_system
 from drivetrain.cosim import sources_hash
 from drivetrain.cosim.fmus import fmu_dir_or_default
 from drivetrain.run.outputs import check_output_dir, clear_run_files, jsonable
-from drivetrain.run.runner import RunFailedError, assemble_scene, run_scene
+from drivetrain.run.runner import RunFailedError, assemble_scene, assembled_with_map, run_scene
 from drivetrain.scene.load import Scene, resolve
 from drivetrain.system import SystemSpec
 from gearcontact_fmu.params import file_sha256
@@ -640,6 +640,9 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
     check_output_dir(out)
     log = _LOG.warning if progress else None
     _prepare_fmus(scenes, all_specs, backend=backend, fmu_dir=fmu_dir, fmu_paths=fmu_paths, prepare=prepare, log=log)
+    # the maps are there now: a table gear assembled before its map was cached starts at its own deflection, as
+    # `drivetrain run` starts it (the specs a caller gave are theirs)
+    all_specs = [sp if s.name in (specs or {}) else assembled_with_map(s, sp) for s, sp in zip(scenes, all_specs)]
     preparation_s = time.perf_counter() - t0
     kept = _kept_records(out, grid_names, names)
     cases, reused = _cases(scenes, all_specs, out, skip_existing=skip_existing, backend=backend, fmu_dir=fmu_dir,

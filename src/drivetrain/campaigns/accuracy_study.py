@@ -339,7 +339,7 @@ def _overview(results: dict) -> list[str]:
 
 def plot_pareto(results: dict, out_dir: Path) -> dict[str, str]:
     """One PNG per scene: error (row_error) against cost, the Pareto front marked. {scene: file name}."""
-    from drivetrain.run.outputs import _mpl
+    from drivetrain.run.outputs import _finish, _mpl
 
     plt = _mpl()
 
@@ -365,10 +365,8 @@ def plot_pareto(results: dict, out_dir: Path) -> dict[str, str]:
         ax.set_ylabel("worst error [% or dB] vs reference")
         ax.set_title(f"{name}: accuracy against cost")
         ax.legend(fontsize=8)
-        fig.tight_layout()
         fn = f"accuracy_{name}.png"
-        fig.savefig(out_dir / fn, dpi=110)
-        plt.close(fig)
+        _finish(plt, fig, out_dir / fn, "")
         files[name] = fn
     return files
 

@@ -32,7 +32,6 @@ class _Scipy:
 
 
 _sig = _Scipy()
-from drivetrain.rig.data import UPPER_RATIO, Z_PINION, Z_WHEEL
 
 FIR_PASS_FRACTION = 0.7      # pass-band edge as a fraction of the output Nyquist frequency
 FIR_ATTENUATION_DB = 70.0

@@ -216,18 +216,18 @@ def mark_running(out: Path, name: str) -> None:
                                          "started": datetime.datetime.now().isoformat(timespec="seconds")})
 
 
+#: resolution of the plots (PNG)
+PLOT_DPI = 110
+
+
 def _finish(plt, fig, path, title: str) -> Path:
     """Title, layout, write the PNG and free the figure."""
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=PLOT_DPI)
     plt.close(fig)
     return Path(path)
-
-
-#: resolution of the run's plots (PNG)
-PLOT_DPI = 110
 
 
 def new_figure(width_in: float, height_in: float):

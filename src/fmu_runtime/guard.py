@@ -177,7 +177,7 @@ def guard_value_references(slave, model: str, exported: bool = False) -> None:
                                  if getattr(v.causality, "name", "") == "input"
                                  or getattr(v.variability, "name", "") == "tunable")
     slave._fmi_phase = "instantiated"
-    # Integer variables with declared bounds (drivetrain.models.fmishell.Integer: min, max)
+    # Integer variables with declared bounds (attributes min, max: drivetrain.models.fmishell.init_slave, GearContact)
     bounded = {vr: (getattr(v, "min", None), getattr(v, "max", None)) for vr, v in slave.vars.items()
                if getattr(v, "min", None) is not None or getattr(v, "max", None) is not None}
 

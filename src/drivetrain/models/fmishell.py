@@ -25,8 +25,7 @@ import math
 import operator
 import weakref
 
-from pythonfmu import Boolean, DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Real, String
-from pythonfmu import Integer as _PlainInteger
+from pythonfmu import Boolean, DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real, String
 from pythonfmu.enums import Fmi2Status
 
 from drivetrain.errors import ComponentError
@@ -223,24 +222,6 @@ def port_outputs(model: str) -> list[str]:
     return out + list(OUTPUTS[model]) + list(ENERGY)
 
 
-class Integer(_PlainInteger):
-    """pythonfmu's Integer variable with the bounds FMI lets it declare (``min``, ``max``): written to the
-    modelDescription and checked when a host sets it (fmu_runtime.guard). The class keeps pythonfmu's name:
-    the guard and the native builds tell variable types by it."""
-
-    def __init__(self, name: str, start=None, *, min=None, max=None, **kwargs):
-        super().__init__(name, start, **kwargs)
-        self.min, self.max = min, max
-
-    def to_xml(self):
-        parent = super().to_xml()
-        element = parent.find("Integer")
-        for key in ("min", "max"):
-            if getattr(self, key) is not None:
-                element.set(key, str(int(getattr(self, key))))
-        return parent
-
-
 def init_slave(slave, model: str, slave_kwargs: dict | None = None) -> None:
     """Register the variables of ``model`` on a pythonfmu slave (called from its ``__init__``)."""
     if slave_kwargs is not None:
@@ -262,8 +243,10 @@ def init_slave(slave, model: str, slave_kwargs: dict | None = None) -> None:
             slave.register_variable(Boolean(f.name, causality=P, variability=F))
         elif isinstance(v, int):
             setattr(slave, f.name, v)
-            lo, hi = parameter_bounds(f)
-            slave.register_variable(Integer(f.name, causality=P, variability=F, min=lo, max=hi))
+            var = Integer(f.name, causality=P, variability=F)
+            # refused when set outside (fmu_runtime.guard); the modelDescription's min/max come from bounds()
+            var.min, var.max = parameter_bounds(f)
+            slave.register_variable(var)
         elif isinstance(v, str):
             setattr(slave, f.name, v)
             slave.register_variable(String(f.name, causality=P, variability=F))

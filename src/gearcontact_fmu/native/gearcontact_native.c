@@ -1198,11 +1198,7 @@ fmi2Status fmi2Reset(fmi2Component comp) {
 static int stage_step(Inst *c, double t, double H) {
     double *r = c->r;
     double phi_a = r[VR_flange_a_phi], w_a = r[VR_flange_a_w], phi_b = r[VR_flange_b_phi], w_b = r[VR_flange_b_w];
-    if (!(H > 0.0)) {
-        fail(c, "do_step at t = %.9g s failed: communication step must be > 0, got %s at t = %.9g s", t,
-             pyfloat(H).s, t);
-        return 0;
-    }
+    /* H > 0 and finite: refused before this by shell_step_refused (fmi2_shell.h) */
     double *u = c->u;
     u[0] = phi_a; u[1] = w_a; u[2] = phi_b; u[3] = w_b;
     double ms = r[VR_max_substep];

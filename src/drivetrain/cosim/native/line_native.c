@@ -708,10 +708,7 @@ MAYBE_UNUSED static double line_coupling_energy_error(const Inst *c) {
 static const char *PORT_NAMES[MAX_PORTS] = LN_PORT_NAMES;
 
 static int line_step_checked(Inst *c, double t, double H, double wref0, double wref1, char *why, size_t nwhy) {
-    if (!(H > 0.0 && isfinite(H))) {
-        snprintf(why, nwhy, "communication step must be > 0, got %s at t = %.9g s", pyfloat(H).s, t);
-        return 0;
-    }
+    /* H > 0 and finite: refused before this by shell_step_refused (fmi2_shell.h) */
     double nd = ceil(H / c->ln.max_substep - 1e-9);
     int64_t n_sub = nd < 1.0 ? 1 : (int64_t)nd;
     if (!(nd <= (double)LN_MAX_SUBSTEPS_PER_STEP)) {

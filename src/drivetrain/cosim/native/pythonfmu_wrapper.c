@@ -338,17 +338,14 @@ static int settable_now(Inst *c, const WrapperVar *v, const char *call) {
     return 1;
 }
 
-static int in_range(Inst *c, const WrapperVar *v, const char *call, double x, const char *text) {
+/* an Integer inside its declared min/max (a Real's range stays the model's refusal, with its message) */
+static int in_range(Inst *c, const WrapperVar *v, const char *call, fmi2Integer x) {
     if ((v->has_min && x < v->min) || (v->has_max && x > v->max)) {
         char lo[40] = "None", hi[40] = "None";
-        if (v->has_min) snprintf(lo, sizeof lo, "%s", v->type == 'R' ? pyfloat(v->min).s : "");
-        if (v->has_max) snprintf(hi, sizeof hi, "%s", v->type == 'R' ? pyfloat(v->max).s : "");
-        if (v->type != 'R') {
-            if (v->has_min) snprintf(lo, sizeof lo, "%.0f", v->min);
-            if (v->has_max) snprintf(hi, sizeof hi, "%.0f", v->max);
-        }
-        fail(c, "%s: %s of %s = %s: outside its declared range [%s, %s]; the instance is now in its error state",
-             WRAPPER_MODEL, call, v->name, text, lo, hi);
+        if (v->has_min) snprintf(lo, sizeof lo, "%.0f", v->min);
+        if (v->has_max) snprintf(hi, sizeof hi, "%.0f", v->max);
+        fail(c, "%s: %s of %s = %d: outside its declared range [%s, %s]; the instance is now in its error state",
+             WRAPPER_MODEL, call, v->name, (int)x, lo, hi);
         return 0;
     }
     return 1;
@@ -519,9 +516,7 @@ fmi2Status fmi2SetInteger(fmi2Component comp, const fmi2ValueReference vr[], siz
     if (nvr && !value) return fmi2Error;
     for (size_t i = 0; i < nvr; i++) {
         const WrapperVar *v = var_of(vr[i]);
-        char text[24];
-        snprintf(text, sizeof text, "%d", (int)value[i]);
-        if (!settable_now(c, v, "fmi2SetInteger") || !in_range(c, v, "fmi2SetInteger", value[i], text))
+        if (!settable_now(c, v, "fmi2SetInteger") || !in_range(c, v, "fmi2SetInteger", value[i]))
             return fmi2Error;
     }
     return inner_status(c, "fmi2SetInteger", F.SetInteger(c->inner, vr, nvr, value));

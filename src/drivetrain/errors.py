@@ -55,6 +55,13 @@ class NativeBuildError(ConfigurationError):
     headline = "native GearContact not built"
 
 
+class StartStateError(ConfigurationError):
+    """No start state for the gear of a scene: its mesh carries the start load at no position (raised
+    while assembling, before any step). The message names the scene, the gearbox and the reason."""
+
+    headline = "no start state"
+
+
 class UnstableCutError(Refused):
     """A cut of the partition is unstable at the communication step (raised before any step).
     ``reports``: the CutReport of every cut."""

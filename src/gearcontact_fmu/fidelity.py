@@ -126,6 +126,15 @@ def static_mesh_stiffness(model: MeshModel, gear: BevelGearParams, torque_Nm: fl
     return {"k": k, "mean": float(k.mean()), "double_single": float(k.max() / k.min())}
 
 
+#: how often the start search doubles its step before it gives up (2**60 times the first step: far past any
+#: mesh, so only a model that carries no load at all ends there)
+_BRACKET_DOUBLINGS = 60
+
+
+class StartStateError(ValueError):
+    """No mesh position carries the asked start torque (:func:`balanced_wheel_angle`): the message says why."""
+
+
 def balanced_wheel_angle(model: MeshModel, ratio: float, theta_pinion: float, tau_pinion: float,
                          omega_pinion: float = 0.0, omega_wheel: float = 0.0, s_guess: float | None = None) -> float:
     """The wheel angle at which this compliant mesh model, at ``theta_pinion`` and the given speeds, puts
@@ -147,16 +156,38 @@ def balanced_wheel_angle(model: MeshModel, ratio: float, theta_pinion: float, ta
 
     if target == 0.0:
         return tp / ratio
+    if not (np.isfinite(target) and np.isfinite(tp) and np.isfinite(ratio) and ratio != 0.0):
+        raise StartStateError(f"no start state for a pinion torque of {target!r} N m at a pinion angle of {tp!r} rad"
+                              f" and a ratio of {ratio!r}: not finite numbers")
     sign = 1.0 if target < 0.0 else -1.0            # the flank that carries it: drive (s > 0) or coast
-    free = 0.0                                     # the backlash centre: no contact, the residual is -target
-    step = abs(s_guess) if s_guess else 1e-3
-    far = sign * step
-    for _ in range(60):                            # widen until the flank carries more than the load
-        if residual(far) * residual(free) < 0.0:
+    step = abs(s_guess) if s_guess and np.isfinite(s_guess) else 1e-3
+
+    def short(s):
+        """True where the loaded flank carries less than the load (inside the backlash, on the other flank)."""
+        r = residual(s)
+        if not np.isfinite(r):
+            raise StartStateError(f"the mesh model gives a pinion torque that is not finite ({r!r}) at s = {s:.6g} rad")
+        return r * -target > 0.0
+
+    # the short side: the backlash centre s = 0, unless the errors close the backlash there so far that the
+    # flank already carries more than the load (a gearbox with large runout at this angle): then back off
+    # towards the other flank until it carries less
+    free, back = 0.0, step
+    for _ in range(_BRACKET_DOUBLINGS):
+        if short(free):
+            break
+        free, back = -sign * back, back * 2.0
+    else:
+        raise StartStateError(f"the loaded flank carries more than {abs(target):.6g} N m at every mesh position"
+                              f" back to s = {free:.3g} rad")
+    far = free + sign * step                       # the loaded side: widen until the flank carries more
+    for _ in range(_BRACKET_DOUBLINGS):
+        if not short(far):
             break
         free, far = far, far + sign * step
         step *= 2.0
     else:
-        raise ValueError(f"the mesh model carries no {target:.6g} N m on the pinion within s = {far:.3g} rad")
+        raise StartStateError(f"the mesh model carries no {abs(target):.6g} N m on the {'drive' if sign > 0 else 'coast'}"
+                              f" flank within s = {far:.3g} rad")
     s = brentq(residual, min(free, far), max(free, far), xtol=1e-16, rtol=4 * np.finfo(float).eps, maxiter=200)
     return (tp - s) / ratio

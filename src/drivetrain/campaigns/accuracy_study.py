@@ -9,6 +9,7 @@ import json
 import math
 from pathlib import Path
 
+from drivetrain.campaigns.provenance import commit_line
 from drivetrain.run.accuracy import (DEFAULT, REFERENCE, SETTINGS, STUDY_DURATION_S, STUDY_SCENES, STUDY_SETTLE_S, Setting, compare,
                                  health_class, run_name, study_overrides, within)
 from drivetrain.run.outputs import read_hdf5
@@ -255,7 +256,7 @@ def report_markdown(results: dict, figures: dict[str, str]) -> str:
            "`--update-shipped` rewrites this page and the results `run --tolerance` reads). Each scene runs "
            f"{meta.get('duration_s', STUDY_DURATION_S):g} s, of which the last "
            f"{meta.get('duration_s', STUDY_DURATION_S) - meta.get('settle_s', STUDY_SETTLE_S):g} s are compared "
-           "with the same scene's reference run.", ""]
+           "with the same scene's reference run.", "", commit_line(), ""]
     out += INTRO
     for name, sc in results.get("scenes", {}).items():
         rows = sc["rows"]

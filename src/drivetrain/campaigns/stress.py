@@ -51,6 +51,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from drivetrain.campaigns.provenance import commit_line
 from drivetrain.cosim import ConfigurationError
 from drivetrain.run.outputs import jsonable, now_iso
 from drivetrain.run.runner import assemble_scene
@@ -678,7 +679,7 @@ def report_markdown(rec: dict) -> str:
     tot = rec["table"][-1] if rec.get("table") else {}
     npairs = len(rec.get("pairs", []))
     pf = sum(1 for p in rec.get("pairs", []) if p["outcome"] == "fail")
-    lines += [f"Command: `{rec.get('command', 'drivetrain stress')}`", "",
+    lines += [f"Command: `{rec.get('command', 'drivetrain stress')}`", "", commit_line(), "",
               f"Started {rec.get('started', '?')}; wall time {rec.get('wall_time_s', float('nan')):.0f} s "
               f"(this invocation; the runs' own wall times sum to {rec.get('runs_wall_time_s', float('nan')):.0f} s); "
               f"seed {rec.get('seed')}, sets {rec.get('set_name')}, {rec.get('n_random', 0)} random scenes "

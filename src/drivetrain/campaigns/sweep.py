@@ -54,7 +54,9 @@ from typing import Any
 from drivetrain import __version__
 
 from drivetrain.run import cost as runcost
+from drivetrain.campaigns.provenance import code_commit
 from drivetrain.cosim import ConfigurationError
+from drivetrain.errors import StartStateError
 from drivetrain.cosim import simulate as simulate_system
 from drivetrain.cosim import sources_hash
 from drivetrain.cosim.fmus import fmu_dir_or_default
@@ -258,8 +260,33 @@ def _executor_name(address: str | None, executor) -> str:
     return "custom" if executor is not None else "local processes"
 
 
-def _specs_of(scenes: list[Scene], specs: dict | None) -> list:
-    return [(specs or {}).get(s.name) or assemble_scene(s) for s in scenes]
+def _specs_of(scenes: list[Scene], specs: dict | None, assemble=None) -> tuple[list, dict[str, str]]:
+    """(the SystemSpec of each scene, None where it has no start state; {name: why} of those). A gearbox
+    whose mesh carries the start load at no position (:class:`drivetrain.errors.StartStateError`) is one
+    failed case, named in the manifest: the others go on. Every other refusal stops the sweep, as before."""
+    assemble = assemble or (lambda s, sp: assemble_scene(s))
+    out, refused = [], {}
+    for s in scenes:
+        try:
+            out.append((specs or {}).get(s.name) or assemble(s, None))
+        except StartStateError as exc:
+            out.append(None)
+            refused[s.name] = str(exc)
+    return out, refused
+
+
+def _runnable(scenes: list[Scene], all_specs: list) -> tuple[list[Scene], list]:
+    """The scenes that have a start state, with their specs."""
+    kept = [(s, sp) for s, sp in zip(scenes, all_specs) if sp is not None]
+    return [s for s, _ in kept], [sp for _, sp in kept]
+
+
+def _start_failures(refused: dict[str, str], scenes: list[Scene], out: Path) -> list[dict]:
+    """The records of the cases that have no start state: failed before any step, nothing written."""
+    by_name = {s.name: s for s in scenes}
+    return [{"name": name, "out_dir": str(out / name), "labels": labels(by_name[name].to_dict()),
+             "status": "failed", "error": f"StartStateError: {why}", "failure_cause": "no start state",
+             "partial": False, "elapsed_s": 0.0} for name, why in refused.items()]
 
 
 #: component parameter values whose initialisation builds a disk cache worth preparing in the parent
@@ -634,27 +661,35 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
     dup = sorted({n for n in names if names.count(n) > 1})
     if dup:
         raise ConfigurationError(f"scene names must be unique in a sweep: {', '.join(dup)}")
-    all_specs = _specs_of(scenes, specs)
+    all_scenes = scenes
+    log = _LOG.warning if progress else None
+    all_specs, refused = _specs_of(scenes, specs)
+    scenes, all_specs = _runnable(scenes, all_specs)
     if not force:
         _refuse_costly(scenes, all_specs, backend)
     check_output_dir(out)
-    log = _LOG.warning if progress else None
     _prepare_fmus(scenes, all_specs, backend=backend, fmu_dir=fmu_dir, fmu_paths=fmu_paths, prepare=prepare, log=log)
     # the maps are there now: a table gear assembled before its map was cached starts at its own deflection, as
     # `drivetrain run` starts it (the specs a caller gave are theirs)
-    all_specs = [sp if s.name in (specs or {}) else assembled_with_map(s, sp) for s, sp in zip(scenes, all_specs)]
+    by_spec = dict(zip([s.name for s in scenes], all_specs))
+    all_specs, more = _specs_of(scenes, specs, lambda s, _: assembled_with_map(s, by_spec[s.name]))
+    refused.update(more)
+    scenes, all_specs = _runnable(scenes, all_specs)
+    if refused and log:
+        log(f"{len(refused)} of {len(all_scenes)} cases have no start state and are recorded as failed: "
+            + "; ".join(refused.values()))
     preparation_s = time.perf_counter() - t0
     kept = _kept_records(out, grid_names, names)
     cases, reused = _cases(scenes, all_specs, out, skip_existing=skip_existing, backend=backend, fmu_dir=fmu_dir,
                            plots=plots, fmu_paths=fmu_paths, force=force)
     if skip_existing and log:
         log(f"resume: {len(reused)} of {len(scenes)} runs reused (finished, same fingerprint), {len(cases)} to run")
-    manifest = _Manifest(out, scenes={s.name: s for s in scenes},
+    manifest = _Manifest(out, scenes={s.name: s for s in all_scenes},
                          order={n: i for i, n in enumerate(grid_names or names)},
-                         meta={"executor": _executor_name(address, executor), "backend": backend,
+                         meta={"executor": _executor_name(address, executor), "backend": backend, "code_commit": code_commit(),
                                "preparation_s": preparation_s, "reused_runs": len(reused)},
                          kept=kept, t0=t0)
-    manifest.runs = [manifest.annotate(r) for r in reused]
+    manifest.runs = [manifest.annotate(r) for r in reused + _start_failures(refused, all_scenes, out)]
     _start_journal(out, kept + manifest.runs)
     manifest.write(not cases)
     if cases:

@@ -36,7 +36,7 @@ from drivetrain.models.components import COMPONENTS, make_component
 from drivetrain.models.parameters import params_from
 from drivetrain.models.shaft import FlexibleShaft, FlexibleShaftParams
 from drivetrain.rig.signals import characteristic_frequencies
-from drivetrain.errors import NativeBuildError
+from drivetrain.errors import NativeBuildError, StartStateError
 from drivetrain.system import ComponentSpec, Connection, SystemSpec
 from gearcontact_fmu.manufacturing_specs import draw_errors, errors_of
 from gearcontact_fmu.params import GEAR_MODEL, BevelGearParams, PCMParams
@@ -129,6 +129,13 @@ MESH_START_GUESS = "guess: contact map not cached"
 MESH_START_PCM_GUESS = "guess: no shipped contact map of this pcm geometry"
 
 
+def gearbox_name(scene) -> str:
+    """Which gearbox a scene runs, in the words of its keys: the nominal one, or the manufacturing draw."""
+    if not scene.effects.manufacturing_errors:
+        return "the nominal gearbox (effects.manufacturing_errors = false)"
+    return f"the gearbox of manufacturing.seed = {scene.manufacturing.seed}"
+
+
 def start_mesh_model(gear: dict, build_map: bool = False):
     """(the mesh model whose static deflection the gear starts at, how the start was found): the model the
     GearContact FMU builds from these parameters (``fmu_parameters.build_mesh_model``'s translation over
@@ -166,12 +173,16 @@ def start_wheel_angle(gear: dict, ss, theta_p: float, errors, build_map: bool = 
     if ss.T_msh == 0.0:
         model, how = None, "unloaded: at the drive flank's onset"
     if model is not None:
+        from gearcontact_fmu.fidelity import StartStateError as NoPosition
         from gearcontact_fmu.fidelity import balanced_wheel_angle
 
         k_a = float(gear["k_a"])
         tau_port = k_a * (-ss.T_msh / k_a)             # the port spring's torque on the pinion, as twisted
-        return balanced_wheel_angle(model, rig.LOWER_RATIO, theta_p, tau_port, ss.w_middle, ss.w_prop,
-                                    s_guess=s0), how
+        try:
+            return balanced_wheel_angle(model, rig.LOWER_RATIO, theta_p, tau_port, ss.w_middle, ss.w_prop,
+                                        s_guess=s0), how
+        except NoPosition as exc:
+            raise StartStateError(str(exc)) from exc
     theta_w = (theta_p - s0) / rig.LOWER_RATIO
     if errors is not None:
         # the errors offset the mesh coordinate by Delta(theta_p, theta_w): start where the offset mesh sits at s0
@@ -243,7 +254,11 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     theta_p = phi_a + twist_a
     # the gear's manufacturing errors, read once from its parameter (the JSON the FMU receives)
     errors = errors_of(gear.get("manufacturing_errors"))
-    theta_w, mesh_start = start_wheel_angle(gear, ss, theta_p, errors, build_map)
+    try:
+        theta_w, mesh_start = start_wheel_angle(gear, ss, theta_p, errors, build_map)
+    except StartStateError as exc:          # no mesh position carries the start load: say which scene and gearbox
+        raise StartStateError(f"{scene.name}: {gearbox_name(scene)} at {n0:g} rpm and {T0:g} N m: "
+                              f"{'; '.join(exc.problems)}") from exc
     phi_b = theta_w - twist_b
     gear.update(twist_a_start=twist_a, twist_b_start=twist_b)
     mo.update(max_substep=csub, energy_correction=bool(num.energy_correction), phi0_motor=th_motor, w0=w,

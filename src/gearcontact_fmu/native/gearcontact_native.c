@@ -421,7 +421,7 @@ static void te_offset(const Map *mp, double theta_pinion, double theta_wheel, do
     double v = theta_wheel * p[P_RATIO] / p[P_PITCH_P];
     int64_t shift = (int64_t)floor(v - u + 0.5);
     double half = 0.5 * p[P_EPS], ramp = p[P_RAMP];
-    int drive = theta_pinion - p[P_RATIO] * theta_wheel >= 0.0;
+    double s = theta_pinion - p[P_RATIO] * theta_wheel;
     int64_t zp = mp->te_zp, zw = mp->te_zw;
     double w0 = 0, dw0 = 0, e0 = 0, w1 = 0, dw1 = 0, e1 = 0, w2 = 0, dw2 = 0, e2 = 0;
     int m = 0;
@@ -439,12 +439,21 @@ static void te_offset(const Map *mp, double theta_pinion, double theta_wheel, do
         else { w2 = w; dw2 = (da - db) / ramp; e2 = e; }
         m++;
     }
+    double a_prof = p[P_PROF_A], prof = 0.0, dprof = 0.0;
+    if (a_prof != 0.0) {                 /* the profile form: once per pitch */
+        double x = 2.0 * M_PI * u + p[P_PROF_PHASE];
+        prof = a_prof * sin(x);
+        dprof = a_prof * cos(x) * 2.0 * M_PI / p[P_PITCH_P];
+    }
     if (m == 1) {
         d += e0;
     } else if (m == 2) {
+        /* the flank on this side of the offset mesh's backlash centre (manufacturing.te_offset) */
+        double den = w0 + w1 - w0 * w1;
+        double mid = d + prof + (w0 * w1 * 0.5 * (e0 + e1) + w0 * (1.0 - w1) * e0 + w1 * (1.0 - w0) * e1) / den;
+        int drive = s + mid >= 0.0;
         double lead = drive ? pmax(e0, e1) : pmin(e0, e1);
         double num = w0 * w1 * lead + w0 * (1.0 - w1) * e0 + w1 * (1.0 - w0) * e1;
-        double den = w0 + w1 - w0 * w1;
         double dnum = (dw0 * w1 + w0 * dw1) * lead + (dw0 * (1.0 - w1) - w0 * dw1) * e0
                       + (dw1 * (1.0 - w0) - w1 * dw0) * e1;
         double dden = dw0 + dw1 - dw0 * w1 - w0 * dw1;
@@ -458,11 +467,9 @@ static void te_offset(const Map *mp, double theta_pinion, double theta_wheel, do
         d += swe / sw;
         dp += (dswe * sw - swe * dsw) / (sw * sw) / p[P_PITCH_P];
     }
-    double a_prof = p[P_PROF_A];
-    if (a_prof != 0.0) {                 /* the profile form: once per pitch */
-        double x = 2.0 * M_PI * u + p[P_PROF_PHASE];
-        d += a_prof * sin(x);
-        dp += a_prof * cos(x) * 2.0 * M_PI / p[P_PITCH_P];
+    if (a_prof != 0.0) {
+        d += prof;
+        dp += dprof;
     }
     *d_out = d; *dp_out = dp; *dw_out = dw;
 }

@@ -540,7 +540,7 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
     from drivetrain.campaigns.dataset import DatasetError, export
 
     try:
-        path = export(args.sweep_dir, args.format, args.out, settled_only=args.settled_only)
+        path = export(args.sweep_dir, args.format, args.out, settled_only=args.settled_only, log=print)
     except DatasetError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -39,6 +39,12 @@ at face_position. ``wear``: depth_um removed over the whole flank, profile "unif
 the distance from the pitch cone). Lengths along the profile are at the mean cone distance (the teeth
 taper)."""
 SPEC_KEYS = ("kind", "member", "tooth", "flank")
+
+
+def loaded_flank(torque: float) -> str:
+    """The physical flank that carries a torque through the pair: "drive" when the pinion drives (a pinion
+    torque > 0, a braking load motor: load > 0, the two have one sign), "coast" when the load drives."""
+    return "coast" if torque < 0.0 else "drive"
 WEAR_PROFILES = ("uniform", "sliding")
 
 
@@ -183,9 +189,11 @@ def draw_rule_problems(template) -> list[tuple[str, object, str]]:
     return problems
 
 
-def draw_faults(templates, rng, z_pinion: int, z_wheel: int) -> list[dict]:
+def draw_faults(templates, rng, z_pinion: int, z_wheel: int, flank: str | None = None) -> list[dict]:
     """One fault per template, drawn with the numpy Generator ``rng`` (keys not of the drawn kind are
-    left out, so one template can mix kinds)."""
+    left out, so one template can mix kinds). ``flank``: the flank of a fault whose template names none (the
+    flank that carries the case's load: a fault where the load never runs has no physics behind its label);
+    a template that names one (or a list) keeps it."""
     out = []
     for tpl in templates:
         kind = _draw_value("kind", tpl["kind"], rng, 0)
@@ -199,5 +207,7 @@ def draw_faults(templates, rng, z_pinion: int, z_wheel: int) -> list[dict]:
                 if key == "flank" and kind == "missing_tooth":
                     continue
                 spec[key] = _draw_value(key, rule, rng, z)
+        if flank is not None and "flank" not in tpl and kind != "missing_tooth":
+            spec["flank"] = flank
         out.append(spec)
     return out

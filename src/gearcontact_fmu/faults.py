@@ -39,7 +39,7 @@ from .meshes import KIND_TIP_ROUND, SurfaceMesh, concatenate
 from .params import BevelGearParams, MeshResolution
 
 __all__ = ["mild_flank_fracture", "missing_tooth", "pit", "spall", "chipped_tip", "crack", "wear", "apply_health", "apply_faults", "user_mesh",
-           "GENERATED_HEALTH", "FAULT_KINDS", "FAMILIES", "void_strip"]
+           "GENERATED_HEALTH", "FAULT_KINDS", "FAMILIES", "void_strip", "fault_footprint"]
 
 
 def _analytic_role(mesh: SurfaceMesh) -> str:
@@ -242,12 +242,16 @@ def pit(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth: int = 0
         raise ValueError("a pit needs radius > 0 and 0 < depth < radius")
     what = f"pit (radius {radius * 1e3:g} mm, {position * 1e3:g} mm from the pitch cone)"
     rho_c = _face_rho(g, face_position, radius, what, flank, tooth)
-    pc, _ = geometry.flank_point_normal(g, FLANKS[flank], g.s_pitch_param + position / g.Rm, rho_c, tooth=tooth)
     record = {"type": "pit", "radius": radius, "depth": depth, "face_position": face_position,
               "position": position, "volume": pit_volume(radius, depth)}
-    return _dent(mesh, params, role, g, tooth, flank,
-                 lambda V, s, rho: pit_depth(np.linalg.norm(V - pc, axis=1), radius, depth),
+    return _dent(mesh, params, role, g, tooth, flank, _pit_field(g, flank, tooth, radius, depth, rho_c, position),
                  [pit_band(rho_c, radius)], radius / 8.0, record, what)
+
+
+def _pit_field(g, flank: str, tooth: int, radius: float, depth: float, rho_c: float, position: float):
+    """The pit's depth field (V, s, rho) -> depth [m]: a spherical cap about its centre on the flank."""
+    pc, _ = geometry.flank_point_normal(g, FLANKS[flank], g.s_pitch_param + position / g.Rm, rho_c, tooth=tooth)
+    return lambda V, s, rho: pit_depth(np.linalg.norm(V - pc, axis=-1), radius, depth)
 
 
 def spall(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth: int = 0, flank: str = "drive",
@@ -263,23 +267,30 @@ def spall(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth: int =
         raise ValueError("a spall needs length, width and depth > 0")
     what = f"spall ({length * 1e3:g} x {width * 1e3:g} mm, {position * 1e3:g} mm from the pitch cone)"
     rho_c = _face_rho(g, face_position, 0.5 * width, what, flank, tooth)
-    s_c = g.s_pitch_param + position / g.Rm
-    half_s = 0.5 * length / g.Rm
     lo, hi = rho_c - 0.5 * width, rho_c + 0.5 * width
     record = {"type": "spall", "length": length, "width": width, "depth": depth, "face_position": face_position,
               "position": position, "volume": length * width * depth * (rho_c / g.Rm) ** 2}
 
     el_s = min(mesh.meta["profile"], length / 32.0) / g.Rm       # the profile spacing [rad]
     el_f = width / 8.0                                            # the face rows inside the spall
+    field = _spall_field(g, length, width, depth, rho_c, position, el_s, el_f)
+    return _dent(mesh, params, role, g, tooth, flank, field, [(lo - el_f, hi + el_f, el_f)], length / 32.0,
+                 record, what)
+
+
+def _spall_field(g, length: float, width: float, depth: float, rho_c: float, position: float, el_s: float,
+                 el_f: float):
+    """The spall's depth field: the patch, its walls linear ramps ``el_s`` [rad] along the profile and ``el_f``
+    [m] along the face wide, centred on its edges (the volume is the patch's)."""
+    s_c = g.s_pitch_param + position / g.Rm
+    half_s = 0.5 * length / g.Rm
 
     def field(V, s, rho):
-        # the walls are linear ramps one element wide, centred on the edges (the volume is the patch's)
         ramp_s = np.clip((half_s - np.abs(s - s_c)) / el_s + 0.5, 0.0, 1.0)
         ramp_f = np.clip((0.5 * width - np.abs(rho - rho_c)) / el_f + 0.5, 0.0, 1.0)
         return depth * ramp_s * ramp_f * rho / g.Rm
 
-    return _dent(mesh, params, role, g, tooth, flank, field, [(lo - el_f, hi + el_f, el_f)], length / 32.0,
-                 record, what)
+    return field
 
 
 def chipped_tip(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth: int = 0, flank: str = "drive",
@@ -294,7 +305,6 @@ def chipped_tip(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth:
     what = f"chipped tip ({height * 1e3:g} mm high, {length * 1e3:g} mm long)"
     rho_c = _face_rho(g, face_position, 0.5 * length, what, flank, tooth)
     lo, hi = rho_c - 0.5 * length, rho_c + 0.5 * length
-    s_end = g.L_radial + g.L_inv                    # end of the involute: the tip rounding starts
     if height / g.Rm >= g.L_inv:
         raise ValueError(f"the {what} is higher than the involute flank")
     record = {"type": "chipped_tip", "height": height, "length": length, "face_position": face_position,
@@ -302,14 +312,22 @@ def chipped_tip(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth:
                                                             (g.Re ** 3 - g.Ri ** 3) / (3.0 * g.Rm ** 2 * g.b))}
 
     el_f = min(length / 8.0, mesh.meta["face"])
+    field = _chip_field(g, height, length, rho_c, el_f)
+    bands = [] if length >= g.b else [(lo - el_f, hi + el_f, el_f)]
+    return _dent(mesh, params, role, g, tooth, flank, field, bands, height / 16.0, record, what)
+
+
+def _chip_field(g, height: float, length: float, rho_c: float, el_f: float):
+    """The chipped tip's depth field: the 45° chamfer from ``height`` below the end of the involute, over
+    ``length`` of the face about ``rho_c`` (its ends linear ramps ``el_f`` [m] wide), or the whole face."""
+    s_end = g.L_radial + g.L_inv                    # end of the involute: the tip rounding starts
 
     def field(V, s, rho):
         over = (s - (s_end - height / g.Rm)) * rho         # arc length beyond the chamfer start [m]
         ramp_f = np.clip((0.5 * length - np.abs(rho - rho_c)) / el_f + 0.5, 0.0, 1.0) if length < g.b else 1.0
         return np.where(over > 0.0, over, 0.0) * ramp_f
 
-    bands = [] if length >= g.b else [(lo - el_f, hi + el_f, el_f)]
-    return _dent(mesh, params, role, g, tooth, flank, field, bands, height / 16.0, record, what)
+    return field
 
 
 def crack(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth: int = 0, flank: str = "drive",
@@ -350,13 +368,72 @@ def wear(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth: int = 
               # depth scales with rho (tapered): V = depth/Rm int rho^2 drho int w(s) ds
               "volume": depth / g.Rm * (g.Re ** 3 - g.Ri ** 3) / 3.0 * ((s1 - s0) if profile == "uniform" else
                         ((g.s_pitch_param - s0) ** 2 + (s1 - g.s_pitch_param) ** 2) / (2.0 * far))}
+    return _dent(mesh, params, role, g, tooth, flank, _wear_field(g, depth, profile), [], mesh.meta["profile"],
+                 record, f"{profile} wear")
+
+
+def _wear_field(g, depth: float, profile: str):
+    """The wear's depth field over the involute: ``depth`` everywhere ("uniform") or growing linearly from 0
+    at the pitch cone to ``depth`` at the farther end of the flank ("sliding")."""
+    s0, s1 = g.L_radial, g.L_radial + g.L_inv
+    far = max(g.s_pitch_param - s0, s1 - g.s_pitch_param)
 
     def field(V, s, rho):
         on = (s >= s0) & (s <= s1)
         d = depth if profile == "uniform" else depth * np.abs(s - g.s_pitch_param) / far
         return np.where(on, d * rho / g.Rm, 0.0)
 
-    return _dent(mesh, params, role, g, tooth, flank, field, [], mesh.meta["profile"], record, f"{profile} wear")
+    return field
+
+
+#: the ramps of a footprint's edges [rad, m]: none (the nominal shape)
+_SHARP = 1e-15
+
+
+def fault_footprint(params: BevelGearParams | None, spec: dict, flank: str | None = None,
+                    samples: tuple[int, int] = (640, 200)) -> tuple:
+    """Where a fault removes material from its flank, sampled: ``(s, rho, w, inside)``, flat arrays over a
+    ``samples`` = (profile, face) grid of the flank of tooth 0 of its gear (s the profile parameter from the
+    root cone to the end of the tip rounding [rad], rho the cone distance [m], w the area weight rho, inside
+    where the fault's own depth field is positive; the nominal shape: a spall's and a chipped tip's edge
+    ramps, one mesh element wide, are left out). Healthy teeth are alike, so tooth 0 stands for the fault's
+    tooth. ``flank``: the flank sampled (default the fault's; a missing tooth's is the caller's choice: the
+    whole flank is its footprint). Raises ValueError for a fault that does not fit its tooth."""
+    params = params or BevelGearParams()
+    spec = normalised_spec(spec)
+    kind, member = spec["kind"], spec["member"]
+    flank = flank or spec.get("flank", "drive")
+    g = geometry.gear_geometry(params, member)
+    n_s, n_r = samples
+    s = (np.arange(n_s) + 0.5) / n_s * g.L_flank
+    rho = g.Ri + (np.arange(n_r) + 0.5) / n_r * (g.Re - g.Ri)
+    S, R = (a.ravel() for a in np.meshgrid(s, rho, indexing="ij"))
+    if kind == "missing_tooth":
+        return S, R, R.copy(), np.ones(S.shape, dtype=bool)
+    kw = _si_keywords(spec)
+    what = f"{kind} on {member} tooth {spec['tooth']}"
+    if kind == "void":
+        s_a, s_b = void_strip(params, member, kw["width"], kw["position"])
+        inside = (S >= s_a) & (S <= s_b)
+    elif kind == "crack":
+        rho_c = _face_rho(g, kw["face_position"], 0.5 * kw["length"], what, flank, 0)
+        inside = np.abs(R - rho_c) < 0.5 * kw["length"]
+    else:
+        if kind == "pit":
+            rho_c = _face_rho(g, kw["face_position"], kw["radius"], what, flank, 0)
+            field = _pit_field(g, flank, 0, kw["radius"], kw["depth"], rho_c, kw["position"])
+        elif kind == "spall":
+            rho_c = _face_rho(g, kw["face_position"], 0.5 * kw["width"], what, flank, 0)
+            field = _spall_field(g, kw["length"], kw["width"], kw["depth"], rho_c, kw["position"], _SHARP, _SHARP)
+        elif kind == "chipped_tip":
+            length = kw["length"] or g.b
+            rho_c = _face_rho(g, kw["face_position"], 0.5 * length, what, flank, 0)
+            field = _chip_field(g, kw["height"], length, rho_c, _SHARP)
+        else:                                               # wear
+            field = _wear_field(g, kw["depth"], kw["profile"])
+        V, _ = geometry.flank_point_normal(g, FLANKS[flank], S, R, tooth=0)
+        inside = field(V, S, R) > 0.0
+    return S, R, R.copy(), inside
 
 
 FAMILIES = {"void": mild_flank_fracture, "missing_tooth": missing_tooth, "pit": pit, "spall": spall,

@@ -24,7 +24,10 @@ scene file does. A setting that does not act in the run (drivetrain.scene.schema
 manufacturing draw without ``effects.manufacturing_errors``, the instruments with ideal sensors, a
 background constant whose effect is off) is empty (null), not its unused value. Each fault is
 ``fault<i>.<key>`` (kind, member, tooth, flank, sizes), the paper's ``mild`` and ``severe`` as the fault
-specifications of their geometry (gearcontact_fmu.fault_specs.PRESET_FAULTS). The condition indicators
+specifications of their geometry (gearcontact_fmu.fault_specs.PRESET_FAULTS), with how much contact it gets at
+the run's load: ``fault<i>.contact_share`` (the share of its flank area inside the loaded contact region over a
+mesh cycle), ``fault<i>.mesh_torque_drop`` (the largest relative drop of mesh torque at fixed mesh coordinate)
+and ``fault<i>.loaded_flank`` (gearcontact_fmu.fault_contact). The condition indicators
 of the run (campaigns.features) are per-run columns too.
 """
 from __future__ import annotations
@@ -42,6 +45,8 @@ from drivetrain.scene.schema import NAME_RE, NAME_RULE, setting_acts
 from gearcontact_fmu.fault_specs import health_faults
 
 FORMATS = ("parquet", "hdf5", "aalto")
+#: the labels of a fault's contact a run's summary gives (summary["fault_contact"]), as ``fault<i>.<key>``
+CONTACT_LABELS = ("contact_share", "mesh_torque_drop", "loaded_flank")
 DEFAULT_NAMES = {"parquet": "dataset.parquet", "hdf5": "dataset.h5", "aalto": "dataset_aalto"}
 
 
@@ -64,9 +69,14 @@ def run_labels(name: str, record: dict, scene: dict, summary: dict | None) -> di
     # each fault also as columns of its own (fault0.kind, fault0.member, fault0.tooth, its sizes ...), the
     # paper's mild and severe as the specifications of their geometry
     gear = scene.get("gear") or {}
+    contact = list((summary or {}).get("fault_contact") or [])
     for i, fault in enumerate(health_faults(gear.get("health", "healthy"), gear.get("faults") or ())):
         for key, value in fault.items():
             labels[f"fault{i}.{key}"] = _label_value(value)
+        # how much contact the fault gets at the run's load (gearcontact_fmu.fault_contact; None: not known)
+        c = contact[i] if i < len(contact) and isinstance(contact[i], dict) else {}
+        for key in CONTACT_LABELS:
+            labels[f"fault{i}.{key}"] = _label_value(c.get(key))
     return labels
 
 
@@ -335,16 +345,35 @@ def write_aalto(runs: list[dict], path: Path, settled_only: bool = False) -> Pat
 WRITERS = {"parquet": write_parquet, "hdf5": write_hdf5, "aalto": write_aalto}
 
 
+def contact_counts(runs: list[dict]) -> dict:
+    """How many of the runs' faults carry contact: ``faulty`` runs (with a ``fault0``), of them ``with_contact``
+    (``fault0.contact_share`` > 0), ``without_contact`` (= 0: the fault sits where the load never runs) and
+    ``unknown`` (no share computed)."""
+    shares = [r["labels"].get("fault0.contact_share") for r in runs if r["labels"].get("fault0.kind") is not None]
+    known = [s for s in shares if isinstance(s, (int, float))]
+    return {"faulty": len(shares), "with_contact": sum(s > 0 for s in known),
+            "without_contact": sum(s <= 0 for s in known), "unknown": len(shares) - len(known)}
+
+
+def contact_line(counts: dict) -> str:
+    """The sentence the dataset's writers say about :func:`contact_counts`."""
+    return (f"{counts['with_contact']} of {counts['faulty']} faulty runs carry contact (fault0.contact_share > 0); "
+            f"{counts['without_contact']} have none, {counts['unknown']} unknown")
+
+
 def export(sweep_dir: Path | str, fmt: str = "parquet", out: Path | str | None = None,
-           settled_only: bool = False) -> Path:
+           settled_only: bool = False, log=None) -> Path:
     """Write the dataset of a sweep directory; returns the written path. ``settled_only``: leave out each run's
-    samples before its ``time.settle_s``."""
+    samples before its ``time.settle_s``. ``log``: told how many faulty runs carry contact
+    (:func:`contact_counts`)."""
     if fmt not in WRITERS:
         raise DatasetError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
     path = Path(out) if out else Path(sweep_dir) / DEFAULT_NAMES[fmt]
     if fmt != "aalto" and path.is_dir():
         raise DatasetError(f"{path}: a directory; the {fmt} dataset is one file (give its file name)")
     runs = collect(sweep_dir)
+    if log is not None:
+        log(contact_line(contact_counts(runs)))
     try:
         return WRITERS[fmt](runs, path, settled_only)
     except OSError as exc:                     # a read-only place, a full disk: named, and no stray temporary
@@ -355,5 +384,6 @@ def export(sweep_dir: Path | str, fmt: str = "parquet", out: Path | str | None =
         raise DatasetError(f"{path}: the dataset cannot be written there ({exc.strerror or exc})") from None
 
 
-__all__ = ["run_records", "load_run", "read_run", "run_data", "FORMATS", "DatasetError", "collect", "export", "run_labels", "write_parquet", "write_hdf5",
+__all__ = ["run_records", "load_run", "read_run", "run_data", "FORMATS", "DatasetError", "collect", "export", "run_labels",
+           "contact_counts", "CONTACT_LABELS", "write_parquet", "write_hdf5",
            "write_aalto"]

@@ -34,7 +34,7 @@ from drivetrain.run import outputs as O
 from drivetrain.scene.expect import RUN_SUMMARY_TREE, SUMMARY_TREE
 from drivetrain.scene.load import Scene
 from drivetrain.system import BACKENDS, SystemSpec
-from gearcontact_fmu.fault_specs import FaultGeometryError
+from gearcontact_fmu.fault_specs import FaultGeometryError, health_faults
 from gearcontact_fmu.params import GEAR_MODEL
 from gearcontact_fmu.progress import reporter
 
@@ -506,11 +506,53 @@ def _scene_labels(plan: RunPlan) -> dict:
         "operating_point": {"drive_speed_rpm": op.final_speed_rpm, "load_torque_Nm": op.load_torque_Nm,
                             "profiles": bool(op.speed_profile_rpm or op.load_profile_Nm)},
         "health": scene.gear.health,
+        "fault_contact": fault_contact_labels(plan.spec, plan.warnings),
         "effects": dataclasses.asdict(scene.effects),
         # the drawn errors (per tooth, eccentricities, phases) and how they were drawn: the labels of the run
         "manufacturing_errors": plan.spec.metadata.get("manufacturing_errors"),
         "instruments": dataclasses.asdict(scene.instruments) if scene.effects.sensors == "rig" else None,
     }
+
+
+def fault_contact_labels(spec: SystemSpec, warnings: list | None = None) -> list[dict]:
+    """How much contact each fault of the system's gear gets at its start load
+    (:mod:`gearcontact_fmu.fault_contact`): per fault of its health (the paper's mild and severe as their
+    specifications) ``contact_share``, ``mesh_torque_drop`` and the ``loaded_flank``; [] for a healthy gear,
+    a user's mesh files, an unloaded start or no GearContact. A label that cannot be computed is None, with
+    the reason in ``warnings``: it never fails the run."""
+    gears = spec.components_of("GearContact")
+    steady = spec.metadata.get("steady_state") or {}
+    if not gears or not steady.get("T_msh"):
+        return []
+    g = gears[0].parameters
+    specs = health_faults(str(g.get("health", "healthy")), json.loads(str(g.get("faults") or "[]")))
+    if not specs or g.get("pinion_mesh_file") or g.get("wheel_mesh_file"):
+        return []
+    from gearcontact_fmu import fault_contact as fc
+    from gearcontact_fmu.contact_map import get_map
+    from gearcontact_fmu.fmu_parameters import stage_arguments
+    from gearcontact_fmu.gearpair import fault_kwargs_of
+    from gearcontact_fmu.params import MapGrid
+    from gearcontact_fmu.slaves.GearContact import parameter_values
+
+    torque = float(steady["T_msh"])
+    out = [{"loaded_flank": fc.loaded_flank(torque), "contact_share": None, "mesh_torque_drop": None} for _ in specs]
+    try:
+        (_, gear, pcm, res), kw = stage_arguments(parameter_values({**g, "fidelity": "table"}))
+        regions = fc.loaded_regions(gear, pcm, res, torque)
+        for row, f in zip(out, specs):
+            row["contact_share"] = fc.contact_share(f, regions, gear)
+        grid = kw.get("grid") or MapGrid()
+        healthy = get_map(gear, pcm, res, "healthy", None, grid)
+        faulty = get_map(gear, pcm, res, kw["health"], None, grid, fault_kwargs=fault_kwargs_of(kw["health"],
+                                                                                          kw.get("faults") or ()))
+        drop = fc.mesh_torque_drop(healthy, faulty, torque)
+        for row in out:                    # the maps hold every fault of the gear at once: one drop for all
+            row["mesh_torque_drop"] = drop
+    except Exception as exc:  # noqa: BLE001 - a label, not the run: say why it is missing
+        if warnings is not None:
+            warnings.append(f"fault contact labels not computed: {type(exc).__name__}: {exc}")
+    return out
 
 
 def build_summary(plan: RunPlan, res: CosimResult, failed: CosimError | None, ch: Channels, sp: Spectra) -> dict:

@@ -95,6 +95,7 @@ RUN_SUMMARY_TREE: dict = {
     "sample_rate_Hz": "num", "settle_s": "num", "n_fmus": "int",
     "operating_point": {"drive_speed_rpm": "num", "load_torque_Nm": "num", "profiles": "bool"},
     "health": "str",
+    "fault_contact": {"<i>": {"loaded_flank": "str", "contact_share": "num", "mesh_torque_drop": "num"}},
     "effects": {key: _SUMMARY_TYPE[spec.type] for key, spec in SCHEMA["effects"].items()},
     "manufacturing_errors": "any", "instruments": "any",
     "torque": {"<torque>": _STATS_TREE},

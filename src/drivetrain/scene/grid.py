@@ -24,8 +24,8 @@ import numpy as np
 
 from drivetrain.errors import ScenarioError
 from drivetrain.rig.data import Z_PINION, Z_WHEEL
-from drivetrain.scene.schema import NAME_RE, NAME_RULE, SCHEMA, Scene
-from gearcontact_fmu.fault_specs import draw_faults, draw_rule_problems, draw_value, rule_problem
+from drivetrain.scene.schema import NAME_RE, NAME_RULE, SCHEMA, Scene, default_of
+from gearcontact_fmu.fault_specs import draw_faults, draw_rule_problems, draw_value, loaded_flank, rule_problem
 
 GRID_SECTION = "sweep"
 GRID_KEYS = {"axes", "name", "draw", "growth"}
@@ -267,7 +267,7 @@ def _cases(raw: dict, grid: Grid):
         healthy = copy.deepcopy(case) if d is not None and draw.get("paired_healthy") else None
         if d is not None and draw.get("faults"):
             case.setdefault("gear", {}).update(
-                health="faults", faults=draw_faults(draw["faults"], rng, Z_PINION, Z_WHEEL))
+                health="faults", faults=draw_faults(draw["faults"], rng, Z_PINION, Z_WHEEL, flank=_loaded_flank(case)))
         if d is not None and draw.get("background"):
             bg = draw_background(draw["background"], rng_bg)
             case.setdefault("background", {}).update(bg)
@@ -280,6 +280,16 @@ def _cases(raw: dict, grid: Grid):
             healthy["gear"].pop("faults", None)
             healthy["scenario"] = {k: v for k, v in case["scenario"].items()}
             yield healthy, d, True
+
+
+def _loaded_flank(case: dict) -> str:
+    """The flank that carries a case's load at its start: drive for a braking load motor (load > 0), coast for
+    a driving one (gearcontact_fmu.fault_contact.loaded_flank of the pinion torque, which has the load's sign)."""
+    load = (case.get("operating_point") or {}).get("load_torque_Nm", default_of("operating_point.load_torque_Nm"))
+    try:
+        return loaded_flank(float(load))
+    except (TypeError, ValueError):
+        return "drive"                      # a bad load is the scene check's to refuse, with its key
 
 
 def _growth_cases(case: dict, growth: dict):

@@ -3,7 +3,7 @@
 1. Scene benchmark (default: the severe-fault scene at 1500 rpm, 1.31 N·m, 20 s, ``table`` fidelity):
    real-time factor of the co-simulated run (fmi backend: FMUs through fmpy), and the ratio of its
    stepping-loop time to the same components stepped in-process without FMI (inprocess backend).
-   ``--native``: also (c) all four models as native FMUs (drivetrain.cosim.native_line, built once and cached in
+   ``--native``: also (c) all four models as native FMUs (drivetrain.fmu_build.native_line, built once and cached in
    FMU_DIR/native) through FMI, and the ratios native-FMI / in-process and native-FMI / pythonfmu-FMI.
 2. ``--overhead``: the master's per-step cost with N small pythonfmu FMUs (a chain of inertias and
    springs), fmi vs in-process, and the cost of the FMI calls themselves.
@@ -49,7 +49,7 @@ def scene_benchmark(scene_path: Path, duration: float | None, overrides: list[st
     results = {}
     runs = [(b, b, None) for b in backends]
     if native:
-        from drivetrain.cosim.native_line import native_fmus
+        from drivetrain.fmu_build.native_line import native_fmus
 
         paths, note = native_fmus(spec, Path(fmu_dir) / "native", log=lambda m: print("  " + m))
         if note:

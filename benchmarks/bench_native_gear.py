@@ -37,8 +37,8 @@ import fmpy
 import numpy as np
 from fmpy.fmi2 import FMU2Slave
 
-from drivetrain.cosim.build import build_all
-from drivetrain.cosim.native_gear import C_SOURCE, _probe_slave, build_native_gear, compile_command
+from drivetrain.fmu_build.build import build_all
+from drivetrain.fmu_build.native_gear import C_SOURCE, _probe_slave, build_native_gear, compile_command
 from drivetrain.run.assemble import gear_parameters
 from drivetrain.scene.load import load_scene
 from gearcontact_fmu.params import GEAR_MODEL

@@ -1,6 +1,6 @@
-"""The reference plots every FMU ships (documentation/reference.png; drivetrain.cosim.fmu_docs): each FMU's
+"""The reference plots every FMU ships (documentation/reference.png; drivetrain.fmu_build.fmu_docs): each FMU's
 DefaultExperiment with its shipped example input, run by fmpy.simulate_fmu, plotted; written to
-src/drivetrain/cosim/reference_plots/<Model>.png (pythonfmu) and <Model>-native.png, committed.
+src/drivetrain/fmu_build/reference_plots/<Model>.png (pythonfmu) and <Model>-native.png, committed.
 
     python examples/fmu_reference_plots.py            # builds the FMUs into a temporary directory first
 
@@ -19,10 +19,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import fmpy  # noqa: E402
-from drivetrain.cosim.build import build_all  # noqa: E402
-from drivetrain.cosim.fmu_docs import EXAMPLE_CSV, PLOT_DIR, PLOT_VARIABLES, reference_plot  # noqa: E402
-from drivetrain.cosim.native_gear import build_native_gear  # noqa: E402
-from drivetrain.cosim.native_line import MODELS, build_native_line  # noqa: E402
+from drivetrain.fmu_build.build import build_all  # noqa: E402
+from drivetrain.fmu_build.fmu_docs import EXAMPLE_CSV, PLOT_DIR, PLOT_VARIABLES, reference_plot  # noqa: E402
+from drivetrain.fmu_build.native_gear import build_native_gear  # noqa: E402
+from drivetrain.fmu_build.native_line import MODELS, build_native_line  # noqa: E402
 
 
 def plot(path: Path, native: bool) -> float:

@@ -41,7 +41,7 @@ def drivetrain_fmu_dir(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def native_cache_dir(tmp_path_factory):
-    """A private cache of native FMUs (drivetrain.cosim.native_line.native_fmus) shared by the tests that run
+    """A private cache of native FMUs (drivetrain.fmu_build.native_line.native_fmus) shared by the tests that run
     native FMUs without testing their build or its cache: each build (the example's gear: ~5 s) happens
     once per session. Tests of the build and the cache use a directory of their own."""
     return tmp_path_factory.mktemp("native_session")
@@ -54,8 +54,8 @@ def fmus_both_builds(drivetrain_fmu_dir, tmp_path_factory):
     with a C toolchain, "native" (GearContact with its at-rest defaults). Without a toolchain the native
     entries are absent (and the pythonfmu FMUs carry no FMI wrapper)."""
     from drivetrain.cosim import ensure_fmus
-    from drivetrain.cosim.native_gear import build_native_gear
-    from drivetrain.cosim.native_line import MODELS as LINE_MODELS, build_native_line, toolchain_problems
+    from drivetrain.fmu_build.native_gear import build_native_gear
+    from drivetrain.fmu_build.native_line import MODELS as LINE_MODELS, build_native_line, toolchain_problems
 
     models = ("GearContact", *LINE_MODELS)
     out = {("pythonfmu", m): p for m, p in ensure_fmus(list(models), drivetrain_fmu_dir).items()}

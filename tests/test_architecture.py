@@ -9,7 +9,7 @@ import ast
 import re
 from pathlib import Path
 
-from drivetrain.cosim.bundle import imported_modules, package_modules
+from drivetrain.fmu_build.bundle import imported_modules, package_modules
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 
@@ -99,10 +99,11 @@ WING_RANK = {
     "errors": 0, "system": 0,
     "rig": 1,
     "models": 2, "scene": 2,
-    "cosim": 3,
-    "run": 4,
-    "campaigns": 5, "interop": 5,
-    "cli": 6, "pytest_plugin": 6, "master": 6, "__main__": 7,
+    "fmu_build": 3,
+    "cosim": 4,
+    "run": 5,
+    "campaigns": 6, "interop": 6,
+    "cli": 7, "pytest_plugin": 7, "__main__": 8,
 }
 
 
@@ -132,7 +133,7 @@ def test_the_wings_import_downwards_only():
 def test_drivetrain_has_no_flat_room():
     """Only the vocabulary (errors, system) and the entry points live at the package's top."""
     top = sorted(p.name for p in (SRC / "drivetrain").glob("*.py"))
-    assert top == ["__init__.py", "__main__.py", "cli.py", "errors.py", "master.py", "pytest_plugin.py",
+    assert top == ["__init__.py", "__main__.py", "cli.py", "errors.py", "pytest_plugin.py",
                    "system.py"], top
 
 
@@ -226,7 +227,7 @@ def _copy_packages(tmp_path):
 
 
 def test_fmus_run_the_models_and_the_pure_library_only():
-    from drivetrain.cosim.bundle import fmu_modules
+    from drivetrain.fmu_build.bundle import fmu_modules
 
     dirs = {pkg: SRC / pkg for pkg in ("drivetrain", "gearcontact_fmu", "fmu_runtime")}
     inside = fmu_modules(dirs)
@@ -234,7 +235,8 @@ def test_fmus_run_the_models_and_the_pure_library_only():
             "drivetrain.system", "drivetrain.errors", "gearcontact_fmu.stage", "gearcontact_fmu.slaves.GearContact",
             "fmu_runtime.guard"} <= inside
     host_only = {m for m in _modules() if m.startswith("drivetrain") and m not in inside}
-    for m in ("drivetrain.cli", "drivetrain.cosim.master", "drivetrain.cosim", "drivetrain.campaigns.validation",
+    for m in ("drivetrain.cli", "drivetrain.cosim.master", "drivetrain.cosim", "drivetrain.fmu_build.build",
+              "drivetrain.fmu_build.fmus", "drivetrain.campaigns.validation",
               "drivetrain.run.runner", "drivetrain.scene.load", "drivetrain.interop.ssp"):
         assert m in host_only, m
 
@@ -242,7 +244,7 @@ def test_fmus_run_the_models_and_the_pure_library_only():
 def test_editing_a_host_only_module_marks_no_fmu_stale(tmp_path, monkeypatch):
     """The staleness hash covers what runs inside an FMU: an edit of the master, the validation, the CLI
     or a scene module leaves it as it is; an edit of a model the FMUs run changes it."""
-    from drivetrain.cosim import fmus
+    from drivetrain.fmu_build import fmus
 
     dirs = _copy_packages(tmp_path)
     monkeypatch.setattr(fmus, "_package_dirs", lambda: dirs)

@@ -1,5 +1,5 @@
 """The component FMUs (drivetrain/slaves: FlexibleShaft, UpperTransmission, MotorLoad): they build with
-drivetrain.cosim.build, pass fmpy's validation, carry units and causalities as documented, behave like the
+drivetrain.fmu_build.build, pass fmpy's validation, carry units and causalities as documented, behave like the
 component classes, turn a NaN input into an FMI error (never a crash), and run under the master."""
 from pathlib import Path
 
@@ -19,9 +19,9 @@ H = 1.0 / 12000.0
 
 @pytest.fixture(scope="module")
 def fmus(tmp_path_factory):
-    fmubuild = pytest.importorskip("drivetrain.cosim.build")
+    fmu_build = pytest.importorskip("drivetrain.fmu_build.build")
     out = tmp_path_factory.mktemp("component_fmus")
-    paths = fmubuild.build_all(out, only=list(MODELS))
+    paths = fmu_build.build_all(out, only=list(MODELS))
     return {Path(p).stem: Path(p) for p in paths}
 
 
@@ -171,7 +171,7 @@ def test_master_runs_the_rigid_ideal_scene_through_fmi(fmus, tmp_path):
     frees its instances, which with pythonfmu 0.7.0 can crash the process at exit; see Instance.close.)"""
     master = pytest.importorskip("drivetrain.cosim")
     from drivetrain.run.assemble import assemble
-    from drivetrain.cosim.build import build_all
+    from drivetrain.fmu_build.build import build_all
     from drivetrain.scene.load import default_scene
 
     gear = build_all(tmp_path, only=["GearContact"])[0]

@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drivetrain.cosim import load_fmu_info, simulate
+from drivetrain.cosim import simulate
+from drivetrain.fmu_build.fmus import load_fmu_info
 from drivetrain.run.runner import assemble_scene
 from drivetrain.scene.load import load_scene
 

@@ -1,8 +1,8 @@
 """FMI 2.0 conformance of every FMU in both builds (issue 30): every misuse that FMI calls an error returns
 fmi2Error with a logged reason, the state machine is the Reference FMUs' one, and no call sequence crashes the
 host. The pythonfmu FMUs (GearContact, FlexibleShaft, UpperTransmission, MotorLoad) are the FMI wrapper in front
-of pythonfmu's export library (drivetrain.cosim.fmi_wrapper); the native builds are compiled C
-(drivetrain.cosim.native_line / native_gear).
+of pythonfmu's export library (drivetrain.fmu_build.fmi_wrapper); the native builds are compiled C
+(drivetrain.fmu_build.native_line / native_gear).
 
 The cases of one FMU run in a subprocess, each on a fresh instance, printing one JSON line per finished case. A
 crash ends the subprocess: the case it was in fails with the exit code, and the cases after it run in a new
@@ -266,7 +266,7 @@ def _run(path, build: str, cases: list[str]) -> dict:
 @pytest.fixture(scope="module")
 def fmus(fmus_both_builds):
     """{(build, model): path}: both builds of the four FMUs (the session's, tests/conftest.py)."""
-    from drivetrain.cosim.native_line import toolchain_problems
+    from drivetrain.fmu_build.native_line import toolchain_problems
 
     if toolchain_problems():
         pytest.skip("no C toolchain (the FMI wrapper and the native builds need one): " + "; ".join(toolchain_problems()))
@@ -387,7 +387,7 @@ def test_without_a_compiler_the_fmu_keeps_pythonfmus_library_and_the_build_warns
     (docs/FMU.md, Build)."""
     import zipfile
 
-    from drivetrain.cosim.build import build_all
+    from drivetrain.fmu_build.build import build_all
 
     monkeypatch.setenv("CC", "no-such-cc-here")
     with pytest.warns(UserWarning, match="built WITHOUT the FMI wrapper.*no-such-cc-here"):

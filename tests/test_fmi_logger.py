@@ -15,8 +15,8 @@ pytest.importorskip("fmpy")
 
 @pytest.fixture(scope="module")
 def shaft_fmu(tmp_path_factory):
-    fmubuild = pytest.importorskip("drivetrain.cosim.build")
-    (path,) = fmubuild.build_all(tmp_path_factory.mktemp("logger_fmu"), only=["FlexibleShaft"])
+    fmu_build = pytest.importorskip("drivetrain.fmu_build.build")
+    (path,) = fmu_build.build_all(tmp_path_factory.mktemp("logger_fmu"), only=["FlexibleShaft"])
     return path
 
 

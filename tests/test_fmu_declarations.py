@@ -124,7 +124,7 @@ def test_bounds_are_the_ones_the_code_checks(fmus):
 
 
 def test_type_definitions_carry_the_quantities(fmus):
-    from drivetrain.cosim.build import QUANTITIES
+    from drivetrain.fmu_build.build import QUANTITIES
 
     for key, _, root in _each(fmus):
         types = {st.get("name"): st[0] for st in root.find("TypeDefinitions")}
@@ -143,7 +143,7 @@ def test_the_native_gears_build_parameters_are_constants(fmus):
     """FMI 2.0 section 2.2.7: a value a host cannot change is causality local, variability constant."""
     if ("native", "GearContact") not in fmus:
         pytest.skip("gcc not installed")
-    from drivetrain.cosim.native_gear import IGNORED_PARAMETERS, RUNTIME_PARAMETERS
+    from drivetrain.fmu_build.native_gear import IGNORED_PARAMETERS, RUNTIME_PARAMETERS
 
     v = {sv.get("name"): sv for sv in _root(fmus[("native", "GearContact")]).find("ModelVariables")}
     py = {sv.get("name"): sv for sv in _root(fmus[("pythonfmu", "GearContact")]).find("ModelVariables")}
@@ -196,7 +196,7 @@ def _gear_at_t0(overrides):
     exit_initialization_mode (its t = 0 outputs), and the assembled steady state."""
     import tempfile
 
-    from drivetrain.cosim.build import slave_class
+    from drivetrain.fmu_build.build import slave_class
     from drivetrain.run.runner import assemble_scene
     from drivetrain.scene.load import load_scene
 
@@ -335,7 +335,7 @@ def test_hosts_leave_the_constants_alone(tmp_path):
     accepts the scene's value when it equals the built one and names the difference otherwise)."""
     if shutil.which("gcc") is None:
         pytest.skip("gcc not installed")
-    from drivetrain.cosim.fmus import load_fmu_info
+    from drivetrain.fmu_build.fmus import load_fmu_info
     from drivetrain.cosim.plan import _check_parameters
     from drivetrain.interop.ssp import export_ssp
     from drivetrain.run.runner import assemble_scene

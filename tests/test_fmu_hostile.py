@@ -16,7 +16,7 @@ import pytest
 
 from _fmi_instances import case_records
 
-from drivetrain.cosim import ensure_fmus
+from drivetrain.fmu_build.fmus import ensure_fmus
 
 MODELS = ("GearContact", "FlexibleShaft", "UpperTransmission", "MotorLoad")
 

@@ -13,7 +13,7 @@ import textwrap
 
 import pytest
 
-from drivetrain.cosim import ensure_fmus
+from drivetrain.fmu_build.fmus import ensure_fmus
 
 HOSTILE = "%n%s%n%s%x%%"
 
@@ -100,7 +100,7 @@ def test_a_percent_in_the_temporary_directory_does_not_crash_the_master(fmu_dir,
     tmp = tmp_path / "t%n%s"
     tmp.mkdir()
     code = textwrap.dedent(f"""
-        from drivetrain.cosim import extracted_dir
+        from drivetrain.fmu_build.fmus import extracted_dir
         from drivetrain.system import ComponentSpec, SystemSpec
         from drivetrain.cosim import simulate
         d = extracted_dir({str(fmu_dir / "MotorLoad.fmu")!r})

@@ -13,8 +13,8 @@ from xml.etree import ElementTree as ET
 import numpy as np
 import pytest
 
-from drivetrain.cosim.fmu_docs import EXAMPLE_CSV, RAMP_S, operating_point
-from drivetrain.cosim.fmus import ensure_fmus
+from drivetrain.fmu_build.fmu_docs import EXAMPLE_CSV, RAMP_S, operating_point
+from drivetrain.fmu_build.fmus import ensure_fmus
 
 MODELS = ("GearContact", "FlexibleShaft", "UpperTransmission", "MotorLoad")
 BUILDS = ("pythonfmu", "native")

@@ -66,7 +66,7 @@ def _run(body: str, timeout=240):
 
 @pytest.fixture(scope="module")
 def fmus(tmp_path_factory):
-    from drivetrain.cosim.build import build_all
+    from drivetrain.fmu_build.build import build_all
 
     out = tmp_path_factory.mktemp("fmus")
     return {p.stem: str(p) for p in build_all(out)}

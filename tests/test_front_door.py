@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 import drivetrain
-from drivetrain.cosim import fmus as F
+from drivetrain.fmu_build import fmus as F
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -50,7 +50,7 @@ def test_import_is_cheap_and_exports_the_api():
 def test_fmus_are_kept_where_the_package_says_not_in_the_current_folder(tmp_path, monkeypatch):
     """The default FMU directory does not depend on the current folder: a source checkout's fmus/, and for
     an installed package fmus/ in the user-level cache (native FMUs beneath it)."""
-    from drivetrain.cosim.native_line import default_native_dir
+    from drivetrain.fmu_build.native_line import default_native_dir
 
     monkeypatch.chdir(tmp_path)
     assert F.default_fmu_dir() == ROOT / "fmus" and tmp_path not in F.default_fmu_dir().parents

@@ -366,7 +366,7 @@ def test_fuzz_fmi_unknown_references_pythonfmu(line_fmus):
 
 @pytest.fixture(scope="module")
 def native_line_fmus(tmp_path_factory):
-    from drivetrain.cosim.native_line import build_native_line, toolchain_problems
+    from drivetrain.fmu_build.native_line import build_native_line, toolchain_problems
 
     if toolchain_problems():
         pytest.skip("no C toolchain: " + "; ".join(toolchain_problems()))
@@ -384,8 +384,8 @@ def test_fuzz_fmi_call_sequences_native(native_line_fmus, model, request):
 def test_fuzz_fmi_call_sequences_gear(tmp_path):
     """GearContact, both builds, many sequences (its first initialization builds the contact kernels)."""
     from drivetrain.cosim import ensure_fmus
-    from drivetrain.cosim.native_gear import build_native_gear
-    from drivetrain.cosim.native_line import toolchain_problems
+    from drivetrain.fmu_build.native_gear import build_native_gear
+    from drivetrain.fmu_build.native_line import toolchain_problems
 
     ensure_fmus(["GearContact"], tmp_path)
     _fmi_fuzz(tmp_path / "GearContact.fmu", 200, SEED + 5)      # calls on after refusals (issue 30: the wrapper)

@@ -19,7 +19,7 @@ INPUT_CSV = ROOT / "examples" / "gearcontact_input.csv"
 
 @pytest.fixture(scope="session")
 def fmu(tmp_path_factory):
-    from drivetrain.cosim.build import build_all
+    from drivetrain.fmu_build.build import build_all
 
     out = tmp_path_factory.mktemp("fmus")
     paths = build_all(out, only=["GearContact"])
@@ -60,7 +60,7 @@ def test_validate_and_model_description(fmu):
     # packages bundled as sources only
     assert "resources/_bundled/gearcontact_fmu/stage.py" in names
     assert "resources/_bundled/drivetrain/models/components.py" in names
-    # what runs inside an FMU only (drivetrain.cosim.bundle: derived from the imports); the host's side stays out
+    # what runs inside an FMU only (drivetrain.fmu_build.bundle: derived from the imports); the host's side stays out
     assert not any(n.startswith(("resources/_bundled/drivetrain/cosim/", "resources/_bundled/drivetrain/cli.py",
                                  "resources/_bundled/drivetrain/campaigns/")) for n in names)
     assert not any("__pycache__" in n or n.endswith((".pyc", ".nbi", ".nbc")) for n in names)

@@ -221,7 +221,7 @@ def test_outputs_read_in_initialization_mode_follow_parameters_set_there(fmu_dir
     to the connected inputs. The drivetrain FMUs build again before such a read (fmishell.refresh_init),
     so the spring-side port starts from the right flange: FlexibleShaft flange_b gave -449 N.m at the
     start instead of 1.9 when the read returned the build of the default parameters."""
-    from drivetrain.cosim.fmus import ensure_fmus
+    from drivetrain.fmu_build.fmus import ensure_fmus
 
     spec = assemble_scene(load_scene(EXAMPLE, SHORT))
     fmus = ensure_fmus([c.model for c in spec.components], fmu_dir)

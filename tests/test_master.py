@@ -11,7 +11,7 @@ import pytest
 from _cosim_test_fmus import build_test_fmus
 import drivetrain.cosim as M
 from drivetrain.cosim import ConfigurationError, CosimError, Master, simulate
-from drivetrain.cosim.fmus import stamp_path
+from drivetrain.fmu_build.fmus import stamp_path
 from drivetrain.system import ComponentSpec, Connection, SystemSpec
 
 H12 = 1.0 / 12000.0

@@ -1,4 +1,4 @@
-"""The Python-free GearContact (fidelity table, drivetrain.cosim.native_gear): model description, no libpython,
+"""The Python-free GearContact (fidelity table, drivetrain.fmu_build.native_gear): model description, no libpython,
 agreement with the pythonfmu GearContact, FMU state rollback, refusals, the C host, the system swap.
 
 Both FMUs are built once per module from the example scene's gear (its 48 x 48 contact map comes from
@@ -51,14 +51,14 @@ def gear():
 def native(tmp_path_factory, gear):
     if shutil.which("gcc") is None:
         pytest.skip("gcc not installed")
-    from drivetrain.cosim.native_gear import build_native_gear
+    from drivetrain.fmu_build.native_gear import build_native_gear
 
     return build_native_gear(gear, tmp_path_factory.mktemp("native") / "GearContact.fmu")
 
 
 @pytest.fixture(scope="module")
 def pyfmu(tmp_path_factory):
-    from drivetrain.cosim.build import build_all
+    from drivetrain.fmu_build.build import build_all
 
     return build_all(tmp_path_factory.mktemp("pyfmus"), only=["GearContact"])[0]
 
@@ -66,7 +66,7 @@ def pyfmu(tmp_path_factory):
 def _open(path, params, name="gear"):
     """An instance (log lines in ``s.log_lines()``, tests/_fmi_instances.py) and its variables by name; the
     parameters set as our master sets them: all but the FMU's constants (drivetrain.cosim.plan.settable)."""
-    from drivetrain.cosim.fmus import load_fmu_info
+    from drivetrain.fmu_build.fmus import load_fmu_info
     from drivetrain.cosim.plan import settable
 
     return open_instance(path, settable(params or {}, load_fmu_info(path).variables), name)
@@ -245,7 +245,7 @@ def test_the_map_is_the_one_the_slave_steps_with(gear):
     """The native build and the pythonfmu slave translate the GearContact parameters with one function
     (gearcontact_fmu.fmu_parameters): the map (and manufacturing offset) the build writes is the one the
     slave's stage evaluates, for the example's gear and for a coarse faulty gear with pitch errors."""
-    from drivetrain.cosim.native_gear import NEUTRAL, _probe_slave, _table_arrays
+    from drivetrain.fmu_build.native_gear import NEUTRAL, _probe_slave, _table_arrays
     from gearcontact_fmu.manufacturing_specs import draw_errors
     from gearcontact_fmu.params import BevelGearParams
 
@@ -386,7 +386,7 @@ def test_manufacturing_errors_match(tmp_path, pyfmu, profile):
     """A map with manufacturing errors baked in (the offset is in the resource), tooth compliance set at
     run time: the same outputs as the pythonfmu GearContact; also with the teeth's profile form
     deviation (the mesh-periodic term of the offset, P_PROF_A and P_PROF_PHASE in the C)."""
-    from drivetrain.cosim.native_gear import build_native_gear
+    from drivetrain.fmu_build.native_gear import build_native_gear
 
     gear = _scene_gear(["effects.manufacturing_errors=true", "effects.tooth_compliance=true",
                         f"manufacturing.profile_errors={str(profile).lower()}"])
@@ -431,7 +431,7 @@ def test_a_build_from_a_running_scene_keeps_at_rest_defaults(native, gear):
     large transients, unlike every other build of the same gear. The running state is the host's to set."""
     from fmpy import read_model_description
 
-    from drivetrain.cosim.native_gear import _probe_slave, is_running_state
+    from drivetrain.fmu_build.native_gear import _probe_slave, is_running_state
 
     assert gear["pinion_w_start"] != 0.0 and gear["initial_state"] != _probe_slave().initial_state   # a running scene
     slave = _probe_slave()

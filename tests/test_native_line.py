@@ -1,4 +1,4 @@
-"""The Python-free FlexibleShaft, UpperTransmission and MotorLoad (drivetrain.cosim.native_line): model description,
+"""The Python-free FlexibleShaft, UpperTransmission and MotorLoad (drivetrain.fmu_build.native_line): model description,
 no libpython, agreement with the pythonfmu FMUs (bit for bit), errors, FMU state rollback, the system swap.
 
 The native FMUs of the example are built once per session (native_fmus into conftest's native_cache_dir,
@@ -35,7 +35,7 @@ def native_example(native_cache_dir):
     build_native_gear for the gear's map), from the session's cache of native builds."""
     if shutil.which("gcc") is None:
         pytest.skip("gcc not installed")
-    from drivetrain.cosim.native_line import native_fmus
+    from drivetrain.fmu_build.native_line import native_fmus
     from drivetrain.run.runner import assemble_scene
     from drivetrain.scene.load import load_scene
 
@@ -436,7 +436,7 @@ def test_a_wrong_guid_and_a_second_free_do_not_hurt_the_host(native, model):
 def test_native_fmus_are_cached_and_a_non_table_gear_keeps_its_pythonfmu(tmp_path):
     """drivetrain run --native's cache: the three line FMUs once, found again by their fingerprints; a scene
     whose gear is not fidelity table gets the three and a note (and build-native refuses it)."""
-    from drivetrain.cosim.native_line import native_fmus
+    from drivetrain.fmu_build.native_line import native_fmus
     from drivetrain.run.runner import assemble_scene
     from drivetrain.scene.load import load_scene
 
@@ -459,7 +459,7 @@ def test_fingerprints_are_computed_once_per_process_and_anew_for_an_edited_sourc
     when a file it hashes changes; an operating point of the same gear is the same gear key."""
     import os
 
-    import drivetrain.cosim.native_line as NL
+    import drivetrain.fmu_build.native_line as NL
     from drivetrain.run.runner import assemble_scene
     from drivetrain.scene.load import load_scene
 

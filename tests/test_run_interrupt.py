@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from drivetrain.cosim import ensure_fmus
+from drivetrain.fmu_build.fmus import ensure_fmus
 from drivetrain.run.outputs import read_hdf5
 
 ROOT = Path(__file__).resolve().parents[1]

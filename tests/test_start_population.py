@@ -48,7 +48,7 @@ def _gear_at_t0(spec):
     """The GearContact slave as the master starts it from this assembled system: its t = 0 outputs."""
     import tempfile
 
-    from drivetrain.cosim.build import slave_class
+    from drivetrain.fmu_build.build import slave_class
 
     g = spec.components_of("GearContact")[0]
     cls = slave_class(ROOT / "src" / "gearcontact_fmu" / "slaves" / "GearContact.py")
@@ -145,7 +145,7 @@ def test_the_gearboxes_that_could_not_start_start_in_balance_and_run(seed, drive
 
 
 def test_a_gearbox_that_could_not_start_runs_on_the_native_backend(drivetrain_fmu_dir):
-    from drivetrain.cosim.native_line import toolchain_problems
+    from drivetrain.fmu_build.native_line import toolchain_problems
     from drivetrain.run.runner import run_scene
 
     if toolchain_problems():
@@ -234,7 +234,7 @@ def test_every_gearbox_of_the_population_starts_and_runs(drivetrain_fmu_dir, tmp
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", FAILED_BEFORE)
 def test_the_gearboxes_that_could_not_start_run_native_at_every_load_and_speed(seed, drivetrain_fmu_dir):
-    from drivetrain.cosim.native_line import toolchain_problems
+    from drivetrain.fmu_build.native_line import toolchain_problems
     from drivetrain.run.runner import run_scene
 
     if toolchain_problems():

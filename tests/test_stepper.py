@@ -89,7 +89,7 @@ def test_example_pythonfmu_bit_identical(example, drivetrain_fmu_dir, monkeypatc
 
 
 def test_example_native_bit_identical(example, native_cache_dir, drivetrain_fmu_dir, monkeypatch, spy):
-    from drivetrain.cosim.native_line import native_fmus
+    from drivetrain.fmu_build.native_line import native_fmus
 
     scene, spec = example
     paths, note = native_fmus(spec, native_cache_dir)

@@ -20,14 +20,14 @@ from drivetrain.system import BACKENDS
 
 
 def _cmd_build_fmus(args: argparse.Namespace) -> int:
-    from drivetrain.cosim.build import build_all
-    from drivetrain.cosim.fmus import fmu_dir_or_default
+    from drivetrain.fmu_build.build import build_all
+    from drivetrain.fmu_build.fmus import fmu_dir_or_default
 
     paths = build_all(fmu_dir_or_default(args.out), only=args.only)
     for p in paths:
         print(p)
     try:  # record the sources the FMUs were built from, so that `drivetrain run` sees them as fresh
-        from drivetrain.cosim import record_built
+        from drivetrain.fmu_build.fmus import record_built
 
         record_built(args.out, [p for p in paths])
     except Exception:  # pragma: no cover - stamping is an optimisation only
@@ -71,7 +71,7 @@ def _cmd_export_ssp(args: argparse.Namespace) -> int:
 
 
 def _cmd_build_native_gear(args: argparse.Namespace) -> int:
-    from drivetrain.cosim.native_gear import build_native_gear
+    from drivetrain.fmu_build.native_gear import build_native_gear
     from drivetrain.run.assemble import gear_parameters
 
     def write(scene, log):
@@ -82,7 +82,7 @@ def _cmd_build_native_gear(args: argparse.Namespace) -> int:
 
 
 def _cmd_build_native(args: argparse.Namespace) -> int:
-    from drivetrain.cosim.native_line import build_native_fmus
+    from drivetrain.fmu_build.native_line import build_native_fmus
     from drivetrain.run.runner import assemble_scene
 
     def write(scene, log):
@@ -408,7 +408,7 @@ def _shipped_docs(args: argparse.Namespace) -> Path | bool | None:
     source checkout's docs/ directory; None (after an error message) when the package is not a checkout."""
     if not args.update_shipped:
         return False
-    from drivetrain.cosim.fmus import source_checkout
+    from drivetrain.fmu_build.fmus import source_checkout
 
     root = source_checkout()
     if root is None or not (root / "docs").is_dir():
@@ -421,7 +421,7 @@ def _shipped_docs(args: argparse.Namespace) -> Path | bool | None:
 def _native_dir() -> Path:
     """Where build-native and build-native-gear write by default: the FMU directory's native/ (never the current
     folder unless it is that directory)."""
-    from drivetrain.cosim.fmus import default_fmu_dir
+    from drivetrain.fmu_build.fmus import default_fmu_dir
 
     return default_fmu_dir() / "native"
 
@@ -741,7 +741,7 @@ def _cmd_baseline(args: argparse.Namespace) -> int:
     return 0 if not bad else 3
 
 
-#: the help of every --fmu-dir (its default: drivetrain.cosim.fmus.default_fmu_dir)
+#: the help of every --fmu-dir (its default: drivetrain.fmu_build.fmus.default_fmu_dir)
 _FMU_DIR_HELP = ("where the FMUs are, built on demand (default: the source checkout's fmus/, or fmus/ in the "
                  "user-level cache $BEVEL_CACHE_DIR or ~/.cache/bevel-drivetrain; never the current folder)")
 
@@ -1070,7 +1070,7 @@ def _wall_line(args: argparse.Namespace, parts: list[tuple[str, float]]) -> str:
     are the command's measured phases after it, ``other`` what none of them holds (shown from 0.01 s).
     The command's last step: the FMUs it unpacked are removed first (a part of its own), not at the exit."""
     items = [("start-up", args.t_command - args.started), *parts]
-    fmus = sys.modules.get("drivetrain.cosim.fmus")       # loaded: FMUs may have been unpacked
+    fmus = sys.modules.get("drivetrain.fmu_build.fmus")       # loaded: FMUs may have been unpacked
     if fmus is not None and args.own_process:             # (not in a caller's process: its FMUs may be alive)
         t0 = time.perf_counter()
         fmus.remove_extracted()

@@ -49,7 +49,7 @@ class ConfigurationError(Refused):
 
 
 class NativeBuildError(ConfigurationError):
-    """The native GearContact FMU cannot be built as asked (drivetrain.cosim.native_gear). ``problems``: list
+    """The native GearContact FMU cannot be built as asked (drivetrain.fmu_build.native_gear). ``problems``: list
     of strings."""
 
     headline = "native GearContact not built"

@@ -19,7 +19,7 @@ SPRING = "spring"
 INERTIA = "inertia"
 
 #: how a system runs: "fmi" (the pythonfmu FMUs through FMI, fmpy), "inprocess" (the same slave classes
-#: called directly, no FMI), "native" (compiled FMUs through FMI: drivetrain.cosim.native_line; a gear that is not
+#: called directly, no FMI), "native" (compiled FMUs through FMI: drivetrain.fmu_build.native_line; a gear that is not
 #: fidelity table keeps its pythonfmu FMU)
 BACKENDS = ("fmi", "inprocess", "native")
 

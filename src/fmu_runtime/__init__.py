@@ -3,9 +3,9 @@
 - ``guard``: the work-around for pythonfmu 0.7.0's exit-time double release, the FMI logger's text
   escaping (user text is never a printf format) and the value-reference guard (FMI 2.0 error
   semantics for unknown value references), and the slave's side of the FMI wrapper built in front of
-  pythonfmu's export library (``EXPORT_LIBRARY``, the hidden ``FAIL_CHANNEL``; drivetrain.cosim.fmi_wrapper).
+  pythonfmu's export library (``EXPORT_LIBRARY``, the hidden ``FAIL_CHANNEL``; drivetrain.fmu_build.fmi_wrapper).
 - ``slave_template``: the one template the drivetrain component slaves (FlexibleShaft,
-  UpperTransmission, MotorLoad) are generated from at build time (``drivetrain.cosim.build``).
+  UpperTransmission, MotorLoad) are generated from at build time (``drivetrain.fmu_build.build``).
 - :func:`check_runtime`: the first thing a slave script does after finding its packages: it names
   a missing Python package where a host shows it.
 

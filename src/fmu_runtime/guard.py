@@ -41,7 +41,7 @@ _USE_COUNT_OFFSET = 8                # _Sp_counted_base: vptr, int _M_use_count,
 _GUARDED: dict[str, bool] = {}
 
 #: the file name of pythonfmu's export library inside an FMU whose binary is the FMI wrapper
-#: (drivetrain.cosim.shim: ``binaries/linux64/<modelIdentifier>.so`` is then the wrapper, which loads this)
+#: (drivetrain.fmu_build.fmi_wrapper: ``binaries/linux64/<modelIdentifier>.so`` is then the wrapper, which loads this)
 EXPORT_LIBRARY = "{}.pythonfmu-export.so"
 #: the hidden String variable through which the wrapper puts the slave into its error state when it refused
 #: a call itself (registered last, only in an instance the export library made: its value reference is the

@@ -2,7 +2,7 @@
 
 One translation of the FMU's parameter values into the library's objects, used by both GearContact FMUs:
 the pythonfmu slave (``slaves/GearContact.py``) builds its stage with :func:`build_stage` at the exit of
-initialization; the Python-free build (``drivetrain.cosim.native_gear``) takes the contact map of
+initialization; the Python-free build (``drivetrain.fmu_build.native_gear``) takes the contact map of
 :func:`build_mesh_model`, so the native FMU carries the very map the slave would step with (the same map
 cache, fault parsing and manufacturing errors).
 

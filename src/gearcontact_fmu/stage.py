@@ -954,7 +954,7 @@ def stage_mesh_model(fidelity: str = "analytic", gear_params=None, pcm_params=No
                      health: str = "healthy", mesh_files=None, stage_params: StageParams | None = None,
                      **kw) -> MeshModel:
     """The mesh model :func:`make_stage` puts in its stage (nothing of the stage's kernels compiled: what
-    drivetrain.cosim.native_gear needs)."""
+    drivetrain.fmu_build.native_gear needs)."""
     sp = stage_params or StageParams()
     kw.setdefault("J_pinion", sp.J_pinion)
     kw.setdefault("J_wheel", sp.J_wheel)

@@ -89,7 +89,7 @@ def versions() -> dict:
         except md.PackageNotFoundError:
             out[pkg] = None
     try:
-        from drivetrain.cosim import sources_hash
+        from drivetrain.fmu_build.fmus import sources_hash
 
         out["fmu_sources_sha256"] = sources_hash()
     except Exception:  # noqa: BLE001 - informational only

@@ -948,7 +948,7 @@ def run_stress(out_dir: Path | str = "out/stress", *, set_name: str = "all", n_r
     manifest = None
     if runnable:
         if todo:
-            from drivetrain.cosim import ensure_fmus
+            from drivetrain.fmu_build.fmus import ensure_fmus
 
             # the maps are prepared by instantiating GearContact in this process: its FMU must exist
             models = list(dict.fromkeys(comp.model for c in todo for comp in c.spec.components))

@@ -58,8 +58,8 @@ from drivetrain.campaigns.provenance import code_commit
 from drivetrain.cosim import ConfigurationError
 from drivetrain.errors import StartStateError
 from drivetrain.cosim import simulate as simulate_system
-from drivetrain.cosim import sources_hash
-from drivetrain.cosim.fmus import fmu_dir_or_default
+from drivetrain.fmu_build.fmus import sources_hash
+from drivetrain.fmu_build.fmus import fmu_dir_or_default
 from drivetrain.run.outputs import check_output_dir, clear_run_files, jsonable
 from drivetrain.run.runner import RunFailedError, assemble_scene, assembled_with_map, run_scene
 from drivetrain.scene.load import Scene, resolve
@@ -515,7 +515,7 @@ def _prepare_fmus(scenes: list[Scene], all_specs: list, *, backend: str, fmu_dir
                   prepare: bool, log) -> None:
     """In this process, once: missing or stale FMUs, the components' disk caches, the native FMUs."""
     if fmu_paths is None:
-        from drivetrain.cosim import ensure_fmus
+        from drivetrain.fmu_build.fmus import ensure_fmus
 
         needed = list(dict.fromkeys(c.model for sp in all_specs for c in sp.components))
         ensure_fmus(needed, fmu_dir, build=True, log=log or (lambda m: None))
@@ -524,7 +524,7 @@ def _prepare_fmus(scenes: list[Scene], all_specs: list, *, backend: str, fmu_dir
     if backend == "native" and fmu_paths is None:
         # compiled once here (one gear build per contact map), found in the cache by every worker (without a
         # compiler each run falls back to the pythonfmu FMUs and says so)
-        from drivetrain.cosim.native_line import toolchain_problems
+        from drivetrain.fmu_build.native_line import toolchain_problems
 
         if not toolchain_problems():
             _native_builds(all_specs, fmu_dir_or_default(fmu_dir) / "native", log)
@@ -533,7 +533,7 @@ def _prepare_fmus(scenes: list[Scene], all_specs: list, *, backend: str, fmu_dir
 def _native_builds(all_specs: list, cache_dir: Path, log) -> None:
     """The native FMUs of every distinct gear (one per contact map and manufacturing draw), the compilers
     side by side: the first system serially (it builds the line FMUs all share), the others in threads."""
-    from drivetrain.cosim.native_line import build_fixed, native_fmus, system_gear
+    from drivetrain.fmu_build.native_line import build_fixed, native_fmus, system_gear
 
     distinct = {}
     for sp in all_specs:

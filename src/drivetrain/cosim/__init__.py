@@ -1,15 +1,16 @@
 """Co-simulation of FMUs: one concern per module.
 
-- ``fmus``: FMUs on disk (build when missing or stale, the build stamp, extraction, model descriptions)
 - ``plan``: a SystemSpec checked against the model descriptions -> the exchange plan
 - ``slaves``: the FMI backend (fmpy, raw ctypes) and the in-process backend behind the same calls
 - ``master``: the stepping loop (``Master``, ``simulate``, ``CosimResult``)
 - ``energy``: the energy audit of a run
 
-The public names are re-exported here: ``from drivetrain.cosim import simulate``.
+The public names are re-exported here: ``from drivetrain.cosim import simulate``. The FMUs themselves (on disk,
+built when missing or stale, their model descriptions) are the building wing's, ``drivetrain.fmu_build.fmus``,
+which ranks below the co-simulation (it never imports it); its names are re-exported here too for scripts.
 """
 from drivetrain.cosim.energy import ENERGY_FLOOR_J, energy_audit, energy_unavailable
-from drivetrain.cosim.fmus import (
+from drivetrain.fmu_build.fmus import (
     ENERGY_VARS,
     PORT_UNITS,
     PORT_VARS,

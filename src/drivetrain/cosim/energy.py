@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from drivetrain.cosim.fmus import ENERGY_VARS
+from drivetrain.fmu_build.fmus import ENERGY_VARS
 from drivetrain.cosim.plan import ExchangePlan
 
 #: smallest reference energy of the audit's relative residual [J]: 1 mJ, ~1e-5 of what the rig stores at speed (~100 J)

@@ -5,7 +5,7 @@ What it does, in order (see ``docs/MASTER.md``):
 1. **Resolve FMUs** for the models in the :class:`~drivetrain.system.SystemSpec` (``fmus/<Model>.fmu``).
    A missing FMU, or one built from other package sources than the current ones (a SHA-256 of the
    package sources, recorded per model in the directory's stamp, ``fmus.stamp_path``), is (re)built with
-   ``drivetrain.cosim.build.build_all`` under a file lock.
+   ``drivetrain.fmu_build.build.build_all`` under a file lock.
 2. **Check** everything from the model descriptions, before instantiating: every connection joins a
    spring-side port (inputs ``phi``, ``w``; output ``tau``) to an inertia-side port (input ``tau``;
    outputs ``phi``, ``w``) with identical, expected units (rad, rad/s, N.m); parameters exist, are
@@ -48,7 +48,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from drivetrain.cosim.energy import energy_audit, energy_unavailable
-from drivetrain.cosim.fmus import FMUInfo, ensure_fmus, fmu_dir_or_default, load_fmu_info
+from drivetrain.fmu_build.fmus import FMUInfo, ensure_fmus, fmu_dir_or_default, load_fmu_info
 from drivetrain.cosim.plan import ExchangePlan, check_comm_step, check_system, is_profile, split_ref
 from drivetrain.cosim.slaves import FmiCallbacks, FmiSlave, InprocSlave, Slave
 from drivetrain.cosim.stepper import CALLS, Stepper, load_stepper
@@ -554,7 +554,7 @@ class Master:
     fmu_dir : where ``<Model>.fmu`` live and are built on demand (default None: ``fmus.default_fmu_dir()``).
     backend : ``"fmi"`` (fmpy FMU2Slave) or ``"inprocess"`` (the same slave classes without FMI).
     fmu_paths : explicit ``{model: path}``; these are used as they are (no building).
-    build : build missing/stale FMUs with ``drivetrain.cosim.build.build_all``.
+    build : build missing/stale FMUs with ``drivetrain.fmu_build.build.build_all``.
     """
 
     def __init__(self, spec: SystemSpec, fmu_dir: str | Path | None = None, backend: str = "fmi",

@@ -17,7 +17,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from drivetrain.cosim.fmus import ENERGY_VARS, PORT_UNITS, PORT_VARS, FMUInfo
+from drivetrain.fmu_build.fmus import ENERGY_VARS, PORT_UNITS, PORT_VARS, FMUInfo
 from drivetrain.errors import ConfigurationError
 from drivetrain.system import steps_per_output
 from drivetrain.system import INERTIA, SPRING, ComponentSpec, SystemSpec

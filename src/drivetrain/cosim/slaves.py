@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drivetrain.cosim.fmus import FMUInfo, extracted_dir
+from drivetrain.fmu_build.fmus import FMUInfo, extracted_dir
 from drivetrain.cosim.plan import settable
 from drivetrain.errors import FMI_STATUS, ConfigurationError, CosimError
 from drivetrain.system import ComponentSpec

@@ -37,7 +37,7 @@ class _Fmu(ctypes.Structure):
 
 
 def compile_command(src: Path, out: Path, cc: str = "gcc") -> list[str]:
-    """The compiler call (the flags of the native FMUs, drivetrain.cosim.native_gear.compile_command)."""
+    """The compiler call (the flags of the native FMUs, drivetrain.fmu_build.native_gear.compile_command)."""
     return [cc, "-O2", "-fPIC", "-shared", "-std=c99", "-ffp-contract=off", "-fvisibility=hidden",
             str(src), "-o", str(out)]
 

@@ -36,7 +36,7 @@ import zipfile
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
-from drivetrain.cosim.fmus import ensure_fmus, fmu_dir_or_default, load_fmu_info
+from drivetrain.fmu_build.fmus import ensure_fmus, fmu_dir_or_default, load_fmu_info
 from drivetrain.cosim.plan import is_profile, settable
 from drivetrain.errors import ConfigurationError
 from drivetrain.models.fmishell import INPUT_PROFILES
@@ -230,14 +230,14 @@ def system_fmus(scene, fmu_dir, spec: SystemSpec | None = None, build: bool = Tr
     """What an export of the scene's system starts from: the assembled spec (given or assembled here),
     its FMUs (built when missing or stale), each model's variables (name -> fmus.VarInfo) and
     every problem of binding the spec to them (:func:`system_problems`). ``native``: the compiled FMUs
-    (drivetrain.cosim.native_line, kept in ``<fmu_dir>/native``) wherever there is one; a gear that is not
+    (drivetrain.fmu_build.native_line, kept in ``<fmu_dir>/native``) wherever there is one; a gear that is not
     fidelity table keeps its pythonfmu FMU (``log`` says so); no C compiler is a ConfigurationError."""
     if spec is None:
         spec = assemble_scene(scene)
     models = list(dict.fromkeys(c.model for c in spec.components))
     fmus = {}
     if native:
-        from drivetrain.cosim.native_line import native_fmus, toolchain_problems
+        from drivetrain.fmu_build.native_line import native_fmus, toolchain_problems
 
         missing = toolchain_problems()
         if missing:

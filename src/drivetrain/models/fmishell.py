@@ -1,12 +1,12 @@
 """The common FMI 2.0 co-simulation shell (pythonfmu) of the drivetrain components.
 
-A slave script (rendered by ``drivetrain.cosim.build`` from ``fmu_runtime.slave_template``) defines ``class <Model>(Fmi2Slave):`` (literally: pythonfmu
+A slave script (rendered by ``drivetrain.fmu_build.build`` from ``fmu_runtime.slave_template``) defines ``class <Model>(Fmi2Slave):`` (literally: pythonfmu
 0.7.0's loader finds the slave class by that pattern in the script's source, a class deriving from an
 intermediate base is not found on a second instantiation and corrupted the host process) and
 delegates to the functions here; everything else is here:
 parameters (the fields of the component's parameter dataclass: Real, Integer or String, causality
 parameter, variability fixed), inputs (the flange inputs of its ports and extra inputs), outputs
-(Real, initial exact: flanges, sensors, energies), units (read by ``drivetrain.cosim.build``).
+(Real, initial exact: flanges, sensors, energies), units (read by ``drivetrain.fmu_build.build``).
 
 Life cycle: the component is built in
 ``enter_initialization_mode`` (after the parameters are set: the parameter-dependent setup never runs
@@ -36,7 +36,7 @@ from drivetrain.system import INERTIA, SPRING
 from fmu_runtime.guard import enter_error_state, fmi_text, guard_value_references, restore_shell_state, shell_state
 from gearcontact_fmu.params import DEFAULT_COMM_STEP_S
 
-#: per model: the modelDescription's DefaultExperiment (the step the FMUs are validated at), long enough for the shipped example input (drivetrain.cosim.fmu_docs: the
+#: per model: the modelDescription's DefaultExperiment (the step the FMUs are validated at), long enough for the shipped example input (drivetrain.fmu_build.fmu_docs: the
 #: operating point ramped in over 0.25 s) to settle: UpperTransmission, driven by torques alone, reaches its speed
 #: through its loss law (time constant about 0.2 s at speed). No tolerance: the models integrate with fixed sub-steps.
 DEFAULT_EXPERIMENTS = {
@@ -167,7 +167,7 @@ UNITS = _units()
 
 
 def bounds(model: str) -> dict:
-    """Parameter name -> (min, max) of a drivetrain FMU (the modelDescription's min/max, drivetrain.cosim.build):
+    """Parameter name -> (min, max) of a drivetrain FMU (the modelDescription's min/max, drivetrain.fmu_build.build):
     the bounds its parameter fields declare and the ones its component refuses unless > 0."""
     _, pcls = C.COMPONENTS[model]
     positive = getattr(pcls, "POSITIVE_FIELDS", ())
@@ -177,7 +177,7 @@ def bounds(model: str) -> dict:
 
 def initial_dependencies(slave_cls) -> dict:
     """Output -> the knowns it is computed from in initialization mode (modelDescription InitialUnknowns,
-    drivetrain.cosim.build): every parameter, and the inputs that move it, found by running the slave's
+    drivetrain.fmu_build.build): every parameter, and the inputs that move it, found by running the slave's
     initialization (enter, inputs set, exit) once with the inputs at their start values and once per input
     with that one moved: what the code does, not a second declaration. E.g. a spring-side flange torque
     depends on the flange's angle and speed inputs, an inertia-side angle on the parameters only."""

@@ -1,7 +1,7 @@
 """The parameters of the drivetrain components, each declared once as a field of its component's parameter
 dataclass (FlexibleShaftParams in models.shaft, UpperTransmissionParams in models.transmission,
 MotorLoadParams in models.motors): name, type, default, unit and description (the field's metadata). The FMU
-shell registers its parameters from these fields and drivetrain.cosim.build writes their units and descriptions
+shell registers its parameters from these fields and drivetrain.fmu_build.build writes their units and descriptions
 into the modelDescription.
 
 Here: the field makers (:func:`rig_parameter`: default from the rig's data; :func:`parameter`: a fixed default;
@@ -81,7 +81,7 @@ def parse_node_values(text: str, name: str, node_names) -> np.ndarray | None:
     """A node start parameter (``node_phi_start``, ``node_w_start``): comma-separated numbers, one per node
     in the order ``node_names`` -> array, or None for an empty text. ValueError naming the parameter, the
     count expected and the nodes for a wrong count, a non-number or a non-finite value (the native FMUs
-    give the same message, drivetrain/cosim/native/line_native.c)."""
+    give the same message, drivetrain/fmu_build/native/line_native.c)."""
     text = (text or "").strip()
     if not text:
         return None

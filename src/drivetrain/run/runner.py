@@ -348,8 +348,8 @@ def _choose_backend(plan: RunPlan, fmu_dir, log) -> None:
         raise ConfigurationError([f"backend {plan.backend!r}: expected one of {', '.join(BACKENDS)}"])
     if plan.backend != "native":
         return
-    from drivetrain.cosim.fmus import fmu_dir_or_default
-    from drivetrain.cosim.native_line import native_fmus, toolchain_problems
+    from drivetrain.fmu_build.fmus import fmu_dir_or_default
+    from drivetrain.fmu_build.native_line import native_fmus, toolchain_problems
 
     missing = toolchain_problems()
     if missing:

@@ -1,9 +1,9 @@
 /* The energy-conserving coupling correction of spring-side ports (gearcontact_fmu/coupling.py,
  * EnergyCorrection), shared by the native FMUs: the GearContact (two ports) and the drivetrain line
- * models (drivetrain/native/line_native.c: one port). The operations are those of coupling.py, in the same
+ * models (drivetrain/fmu_build/native/line_native.c: one port). The operations are those of coupling.py, in the same
  * order (compile with -ffp-contract=off), so the corrected torques are bit for bit the Python's.
  *
- * The includer's generated build header defines the constants (drivetrain.cosim.native_gear.coupling_defines,
+ * The includer's generated build header defines the constants (drivetrain.fmu_build.native_gear.coupling_defines,
  * from coupling.py): CC_TIME_CONSTANT_S, CC_EPS_RAD, CC_CAP_REL, CC_CAP_FLOOR_NM
  * The state is a plain struct (no pointers): the FMUs copy it with their FMU state. */
 #ifndef COUPLING_CORRECTION_H

@@ -2,14 +2,14 @@
  *
  * A C port of the Python model behind the pythonfmu GearContact FMU, for the table fidelity in stage
  * mode (docs/FMU.md, "A Python-free GearContact"):
- *   1. the contact map, read from resources/contact_map.bin (written by drivetrain.cosim.native_gear);
+ *   1. the contact map, read from resources/contact_map.bin (written by drivetrain.fmu_build.native_gear);
  *   2. table_eval and the manufacturing-error offset   (gearcontact_fmu/contact_map.py, manufacturing.py)
  *   3. the stage integrator: ros2 / rk4, sub-step halving, counters   (gearcontact_fmu/stage.py)
  *   4. the energy-conserving coupling correction                      (gearcontact_fmu/coupling.py)
  *      (coupling_correction.h, shared with the native drivetrain line FMUs)
- *   5. the FMI 2.0 shell: variables, states, errors, FMU state get/set/serialize (fmi2_shell.h, shared
- *      with the native drivetrain line FMUs, with this file's hooks: the counters, the selections, the
- *      parameters fixed by the build).
+ *   5. the FMI 2.0 shell: variables, states, errors, FMU state get/set/serialize (fmi2_shell.h and the state
+ *      machine's fmi2_state.h, in fmu_runtime/native, shared with the native drivetrain line FMUs, with this
+ *      file's hooks: the counters, the selections, the parameters fixed by the build).
  * The numerics follow the Python code operation by operation (same order, no FMA contraction:
  * compile with -ffp-contract=off), so the two agree to rounding: with scheme rk4 the mesh model, the rhs,
  * the integrator and the bookkeeping bit for bit. ros2 agrees to rounding only (measured: coupling torques
@@ -915,7 +915,7 @@ static int advance(const TableData *d, int scheme, double *x, const double *par,
 /* 4. Energy-conserving coupling correction (coupling.EnergyCorrection, two ports)                 */
 /* ============================================================================================== */
 
-/* shared with the native drivetrain line FMUs (drivetrain/native/line_native.c): one copy of the C */
+/* shared with the native drivetrain line FMUs (drivetrain/fmu_build/native/line_native.c): one copy of the C */
 #include "coupling_correction.h"         /* its CC_* constants come with gearcontact_build.h */
 
 /* ============================================================================================== */
@@ -1038,7 +1038,7 @@ void fmi2FreeInstance(fmi2Component comp) {
 fmi2Status fmi2SetupExperiment(fmi2Component comp, fmi2Boolean toleranceDefined, fmi2Real tolerance,
                                fmi2Real startTime, fmi2Boolean stopTimeDefined, fmi2Real stopTime) {
     (void)toleranceDefined; (void)tolerance;
-    fmi2Status st = shell_setup((Inst *)comp, startTime, stopTimeDefined, stopTime);
+    fmi2Status st = state_setup_checked((Inst *)comp, startTime, stopTimeDefined, stopTime);
     if (st == fmi2OK) ((Inst *)comp)->t0 = startTime;
     return st;
 }
@@ -1205,7 +1205,7 @@ fmi2Status fmi2Reset(fmi2Component comp) {
 static int stage_step(Inst *c, double t, double H) {
     double *r = c->r;
     double phi_a = r[VR_flange_a_phi], w_a = r[VR_flange_a_w], phi_b = r[VR_flange_b_phi], w_b = r[VR_flange_b_w];
-    /* H > 0 and finite: refused before this by shell_step_refused (fmi2_shell.h) */
+    /* H > 0 and finite: refused before this by state_step_refused (fmi2_state.h) */
     double *u = c->u;
     u[0] = phi_a; u[1] = w_a; u[2] = phi_b; u[3] = w_b;
     double ms = r[VR_max_substep];
@@ -1256,10 +1256,10 @@ static int stage_step(Inst *c, double t, double H) {
 fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real t, fmi2Real H, fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
     (void)noSetFMUStatePriorToCurrentPoint;
     Inst *c = (Inst *)comp;
-    if (shell_step_refused(c, t, H)) return fmi2Error;       /* misuse, or the error state */
+    if (state_step_refused(c, t, H)) return fmi2Error;       /* misuse, or the error state */
     if (!stage_step(c, t, H)) return fmi2Discard;
     publish(c);
-    shell_step_done(c, t, H);
+    state_step_done(c, t, H);
     return fmi2OK;
 }
 

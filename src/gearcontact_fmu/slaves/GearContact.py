@@ -59,7 +59,7 @@ class Counter(NamedTuple):
 
 
 class Var(NamedTuple):
-    """One FMU variable, declared once: the slave registers it, fmubuild and nativebuild read its unit
+    """One FMU variable, declared once: the slave registers it, drivetrain.fmu_build.build and .native_gear read its unit
     and description from here."""
     name: str
     type: str            # Real | Integer | Boolean | String
@@ -268,9 +268,9 @@ class GearContact(Fmi2Slave):
     # the shipped example input (documentation/example_input.csv: the rig's 500 rpm point ramped in over 0.25 s)
     # settles well inside it; no tolerance: the stage integrates with fixed sub-steps
     default_experiment = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=DEFAULT_COMM_STEP_S)
-    can_get_and_set_fmu_state = True   # read by drivetrain.cosim.build (canGetAndSetFMUstate)
+    can_get_and_set_fmu_state = True   # read by drivetrain.fmu_build.build (canGetAndSetFMUstate)
 
-    # read by drivetrain.cosim.build and nativebuild (modelDescription units and descriptions)
+    # read by drivetrain.fmu_build.build and .native_gear (modelDescription units and descriptions)
     units = {v.name: v.unit for v in VARIABLES if v.unit}
     variable_descriptions = {v.name: v.description for v in VARIABLES}
     bounds = {v.name: v.bounds for v in VARIABLES if v.bounds != (None, None)}          # (min/max)
@@ -411,7 +411,7 @@ class GearContact(Fmi2Slave):
 
     def _build(self):
         """Build the stage from the parameters (gearcontact_fmu.fmu_parameters.build_stage: the native
-        builder, drivetrain.cosim.native_gear, takes its contact map from the same translation)."""
+        builder, drivetrain.fmu_build.native_gear, takes its contact map from the same translation)."""
         from gearcontact_fmu.fmu_parameters import build_stage
 
         self._stage = build_stage(self._parameter_values())

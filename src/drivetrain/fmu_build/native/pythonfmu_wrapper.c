@@ -1,4 +1,4 @@
-/* pythonfmu_wrapper.c: the FMI 2.0 binary of every pythonfmu FMU of this project (drivetrain.cosim.shim).
+/* pythonfmu_wrapper.c: the FMI 2.0 binary of every pythonfmu FMU of this project (drivetrain.fmu_build.fmi_wrapper).
  *
  * pythonfmu 0.7.0's export library answers any Python exception with fmi2Fatal and releases the slave
  * object; the next call on that instance dereferences it and crashes the host. It also cannot return fmi2Error
@@ -7,8 +7,8 @@
  * (renamed <modelIdentifier>.pythonfmu-export.so, next to it; RTLD_LOCAL | RTLD_DEEPBIND, found with dladdr;
  * never unloaded) and forwards every call after checking it against the variable table generated from the
  * FMU's final modelDescription.xml (wrapper_table.h) and the FMI 2.0 co-simulation state machine of the
- * Reference FMUs. What it refuses, it refuses with fmi2Error and a logged reason, in the words of the native
- * builds' shell (gearcontact_fmu/native/fmi2_shell.h):
+ * Reference FMUs. What it refuses, it refuses with fmi2Error and a logged reason; the state machine's rules and
+ * words are written once, in fmu_runtime/native/fmi2_state.h (shared with the native builds' shell fmi2_shell.h):
  *   - unknown or mistyped value references, setting an output or a constant, a fixed parameter after
  *     initialization, a Real parameter that is not a finite number, an Integer outside its declared min/max:
  *     the instance enters its error state (the slave is told through the hidden String variable
@@ -56,10 +56,6 @@ typedef struct {
 #include "wrapper_table.h"
 
 #define MSG_MAX 2048
-
-enum { PH_INSTANTIATED, PH_INIT, PH_STEP, PH_TERMINATED };
-static const char *PHASE_NAMES[] = {"the instantiated state (before fmi2EnterInitializationMode)",
-                                    "initialization mode", "step mode", "the terminated state"};
 
 /* ---- the export library, loaded once per process and never unloaded ---- */
 
@@ -185,19 +181,6 @@ static int live_remove(Inst *c) {
 
 /* ---- messages ---- */
 
-typedef struct { char s[40]; } PyFloat;
-static PyFloat pyfloat(double x) {            /* a double as Python's repr prints it */
-    PyFloat f;
-    if (isnan(x)) { snprintf(f.s, sizeof f.s, "nan"); return f; }
-    if (isinf(x)) { snprintf(f.s, sizeof f.s, x > 0 ? "inf" : "-inf"); return f; }
-    for (int prec = 1; prec <= 17; prec++) {
-        snprintf(f.s, sizeof f.s, "%.*g", prec, x);
-        if (strtod(f.s, NULL) == x) break;
-    }
-    if (!strpbrk(f.s, ".en")) strcat(f.s, ".0");
-    return f;
-}
-
 /* the host's logger takes the message as a printf format: every '%' is doubled */
 static void vlog_to(const fmi2CallbackFunctions *cb, const char *name, fmi2Status st, const char *fmt, va_list ap) {
     if (!cb || !cb->logger) return;
@@ -238,12 +221,11 @@ static void fail(Inst *c, const char *fmt, ...) {
     }
 }
 
-/* a call in the wrong state: refused, the state unchanged */
-static fmi2Status state_error(Inst *c, const char *call, const char *allowed) {
-    logf_(c, fmi2Error, "%s: %s in %s: allowed only %s (FMI 2.0 co-simulation state machine); the call is refused",
-          WRAPPER_MODEL, call, PHASE_NAMES[c->phase], allowed);
-    return fmi2Error;
-}
+/* ---- the FMI 2.0 co-simulation state machine: its rules and words (shared with the native shell) ---- */
+
+#define FMI2_STATE_MODEL WRAPPER_MODEL
+#define FMI2_STATE_REFUSE(c, ...) logf_(c, fmi2Error, __VA_ARGS__)
+#include "fmi2_state.h"
 
 /* the status of a forwarded call; fmi2Fatal: the instance is lost (nothing is forwarded any more) */
 static fmi2Status inner_status(Inst *c, const char *call, fmi2Status st) {
@@ -306,36 +288,17 @@ static int check_refs(Inst *c, const char *call, const fmi2ValueReference vr[], 
     for (size_t i = 0; i < nvr; i++) {
         const WrapperVar *v = var_of(vr[i]);
         if (!v || v->type != t) {
-            fail(c, "%s: %s with value references that are not %s variables of this FMU: %u (%s%s%s); the "
-                 "instance is now in its error state", WRAPPER_MODEL, call, type_name(t), vr[i],
-                 v ? type_name(v->type) : "no such variable", v ? " " : "", v ? v->name : "");
+            state_bad_vr(c, call, vr[i], type_name(t), v ? type_name(v->type) : NULL, v ? v->name : NULL);
             return 0;
         }
     }
     return 1;
 }
 
-static fmi2Status get_allowed(Inst *c, const char *call) {
-    if (c->phase == PH_INSTANTIATED)
-        return state_error(c, call, "after fmi2EnterInitializationMode (the start values are in modelDescription.xml)");
-    return fmi2OK;
-}
-
 /* parameters before fmi2ExitInitializationMode only (tunable ones at any time), inputs at any time, others never */
 static int settable_now(Inst *c, const WrapperVar *v, const char *call) {
-    if (v->causality == C_INPUT) return 1;
-    if (v->causality != C_PARAMETER || v->variability == V_CONSTANT) {
-        fail(c, "%s: %s of %s: %s cannot be set; the instance is now in its error state", WRAPPER_MODEL, call,
-             v->name, v->variability == V_CONSTANT ? "a constant" : "an output");
-        return 0;
-    }
-    if (c->phase == PH_STEP && v->variability != V_TUNABLE) {
-        fail(c, "%s: %s of %s after initialization: fixed parameters can only be set before "
-             "fmi2ExitInitializationMode (FMI 2.0; the value would not take effect); the instance is now in its "
-             "error state", WRAPPER_MODEL, call, v->name);
-        return 0;
-    }
-    return 1;
+    return state_settable(c, call, v->name, v->causality == C_INPUT, v->causality == C_PARAMETER,
+                          v->variability == V_CONSTANT, v->variability == V_TUNABLE);
 }
 
 /* an Integer inside its declared min/max (a Real's range stays the model's refusal, with its message) */
@@ -349,12 +312,6 @@ static int in_range(Inst *c, const WrapperVar *v, const char *call, fmi2Integer 
         return 0;
     }
     return 1;
-}
-
-static fmi2Status set_allowed(Inst *c, const char *call) {
-    if (c->phase == PH_TERMINATED)
-        return state_error(c, call, "before fmi2Terminate (or after fmi2Reset)");
-    return fmi2OK;
 }
 
 /* a '%' of the path itself: "%25" in a URI, or a '%' that is not a URI escape */
@@ -378,10 +335,9 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     const char *name = instanceName ? instanceName : WRAPPER_MODEL;
 #define REFUSE(...) do { Inst tmp; memset(&tmp, 0, sizeof tmp); tmp.cb = *functions; \
         snprintf(tmp.name, sizeof tmp.name, "%s", name); logf_(&tmp, fmi2Error, __VA_ARGS__); return NULL; } while (0)
-    if (fmuType != fmi2CoSimulation) REFUSE("%s: only co-simulation is supported", WRAPPER_MODEL);
+    if (fmuType != fmi2CoSimulation) REFUSE(STATE_MSG_NOT_COSIM, WRAPPER_MODEL, "");
     if (fmuGUID && fmuGUID[0] && strcmp(fmuGUID, WRAPPER_GUID) != 0)
-        REFUSE("%s: GUID %s does not match this binary's %s (modelDescription.xml and binary from different builds)",
-               WRAPPER_MODEL, fmuGUID, WRAPPER_GUID);
+        REFUSE(STATE_MSG_GUID, WRAPPER_MODEL, "", fmuGUID, WRAPPER_GUID);
     if (!fmuResourceLocation || !fmuResourceLocation[0])
         REFUSE("%s: fmi2Instantiate without a resource location (the Python model is in resources/)", WRAPPER_MODEL);
     if (has_literal_percent(fmuResourceLocation))
@@ -397,7 +353,7 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     c->inner = F.Instantiate(instanceName, fmuType, fmuGUID, fmuResourceLocation, functions, visible, loggingOn);
     if (!c->inner) { free(c); return NULL; }            /* the export library has logged why */
     if (!live_add(c)) { F.FreeInstance(c->inner); free(c); return NULL; }
-    c->phase = PH_INSTANTIATED;
+    state_reset(c);
     return c;
 }
 
@@ -417,18 +373,7 @@ fmi2Status fmi2SetDebugLogging(fmi2Component comp, fmi2Boolean loggingOn, size_t
 fmi2Status fmi2SetupExperiment(fmi2Component comp, fmi2Boolean toleranceDefined, fmi2Real tolerance,
                                fmi2Real startTime, fmi2Boolean stopTimeDefined, fmi2Real stopTime) {
     ENTER("fmi2SetupExperiment")
-    if (c->phase != PH_INSTANTIATED)
-        return state_error(c, "fmi2SetupExperiment", "after fmi2Instantiate or fmi2Reset");
-    if (!isfinite(startTime)) {
-        fail(c, "%s: fmi2SetupExperiment with start time %s: the start time must be a finite time; the instance is "
-             "now in its error state", WRAPPER_MODEL, pyfloat(startTime).s);
-        return fmi2Error;
-    }
-    if (stopTimeDefined && !(stopTime >= startTime)) {
-        fail(c, "%s: fmi2SetupExperiment with stop time %s s before the start time %s s; the instance is now in its "
-             "error state", WRAPPER_MODEL, pyfloat(stopTime).s, pyfloat(startTime).s);
-        return fmi2Error;
-    }
+    if (state_setup_checked(c, startTime, stopTimeDefined, stopTime) != fmi2OK) return fmi2Error;
     if (toleranceDefined && !(tolerance > 0.0 && isfinite(tolerance))) toleranceDefined = fmi2False;
     return inner_status(c, "fmi2SetupExperiment", F.SetupExperiment(c->inner, toleranceDefined, tolerance, startTime,
                                                                      stopTimeDefined, stopTime));
@@ -436,32 +381,28 @@ fmi2Status fmi2SetupExperiment(fmi2Component comp, fmi2Boolean toleranceDefined,
 
 fmi2Status fmi2EnterInitializationMode(fmi2Component comp) {
     ENTER("fmi2EnterInitializationMode")
-    if (c->phase != PH_INSTANTIATED)
-        return state_error(c, "fmi2EnterInitializationMode", "once, after fmi2Instantiate or fmi2Reset");
+    if (state_enter_allowed(c) != fmi2OK) return fmi2Error;
     fmi2Status st = inner_status(c, "fmi2EnterInitializationMode", F.EnterInitializationMode(c->inner));
     if (st > fmi2Warning) return st;
-    c->phase = PH_INIT;
-    c->have_t_next = 0;
+    state_entered(c);
     return st;
 }
 
 fmi2Status fmi2ExitInitializationMode(fmi2Component comp) {
     ENTER("fmi2ExitInitializationMode")
-    if (c->phase != PH_INIT)
-        return state_error(c, "fmi2ExitInitializationMode", "in initialization mode (after fmi2EnterInitializationMode)");
+    if (state_exit_allowed(c) != fmi2OK) return fmi2Error;
     fmi2Status st = inner_status(c, "fmi2ExitInitializationMode", F.ExitInitializationMode(c->inner));
     if (st > fmi2Warning) return st;
-    c->phase = PH_STEP;
+    state_exited(c);
     sync_failed(c);     /* a failed initialization: the first doStep is refused (as in the native builds) */
     return st;
 }
 
 fmi2Status fmi2Terminate(fmi2Component comp) {
     ENTER("fmi2Terminate")
-    if (c->phase != PH_STEP)
-        return state_error(c, "fmi2Terminate", "once, in step mode (after fmi2ExitInitializationMode)");
+    if (state_terminate_allowed(c) != fmi2OK) return fmi2Error;
     fmi2Status st = inner_status(c, "fmi2Terminate", F.Terminate(c->inner));
-    if (st <= fmi2Warning) c->phase = PH_TERMINATED;
+    if (st <= fmi2Warning) state_terminated(c);
     return st;
 }
 
@@ -469,18 +410,14 @@ fmi2Status fmi2Reset(fmi2Component comp) {
     ENTER("fmi2Reset")
     fmi2Status st = inner_status(c, "fmi2Reset", F.Reset(c->inner));
     if (st > fmi2Warning) return st;
-    c->phase = PH_INSTANTIATED;
-    c->failed = 0;
-    c->failmsg[0] = 0;
-    c->have_t_next = 0;
-    c->last_ok = 0.0;
+    state_reset(c);
     return st;
 }
 
 #define GETTER(NAME, T, CTYPE)                                                                            \
 fmi2Status fmi2Get##NAME(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, CTYPE value[]) { \
     ENTER("fmi2Get" #NAME)                                                                                \
-    if (get_allowed(c, "fmi2Get" #NAME) != fmi2OK) return fmi2Error;                                      \
+    if (state_get_allowed(c, "fmi2Get" #NAME) != fmi2OK) return fmi2Error;                                \
     if (!check_refs(c, "fmi2Get" #NAME, vr, nvr, T)) return fmi2Error;                                    \
     if (nvr && !value) return fmi2Error;                                                                  \
     return inner_status(c, "fmi2Get" #NAME, F.Get##NAME(c->inner, vr, nvr, value));                       \
@@ -492,18 +429,14 @@ GETTER(String, 'S', fmi2String)
 
 fmi2Status fmi2SetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[]) {
     ENTER("fmi2SetReal")
-    if (set_allowed(c, "fmi2SetReal") != fmi2OK) return fmi2Error;
+    if (state_set_allowed(c, "fmi2SetReal") != fmi2OK) return fmi2Error;
     if (!check_refs(c, "fmi2SetReal", vr, nvr, 'R')) return fmi2Error;
     if (nvr && !value) return fmi2Error;
     for (size_t i = 0; i < nvr; i++) {
         const WrapperVar *v = var_of(vr[i]);
         if (!settable_now(c, v, "fmi2SetReal")) return fmi2Error;
         if (v->causality == C_INPUT) continue;       /* inputs: a non-finite value is refused at the next doStep */
-        if (!isfinite(value[i])) {
-            fail(c, "%s: fmi2SetReal of %s = %s: parameters that are not finite numbers are refused; the instance "
-                 "is now in its error state", WRAPPER_MODEL, v->name, pyfloat(value[i]).s);
-            return fmi2Error;
-        }
+        if (!isfinite(value[i])) return state_nonfinite_parameter(c, v->name, value[i]);
         /* a Real outside its declared min/max is left to the model (its own message, as in the native builds) */
     }
     return inner_status(c, "fmi2SetReal", F.SetReal(c->inner, vr, nvr, value));
@@ -511,7 +444,7 @@ fmi2Status fmi2SetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t
 
 fmi2Status fmi2SetInteger(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, const fmi2Integer value[]) {
     ENTER("fmi2SetInteger")
-    if (set_allowed(c, "fmi2SetInteger") != fmi2OK) return fmi2Error;
+    if (state_set_allowed(c, "fmi2SetInteger") != fmi2OK) return fmi2Error;
     if (!check_refs(c, "fmi2SetInteger", vr, nvr, 'I')) return fmi2Error;
     if (nvr && !value) return fmi2Error;
     for (size_t i = 0; i < nvr; i++) {
@@ -524,7 +457,7 @@ fmi2Status fmi2SetInteger(fmi2Component comp, const fmi2ValueReference vr[], siz
 
 fmi2Status fmi2SetBoolean(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, const fmi2Boolean value[]) {
     ENTER("fmi2SetBoolean")
-    if (set_allowed(c, "fmi2SetBoolean") != fmi2OK) return fmi2Error;
+    if (state_set_allowed(c, "fmi2SetBoolean") != fmi2OK) return fmi2Error;
     if (!check_refs(c, "fmi2SetBoolean", vr, nvr, 'B')) return fmi2Error;
     if (nvr && !value) return fmi2Error;
     for (size_t i = 0; i < nvr; i++)
@@ -534,7 +467,7 @@ fmi2Status fmi2SetBoolean(fmi2Component comp, const fmi2ValueReference vr[], siz
 
 fmi2Status fmi2SetString(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, const fmi2String value[]) {
     ENTER("fmi2SetString")
-    if (set_allowed(c, "fmi2SetString") != fmi2OK) return fmi2Error;
+    if (state_set_allowed(c, "fmi2SetString") != fmi2OK) return fmi2Error;
     if (!check_refs(c, "fmi2SetString", vr, nvr, 'S')) return fmi2Error;
     if (nvr && !value) return fmi2Error;
     for (size_t i = 0; i < nvr; i++)
@@ -550,34 +483,10 @@ fmi2Status fmi2SetString(fmi2Component comp, const fmi2ValueReference vr[], size
 
 fmi2Status fmi2DoStep(fmi2Component comp, fmi2Real t, fmi2Real H, fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
     ENTER("fmi2DoStep")
-    const char *why = NULL;
-    char buf[256];
-    if (c->phase == PH_TERMINATED) why = "after fmi2Terminate";
-    else if (c->phase != PH_STEP) why = "before fmi2ExitInitializationMode";
-    else if (!isfinite(t)) why = "(the communication point must be a finite time)";
-    else if (!(H > 0.0) || !isfinite(H)) {
-        snprintf(buf, sizeof buf, "with step size %s s (the communication step size must be a positive finite time)",
-                 pyfloat(H).s);
-        why = buf;
-    } else if (c->failed) {
-        logf_(c, fmi2Error, "%s is in the error state: %s", WRAPPER_MODEL, c->failmsg);
-        return fmi2Error;
-    } else if (c->have_t_next && fabs(t - c->t_next) > 1e-3 * H + 1e-12 * fabs(c->t_next)) {
-        snprintf(buf, sizeof buf, "but the previous step ended at t = %.12g s (communication points must follow each "
-                 "other; to go back, restore an FMU state)", c->t_next);
-        why = buf;
-    }
-    if (why) {
-        char at[48];
-        if (isfinite(t)) snprintf(at, sizeof at, "%.12g", t); else snprintf(at, sizeof at, "%s", pyfloat(t).s);
-        fail(c, "%s: fmi2DoStep at t = %s s %s; the instance is now in its error state", WRAPPER_MODEL, at, why);
-        return fmi2Error;
-    }
+    if (state_step_refused(c, t, H)) return fmi2Error;     /* misuse, or the error state (logged) */
     fmi2Status st = inner_status(c, "fmi2DoStep", F.DoStep(c->inner, t, H, noSetFMUStatePriorToCurrentPoint));
     if (st <= fmi2Warning) {
-        c->t_next = t + H;
-        c->have_t_next = 1;
-        c->last_ok = t + H;
+        state_step_done(c, t, H);
     } else if (st == fmi2Discard || st == fmi2Error) {
         sync_failed(c);     /* the slave failed in this step (logged by it): later steps are refused here */
         if (!c->failed) { c->failed = 1; snprintf(c->failmsg, sizeof c->failmsg, "fmi2DoStep at t = %.12g s failed", t); }
@@ -677,7 +586,7 @@ fmi2Status fmi2DeSerializeFMUstate(fmi2Component comp, const fmi2Byte bytes[], s
 
 static fmi2Status not_provided(fmi2Component comp, const char *what) {
     ENTER(what)
-    logf_(c, fmi2Error, "%s: no %s", WRAPPER_MODEL, what);
+    logf_(c, fmi2Error, STATE_MSG_NOT_PROVIDED, WRAPPER_MODEL, what);
     return fmi2Error;
 }
 

@@ -1,7 +1,7 @@
 """What runs inside an FMU, derived from the imports (never a hand list).
 
-An FMU of this project bundles its model's Python packages (``cosim.build``) and is stale when one of
-the sources it runs changes (``cosim.fmus.sources_hash``). Which sources those are follows from the code:
+An FMU of this project bundles its model's Python packages (``fmu_build.build``) and is stale when one of
+the sources it runs changes (``fmu_build.fmus.sources_hash``). Which sources those are follows from the code:
 the gear FMU's model is the pure library ``gearcontact_fmu`` (its fidelities are loaded by name, so the
 whole package counts) with ``fmu_runtime``; the drivetrain FMUs run ``drivetrain.models.fmishell`` and
 whatever it imports, at any depth and inside functions too. :func:`fmu_modules` walks that import graph

@@ -1,6 +1,7 @@
 /* fmi2_shell.h: the FMI 2.0 co-simulation shell shared by the native FMUs (gearcontact_native.c and the
- * drivetrain's line_native.c): messages and the error state, value references, fmi2Get/Set*, the life-cycle
- * calls that do not depend on the model, the FMU-state free, and the functions not provided.
+ * drivetrain's line_native.c): the log and the error state, value references, fmi2Get/Set*, the life-cycle
+ * calls that do not depend on the model, the FMU-state free, and the functions not provided. The state
+ * machine's rules and messages are fmi2_state.h's (shared with the pythonfmu FMUs' wrapper), included here.
  *
  * Design: a model file defines its own Inst struct and a few hooks, then includes this header ONCE, after
  * Inst and before its model code. Inst must have the members name, cb, logging_on and, in its state part,
@@ -25,8 +26,6 @@
 
 #include "fmi2Functions.h"
 
-enum { PH_INSTANTIATED, PH_INIT, PH_STEP, PH_TERMINATED };
-
 /* ---- the model's hooks ---- */
 
 /* fmi2GetReal, before reading (e.g. a rebuild after a parameter changed in initialization mode) */
@@ -41,22 +40,7 @@ static fmi2Status shell_accept_integer(Inst *c, const SHELL_VAR *v, int x);
 /* store the settable String value s ("" for NULL) of v: fmi2OK, else refused (the instance failed) */
 static fmi2Status shell_set_string(Inst *c, const SHELL_VAR *v, fmi2ValueReference vr, const char *s);
 
-/* ---- messages and the error state ---- */
-
-/* a double as Python's repr prints it (for messages): nan, inf, the shortest round-trip %g, with ".0"
- * on integral values */
-typedef struct { char s[40]; } PyFloat;
-static PyFloat pyfloat(double x) {
-    PyFloat f;
-    if (isnan(x)) { snprintf(f.s, sizeof f.s, "nan"); return f; }
-    if (isinf(x)) { snprintf(f.s, sizeof f.s, x > 0 ? "inf" : "-inf"); return f; }
-    for (int prec = 1; prec <= 17; prec++) {
-        snprintf(f.s, sizeof f.s, "%.*g", prec, x);
-        if (strtod(f.s, NULL) == x) break;
-    }
-    if (!strpbrk(f.s, ".en")) strcat(f.s, ".0");
-    return f;
-}
+/* ---- the log and the error state ---- */
 
 /* log: the message is handed to the host's logger as a printf format, so every '%' is doubled */
 static void logf_(Inst *c, fmi2Status st, const char *cat, const char *fmt, ...) {
@@ -91,6 +75,12 @@ static void fail(Inst *c, const char *fmt, ...) {
     logf_(c, fmi2Error, "logStatusError", "%s", buf);
 }
 
+/* ---- the FMI 2.0 co-simulation state machine: its rules and words (shared with the pythonfmu wrapper) ---- */
+
+#define FMI2_STATE_MODEL SHELL_MODEL_NAME
+#define FMI2_STATE_REFUSE(c, ...) logf_(c, fmi2Error, "logStatusError", __VA_ARGS__)
+#include "fmi2_state.h"
+
 /* ---- life cycle ---- */
 
 /* the shell's part of fmi2Instantiate / fmi2Reset: the variables' start values, no error, no step yet */
@@ -99,40 +89,22 @@ static void shell_defaults(Inst *c) {
         c->r[i] = SHELL_VARS[i].real_start;
         c->iv[i] = SHELL_VARS[i].int_start;
     }
-    c->phase = PH_INSTANTIATED;
-    c->failed = 0;
-    c->failmsg[0] = 0;
-    c->have_t_next = 0;
-    c->last_ok = 0.0;
-}
-
-/* ---- the FMI 2.0 co-simulation state machine (as the Reference FMUs have it) ----
- * A call in the wrong state is refused with fmi2Error and a logged reason; the state is unchanged. The same
- * rules and words as the pythonfmu FMUs' wrapper (drivetrain/cosim/native/pythonfmu_wrapper.c). */
-static const char *SHELL_PHASE_NAMES[] = {"the instantiated state (before fmi2EnterInitializationMode)",
-                                          "initialization mode", "step mode", "the terminated state"};
-
-static fmi2Status shell_state_error(Inst *c, const char *call, const char *allowed) {
-    logf_(c, fmi2Error, "logStatusError", "%s: %s in %s: allowed only %s (FMI 2.0 co-simulation state machine); the "
-          "call is refused", SHELL_MODEL_NAME, call, SHELL_PHASE_NAMES[c->phase], allowed);
-    return fmi2Error;
+    state_reset(c);
 }
 
 /* fmi2EnterInitializationMode's part: fmi2OK and initialization mode, or refused */
 static fmi2Status shell_enter(Inst *c) {
-    if (c->phase != PH_INSTANTIATED)
-        return shell_state_error(c, "fmi2EnterInitializationMode", "once, after fmi2Instantiate or fmi2Reset");
-    c->phase = PH_INIT;
-    c->have_t_next = 0;
+    fmi2Status st = state_enter_allowed(c);
+    if (st != fmi2OK) return st;
+    state_entered(c);
     return fmi2OK;
 }
 
 /* fmi2ExitInitializationMode's part: fmi2OK and step mode, or refused */
 static fmi2Status shell_exit(Inst *c) {
-    if (c->phase != PH_INIT)
-        return shell_state_error(c, "fmi2ExitInitializationMode",
-                                 "in initialization mode (after fmi2EnterInitializationMode)");
-    c->phase = PH_STEP;
+    fmi2Status st = state_exit_allowed(c);
+    if (st != fmi2OK) return st;
+    state_exited(c);
     return fmi2OK;
 }
 
@@ -174,24 +146,6 @@ static int shell_release(Inst *c) {
     return found;
 }
 
-/* fmi2SetupExperiment's checks: fmi2OK, or fmi2Error (logged, the instance failed) for a start time that is
- * not finite or a stop time before it */
-static fmi2Status shell_setup(Inst *c, double start, int stop_defined, double stop) {
-    if (c->phase != PH_INSTANTIATED)
-        return shell_state_error(c, "fmi2SetupExperiment", "after fmi2Instantiate or fmi2Reset");
-    if (!isfinite(start)) {
-        fail(c, "%s: fmi2SetupExperiment with start time %s: the start time must be a finite time; the instance "
-             "is now in its error state", SHELL_MODEL_NAME, pyfloat(start).s);
-        return fmi2Error;
-    }
-    if (stop_defined && !(stop >= start)) {
-        fail(c, "%s: fmi2SetupExperiment with stop time %s s before the start time %s s; the instance is now in "
-             "its error state", SHELL_MODEL_NAME, pyfloat(stop).s, pyfloat(start).s);
-        return fmi2Error;
-    }
-    return fmi2OK;
-}
-
 /* fmi2Instantiate's checks: the new instance (name, callbacks, logging set), or NULL (logged) */
 static Inst *shell_instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
                                const fmi2CallbackFunctions *functions, fmi2Boolean loggingOn) {
@@ -202,13 +156,12 @@ static Inst *shell_instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2St
     c->logging_on = loggingOn;
     snprintf(c->name, sizeof c->name, "%s", instanceName ? instanceName : SHELL_MODEL_NAME);
     if (fmuType != fmi2CoSimulation) {
-        logf_(c, fmi2Error, "logStatusError", "%s (native): only co-simulation is supported", SHELL_MODEL_NAME);
+        logf_(c, fmi2Error, "logStatusError", STATE_MSG_NOT_COSIM, SHELL_MODEL_NAME, " (native)");
         free(c);
         return NULL;
     }
     if (fmuGUID && fmuGUID[0] && strcmp(fmuGUID, SHELL_GUID) != 0) {
-        logf_(c, fmi2Error, "logStatusError", "%s (native): GUID %s does not match this binary's %s "
-              "(modelDescription.xml and binary from different builds)", SHELL_MODEL_NAME, fmuGUID, SHELL_GUID);
+        logf_(c, fmi2Error, "logStatusError", STATE_MSG_GUID, SHELL_MODEL_NAME, " (native)", fmuGUID, SHELL_GUID);
         free(c);
         return NULL;
     }
@@ -226,46 +179,10 @@ fmi2Status fmi2SetDebugLogging(fmi2Component comp, fmi2Boolean loggingOn, size_t
 
 fmi2Status fmi2Terminate(fmi2Component comp) {
     Inst *c = (Inst *)comp;
-    if (c->phase != PH_STEP)
-        return shell_state_error(c, "fmi2Terminate", "once, in step mode (after fmi2ExitInitializationMode)");
-    c->phase = PH_TERMINATED;
+    fmi2Status st = state_terminate_allowed(c);
+    if (st != fmi2OK) return st;
+    state_terminated(c);
     return fmi2OK;
-}
-
-/* fmi2DoStep's refusals: 1 (logged, the instance failed; the caller answers fmi2Error) when no step may be taken
- * now: before initialization, after fmi2Terminate, a time or step size that is not a finite time (> 0 for the
- * step), a time that is not where the previous step ended, or in the error state */
-static int shell_step_refused(Inst *c, double t, double H) {
-    char why[256];
-    why[0] = 0;
-    if (c->phase == PH_TERMINATED) snprintf(why, sizeof why, "after fmi2Terminate");
-    else if (c->phase != PH_STEP) snprintf(why, sizeof why, "before fmi2ExitInitializationMode");
-    else if (!isfinite(t)) snprintf(why, sizeof why, "(the communication point must be a finite time)");
-    else if (!(H > 0.0) || !isfinite(H))
-        snprintf(why, sizeof why, "with step size %s s (the communication step size must be a positive finite time)",
-                 pyfloat(H).s);
-    else if (c->failed) {
-        logf_(c, fmi2Error, "logStatusError", "%s is in the error state: %s", SHELL_MODEL_NAME, c->failmsg);
-        return 1;
-    } else if (c->have_t_next && fabs(t - c->t_next) > 1e-3 * H + 1e-12 * fabs(c->t_next))
-        snprintf(why, sizeof why, "but the previous step ended at t = %.12g s (communication points must follow each "
-                 "other; to go back, restore an FMU state)", c->t_next);
-    if (!why[0]) return 0;
-    char at[48];
-    if (isfinite(t)) snprintf(at, sizeof at, "%.12g", t); else snprintf(at, sizeof at, "%s", pyfloat(t).s);
-    if (c->failed)
-        logf_(c, fmi2Error, "logStatusError", "%s: fmi2DoStep at t = %s s %s; the instance is now in its error state",
-              SHELL_MODEL_NAME, at, why);
-    else
-        fail(c, "%s: fmi2DoStep at t = %s s %s; the instance is now in its error state", SHELL_MODEL_NAME, at, why);
-    return 1;
-}
-
-/* a step from t to t + H done */
-static void shell_step_done(Inst *c, double t, double H) {
-    c->t_next = t + H;
-    c->have_t_next = 1;
-    c->last_ok = t + H;
 }
 
 fmi2Status fmi2CancelStep(fmi2Component comp) { (void)comp; return fmi2Error; }
@@ -276,39 +193,22 @@ static const SHELL_VAR *var_of(fmi2ValueReference vr) { return vr < SHELL_N_VARS
 
 static fmi2Status bad_vr(Inst *c, const char *call, fmi2ValueReference vr, const char *type) {
     const SHELL_VAR *v = var_of(vr);
-    fail(c, "%s: %s with value references that are not %s variables of this FMU: %u (%s%s%s); the "
-         "instance is now in its error state", SHELL_MODEL_NAME, call, type, vr, v ? v->type : "no such variable",
-         v ? " " : "", v ? v->name : "");
-    return fmi2Error;
+    return state_bad_vr(c, call, vr, type, v ? v->type : NULL, v ? v->name : NULL);
 }
 
 /* getters: not before fmi2EnterInitializationMode; setters: not after fmi2Terminate (state unchanged) */
 #define CHECK_GET_PHASE(call)                                                                  \
-    if (c->phase == PH_INSTANTIATED)                                                           \
-        return shell_state_error(c, call, "after fmi2EnterInitializationMode (the start values are in " \
-                                 "modelDescription.xml)");
+    if (state_get_allowed(c, call) != fmi2OK) return fmi2Error;
 #define CHECK_SET_PHASE(call)                                                                  \
-    if (c->phase == PH_TERMINATED) return shell_state_error(c, call, "before fmi2Terminate (or after fmi2Reset)");
+    if (state_set_allowed(c, call) != fmi2OK) return fmi2Error;
 
 #define CHECK_VR(call, want)                                                                   \
     const SHELL_VAR *v = var_of(vr[i]);                                                        \
     if (!v || strcmp(v->type, want) != 0) return bad_vr(c, call, vr[i], want);
 
-/* parameters before fmi2ExitInitializationMode only, inputs at any time, outputs never */
+/* parameters before fmi2ExitInitializationMode only, inputs at any time, outputs never (fmi2_state.h) */
 static int settable_now(Inst *c, const SHELL_VAR *v, const char *call) {
-    if (v->is_input) return 1;
-    if (!v->is_parameter) {
-        fail(c, "%s: %s of %s: an output cannot be set; the instance is now in its error state", SHELL_MODEL_NAME,
-             call, v->name);
-        return 0;
-    }
-    if (c->phase == PH_STEP || c->phase == PH_TERMINATED) {
-        fail(c, "%s: %s of %s after initialization: fixed parameters can only be set before "
-             "fmi2ExitInitializationMode (FMI 2.0; the value would not take effect); the instance is now in its "
-             "error state", SHELL_MODEL_NAME, call, v->name);
-        return 0;
-    }
-    return 1;
+    return state_settable(c, call, v->name, v->is_input, v->is_parameter, 0, 0);
 }
 
 fmi2Status fmi2GetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[]) {
@@ -359,11 +259,7 @@ fmi2Status fmi2SetReal(fmi2Component comp, const fmi2ValueReference vr[], size_t
     for (size_t i = 0; i < nvr; i++) {
         CHECK_VR("fmi2SetReal", "Real")
         if (!settable_now(c, v, "fmi2SetReal")) return fmi2Error;
-        if (!v->is_input && !isfinite(value[i])) {
-            fail(c, "%s: fmi2SetReal of %s = %s: parameters that are not finite numbers are refused; the instance "
-                 "is now in its error state", SHELL_MODEL_NAME, v->name, pyfloat(value[i]).s);
-            return fmi2Error;
-        }
+        if (!v->is_input && !isfinite(value[i])) return state_nonfinite_parameter(c, v->name, value[i]);
         if (shell_accept_real(c, v, value[i]) != fmi2OK) return fmi2Error;
         c->r[vr[i]] = value[i];
     }
@@ -418,21 +314,21 @@ fmi2Status fmi2FreeFMUstate(fmi2Component comp, fmi2FMUstate *state) {
 fmi2Status fmi2GetDirectionalDerivative(fmi2Component comp, const fmi2ValueReference u[], size_t nu,
                                         const fmi2ValueReference z[], size_t nz, const fmi2Real du[], fmi2Real dz[]) {
     (void)u; (void)nu; (void)z; (void)nz; (void)du; (void)dz;
-    logf_((Inst *)comp, fmi2Error, "logStatusError", "%s: no directional derivatives", SHELL_MODEL_NAME);
+    logf_((Inst *)comp, fmi2Error, "logStatusError", STATE_MSG_NOT_PROVIDED, SHELL_MODEL_NAME, "directional derivatives");
     return fmi2Error;
 }
 
 fmi2Status fmi2SetRealInputDerivatives(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
                                        const fmi2Integer order[], const fmi2Real value[]) {
     (void)vr; (void)nvr; (void)order; (void)value;
-    logf_((Inst *)comp, fmi2Error, "logStatusError", "%s: no input derivatives", SHELL_MODEL_NAME);
+    logf_((Inst *)comp, fmi2Error, "logStatusError", STATE_MSG_NOT_PROVIDED, SHELL_MODEL_NAME, "input derivatives");
     return fmi2Error;
 }
 
 fmi2Status fmi2GetRealOutputDerivatives(fmi2Component comp, const fmi2ValueReference vr[], size_t nvr,
                                         const fmi2Integer order[], fmi2Real value[]) {
     (void)vr; (void)nvr; (void)order; (void)value;
-    logf_((Inst *)comp, fmi2Error, "logStatusError", "%s: no output derivatives", SHELL_MODEL_NAME);
+    logf_((Inst *)comp, fmi2Error, "logStatusError", STATE_MSG_NOT_PROVIDED, SHELL_MODEL_NAME, "output derivatives");
     return fmi2Error;
 }
 

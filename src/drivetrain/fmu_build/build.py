@@ -21,13 +21,13 @@ rendered from ``fmu_runtime.slave_template`` into a temporary directory, one per
      ``dependencies="<indices>"`` with ``dependenciesKind`` ``dependent``;
    - ``needsExecutionTool="true"``: the FMU runs only in a host process that can load a CPython
      with the packages of ``resources/requirements.txt`` (the execution tool; generationTool names
-     pythonfmu). The native GearContact (``drivetrain.cosim.native_gear``) says "false";
+     pythonfmu). The native GearContact (``drivetrain.fmu_build.native_gear``) says "false";
    - ``canGetAndSetFMUstate="true"`` where the slave class says ``can_get_and_set_fmu_state = True``
      (it then implements ``_get_fmu_state``/``_set_fmu_state``; pythonfmu keeps the snapshot object).
-3. Add what the FMU ships for a user (``drivetrain.cosim.fmu_docs``, from the final modelDescription):
+3. Add what the FMU ships for a user (``drivetrain.fmu_build.fmu_docs``, from the final modelDescription):
    ``documentation/index.html``, the example input, the reference plot, ``resources/requirements.txt``.
 
-4. The FMI wrapper (``drivetrain.cosim.fmi_wrapper``): a small C binary compiled from the final
+4. The FMI wrapper (``drivetrain.fmu_build.fmi_wrapper``): a small C binary compiled from the final
    modelDescription.xml becomes ``binaries/linux64/<id>.so`` and loads pythonfmu's export library, renamed
    next to it; it refuses with fmi2Error what FMI calls an error and never lets a host reach a released slave.
    Without a C compiler the FMU keeps the bare export library, with a warning.
@@ -146,8 +146,8 @@ def find_slave_scripts(render_dir: str | Path | None = None) -> list[Path]:
 
 def _copy_packages(dest: Path) -> Path:
     """The packages into ``dest/_bundled``: their data files and the modules that run inside an FMU
-    (:func:`drivetrain.cosim.bundle.fmu_modules`; the host-only modules stay out)."""
-    from drivetrain.cosim.bundle import fmu_files
+    (:func:`drivetrain.fmu_build.bundle.fmu_modules`; the host-only modules stay out)."""
+    from drivetrain.fmu_build.bundle import fmu_files
 
     bundled = dest / "_bundled"
     bundled.mkdir(parents=True)
@@ -156,7 +156,7 @@ def _copy_packages(dest: Path) -> Path:
 
     def host_only(path: Path) -> bool:
         """A module that never runs inside an FMU, or a folder of a host-only package (its nearest
-        package's __init__ is host-only: e.g. cosim/native's C sources); package data stays."""
+        package's __init__ is host-only: e.g. fmu_build/native's C sources); package data stays."""
         if path.suffix == ".py":
             return path.resolve() not in fmu_side
         if not path.is_dir():
@@ -178,7 +178,7 @@ def slave_class(script: Path):
     """Import the slave script under a private module name and return its Fmi2Slave subclass."""
     from pythonfmu import Fmi2Slave
 
-    spec = importlib.util.spec_from_file_location(f"_fmubuild_{script.stem}", script)
+    spec = importlib.util.spec_from_file_location(f"_fmu_build_{script.stem}", script)
     mod = importlib.util.module_from_spec(spec)
     sys.path.insert(0, str(script.parent))
     try:
@@ -194,7 +194,7 @@ def slave_class(script: Path):
 
 
 
-#: what a host needs to run a pythonfmu FMU (documentation/index.html, drivetrain.cosim.fmu_docs)
+#: what a host needs to run a pythonfmu FMU (documentation/index.html, drivetrain.fmu_build.fmu_docs)
 HOST_NOTE = ("This FMU is built with pythonfmu 0.7.0: its binary embeds the host's CPython and imports the model's "
              "Python packages there (they are bundled in <code>resources/_bundled</code>; their own dependencies are "
              "not). The host process must be able to load libpython and import the packages of "
@@ -208,9 +208,9 @@ def postprocess_model_description(fmu: Path, units: dict | None = None,
                                   output_dependencies: dict | None = None, variable_descriptions: dict | None = None,
                                   bounds: dict | None = None, initial_dependencies: dict | None = None) -> None:
     """Add units, UnitDefinitions and output dependencies in place, and what the FMU ships for a user
-    (drivetrain.cosim.fmu_docs: resources/requirements.txt, documentation/index.html from the final
+    (drivetrain.fmu_build.fmu_docs: resources/requirements.txt, documentation/index.html from the final
     modelDescription, the example input, the reference plot)."""
-    from drivetrain.cosim.fmu_docs import fmu_extras
+    from drivetrain.fmu_build.fmu_docs import fmu_extras
 
     fmu = Path(fmu)
     tmp = fmu.with_name(fmu.name + ".tmp")
@@ -239,7 +239,7 @@ def _number(value, kind: str) -> str:
 def edit_model_description(data: bytes, units: dict, output_dependencies: dict, descriptions: dict,
                            bounds: dict | None = None, initial_dependencies: dict | None = None) -> bytes:
     """modelDescription.xml with the descriptions, units, UnitDefinitions, TypeDefinitions, bounds, initial
-    values and dependencies of the module docstring (also used for the native FMUs, drivetrain.cosim.native_gear
+    values and dependencies of the module docstring (also used for the native FMUs, drivetrain.fmu_build.native_gear
     and native_line): one place for both builds.
 
     - ``bounds``: name -> (min, max) (None: unbounded), written as ``min``/``max`` of the Real or Integer: the
@@ -278,7 +278,7 @@ def edit_model_description(data: bytes, units: dict, output_dependencies: dict, 
         u = unit_for(name, units)
         if u:
             if u not in UNIT_DEFS:
-                raise ValueError(f"unit {u!r} of {name} is not in fmubuild.UNIT_DEFS")
+                raise ValueError(f"unit {u!r} of {name} is not in fmu_build.build.UNIT_DEFS")
             value.set("unit", u)
             used.add(u)
             if u in QUANTITIES:
@@ -353,7 +353,7 @@ def build_fmu(script: Path, out_dir: Path) -> Path:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     cls = slave_class(script)
-    with tempfile.TemporaryDirectory(prefix="fmubuild_") as tmp:
+    with tempfile.TemporaryDirectory(prefix="fmu_build_") as tmp:
         bundled = _copy_packages(Path(tmp))
         fmu = FmuBuilder.build_FMU(script, dest=out_dir, project_files=[bundled], needsExecutionTool=True,
                                    canGetAndSetFMUstate=bool(getattr(cls, "can_get_and_set_fmu_state", False)))
@@ -363,8 +363,8 @@ def build_fmu(script: Path, out_dir: Path) -> Path:
                                   bounds=getattr(cls, "bounds", None),
                                   initial_dependencies=declared_initial_dependencies(cls))
     # last, from the final modelDescription.xml: the FMI wrapper in front of pythonfmu's export library
-    # (drivetrain.cosim.fmi_wrapper; without a C compiler the FMU keeps the bare library, and says so here)
-    from drivetrain.cosim.fmi_wrapper import wrap_pythonfmu_binary
+    # (drivetrain.fmu_build.fmi_wrapper; without a C compiler the FMU keeps the bare library, and says so here)
+    from drivetrain.fmu_build.fmi_wrapper import wrap_pythonfmu_binary
 
     why = wrap_pythonfmu_binary(fmu)
     if why:

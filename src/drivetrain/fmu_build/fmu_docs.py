@@ -1,7 +1,7 @@
 """What every FMU carries for a user who meets it alone (issue 30): an example input at the example
 operating point, ``documentation/index.html`` generated from the final modelDescription, a reference plot and
-the runtime requirements as ranges. Used by both builders (``drivetrain.cosim.build`` for the pythonfmu FMUs,
-``drivetrain.cosim.native_gear.compile_and_pack`` for the native ones), so the two builds ship the same.
+the runtime requirements as ranges. Used by both builders (``drivetrain.fmu_build.build`` for the pythonfmu FMUs,
+``drivetrain.fmu_build.native_gear.compile_and_pack`` for the native ones), so the two builds ship the same.
 
 - :func:`example_input`: the inputs of the FMU's DefaultExperiment at the example operating point (drive motor
   :data:`EXAMPLE_SPEED_RPM`, load motor :data:`EXAMPLE_LOAD_NM`, RIG.md's grid), from rest: speeds and torques
@@ -331,7 +331,7 @@ def reference_plot(model: str, native: bool) -> Path:
     return PLOT_DIR / f"{model}{'-native' if native else ''}.png"
 
 
-PLOT_NOTE = ("The plot is committed with the sources (src/drivetrain/cosim/reference_plots, made by "
+PLOT_NOTE = ("The plot is committed with the sources (src/drivetrain/fmu_build/reference_plots, made by "
              "examples/fmu_reference_plots.py from a run of this FMU's DefaultExperiment with its example input, "
              "fmpy.simulate_fmu), not computed when the FMU is built: building costs nothing for it.")
 

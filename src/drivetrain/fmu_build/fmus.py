@@ -4,7 +4,7 @@
   folder): a source checkout's own ``fmus/``, else the user-level cache ``<cache_dir()>/fmus``.
 - ``ensure_fmus(models, fmu_dir)``: the paths of the models' FMUs; a missing FMU, or one built from other
   package sources than the current ones (``sources_hash``: SHA-256 of the sources that run inside FMUs,
-  recorded per model in the directory's stamp), is (re)built with ``drivetrain.cosim.build`` under a file
+  recorded per model in the directory's stamp), is (re)built with ``drivetrain.fmu_build.build`` under a file
   lock, and the stamp is written (``record_built``, the one writer of the stamp). The stamp and the lock
   live in the user-level cache (``stamp_path``), keyed by the directory: an FMU directory holds FMUs only.
 - ``extracted_dir(path)``: ``fmpy.extract`` once per FMU file and process, under a private root.
@@ -26,7 +26,7 @@ from typing import Any, Callable, Sequence
 import drivetrain
 import fmu_runtime
 import gearcontact_fmu
-from drivetrain.cosim.bundle import fmu_files
+from drivetrain.fmu_build.bundle import fmu_files
 from drivetrain.errors import ConfigurationError
 from gearcontact_fmu.locks import cache_dir, file_lock
 
@@ -161,7 +161,7 @@ def _sources_hash_cached(stamp: tuple) -> str:
     for pkg, d in sorted(dirs.items()):
         for f in sorted(d.rglob("*.py")):
             rel = f.relative_to(d)
-            if f not in fmu_side:          # host-only (cosim.bundle: derived from the imports)
+            if f not in fmu_side:          # host-only (fmu_build.bundle: derived from the imports)
                 continue
             h.update(f"{pkg}/{rel.as_posix()}\0".encode())
             h.update(f.read_bytes())
@@ -176,18 +176,18 @@ def _packaging_files() -> list[Path]:
     """What the build puts into a pythonfmu FMU besides the package sources: the FMI wrapper (its C source and
     the FMI headers), the modelDescription writer and the documentation with its committed reference plots.
     A change to any of them rebuilds the FMUs as a change of the sources does."""
-    from drivetrain.cosim.fmi_headers import FMI_HEADERS, fmi_header_dir
-    from drivetrain.cosim.fmi_wrapper import WRAPPER_SOURCE
-    from drivetrain.cosim.fmu_docs import PLOT_DIR
+    from drivetrain.fmu_build.fmi_headers import COMMON_HEADERS, fmi_header_dir
+    from drivetrain.fmu_build.fmi_wrapper import WRAPPER_SOURCE
+    from drivetrain.fmu_build.fmu_docs import PLOT_DIR
 
     here = Path(__file__).parent
-    return [WRAPPER_SOURCE, *(fmi_header_dir() / n for n in FMI_HEADERS),
+    return [WRAPPER_SOURCE, *(fmi_header_dir() / n for n in COMMON_HEADERS),
             *(here / f"{m}.py" for m in ("build", "fmi_headers", "fmi_wrapper", "fmu_docs")),
             *sorted(PLOT_DIR.glob("*.png"))]
 
 
 def sources_hash() -> str:
-    """SHA-256 of the package sources that run inside the FMUs (:func:`drivetrain.cosim.bundle.fmu_modules`)."""
+    """SHA-256 of the package sources that run inside the FMUs (:func:`drivetrain.fmu_build.bundle.fmu_modules`)."""
     stamp = []
     for pkg, d in sorted(_package_dirs().items()):
         for f in sorted(d.rglob("*.py")):
@@ -274,13 +274,13 @@ def ensure_fmus(models: Sequence[str], fmu_dir: Path | str | None = None, build:
             if todo:
                 current = sources_hash()
                 try:
-                    from drivetrain.cosim.build import build_all
+                    from drivetrain.fmu_build.build import build_all
                 except ImportError as exc:
                     missing = [m for m in todo if not (fmu_dir / f"{m}.fmu").is_file()]
                     if missing:
                         raise ConfigurationError(
                             [f"FMU {fmu_dir / (m + '.fmu')} is missing and cannot be built "
-                             f"(drivetrain.cosim.build unavailable: {exc})" for m in missing]) from None
+                             f"(drivetrain.fmu_build.build unavailable: {exc})" for m in missing]) from None
                     if log:
                         log(f"FMUs {todo} may be stale; cannot rebuild ({exc}); using them as they are")
                 else:

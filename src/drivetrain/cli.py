@@ -973,6 +973,76 @@ def _parser_detectability(sub) -> None:
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_cmd_detectability)
 
+def _parser_frontier(sub) -> None:
+    from drivetrain.campaigns import GEARBOXES
+    from drivetrain.campaigns import detectability as D
+    from drivetrain.campaigns import frontier as F
+    from gearcontact_fmu.fault_specs import FAULT_KINDS
+
+    p = sub.add_parser("frontier", help="the detectability frontier: per fault kind, member, speed and load the "
+                                        "smallest detectable size (bisection over a size ladder, resumable) -> "
+                                        "OUT/FRONTIER.md")
+    p.add_argument("--out", default="out/frontier", help="run directory (default: out/frontier)")
+    p.add_argument("--report", default=None, help="the report, figure beside it (default: OUT/FRONTIER.md)")
+    p.add_argument("--gearboxes", type=_positive_int, default=GEARBOXES,
+                   help=f"gearboxes (seeds) per size (default: {GEARBOXES})")
+    p.add_argument("--kinds", nargs="+", choices=tuple(FAULT_KINDS), default=list(FAULT_KINDS),
+                   help="fault kinds (default: all)")
+    p.add_argument("--members", nargs="+", choices=D.MEMBERS, default=list(D.MEMBERS), help="gears (default: both)")
+    p.add_argument("--speeds", nargs="+", type=float, default=[500.0, 1500.0], help="drive speeds [rpm]")
+    p.add_argument("--loads", nargs="+", type=float, default=[0.12, 1.31, 11.9],
+                   help="load-motor torques [N·m] (default: 0.12 1.31 11.9, the paper's lightest to the load "
+                        "motor's nominal)")
+    p.add_argument("--ladder", nargs="+", type=float, default=list(F.LADDER),
+                   help="size factors of each kind's default sizes, smallest to severe (default: "
+                        f"{' '.join(f'{x:g}' for x in F.LADDER)})")
+    p.add_argument("--duration", type=float, default=20.0, help="simulated seconds per run (default: 20, as validate)")
+    p.add_argument("--settle", type=float, default=2.0, help="settling time left out (default: 2 s)")
+    p.add_argument("--background", choices=("on", "off"), default="on",
+                   help="the rig's measured background (default: on)")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key of every scene")
+    _add_execution_options(p)
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_cmd_frontier)
+
+
+def _cmd_frontier(args: argparse.Namespace) -> int:
+    from drivetrain.campaigns import frontier as F
+    from drivetrain.cosim import ConfigurationError
+    from drivetrain.errors import DatasetError
+    from drivetrain.scene.load import ScenarioError
+
+    ladder = sorted(set(args.ladder))
+    if not ladder or any(not (x > 0 and math.isfinite(x)) for x in ladder):
+        print(f"error: --ladder {args.ladder}: positive finite size factors", file=sys.stderr)
+        return 2
+    study = F.FrontierStudy(tuple(args.kinds), tuple(args.members), tuple(args.speeds), tuple(args.loads),
+                            args.gearboxes, args.duration, args.settle, tuple(ladder), args.background,
+                            tuple(args.set or ()))
+    try:
+        result = F.run_frontier(study, Path(args.out), workers=args.workers, address=args.scheduler,
+                                backend=args.backend, fmu_dir=args.fmu_dir, progress=not args.quiet, log=print)
+    except ScenarioError as exc:
+        return _scene_errors(exc)
+    except (ConfigurationError, DatasetError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    report = Path(args.report) if args.report else Path(args.out) / "FRONTIER.md"
+    report.parent.mkdir(parents=True, exist_ok=True)
+    (report.parent / "figures").mkdir(parents=True, exist_ok=True)
+    fig = F.plot(result, study, report.parent / "figures" / f"{report.stem.lower()}.png")
+    wall = time.perf_counter() - args.started
+    workers = args.workers or os.cpu_count() or 1
+    meta = {"command": _command_line("frontier"), "workers": workers, "wall_time_s": wall,
+            "core_hours": wall * workers / 3600.0}
+    (report.parent / f"{report.stem.lower()}.json").write_text(json.dumps({**result, "meta": meta}, indent=1,
+                                                                          default=str))
+    report.write_text(F.report_markdown(result, study, meta, os.path.relpath(fig, report.parent)))
+    print(f"frontier of {len(result['cells'])} cells from {result['runs']} runs in {len(result['rounds'])} rounds; "
+          f"wrote {report} ({wall / 60:.1f} min)")
+    return 0
+
+
 def _parser_check_and_baseline(sub) -> None:
     for name, helptext in (("check", "run scenes and check them against their [expect] section and baseline; "
                                      "prints what moved; exit code 0 only if everything holds"),
@@ -1034,7 +1104,7 @@ def _parser_stress(sub) -> None:
 #: one function per command (or pair of commands sharing their options), in the order of --help
 _PARSERS = (_parser_build_fmus, _parser_run, _parser_build_native_gear, _parser_build_native, _parser_export_ssp,
             _parser_eigen, _parser_calibrate, _parser_sweep, _parser_validate, _parser_accuracy_cost, _parser_dataset,
-            _parser_features, _parser_detectability, _parser_check_and_baseline, _parser_stress)
+            _parser_features, _parser_detectability, _parser_frontier, _parser_check_and_baseline, _parser_stress)
 
 
 def build_parser() -> argparse.ArgumentParser:

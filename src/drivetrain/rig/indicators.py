@@ -212,6 +212,38 @@ def paired_auc(healthy, faulty) -> float:
     return float((np.sum(d > 0) + 0.5 * np.sum(d == 0)) / len(d))
 
 
+def change_auc(baseline, healthy, faulty) -> float:
+    """Two-sided detectability of a change: over gearboxes, the probability that a faulty gearbox's change
+    from its own baseline, |faulty - baseline|, exceeds a healthy gearbox's, |healthy - baseline| (the
+    healthy-vs-baseline spread: what the indicator does between two days without a fault), ties half
+    (Mann-Whitney AUC of the two sets of absolute changes). 0.5: the fault changes the indicator no more than
+    a day does; 1: every fault's change, of either sign, exceeds every healthy change. A line that moves
+    +-10 dB depending on the gearbox scores 1 here and 0.5 in :func:`paired_auc`."""
+    b = np.asarray(baseline, dtype=float)
+    h = np.asarray(healthy, dtype=float)
+    f = np.asarray(faulty, dtype=float)
+    if not (b.shape == h.shape == f.shape):
+        raise ValueError("a change needs one baseline, one healthy and one faulty value per gearbox")
+    ok = np.isfinite(b) & np.isfinite(h) & np.isfinite(f)
+    if not ok.any():
+        return float("nan")
+    return auc(np.abs(h[ok] - b[ok]), np.abs(f[ok] - b[ok]))
+
+
+def chance_change(gearboxes: int, indicators: int, level: float = 0.05) -> float:
+    """The best-of-``indicators`` :func:`change_auc` that ``gearboxes`` gearboxes without a fault reach with
+    probability ``level`` (the Mann-Whitney AUC's null law, normal about 1/2 with variance (2n + 1) / (12 n^2),
+    one-sided: only a larger change counts; the indicators taken as independent). With ``indicators`` the
+    count over every cell of a study it is the family-wise level."""
+    from scipy.stats import norm
+
+    if gearboxes < 1:
+        return 1.0
+    sigma = math.sqrt((2 * gearboxes + 1) / (12.0 * gearboxes * gearboxes))
+    p_one = 1.0 - (1.0 - level) ** (1.0 / max(indicators, 1))
+    return float(min(1.0, 0.5 + sigma * norm.isf(p_one)))
+
+
 def separability(a: float) -> float:
     """max(AUC, 1 - AUC): how well an indicator separates, whichever way it moves."""
     return float(max(a, 1.0 - a)) if math.isfinite(a) else float("nan")

@@ -65,7 +65,7 @@ import numpy as np
 from numba import njit, types
 
 from gearcontact_fmu.coupling import EnergyCorrection
-from gearcontact_fmu.fidelity import make_mesh_model
+from gearcontact_fmu.mesh_models import make_mesh_model
 from gearcontact_fmu.mesh_model import (
     N_OUT,
     OUT_DISSIPATED_POWER,
@@ -941,7 +941,7 @@ class GearStage:
 def make_stage(fidelity: str = "analytic", gear_params=None, pcm_params=None, resolution=None,
                health: str = "healthy", mesh_files=None, stage_params: StageParams | None = None,
                **kw) -> GearStage:
-    """Build the mesh model of ``fidelity`` (fidelity.make_mesh_model) and a GearStage around it.
+    """Build the mesh model of ``fidelity`` (mesh_models.make_mesh_model) and a GearStage around it.
     The stage inertias are passed to the mesh builder (the analytic model uses them for its damping
     ratio)."""
     gear_params = gear_params or BevelGearParams()

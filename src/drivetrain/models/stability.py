@@ -131,7 +131,7 @@ def contact_gears(spec) -> list:
 
 def contact_inputs(comp) -> dict:
     """What a GearContact component's contact model is built from, read from its parameters once."""
-    from gearcontact_fmu.gearpair import fault_kwargs_of
+    from gearcontact_fmu.mesh_models.pcm import fault_kwargs_of
     from gearcontact_fmu.stage import StageParams
 
     p = comp.parameters
@@ -171,7 +171,7 @@ def check_contact_cost(spec, duration_s: float, max_hours: float) -> list[dict]:
         return []
     from gearcontact_fmu import cost
     from gearcontact_fmu.contact_map import get_map, map_workers, pairing_revolutions, wheel_faults
-    from gearcontact_fmu.gearpair import build_pcm_pair
+    from gearcontact_fmu.mesh_models.pcm import build_pcm_pair
     from gearcontact_fmu.params import substeps
 
     ss = (spec.metadata or {}).get("steady_state") or {}

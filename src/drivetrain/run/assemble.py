@@ -111,7 +111,7 @@ def initial_mesh_deflection(T_msh: float, fidelity: str) -> float:
     if fidelity == "ideal":
         return 0.0
     try:
-        from gearcontact_fmu.analytic import mesh_stiffness
+        from gearcontact_fmu.mesh_models.analytic import mesh_stiffness
         from gearcontact_fmu.params import BevelGearParams, backlash_angle
 
         g = BevelGearParams()
@@ -173,8 +173,8 @@ def start_wheel_angle(gear: dict, ss, theta_p: float, errors, build_map: bool = 
     if ss.T_msh == 0.0:
         model, how = None, "unloaded: at the drive flank's onset"
     if model is not None:
-        from gearcontact_fmu.fidelity import StartStateError as NoPosition
-        from gearcontact_fmu.fidelity import balanced_wheel_angle
+        from gearcontact_fmu.mesh_statics import StartStateError as NoPosition
+        from gearcontact_fmu.mesh_statics import balanced_wheel_angle
 
         k_a = float(gear["k_a"])
         tau_port = k_a * (-ss.T_msh / k_a)             # the port spring's torque on the pinion, as twisted

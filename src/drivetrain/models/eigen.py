@@ -25,6 +25,7 @@ from drivetrain.models.components import COMPONENTS, make_component
 from drivetrain.models.line import loss_slope
 from drivetrain.rig.data import default_parameters
 from drivetrain.system import SPRING, SystemSpec
+from gearcontact_fmu.mesh_models import DEFAULT_FIDELITY
 from gearcontact_fmu.mesh_models.analytic import mesh_stiffness
 from gearcontact_fmu.params import GEAR_MODEL, BevelGearParams
 
@@ -94,7 +95,7 @@ def gear_block(name: str, params: dict, gear: str = "auto") -> LinearBlock:
     p.update({k: v for k, v in params.items()})
     Jp, Jw = float(p["J_pinion"]), float(p["J_wheel"])
     r = float(p.get("z_wheel", 60)) / float(p.get("z_pinion", 15))
-    fid = str(p.get("fidelity", "analytic")).lower()
+    fid = str(p.get("fidelity", DEFAULT_FIDELITY)).lower()
     rigid = (gear == "rigid") or (gear == "auto" and fid == "ideal")
     out = str(p.get("output_torque", "predicted"))
     if rigid:

@@ -22,6 +22,7 @@ from scipy.linalg import expm
 
 from drivetrain.models import eigen
 from drivetrain.errors import ContactCostError, ContactRangeError, UnstableCutError  # noqa: F401
+from gearcontact_fmu.mesh_models import DEFAULT_FIDELITY
 from gearcontact_fmu.params import GEAR_MODEL, BevelGearParams, MapGrid, MeshResolution, PCMParams
 
 # gearcontact_fmu.contact_map (the PCM engine) is imported by check_contact_range only for table/pcm gears
@@ -126,7 +127,7 @@ def cut_report(spring: str, inertia: str, k: float, c: float, J_spring: float, J
 def contact_gears(spec) -> list:
     """The GearContact components of a spec whose fidelity evaluates the PCM engine (table or pcm)."""
     return [c for c in spec.components_of(GEAR_MODEL)
-            if str(c.parameters.get("fidelity", "")).strip().lower() in ("table", "pcm")]
+            if str(c.parameters.get("fidelity", DEFAULT_FIDELITY)).strip().lower() in ("table", "pcm")]
 
 
 def contact_inputs(comp) -> dict:

@@ -7,6 +7,16 @@ precomputed contact map of ``gearcontact_fmu.contact_map``), ``analytic`` (ISO 6
 scipy.integrate's ``solve_ivp`` method table: an interface module, one file per method, a table mapping
 names to implementations). The builders are named, not imported: a scene loads only the contact engine its
 fidelity needs (an ideal or analytic gear never imports the PCM kernels).
+
+The default fidelity, :data:`DEFAULT_FIDELITY` = ``"analytic"``, is the fidelity of a gear that names none:
+the GearContact FMU's ``fidelity`` parameter starts at it (its modelDescription's start value,
+``gearcontact_fmu.fmu_variables``), and every reader of a gear's parameters that falls back when the
+fidelity is missing reads it here (``drivetrain.models.eigen``, ``drivetrain.run.assemble``,
+``drivetrain.models.stability``). It is the FMU's long-standing default, kept so that no modelDescription
+and no result changes; the cheapest compliant model, it needs neither a contact map nor the contact engine.
+Not defaults in this sense: a scene's ``effects.mesh_contact`` (a scene key with its own default, which the
+assembler always writes into the gear's parameters) and the native GearContact's ``table`` (the only
+fidelity that FMU implements, ``drivetrain.fmu_build.native_gear``).
 """
 from __future__ import annotations
 
@@ -26,6 +36,11 @@ BUILDERS = {
 -> MeshModel. Named, not imported: a scene loads only the contact engine its fidelity needs (an ideal
 or analytic gear never imports the PCM kernels)."""
 assert tuple(BUILDERS) == FIDELITIES
+
+DEFAULT_FIDELITY = "analytic"
+"""The fidelity of a gear whose parameters name none (the GearContact FMU's declared default; see the
+module docstring)."""
+assert DEFAULT_FIDELITY in BUILDERS
 
 
 def builder(fidelity: str):

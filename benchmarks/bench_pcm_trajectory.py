@@ -31,7 +31,7 @@ import json, math, sys, time
 import numpy as np
 from numba import njit
 from gearcontact_fmu.contact import engine
-from gearcontact_fmu.gearpair import build_pcm_pair, make_pcm_model, static_deflection
+from gearcontact_fmu.mesh_models.pcm import build_pcm_pair, make_pcm_model, static_deflection
 from gearcontact_fmu.mesh_model import N_OUT
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
 

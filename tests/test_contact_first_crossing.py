@@ -99,7 +99,7 @@ def test_base_point_inside_the_target_still_penetrates(path):
 
 @pytest.fixture(scope="module")
 def mild_pair():
-    from gearcontact_fmu.gearpair import build_pcm_pair
+    from gearcontact_fmu.mesh_models.pcm import build_pcm_pair
 
     return build_pcm_pair(health="mild")
 
@@ -109,7 +109,7 @@ def test_void_passage_has_no_wrong_signed_torque(mild_pair):
     elastic mesh torque on the pinion opposes the approach (<= 0) and the penetration stays elastic
     (micrometres) from the contact onset to the approach of 200 N·m; before the first-crossing rule
     the void walls gave u = 0.75-0.95 mm and up to +700 N·m there."""
-    from gearcontact_fmu.gearpair import contact_onset
+    from gearcontact_fmu.mesh_models.pcm import contact_onset
     from gearcontact_fmu.geometry import mean_base_radius
 
     pair = mild_pair

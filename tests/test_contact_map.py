@@ -7,9 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gearcontact_fmu.contact_map import MapGrid, get_map, make_table_data, table_eval
+from gearcontact_fmu.contact_map import MapGrid, get_map
+from gearcontact_fmu.mesh_models.table import make_table_data, table_eval
 from gearcontact_fmu.mesh_model import N_OUT, OUT_TAU_PINION, OUT_TAU_WHEEL, OUT_STATUS
-from gearcontact_fmu.gearpair import build_pcm_pair
+from gearcontact_fmu.mesh_models.pcm import build_pcm_pair
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
 
 GEAR = BevelGearParams()
@@ -275,7 +276,7 @@ def test_wheel_fault_map_follows_the_wheel_not_the_pinion(cache):
     """With a wheel fault the same pinion angle meets a faulty or a healthy wheel tooth depending on
     the revolution: the table must tell them apart (a map over one pinion revolution would fold the
     wheel fault onto every pinion revolution, the signature of a pinion fault)."""
-    from gearcontact_fmu.contact_map import make_table_model
+    from gearcontact_fmu.mesh_models.table import make_table_model
 
     res = MeshResolution(profile=0.3e-3, face=3e-3)
     grid = MapGrid(points_per_pitch=4, s_points=10, max_torque=120.0)

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from gearcontact_fmu import geometry
-from gearcontact_fmu.analytic import virtual_spur_gears
+from gearcontact_fmu.mesh_models.analytic import virtual_spur_gears
 from gearcontact_fmu.fault_contact import contact_points, contact_share, loaded_regions, mesh_torque_drop
 from gearcontact_fmu.fault_specs import draw_faults, loaded_flank
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
@@ -98,7 +98,7 @@ def test_the_map_read_drop_agrees_with_the_online_pcm(maps):
     """At the angle of the pit's largest drop, the online PCM (healthy and faulty pair, the healthy static
     deflection) gives the same drop within 0.05 (absolute): the map's reading is the engine's."""
     from gearcontact_fmu.fault_contact import row_drops
-    from gearcontact_fmu.gearpair import build_pcm_pair, contact_onset, static_deflection
+    from gearcontact_fmu.mesh_models.pcm import build_pcm_pair, contact_onset, static_deflection
 
     healthy, pit, _, _ = maps
     theta, drops = row_drops(healthy, pit, T_EXAMPLE)

@@ -193,7 +193,7 @@ def test_a_wheel_pit_refines_every_pinion_tooth_at_its_cone_distance():
     """The pinion's elements probe the wheel: a wheel pit narrower than the pinion's face rows would
     fall between them. The pinion gets rows every radius/4 across the pit's cone distance, on every
     tooth (they stay rotated copies of one tooth)."""
-    from gearcontact_fmu.gearpair import resolve_meshes
+    from gearcontact_fmu.mesh_models.pcm import resolve_meshes
 
     res = MeshResolution(profile=0.3e-3, face=2e-3)
     spec = {"kind": "pit", "member": "wheel", "tooth": 38, "radius_mm": 0.5, "depth_mm": 0.1, "face_position": 0.46}

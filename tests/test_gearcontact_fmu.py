@@ -84,7 +84,7 @@ def _simulate(fmu, logger=None, debug_logging=False, **kw):
 def test_simulate_steady_mesh_torque(fmu):
     """examples/gearcontact_input.csv ramps flange_a to 0.01 rad (flange_b held): the steady mesh torque
     is the series-chain closed form T = (phi_a - s_b/2) / (1/k_a + 1/K + r^2/k_b)."""
-    from gearcontact_fmu.analytic import iso6336_stiffness, single_pair_phase
+    from gearcontact_fmu.mesh_models.analytic import iso6336_stiffness, single_pair_phase
     from gearcontact_fmu.params import BevelGearParams
 
     g = BevelGearParams()

@@ -1,6 +1,6 @@
 """The bevel pair under PCM: static transmission error, mesh stiffness, convergence, faults.
 
-Oracles: ISO 6336 (independent formula in gearcontact_fmu.analytic, checked there against the
+Oracles: ISO 6336 (independent formula in gearcontact_fmu.mesh_models.analytic, checked there against the
 standard's coefficients), the contact ratio of the exact geometry (single/double pair zones), the
 geometric no-contact window of a missing tooth, and mesh convergence itself.
 """
@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from gearcontact_fmu.gearpair import (build_pcm_pair, no_contact_windows, static_transmission_error)
+from gearcontact_fmu.mesh_models.pcm import (build_pcm_pair, no_contact_windows, static_transmission_error)
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
 
 GEAR = BevelGearParams()
@@ -72,7 +72,7 @@ def test_static_te_and_stiffness_at_three_loads(stiffness):
 def test_stiffness_vs_iso6336(stiffness):
     """PCM with rigid teeth on 0.5 mm elastic layers is stiffer than ISO 6336 (which includes tooth
     bending and body deflection). The ratio is the documented calibration gap."""
-    from gearcontact_fmu.analytic import iso6336_stiffness
+    from gearcontact_fmu.mesh_models.analytic import iso6336_stiffness
 
     iso = iso6336_stiffness(GEAR)
     r = stiffness[50.0]

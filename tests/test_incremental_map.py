@@ -15,7 +15,7 @@ import pytest
 
 from gearcontact_fmu import contact_map as cm
 from gearcontact_fmu.fault_specs import FAULT_KINDS
-from gearcontact_fmu.gearpair import build_pcm_pair
+from gearcontact_fmu.mesh_models.pcm import build_pcm_pair
 from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCMParams
 
 GEAR, PCM = BevelGearParams(), PCMParams()

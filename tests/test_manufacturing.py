@@ -13,8 +13,8 @@ from test_stage import _audit
 
 from gearcontact_fmu import geometry
 from gearcontact_fmu.contact import engine
-from gearcontact_fmu.fidelity import make_mesh_model
-from gearcontact_fmu.gearpair import PCMGearPair, resolve_meshes
+from gearcontact_fmu.mesh_models import make_mesh_model
+from gearcontact_fmu.mesh_models.pcm import PCMGearPair, resolve_meshes
 from gearcontact_fmu.manufacturing import mesh_offset, offset_data, runout_factor, te_offset, with_errors
 from gearcontact_fmu.manufacturing_specs import ManufacturingErrors, draw_errors, errors_of, iso1328_tolerances
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams

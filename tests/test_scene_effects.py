@@ -69,7 +69,7 @@ print(json.dumps({{"mods": mods, "models": [c.model for c in res.spec.components
     assert "FlexibleShaft" not in info["models"]
     loaded = set(info["mods"])
     for heavy in ("gearcontact_fmu.contact.kernels", "gearcontact_fmu.contact.engine",
-                  "gearcontact_fmu.contact_map", "gearcontact_fmu.gearpair", "gearcontact_fmu.geometry"):
+                  "gearcontact_fmu.contact_map", "gearcontact_fmu.mesh_models.pcm", "gearcontact_fmu.geometry"):
         assert heavy not in loaded, f"{heavy} was imported for an ideal gear"
 
 
@@ -95,7 +95,7 @@ def test_mesh_units_reach_the_contact_model(tmp_path):
     reaches the GearContact FMU as a parameter."""
     from gearcontact_fmu import geometry
     from gearcontact_fmu.mesh_model import N_OUT, OUT_TAU_PINION
-    from gearcontact_fmu.gearpair import make_pcm_model
+    from gearcontact_fmu.mesh_models.pcm import make_pcm_model
     from gearcontact_fmu.meshes import save_mesh
     from gearcontact_fmu.params import BevelGearParams, MeshResolution
 
@@ -107,7 +107,7 @@ def test_mesh_units_reach_the_contact_model(tmp_path):
     for f, u in (("p_mm.obj", "mm"), ("p_m.obj", "m")):
         m = make_pcm_model(P, None, res, "mesh", {"pinion": str(tmp_path / f)}, mesh_units=u)
         if not torques:     # a loaded drive flank: 20 µrad beyond the contact onset at this angle
-            from gearcontact_fmu.gearpair import build_pcm_pair, contact_onset
+            from gearcontact_fmu.mesh_models.pcm import build_pcm_pair, contact_onset
 
             s0 = contact_onset(build_pcm_pair(P, None, res, "mesh", str(tmp_path / f), None, u), 0.3, +1) + 2e-5
         out = np.zeros(N_OUT)

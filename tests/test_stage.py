@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from gearcontact_fmu.analytic import iso6336_stiffness, single_pair_phase
+from gearcontact_fmu.mesh_models.analytic import iso6336_stiffness, single_pair_phase
 from gearcontact_fmu.mesh_model import OUT_N_CONTACT, OUT_TAU_PINION, OUT_TAU_WHEEL
 from gearcontact_fmu.params import BevelGearParams, PCMParams
 from gearcontact_fmu.stage import GearStage, StageError, StageParams, make_stage
@@ -180,7 +180,7 @@ def test_penetration_beyond_u_max_raises():
 
 
 def test_bare_ideal_rejected_and_bad_params():
-    from gearcontact_fmu.fidelity import make_mesh_model
+    from gearcontact_fmu.mesh_models import make_mesh_model
 
     with pytest.raises(ValueError):
         GearStage(make_mesh_model("ideal"), R, StageParams(mode="bare"))

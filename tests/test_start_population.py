@@ -1,7 +1,7 @@
 """Every gearbox starts: the mesh's static-deflection start over a population of manufacturing draws.
 
 The gear starts at the static deflection of its own mesh model (drivetrain.run.assemble.start_wheel_angle,
-gearcontact_fmu.fidelity.balanced_wheel_angle). A drawn gearbox whose runout closes the backlash at the
+gearcontact_fmu.mesh_statics.balanced_wheel_angle). A drawn gearbox whose runout closes the backlash at the
 start angle already carries more than the load at the backlash centre; the search used to bracket from
 there towards the loaded flank only and never found a sign change: seeds 3, 10, 15 and 24 of 0-29 could
 not start at the example's 1.31 N.m (one gearbox in eight). Pass rule, fixed before the population was run:
@@ -105,7 +105,7 @@ class _Closed:
 def test_the_start_search_backs_off_when_the_errors_close_the_backlash(load):
     """Closed-form oracle: with the drive flank already loaded at s = 0 (600 N m at s = 0 here), the
     search finds s = s_on + T / k, on either side of the backlash centre."""
-    from gearcontact_fmu.fidelity import balanced_wheel_angle
+    from gearcontact_fmu.mesh_statics import balanced_wheel_angle
 
     m = _Closed()
     tp = 0.3
@@ -114,7 +114,7 @@ def test_the_start_search_backs_off_when_the_errors_close_the_backlash(load):
 
 
 def test_the_start_search_says_why_when_no_position_carries_the_load():
-    from gearcontact_fmu.fidelity import StartStateError, balanced_wheel_angle
+    from gearcontact_fmu.mesh_statics import StartStateError, balanced_wheel_angle
 
     class Nothing(_Closed):
         def eval(self, data, tp, tw, wp, ww, out):

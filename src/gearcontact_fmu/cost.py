@@ -86,7 +86,7 @@ def probe(pair, pinion_speed_rad_s: float, substep_s: float, n_substeps: int = 1
     ``n_substeps = 0``: no sub-step probe (a table gear does not run online), 0 s per sub-step."""
     from gearcontact_fmu.contact import engine
     from gearcontact_fmu.contact_map import MapGrid, _approach_grid, _tabulate_rows
-    from gearcontact_fmu.gearpair import contact_onset
+    from gearcontact_fmu.mesh_models.pcm import contact_onset
     from gearcontact_fmu.mesh_model import N_OUT
 
     z1, z2 = pair.gear.z_pinion, pair.gear.z_wheel

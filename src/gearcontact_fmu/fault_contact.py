@@ -93,7 +93,7 @@ def _static_deflection(pair, theta: float, torque: float, sign: int) -> float:
     at this pinion angle (NaN: no contact within the onset search)."""
     from scipy.optimize import brentq
 
-    from gearcontact_fmu.gearpair import contact_onset
+    from gearcontact_fmu.mesh_models.pcm import contact_onset
 
     on = contact_onset(pair, theta, sign)
     if not math.isfinite(on):
@@ -120,7 +120,7 @@ def contact_points(gear: BevelGearParams, pcm: PCMParams, resolution: MeshResolu
     at ``n_angles`` pinion angles across its engagement, the wheel at the static deflection under the
     pinion torque ``torque`` (> 0 driving) [N m]."""
     from gearcontact_fmu.contact import engine
-    from gearcontact_fmu.gearpair import build_pcm_pair
+    from gearcontact_fmu.mesh_models.pcm import build_pcm_pair
 
     pair = build_pcm_pair(gear, pcm, resolution, friction=False, damping=False)
     sign = FLANKS[loaded_flank(torque)]

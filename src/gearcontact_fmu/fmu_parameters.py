@@ -6,9 +6,10 @@ initialization; the Python-free build (``drivetrain.fmu_build.native_gear``) tak
 :func:`build_mesh_model`, so the native FMU carries the very map the slave would step with (the same map
 cache, fault parsing and manufacturing errors).
 
-``parameters``: a mapping from the FMU's parameter names (``slaves/GearContact.VARIABLES``) to their values
+``parameters``: a mapping from the FMU's parameter names (``fmu_variables.VARIABLES``) to their values
 as the FMU holds them (String, Integer, Real, Boolean). Every parameter the builders read must be present:
-a slave has them all; a caller with a subset starts from the slave's defaults. Bad values raise
+a slave has them all; a caller with a subset starts from the declared defaults
+(``fmu_variables.parameter_values``). Bad values raise
 (ValueError, ...) with the reason; the slave turns that into its error state, the native build into a
 refusal.
 """

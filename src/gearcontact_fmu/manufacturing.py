@@ -61,7 +61,7 @@ import numpy as np
 from numba import njit
 
 from gearcontact_fmu import geometry
-from gearcontact_fmu.analytic import _smoothstep, virtual_spur_gears
+from gearcontact_fmu.mesh_models.analytic import _smoothstep, virtual_spur_gears
 from gearcontact_fmu.manufacturing_specs import ManufacturingErrors, errors_of
 from gearcontact_fmu.mesh_model import OUT_TAU_PINION, OUT_TAU_WHEEL, MeshModel
 from gearcontact_fmu.params import BevelGearParams

@@ -1,6 +1,6 @@
 """The mesh-model interface and the pair's vocabularies (see docs/ARCHITECTURE.md, "Mesh model interface").
 
-Every fidelity (``fidelity.BUILDERS``) returns a :class:`MeshModel`: a numba function
+Every fidelity (``mesh_models.BUILDERS``) returns a :class:`MeshModel`: a numba function
 ``mesh_eval(data, theta_pinion, theta_wheel, omega_pinion, omega_wheel, out)`` and its parameter tuple.
 ``out`` has ``N_OUT`` entries laid out as the ``OUT_*`` indices below. This module imports nothing of the
 package, so every fidelity module, the stage and the FMU shell can depend on it without a cycle.
@@ -36,7 +36,7 @@ STATUS_PENETRATION_EXCEEDED = 1
 #: sub-step integrators of the gear stage (auto: rk4 where it is stable, ros2 for stiff contact; stage.py)
 SCHEMES = ("auto", "ros2", "rk4")
 FIDELITIES = ("pcm", "table", "analytic", "ideal")
-"""Mesh-contact fidelities, finest first (``fidelity.BUILDERS`` maps each to its builder)."""
+"""Mesh-contact fidelities, finest first (``mesh_models.BUILDERS`` maps each to its builder)."""
 PAPER_HEALTH = ("healthy", "mild", "severe")
 """The paper's three health states, the ones the rig measured (validation, accuracy study, stress)."""
 GENERATED_HEALTH = PAPER_HEALTH + ("faults",)
@@ -51,7 +51,7 @@ FIDELITY_SUPPORTS = {
     "ideal": frozenset(),
 }
 """What each fidelity models beyond the healthy pair's mesh force, declared once (the scene's checks and
-``fidelity`` read it): ``teeth``, tooth geometry, so
+``mesh_models`` read it): ``teeth``, tooth geometry, so
 every health state (faults, user meshes), the others the healthy pair only; ``friction``, tooth friction
 (pcm/table from the PCM, analytic from ``mu``); ``tooth_compliance``, the series tooth compliance (table
 applies it to its map; the analytic ISO 6336 pair has it already); ``manufacturing_errors``, a mesh

@@ -65,7 +65,7 @@ import numpy as np
 from numba import njit, types
 
 from gearcontact_fmu.coupling import EnergyCorrection
-from gearcontact_fmu.fidelity import make_mesh_model
+from gearcontact_fmu.mesh_models import DEFAULT_FIDELITY, make_mesh_model
 from gearcontact_fmu.mesh_model import (
     N_OUT,
     OUT_DISSIPATED_POWER,
@@ -938,10 +938,10 @@ class GearStage:
         return self.tau_a, self.tau_b
 
 
-def make_stage(fidelity: str = "analytic", gear_params=None, pcm_params=None, resolution=None,
+def make_stage(fidelity: str = DEFAULT_FIDELITY, gear_params=None, pcm_params=None, resolution=None,
                health: str = "healthy", mesh_files=None, stage_params: StageParams | None = None,
                **kw) -> GearStage:
-    """Build the mesh model of ``fidelity`` (fidelity.make_mesh_model) and a GearStage around it.
+    """Build the mesh model of ``fidelity`` (mesh_models.make_mesh_model) and a GearStage around it.
     The stage inertias are passed to the mesh builder (the analytic model uses them for its damping
     ratio)."""
     gear_params = gear_params or BevelGearParams()
@@ -950,7 +950,7 @@ def make_stage(fidelity: str = "analytic", gear_params=None, pcm_params=None, re
     return GearStage(model, gear_params.z_wheel / gear_params.z_pinion, sp)
 
 
-def stage_mesh_model(fidelity: str = "analytic", gear_params=None, pcm_params=None, resolution=None,
+def stage_mesh_model(fidelity: str = DEFAULT_FIDELITY, gear_params=None, pcm_params=None, resolution=None,
                      health: str = "healthy", mesh_files=None, stage_params: StageParams | None = None,
                      **kw) -> MeshModel:
     """The mesh model :func:`make_stage` puts in its stage (nothing of the stage's kernels compiled: what

@@ -495,8 +495,9 @@ def check_stiffness(runs: Runs) -> CheckResult:
     """The table model with the default tooth compliance, statically at the paper's pinion torques (the
     measured propeller-shaft torques at 1500 rpm over the ratio 4), against ISO 6336 method B."""
     from drivetrain.scene.expect import _measured_value
-    from gearcontact_fmu.analytic import iso6336_low_load_factor, iso6336_stiffness
-    from gearcontact_fmu.fidelity import make_mesh_model, static_mesh_stiffness
+    from gearcontact_fmu.mesh_models import make_mesh_model
+    from gearcontact_fmu.mesh_models.analytic import iso6336_low_load_factor, iso6336_stiffness
+    from gearcontact_fmu.mesh_statics import static_mesh_stiffness
     from gearcontact_fmu.params import TOOTH_COMPLIANCE_FACTOR, BevelGearParams
 
     r = CheckResult(8, "loaded mesh stiffness vs ISO 6336", "within 10 % of c_gamma (method B, with its "

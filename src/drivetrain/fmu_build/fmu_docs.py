@@ -122,7 +122,7 @@ def operating_point():
 def mesh_offset(starts: dict, T_msh: float) -> float:
     """Pinion-referred mesh coordinate of the loaded drive flank at the middle-shaft torque ``T_msh``
     (half the backlash plus T / K_mean of the gear the FMU declares: the analytic mesh's stiffness)."""
-    from gearcontact_fmu.analytic import mesh_stiffness
+    from gearcontact_fmu.mesh_models.analytic import mesh_stiffness
     from gearcontact_fmu.params import BevelGearParams, backlash_angle
 
     fields = {f.name for f in dataclasses.fields(BevelGearParams)}

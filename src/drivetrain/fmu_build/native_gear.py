@@ -437,6 +437,7 @@ def build_native_gear(parameters: dict | None = None, out: str | Path = "fmus/na
     Refusals (fidelity other than table, unknown parameters, a map that cannot be built, no compiler)
     raise NativeBuildError (a ConfigurationError) with every problem."""
     parameters = dict(parameters or {})
+    # the only fidelity the native FMU implements (not the library default, mesh_models.DEFAULT_FIDELITY)
     parameters.setdefault("fidelity", "table")
     out = Path(out)
     if out.suffix != ".fmu":

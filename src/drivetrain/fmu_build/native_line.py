@@ -292,6 +292,8 @@ def system_gear(spec) -> tuple[dict | None, str | None]:
     if not gears:
         return None, "the system has no GearContact component"
     params = dict(gears[0].parameters)
+    # a gear without a fidelity is taken as table here, while its pythonfmu FMU runs mesh_models.DEFAULT_FIDELITY
+    # (analytic): kept, reading the default would change which FMU such a spec runs (issue 44)
     fid = str(params.get("fidelity", "table")).strip().lower()
     mode = str(params.get("mode", "stage")).strip().lower()
     if fid != "table" or mode != "stage":

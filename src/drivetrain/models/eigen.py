@@ -5,7 +5,7 @@ its nodes in their own frames, and its flange ports); the connections add the po
 the nodes they join, through the port ratios (a flange angle is ``ratio * node angle``). Working in the
 nodes' own frames is the same generalised eigenproblem as referring everything to the drive shaft
 (J R^2, k R^2): the two differ by a diagonal change of coordinates. The lower gear mesh is a spring of
-the ISO 6336 mean mesh stiffness (gearcontact_fmu.analytic) for the compliant fidelities, rigid for
+the ISO 6336 mean mesh stiffness (gearcontact_fmu.mesh_models.analytic) for the compliant fidelities, rigid for
 ``ideal`` (or as asked with ``gear=``).
 
 :func:`cosim_radius` builds the one-step map of the whole linearised co-simulation (each FMU integrated
@@ -25,7 +25,8 @@ from drivetrain.models.components import COMPONENTS, make_component
 from drivetrain.models.line import loss_slope
 from drivetrain.rig.data import default_parameters
 from drivetrain.system import SPRING, SystemSpec
-from gearcontact_fmu.analytic import mesh_stiffness
+from gearcontact_fmu.mesh_models import DEFAULT_FIDELITY
+from gearcontact_fmu.mesh_models.analytic import mesh_stiffness
 from gearcontact_fmu.params import GEAR_MODEL, BevelGearParams
 
 
@@ -94,7 +95,7 @@ def gear_block(name: str, params: dict, gear: str = "auto") -> LinearBlock:
     p.update({k: v for k, v in params.items()})
     Jp, Jw = float(p["J_pinion"]), float(p["J_wheel"])
     r = float(p.get("z_wheel", 60)) / float(p.get("z_pinion", 15))
-    fid = str(p.get("fidelity", "analytic")).lower()
+    fid = str(p.get("fidelity", DEFAULT_FIDELITY)).lower()
     rigid = (gear == "rigid") or (gear == "auto" and fid == "ideal")
     out = str(p.get("output_torque", "predicted"))
     if rigid:

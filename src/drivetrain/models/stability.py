@@ -22,6 +22,7 @@ from scipy.linalg import expm
 
 from drivetrain.models import eigen
 from drivetrain.errors import ContactCostError, ContactRangeError, UnstableCutError  # noqa: F401
+from gearcontact_fmu.mesh_models import DEFAULT_FIDELITY
 from gearcontact_fmu.params import GEAR_MODEL, BevelGearParams, MapGrid, MeshResolution, PCMParams
 
 # gearcontact_fmu.contact_map (the PCM engine) is imported by check_contact_range only for table/pcm gears
@@ -126,12 +127,12 @@ def cut_report(spring: str, inertia: str, k: float, c: float, J_spring: float, J
 def contact_gears(spec) -> list:
     """The GearContact components of a spec whose fidelity evaluates the PCM engine (table or pcm)."""
     return [c for c in spec.components_of(GEAR_MODEL)
-            if str(c.parameters.get("fidelity", "")).strip().lower() in ("table", "pcm")]
+            if str(c.parameters.get("fidelity", DEFAULT_FIDELITY)).strip().lower() in ("table", "pcm")]
 
 
 def contact_inputs(comp) -> dict:
     """What a GearContact component's contact model is built from, read from its parameters once."""
-    from gearcontact_fmu.gearpair import fault_kwargs_of
+    from gearcontact_fmu.mesh_models.pcm import fault_kwargs_of
     from gearcontact_fmu.stage import StageParams
 
     p = comp.parameters
@@ -171,7 +172,7 @@ def check_contact_cost(spec, duration_s: float, max_hours: float) -> list[dict]:
         return []
     from gearcontact_fmu import cost
     from gearcontact_fmu.contact_map import get_map, map_workers, pairing_revolutions, wheel_faults
-    from gearcontact_fmu.gearpair import build_pcm_pair
+    from gearcontact_fmu.mesh_models.pcm import build_pcm_pair
     from gearcontact_fmu.params import substeps
 
     ss = (spec.metadata or {}).get("steady_state") or {}

@@ -39,6 +39,7 @@ from drivetrain.rig.signals import characteristic_frequencies
 from drivetrain.errors import NativeBuildError, StartStateError
 from drivetrain.system import ComponentSpec, Connection, SystemSpec
 from gearcontact_fmu.manufacturing_specs import draw_errors, errors_of
+from gearcontact_fmu.mesh_models import DEFAULT_FIDELITY
 from gearcontact_fmu.params import GEAR_MODEL, BevelGearParams, PCMParams
 
 #: Sensor variables per configuration (docs/DRIVETRAIN.md, "Sensors").
@@ -111,7 +112,7 @@ def initial_mesh_deflection(T_msh: float, fidelity: str) -> float:
     if fidelity == "ideal":
         return 0.0
     try:
-        from gearcontact_fmu.analytic import mesh_stiffness
+        from gearcontact_fmu.mesh_models.analytic import mesh_stiffness
         from gearcontact_fmu.params import BevelGearParams, backlash_angle
 
         g = BevelGearParams()
@@ -139,17 +140,17 @@ def gearbox_name(scene) -> str:
 def start_mesh_model(gear: dict, build_map: bool = False):
     """(the mesh model whose static deflection the gear starts at, how the start was found): the model the
     GearContact FMU builds from these parameters (``fmu_parameters.build_mesh_model``'s translation over
-    the slave's defaults). A table map is taken from the cache or the shipped maps only, unless
+    the FMU's declared defaults, ``gearcontact_fmu.fmu_variables.parameter_values``). A table map is taken from the cache or the shipped maps only, unless
     ``build_map`` (the cost checks come after the assembly; drivetrain.run.runner assembles again with
     ``build_map`` after them). ``pcm`` starts at its shipped table map, the same contact law tabulated
     (building the online pair costs seconds, its first evaluation a compile; only a shipped map, so the
     start does not depend on what a cache holds). (None, reason) for the ideal gear (no mesh
     coordinate) and when there is no map to use."""
-    fidelity = str(gear.get("fidelity", "")).strip().lower()
+    fidelity = str(gear.get("fidelity", DEFAULT_FIDELITY)).strip().lower()
     if fidelity == "ideal":
         return None, "rigid"
     from gearcontact_fmu.fmu_parameters import stage_arguments
-    from gearcontact_fmu.slaves.GearContact import parameter_values
+    from gearcontact_fmu.fmu_variables import parameter_values
     from gearcontact_fmu.stage import stage_mesh_model
 
     args, kw = stage_arguments(parameter_values({**gear, "fidelity": "table" if fidelity == "pcm" else fidelity}))
@@ -167,14 +168,14 @@ def start_wheel_angle(gear: dict, ss, theta_p: float, errors, build_map: bool = 
     on the pinion at ``theta_p`` (errors and friction at the start speeds included); the analytic guess
     :func:`initial_mesh_deflection` brackets the search, and is the start when there is no model to search
     or no load (every position inside the backlash balances: the drive flank's onset, as always)."""
-    fidelity = str(gear.get("fidelity", "")).strip().lower()
+    fidelity = str(gear.get("fidelity", DEFAULT_FIDELITY)).strip().lower()
     s0 = initial_mesh_deflection(ss.T_msh, fidelity)
     model, how = start_mesh_model(gear, build_map)
     if ss.T_msh == 0.0:
         model, how = None, "unloaded: at the drive flank's onset"
     if model is not None:
-        from gearcontact_fmu.fidelity import StartStateError as NoPosition
-        from gearcontact_fmu.fidelity import balanced_wheel_angle
+        from gearcontact_fmu.mesh_statics import StartStateError as NoPosition
+        from gearcontact_fmu.mesh_statics import balanced_wheel_angle
 
         k_a = float(gear["k_a"])
         tau_port = k_a * (-ss.T_msh / k_a)             # the port spring's torque on the pinion, as twisted

@@ -86,6 +86,8 @@ def predict(spec: SystemSpec, duration_s: float, backend: str = "fmi", contact_r
     H = float(spec.comm_step)
     steps = duration_s / H
     gears = spec.components_of(GEAR_MODEL)
+    # a gear without a fidelity is priced as pcm (the costliest), though its FMU runs mesh_models.DEFAULT_FIDELITY
+    # (analytic): kept, reading the default would change the prediction of such a spec (issue 44)
     subs = [(str(c.parameters.get("fidelity", "pcm")), _gear_max_substep_s(c)) for c in gears]
     n_subs = [(model, steps * substeps(H, sub)) for model, sub in subs]
     n_sub = float(sum(n for _, n in n_subs))

@@ -531,9 +531,9 @@ def fault_contact_labels(spec: SystemSpec, warnings: list | None = None) -> list
     from gearcontact_fmu import fault_contact as fc
     from gearcontact_fmu.contact_map import get_map
     from gearcontact_fmu.fmu_parameters import stage_arguments
-    from gearcontact_fmu.gearpair import fault_kwargs_of
+    from gearcontact_fmu.fmu_variables import parameter_values
+    from gearcontact_fmu.mesh_models.pcm import fault_kwargs_of
     from gearcontact_fmu.params import MapGrid
-    from gearcontact_fmu.slaves.GearContact import parameter_values
 
     torque = float(steady["T_msh"])
     out = [{"loaded_flank": fc.loaded_flank(torque), "contact_share": None, "mesh_torque_drop": None} for _ in specs]

@@ -70,6 +70,7 @@ from gearcontact_fmu.mesh_model import (
     STATUS_OK,
     STATUS_PENETRATION_EXCEEDED,
     MeshModel,
+    supports,
 )
 from gearcontact_fmu.params import BevelGearParams, PCMParams, backlash_angle
 
@@ -232,9 +233,14 @@ def make_analytic_data(gear: BevelGearParams | None = None, pcm: PCMParams | Non
 
 
 def make_analytic_model(gear_params: BevelGearParams | None = None, pcm_params: PCMParams | None = None,
-                        **kw):
-    """MeshModel of the analytic reference pair (fidelity "analytic"). Keywords: see
-    :func:`make_analytic_data`; unknown keywords are ignored (the factory passes stage options)."""
+                        resolution=None, health="healthy", mesh_files=None, **kw) -> MeshModel:
+    """MeshModel of the analytic reference pair (fidelity "analytic"). It models the healthy pair only
+    (``health`` other than healthy or ``mesh_files`` raise ValueError); ``resolution`` does not apply.
+    Keywords: see :func:`make_analytic_data`; unknown keywords are ignored (the factory passes stage
+    options)."""
+    if not supports("analytic", "teeth") and (health not in ("healthy", "", None) or mesh_files):
+        raise ValueError("the analytic mesh models the healthy pair only (health='healthy', "
+                         "no mesh files); use fidelity 'pcm' or 'table' for faults")
     gear = gear_params or BevelGearParams()
     names = ("damping_ratio", "c_mesh", "J_pinion", "J_wheel", "mu", "v_friction", "mesh_phase",
              "transition", "u_max")

@@ -256,3 +256,44 @@ def test_editing_a_host_only_module_marks_no_fmu_stale(tmp_path, monkeypatch):
     f = dirs["drivetrain"] / "models" / "components.py"
     f.write_text(f.read_text() + "\n# an edit\n")
     assert fmus.sources_hash() != before
+
+
+def _documented_files() -> set[str]:
+    """The source files docs/ARCHITECTURE.md's package tree names (paths under src/): a line's name column
+    (before the description, which starts past column 28) is a folder ending in "/" or one or more files."""
+    text = (SRC.parent / "docs" / "ARCHITECTURE.md").read_text()
+    block = text.split("```")[1]
+    folders: list[tuple[int, str]] = []
+    files = set()
+    for line in block.splitlines():
+        indent = len(line) - len(line.lstrip())
+        if not line.strip() or indent >= 28:
+            continue
+        name = re.match(r"[\w./-]+(?:,\s*[\w./-]+)*", line.strip()).group(0)
+        if name.endswith("/") and "," not in name:
+            folders = [(i, p) for i, p in folders if i < indent]
+            base = folders[-1][1] if folders else ""
+            folders.append((indent, name if name.startswith("src/") else base + name))
+            continue
+        base = next((p for i, p in reversed(folders) if i < indent), "")
+        sub = ""
+        for token in (t.strip() for t in name.split(",")):
+            if not re.fullmatch(r"[\w./-]+\.(py|c|h)", token):
+                continue
+            if "/" in token:
+                sub = token.rsplit("/", 1)[0] + "/"
+                files.add(base + token)
+            else:
+                files.add(base + sub + token)
+    return {f.removeprefix("src/") for f in files}
+
+
+def test_the_architecture_tree_names_every_source_file():
+    """docs/ARCHITECTURE.md's tree against the files: every module, C source and header under src/ is named
+    there (package __init__ and __main__ aside), and every file it names exists."""
+    every = {str(p.relative_to(SRC)) for ext in ("py", "c", "h") for p in SRC.rglob(f"*.{ext}")
+             if "data" not in p.relative_to(SRC).parts}
+    actual = {f for f in every if Path(f).name not in ("__init__.py", "__main__.py")}
+    documented = _documented_files()
+    assert not actual - documented, f"not in docs/ARCHITECTURE.md's tree: {sorted(actual - documented)}"
+    assert not documented - every, f"named in docs/ARCHITECTURE.md's tree but missing: {sorted(documented - every)}"

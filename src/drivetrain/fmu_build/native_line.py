@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Callable
 
 import gearcontact_fmu
+from gearcontact_fmu.mesh_models import DEFAULT_FIDELITY
 from gearcontact_fmu.params import GEAR_MODEL
 from drivetrain.errors import NativeBuildError
 from drivetrain.fmu_build.native_gear import (c_double, c_string, compile_and_pack, copy_shared_sources,
@@ -292,9 +293,9 @@ def system_gear(spec) -> tuple[dict | None, str | None]:
     if not gears:
         return None, "the system has no GearContact component"
     params = dict(gears[0].parameters)
-    # a gear without a fidelity is taken as table here, while its pythonfmu FMU runs mesh_models.DEFAULT_FIDELITY
-    # (analytic): kept, reading the default would change which FMU such a spec runs (issue 44)
-    fid = str(params.get("fidelity", "table")).strip().lower()
+    # a gear without a fidelity runs the FMU's default, mesh_models.DEFAULT_FIDELITY (not table: then its
+    # pythonfmu FMU and a native build would run two models)
+    fid = str(params.get("fidelity", DEFAULT_FIDELITY)).strip().lower()
     mode = str(params.get("mode", "stage")).strip().lower()
     if fid != "table" or mode != "stage":
         return None, (f"the scene's GearContact has fidelity {fid!r}, mode {mode!r}: the native GearContact "

@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 
 from drivetrain.scene.load import default_of
 from drivetrain.system import SystemSpec
+from gearcontact_fmu.mesh_models import DEFAULT_FIDELITY
 from gearcontact_fmu.params import GEAR_MODEL, substeps
 
 #: wall seconds per communication step of the master (loop overhead without the mesh model; native: the
@@ -86,9 +87,8 @@ def predict(spec: SystemSpec, duration_s: float, backend: str = "fmi", contact_r
     H = float(spec.comm_step)
     steps = duration_s / H
     gears = spec.components_of(GEAR_MODEL)
-    # a gear without a fidelity is priced as pcm (the costliest), though its FMU runs mesh_models.DEFAULT_FIDELITY
-    # (analytic): kept, reading the default would change the prediction of such a spec (issue 44)
-    subs = [(str(c.parameters.get("fidelity", "pcm")), _gear_max_substep_s(c)) for c in gears]
+    # a gear without a fidelity runs the FMU's default, mesh_models.DEFAULT_FIDELITY: priced as that
+    subs = [(str(c.parameters.get("fidelity", DEFAULT_FIDELITY)), _gear_max_substep_s(c)) for c in gears]
     n_subs = [(model, steps * substeps(H, sub)) for model, sub in subs]
     n_sub = float(sum(n for _, n in n_subs))
     model = ", ".join(dict.fromkeys(m for m, _ in subs)) or "none"

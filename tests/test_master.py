@@ -11,6 +11,7 @@ import pytest
 from _cosim_test_fmus import build_test_fmus
 import drivetrain.cosim as M
 from drivetrain.cosim import ConfigurationError, CosimError, Master, simulate
+from drivetrain.cosim.observers import Observer
 from drivetrain.fmu_build.fmus import stamp_path
 from drivetrain.system import ComponentSpec, Connection, SystemSpec
 
@@ -178,6 +179,77 @@ def test_staleness_keyed_on_source_hash(tmp_path, fmus, monkeypatch):
 def test_per_step_cost_is_reported(fmus):
     r = simulate(two_mass(), 0.5, 3000.0, fmu_paths=fmus)
     assert r.loop_time_s > 0 and 0 < r.us_per_step < 2000
+
+
+class ChunkLog(Observer):
+    """A caller's observer, written against the interface only (no change to the master): it keeps every
+    hook call it sees."""
+
+    def __init__(self, pause_at=()):
+        self.pause_at = list(pause_at)
+        self.info, self.chunks, self.ends, self.rows_seen = None, [], [], []
+
+    def started(self, info):
+        self.info = info
+
+    def next_call(self, k):
+        return next((p for p in self.pause_at if p > k), None)
+
+    def stepped(self, chunk):
+        self.chunks.append((chunk.k0, chunk.k, chunk.time_s))
+        self.rows_seen.append(self.info.rows[chunk.k].copy())   # the outputs at t = k H, as the loop left them
+
+    def finished(self, end):
+        self.ends.append(end)
+
+
+@pytest.mark.parametrize("backend", ["fmi", "inprocess"])     # the C loop and the Python loop
+def test_a_callers_observer_sees_every_chunk_and_the_final_time(fmus, backend):
+    """Adding an observer touches no loop code: one passed to Master.run is called at the start, after
+    every chunk (contiguous chunks of many steps, never per step, ending where the caller asked) and at the
+    end with the final time; the results are those of a run without it."""
+    from drivetrain.cosim.master import CHUNK_STEPS
+
+    spec, rec = two_mass(), ["b.flange_w", "s.flange_a_tau"]
+    obs = ChunkLog(pause_at=[5000])
+    r = Master(spec, backend=backend, fmu_paths=fmus).run(1.0, 3000.0, rec, progress=False, keep_raw=True,
+                                                         observers=[obs])
+    assert r.n_steps == 12000 and obs.info.n_steps == 12000 and obs.info.H == H12
+    ks = [(k0, k) for k0, k, _ in obs.chunks]
+    assert ks[0][0] == 0 and ks[-1][1] == r.n_steps
+    assert all(a[1] == b[0] for a, b in zip(ks, ks[1:]))                 # contiguous: every step once
+    assert [k for _, k in ks] == [4096, 5000, 9096, 12000]               # chunks of CHUNK_STEPS, cut at 5000
+    assert all(k - k0 <= CHUNK_STEPS for k0, k in ks)
+    assert [t for *_, t in obs.chunks] == [k * H12 for _, k in ks]
+    assert len(obs.ends) == 1 and obs.ends[0].failure is None and not obs.ends[0].aborted
+    assert obs.ends[0].k_done == r.n_steps and obs.ends[0].time_s == pytest.approx(r.sim_time_s, rel=1e-12)
+    cols = obs.info.plan.y_names
+    for (_, k), row in zip(ks, obs.rows_seen):
+        assert np.array_equal(row, [r.raw[n][k] for n in cols])          # the rows as the loop wrote them
+    plain = simulate(spec, 1.0, 3000.0, rec, backend=backend, fmu_paths=fmus, keep_raw=True)
+    for n in plain.raw:
+        assert np.array_equal(plain.raw[n], r.raw[n])                     # bit for bit
+
+
+def test_observers_are_told_of_a_failure(fmus):
+    spec = two_mass(b_params={"fail_at_s": 0.5, "fail_mode": 1})
+    obs = ChunkLog()
+    with pytest.raises(CosimError) as ei:
+        simulate(spec, 1.0, 3000.0, ["b.flange_w"], fmu_paths=fmus, progress=False, observers=[obs])
+    (end,) = obs.ends
+    assert end.failure is ei.value and not end.aborted
+    assert end.k_done == ei.value.partial.failure["steps_completed"]
+    assert [k for _, k, _ in obs.chunks] == [4096]          # the failed chunk is not reported as stepped
+    assert 4096 < end.k_done < 8192
+
+
+def test_observers_are_told_of_an_abort(fmus):
+    obs = ChunkLog()
+    with pytest.raises(KeyboardInterrupt):
+        Master(two_mass(), fmu_paths=fmus).run(1.0, 3000.0, progress=False, observers=[obs],
+                                               stop_check=lambda: True)
+    (end,) = obs.ends
+    assert end.aborted and end.k_done == 4096 and len(obs.chunks) == 1
 
 
 GEAR_SLAVE = Path(__file__).resolve().parents[1] / "src" / "gearcontact_fmu" / "slaves" / "GearContact.py"

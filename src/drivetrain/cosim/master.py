@@ -20,6 +20,11 @@ What it does, in order (see ``docs/MASTER.md``):
    communication point with one ``numpy.take`` into a preallocated buffer; then per FMU one batched
    ``fmi2SetReal`` (preallocated value-reference array), ``fmi2DoStep``, one batched ``fmi2GetReal``
    (raw ctypes calls, no per-step allocation). Every output is recorded at the internal rate 1/H.
+   The steps run in chunks of up to ``CHUNK_STEPS`` (one call into the C loop each, ``cosim/stepper``);
+   between chunks, never per step, the loop calls its **observers** (:mod:`drivetrain.cosim.observers`:
+   the hooks ``started``, ``next_call``, ``stepped``, ``finished``): the recorder (energy counters,
+   ``final`` and ``snapshots`` reads, then the decimated signals), the progress bar, the loop's clock, and
+   any the caller passes (``Master.run(observers=...)``); adding one touches no loop code.
    A status >= discard from any call stops the run with :class:`CosimError` naming the FMU, the FMI
    function, the time and the FMU's log; what was computed is not lost: the error's ``partial`` is the
    :class:`CosimResult` of the completed part (``status "failed"``, ``failure``: time, FMU, function,
@@ -49,11 +54,21 @@ import numpy as np
 
 from drivetrain.cosim.energy import energy_audit, energy_unavailable
 from drivetrain.fmu_build.fmus import FMUInfo, ensure_fmus, fmu_dir_or_default, load_fmu_info
-from drivetrain.cosim.plan import ExchangePlan, check_comm_step, check_system, is_profile, split_ref
+from drivetrain.cosim.observers import (
+    NUMERIC_TYPES,
+    Chunk,
+    LoopClock,
+    LoopEnd,
+    LoopInfo,
+    Observer,
+    Progress,
+    Recorder,
+    read_guarded,
+)
+from drivetrain.cosim.plan import ExchangePlan, check_comm_step, check_system, is_profile
 from drivetrain.cosim.slaves import FmiCallbacks, FmiSlave, InprocSlave, Slave
 from drivetrain.cosim.stepper import CALLS, Stepper, load_stepper
 from drivetrain.errors import FMI_STATUS, ConfigurationError, CosimError, RunInterrupted
-from drivetrain.rig.signals import decimate
 from drivetrain.system import SystemSpec
 
 #: messages for the user (progress, warnings); the CLI passes its own ``log``, a library caller sees them
@@ -112,63 +127,16 @@ def failure_cause(exc: CosimError) -> str:
     return f"{exc.function} returned {st} (the FMU logged nothing)"
 
 
-#: the FMI types read as numbers (Slave.get_values): measurements, counters, switches
-NUMERIC_TYPES = ("Real", "Integer", "Boolean")
-
-
 def _real_outputs(info: FMUInfo) -> list[str]:
     """Every numeric output (Real, and the Integer counters and Boolean flags) of an FMU."""
     return [n for n, v in info.variables.items() if v.causality == "output" and v.type in NUMERIC_TYPES]
 
 
-def _readable(plan: ExchangePlan, names: Sequence[str]) -> list[str]:
-    """The "component.variable" names (numeric: Real, Integer, Boolean) that exist in the plan's FMUs."""
-    infos = {c.name: info for c, info in zip(plan.comps, plan.infos)}
-    out = []
-    for ref in dict.fromkeys(names):
-        comp, vn = split_ref(ref)
-        v = infos[comp].variables.get(vn) if comp in infos else None
-        if v is not None and v.type in NUMERIC_TYPES:
-            out.append(ref)
-    return out
-
-
-def _read_guarded(slave: Slave, names: Sequence[str]) -> dict[str, float] | None:
-    """{name: value} read from one FMU, or None when it cannot answer (failed fatally, refuses, raises)."""
-    if not names or slave.fatal:
-        return None
-    try:
-        return {n: float(v) for n, v in zip(names, slave.get_values(list(names)))}
-    except Exception:  # noqa: BLE001 - reading after a failure must never mask the failure
-        return None
-
-
-def _read_values(slaves: Sequence[Slave], plan: ExchangePlan, names: Sequence[str]) -> dict[str, float]:
-    """Values of "component.variable" names, one guarded read per component."""
-    by_comp: dict[str, list[str]] = {}
-    for ref in names:
-        comp, vn = split_ref(ref)
-        by_comp.setdefault(comp, []).append(vn)
-    out = {}
-    for s in slaves:
-        if s.name in by_comp:
-            got = _read_guarded(s, by_comp[s.name])
-            for vn, v in (got or {}).items():
-                out[f"{s.name}.{vn}"] = v
-    return out
-
-
-def _energy_reads(plan: ExchangePlan, slaves: Sequence[Slave]) -> list[dict]:
-    """Every FMU's energy counters now (per component: {name: value})."""
-    return [dict(zip(plan.energy[i], s.get_reals(list(plan.energy[i])))) if plan.energy[i] else {}
-            for i, s in enumerate(slaves)]
-
-
 # --------------------------------------------------------------------------------------------------
-# The run's parts: time grid, exchange buffers, the loop, and its observers (recorder, progress, clock)
+# The run's parts: time grid, exchange buffers, the loop (its observers: drivetrain.cosim.observers)
 # --------------------------------------------------------------------------------------------------
 
-#: steps per chunk of the loop: the observers (snapshots, progress, stop_check, the clock) act between chunks
+#: steps per chunk of the loop: the observers (and the stop requests, stop_check) act between chunks
 CHUNK_STEPS = 4096
 
 
@@ -268,117 +236,6 @@ class _Exchange:
         self.read_all(slaves)
 
 
-class _Recorder:
-    """The observer that keeps the results: every exchanged value at the internal rate (``rec``, row k at
-    t = k H), the energy counters at the start and the end, the ``final`` names after the last step (or
-    at a failure) and at the ``snapshots`` (read between chunks: no cost per step)."""
-
-    def __init__(self, plan: ExchangePlan, grid: _Grid, record: Sequence[str], final: Sequence[str],
-                 snapshots: Sequence[float]):
-        self.plan, self.grid, self.record = plan, grid, record
-        self.rec = np.empty((grid.n_steps + 1, len(plan.y_names)))
-        self.final = _readable(plan, final)
-        H, T = grid.H, grid.T
-        self.snap_steps = sorted({int(round(ts / H)) for ts in snapshots if 0 < ts < T}) if self.final else []
-        self.snapshots: dict[float, dict[str, float]] = {}
-        self.final_values: dict[str, float] = {}
-        self.e0: list[dict] = []
-        self.e1: list[dict] = []
-
-    def start(self, slaves: Sequence[Slave], y: np.ndarray) -> None:
-        self.rec[0] = y[:len(self.plan.y_names)]
-        self.e0 = _energy_reads(self.plan, slaves)
-
-    def chunk_end(self, slaves: Sequence[Slave], k: int, k_end: int) -> int:
-        """Where the chunk from step k ends: at the next snapshot; one due is read now (t = k H)."""
-        snap = self.snap_steps
-        if snap:
-            if snap[0] <= k:                 # read after step k-1 (at t = k H)
-                self.snapshots[k * self.grid.H] = _read_values(slaves, self.plan, self.final)
-                snap.pop(0)
-            if snap:
-                k_end = min(k_end, snap[0])
-        return k_end
-
-    def finish(self, slaves: Sequence[Slave]) -> None:
-        self.e1 = _energy_reads(self.plan, slaves)
-        self.final_values = _read_values(slaves, self.plan, self.final)
-
-    def after_failure(self, slaves: Sequence[Slave]) -> None:
-        self.final_values = _read_values(slaves, self.plan, self.final)
-
-    def signals(self, k_done: int, anti_alias: str) -> tuple[dict, dict]:
-        """The recorded names at the output rate (anti-aliased, decimated) and their units."""
-        plan, valid = self.plan, self.rec[:k_done + 1]
-        col = {n: j for j, n in enumerate(plan.y_names)}
-        units, signals = {}, {}
-        if self.record:
-            cols = [col[r] for r in self.record]
-            dec = decimate(valid[:, cols], 1.0 / self.grid.H, self.grid.output_rate_Hz, method=anti_alias)
-            for j, r in enumerate(self.record):
-                signals[r] = dec[:, j]
-                comp, vn = split_ref(r)
-                units[r] = plan.infos[[c.name for c in plan.comps].index(comp)].variables[vn].unit
-        return signals, units
-
-    def raw(self, k_done: int) -> dict[str, np.ndarray]:
-        """The internal-rate records of the completed steps ("time" + every exchanged name)."""
-        valid = self.rec[:k_done + 1]
-        raw = {"time": np.arange(k_done + 1) * self.grid.H}
-        raw.update({n: valid[:, j].copy() for j, n in enumerate(self.plan.y_names)})
-        return raw
-
-
-class _Progress:
-    """The progress reporter: a tqdm bar, by default (``show`` None) for every run whose loop lasts more than
-    2 s (it appears then); ``show`` True: from the start; False: none."""
-
-    def __init__(self, grid: _Grid, show: bool | None):
-        self.bar = None
-        if show is not False:
-            from tqdm import tqdm
-
-            self.bar = tqdm(total=grid.n_steps, unit="step", unit_scale=True, desc=f"co-sim {grid.T:g} s",
-                            mininterval=0.5, leave=False, delay=0.0 if show else 2.0)
-
-    def update(self, n: int) -> None:
-        if self.bar is not None:
-            self.bar.update(n)
-
-    def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
-
-
-class _LoopClock:
-    """The stepping loop's wall and CPU time, and its cost per step in each chunk."""
-
-    def __init__(self):
-        self.t0 = self.cpu0 = 0.0
-        self.loop_s = 0.0
-        self.cpu_s: float | None = None
-        self.chunk_costs: list[float] = []
-        self._running = False
-
-    def start(self) -> None:
-        self.t0, self.cpu0, self._running = time.perf_counter(), time.process_time(), True
-
-    def chunk(self, t_chunk: float, n: int) -> None:
-        self.chunk_costs.append((time.perf_counter() - t_chunk) / n)
-
-    def stop(self) -> None:
-        """The loop's times, taken once (a failure after the loop keeps them)."""
-        if self._running:
-            self.loop_s = time.perf_counter() - self.t0
-            self.cpu_s = time.process_time() - self.cpu0
-            self._running = False
-
-    def us_per_step_steady(self, k_done: int) -> float:
-        """Median over the chunks, the first (JIT warm-up) excluded."""
-        steady = self.chunk_costs[1:] if len(self.chunk_costs) > 1 else self.chunk_costs
-        return 1e6 * float(np.median(steady)) if steady else 1e6 * self.loop_s / max(k_done, 1)
-
-
 # --------------------------------------------------------------------------------------------------
 # Failure handling
 # --------------------------------------------------------------------------------------------------
@@ -406,7 +263,13 @@ class _Stop:
 
 def _failed_outputs(slaves: Sequence[Slave], plan: ExchangePlan) -> dict[str, dict | None]:
     """Every FMU's numeric outputs as it still exposes them after a failure (None where it cannot answer)."""
-    return {s.name: _read_guarded(s, _real_outputs(info)) for s, info in zip(slaves, plan.infos)}
+    return {s.name: read_guarded(s, _real_outputs(info)) for s, info in zip(slaves, plan.infos)}
+
+
+def _finished(observers: Sequence[Observer], end: LoopEnd) -> None:
+    """Every observer's ``finished``, the last registered first."""
+    for o in reversed(observers):
+        o.finished(end)
 
 
 def _check_finite(rec: np.ndarray, stop: _Stop, plan: ExchangePlan, H: float) -> _Stop:
@@ -448,12 +311,16 @@ def _failure_record(stop: _Stop, last_sample_time_s: float) -> dict:
 
 class _Loop:
     """Fixed-step Jacobi stepping of the slaves: gather the inputs from the outputs of the previous
-    communication point, then per FMU set inputs, do the step, get outputs, each status checked; the
-    observers act between chunks. The C loop (drivetrain.cosim.stepper) runs the chunks of compiled-FMI
-    slaves, else the Python loop does: the same calls in the same order, the same values."""
+    communication point, then per FMU set inputs, do the step, get outputs, each status checked, and the
+    outputs written into ``rec`` (row k at t = k H; row 0 the initialised FMUs' outputs). The observers
+    (drivetrain.cosim.observers) are called between chunks, never per step. The C loop
+    (drivetrain.cosim.stepper) runs the chunks of compiled-FMI slaves, else the Python loop does: the same
+    calls in the same order, the same values."""
 
-    def __init__(self, slaves: Sequence[Slave], xc: _Exchange, rec: np.ndarray, grid: _Grid):
-        self.slaves, self.xc, self.rec, self.H = slaves, xc, rec, grid.H
+    def __init__(self, slaves: Sequence[Slave], xc: _Exchange, grid: _Grid):
+        self.slaves, self.xc, self.H = slaves, xc, grid.H
+        self.rec = rec = np.empty((grid.n_steps + 1, xc.ny))
+        rec[0] = xc.y[:xc.ny]
         self.calls = [(s.set_fn, s.step_fn, s.get_fn, i) for i, s in enumerate(slaves)]
         self.k = 0                   # steps completed (at a failure: the failed step's index)
         self.stepper = None
@@ -463,19 +330,24 @@ class _Loop:
                 self.stepper = Stepper(fn, slaves, grid.H, xc.y, xc.u, xc.plan.gather, xc.ext_idx,
                                        xc.ext_table, rec, xc.ny)
 
-    def run(self, n_steps: int, recorder: _Recorder, clock: _LoopClock, progress: _Progress,
-            stop_check: Callable[[], bool] | None) -> None:
+    def run(self, n_steps: int, observers: Sequence[Observer], stop_check: Callable[[], bool] | None) -> None:
+        """Steps 0 .. n_steps-1 in chunks; after each, every observer's ``stepped`` (last registered first)."""
         step_chunk = self._python_chunk if self.stepper is None else self._c_chunk
         k = 0
+        late_first = observers[::-1]
         _StopRequest.reason, _StopRequest.in_loop = None, True
         try:
             while k < n_steps:
-                t_chunk = time.perf_counter()
-                k_end = recorder.chunk_end(self.slaves, k, min(n_steps, k + CHUNK_STEPS))
+                k_end = min(n_steps, k + CHUNK_STEPS)
+                for o in observers:
+                    want = o.next_call(k)
+                    if want is not None and k < want < k_end:
+                        k_end = want
                 step_chunk(k, k_end)
                 self.k = k_end
-                clock.chunk(t_chunk, k_end - k)
-                progress.update(k_end - k)
+                chunk = Chunk(k, k_end, k_end * self.H)
+                for o in late_first:
+                    o.stepped(chunk)
                 k = k_end
                 if _StopRequest.reason is not None and k < n_steps:
                     raise RunInterrupted(_StopRequest.reason, k * self.H)
@@ -622,7 +494,7 @@ class Master:
     def run(self, duration_s: float, output_rate_Hz: float, record: Sequence[str] = (), *,
             progress: bool | None = None, anti_alias: str = "fir", keep_raw: bool = False,
             stop_check: Callable[[], bool] | None = None, final: Sequence[str] = (),
-            snapshots: Sequence[float] = ()) -> CosimResult:
+            snapshots: Sequence[float] = (), observers: Sequence[Observer] = ()) -> CosimResult:
         """Simulate ``duration_s`` and return the recorded variables at ``output_rate_Hz``.
 
         ``record``: "component.variable" names (Real) to return. ``progress``: tqdm bar (default: shown
@@ -631,7 +503,9 @@ class Master:
         at a failure) into ``CosimResult.final``, e.g. cumulative counters; names the FMUs do not have
         are skipped. ``snapshots``: times [s] at which the same names are also read (at the
         communication point nearest each, chunk boundaries: no cost per step), into
-        ``CosimResult.snapshots`` ({time: {name: value}}).
+        ``CosimResult.snapshots`` ({time: {name: value}}). ``observers``: the caller's
+        :class:`~drivetrain.cosim.observers.Observer` objects, called by the loop between chunks beside
+        the master's own (recorder, progress, clock; see :mod:`drivetrain.cosim.observers`).
 
         An FMU failing during the stepping loop (or a non-finite output) raises :class:`CosimError`
         whose ``partial`` is the CosimResult of the completed part: ``status == "failed"``, the
@@ -647,42 +521,45 @@ class Master:
         grid = _Grid.covering(duration_s, H, check_comm_step(H, output_rate_Hz), output_rate_Hz)
         plan = self._plan(record)
         xc = _Exchange(plan, grid)
-        recorder = _Recorder(plan, grid, record, final, snapshots)
-        clock = _LoopClock()
+        recorder, clock = Recorder(record, final, snapshots), LoopClock()
+        # started in this order, stepped and finished in the reverse: the clock innermost (the loop alone)
+        chain = [recorder, Progress(progress), *observers, clock]
         slaves: list[Slave] = []
         stop = None
         try:
-            stop = self._step(plan, grid, slaves, xc, recorder, clock, progress, stop_check)
+            stop = self._step(plan, grid, slaves, xc, chain, stop_check)
         finally:
             self._teardown(slaves, report=stop is not None and stop.fail is None)
         return self._result(plan, grid, slaves, recorder, clock, stop, anti_alias, keep_raw, t_wall0)
 
-    def _step(self, plan: ExchangePlan, grid: _Grid, slaves: list[Slave], xc: _Exchange, recorder: _Recorder,
-              clock: _LoopClock, progress: bool | None, stop_check: Callable[[], bool] | None) -> _Stop:
-        """Instantiate, initialise and step. An FMU failure in the stepping loop keeps what was computed
-        (rows up to the start of the failed step) and reads what the FMUs still expose (each read guarded:
-        a broken FMU must not crash this); one before the loop raises."""
+    def _step(self, plan: ExchangePlan, grid: _Grid, slaves: list[Slave], xc: _Exchange,
+              observers: list[Observer], stop_check: Callable[[], bool] | None) -> _Stop:
+        """Instantiate, initialise and step, the observers told at the start, after every chunk and at the
+        end. An FMU failure in the stepping loop keeps what was computed (rows up to the start of the failed
+        step) and reads what the FMUs still expose (each read guarded: a broken FMU must not crash this);
+        one before the loop raises."""
         self._instantiate(plan, slaves, grid.T)
         xc.bind(slaves)
         xc.initialise(slaves)
-        recorder.start(slaves, xc.y)
-        loop = _Loop(slaves, xc, recorder.rec, grid)
-        bar = _Progress(grid, progress)
-        clock.start()
+        loop = _Loop(slaves, xc, grid)
+        info = LoopInfo(grid.H, grid.n_steps, grid.steps_per_output, grid.output_rate_Hz, plan, slaves, loop.rec)
+        for o in observers:
+            o.started(info)
         try:
-            loop.run(grid.n_steps, recorder, clock, bar, stop_check)
-            clock.stop()
-            bar.close()
-            recorder.finish(slaves)
-            return _Stop(grid.n_steps)
+            loop.run(grid.n_steps, observers, stop_check)
+            stop = _Stop(grid.n_steps)
         except CosimError as exc:
-            clock.stop()                      # (kept when the loop had completed)
-            bar.close()
-            recorder.after_failure(slaves)
-            return _Stop(loop.k, exc, _failed_outputs(slaves, plan))
+            stop = _Stop(loop.k, exc)
+        except BaseException:
+            _finished(observers, LoopEnd(loop.k, loop.k * grid.H, aborted=True))
+            raise
+        _finished(observers, LoopEnd(stop.k_done, stop.k_done * grid.H, stop.fail))
+        if stop.fail is not None:
+            stop.outputs = _failed_outputs(slaves, plan)
+        return stop
 
-    def _result(self, plan: ExchangePlan, grid: _Grid, slaves: Sequence[Slave], recorder: _Recorder,
-                clock: _LoopClock, stop: _Stop, anti_alias: str, keep_raw: bool, t_wall0: float) -> CosimResult:
+    def _result(self, plan: ExchangePlan, grid: _Grid, slaves: Sequence[Slave], recorder: Recorder,
+                clock: LoopClock, stop: _Stop, anti_alias: str, keep_raw: bool, t_wall0: float) -> CosimResult:
         """The CosimResult of the completed part; after a failure it is the error's ``partial`` and the
         error is raised (without a partial when nothing was computed)."""
         stop = _check_finite(recorder.rec, stop, plan, grid.H)
@@ -722,8 +599,9 @@ class Master:
 def simulate(spec: SystemSpec, duration_s: float, output_rate_Hz: float, record: Sequence[str] = (), *,
              backend: str = "fmi", fmu_dir: str | Path | None = None, fmu_paths=None, build: bool = True,
              progress: bool | None = None, anti_alias: str = "fir", keep_raw: bool = False,
-             final: Sequence[str] = (), snapshots: Sequence[float] = ()) -> CosimResult:
+             final: Sequence[str] = (), snapshots: Sequence[float] = (),
+             observers: Sequence[Observer] = ()) -> CosimResult:
     """One-call form of :class:`Master`."""
     return Master(spec, fmu_dir=fmu_dir, backend=backend, fmu_paths=fmu_paths, build=build).run(
         duration_s, output_rate_Hz, record, progress=progress, anti_alias=anti_alias, keep_raw=keep_raw,
-        final=final, snapshots=snapshots)
+        final=final, snapshots=snapshots, observers=observers)

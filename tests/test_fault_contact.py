@@ -31,14 +31,14 @@ def regions():
 
 @pytest.fixture(scope="module")
 def points():
-    return contact_points(G, PCMParams(), MeshResolution(), T_EXAMPLE, n_angles=96)
+    return contact_points(G, PCMParams(), MeshResolution(), T_EXAMPLE, n_angles=64)
 
 
 def test_a_tooth_is_in_contact_for_the_contact_ratio(points):
     """ISO 10300's virtual spur gear gives the transverse contact ratio epsilon_alpha: tooth 0 of either gear
     carries load over epsilon_alpha pinion pitches (at this light load within 0.1 pitch)."""
     eps = virtual_spur_gears(G)["eps_alpha"]
-    step = (1.3 + 1.2) * PITCH / 95
+    step = (1.3 + 1.2) * PITCH / 63
     for member in ("pinion", "wheel"):
         th = np.unique(points[member][:, 2])
         span = (th.max() - th.min() + step) / PITCH

@@ -394,7 +394,8 @@ def test_the_mesh_torque_is_continuous_across_the_backlash_in_every_gearbox():
     with errors is continuous in the mesh coordinate s at any pinion angle. Scanned across both flanks'
     onsets in steps of 0.1 urad, a continuous torque changes from one step to the next by about as much as
     at the steps beside it (its slope); a jump is a step over 0.05 N.m and over 4 times both neighbouring
-    steps. Over 40 drawn gearboxes (grade 6, runout) and 48 pinion angles each, plus seed 42: no jump.
+    steps. Over 20 drawn gearboxes (grade 6, runout) and 32 pinion angles each, plus seed 42: no jump (the fix
+    was measured on 40 x 48: the old kernel jumped in seeds 1, 4, 8, 14 and 38 among others, up to 1,970 N.m).
     Before the flank of the two-pair offset was chosen at the offset mesh's backlash centre, it was chosen
     at s = 0, and a gearbox whose errors close the backlash past 0 saw its drive-flank torque jump there
     (seed 42 at 11.9 N.m: 0 -> 32.5 N.m on the pinion)."""
@@ -421,11 +422,11 @@ def test_the_mesh_torque_is_continuous_across_the_backlash_in_every_gearbox():
 
     s = np.arange(-4e-3, 4e-3, 1e-7)
     jumps = []
-    for seed in list(range(40)) + [42]:
+    for seed in list(range(20)) + [42]:
         spec = assemble_scene(default_scene(effects__manufacturing_errors=True, manufacturing__seed=seed,
                                             time__duration_s=0.01))
         model, _ = start_mesh_model(spec.components_of("GearContact")[0].parameters)
-        for tp in np.linspace(0.0, 2 * math.pi, 48, endpoint=False) + 0.013 * seed:
+        for tp in np.linspace(0.0, 2 * math.pi, 32, endpoint=False) + 0.013 * seed:
             j = largest_jump(model.eval, model.data, tp, s, G.z_wheel / G.z_pinion)
             if j > 0.0:
                 jumps.append((j, seed, float(tp)))

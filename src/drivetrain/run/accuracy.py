@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from drivetrain.rig.data import TORQUE_SENSORS
 from drivetrain.rig.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies, to_db
 from drivetrain.scene.load import parse_override, with_overrides
 from drivetrain.scene.schema import default_of
@@ -39,7 +40,7 @@ from gearcontact_fmu.mesh_model import PAPER_HEALTH
 
 ROOT = Path(__file__).resolve().parents[3]
 RESULTS_FILE = Path(__file__).resolve().parents[1] / "data" / "accuracy_cost.json"
-CHANNELS = ("drive_shaft_torque", "propeller_shaft_torque")
+CHANNELS = TORQUE_SENSORS
 STUDY_DURATION_S = 4.5
 STUDY_SETTLE_S = 0.5
 #: a reference sideband counts (and constrains a setting) only this far above the spectrum's floor [dB]
@@ -131,7 +132,7 @@ STUDY_SCENES["wheel_void_1500rpm"] = ("scenarios/faults/wheel_void_1500rpm.toml"
                                       "void on wheel tooth 38, 1500 rpm, 1.31 N·m")
 
 _COMMON = (f"time.duration_s={STUDY_DURATION_S}", f"time.settle_s={STUDY_SETTLE_S}", "outputs.plots=false",
-           'outputs.sensors=["drive_shaft_torque", "propeller_shaft_torque"]')
+           f"outputs.sensors={json.dumps(list(TORQUE_SENSORS))}")
 
 
 def run_name(scene: str, setting: str) -> str:

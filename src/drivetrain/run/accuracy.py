@@ -33,7 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from drivetrain.rig.data import TORQUE_SENSORS
-from drivetrain.rig.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies, to_db
+from drivetrain.rig.signals import (amplitude_near, amplitude_spectrum, characteristic_frequencies, spectrum_lowpass_Hz,
+                                    to_db)
 from drivetrain.scene.load import parse_override, with_overrides
 from drivetrain.scene.schema import default_of
 from gearcontact_fmu.mesh_model import PAPER_HEALTH
@@ -171,9 +172,9 @@ def compare(ref: dict, run: dict, fs: float, settle_s: float, speed_rpm: float, 
         r, x = r[:n], x[:n]
         mr, mx, sr, sx = r.mean(), x.mean(), r.std(), x.std()
         pr, px = np.ptp(r), np.ptp(x)
-        f, Ar = amplitude_spectrum(r, fs, lowpass_Hz=5.0 * cf["f_GMF"])
-        _, Ax = amplitude_spectrum(x, fs, lowpass_Hz=5.0 * cf["f_GMF"])
-        band = (f > 0) & (f <= 5.0 * cf["f_GMF"])
+        f, Ar = amplitude_spectrum(r, fs, lowpass_Hz=spectrum_lowpass_Hz(cf["f_GMF"]))
+        _, Ax = amplitude_spectrum(x, fs, lowpass_Hz=spectrum_lowpass_Hz(cf["f_GMF"]))
+        band = (f > 0) & (f <= spectrum_lowpass_Hz(cf["f_GMF"]))
         floor = float(np.median(Ar[band])) if band.any() else 0.0
         g_r, g_x = amplitude_near(f, Ar, cf["f_GMF"]), amplitude_near(f, Ax, cf["f_GMF"])
         sb = []

@@ -66,6 +66,13 @@ RIG_SENSORS: dict[str, tuple[str, str]] = {
 }
 TORQUE_SENSORS = ("drive_shaft_torque", "propeller_shaft_torque")
 
+#: The paper's operating points (the measured table's grid, MEASURED_CSV): drive speeds [rpm] ...
+PAPER_SPEEDS_RPM = (250.0, 500.0, 750.0, 1000.0, 1250.0, 1500.0)
+#: ... and load-motor torque settings [N·m], lightest first
+PAPER_LOADS_NM = (0.12, 0.71, 1.31)
+PAPER_MAX_SPEED_RPM = PAPER_SPEEDS_RPM[-1]      #: 1500 rpm
+PAPER_MAX_LOAD_NM = PAPER_LOADS_NM[-1]          #: 1.31 N·m
+
 FALLBACK_CALIBRATION = {
     "coupling_scale": 0.70,
     "upper": {"c_v": 1.5e-3, "T_c": 0.34, "w_c": 16.9, "a": 0.058},

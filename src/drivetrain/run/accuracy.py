@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drivetrain.rig.data import TORQUE_SENSORS
+from drivetrain.rig.data import PAPER_MAX_LOAD_NM, PAPER_MAX_SPEED_RPM, PAPER_SPEEDS_RPM, TORQUE_SENSORS
 from drivetrain.rig.signals import (amplitude_near, amplitude_spectrum, characteristic_frequencies, spectrum_lowpass_Hz,
                                     to_db)
 from drivetrain.scene.load import parse_override, with_overrides
@@ -126,8 +126,9 @@ _EXAMPLE = "scenarios/example.toml"
 #: name -> (scene file relative to the repository, overrides, what)
 STUDY_SCENES: dict[str, tuple[str, tuple[str, ...], str]] = {
     f"{h}_{n}rpm": (_EXAMPLE, (f"operating_point.drive_speed_rpm={n}", f"gear.health={h}",
-                               "operating_point.load_torque_Nm=1.31"), f"{h}, {n} rpm, 1.31 N·m")
-    for h in PAPER_HEALTH for n in (250, 1500)
+                               f"operating_point.load_torque_Nm={PAPER_MAX_LOAD_NM}"),
+                     f"{h}, {n} rpm, {PAPER_MAX_LOAD_NM} N·m")
+    for h in PAPER_HEALTH for n in (int(PAPER_SPEEDS_RPM[0]), int(PAPER_MAX_SPEED_RPM))   # 250, 1500
 }
 STUDY_SCENES["wheel_void_1500rpm"] = ("scenarios/faults/wheel_void_1500rpm.toml", (),
                                       "void on wheel tooth 38, 1500 rpm, 1.31 N·m")

@@ -989,9 +989,10 @@ def _parser_frontier(sub) -> None:
     p.add_argument("--kinds", nargs="+", choices=tuple(FAULT_KINDS), default=list(FAULT_KINDS),
                    help="fault kinds (default: all)")
     p.add_argument("--members", nargs="+", choices=D.MEMBERS, default=list(D.MEMBERS), help="gears (default: both)")
-    p.add_argument("--speeds", nargs="+", type=float, default=[500.0, 1500.0], help="drive speeds [rpm]")
-    p.add_argument("--loads", nargs="+", type=float, default=[0.12, 1.31, 11.9],
-                   help="load-motor torques [N·m] (default: 0.12 1.31 11.9, the paper's lightest to the load "
+    p.add_argument("--speeds", nargs="+", type=float, default=list(F.SPEEDS_RPM), help="drive speeds [rpm]")
+    p.add_argument("--loads", nargs="+", type=float, default=list(F.LOADS_NM),
+                   help="load-motor torques [N·m] (default: " + " ".join(f"{x:g}" for x in F.LOADS_NM)
+                        + ", the paper's lightest to the load "
                         "motor's nominal)")
     p.add_argument("--ladder", nargs="+", type=float, default=list(F.LADDER),
                    help="size factors of each kind's default sizes, smallest to severe (default: "

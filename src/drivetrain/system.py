@@ -15,8 +15,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-SPRING = "spring"
-INERTIA = "inertia"
+from gearcontact_fmu.params import INERTIA, SPRING  # noqa: F401  (the flange sides; re-exported)
 
 #: how a system runs: "fmi" (the pythonfmu FMUs through FMI, fmpy), "inprocess" (the same slave classes
 #: called directly, no FMI), "native" (compiled FMUs through FMI: drivetrain.fmu_build.native_line; a gear that is not

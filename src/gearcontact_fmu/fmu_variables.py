@@ -14,7 +14,8 @@ from __future__ import annotations
 from typing import Any, NamedTuple
 
 from gearcontact_fmu.mesh_models import DEFAULT_FIDELITY
-from gearcontact_fmu.params import MAP_GRID_RANGE, POSITIVE, BevelGearParams, MapGrid, MeshResolution, PCMParams
+from gearcontact_fmu.params import (MAP_GRID_RANGE, POSITIVE, SPRING, BevelGearParams, MapGrid, MeshResolution,
+                                    PCMParams, flange_variables)
 from gearcontact_fmu.stage import StageParams
 
 #: values of the ``initial_state`` parameter (the first is the default)
@@ -45,6 +46,8 @@ class Var(NamedTuple):
 
 
 PARAMETER, INPUT, OUTPUT = "parameter", "input", "output"
+#: the GearContact FMU's flanges flange_a (pinion) and flange_b (wheel), both spring side: name -> (causality, unit)
+_GEAR_FLANGES = {v: (c, u) for p in ("flange_a", "flange_b") for v, u, c in flange_variables(p, SPRING)}
 #: the largest fmi2Integer: a counter saturates there (2**31 - 1 sub-steps: ~6 h at 1e-5 s)
 INT_MAX = 2 ** 31 - 1
 
@@ -134,14 +137,16 @@ VARIABLES = (
         "twist of the flange_a port spring at the start time (pinion angle - flange_a angle)"),
     Var("twist_b_start", "Real", PARAMETER, "rad", 0.0,
         "twist of the flange_b port spring at the start time (wheel angle - flange_b angle)"),
-    Var("flange_a_phi", "Real", INPUT, "rad", 0.0,
+    Var("flange_a_phi", "Real", *_GEAR_FLANGES["flange_a_phi"], 0.0,
         "angle of the body connected to flange_a (middle shaft, pinion side)"),
-    Var("flange_a_w", "Real", INPUT, "rad/s", 0.0, "speed of the body connected to flange_a"),
-    Var("flange_b_phi", "Real", INPUT, "rad", 0.0,
+    Var("flange_a_w", "Real", *_GEAR_FLANGES["flange_a_w"], 0.0, "speed of the body connected to flange_a"),
+    Var("flange_b_phi", "Real", *_GEAR_FLANGES["flange_b_phi"], 0.0,
         "angle of the body connected to flange_b (propeller shaft, wheel side)"),
-    Var("flange_b_w", "Real", INPUT, "rad/s", 0.0, "speed of the body connected to flange_b"),
-    Var("flange_a_tau", "Real", OUTPUT, "N.m", 0.0, "torque applied to the body at flange_a (see output_torque)"),
-    Var("flange_b_tau", "Real", OUTPUT, "N.m", 0.0, "torque applied to the body at flange_b (see output_torque)"),
+    Var("flange_b_w", "Real", *_GEAR_FLANGES["flange_b_w"], 0.0, "speed of the body connected to flange_b"),
+    Var("flange_a_tau", "Real", *_GEAR_FLANGES["flange_a_tau"], 0.0,
+        "torque applied to the body at flange_a (see output_torque)"),
+    Var("flange_b_tau", "Real", *_GEAR_FLANGES["flange_b_tau"], 0.0,
+        "torque applied to the body at flange_b (see output_torque)"),
     Var("flange_a_tau_mean", "Real", OUTPUT, "N.m", 0.0, "exact mean over the last step of the torque at flange_a"),
     Var("flange_b_tau_mean", "Real", OUTPUT, "N.m", 0.0, "exact mean over the last step of the torque at flange_b"),
     Var("n_contact", "Real", OUTPUT, "1", 0.0, "pairs in contact (analytic), contact elements (pcm/table)"),

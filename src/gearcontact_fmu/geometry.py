@@ -812,8 +812,14 @@ def build_pair(params: BevelGearParams | None = None, resolution: MeshResolution
 
 # ----------------------------------------------------------------------------- exact kinematics
 
-def _profile_samples(g: GearGeometry, side: int, n: int):
-    """Dense unit-sphere points of one flank (root .. end of rounding), gear frame tooth 0."""
+#: The profile sampling rule of the exact kinematics (closure, backlash): a flank, root .. end of the tip
+#: rounding (profile parameter 0 .. ``L_flank``), at this many evenly spaced points (:func:`_profile_samples`)
+PROFILE_SAMPLES = 4000
+
+
+def _profile_samples(g: GearGeometry, side: int, n: int = PROFILE_SAMPLES):
+    """Dense unit-sphere points of one flank (root .. end of rounding), gear frame tooth 0: the profile
+    sampling rule (:data:`PROFILE_SAMPLES` evenly spaced points, profile parameter 0 .. ``L_flank``)."""
     s = np.linspace(0.0, g.L_flank, n)
     u, _, _ = g.profile_minus(s)
     if side == 1:
@@ -822,7 +828,7 @@ def _profile_samples(g: GearGeometry, side: int, n: int):
 
 
 def closure(thetas, flank: int = +1, params: BevelGearParams | None = None, pinion_geom=None, wheel_geom=None,
-            pinion_teeth=None, n_profile: int = 4000, return_per_tooth: bool = False):
+            pinion_teeth=None, n_profile: int = PROFILE_SAMPLES, return_per_tooth: bool = False):
     """Mesh coordinate s [rad] at which the flanks of the exact surfaces first touch, per pinion angle.
 
     For each pinion angle the wheel starts at the backlash-centred position (s = 0); the smallest wheel
@@ -869,7 +875,7 @@ def _closure_min(per_tooth, side):
 
 
 def unloaded_transmission_error(params: BevelGearParams | None = None, n_theta: int = 240, flank: int = +1,
-                                n_profile: int = 4000, pinion_geom=None, wheel_geom=None):
+                                n_profile: int = PROFILE_SAMPLES, pinion_geom=None, wheel_geom=None):
     """Unloaded TE over one pinion pitch with the backlash taken up (exact geometry).
 
     Returns dict: theta [rad], s [rad] (closure), te [m] = (s - mean) * r_e1 (a length at the outer
@@ -886,7 +892,7 @@ def unloaded_transmission_error(params: BevelGearParams | None = None, n_theta: 
 
 
 @lru_cache(maxsize=16)
-def backlash_angle_exact(params: BevelGearParams | None = None, n_profile: int = 4000) -> float:
+def backlash_angle_exact(params: BevelGearParams | None = None, n_profile: int = PROFILE_SAMPLES) -> float:
     """Free play of the exact geometry [rad at the pinion]: s_drive - s_coast at theta = 0."""
     params = params or BevelGearParams()
     sd = _closure_min(closure([0.0], +1, params, pinion_teeth=[-2, -1, 0, 1, 2], n_profile=n_profile,
@@ -897,7 +903,7 @@ def backlash_angle_exact(params: BevelGearParams | None = None, n_profile: int =
 
 
 def contact_ratio(params: BevelGearParams | None = None, flank: int = +1, tol: float = 1e-8,
-                  n_profile: int = 4000) -> float:
+                  n_profile: int = PROFILE_SAMPLES) -> float:
     """Transverse contact ratio from the exact geometry.
 
     The pinion angle range during which tooth 0 is one of the pairs in contact at the unloaded

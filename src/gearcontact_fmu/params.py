@@ -14,6 +14,22 @@ from dataclasses import dataclass
 
 #: the model name of the gear FMU (GearContact.fmu, its slave class, the native build's model)
 GEAR_MODEL = "GearContact"
+
+# The rotational flange connector of every FMU of the project (after Modelica.Mechanics.Rotational's
+# flanges): a port <name> is the three Real variables <name>_phi [rad], <name>_w [rad/s], <name>_tau [N.m].
+# On the spring side a port reads phi and w (inputs) and writes tau (output: the torque applied to the
+# connected body); on the inertia side the reverse. A connection joins a spring-side and an inertia-side port.
+FLANGE_QUANTITIES = ("phi", "w", "tau")
+FLANGE_UNITS = {"phi": "rad", "w": "rad/s", "tau": "N.m"}
+SPRING, INERTIA = "spring", "inertia"
+_FLANGE_INPUTS = {SPRING: ("phi", "w"), INERTIA: ("tau",)}
+
+
+def flange_variables(name: str, side: str) -> tuple[tuple[str, str, str], ...]:
+    """The flange ``name`` on ``side`` (:data:`SPRING` or :data:`INERTIA`): ((variable, unit, causality), ...)
+    in the order phi, w, tau; causality "input" or "output"."""
+    inputs = _FLANGE_INPUTS[side]
+    return tuple((f"{name}_{q}", FLANGE_UNITS[q], "input" if q in inputs else "output") for q in FLANGE_QUANTITIES)
 #: the default communication step of a co-simulation [s] (scene key numerics.comm_step_s, the FMUs'
 #: DefaultExperiment step size): 4 steps per output sample at the rig's ~3 kHz
 DEFAULT_COMM_STEP_S = 1.0 / 12000.0

@@ -164,7 +164,7 @@ def run_data(run: dict, settled_only: bool = False) -> tuple:
 
 def _add_paired_sbr(runs: list[dict]) -> None:
     """The SBR labels of the runs with a healthy twin (only those pairs' signals are read, a pair at a time)."""
-    from drivetrain.rig.indicators import paired_sbr, twin_groups
+    from drivetrain.rig.indicators import TORQUES, paired_sbr, twin_groups
 
     for members in twin_groups(runs):
         if len(members) < 2:
@@ -173,7 +173,7 @@ def _add_paired_sbr(runs: list[dict]) -> None:
         for r in members:
             time_s, signals, _ = run_data(r)
             loaded.append({"name": r["name"], "labels": r["labels"], "time": time_s, "signals": signals})
-        sbr = paired_sbr(loaded, ("propeller_shaft_torque", "drive_shaft_torque"))
+        sbr = paired_sbr(loaded, TORQUES)
         for r in members:
             r["labels"].update({f"SBR_dB.{sig}": v for sig, v in sbr.get(r["name"], {}).items()})
 

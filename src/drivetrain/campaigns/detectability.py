@@ -58,10 +58,11 @@ import numpy as np
 from drivetrain.campaigns.provenance import commit_line
 from drivetrain.campaigns import GEARBOXES, record_check
 from drivetrain.rig import indicators as ci
+from drivetrain.rig.data import PAPER_LOADS_NM, PAPER_SPEEDS_RPM
 from gearcontact_fmu.fault_specs import FAULT_KINDS
 
-SPEEDS_RPM = (500.0, 1000.0, 1500.0)
-LOADS_NM = (0.71, 1.31)
+SPEEDS_RPM = PAPER_SPEEDS_RPM[1::2]     #: 500, 1000, 1500 rpm: every other of the paper's
+LOADS_NM = PAPER_LOADS_NM[1:]           #: 0.71, 1.31 N·m: the paper's two heavier
 MEMBERS = ("pinion", "wheel")
 #: the small size: every size key of a kind at this fraction of its default
 SMALL = 0.5

@@ -40,10 +40,15 @@ from pathlib import Path
 from drivetrain.campaigns import GEARBOXES
 from drivetrain.campaigns import detectability as D
 from drivetrain.campaigns.provenance import commit_line
+from drivetrain.rig.data import PAPER_LOADS_NM, PAPER_MAX_LOAD_NM, PAPER_MAX_SPEED_RPM, PAPER_SPEEDS_RPM
 from gearcontact_fmu.fault_specs import FAULT_KINDS
 
 #: the size ladder: factors of each kind's default sizes, smallest to severe
 LADDER = (0.25, 0.5, 1.0, 1.5, 2.0)
+#: drive speeds [rpm]: the paper's 500 and its highest, 1500
+SPEEDS_RPM = (PAPER_SPEEDS_RPM[1], PAPER_MAX_SPEED_RPM)
+#: load-motor torques [N·m]: the paper's lightest and heaviest, and the load motor's nominal 11.9
+LOADS_NM = (PAPER_LOADS_NM[0], PAPER_MAX_LOAD_NM, 11.9)
 #: where the frontier lies beyond the ladder (not detectable even at its largest size)
 BEYOND = "beyond"
 FEATURES_CACHE = "features.json"
@@ -101,8 +106,8 @@ class FrontierStudy:
 
     kinds: tuple = tuple(FAULT_KINDS)
     members: tuple = D.MEMBERS
-    speeds: tuple = (500.0, 1500.0)
-    loads: tuple = (0.12, 1.31, 11.9)
+    speeds: tuple = SPEEDS_RPM
+    loads: tuple = LOADS_NM
     gearboxes: int = GEARBOXES
     duration_s: float = 20.0
     settle_s: float = 2.0

@@ -55,7 +55,7 @@ from drivetrain.campaigns.provenance import commit_line
 from drivetrain.cosim import ConfigurationError
 from drivetrain.run.outputs import jsonable, now_iso
 from drivetrain.run.runner import assemble_scene
-from drivetrain.rig.data import TORQUE_SENSORS
+from drivetrain.rig.data import PAPER_MAX_LOAD_NM, TORQUE_SENSORS
 from drivetrain.scene.load import FIDELITIES, Scene, load_scenes, scene_from_dict
 from drivetrain.campaigns.sweep import CACHED_FIDELITIES, prepare_caches, read_runs, run_sweep
 from drivetrain.system import SystemSpec
@@ -68,7 +68,6 @@ from gearcontact_fmu.params import BevelGearParams
 # The distribution
 # --------------------------------------------------------------------------------------------------
 
-PAPER_MAX_LOAD_NM = 1.31
 MAX_LOAD_NM = 2.0 * PAPER_MAX_LOAD_NM          #: 2.62 N·m
 MAX_SPEED_RPM = 3000.0
 SAMPLE_RATE_HZ = 3000.0

@@ -38,11 +38,12 @@ import numpy as np
 from drivetrain.campaigns.provenance import commit_line
 from drivetrain.campaigns import GEARBOXES, record_check
 from drivetrain.rig import indicators as ci
+from drivetrain.rig.data import PAPER_LOADS_NM, PAPER_MAX_LOAD_NM, PAPER_MAX_SPEED_RPM, PAPER_SPEEDS_RPM, TORQUE_SENSORS
 from drivetrain.rig.record import MEASURED_TRANSDUCER_NOISE_NM
 from gearcontact_fmu.mesh_model import PAPER_HEALTH
 
-SPEEDS_RPM = (250.0, 500.0, 750.0, 1000.0, 1250.0, 1500.0)
-LOADS_NM = (0.12, 0.71, 1.31)
+SPEEDS_RPM = PAPER_SPEEDS_RPM
+LOADS_NM = PAPER_LOADS_NM
 HEALTHS = PAPER_HEALTH
 #: the realism effects the checks run with, unless a check says otherwise: the gear's (errors, compliance,
 #: profile deviation), the rig's instruments with the transducer noise measured in its record, and the
@@ -108,7 +109,8 @@ def scenes(base: Path, duration_s: float, settle_s: float, overrides: tuple = ()
             for n in SPEEDS_RPM:
                 for t in LOADS_NM:
                     add(case_name(h, n, t, gearbox=gb), op(h, n, t) + list(REALISM) + gearbox_seeds(gb))
-        add(stiff_name(gb), op("severe", 1500.0, 1.31) + [x for x in REALISM if "compliance" not in x]
+        add(stiff_name(gb), op("severe", PAPER_MAX_SPEED_RPM, PAPER_MAX_LOAD_NM)
+            + [x for x in REALISM if "compliance" not in x]
             + gearbox_seeds(gb))
     for n in SPEEDS_RPM:
         for t in LOADS_NM:
@@ -117,7 +119,7 @@ def scenes(base: Path, duration_s: float, settle_s: float, overrides: tuple = ()
 
 
 #: the case run a second time (in a directory of its own, same name and seeds) for check 10
-REPEAT = case_name("healthy", 1500.0, 1.31, gearbox=0)
+REPEAT = case_name("healthy", PAPER_MAX_SPEED_RPM, PAPER_MAX_LOAD_NM, gearbox=0)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -262,7 +264,7 @@ def check_mode(runs: Runs) -> CheckResult:
 
     r = CheckResult(2, "lowest torsional mode", f"{MODE_HZ:g} Hz ± 3 % in the paper's campaign; the 2023 record's "
                     "first hump (identified); both calibrations: each state's coupling stiffness is fitted to it")
-    name = case_name("healthy", 1500.0, 1.31, realistic=False)         # couplings "fitted"
+    name = case_name("healthy", PAPER_MAX_SPEED_RPM, PAPER_MAX_LOAD_NM, realistic=False)         # couplings "fitted"
     if not runs.ok(name):
         r.status, r.details = "fail", [f"missing run {name}"]
         return r
@@ -300,7 +302,7 @@ def check_frequencies(runs: Runs) -> CheckResult:
     for g in runs.gearboxes:
         good = True
         for n in SPEEDS_RPM:
-            name = case_name("healthy", n, 1.31, gearbox=g)
+            name = case_name("healthy", n, PAPER_MAX_LOAD_NM, gearbox=g)
             if not runs.ok(name):
                 r.details.append(f"missing run {name}")
                 good = False
@@ -333,7 +335,7 @@ def check_shaft_peaks(runs: Runs) -> CheckResult:
     r = CheckResult(4, "healthy shaft-order peaks", "clear peaks at f_PSH (propeller-shaft spectrum) and f_DSH "
                     "(drive-shaft spectrum): >= 20 dB over the local floor with manufacturing errors on, absent "
                     f"with them off (1500 rpm, 1.31 N·m), in >= {PASS_FRACTION:.0%} of gearboxes")
-    off = case_name("healthy", 1500.0, 1.31, realistic=False)
+    off = case_name("healthy", PAPER_MAX_SPEED_RPM, PAPER_MAX_LOAD_NM, realistic=False)
     if not runs.gearboxes:
         return _no_gearboxes(r)
     if not runs.ok(off):
@@ -342,7 +344,7 @@ def check_shaft_peaks(runs: Runs) -> CheckResult:
     levels = {"f_PSH": [], "f_DSH": []}
     ok = {}
     for g in runs.gearboxes:
-        on = case_name("healthy", 1500.0, 1.31, gearbox=g)
+        on = case_name("healthy", PAPER_MAX_SPEED_RPM, PAPER_MAX_LOAD_NM, gearbox=g)
         if not runs.ok(on):
             continue
         good = True
@@ -380,7 +382,8 @@ def check_mild(runs: Runs) -> CheckResult:
     sensor = "propeller_shaft_torque"
     ratios, sbs, ok = [], [], {}
     for g in runs.gearboxes:
-        h, m = case_name("healthy", 1500.0, 1.31, gearbox=g), case_name("mild", 1500.0, 1.31, gearbox=g)
+        h, m = (case_name("healthy", PAPER_MAX_SPEED_RPM, PAPER_MAX_LOAD_NM, gearbox=g),
+                case_name("mild", PAPER_MAX_SPEED_RPM, PAPER_MAX_LOAD_NM, gearbox=g))
         if _missing(runs, [h, m]):
             continue
         ratio = _ptp(runs, m, sensor) / _ptp(runs, h, sensor)
@@ -477,7 +480,8 @@ def check_speed(runs: Runs) -> CheckResult:
     for g in runs.gearboxes:
         good = True
         for t in LOADS_NM:
-            lo, hi = case_name("healthy", 250.0, t, gearbox=g), case_name("healthy", 1500.0, t, gearbox=g)
+            lo, hi = (case_name("healthy", PAPER_SPEEDS_RPM[0], t, gearbox=g),
+                      case_name("healthy", PAPER_MAX_SPEED_RPM, t, gearbox=g))
             if _missing(runs, [lo, hi]):
                 good = False
                 continue
@@ -509,7 +513,7 @@ def check_stiffness(runs: Runs) -> CheckResult:
     model = make_mesh_model("table", g, tooth_compliance=TOOTH_COMPLIANCE_FACTOR)
     worst, figs, ok = 0.0, [], True
     for load in LOADS_NM:
-        T_psh, _ = _measured_value("T_PSH_Nm", {"drive_speed_rpm": 1500.0, "load_torque_Nm": load})
+        T_psh, _ = _measured_value("T_PSH_Nm", {"drive_speed_rpm": PAPER_MAX_SPEED_RPM, "load_torque_Nm": load})
         T = T_psh * g.z_pinion / g.z_wheel
         k = static_mesh_stiffness(model, g, T)
         k0 = static_mesh_stiffness(stiff, g, T)
@@ -533,7 +537,7 @@ def check_peaks_compliance(runs: Runs) -> CheckResult:
         return _no_gearboxes(r)
     ratios = {"propeller_shaft_torque": [], "drive_shaft_torque": []}
     for g in runs.gearboxes:
-        soft, stiff = case_name("severe", 1500.0, 1.31, gearbox=g), stiff_name(g)
+        soft, stiff = case_name("severe", PAPER_MAX_SPEED_RPM, PAPER_MAX_LOAD_NM, gearbox=g), stiff_name(g)
         if _missing(runs, [soft, stiff]):
             r.details.append(f"gearbox {g}: missing runs {_missing(runs, [soft, stiff])}")
             continue
@@ -560,7 +564,7 @@ def check_complete(runs: Runs, names: list, repeat: Runs | None) -> CheckResult:
         same = set(sa) == set(sb) and all(np.array_equal(sa[k], sb[k]) for k in sa)
     digests = {}
     for g in runs.gearboxes:
-        name = case_name("healthy", 1500.0, 1.31, gearbox=g)
+        name = case_name("healthy", PAPER_MAX_SPEED_RPM, PAPER_MAX_LOAD_NM, gearbox=g)
         if runs.ok(name):
             import hashlib
 
@@ -618,11 +622,11 @@ def plot_spectra(manifest: dict, path: Path) -> Path | None:
     runs = Runs(manifest)
     plt = _mpl()
     fig, axes = plt.subplots(3, 4, figsize=(16, 9), sharex="col")
-    for j, (n, sensor) in enumerate([(500.0, "drive_shaft_torque"), (500.0, "propeller_shaft_torque"),
-                                     (1500.0, "drive_shaft_torque"), (1500.0, "propeller_shaft_torque")]):
+    panels = [(n, s) for n in (PAPER_SPEEDS_RPM[1], PAPER_MAX_SPEED_RPM) for s in TORQUE_SENSORS]   # 500, 1500 rpm
+    for j, (n, sensor) in enumerate(panels):
         for i, h in enumerate(HEALTHS):
             ax = axes[i, j]
-            name = case_name(h, n, 1.31)
+            name = case_name(h, n, PAPER_MAX_LOAD_NM)
             if not runs.ok(name):
                 ax.set_title(f"{name}: missing")
                 continue

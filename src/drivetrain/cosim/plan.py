@@ -21,6 +21,7 @@ from drivetrain.fmu_build.fmus import ENERGY_VARS, PORT_UNITS, PORT_VARS, FMUInf
 from drivetrain.errors import ConfigurationError
 from drivetrain.system import steps_per_output
 from drivetrain.system import INERTIA, SPRING, ComponentSpec, SystemSpec
+from gearcontact_fmu.params import flange_variables
 
 
 def split_ref(ref: str) -> tuple[str, str]:
@@ -191,8 +192,9 @@ def _check_connection(conn, spec: SystemSpec, var: dict, fed: dict[str, str],
         if us != ui or us != exp:
             problems.append(f"{label}: unit mismatch: {conn.spring}_{q} [{us or 'no unit'}] vs "
                             f"{conn.inertia}_{q} [{ui or 'no unit'}], expected {exp} on both")
-    for tgt, src in ((f"{sc}.{sp}_phi", f"{ic}.{ip}_phi"), (f"{sc}.{sp}_w", f"{ic}.{ip}_w"),
-                     (f"{ic}.{ip}_tau", f"{sc}.{sp}_tau")):
+    for (s_var, _, s_causality), (i_var, _, _) in zip(flange_variables(f"{sc}.{sp}", SPRING),
+                                                       flange_variables(f"{ic}.{ip}", INERTIA)):
+        tgt, src = (s_var, i_var) if s_causality == "input" else (i_var, s_var)
         if tgt in fed:
             problems.append(f"{label}: input {tgt} is already fed by {fed[tgt]}")
         fed[tgt] = src

@@ -47,6 +47,8 @@ import zipfile
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
+from drivetrain.rig.data import RAD_S_PER_RPM
+
 
 SRC_ROOT = Path(__file__).resolve().parents[2]          # src/
 PACKAGES = ("gearcontact_fmu", "drivetrain", "fmu_runtime")
@@ -85,7 +87,7 @@ UNIT_DEFS: dict[str, dict[str, int]] = {
     "V": {"kg": 1, "m": 2, "s": -3, "A": -1},
     "1": {},                                    # dimensionless
 }
-UNIT_FACTORS = {"rpm": 2.0 * 3.141592653589793 / 60.0, "mm": 1e-3}
+UNIT_FACTORS = {"rpm": RAD_S_PER_RPM, "mm": 1e-3}
 
 # naming table: applied when the slave does not name the variable in its ``units`` attribute
 NAME_UNITS: tuple[tuple[str, str], ...] = (

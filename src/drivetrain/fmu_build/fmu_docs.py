@@ -29,9 +29,11 @@ from xml.etree import ElementTree as ET
 
 import numpy as np
 
+from drivetrain.rig.data import PAPER_MAX_LOAD_NM
+
 #: the example operating point of the FMUs' standalone experiments (RIG.md grid: 500 rpm, 11 % load)
 EXAMPLE_SPEED_RPM = 500.0
-EXAMPLE_LOAD_NM = 1.31
+EXAMPLE_LOAD_NM = PAPER_MAX_LOAD_NM
 #: the speeds and torques of the example input ramp in from rest over this time, then stay
 RAMP_S = 0.25
 #: rows of the example input during the ramp (the angles are quadratic there; fmpy interpolates linearly)

@@ -29,9 +29,10 @@ import gearcontact_fmu
 from drivetrain.fmu_build.bundle import fmu_files
 from drivetrain.errors import ConfigurationError
 from gearcontact_fmu.locks import cache_dir, file_lock
+from gearcontact_fmu.params import FLANGE_QUANTITIES, FLANGE_UNITS
 
-PORT_VARS = ("phi", "w", "tau")
-PORT_UNITS = {"phi": "rad", "w": "rad/s", "tau": "N.m"}
+PORT_VARS = FLANGE_QUANTITIES       #: a port's variables <port>_phi, _w, _tau (gearcontact_fmu.params)
+PORT_UNITS = FLANGE_UNITS
 #: the energy counters every FMU of the project reports (the audit's inputs)
 ENERGY_VARS = ("energy_supplied", "energy_stored", "energy_dissipated")
 _UNIT_SYNONYMS = {"N·m": "N.m", "Nm": "N.m", "N*m": "N.m", "N m": "N.m", "rad.s-1": "rad/s", "1/s": "1/s"}

@@ -41,7 +41,8 @@ from drivetrain.cosim.plan import is_profile, settable
 from drivetrain.errors import ConfigurationError
 from drivetrain.models.fmishell import INPUT_PROFILES
 from drivetrain.run.runner import assemble_scene
-from drivetrain.system import SystemSpec
+from drivetrain.system import INERTIA, SPRING, SystemSpec
+from gearcontact_fmu.params import flange_variables
 
 SSD_NAME = "SystemStructure.ssd"
 PARAMETER_SET = "parameters"
@@ -85,9 +86,9 @@ def system_connections(spec: SystemSpec) -> list[tuple[str, str, str, str]]:
     for c in spec.connections:
         s_comp, s_port = c.spring.split(".", 1)
         i_comp, i_port = c.inertia.split(".", 1)
-        out += [(i_comp, f"{i_port}_phi", s_comp, f"{s_port}_phi"),
-                (i_comp, f"{i_port}_w", s_comp, f"{s_port}_w"),
-                (s_comp, f"{s_port}_tau", i_comp, f"{i_port}_tau")]
+        for (s_var, _, s_causality), (i_var, _, _) in zip(flange_variables(s_port, SPRING),
+                                                           flange_variables(i_port, INERTIA)):
+            out.append((i_comp, i_var, s_comp, s_var) if s_causality == "input" else (s_comp, s_var, i_comp, i_var))
     return out
 
 

@@ -34,7 +34,7 @@ from drivetrain.models.motors import RPM
 from drivetrain.models.parameters import parameter_bounds, parameter_description, parameter_unit, params_from
 from drivetrain.system import INERTIA, SPRING
 from fmu_runtime.guard import enter_error_state, fmi_text, guard_value_references, restore_shell_state, shell_state
-from gearcontact_fmu.params import DEFAULT_COMM_STEP_S
+from gearcontact_fmu.params import DEFAULT_COMM_STEP_S, flange_variables
 
 #: per model: the modelDescription's DefaultExperiment (the step the FMUs are validated at), long enough for the shipped example input (drivetrain.fmu_build.fmu_docs: the
 #: operating point ramped in over 0.25 s) to settle: UpperTransmission, driven by torques alone, reaches its speed
@@ -114,7 +114,6 @@ OUTPUTS = {model: tuple(table) for model, table in OWN_OUTPUTS.items()}
 EXTRA_INPUTS = {model: tuple(table) for model, table in OWN_INPUTS.items()}
 #: the ``error`` output of every FMU (fmu_runtime.guard)
 ERROR_DESCRIPTION = "empty while the instance works; after a failure, why it failed (every Real output is then NaN)"
-_FLANGE_UNITS = ("rad", "rad/s", "N.m")
 _FLANGE_DESCRIPTIONS = {
     SPRING: ("angle of the body connected to flange {p} (input, spring side)",
              "speed of the body connected to flange {p} (input, spring side)",
@@ -142,8 +141,8 @@ def variable_table(model: str) -> dict:
     _, pcls = C.COMPONENTS[model]
     out = {f.name: (parameter_unit(f), parameter_description(f)) for f in dataclasses.fields(pcls)}
     for p, kind in PORTS[model].items():
-        for suffix, unit, text in zip(("_phi", "_w", "_tau"), _FLANGE_UNITS, _FLANGE_DESCRIPTIONS[kind]):
-            out[p + suffix] = (unit, text.format(p=p))
+        for (name, unit, _), text in zip(flange_variables(p, kind), _FLANGE_DESCRIPTIONS[kind]):
+            out[name] = (unit, text.format(p=p))
     out.update(OWN_INPUTS[model])
     out.update(OWN_OUTPUTS[model])
     out.update(ENERGY)
@@ -211,14 +210,14 @@ def variable_descriptions(model: str) -> dict:
 def port_inputs(model: str) -> list[str]:
     out = []
     for p, kind in PORTS[model].items():
-        out += [f"{p}_phi", f"{p}_w"] if kind == SPRING else [f"{p}_tau"]
+        out += [name for name, _, causality in flange_variables(p, kind) if causality == "input"]
     return out + list(EXTRA_INPUTS[model])
 
 
 def port_outputs(model: str) -> list[str]:
     out = []
     for p, kind in PORTS[model].items():
-        out += [f"{p}_tau"] if kind == SPRING else [f"{p}_phi", f"{p}_w"]
+        out += [name for name, _, causality in flange_variables(p, kind) if causality == "output"]
     return out + list(OUTPUTS[model]) + list(ENERGY)
 
 

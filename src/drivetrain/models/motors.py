@@ -15,9 +15,10 @@ from drivetrain.errors import ComponentError
 from drivetrain.models.line import Law, LineComponent, LineModel, Port, check_parameters
 from drivetrain.models.parameters import (energy_correction_parameter, max_substep_parameter, node_start_parameter,
                                           output_torque_parameter, parameter, parse_profile, rig_parameter)
+from drivetrain.rig.data import RAD_S_PER_RPM
 from drivetrain.system import INERTIA, SPRING
 
-RPM = 2.0 * math.pi / 60.0      #: rad/s per rpm
+RPM = RAD_S_PER_RPM      #: rad/s per rpm (``rig.data.rpm_to_rad_s(1.0)``)
 
 
 @dataclass

@@ -41,6 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drivetrain.rig.data import rpm_to_rad_s
 from drivetrain.rig.record import RECORD_SPEED_RPM as REFERENCE_SPEED_RPM
 
 #: the periodic lines of ``effects.shaft_orders``: key -> (what turns, lines per its revolution): the middle
@@ -107,8 +108,8 @@ def drive_angle(t: np.ndarray, speed_rpm) -> np.ndarray:
     (:func:`speed_at`; exact for a constant speed, trapezoidal along a profile)."""
     t = np.asarray(t, dtype=float)
     if np.isscalar(speed_rpm) or np.ndim(speed_rpm) == 0:
-        return float(speed_rpm) * math.pi / 30.0 * t
-    w = speed_at(t, speed_rpm) * math.pi / 30.0
+        return rpm_to_rad_s(float(speed_rpm)) * t
+    w = rpm_to_rad_s(speed_at(t, speed_rpm))
     out = np.zeros_like(t)
     out[1:] = np.cumsum(0.5 * (w[1:] + w[:-1]) * np.diff(t))
     return out

@@ -31,6 +31,15 @@ PUBLIC_CSV = DATA / "testbench_lumped_parameters.csv"
 MEASURED_CSV = DATA / "measured_mean_torques.csv"
 CALIBRATION_JSON = DATA / "calibration.json"
 
+def rpm_to_rad_s(speed_rpm):
+    """A speed in rpm as an angular velocity in rad/s: ``speed_rpm * pi / 30`` (a float or an array,
+    elementwise). The one conversion of the package; :data:`RAD_S_PER_RPM` is its factor."""
+    return speed_rpm * math.pi / 30.0
+
+
+#: rad/s per rpm: ``rpm_to_rad_s(1.0)`` (= 2 pi / 60 to the last bit); the motors and the line kernel multiply by it
+RAD_S_PER_RPM = rpm_to_rad_s(1.0)
+
 G_STEEL = 79.3e9          # Pa
 RHO_STEEL = 7850.0        # kg/m^3
 TINY_J = 1e-5             # kg m^2: hub inertias below this are condensed into their neighbours
@@ -56,6 +65,13 @@ RIG_SENSORS: dict[str, tuple[str, str]] = {
     "enc5": ("rad", "encoder 5, propeller shaft: shaft angle"),
 }
 TORQUE_SENSORS = ("drive_shaft_torque", "propeller_shaft_torque")
+
+#: The paper's operating points (the measured table's grid, MEASURED_CSV): drive speeds [rpm] ...
+PAPER_SPEEDS_RPM = (250.0, 500.0, 750.0, 1000.0, 1250.0, 1500.0)
+#: ... and load-motor torque settings [N·m], lightest first
+PAPER_LOADS_NM = (0.12, 0.71, 1.31)
+PAPER_MAX_SPEED_RPM = PAPER_SPEEDS_RPM[-1]      #: 1500 rpm
+PAPER_MAX_LOAD_NM = PAPER_LOADS_NM[-1]          #: 1.31 N·m
 
 FALLBACK_CALIBRATION = {
     "coupling_scale": 0.70,
@@ -470,7 +486,7 @@ def steady_state(speed_rpm: float, load_Nm: float, upper: dict, motors: dict, lo
 
     ``upper``/``motors``: the parameter dicts of UpperTransmission and MotorLoad. At standstill the
     load setting is 0 (its regularisation below ``load_w_reg``), so a start from rest is at rest."""
-    w = speed_rpm * math.pi / 30.0
+    w = rpm_to_rad_s(speed_rpm)
     wm = w / upper.get("ratio", UPPER_RATIO)
     wp = wm / LOWER_RATIO
     r8 = motors.get("ratio_pg", PG_RATIO)

@@ -47,7 +47,7 @@ import math
 
 import numpy as np
 
-from drivetrain.rig.data import Z_PINION, Z_WHEEL
+from drivetrain.rig.data import TORQUE_SENSORS, Z_PINION, Z_WHEEL
 from drivetrain.rig.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies
 
 #: indicator names, in column order
@@ -335,7 +335,7 @@ def points_per_revolution(fs: float, f_shaft: float) -> int:
 
 #: the shafts whose gear is judged: name -> (encoder sensor, teeth, characteristic frequency of its speed)
 SHAFTS = {"pinion": ("enc4", Z_PINION, "f_MSH"), "wheel": ("enc5", Z_WHEEL, "f_PSH")}
-TORQUES = ("propeller_shaft_torque", "drive_shaft_torque")
+TORQUES = tuple(reversed(TORQUE_SENSORS))  # propeller shaft first (the order of the features and tables)
 #: TSA records per run (NA4 and NB4 compare the last with the run's mean); fewer when the run is short
 RECORDS = 4
 #: the characteristic frequencies whose amplitude is a column (keys of rig.signals.characteristic_frequencies)

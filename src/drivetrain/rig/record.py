@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from drivetrain.rig.data import TORQUE_SENSORS
 from drivetrain.rig.signals import amplitude_spectrum, characteristic_frequencies
 
 RECORD_DIR = Path(__file__).resolve().parents[1] / "data" / "rig_records"
@@ -47,7 +48,7 @@ FLOOR_HALF_WIDTH_HZ = 10.0
 #: torque spectra are flat (campaigns.record_fit, step 1); the record scene and the validation use them
 MEASURED_TRANSDUCER_NOISE_NM = {"drive_torque_noise_Nm": 0.00048, "propeller_torque_noise_Nm": 0.0080}
 FIGURES = ("std", "f_GMF", "f_MSH", "f_DSH", "hump_27", "hump_58", "floor")
-TORQUES = ("drive_shaft_torque", "propeller_shaft_torque")
+TORQUES = TORQUE_SENSORS
 
 
 @dataclass(frozen=True)

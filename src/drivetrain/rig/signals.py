@@ -38,6 +38,15 @@ FIR_ATTENUATION_DB = 70.0
 BUTTER_ORDER = 10
 BUTTER_CUT_FRACTION = 0.75   # Butterworth cut-off as a fraction of the output Nyquist frequency
 SPECTRUM_LOWPASS_ORDER = 8
+#: The spectrum rule (the paper's): a torque spectrum is low-passed at this many times f_GMF first ...
+SPECTRUM_LOWPASS_GMF = 5.0
+#: ... and a line's amplitude is the largest within ± this many bins of its frequency.
+SPECTRUM_LINE_BINS = 2
+
+
+def spectrum_lowpass_Hz(f_gmf: float) -> float:
+    """The low-pass edge of a torque spectrum [Hz]: :data:`SPECTRUM_LOWPASS_GMF` × f_GMF."""
+    return SPECTRUM_LOWPASS_GMF * f_gmf
 
 
 # --------------------------------------------------------------------------------------------------
@@ -181,7 +190,7 @@ def amplitude_spectrum(x: np.ndarray, fs: float, lowpass_Hz: float | None = None
     return f, A
 
 
-def amplitude_near(f: np.ndarray, A: np.ndarray, f0: float, bins: int = 2) -> float:
+def amplitude_near(f: np.ndarray, A: np.ndarray, f0: float, bins: int = SPECTRUM_LINE_BINS) -> float:
     """Largest amplitude within ±bins bins of f0 (for reading a peak whose frequency is known)."""
     df = f[1] - f[0]
     i = int(round(f0 / df))
@@ -218,4 +227,4 @@ def stats(x: np.ndarray) -> dict:
 
 
 __all__ = ["characteristic_frequencies", "decimate", "decimation_factor", "fir_antialias", "butter_antialias",
-           "lowpass", "amplitude_spectrum", "amplitude_near", "local_floor", "peak_frequency", "to_db", "stats"]
+           "SPECTRUM_LOWPASS_GMF", "SPECTRUM_LINE_BINS", "spectrum_lowpass_Hz", "lowpass", "amplitude_spectrum", "amplitude_near", "local_floor", "peak_frequency", "to_db", "stats"]

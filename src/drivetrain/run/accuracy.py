@@ -32,14 +32,16 @@ from pathlib import Path
 
 import numpy as np
 
-from drivetrain.rig.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies, to_db
+from drivetrain.rig.data import PAPER_MAX_LOAD_NM, PAPER_MAX_SPEED_RPM, PAPER_SPEEDS_RPM, TORQUE_SENSORS
+from drivetrain.rig.signals import (amplitude_near, amplitude_spectrum, characteristic_frequencies, spectrum_lowpass_Hz,
+                                    to_db)
 from drivetrain.scene.load import parse_override, with_overrides
 from drivetrain.scene.schema import default_of
 from gearcontact_fmu.mesh_model import PAPER_HEALTH
 
 ROOT = Path(__file__).resolve().parents[3]
 RESULTS_FILE = Path(__file__).resolve().parents[1] / "data" / "accuracy_cost.json"
-CHANNELS = ("drive_shaft_torque", "propeller_shaft_torque")
+CHANNELS = TORQUE_SENSORS
 STUDY_DURATION_S = 4.5
 STUDY_SETTLE_S = 0.5
 #: a reference sideband counts (and constrains a setting) only this far above the spectrum's floor [dB]
@@ -124,14 +126,15 @@ _EXAMPLE = "scenarios/example.toml"
 #: name -> (scene file relative to the repository, overrides, what)
 STUDY_SCENES: dict[str, tuple[str, tuple[str, ...], str]] = {
     f"{h}_{n}rpm": (_EXAMPLE, (f"operating_point.drive_speed_rpm={n}", f"gear.health={h}",
-                               "operating_point.load_torque_Nm=1.31"), f"{h}, {n} rpm, 1.31 N·m")
-    for h in PAPER_HEALTH for n in (250, 1500)
+                               f"operating_point.load_torque_Nm={PAPER_MAX_LOAD_NM}"),
+                     f"{h}, {n} rpm, {PAPER_MAX_LOAD_NM} N·m")
+    for h in PAPER_HEALTH for n in (int(PAPER_SPEEDS_RPM[0]), int(PAPER_MAX_SPEED_RPM))   # 250, 1500
 }
 STUDY_SCENES["wheel_void_1500rpm"] = ("scenarios/faults/wheel_void_1500rpm.toml", (),
                                       "void on wheel tooth 38, 1500 rpm, 1.31 N·m")
 
 _COMMON = (f"time.duration_s={STUDY_DURATION_S}", f"time.settle_s={STUDY_SETTLE_S}", "outputs.plots=false",
-           'outputs.sensors=["drive_shaft_torque", "propeller_shaft_torque"]')
+           f"outputs.sensors={json.dumps(list(TORQUE_SENSORS))}")
 
 
 def run_name(scene: str, setting: str) -> str:
@@ -170,9 +173,9 @@ def compare(ref: dict, run: dict, fs: float, settle_s: float, speed_rpm: float, 
         r, x = r[:n], x[:n]
         mr, mx, sr, sx = r.mean(), x.mean(), r.std(), x.std()
         pr, px = np.ptp(r), np.ptp(x)
-        f, Ar = amplitude_spectrum(r, fs, lowpass_Hz=5.0 * cf["f_GMF"])
-        _, Ax = amplitude_spectrum(x, fs, lowpass_Hz=5.0 * cf["f_GMF"])
-        band = (f > 0) & (f <= 5.0 * cf["f_GMF"])
+        f, Ar = amplitude_spectrum(r, fs, lowpass_Hz=spectrum_lowpass_Hz(cf["f_GMF"]))
+        _, Ax = amplitude_spectrum(x, fs, lowpass_Hz=spectrum_lowpass_Hz(cf["f_GMF"]))
+        band = (f > 0) & (f <= spectrum_lowpass_Hz(cf["f_GMF"]))
         floor = float(np.median(Ar[band])) if band.any() else 0.0
         g_r, g_x = amplitude_near(f, Ar, cf["f_GMF"]), amplitude_near(f, Ax, cf["f_GMF"])
         sb = []

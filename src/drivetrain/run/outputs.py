@@ -415,14 +415,14 @@ def spectra_figure(spectra: dict[str, tuple[np.ndarray, np.ndarray]], cf: dict, 
     and the sidebands f_GMF ± k·f_MSH. Nothing is
     clipped: bins that are exactly zero are left out (a log axis has no zero), the y-limits follow the
     data. Returns the Figure."""
-    from drivetrain.rig.signals import AMPLITUDE_CONVENTION
+    from drivetrain.rig.signals import AMPLITUDE_CONVENTION, SPECTRUM_LOWPASS_GMF, spectrum_lowpass_Hz
 
     n = max(1, len(spectra))
     fig = new_figure(17, 2.9 * n + 0.5 + title_margin(title))
     axes = fig.subplots(n, 3, squeeze=False, gridspec_kw={"width_ratios": [1.5, 1, 1]})
     place_axes(fig, axes, left=1.15, top=title_margin(title), wgap=0.65, hgap=0.85)
     gmf, fm = cf["f_GMF"], cf["f_MSH"]
-    lowpass_Hz = 5.0 * gmf if lowpass_Hz is None else lowpass_Hz
+    lowpass_Hz = spectrum_lowpass_Hz(gmf) if lowpass_Hz is None else lowpass_Hz
     for i, (name, (f, A)) in enumerate(spectra.items()):
         f = np.asarray(f, dtype=float)
         A = np.where(np.asarray(A, dtype=float) > 0, A, np.nan)     # a zero has no logarithm: left out, not raised
@@ -457,7 +457,7 @@ def spectra_figure(spectra: dict[str, tuple[np.ndarray, np.ndarray]], cf: dict, 
             ax.set_xlim(lo, hi)
             ax.set_xlabel("frequency [Hz]")
             ax.grid(alpha=0.3)
-            ax.set_title(("Hann window, low-pass 5 × f_GMF; " if j == 0 else "shaft orders; " if j == 1
+            ax.set_title((f"Hann window, low-pass {SPECTRUM_LOWPASS_GMF:g} × f_GMF; " if j == 0 else "shaft orders; " if j == 1
                           else "around f_GMF: sidebands ± k·f_MSH; ") + f"f_GMF = {gmf:.4g} Hz, bin {df:.3g} Hz",
                          fontsize=8.5)
             if j == 0:

@@ -27,7 +27,8 @@ from drivetrain.errors import ConfigurationError, CosimError, RunFailedError, Ru
 from drivetrain.models import stability
 from drivetrain.rig import instruments
 from drivetrain.rig.data import RIG_SENSORS, TORQUE_SENSORS
-from drivetrain.rig.signals import amplitude_near, amplitude_spectrum, characteristic_frequencies, stats, to_db
+from drivetrain.rig.signals import (amplitude_near, amplitude_spectrum, characteristic_frequencies, spectrum_lowpass_Hz, stats,
+                                    to_db)
 from drivetrain.run import accuracy
 from drivetrain.run import cost as runcost
 from drivetrain.run import outputs as O
@@ -463,7 +464,7 @@ def torque_spectra(plan: RunPlan, ch: Channels) -> Spectra:
         out.torque[name] = {**stats(x), "unit": ch.units[name]}
         if len(x) > 16 and out.cf["f_GMF"] > 0:
             try:
-                f, A = amplitude_spectrum(x, fs, lowpass_Hz=5.0 * out.cf["f_GMF"])
+                f, A = amplitude_spectrum(x, fs, lowpass_Hz=spectrum_lowpass_Hz(out.cf["f_GMF"]))
             except ValueError as exc:    # too short for the low-pass (a short or failed run)
                 plan.warnings.append(f"no spectrum of {name}: {exc}")
                 continue

@@ -53,7 +53,7 @@ from typing import Any
 import numpy as np
 
 from drivetrain.rig.data import RIG_SENSORS, TORQUE_SENSORS, read_measured
-from drivetrain.rig.signals import amplitude_near, amplitude_spectrum
+from drivetrain.rig.signals import SPECTRUM_LINE_BINS, amplitude_near, amplitude_spectrum, spectrum_lowpass_Hz
 from drivetrain.scene.schema import SCHEMA
 
 #: Statistics of ``signal.<channel>.<stat>``.
@@ -69,7 +69,7 @@ SLOW_DURATION_S = 5.0
 #: ... or uses online PCM contact for longer than this.
 SLOW_DURATION_PCM_S = 0.1
 #: Bins either side of a frequency searched for its amplitude (as the summary's spectrum_peaks).
-SPECTRUM_BINS = 2
+SPECTRUM_BINS = SPECTRUM_LINE_BINS
 
 # --------------------------------------------------------------------------------------------------
 # The layout of summary.json, declared once: drivetrain.run.runner builds the summary in this order and
@@ -816,7 +816,7 @@ def spectrum_levels(x: np.ndarray, fs: float, freqs: dict, exprs, bins: int = SP
     low-pass at 5 × f_GMF (drivetrain.rig.signals.amplitude_spectrum), largest within ±bins bins."""
 
     f, A = amplitude_spectrum(np.asarray(x, dtype=float), fs,
-                              lowpass_Hz=5.0 * freqs["f_GMF"] if freqs.get("f_GMF", 0) > 0 else None)
+                              lowpass_Hz=spectrum_lowpass_Hz(freqs["f_GMF"]) if freqs.get("f_GMF", 0) > 0 else None)
     return {e: amplitude_near(f, A, frequency_value(e, freqs), bins=bins) for e in exprs}
 
 

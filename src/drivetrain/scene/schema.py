@@ -20,7 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from drivetrain.errors import MISSING as _MISSING
-from drivetrain.rig.data import RIG_SENSORS
+from drivetrain.rig.data import PAPER_LOADS_NM, PAPER_MAX_LOAD_NM, PAPER_MAX_SPEED_RPM, RAD_S_PER_RPM, RIG_SENSORS
 from drivetrain.rig.background import Background
 from drivetrain.rig.instruments import Instruments
 from gearcontact_fmu.fault_specs import FAULT_KINDS
@@ -55,7 +55,7 @@ UNITS: dict[str, tuple[str, float]] = {
     "s": ("time", 1.0), "ms": ("time", 1e-3), "us": ("time", 1e-6), "µs": ("time", 1e-6),
     "min": ("time", 60.0), "h": ("time", 3600.0),
     # rotational speed, base rpm
-    "rpm": ("speed", 1.0), "1/min": ("speed", 1.0), "rad/s": ("speed", 60.0 / (2.0 * math.pi)),
+    "rpm": ("speed", 1.0), "1/min": ("speed", 1.0), "rad/s": ("speed", 1.0 / RAD_S_PER_RPM),
     "rps": ("speed", 60.0), "rev/s": ("speed", 60.0),
     # torque, base N·m
     "N·m": ("torque", 1.0), "Nm": ("torque", 1.0), "N.m": ("torque", 1.0), "N*m": ("torque", 1.0),
@@ -121,9 +121,11 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "a label for prognostics"), minimum=0.0, maximum=1.0),
     },
     "operating_point": {
-        "drive_speed_rpm": _f(1500.0, "rpm", "speed", "drive-motor speed reference (drive shaft)", minimum=0.0),
-        "load_torque_Nm": _f(1.31, "N·m", "torque",
-                             "load-motor torque setting, before the 1:8 planetary (paper: 0.12, 0.71, 1.31); "
+        "drive_speed_rpm": _f(PAPER_MAX_SPEED_RPM, "rpm", "speed", "drive-motor speed reference (drive shaft)",
+                              minimum=0.0),
+        "load_torque_Nm": _f(PAPER_MAX_LOAD_NM, "N·m", "torque",
+                             "load-motor torque setting, before the 1:8 planetary "
+                             f"(paper: {', '.join(f'{x:g}' for x in PAPER_LOADS_NM)}); "
                              "negative = a reversal: the load motor drives the propeller shaft and the coast "
                              "flanks carry the load"),
         "speed_profile_rpm": Key("profile", None, "rpm", doc=(

@@ -232,7 +232,9 @@ def run_frontier(study: FrontierStudy, out_dir: Path | str, *, workers: int | No
 def _size_text(c: dict) -> str:
     if c["beyond"]:
         return "not detectable up to severe"
-    keys = {k: v for k, v in c["spec"].items() if k in D.SIZE_KEYS}
+    f = c["frontier_factor"]
+    keys = {k: float(v) * f for k, v in FAULT_KINDS[c["kind"]].items()
+            if k in D.SIZE_KEYS and isinstance(v, (int, float)) and v}
     sizes = ", ".join(f"{k} {v:.3g}" for k, v in keys.items()) or "its one size"
     return ("<= " if c["at_or_below_smallest"] else "") + f"x{c['frontier_factor']:g} ({sizes})"
 

@@ -191,17 +191,14 @@ PINION_BALANCE_REL = 1e-9
 WHEEL_RATIO_REL = 1e-3
 
 
-def _gear_at_t0(overrides):
-    """The GearContact slave as the master starts it on the example scene with these overrides, after
-    exit_initialization_mode (its t = 0 outputs), and the assembled steady state."""
+def gear_slave_at_t0(spec):
+    """The GearContact slave as the master starts it from an assembled system, after
+    exit_initialization_mode (its t = 0 outputs)."""
     import tempfile
 
     from drivetrain.fmu_build.build import slave_class
-    from drivetrain.run.runner import assemble_scene
-    from drivetrain.scene.load import load_scene
 
     root = Path(__file__).resolve().parents[1]
-    spec = assemble_scene(load_scene(root / "scenarios" / "example.toml", ["time.duration_s=0.01", *overrides]))
     g = spec.components_of("GearContact")[0]
     cls = slave_class(root / "src" / "gearcontact_fmu" / "slaves" / "GearContact.py")
     s = cls(instance_name="t0", resources=tempfile.gettempdir())
@@ -209,7 +206,17 @@ def _gear_at_t0(overrides):
         setattr(s, k, x)
     s.enter_initialization_mode()
     s.exit_initialization_mode()
-    return s, spec.metadata["steady_state"]
+    return s
+
+
+def _gear_at_t0(overrides):
+    """:func:`gear_slave_at_t0` on the example scene with these overrides, and the assembled steady state."""
+    from drivetrain.run.runner import assemble_scene
+    from drivetrain.scene.load import load_scene
+
+    root = Path(__file__).resolve().parents[1]
+    spec = assemble_scene(load_scene(root / "scenarios" / "example.toml", ["time.duration_s=0.01", *overrides]))
+    return gear_slave_at_t0(spec), spec.metadata["steady_state"]
 
 
 def test_the_gear_starts_in_balance_on_the_example_scene():

@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_fmu_declarations import gear_slave_at_t0
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
@@ -44,28 +45,12 @@ def _scene(seed: int, load_Nm: float = 1.31, speed_rpm: float = 1500.0, *extra: 
         f"scenario.name=start_s{seed:03d}_T{str(load_Nm).replace('.', 'p')}_n{int(speed_rpm)}", *extra])
 
 
-def _gear_at_t0(spec):
-    """The GearContact slave as the master starts it from this assembled system: its t = 0 outputs."""
-    import tempfile
-
-    from drivetrain.fmu_build.build import slave_class
-
-    g = spec.components_of("GearContact")[0]
-    cls = slave_class(ROOT / "src" / "gearcontact_fmu" / "slaves" / "GearContact.py")
-    s = cls(instance_name="t0", resources=tempfile.gettempdir())
-    for k, x in g.parameters.items():
-        setattr(s, k, x)
-    s.enter_initialization_mode()
-    s.exit_initialization_mode()
-    return s
-
-
 def _assert_balanced(scene):
     from drivetrain.run.assemble import assemble
 
     spec = assemble(scene, build_map=True)
     assert spec.metadata["mesh_start"] == "balanced on the table model", spec.metadata["mesh_start"]
-    s = _gear_at_t0(spec)
+    s = gear_slave_at_t0(spec)
     T_msh = spec.metadata["steady_state"]["T_msh"]
     assert s.mesh_torque_pinion == pytest.approx(-T_msh, rel=PINION_BALANCE_REL), scene.name
     return spec

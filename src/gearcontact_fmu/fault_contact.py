@@ -28,9 +28,9 @@ by the geometry, the PCM parameters, the resolution, the loaded flank and the lo
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import math
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -39,7 +39,6 @@ import numpy as np
 from gearcontact_fmu import geometry
 from gearcontact_fmu.fault_specs import FLANKS, loaded_flank, normalised_spec
 from gearcontact_fmu.locks import cache_dir, file_lock
-from gearcontact_fmu.mesh_model import N_OUT, OUT_TAU_PINION
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams, params_hash
 
 #: pinion angles at which the contact of tooth 0 is recorded, over ENGAGEMENT_PITCHES of the pinion
@@ -88,39 +87,14 @@ class Region:
                    np.array(d["s_lo"], dtype=float), np.array(d["s_hi"], dtype=float), float(d["margin"]))
 
 
-def _static_deflection(pair, theta: float, torque: float, sign: int) -> float:
-    """Mesh coordinate s at which the static pair carries |torque| on the flank ``sign`` (+1 drive, -1 coast)
-    at this pinion angle (NaN: no contact within the onset search)."""
-    from scipy.optimize import brentq
-
-    from gearcontact_fmu.mesh_models.pcm import contact_onset
-
-    on = contact_onset(pair, theta, sign)
-    if not math.isfinite(on):
-        return math.nan
-    out = np.zeros(N_OUT)
-
-    def resid(s):
-        pair.evaluate(theta, pair.wheel_angle(theta, s), 0.0, 0.0, out)
-        return abs(out[OUT_TAU_PINION]) - abs(torque)
-
-    step = 1e-6
-    while resid(on + sign * step) < 0.0:
-        step *= 2.0
-        if step > 0.05:
-            return math.nan
-    a, b = sorted((on, on + sign * step))
-    return brentq(resid, a, b, xtol=1e-13, rtol=1e-10)
-
-
 def contact_points(gear: BevelGearParams, pcm: PCMParams, resolution: MeshResolution, torque: float,
                    n_angles: int = N_ANGLES) -> dict[str, np.ndarray]:
     """{member: (n, 3) array of (s, rho, theta_pinion)} of tooth 0's loaded-flank elements in contact on the
-    healthy pair,
-    at ``n_angles`` pinion angles across its engagement, the wheel at the static deflection under the
-    pinion torque ``torque`` (> 0 driving) [N m]."""
+    healthy pair, at ``n_angles`` pinion angles across its engagement, the wheel at the static deflection
+    (mesh_models.pcm.static_deflection on the loaded flank) under the pinion torque ``torque`` (> 0 driving)
+    [N m]."""
     from gearcontact_fmu.contact import engine
-    from gearcontact_fmu.mesh_models.pcm import build_pcm_pair
+    from gearcontact_fmu.mesh_models.pcm import build_pcm_pair, static_deflection
 
     pair = build_pcm_pair(gear, pcm, resolution, friction=False, damping=False)
     sign = FLANKS[loaded_flank(torque)]
@@ -129,7 +103,10 @@ def contact_points(gear: BevelGearParams, pcm: PCMParams, resolution: MeshResolu
     found = {"pinion": [], "wheel": []}
     meshes = {"pinion": pair.pinion, "wheel": pair.wheel}
     for th in np.linspace(ENGAGEMENT_PITCHES[0] * pitch, ENGAGEMENT_PITCHES[1] * pitch, n_angles):
-        s = _static_deflection(pair, float(th), torque, sign)
+        try:          # the wheel at the static deflection under |torque| on the loaded flank
+            s = static_deflection(pair, float(th), abs(torque), rtol=1e-10, flank=sign)
+        except (RuntimeError, engine.PenetrationError):
+            continue                  # no equilibrium within reach at this angle: it adds no contact
         if not math.isfinite(s):
             continue
         tw = pair.wheel_angle(float(th), s)
@@ -199,7 +176,7 @@ def loaded_regions(gear: BevelGearParams | None = None, pcm: PCMParams | None = 
         if (got := read()) is not None:
             return got
         regions = compute()
-        tmp = path.with_suffix(f".tmp{hashlib.sha1(str(path).encode()).hexdigest()[:6]}")
+        tmp = path.with_suffix(f".tmp{os.getpid()}")
         tmp.write_text(json.dumps({m: r.to_dict() for m, r in regions.items()}))
         tmp.replace(path)
     return regions

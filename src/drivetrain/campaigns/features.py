@@ -48,6 +48,21 @@ def _iter_runs(directory: Path):
         raise DatasetError(f"{directory}: the manifest lists no run with signals")
 
 
+def indicator_columns(run: dict, where: Path | str) -> dict:
+    """The indicator columns of one run read by ``dataset.read_run`` (its settled part, at its drive speed);
+    a run without a constant drive speed or too short for its indicators is a DatasetError naming it."""
+    lab = run["labels"]
+    settle = float(lab.get("time.settle_s") or 0.0)
+    speed = lab.get("operating_point.drive_speed_rpm")
+    if speed is None or not float(speed) > 0:
+        raise DatasetError(f"{where}: run {run['name']} has no constant drive speed (its characteristic frequencies "
+                           "and shaft orders need one)")
+    try:
+        return run_features(run["time"], run["signals"], settle, float(speed))
+    except ValueError as exc:
+        raise DatasetError(f"{where}: run {run['name']}: {exc}") from None
+
+
 def features(directory: str | Path) -> list[dict]:
     """One row per run: its labels and its indicator columns. The runs are read one at a time (a study of
     thousands of runs never holds their signals together); a healthy run's torques are kept while a faulty
@@ -58,14 +73,7 @@ def features(directory: str | Path) -> list[dict]:
     for r in _iter_runs(d):
         lab = r["labels"]
         settle = float(lab.get("time.settle_s") or 0.0)
-        speed = lab.get("operating_point.drive_speed_rpm")
-        if speed is None or not float(speed) > 0:
-            raise DatasetError(f"{d}: run {r['name']} has no constant drive speed (its characteristic frequencies "
-                               "and shaft orders need one)")
-        try:
-            cols = run_features(r["time"], r["signals"], settle, float(speed))
-        except ValueError as exc:
-            raise DatasetError(f"{d}: run {r['name']}: {exc}") from None
+        cols = indicator_columns(r, d)
         pair = lab.get("scenario.noise_name")
         if pair and lab.get("gear.health") == "healthy":
             twins[pair] = {"time": r["time"], "signals": {k: r["signals"][k] for k in TORQUES if k in r["signals"]}}

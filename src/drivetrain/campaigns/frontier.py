@@ -141,7 +141,7 @@ def run_features(runs_dir: Path, names: list[str]) -> list[dict]:
     """The indicator rows (detectability's feature rows: labels and indicators) of these runs, each computed
     once and kept in its directory (``features.json``, valid while its signals.h5 is unchanged)."""
     from drivetrain.campaigns.dataset import read_run
-    from drivetrain.rig.indicators import run_features as indicators
+    from drivetrain.campaigns.features import indicator_columns
 
     rows = []
     for name in names:
@@ -161,10 +161,7 @@ def run_features(runs_dir: Path, names: list[str]) -> list[dict]:
             except (OSError, ValueError, KeyError):
                 pass
         r = read_run(sig, {"name": name})
-        lab = r["labels"]
-        cols = indicators(r["time"], r["signals"], float(lab.get("time.settle_s") or 0.0),
-                          float(lab["operating_point.drive_speed_rpm"]))
-        row = {**lab, **cols}
+        row = {**r["labels"], **indicator_columns(r, runs_dir)}
         cache.write_text(json.dumps({"stamp": stamp, "row": row}, default=str))
         rows.append(row)
     return rows

@@ -260,15 +260,15 @@ def _executor_name(address: str | None, executor) -> str:
     return "custom" if executor is not None else "local processes"
 
 
-def _specs_of(scenes: list[Scene], specs: dict | None, assemble=None) -> tuple[list, dict[str, str]]:
-    """(the SystemSpec of each scene, None where it has no start state; {name: why} of those). A gearbox
-    whose mesh carries the start load at no position (:class:`drivetrain.errors.StartStateError`) is one
-    failed case, named in the manifest: the others go on. Every other refusal stops the sweep, as before."""
-    assemble = assemble or (lambda s, sp: assemble_scene(s))
+def _specs_of(scenes: list[Scene], specs: dict | None, assemble=assemble_scene) -> tuple[list, dict[str, str]]:
+    """(the SystemSpec of each scene, None where it has no start state; {name: why} of those): a caller's spec
+    (``specs``) as given, else ``assemble(scene)``. A gearbox whose mesh carries the start load at no position
+    (:class:`drivetrain.errors.StartStateError`) is one failed case, named in the manifest: the others go on.
+    Every other refusal stops the sweep, as before."""
     out, refused = [], {}
     for s in scenes:
         try:
-            out.append((specs or {}).get(s.name) or assemble(s, None))
+            out.append((specs or {}).get(s.name) or assemble(s))
         except StartStateError as exc:
             out.append(None)
             refused[s.name] = str(exc)
@@ -672,7 +672,7 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
     # the maps are there now: a table gear assembled before its map was cached starts at its own deflection, as
     # `drivetrain run` starts it (the specs a caller gave are theirs)
     by_spec = dict(zip([s.name for s in scenes], all_specs))
-    all_specs, more = _specs_of(scenes, specs, lambda s, _: assembled_with_map(s, by_spec[s.name]))
+    all_specs, more = _specs_of(scenes, specs, lambda s: assembled_with_map(s, by_spec[s.name]))
     refused.update(more)
     scenes, all_specs = _runnable(scenes, all_specs)
     if refused and log:

@@ -191,27 +191,28 @@ def _abs_torque(pair, theta_pinion, s, out):
 
 
 def static_deflection(pair: PCMGearPair, theta_pinion: float, torque: float, s_onset: float | None = None,
-                      rtol: float = 1e-6) -> float:
-    """Mesh coordinate s at which the static mesh torque balances a driving pinion torque (> 0)."""
+                      rtol: float = 1e-6, flank: int = +1) -> float:
+    """Mesh coordinate s at which the static mesh torque balances a pinion torque ``torque`` (> 0) carried by
+    ``flank``: +1 the drive flank (a driving pinion), -1 the coast flank (s decreasing from its onset)."""
     from scipy.optimize import brentq
 
     if s_onset is None:
-        s_onset = contact_onset(pair, theta_pinion, +1)
+        s_onset = contact_onset(pair, theta_pinion, flank)
     if not math.isfinite(s_onset):
         return math.nan
     out = np.zeros(N_OUT)
 
     def resid(s):
-        return -pair.mesh_torque(theta_pinion, s, out) - torque
+        return -flank * pair.mesh_torque(theta_pinion, s, out) - torque
 
     step = 1e-6
-    hi = s_onset + step
+    hi = s_onset + flank * step
     while resid(hi) < 0:
         step *= 2.0
-        hi = s_onset + step
+        hi = s_onset + flank * step
         if step > 0.05:
             raise RuntimeError("no static equilibrium found within 0.05 rad of mesh approach")
-    return brentq(resid, s_onset, hi, rtol=rtol, xtol=1e-13)
+    return brentq(resid, *sorted((s_onset, hi)), rtol=rtol, xtol=1e-13)
 
 
 def static_transmission_error(pair: PCMGearPair, thetas, torque: float, ds: float = 2e-7):

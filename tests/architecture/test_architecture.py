@@ -11,7 +11,7 @@ from pathlib import Path
 
 from drivetrain.fmu_build.bundle import imported_modules, package_modules
 
-SRC = Path(__file__).resolve().parents[1] / "src"
+SRC = Path(__file__).resolve().parents[2] / "src"
 
 
 def _modules() -> dict[str, Path]:

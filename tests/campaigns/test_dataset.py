@@ -8,11 +8,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from _cosim_test_fmus import build_test_fmus
+from _cosim_test_fmus import build_test_fmus, toy_spec
+from _shared import EXAMPLE
 from drivetrain.cli import main
 from drivetrain.run.outputs import read_hdf5
 from drivetrain.scene.load import load_scene
-from test_run import EXAMPLE, toy_spec
 
 
 @pytest.fixture(scope="module")

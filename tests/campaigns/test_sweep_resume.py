@@ -16,7 +16,7 @@ import pytest
 from drivetrain.run.outputs import read_hdf5
 from drivetrain.campaigns.sweep import JOURNAL, read_runs
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 GRID = """
 [scenario]

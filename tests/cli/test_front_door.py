@@ -14,7 +14,7 @@ import pytest
 import drivetrain
 from drivetrain.fmu_build import fmus as F
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 README = ROOT / "README.md"
 EXAMPLE = ROOT / "scenarios" / "example.toml"
 
@@ -166,7 +166,7 @@ def test_accuracy_cost_writes_into_out_and_the_shipped_files_only_when_asked(tmp
     """``accuracy-cost`` (its study replaced by canned results) writes report, plots and results into --out;
     the shipped results (which run --tolerance reads) and docs/ACCURACY-COST.md change only with
     --update-shipped."""
-    from test_accuracy import _results
+    from _shared import accuracy_results as _results
 
     from drivetrain.campaigns import accuracy_study as S
     from drivetrain.cli import main
@@ -272,7 +272,7 @@ def test_eigen_reports_overdamped_modes_as_such(capsys):
 
 def test_the_accuracy_report_states_costs_against_the_scenes_defaults():
     """The study's report says what a tolerance's choice costs against the scene as it runs without one."""
-    from test_accuracy import _results
+    from _shared import accuracy_results as _results
 
     from drivetrain.campaigns import accuracy_study as S
 

@@ -4,7 +4,7 @@ nothing written outside the output directory, no success claimed for what did no
 
 The default suite draws a few hundred cases (about a minute); ``-m slow`` draws ten times as many, and the
 FMI sequences there include GearContact. A failing case prints its seed and mutation: rerun it with
-``FUZZ_SEED=<seed> pytest tests/test_fuzz.py -k <family>``.
+``FUZZ_SEED=<seed> pytest tests/cli/test_fuzz.py -k <family>``.
 """
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ import pytest
 
 from drivetrain.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
 SEED = int(os.environ.get("FUZZ_SEED", "2026"))
 

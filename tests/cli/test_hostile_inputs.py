@@ -9,7 +9,7 @@ import pytest
 from drivetrain.cli import main
 from drivetrain.rig.data import MEASURED_CSV as MEASURED
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _rc(argv, capsys):

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
 SCENE = ROOT / "tests" / "scenes" / "standstill_reversed_load.toml"
 SHORT = "time.duration_s=0.2"

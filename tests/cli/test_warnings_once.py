@@ -9,7 +9,7 @@ from pathlib import Path
 
 from drivetrain.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
 
 

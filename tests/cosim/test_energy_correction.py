@@ -17,7 +17,7 @@ from drivetrain.fmu_build.fmus import load_fmu_info
 from drivetrain.run.runner import assemble_scene
 from drivetrain.scene.load import load_scene
 
-SCENE = Path(__file__).resolve().parent / "scenes" / "standstill_reversed_load.toml"
+SCENE = Path(__file__).resolve().parents[1] / "scenes" / "standstill_reversed_load.toml"
 SPRING_SIDE = {"motors": "MotorLoad", "drive_shaft": "FlexibleShaft", "gear": "GearContact"}
 RECORD = ["drive_shaft.torque_sensor", "gear.flange_b_tau_mean"]
 

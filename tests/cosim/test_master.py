@@ -1,6 +1,6 @@
 """The co-simulation master (drivetrain.cosim) on small test FMUs built here with pythonfmu.
 
-Real component FMUs are exercised in test_run.py once the assembler and the components exist.
+Real component FMUs are exercised in tests/run/test_run_scene.py.
 """
 import json
 from pathlib import Path
@@ -252,7 +252,7 @@ def test_observers_are_told_of_an_abort(fmus):
     assert end.aborted and end.k_done == 4096 and len(obs.chunks) == 1
 
 
-GEAR_SLAVE = Path(__file__).resolve().parents[1] / "src" / "gearcontact_fmu" / "slaves" / "GearContact.py"
+GEAR_SLAVE = Path(__file__).resolve().parents[2] / "src" / "gearcontact_fmu" / "slaves" / "GearContact.py"
 
 
 @pytest.fixture(scope="module")

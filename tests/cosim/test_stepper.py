@@ -18,7 +18,7 @@ from drivetrain.cosim import stepper as stepper_mod  # noqa: E402
 from drivetrain.cosim.slaves import FmiSlave  # noqa: E402
 from drivetrain.system import ComponentSpec, Connection, SystemSpec  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
 H12 = 1.0 / 12000.0
 

@@ -198,7 +198,7 @@ def gear_slave_at_t0(spec):
 
     from drivetrain.fmu_build.build import slave_class
 
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     g = spec.components_of("GearContact")[0]
     cls = slave_class(root / "src" / "gearcontact_fmu" / "slaves" / "GearContact.py")
     s = cls(instance_name="t0", resources=tempfile.gettempdir())
@@ -214,7 +214,7 @@ def _gear_at_t0(overrides):
     from drivetrain.run.runner import assemble_scene
     from drivetrain.scene.load import load_scene
 
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     spec = assemble_scene(load_scene(root / "scenarios" / "example.toml", ["time.duration_s=0.01", *overrides]))
     return gear_slave_at_t0(spec), spec.metadata["steady_state"]
 
@@ -266,7 +266,7 @@ def test_a_map_not_cached_at_assembly_is_balanced_on_after_the_cost_checks(monke
         return real(gear, build_map) if build_map else (None, asm.MESH_START_GUESS)
 
     monkeypatch.setattr(asm, "start_mesh_model", not_cached_yet)
-    scene = load_scene(Path(__file__).resolve().parents[1] / "scenarios" / "example.toml", ["time.duration_s=0.01"])
+    scene = load_scene(Path(__file__).resolve().parents[2] / "scenarios" / "example.toml", ["time.duration_s=0.01"])
     assert asm.assemble(scene).metadata["mesh_start"] == asm.MESH_START_GUESS
     plan = prepare_run(scene, None, "inprocess", None, fmu_dir=tmp_path, force=False, log=lambda m: None)
     assert calls == [False, False, True]
@@ -299,7 +299,7 @@ def test_a_sweep_starts_a_map_not_cached_at_assembly_balanced_too(monkeypatch, t
     monkeypatch.setattr(asm, "start_mesh_model", cached_after_preparation)
     monkeypatch.setattr(S, "_prepare_fmus", prepared)
     monkeypatch.setattr(S, "_cases", record)
-    scene = load_scene(Path(__file__).resolve().parents[1] / "scenarios" / "example.toml", ["time.duration_s=0.01"])
+    scene = load_scene(Path(__file__).resolve().parents[2] / "scenarios" / "example.toml", ["time.duration_s=0.01"])
     S.run_sweep([scene], tmp_path / "out", progress=False)
     assert [sp.metadata["mesh_start"] for sp in handed] == ["balanced on the table model"]
 
@@ -348,7 +348,7 @@ def test_hosts_leave_the_constants_alone(tmp_path):
     from drivetrain.run.runner import assemble_scene
     from drivetrain.scene.load import load_scene
 
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     scene = load_scene(root / "scenarios" / "example.toml", ["time.duration_s=0.01"])
     spec = assemble_scene(scene)
     path = export_ssp(scene, tmp_path / "system.ssp", fmu_dir=tmp_path / "fmus", spec=spec, native=True)

@@ -136,10 +136,10 @@ SCRIPT = textwrap.dedent(r'''
                           "seconds": time.perf_counter() - t0}), flush=True)
 ''')
 
-#: host errors the native builds survive (run by tests/test_native_*.py, each in a subprocess of its own):
+#: host errors the native builds survive (run by tests/fmu_build/test_native_*.py, each in a subprocess of its own):
 #: a wrong GUID is refused at fmi2Instantiate (fmpy raises), a second fmi2FreeInstance of one instance is
 #: harmless. The pythonfmu FMUs do the same since issue 30 (their FMI wrapper checks the GUID and keeps the list
-#: of live instances; pythonfmu's export library does neither): tests/test_fmi_conformance.py.
+#: of live instances; pythonfmu's export library does neither): tests/fmu_build/test_fmi_conformance.py.
 LIFECYCLE = textwrap.dedent(r'''
     import json, sys, warnings
     warnings.simplefilter("ignore")
@@ -217,7 +217,7 @@ EXPECT = {
     "reset_and_run_again": (["ok"] * 6, None),
     "normal_steps_still_work": (["ok"] * 3, None),
 }
-#: where the native builds answer otherwise; tests/test_native_*.py use these. (nan_parameter, stop_before_start
+#: where the native builds answer otherwise; tests/fmu_build/test_native_*.py use these. (nan_parameter, stop_before_start
 #: and nan_start_time were here until issue 30: the pythonfmu FMUs accepted the call and refused the next step;
 #: their FMI wrapper now refuses the call itself with fmi2Error, as the native builds do.)
 NATIVE_EXPECT = {

@@ -4,7 +4,7 @@ after a failure, and FMU state get/set (a rolled-back step repeats bit for bit).
 
 Every case drives the built FMUs through fmpy's FMU2Slave in a subprocess (a pythonfmu FMU that
 reports an error in a process that already freed other pythonfmu instances can crash it: see
-tests/test_gearcontact_fmu.py)."""
+tests/fmu_build/test_gearcontact_fmu.py)."""
 import json
 import os
 import subprocess
@@ -16,7 +16,7 @@ import pytest
 
 fmpy = pytest.importorskip("fmpy")
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
 
 # the host side, shared by every case: load, instantiate, set by name, step with inputs by name

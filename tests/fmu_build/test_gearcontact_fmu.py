@@ -13,7 +13,7 @@ import pytest
 
 fmpy = pytest.importorskip("fmpy")
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 INPUT_CSV = ROOT / "examples" / "gearcontact_input.csv"
 
 

@@ -22,7 +22,7 @@ from fmpy.fmi2 import FMU2Slave  # noqa: E402
 from _fmi_instances import KEEP, get_values, open_instance  # noqa: E402
 from _fmi_instances import set_values as _set  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
 H = 1.0 / 12000.0
 INPUTS = ("flange_a_phi", "flange_a_w", "flange_b_phi", "flange_b_w")
@@ -64,7 +64,7 @@ def pyfmu(tmp_path_factory):
 
 
 def _open(path, params, name="gear"):
-    """An instance (log lines in ``s.log_lines()``, tests/_fmi_instances.py) and its variables by name; the
+    """An instance (log lines in ``s.log_lines()``, tests/fmu_build/_fmi_instances.py) and its variables by name; the
     parameters set as our master sets them: all but the FMU's constants (drivetrain.cosim.plan.settable)."""
     from drivetrain.fmu_build.fmus import load_fmu_info
     from drivetrain.cosim.plan import settable
@@ -334,7 +334,7 @@ def test_c_host_runs_it_without_python(native):
 
 
 def test_hostile_calls(native):
-    """The hostile FMI calls of tests/test_fmu_hostile.py on the native FMU: the same outcomes and log
+    """The hostile FMI calls of tests/fmu_build/test_fmu_hostile.py on the native FMU: the same outcomes and log
     texts as the pythonfmu FMUs, but for a String parameter set before initialization, which is refused
     at once here (every String parameter of the native FMU is fixed by the build or an option list)."""
     from test_fmu_hostile import EXPECT, NATIVE_EXPECT, PYTHONFMU_ONLY, SCRIPT, not_applicable

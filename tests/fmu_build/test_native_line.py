@@ -20,7 +20,7 @@ from _fmi_instances import set_values as _set  # noqa: E402
 
 from drivetrain.models import fmishell  # noqa: E402
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
 MODELS = ("FlexibleShaft", "UpperTransmission", "MotorLoad")
 H = 1.0 / 12000.0
@@ -398,7 +398,7 @@ def test_fmu_state_rollback_is_bit_identical(native, model):
 
 @pytest.mark.parametrize("model", MODELS)
 def test_hostile_calls(native, model):
-    """The hostile FMI calls of tests/test_fmu_hostile.py: the same outcomes and log texts as the pythonfmu
+    """The hostile FMI calls of tests/fmu_build/test_fmu_hostile.py: the same outcomes and log texts as the pythonfmu
     FMUs."""
     import json
     import os

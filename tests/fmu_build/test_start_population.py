@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from test_fmu_declarations import gear_slave_at_t0
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
 
 #: the seeds of 0-29 that had no start at 1.31 N.m (main at 812c552)

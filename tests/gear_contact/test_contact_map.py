@@ -307,7 +307,7 @@ def test_sliding_pit_has_no_blind_spot():
     1.59-1.71 %, neighbours within 1 % of the median; in 0.5 mm steps within 2 %."""
     import importlib.util
 
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     spec = importlib.util.spec_from_file_location("sliding_pit", root / "benchmarks" / "sliding_pit.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)

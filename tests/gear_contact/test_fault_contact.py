@@ -17,7 +17,7 @@ from gearcontact_fmu.fault_contact import contact_points, contact_share, loaded_
 from gearcontact_fmu.fault_specs import draw_faults, loaded_flank
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 G = BevelGearParams()
 #: the example scene's pinion torque (T_MSH at 1500 rpm, 1.31 N.m at the load motor)
 T_EXAMPLE = 3.7566

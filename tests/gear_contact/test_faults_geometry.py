@@ -121,7 +121,7 @@ def test_apply_health_and_errors(pinion):
 def test_a_fault_that_does_not_fit_refuses_the_run_naming_it():
     """Found when the meshes are built (the scene's keys are well formed): a refusal before any step,
     not a traceback."""
-    from test_scene_effects import EXAMPLE
+    from _shared import EXAMPLE
 
     from drivetrain.errors import ConfigurationError
     from drivetrain.run.runner import run_scene

@@ -216,7 +216,7 @@ def test_every_compliant_fidelity_carries_them():
 def runs_with_and_without(tmp_path_factory):
     """The example scene at 1500 rpm / 1.31 N·m, 3.5 s (3 s analysed after 0.5 s: the assembled start is
     the steady state), with the default errors (grade 6, seed 0) through the FMUs, and without them."""
-    from test_scene_effects import EXAMPLE
+    from _shared import EXAMPLE
 
     from drivetrain.run.runner import run_scene
     from drivetrain.scene.load import load_scene
@@ -254,7 +254,7 @@ def test_a_run_with_errors_shows_the_shaft_orders(runs_with_and_without, sensor,
 
 
 def test_scene_keys_draw_from_the_seed_and_refuse_the_ideal_gear():
-    from test_scene_effects import EXAMPLE
+    from _shared import EXAMPLE
 
     from drivetrain.run.assemble import manufacturing_errors
     from drivetrain.errors import ScenarioError
@@ -352,7 +352,7 @@ def test_profile_draw_leaves_the_pitch_and_runout_errors_of_a_seed():
 
 
 def test_scene_keys_draw_the_profile_errors():
-    from test_scene_effects import EXAMPLE
+    from _shared import EXAMPLE
 
     from drivetrain.run.assemble import manufacturing_errors
     from drivetrain.scene.load import load_scene
@@ -370,7 +370,7 @@ def test_a_table_run_with_profile_errors_has_a_larger_gmf_line():
     """The example scene (table, 0.5 s, in-process) with the default manufacturing errors, with and
     without the profile form: the mesh-periodic transmission error raises the GMF line of the
     propeller-shaft torque."""
-    from test_scene_effects import EXAMPLE
+    from _shared import EXAMPLE
 
     from drivetrain.rig.signals import amplitude_near, amplitude_spectrum
     from drivetrain.run.runner import run_scene

@@ -65,7 +65,7 @@ def test_elastic_energy_is_the_work_of_the_torque(models):
 
 
 def test_scene_and_fmu_plumbing():
-    from test_scene_effects import EXAMPLE
+    from _shared import EXAMPLE
 
     from drivetrain.run.assemble import assemble
     from drivetrain.errors import ScenarioError

@@ -19,7 +19,7 @@ from drivetrain.run.assemble import sensor_map
 from drivetrain.run.outputs import read_hdf5
 from drivetrain.run.runner import run_scene
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
 SHORT = ["time.duration_s=0.5", "time.settle_s=0", "outputs.plots=false"]
 TORQUES = ("drive_shaft_torque", "propeller_shaft_torque")

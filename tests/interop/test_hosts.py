@@ -10,7 +10,7 @@ parameters after entering initialization mode and passes the outputs it reads th
 inputs: the drive motor must be at its operating point after the first step (it once ran at 1 rad/s
 instead of 157). The container must start at the operating point without a spike: no torque in the
 first 50 ms beyond 1.1x the steady torque. The libcosim run of the
-archive is in tests/test_ssp_export.py; docs/FMU.md has the recipe per host. Unmarked: the container
+archive is in tests/interop/test_ssp_export.py; docs/FMU.md has the recipe per host. Unmarked: the container
 export's own checks (start values without spaces, names, initialization order), no host needed.
 """
 import importlib.util

@@ -22,7 +22,7 @@ from drivetrain.run.runner import assemble_scene
 from drivetrain.scene.load import load_scene
 from drivetrain.interop.ssp import PARAMETER_SET, SSD_NAME, export_ssp, system_connections
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
 NS = {"ssd": "http://ssp-standard.org/SSP1/SystemStructureDescription",
       "ssc": "http://ssp-standard.org/SSP1/SystemStructureCommon",

@@ -13,7 +13,7 @@ from drivetrain.rig import data as rig
 from drivetrain.run.assemble import assemble
 from drivetrain.scene.load import default_scene
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_unlumped_public_model_reproduces_published_frequencies():

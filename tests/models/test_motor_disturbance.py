@@ -6,7 +6,7 @@ torque stays what the bearing loss needs), the first sub-step's acceleration d /
 momentum balance of the free drive side, the limit bounding the PI's share only, the energy balance every step
 under a sinusoidal disturbance (the disturbance's work over a step is exactly d times the motor node's angle
 change: the midpoint rule advances the angle by h times the midpoint speed the work is counted with), and the
-error on a non-finite value. Native = Python: tests/test_native_line.py."""
+error on a non-finite value. Native = Python: tests/fmu_build/test_native_line.py."""
 import math
 import re
 

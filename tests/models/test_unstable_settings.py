@@ -13,7 +13,7 @@ from drivetrain.cosim import ConfigurationError
 from drivetrain.run.runner import assemble_scene, run_scene
 from drivetrain.scene.load import load_scene
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
 
 

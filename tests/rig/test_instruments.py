@@ -69,7 +69,7 @@ def test_seeded_channels_and_untouched_others():
 def test_a_run_with_rig_sensors(tmp_path):
     """Rig sensors change the readings (noise, counts) and are recorded; the ideal run of the same scene
     is bit-identical to a run that never heard of them."""
-    from test_scene_effects import EXAMPLE, SHORT
+    from _shared import EXAMPLE, SHORT
 
     from drivetrain.run.runner import run_scene
     from drivetrain.scene.load import load_scene

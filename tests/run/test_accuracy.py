@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,8 +14,7 @@ from drivetrain.run.assemble import assemble
 from drivetrain.scene.load import load_scene
 from drivetrain.rig.signals import characteristic_frequencies
 
-ROOT = Path(__file__).resolve().parents[1]
-EXAMPLE = ROOT / "scenarios" / "example.toml"
+from _shared import EXAMPLE, accuracy_results
 FS, SETTLE, RPM = 3000.0, 0.5, 1500.0
 
 
@@ -68,23 +66,10 @@ def test_pareto_front():
     assert S.pareto_front(pts) == {"a", "b", "d", "e"}
 
 
-def _results():
-    def row(cost, err):
-        return {"status": "ok", "loop_s_per_s": cost,
-                "errors": {"mean_err_pct": err, "std_err_pct": err, "gmf_dB": err, "sideband_dB": None}}
-    return {"scenes": {
-        "healthy_1500rpm": {"health_class": "healthy", "speed_rpm": 1500.0,
-                            "rows": {"reference": row(4.0, 0.0), "default": row(2.0, 0.5), "fast": row(0.9, 3.0),
-                                     "tooth_compliance": row(0.1, 0.0)}},
-        "severe_250rpm": {"health_class": "severe", "speed_rpm": 250.0,
-                          "rows": {"reference": row(4.0, 0.0), "default": row(2.0, 2.0), "fast": row(0.9, 8.0)}},
-    }}
-
-
 def test_choose_picks_the_cheapest_setting_within_the_tolerance():
     healthy = load_scene(EXAMPLE)
     severe = load_scene(EXAMPLE, ["gear.health=severe", "operating_point.drive_speed_rpm=300"])
-    R = _results()
+    R = accuracy_results()
     assert A.closest_scene(healthy, R) == "healthy_1500rpm" and A.closest_scene(severe, R) == "severe_250rpm"
     assert A.choose(healthy, 1.0, R).setting == "default"
     assert A.choose(healthy, 5.0, R).setting == "fast"
@@ -155,7 +140,7 @@ def test_the_chosen_setting_meets_the_tolerance_against_the_reference():
 
 
 def test_the_report_and_plots_render(tmp_path):
-    R = _results()
+    R = accuracy_results()
     R["meta"] = {"command": "drivetrain accuracy-cost", "wall_time_s": 60.0, "workers": 2}
     R["scenes"]["healthy_1500rpm"]["rows"]["mesh_0.5mm"] = {"status": "not applicable", "reason": "x"}
     figs = S.plot_pareto(R, tmp_path)

@@ -8,7 +8,7 @@ import json
 import time
 
 import pytest
-from test_scene_effects import EXAMPLE, SHORT
+from _shared import EXAMPLE, SHORT
 
 from drivetrain.run.assemble import assemble
 from drivetrain.errors import ConfigurationError, ScenarioError

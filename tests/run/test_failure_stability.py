@@ -18,7 +18,7 @@ from drivetrain.scene.expect import summary_mismatch
 from drivetrain.scene.load import load_scene
 from drivetrain.system import ComponentSpec, Connection, SystemSpec
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
 HAVE_ASSEMBLER = importlib.util.find_spec("drivetrain.run.assemble") is not None
 needs_assembler = pytest.mark.skipif(not HAVE_ASSEMBLER, reason="drivetrain.run.assemble not available")

@@ -14,7 +14,7 @@ from drivetrain.rig.signals import AMPLITUDE_CONVENTION, amplitude_spectrum, cha
 from drivetrain.run import outputs as O
 from drivetrain.scene.load import load_scene
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
 CF = characteristic_frequencies(1500.0)          # f_PSH 2.08, f_MSH 8.33, f_DSH 25, f_GMF 125 Hz
 

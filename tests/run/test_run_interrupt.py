@@ -16,7 +16,7 @@ import pytest
 from drivetrain.fmu_build.fmus import ensure_fmus
 from drivetrain.run.outputs import read_hdf5
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

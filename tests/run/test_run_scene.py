@@ -9,15 +9,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from _cosim_test_fmus import build_test_fmus
+from _cosim_test_fmus import build_test_fmus, toy_spec
 from drivetrain.cli import main
 from drivetrain.run.outputs import AALTO_COLUMNS, read_hdf5
 from drivetrain.run.runner import SUMMARY_KEYS, run_scene
 from drivetrain.scene.expect import RUN_SUMMARY_TREE, summary_mismatch
 from drivetrain.scene.load import load_scene, load_scenes
-from drivetrain.system import ComponentSpec, Connection, SystemSpec
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
 HAVE_ASSEMBLER = importlib.util.find_spec("drivetrain.run.assemble") is not None
 
@@ -31,18 +30,6 @@ def fmu_dir(tmp_path_factory):
 @pytest.fixture(scope="module")
 def fmus(tmp_path_factory):
     return build_test_fmus(tmp_path_factory.mktemp("mtfmus_run"))
-
-
-def toy_spec():
-    """Motor inertia -> spring -> load inertia, standing in for the drivetrain (sensors mapped)."""
-    return SystemSpec(
-        components=[ComponentSpec("motor", "MTInertia", {"J": 0.01, "d": 0.002, "tau_src": 1.0}),
-                    ComponentSpec("shaft", "MTSpring", {"k": 300.0, "c": 0.05}),
-                    ComponentSpec("load", "MTInertia", {"J": 0.02, "d": 0.01})],
-        connections=[Connection("shaft.flange_a", "motor.flange"), Connection("shaft.flange_b", "load.flange")],
-        comm_step=1.0 / 12000.0,
-        metadata={"sensors": {"drive_shaft_torque": "shaft.flange_b_tau", "propeller_shaft_torque": "shaft.flange_b_tau",
-                              "enc1": "motor.flange_phi", "enc5": "load.flange_phi"}})
 
 
 def test_run_scene_writes_everything(tmp_path, fmus):
@@ -237,7 +224,7 @@ def _check_example_output(out):
 def test_cli_run_example_fast_fidelity(tmp_path, capsys):
     """The example through the command line (analytic mesh: no contact map to build), in this process
     (`drivetrain.cli.main`; the console entry point in a fresh process: the slow test below and
-    tests/test_sweep_resume.py)."""
+    tests/campaigns/test_sweep_resume.py)."""
     out = tmp_path / "tmp"
     rc = main(["run", str(EXAMPLE), "--set", "time.duration_s=0.5", "--set", "effects.mesh_contact=analytic",
                "--out", str(out), "--fmu-dir", str(tmp_path / "fmus"), "--quiet"])
@@ -331,7 +318,7 @@ def test_an_inprocess_run_leaves_pythonfmu_as_installed(tmp_path):
 
     code = textwrap.dedent(f"""
         import os, sys
-        sys.path.insert(0, {str(Path(__file__).parent)!r})
+        sys.path.insert(0, {str(Path(__file__).resolve().parents[1])!r})
         from pathlib import Path
         from drivetrain.run.runner import run_scene
         from drivetrain.scene.load import load_scene
@@ -339,7 +326,7 @@ def test_an_inprocess_run_leaves_pythonfmu_as_installed(tmp_path):
                                               "effects.mesh_contact=ideal", "outputs.plots=false"])
         run_scene(scene, None, backend="inprocess", progress=False, log=lambda m: None)
         import pythonfmu
-        from _cosim_test_fmus import build_test_fmus
+        from _cosim_test_fmus import build_test_fmus, toy_spec
         paths = build_test_fmus(Path({str(tmp_path)!r}))
         import zipfile
         names = zipfile.ZipFile(paths["MTInertia"]).namelist()

@@ -14,12 +14,7 @@ from drivetrain.run.assemble import assemble
 from drivetrain.run.runner import run_scene
 from drivetrain.scene.load import load_scene
 
-ROOT = Path(__file__).resolve().parents[1]
-EXAMPLE = ROOT / "scenarios" / "example.toml"
-# a short run at a coarse contact mesh (the contact map of this resolution builds in about a minute;
-# the converged default is covered by tests/test_gearpair.py and the slow runs)
-SHORT = ["time.duration_s=0.03", "time.settle_s=0.01", "outputs.plots=false", "outputs.aalto_csv=false",
-         "numerics.profile_element_mm=0.2", "numerics.max_substep_s=2e-6"]
+from _shared import EXAMPLE, SHORT
 
 
 @pytest.fixture(scope="module")

@@ -11,8 +11,8 @@ import pytest
 from drivetrain.run.runner import run_scene
 from drivetrain.scene.load import load_scene
 
-SCENES = Path(__file__).resolve().parent / "scenes"
-ROOT = Path(__file__).resolve().parents[1]
+SCENES = Path(__file__).resolve().parents[1] / "scenes"
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

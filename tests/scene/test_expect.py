@@ -16,7 +16,7 @@ from drivetrain.scene import expect as X
 from drivetrain.cli import main
 from drivetrain.scene.load import ScenarioError, load_scene, load_scenes, with_overrides
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 TINY = """\
 [scenario]

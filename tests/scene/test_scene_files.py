@@ -7,7 +7,7 @@ import pytest
 from drivetrain.scene.load import (SCHEMA, ScenarioError, all_keys, load_scene, load_scenes, parse_override, resolve,
                                  scene_from_dict)
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 SCENARIOS = ROOT / "scenarios"
 
 

@@ -100,17 +100,17 @@ def _time_domain_means(fmu_dir, speed, load, duration=1.0, settle=0.6):
             ss["T_dsh"], ss["T_psh"])
 
 
-def test_time_domain_mean_equals_steady_state(drivetrain_fmu_dir):
-    td, tp, sd, sp = _time_domain_means(drivetrain_fmu_dir, 1500.0, 1.31)
+def test_time_domain_mean_equals_steady_state(fmu_dir):
+    td, tp, sd, sp = _time_domain_means(fmu_dir, 1500.0, 1.31)
     assert td == pytest.approx(sd, rel=2e-3)
     assert tp == pytest.approx(sp, rel=2e-3)
 
 
 @pytest.mark.slow
-def test_time_domain_means_at_all_18_points_within_5_percent(drivetrain_fmu_dir):
+def test_time_domain_means_at_all_18_points_within_5_percent(fmu_dir):
     d = _measured()
     for TL, TD, TP, n in zip(d["T_load_Nm"], d["T_DSH_Nm"], d["T_PSH_Nm"], d["n_DSH_rpm"]):
-        td, tp, _, _ = _time_domain_means(drivetrain_fmu_dir, float(n), float(TL), duration=2.0, settle=1.0)
+        td, tp, _, _ = _time_domain_means(fmu_dir, float(n), float(TL), duration=2.0, settle=1.0)
         assert abs(td / TD - 1) < 0.05 and abs(tp / TP - 1) < 0.05, (TL, n, td, TD, tp, TP)
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from _cosim_test_fmus import build_test_fmus, toy_spec
+from _cosim_test_fmus import toy_spec
 from _shared import EXAMPLE
 from drivetrain.cli import main
 from drivetrain.run.outputs import read_hdf5
@@ -16,15 +16,14 @@ from drivetrain.scene.load import load_scene
 
 
 @pytest.fixture(scope="module")
-def sweep(tmp_path_factory):
+def sweep(tmp_path_factory, mt_fmus):
     from drivetrain.campaigns.sweep import run_sweep
 
-    fmus = build_test_fmus(tmp_path_factory.mktemp("mtfmus_ds"))
     out = tmp_path_factory.mktemp("ds") / "sw"
     scenes = [load_scene(EXAMPLE, ["time.duration_s=0.2", f"scenario.name=toy{i}", "outputs.plots=false",
                                    f"gear.health={h}", f"operating_point.load_torque_Nm={v}"])
               for i, (h, v) in enumerate((("healthy", 0.12), ("severe", 1.31)))]
-    run_sweep(scenes, out, workers=1, specs={s.name: toy_spec() for s in scenes}, fmu_paths=fmus, progress=False)
+    run_sweep(scenes, out, workers=1, specs={s.name: toy_spec() for s in scenes}, fmu_paths=mt_fmus, progress=False)
     return out
 
 
@@ -220,7 +219,7 @@ def test_the_export_holds_one_run_at_a_time(sweep, tmp_path, monkeypatch):
     assert len(reads) == 2 * n_runs and sorted(reads[n_runs:]) == sorted(reads[:n_runs])
 
 
-def test_a_growth_grid_runs_and_exports_with_its_stage_labels(tmp_path):
+def test_a_growth_grid_runs_and_exports_with_its_stage_labels(tmp_path, fmu_dir):
     """Issue 29 on a real sweep (the drivetrain's own models, not toy specs): a pinion pit grows and becomes a
     spall in one gearbox; every stage is a run labelled with its stage, remaining life and the fault's sizes
     (fault0.*), the healthy stage with empty fault labels; the labels of effects that are off are empty; the
@@ -257,7 +256,7 @@ stages = [{ radius_mm = 1.0, depth_mm = 0.1 }, { kind = "spall", length_mm = 3.0
 life = [0.5, 0.9]
 """)
     scenes = load_scenes(grid)
-    man = run_sweep(scenes, tmp_path / "sw", workers=1, backend="inprocess", fmu_dir=tmp_path / "fmus", progress=False)
+    man = run_sweep(scenes, tmp_path / "sw", workers=1, backend="inprocess", fmu_dir=fmu_dir, progress=False)
     assert [r["status"] for r in man["runs"]] == ["ok"] * 3, man["runs"]
     path = export(tmp_path / "sw", "parquet")
     df = pd.read_parquet(path)

@@ -66,14 +66,14 @@ def test_the_change_score_decides_the_verdict():
 
 
 @pytest.mark.slow
-def test_a_small_frontier_runs_end_to_end_and_resumes(tmp_path, drivetrain_fmu_dir):
+def test_a_small_frontier_runs_end_to_end_and_resumes(tmp_path, fmu_dir):
     """One kind, one member, one operating point, 3 gearboxes, short runs, a ladder of 2: the rounds end,
     the report is written, and a second invocation reuses every run."""
     study = F.FrontierStudy(("pit",), ("pinion",), (1500.0,), (1.31,), 3, 1.2, 0.2, (0.5, 2.0))
-    a = F.run_frontier(study, tmp_path, workers=2, fmu_dir=drivetrain_fmu_dir, progress=False)
+    a = F.run_frontier(study, tmp_path, workers=2, fmu_dir=fmu_dir, progress=False)
     assert len(a["cells"]) == 1 and 1 <= len(a["rounds"]) <= 2
     assert a["runs"] == 3 * (2 + len(a["cells"][0]["sizes_run"]))
-    b = F.run_frontier(study, tmp_path, workers=2, fmu_dir=drivetrain_fmu_dir, progress=False)
+    b = F.run_frontier(study, tmp_path, workers=2, fmu_dir=fmu_dir, progress=False)
     assert b["cells"] == a["cells"]
     assert all(r["reused"] == r["runs"] for r in b["rounds"])
     md = F.report_markdown(a, study, {"command": "x", "workers": 2, "wall_time_s": 1.0, "core_hours": 0.0})

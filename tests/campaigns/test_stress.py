@@ -248,13 +248,13 @@ def test_class_table_and_report():
 # ------------------------------------------------------------------------------------------ end to end
 
 
-def test_drivetrain_stress_end_to_end(tmp_path):
+def test_drivetrain_stress_end_to_end(tmp_path, fmu_dir):
     """`drivetrain stress` on two short random scenes (fast fidelities, no paper scenes) and one halving
     pair, with a private FMU directory; then the report regenerated from the run directories."""
     out = tmp_path / "stress"
     rc = main(["stress", "--set-name", "random", "--n-random", "2", "--seed", "0", "--fidelities", "analytic,ideal",
                "--duration-random", "0.2", "--halving-subset", "2", "--out", str(out), "--workers", "2",
-               "--fmu-dir", str(tmp_path / "fmus"), "--quiet"])
+               "--fmu-dir", str(fmu_dir), "--quiet"])
     rec = json.loads((out / "stress.json").read_text())
     assert rc == (0 if rec["n_fail"] == 0 else 3)
     names = [r["name"] for r in rec["runs"]]

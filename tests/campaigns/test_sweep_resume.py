@@ -67,7 +67,7 @@ class _InThisProcess:
 
 
 @pytest.fixture(scope="module")
-def full_sweep(tmp_path_factory):
+def full_sweep(tmp_path_factory, fmu_dir):
     """The grid run uninterrupted, in this process (the reference of the killed sweep, whose runs are in
     worker processes, and the sweep the dataset test truncates): (grid file, FMU directory, sweep directory)."""
     from drivetrain.scene.load import load_scenes
@@ -76,7 +76,7 @@ def full_sweep(tmp_path_factory):
     d = tmp_path_factory.mktemp("sweep_resume")
     grid = d / "kill.toml"
     grid.write_text(GRID)
-    fmu_dir, full = d / "fmus", d / "full"
+    full = d / "full"
     man = run_sweep(load_scenes(grid), full, executor=_InThisProcess(), fmu_dir=fmu_dir, progress=False)
     assert man["complete"] and [r["status"] for r in man["runs"]] == ["ok"] * 6, man["runs"]
     return grid, fmu_dir, full

@@ -87,7 +87,7 @@ def _readme_api_code() -> str:
 
 
 def test_the_readme_python_example_runs_and_writes_nothing_in_the_current_folder(
-        tmp_path, monkeypatch, drivetrain_fmu_dir, native_cache_dir):
+        tmp_path, monkeypatch, fmu_dir, native_cache_dir):
     """The README's notebook example, as written but with 0.3 s runs, from a fresh folder holding only the
     scene: the run writes nothing there (no fmus/), the sweep only its out/ directory; the DataFrames carry
     their units."""
@@ -99,10 +99,10 @@ def test_the_readme_python_example_runs_and_writes_nothing_in_the_current_folder
     shutil.copy(EXAMPLE, cwd / "scenarios")
     before = _tree(cwd)
     # the session's FMUs (built once per test session) stand in for the package's FMU directory
-    native = drivetrain_fmu_dir / "native"
+    native = fmu_dir / "native"
     if not native.exists():
         native.symlink_to(native_cache_dir, target_is_directory=True)
-    monkeypatch.setattr(F, "default_fmu_dir", lambda: drivetrain_fmu_dir, raising=False)
+    monkeypatch.setattr(F, "default_fmu_dir", lambda: fmu_dir, raising=False)
     monkeypatch.setenv("MPLBACKEND", "Agg")
     monkeypatch.chdir(cwd)
     ns = {"__name__": "readme_example"}

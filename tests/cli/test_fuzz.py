@@ -341,12 +341,9 @@ def _fmi_fuzz(fmu: Path, n: int, seed: int, unknown_refs: bool = True, go_on: bo
 
 
 @pytest.fixture(scope="module")
-def line_fmus(tmp_path_factory):
-    from drivetrain.cosim import ensure_fmus
-
-    d = tmp_path_factory.mktemp("fuzz_fmus")
-    ensure_fmus(["FlexibleShaft", "MotorLoad"], d)
-    return d
+def line_fmus(fmu_dir, pythonfmu_fmus):
+    """The session's FMU directory (tests/conftest.py), its FMUs built."""
+    return fmu_dir
 
 
 @pytest.mark.parametrize("model", ["FlexibleShaft", "MotorLoad"])
@@ -365,13 +362,12 @@ def test_fuzz_fmi_unknown_references_pythonfmu(line_fmus):
 
 
 @pytest.fixture(scope="module")
-def native_line_fmus(tmp_path_factory):
-    from drivetrain.fmu_build.native_line import build_native_line, toolchain_problems
+def native_line_fmus(fmus_both_builds):
+    from drivetrain.fmu_build.native_line import toolchain_problems
 
     if toolchain_problems():
         pytest.skip("no C toolchain: " + "; ".join(toolchain_problems()))
-    d = tmp_path_factory.mktemp("fuzz_native")
-    return {m: build_native_line(m, d / f"{m}.fmu") for m in ("FlexibleShaft", "MotorLoad")}
+    return {m: fmus_both_builds[("native", m)] for m in ("FlexibleShaft", "MotorLoad")}
 
 
 @pytest.mark.parametrize("model", ["FlexibleShaft", "MotorLoad"])

@@ -52,10 +52,10 @@ def _wall_line(stdout: str) -> tuple[float, list[float]]:
     return wall, parts
 
 
-def test_run_accounts_for_its_whole_wall_time(tmp_path, drivetrain_fmu_dir):
+def test_run_accounts_for_its_whole_wall_time(tmp_path, fmu_dir):
     """A native run with plots: start-up, assembly, builds, setup, loop, post-processing, files and plots."""
     out = tmp_path / "run"
-    args = ["run", EXAMPLE, "--native", "--set", SHORT, "--out", out, "--fmu-dir", drivetrain_fmu_dir]
+    args = ["run", EXAMPLE, "--native", "--set", SHORT, "--out", out, "--fmu-dir", fmu_dir]
     r, outside = _command(args, tmp_path)
     assert r.returncode == 0, r.stderr[-3000:]
     s = json.loads((out / "summary.json").read_text())
@@ -74,7 +74,7 @@ def test_run_accounts_for_its_whole_wall_time(tmp_path, drivetrain_fmu_dir):
 
 
 @pytest.mark.parametrize("command", ["check", "baseline", "sweep", "stress"])
-def test_many_run_commands_account_for_their_wall_time(tmp_path, drivetrain_fmu_dir, command):
+def test_many_run_commands_account_for_their_wall_time(tmp_path, fmu_dir, command):
     """check, baseline and sweep of a short scene, a stress campaign of one short random scene: the "wall
     time" line's parts add up to the wall time measured from outside."""
     args = {"check": ["check", SCENE, "--set", SHORT, "--out", tmp_path / "o", "--baseline-dir", tmp_path],
@@ -84,7 +84,7 @@ def test_many_run_commands_account_for_their_wall_time(tmp_path, drivetrain_fmu_
                        "--duration-random", "0.2", "--halving-subset", "0", "--out", tmp_path / "o",
                        "--workers", "1", "--quiet"],
             }[command]
-    r, outside = _command([*args, "--fmu-dir", drivetrain_fmu_dir], tmp_path)
+    r, outside = _command([*args, "--fmu-dir", fmu_dir], tmp_path)
     assert r.returncode in (0, 1, 3), r.stderr[-3000:]          # 1, 3: a check or a stress judge failed
     wall, parts = _wall_line(r.stdout)
     assert parts[0] > 0.05                   # the start-up: interpreter and imports before the command

@@ -13,13 +13,13 @@ ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
 
 
-def test_the_compiler_fallback_is_said_once(tmp_path, drivetrain_fmu_dir):
+def test_the_compiler_fallback_is_said_once(tmp_path, fmu_dir):
     """In a process of its own, as a user sees it (in pytest's process the library's logging is captured)."""
     env = {**os.environ, "CC": "no-such-cc",
            "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")])}
     r = subprocess.run([sys.executable, "-m", "drivetrain", "run", str(EXAMPLE), "--native", "--set",
                         "time.duration_s=0.02", "--no-plots", "--out", str(tmp_path / "o"), "--fmu-dir",
-                        str(drivetrain_fmu_dir)], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
+                        str(fmu_dir)], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     said = r.stdout + r.stderr
     assert said.count("C compiler 'no-such-cc' not found") == 1, said

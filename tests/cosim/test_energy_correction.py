@@ -22,11 +22,6 @@ SPRING_SIDE = {"motors": "MotorLoad", "drive_shaft": "FlexibleShaft", "gear": "G
 RECORD = ["drive_shaft.torque_sensor", "gear.flange_b_tau_mean"]
 
 
-@pytest.fixture(scope="module")
-def fmu_dir(tmp_path_factory):
-    return tmp_path_factory.mktemp("fmus_ec")
-
-
 def _run(fmu_dir, correction: bool, divide: int = 1):
     scene = load_scene(SCENE, [f"numerics.energy_correction={str(correction).lower()}",
                                f"numerics.comm_step_s={scene_step() / divide!r}"])

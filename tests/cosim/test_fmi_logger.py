@@ -14,10 +14,8 @@ pytest.importorskip("fmpy")
 
 
 @pytest.fixture(scope="module")
-def shaft_fmu(tmp_path_factory):
-    fmu_build = pytest.importorskip("drivetrain.fmu_build.build")
-    (path,) = fmu_build.build_all(tmp_path_factory.mktemp("logger_fmu"), only=["FlexibleShaft"])
-    return path
+def shaft_fmu(pythonfmu_fmus):
+    return pythonfmu_fmus["FlexibleShaft"]
 
 
 _PRELUDE = """

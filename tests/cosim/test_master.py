@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from _cosim_test_fmus import build_test_fmus
 import drivetrain.cosim as M
 from drivetrain.cosim import ConfigurationError, CosimError, Master, simulate
 from drivetrain.cosim.observers import Observer
@@ -16,11 +15,6 @@ from drivetrain.fmu_build.fmus import stamp_path
 from drivetrain.system import ComponentSpec, Connection, SystemSpec
 
 H12 = 1.0 / 12000.0
-
-
-@pytest.fixture(scope="module")
-def fmus(tmp_path_factory):
-    return build_test_fmus(tmp_path_factory.mktemp("mtfmus"))
 
 
 def two_mass(H=H12, b_model="MTInertia", tau=1.0, b_params=None, conns=None):
@@ -44,25 +38,25 @@ def no_instantiation(monkeypatch):
     monkeypatch.setattr(loop, "InprocSlave", boom)
 
 
-def test_wrong_causality_refused_naming_both_ports(fmus, no_instantiation):
+def test_wrong_causality_refused_naming_both_ports(mt_fmus, no_instantiation):
     spec = two_mass(conns=[Connection("a.flange", "s.flange_a"), Connection("s.flange_b", "b.flange")])
     with pytest.raises(ConfigurationError) as ei:
-        simulate(spec, 0.01, 3000.0, fmu_paths=fmus)
+        simulate(spec, 0.01, 3000.0, fmu_paths=mt_fmus)
     msg = str(ei.value)
     assert "a.flange" in msg and "s.flange_a" in msg and "causality" in msg
     assert "spring-side" in msg
 
 
-def test_unit_mismatch_refused_naming_both_ports(fmus, no_instantiation):
+def test_unit_mismatch_refused_naming_both_ports(mt_fmus, no_instantiation):
     spec = two_mass(b_model="MTInertiaRpm")
     with pytest.raises(ConfigurationError) as ei:
-        simulate(spec, 0.01, 3000.0, fmu_paths=fmus)
+        simulate(spec, 0.01, 3000.0, fmu_paths=mt_fmus)
     msg = str(ei.value)
     assert "unit mismatch" in msg
     assert "s.flange_b_w [rad/s]" in msg and "b.flange_w [rpm]" in msg
 
 
-def test_other_configuration_errors(fmus, no_instantiation):
+def test_other_configuration_errors(mt_fmus, no_instantiation):
     bad = [
         (two_mass(conns=[Connection("s.flange_a", "a.flange"), Connection("s.flange_b", "a.flange")]),
          "already fed"),
@@ -74,23 +68,23 @@ def test_other_configuration_errors(fmus, no_instantiation):
     ]
     for spec, text in bad:
         with pytest.raises(ConfigurationError, match=text):
-            simulate(spec, 0.01, 3000.0, fmu_paths=fmus)
+            simulate(spec, 0.01, 3000.0, fmu_paths=mt_fmus)
     with pytest.raises(ConfigurationError, match="has no variable 'nope'"):
-        simulate(two_mass(), 0.01, 3000.0, ["b.nope"], fmu_paths=fmus)
+        simulate(two_mass(), 0.01, 3000.0, ["b.nope"], fmu_paths=mt_fmus)
 
 
 @pytest.mark.parametrize("H", [1e-4, 1.0 / 7000.0, 2.0 / 3000.0])
-def test_comm_step_must_divide_output_period(fmus, no_instantiation, H):
+def test_comm_step_must_divide_output_period(mt_fmus, no_instantiation, H):
     with pytest.raises(ConfigurationError, match="does not divide the output period"):
-        simulate(two_mass(H=H), 0.01, 3000.0, fmu_paths=fmus)
+        simulate(two_mass(H=H), 0.01, 3000.0, fmu_paths=mt_fmus)
 
 
 @pytest.mark.parametrize("backend", ["fmi", "inprocess"])
 @pytest.mark.parametrize("mode,status", [(1, "discard"), (2, "fatal")])
-def test_fmu_error_names_fmu_time_and_log(fmus, backend, mode, status):
+def test_fmu_error_names_fmu_time_and_log(mt_fmus, backend, mode, status):
     spec = two_mass(b_params={"fail_at_s": 0.005, "fail_mode": mode})
     with pytest.raises(CosimError) as ei:
-        simulate(spec, 0.05, 3000.0, backend=backend, fmu_paths=fmus)
+        simulate(spec, 0.05, 3000.0, backend=backend, fmu_paths=mt_fmus)
     e = ei.value
     assert e.component == "b" and e.model == "MTInertia"
     assert e.time == pytest.approx(0.005, abs=H12 + 1e-12)
@@ -98,15 +92,15 @@ def test_fmu_error_names_fmu_time_and_log(fmus, backend, mode, status):
     assert "FMU 'b'" in msg and status in msg and "t = 0.005" in msg
     assert "deliberate" in msg          # the FMU's own log message (or its exception) is shown
     # the instances were torn down and the process is fine: a normal run works afterwards
-    r = simulate(two_mass(), 0.01, 3000.0, ["b.flange_w"], backend=backend, fmu_paths=fmus)
+    r = simulate(two_mass(), 0.01, 3000.0, ["b.flange_w"], backend=backend, fmu_paths=mt_fmus)
     assert np.all(np.isfinite(r.signals["b.flange_w"]))
 
 
-def test_backends_identical(fmus):
+def test_backends_identical(mt_fmus):
     spec = two_mass()
     rec = ["a.flange_w", "b.flange_phi", "s.flange_a_tau"]
-    r1 = simulate(spec, 0.2, 3000.0, rec, backend="fmi", fmu_paths=fmus, keep_raw=True)
-    r2 = simulate(spec, 0.2, 3000.0, rec, backend="inprocess", fmu_paths=fmus, keep_raw=True)
+    r1 = simulate(spec, 0.2, 3000.0, rec, backend="fmi", fmu_paths=mt_fmus, keep_raw=True)
+    r2 = simulate(spec, 0.2, 3000.0, rec, backend="inprocess", fmu_paths=mt_fmus, keep_raw=True)
     assert r1.raw.keys() == r2.raw.keys()
     for k in r1.raw:
         np.testing.assert_allclose(r1.raw[k], r2.raw[k], rtol=0, atol=1e-12)
@@ -115,8 +109,8 @@ def test_backends_identical(fmus):
     assert r1.energy["residual_J"] == pytest.approx(r2.energy["residual_J"], abs=1e-12)
 
 
-def test_outputs_at_output_rate_with_units(fmus):
-    r = simulate(two_mass(), 0.1, 3000.0, ["b.flange_w", "s.flange_b_tau"], fmu_paths=fmus)
+def test_outputs_at_output_rate_with_units(mt_fmus):
+    r = simulate(two_mass(), 0.1, 3000.0, ["b.flange_w", "s.flange_b_tau"], fmu_paths=mt_fmus)
     assert r.steps_per_output == 4 and r.n_steps == 1200
     assert len(r.time) == 301 and r.time[1] == pytest.approx(1 / 3000.0)
     assert r.units == {"b.flange_w": "rad/s", "s.flange_b_tau": "N.m"}
@@ -124,12 +118,12 @@ def test_outputs_at_output_rate_with_units(fmus):
     assert r.us_per_step > 0 and r.real_time_factor > 0
 
 
-def test_energy_audit_closes(fmus):
+def test_energy_audit_closes(mt_fmus):
     """Inertia FMUs close their balance with the master's port-work rule to round-off; the global
     residual equals the sum of per-FMU residuals and shrinks with H (it is the coupling error)."""
     rel = []
     for H in (1.0 / 6000.0, 1.0 / 12000.0, 1.0 / 24000.0):
-        r = simulate(two_mass(H=H), 1.0, 3000.0, fmu_paths=fmus)
+        r = simulate(two_mass(H=H), 1.0, 3000.0, fmu_paths=mt_fmus)
         e = r.energy
         assert e["complete"]
         ref = e["reference_J"]
@@ -146,25 +140,25 @@ def test_energy_audit_closes(fmus):
     assert rel[2] < 0.7 * rel[1] < 0.7 * 0.7 * rel[0]
 
 
-def test_profile_input_drives_unconnected_input(fmus):
+def test_profile_input_drives_unconnected_input(mt_fmus):
     """A component input given as [[t, v], ...] is interpolated and set every step."""
     spec = SystemSpec(components=[ComponentSpec("a", "MTInertia", {"J": 0.5, "d": 0.0},
                                                 inputs={"flange_tau": [[0.0, 0.0], [1.0, 1.0]]})],
                       connections=[], comm_step=H12)
-    r = simulate(spec, 1.0, 3000.0, ["a.flange_w"], fmu_paths=fmus)
+    r = simulate(spec, 1.0, 3000.0, ["a.flange_w"], fmu_paths=mt_fmus)
     # w(t) = t^2 / (2 J) for tau = t (held per step: first-order error in H)
     assert r.signals["a.flange_w"][-1] == pytest.approx(1.0, rel=1e-3)
     assert any("a.flange is not connected" in w for w in r.warnings)
 
 
-def test_staleness_keyed_on_source_hash(tmp_path, fmus, monkeypatch):
+def test_staleness_keyed_on_source_hash(tmp_path, mt_fmus, monkeypatch):
     """The stamp (and the build lock) live in the user-level cache, keyed by the directory: the FMU
     directory holds the FMUs only."""
     monkeypatch.setenv("BEVEL_CACHE_DIR", str(tmp_path / "cache"))
     d = tmp_path / "fmus"
     d.mkdir()
     assert M.stale_models(["MTSpring"], d) == ["MTSpring"]          # missing
-    (d / "MTSpring.fmu").write_bytes(fmus["MTSpring"].read_bytes())
+    (d / "MTSpring.fmu").write_bytes(mt_fmus["MTSpring"].read_bytes())
     assert M.stale_models(["MTSpring"], d) == ["MTSpring"]          # no stamp
     M.record_built(d, [d / "MTSpring.fmu"])
     assert M.stale_models(["MTSpring"], d) == []
@@ -176,8 +170,8 @@ def test_staleness_keyed_on_source_hash(tmp_path, fmus, monkeypatch):
         M.ensure_fmus(["MTSpring", "Nothing"], d, build=False)
 
 
-def test_per_step_cost_is_reported(fmus):
-    r = simulate(two_mass(), 0.5, 3000.0, fmu_paths=fmus)
+def test_per_step_cost_is_reported(mt_fmus):
+    r = simulate(two_mass(), 0.5, 3000.0, fmu_paths=mt_fmus)
     assert r.loop_time_s > 0 and 0 < r.us_per_step < 2000
 
 
@@ -204,7 +198,7 @@ class ChunkLog(Observer):
 
 
 @pytest.mark.parametrize("backend", ["fmi", "inprocess"])     # the C loop and the Python loop
-def test_a_callers_observer_sees_every_chunk_and_the_final_time(fmus, backend):
+def test_a_callers_observer_sees_every_chunk_and_the_final_time(mt_fmus, backend):
     """Adding an observer touches no loop code: one passed to Master.run is called at the start, after
     every chunk (contiguous chunks of many steps, never per step, ending where the caller asked) and at the
     end with the final time; the results are those of a run without it."""
@@ -212,7 +206,7 @@ def test_a_callers_observer_sees_every_chunk_and_the_final_time(fmus, backend):
 
     spec, rec = two_mass(), ["b.flange_w", "s.flange_a_tau"]
     obs = ChunkLog(pause_at=[5000])
-    r = Master(spec, backend=backend, fmu_paths=fmus).run(1.0, 3000.0, rec, progress=False, keep_raw=True,
+    r = Master(spec, backend=backend, fmu_paths=mt_fmus).run(1.0, 3000.0, rec, progress=False, keep_raw=True,
                                                          observers=[obs])
     assert r.n_steps == 12000 and obs.info.n_steps == 12000 and obs.info.H == H12
     ks = [(k0, k) for k0, k, _ in obs.chunks]
@@ -226,16 +220,16 @@ def test_a_callers_observer_sees_every_chunk_and_the_final_time(fmus, backend):
     cols = obs.info.plan.y_names
     for (_, k), row in zip(ks, obs.rows_seen):
         assert np.array_equal(row, [r.raw[n][k] for n in cols])          # the rows as the loop wrote them
-    plain = simulate(spec, 1.0, 3000.0, rec, backend=backend, fmu_paths=fmus, keep_raw=True)
+    plain = simulate(spec, 1.0, 3000.0, rec, backend=backend, fmu_paths=mt_fmus, keep_raw=True)
     for n in plain.raw:
         assert np.array_equal(plain.raw[n], r.raw[n])                     # bit for bit
 
 
-def test_observers_are_told_of_a_failure(fmus):
+def test_observers_are_told_of_a_failure(mt_fmus):
     spec = two_mass(b_params={"fail_at_s": 0.5, "fail_mode": 1})
     obs = ChunkLog()
     with pytest.raises(CosimError) as ei:
-        simulate(spec, 1.0, 3000.0, ["b.flange_w"], fmu_paths=fmus, progress=False, observers=[obs])
+        simulate(spec, 1.0, 3000.0, ["b.flange_w"], fmu_paths=mt_fmus, progress=False, observers=[obs])
     (end,) = obs.ends
     assert end.failure is ei.value and not end.aborted
     assert end.k_done == ei.value.partial.failure["steps_completed"]
@@ -243,10 +237,10 @@ def test_observers_are_told_of_a_failure(fmus):
     assert 4096 < end.k_done < 8192
 
 
-def test_observers_are_told_of_an_abort(fmus):
+def test_observers_are_told_of_an_abort(mt_fmus):
     obs = ChunkLog()
     with pytest.raises(KeyboardInterrupt):
-        Master(two_mass(), fmu_paths=fmus).run(1.0, 3000.0, progress=False, observers=[obs],
+        Master(two_mass(), fmu_paths=mt_fmus).run(1.0, 3000.0, progress=False, observers=[obs],
                                                stop_check=lambda: True)
     (end,) = obs.ends
     assert end.aborted and end.k_done == 4096 and len(obs.chunks) == 1
@@ -256,7 +250,7 @@ GEAR_SLAVE = Path(__file__).resolve().parents[2] / "src" / "gearcontact_fmu" / "
 
 
 @pytest.fixture(scope="module")
-def gear_fmus(tmp_path_factory, fmus):
+def gear_fmus(tmp_path_factory, mt_fmus):
     if not GEAR_SLAVE.is_file():
         pytest.skip("GearContact slave not available yet")
     d = tmp_path_factory.mktemp("gearfmu")
@@ -265,7 +259,7 @@ def gear_fmus(tmp_path_factory, fmus):
     except Exception as exc:  # pragma: no cover - depends on the parallel work
         pytest.skip(f"GearContact FMU cannot be built yet: {exc}")
     assert M.stale_models(["GearContact"], d) == []
-    return {**fmus, **paths}
+    return {**mt_fmus, **paths}
 
 
 def gear_system(H=H12):
@@ -295,7 +289,7 @@ def test_energy_audit_and_backends_with_real_gear_fmu(gear_fmus):
     assert r1.fmus[1]["parameters"]["fidelity"] == "analytic"
 
 
-def test_instantiates_exactly_the_spec(fmus, monkeypatch):
+def test_instantiates_exactly_the_spec(mt_fmus, monkeypatch):
     made = []
     import drivetrain.cosim.master as loop
 
@@ -308,14 +302,13 @@ def test_instantiates_exactly_the_spec(fmus, monkeypatch):
 
     monkeypatch.setattr(loop, "FmiSlave", Counting)
     spec = two_mass()
-    simulate(spec, 0.01, 3000.0, fmu_paths=fmus)
+    simulate(spec, 0.01, 3000.0, fmu_paths=mt_fmus)
     assert made == [(c.name, c.model) for c in spec.components]
 
 
 @pytest.fixture(scope="module")
-def drivetrain_fmus(tmp_path_factory):
-    d = tmp_path_factory.mktemp("dtfmus")
-    return M.ensure_fmus(["FlexibleShaft", "UpperTransmission"], d)
+def drivetrain_fmus(pythonfmu_fmus):
+    return {m: pythonfmu_fmus[m] for m in ("FlexibleShaft", "UpperTransmission")}
 
 
 def test_energy_audit_two_real_components_with_external_torques(drivetrain_fmus):

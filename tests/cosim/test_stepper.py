@@ -11,7 +11,6 @@ import pytest
 
 pytest.importorskip("fmpy")
 
-from _cosim_test_fmus import build_test_fmus  # noqa: E402
 import drivetrain.cosim.master as master  # noqa: E402
 from drivetrain.cosim import CosimError, simulate  # noqa: E402
 from drivetrain.cosim import stepper as stepper_mod  # noqa: E402
@@ -23,11 +22,6 @@ EXAMPLE = ROOT / "scenarios" / "example.toml"
 H12 = 1.0 / 12000.0
 
 pytestmark = pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc not installed")
-
-
-@pytest.fixture(scope="module")
-def fmus(tmp_path_factory):
-    return build_test_fmus(tmp_path_factory.mktemp("stepper_fmus"))
 
 
 @pytest.fixture
@@ -80,30 +74,30 @@ def example():
     return scene, assemble_scene(scene)
 
 
-def test_example_pythonfmu_bit_identical(example, drivetrain_fmu_dir, monkeypatch, spy):
+def test_example_pythonfmu_bit_identical(example, fmu_dir, monkeypatch, spy):
     """The default fmi backend (pythonfmu FMUs: the GIL is taken inside the C loop's calls), > 1 chunk."""
     _, spec = example
-    a, b = both(monkeypatch, spy, lambda: simulate(spec, 0.4, 3000.0, fmu_dir=drivetrain_fmu_dir, keep_raw=True))
+    a, b = both(monkeypatch, spy, lambda: simulate(spec, 0.4, 3000.0, fmu_dir=fmu_dir, keep_raw=True))
     assert len(spy) >= 2
     assert_raw_identical(a.raw, b.raw)
 
 
-def test_example_native_bit_identical(example, native_cache_dir, drivetrain_fmu_dir, monkeypatch, spy):
+def test_example_native_bit_identical(example, native_cache_dir, fmu_dir, monkeypatch, spy):
     from drivetrain.fmu_build.native_line import native_fmus
 
     scene, spec = example
     paths, note = native_fmus(spec, native_cache_dir)
     assert note is None, note
-    a, b = both(monkeypatch, spy, lambda: simulate(spec, 0.4, 3000.0, fmu_dir=drivetrain_fmu_dir,
+    a, b = both(monkeypatch, spy, lambda: simulate(spec, 0.4, 3000.0, fmu_dir=fmu_dir,
                                                    fmu_paths=paths, keep_raw=True))
     assert_raw_identical(a.raw, b.raw)
 
 
 @pytest.mark.parametrize("mode,status", [(1, "discard"), (2, "fatal")])
-def test_failure_mid_run_same_error_and_partial(fmus, monkeypatch, spy, mode, status):
+def test_failure_mid_run_same_error_and_partial(mt_fmus, monkeypatch, spy, mode, status):
     def run():
         with pytest.raises(CosimError) as ei:
-            simulate(toy_spec(0.4 + H12 / 3, mode), 0.6, 3000.0, ["load.flange_w"], fmu_paths=fmus,
+            simulate(toy_spec(0.4 + H12 / 3, mode), 0.6, 3000.0, ["load.flange_w"], fmu_paths=mt_fmus,
                      keep_raw=True, final=["load.energy_dissipated"])
         return ei.value
 
@@ -122,11 +116,11 @@ def test_failure_mid_run_same_error_and_partial(fmus, monkeypatch, spy, mode, st
 
 
 @pytest.mark.parametrize("call", ["set", "step", "get"])
-def test_warning_status_continues(fmus, monkeypatch, spy, call):
+def test_warning_status_continues(mt_fmus, monkeypatch, spy, call):
     """The shaft's SetReal / DoStep / GetReal returns fmi2Warning at one step: the run goes on and the rest
     of that step (the shaft's later calls, the load's) is done, giving the run without the warning."""
     rec = ["load.flange_w", "shaft.flange_a_tau"]
-    ref = simulate(toy_spec(), 0.5, 3000.0, rec, fmu_paths=fmus, keep_raw=True)
+    ref = simulate(toy_spec(), 0.5, 3000.0, rec, fmu_paths=mt_fmus, keep_raw=True)
     spy.clear()
     k_warn = 4100            # in the second chunk
     orig_bind = FmiSlave.bind
@@ -178,7 +172,7 @@ def test_warning_status_continues(fmus, monkeypatch, spy, call):
         keep.append(wrapped)
 
     monkeypatch.setattr(FmiSlave, "bind", bind)
-    a, b = both(monkeypatch, spy, lambda: simulate(toy_spec(), 0.5, 3000.0, rec, fmu_paths=fmus, keep_raw=True))
+    a, b = both(monkeypatch, spy, lambda: simulate(toy_spec(), 0.5, 3000.0, rec, fmu_paths=mt_fmus, keep_raw=True))
     assert a.status == b.status == "ok"
     assert_raw_identical(ref.raw, a.raw)
     assert_raw_identical(ref.raw, b.raw)
@@ -186,8 +180,8 @@ def test_warning_status_continues(fmus, monkeypatch, spy, call):
     assert spy == [(0, 4096), (4096, 6000), (k_warn + 1, 6000)]     # the C loop stopped there and resumed
 
 
-def test_fallback_without_compiler(fmus, monkeypatch, spy):
+def test_fallback_without_compiler(mt_fmus, monkeypatch, spy):
     monkeypatch.setenv("CC", "no-such-compiler-cc")
     assert stepper_mod.load_stepper() is None
-    r = simulate(toy_spec(), 0.05, 3000.0, ["load.flange_w"], fmu_paths=fmus)
+    r = simulate(toy_spec(), 0.05, 3000.0, ["load.flange_w"], fmu_paths=mt_fmus)
     assert r.status == "ok" and not spy

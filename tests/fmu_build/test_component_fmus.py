@@ -18,11 +18,9 @@ H = 1.0 / 12000.0
 
 
 @pytest.fixture(scope="module")
-def fmus(tmp_path_factory):
-    fmu_build = pytest.importorskip("drivetrain.fmu_build.build")
-    out = tmp_path_factory.mktemp("component_fmus")
-    paths = fmu_build.build_all(out, only=list(MODELS))
-    return {Path(p).stem: Path(p) for p in paths}
+def fmus(pythonfmu_fmus):
+    """The three component FMUs of the session (tests/conftest.py)."""
+    return {m: Path(pythonfmu_fmus[m]) for m in MODELS}
 
 
 _EXTRACTED: dict = {}

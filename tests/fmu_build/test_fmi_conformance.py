@@ -392,6 +392,7 @@ def test_without_a_compiler_the_fmu_keeps_pythonfmus_library_and_the_build_warns
     monkeypatch.setenv("CC", "no-such-cc-here")
     with pytest.warns(UserWarning, match="built WITHOUT the FMI wrapper.*no-such-cc-here"):
         (fmu,) = build_all(tmp_path, only=["MotorLoad"])
+    assert fmu.name == "MotorLoad.fmu"                      # only the model asked for
     with zipfile.ZipFile(fmu) as z:
         assert "binaries/linux64/MotorLoad.so" in z.namelist()
         assert not any("pythonfmu-export" in n for n in z.namelist())

@@ -337,7 +337,7 @@ def test_function_prefix_links_several_source_fmus_into_one_binary(fmus, tmp_pat
     assert not hasattr(lib, "fmi2GetVersion")
 
 
-def test_hosts_leave_the_constants_alone(tmp_path):
+def test_hosts_leave_the_constants_alone(tmp_path, fmu_dir):
     """The native gear's constants are neither in the SSP's parameter set nor set by our master (its check
     accepts the scene's value when it equals the built one and names the difference otherwise)."""
     if shutil.which("gcc") is None:
@@ -351,7 +351,7 @@ def test_hosts_leave_the_constants_alone(tmp_path):
     root = Path(__file__).resolve().parents[2]
     scene = load_scene(root / "scenarios" / "example.toml", ["time.duration_s=0.01"])
     spec = assemble_scene(scene)
-    path = export_ssp(scene, tmp_path / "system.ssp", fmu_dir=tmp_path / "fmus", spec=spec, native=True)
+    path = export_ssp(scene, tmp_path / "system.ssp", fmu_dir=fmu_dir, spec=spec, native=True)
     with zipfile.ZipFile(path) as z:
         ssv = z.read("resources/gear.ssv").decode()
         fmu = tmp_path / "GearContact.fmu"

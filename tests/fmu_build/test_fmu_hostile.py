@@ -16,7 +16,6 @@ import pytest
 
 from _fmi_instances import case_records
 
-from drivetrain.fmu_build.fmus import ensure_fmus
 
 MODELS = ("GearContact", "FlexibleShaft", "UpperTransmission", "MotorLoad")
 
@@ -239,17 +238,16 @@ def not_applicable(model: str, case: str) -> bool:
 
 
 @pytest.fixture(scope="module")
-def results(tmp_path_factory):
-    fmu_dir = tmp_path_factory.mktemp("fmus_hostile")
-    ensure_fmus(list(MODELS), fmu_dir)
+def results(tmp_path_factory, pythonfmu_fmus):
+    numba_cache = tmp_path_factory.mktemp("numba_hostile")
     cache: dict[str, tuple[dict, str]] = {}
 
     def of(model):
         if model not in cache:
             # numba caches of their own: the host's and the FMU's code in one interpreter with the source tree's
             # caches has crashed this subprocess (MotorLoad, rc -11) after other tests wrote them
-            env = {**os.environ, "NUMBA_CACHE_DIR": str(fmu_dir / "numba-cache")}
-            r = subprocess.run([sys.executable, "-c", SCRIPT, str(fmu_dir / f"{model}.fmu")],
+            env = {**os.environ, "NUMBA_CACHE_DIR": str(numba_cache)}
+            r = subprocess.run([sys.executable, "-c", SCRIPT, str(pythonfmu_fmus[model])],
                                capture_output=True, text=True, timeout=600, env=env)
             done, started = case_records(r.stdout)
             cache[model] = (done, f"subprocess rc {r.returncode}, last case started: {started}\n"

@@ -13,7 +13,6 @@ import textwrap
 
 import pytest
 
-from drivetrain.fmu_build.fmus import ensure_fmus
 
 HOSTILE = "%n%s%n%s%x%%"
 
@@ -42,10 +41,9 @@ SCRIPT = textwrap.dedent("""
 
 
 @pytest.fixture(scope="module")
-def fmu_dir(tmp_path_factory):
-    d = tmp_path_factory.mktemp("fmus_log")
-    ensure_fmus(["GearContact", "MotorLoad"], d)
-    return d
+def fmu_dir(fmu_dir, pythonfmu_fmus):
+    """The session's FMU directory (tests/conftest.py), its FMUs built."""
+    return fmu_dir
 
 
 @pytest.mark.parametrize("model, name, value, extra", [

@@ -147,21 +147,21 @@ def _announcement(log):
     return log[first], log[built]
 
 
-def test_gearcontact_announces_its_first_build_before_it_starts(drivetrain_fmu_dir):
+def test_gearcontact_announces_its_first_build_before_it_starts(fmu_dir):
     """A fresh process: the message about loading or compiling the kernels reaches the host's logger before
     exitInitializationMode (where the first stage is built and numba compiles) returns its own message."""
-    path = ensure_fmus(["GearContact"], drivetrain_fmu_dir)["GearContact"]
+    path = ensure_fmus(["GearContact"], fmu_dir)["GearContact"]
     (_, text), _ = _announcement(_first_build_log(path))
     assert "numba" in text and "exitInitializationMode" in text
 
 
 @pytest.mark.slow
-def test_gearcontact_announces_a_compile_without_a_numba_cache(drivetrain_fmu_dir, tmp_path):
+def test_gearcontact_announces_a_compile_without_a_numba_cache(fmu_dir, tmp_path):
     """No numba cache (NUMBA_CACHE_DIR empty): the announcement says it compiles, seconds before the build ends
     (measured: at 0.9 s, the build's own message at 14 s)."""
     import os
 
-    path = ensure_fmus(["GearContact"], drivetrain_fmu_dir)["GearContact"]
+    path = ensure_fmus(["GearContact"], fmu_dir)["GearContact"]
     (t_said, text), (t_built, _) = _announcement(_first_build_log(path, {**os.environ,
                                                                            "NUMBA_CACHE_DIR": str(tmp_path)}))
     assert "no cache" in text and "compiles them" in text

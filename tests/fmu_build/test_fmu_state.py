@@ -65,11 +65,9 @@ def _run(body: str, timeout=240):
 
 
 @pytest.fixture(scope="module")
-def fmus(tmp_path_factory):
-    from drivetrain.fmu_build.build import build_all
-
-    out = tmp_path_factory.mktemp("fmus")
-    return {p.stem: str(p) for p in build_all(out)}
+def fmus(pythonfmu_fmus):
+    """The four FMUs of the session (tests/conftest.py)."""
+    return {m: str(p) for m, p in pythonfmu_fmus.items()}
 
 
 @pytest.fixture(scope="module")

@@ -18,13 +18,9 @@ INPUT_CSV = ROOT / "examples" / "gearcontact_input.csv"
 
 
 @pytest.fixture(scope="session")
-def fmu(tmp_path_factory):
-    from drivetrain.fmu_build.build import build_all
-
-    out = tmp_path_factory.mktemp("fmus")
-    paths = build_all(out, only=["GearContact"])
-    assert [p.name for p in paths] == ["GearContact.fmu"]
-    return paths[0]
+def fmu(pythonfmu_fmus):
+    """The session's GearContact FMU (tests/conftest.py)."""
+    return pythonfmu_fmus["GearContact"]
 
 
 def _md(fmu):

@@ -57,10 +57,8 @@ def native(tmp_path_factory, gear):
 
 
 @pytest.fixture(scope="module")
-def pyfmu(tmp_path_factory):
-    from drivetrain.fmu_build.build import build_all
-
-    return build_all(tmp_path_factory.mktemp("pyfmus"), only=["GearContact"])[0]
+def pyfmu(pythonfmu_fmus):
+    return pythonfmu_fmus["GearContact"]
 
 
 def _open(path, params, name="gear"):

@@ -50,12 +50,9 @@ def native(native_example):
 
 
 @pytest.fixture(scope="module")
-def pyfmu_dir(tmp_path_factory):
-    from drivetrain.cosim import ensure_fmus
-
-    d = tmp_path_factory.mktemp("pyfmus_line")
-    ensure_fmus([*MODELS, "GearContact"], d)
-    return d
+def pyfmu_dir(fmu_dir, pythonfmu_fmus):
+    """The session's FMU directory, its four pythonfmu FMUs built (tests/conftest.py)."""
+    return fmu_dir
 
 
 @pytest.fixture(scope="module")

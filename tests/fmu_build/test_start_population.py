@@ -120,23 +120,23 @@ def test_the_start_search_says_why_when_no_position_carries_the_load():
 
 
 @pytest.mark.parametrize("seed", FAILED_BEFORE)
-def test_the_gearboxes_that_could_not_start_start_in_balance_and_run(seed, drivetrain_fmu_dir):
+def test_the_gearboxes_that_could_not_start_start_in_balance_and_run(seed, fmu_dir):
     from drivetrain.run.runner import run_scene
 
     scene = _scene(seed)
     _assert_balanced(scene)
-    res = run_scene(scene, None, backend="fmi", progress=False, fmu_dir=drivetrain_fmu_dir)
+    res = run_scene(scene, None, backend="fmi", progress=False, fmu_dir=fmu_dir)
     _assert_ran(res.summary, scene.name)
 
 
-def test_a_gearbox_that_could_not_start_runs_on_the_native_backend(drivetrain_fmu_dir):
+def test_a_gearbox_that_could_not_start_runs_on_the_native_backend(fmu_dir):
     from drivetrain.fmu_build.native_line import toolchain_problems
     from drivetrain.run.runner import run_scene
 
     if toolchain_problems():
         pytest.skip(f"no C toolchain: {toolchain_problems()}")
     scene = _scene(FAILED_BEFORE[0])
-    res = run_scene(scene, None, backend="native", progress=False, fmu_dir=drivetrain_fmu_dir)
+    res = run_scene(scene, None, backend="native", progress=False, fmu_dir=fmu_dir)
     _assert_ran(res.summary, scene.name)
 
 
@@ -201,7 +201,7 @@ def test_run_refuses_a_gearbox_without_start_state_with_a_message_not_a_tracebac
 
 
 @pytest.mark.slow
-def test_every_gearbox_of_the_population_starts_and_runs(drivetrain_fmu_dir, tmp_path):
+def test_every_gearbox_of_the_population_starts_and_runs(fmu_dir, tmp_path):
     """Seeds 0-199 x three loads x two speeds (1,200 gearbox/operating-point pairs): each assembles in
     balance and runs four mesh periods through a sweep (local processes), 0 failures."""
     from drivetrain.campaigns.sweep import run_sweep
@@ -209,7 +209,7 @@ def test_every_gearbox_of_the_population_starts_and_runs(drivetrain_fmu_dir, tmp
     scenes = [_scene(seed, load, speed) for seed in range(200) for load in LOADS_NM for speed in SPEEDS_RPM]
     for sc in scenes:
         _assert_balanced(sc)
-    manifest = run_sweep(scenes, tmp_path / "pop", fmu_dir=drivetrain_fmu_dir, plots=False, progress=False)
+    manifest = run_sweep(scenes, tmp_path / "pop", fmu_dir=fmu_dir, plots=False, progress=False)
     bad = [(r["name"], r.get("error")) for r in manifest["runs"] if r["status"] != "ok"]
     assert not bad, bad
     for r in manifest["runs"]:
@@ -218,7 +218,7 @@ def test_every_gearbox_of_the_population_starts_and_runs(drivetrain_fmu_dir, tmp
 
 @pytest.mark.slow
 @pytest.mark.parametrize("seed", FAILED_BEFORE)
-def test_the_gearboxes_that_could_not_start_run_native_at_every_load_and_speed(seed, drivetrain_fmu_dir):
+def test_the_gearboxes_that_could_not_start_run_native_at_every_load_and_speed(seed, fmu_dir):
     from drivetrain.fmu_build.native_line import toolchain_problems
     from drivetrain.run.runner import run_scene
 
@@ -227,5 +227,5 @@ def test_the_gearboxes_that_could_not_start_run_native_at_every_load_and_speed(s
     for load in LOADS_NM:
         for speed in SPEEDS_RPM:
             scene = _scene(seed, load, speed)
-            res = run_scene(scene, None, backend="native", progress=False, fmu_dir=drivetrain_fmu_dir)
+            res = run_scene(scene, None, backend="native", progress=False, fmu_dir=fmu_dir)
             _assert_ran(res.summary, scene.name)

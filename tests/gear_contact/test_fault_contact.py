@@ -134,7 +134,7 @@ def test_a_grid_draws_on_the_flank_its_load_loads(tmp_path):
         assert [f["flank"] for f in sc.gear.faults] == [want], sc.name
 
 
-def test_a_run_summary_and_the_dataset_labels_carry_the_contact(drivetrain_fmu_dir):
+def test_a_run_summary_and_the_dataset_labels_carry_the_contact(fmu_dir):
     from drivetrain.campaigns.dataset import run_labels
     from drivetrain.run.runner import run_scene
     from drivetrain.scene.expect import RUN_SUMMARY_TREE, summary_mismatch
@@ -143,7 +143,7 @@ def test_a_run_summary_and_the_dataset_labels_carry_the_contact(drivetrain_fmu_d
     scene = load_scene(ROOT / "scenarios" / "example.toml", [
         "time.duration_s=0.01", "outputs.plots=false", 'gear.health="faults"',
         'gear.faults=[{kind="pit", member="pinion", tooth=2}, {kind="pit", flank="coast", tooth=9}]'])
-    res = run_scene(scene, None, backend="inprocess", progress=False, fmu_dir=drivetrain_fmu_dir)
+    res = run_scene(scene, None, backend="inprocess", progress=False, fmu_dir=fmu_dir)
     fc = res.summary["fault_contact"]
     assert [f["loaded_flank"] for f in fc] == ["drive", "drive"]
     assert fc[0]["contact_share"] > 0.5 and fc[1]["contact_share"] == 0.0

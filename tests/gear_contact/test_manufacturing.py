@@ -213,7 +213,7 @@ def test_every_compliant_fidelity_carries_them():
 
 
 @pytest.fixture(scope="module")
-def runs_with_and_without(tmp_path_factory):
+def runs_with_and_without(fmu_dir):
     """The example scene at 1500 rpm / 1.31 N·m, 3.5 s (3 s analysed after 0.5 s: the assembled start is
     the steady state), with the default errors (grade 6, seed 0) through the FMUs, and without them."""
     from _shared import EXAMPLE
@@ -221,12 +221,11 @@ def runs_with_and_without(tmp_path_factory):
     from drivetrain.run.runner import run_scene
     from drivetrain.scene.load import load_scene
 
-    fmus = tmp_path_factory.mktemp("fmus_mfg")
     short = ["time.duration_s=3.5", "time.settle_s=0.5", "outputs.plots=false", "outputs.aalto_csv=false"]
     out = {}
     for on in (True, False):
         scene = load_scene(EXAMPLE, overrides=short + [f"effects.manufacturing_errors={str(on).lower()}"])
-        out[on] = run_scene(scene, out_dir=None, progress=False, fmu_dir=fmus)
+        out[on] = run_scene(scene, out_dir=None, progress=False, fmu_dir=fmu_dir)
     return out
 
 

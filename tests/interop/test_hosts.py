@@ -27,11 +27,6 @@ from drivetrain.run.runner import assemble_scene
 from drivetrain.scene.load import load_scene
 
 
-@pytest.fixture(scope="module")
-def fmu_dir(tmp_path_factory):
-    return tmp_path_factory.mktemp("fmus_hosts")
-
-
 RAMP = ["operating_point.speed_profile_rpm=[[0.0, 0.0], [0.3, 1500.0]]"]
 
 

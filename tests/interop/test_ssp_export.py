@@ -32,11 +32,6 @@ SHORT = ["time.duration_s=0.5", "time.settle_s=0", "outputs.plots=false"]
 
 
 @pytest.fixture(scope="module")
-def fmu_dir(tmp_path_factory):
-    return tmp_path_factory.mktemp("fmus_ssp")
-
-
-@pytest.fixture(scope="module")
 def exported(tmp_path_factory, fmu_dir):
     scene = load_scene(EXAMPLE, SHORT)
     path = export_ssp(scene, tmp_path_factory.mktemp("ssp") / "example.ssp", fmu_dir=fmu_dir)

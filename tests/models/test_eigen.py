@@ -123,7 +123,7 @@ def _start_from_vector(spec, labels, x, v):
 
 
 @pytest.mark.parametrize("shafts", ["flexible", "rigid"])
-def test_ringdown_matches_eigenfrequency(shafts, drivetrain_fmu_dir):
+def test_ringdown_matches_eigenfrequency(shafts, fmu_dir):
     """Mesh excitation off (ideal gear), losses and controller off, the assembled components run through
     the master (in-process backend) at H = 1/12000 s from the real part of the first complex mode (the
     node start parameters node_phi_start / node_w_start and the gear's start parameters): the fitted
@@ -144,7 +144,7 @@ def test_ringdown_matches_eigenfrequency(shafts, drivetrain_fmu_dir):
     _start_from_vector(spec, ls.labels, z0[:n], z0[n:])
     sensor = spec.metadata["sensors"]["drive_shaft_torque"]
     names = [sensor, "motors.flywheel_w"]
-    res = simulate(spec, 0.25, round(1.0 / spec.comm_step), names, backend="inprocess", fmu_dir=drivetrain_fmu_dir,
+    res = simulate(spec, 0.25, round(1.0 / spec.comm_step), names, backend="inprocess", fmu_dir=fmu_dir,
                    keep_raw=True, progress=False)
     t = res.raw["time"]
     for name in names:

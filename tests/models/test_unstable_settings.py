@@ -17,23 +17,23 @@ ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
 
 
-def test_comm_step_beyond_the_cut_limit_is_refused_by_the_cli(tmp_path, capsys):
+def test_comm_step_beyond_the_cut_limit_is_refused_by_the_cli(tmp_path, capsys, fmu_dir):
     out = tmp_path / "out"
     rc = main(["run", str(EXAMPLE), "--set", "time.sample_rate_Hz=1000.0", "--set", "numerics.comm_step_s=1e-3",
-               "--set", "time.duration_s=0.5", "--out", str(out), "--quiet", "--fmu-dir", str(tmp_path / "fmus")])
+               "--set", "time.duration_s=0.5", "--out", str(out), "--quiet", "--fmu-dir", str(fmu_dir)])
     err = capsys.readouterr().err
     assert rc == 2
     assert "unstable" in err and "spectral radius" in err
     assert not out.exists()
 
 
-def test_u_max_below_the_static_penetration_is_refused_before_any_step(tmp_path):
+def test_u_max_below_the_static_penetration_is_refused_before_any_step(tmp_path, fmu_dir):
     scene = load_scene(EXAMPLE, ["time.duration_s=0.1"])
     spec = assemble_scene(scene)
     gear = next(c for c in spec.components if c.model == "GearContact")
     gear.parameters["u_max"] = 1e-7          # the static penetration at 1.31 N·m is ~0.37 µm
     with pytest.raises(ConfigurationError) as ei:
-        run_scene(scene, tmp_path / "out", spec=spec, progress=False, fmu_dir=tmp_path / "fmus")
+        run_scene(scene, tmp_path / "out", spec=spec, progress=False, fmu_dir=fmu_dir)
     msg = str(ei.value)
     assert "u_max = 1e-07 m" in msg and "static penetration" in msg and "N·m" in msg
     assert not (tmp_path / "out").exists()

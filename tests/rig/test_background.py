@@ -232,7 +232,7 @@ def test_record_controller_fit_recovers_a_known_pi():
     assert c["logged_speed_delay_s"] == pytest.approx(lag / fs, rel=0.1)
 
 
-def test_load_noise_gives_the_linearised_spectrum(tmp_path):
+def test_load_noise_gives_the_linearised_spectrum(tmp_path, fmu_dir):
     """Oracle: the co-simulated propeller- and drive-shaft torque PSDs of the record scene with only the load
     noise on (no errors, ideal sensors) equal S0 |H_load|^2 of the linearised drivetrain (models.eigen, an
     independent assembly of the same parameters) within a factor 2 (3 dB in amplitude) between 8 and 80 Hz
@@ -249,7 +249,7 @@ def test_load_noise_gives_the_linearised_spectrum(tmp_path):
     over = ["time.duration_s=10", "effects.shaft_orders=false", "effects.drive_torque_noise=false",
             'effects.sensors="ideal"', "effects.manufacturing_errors=false", "outputs.plots=false"]
     sc = load_scene(rec_scene(), overrides=over)
-    res = run_scene(sc, None, backend="native", progress=False, plots=False, fmu_dir=tmp_path / "fmus")
+    res = run_scene(sc, None, backend="native", progress=False, plots=False, fmu_dir=fmu_dir)
     t = np.asarray(res.time)
     fs = 1.0 / float(np.median(np.diff(t)))
     keep = t >= sc.time.settle_s

@@ -66,7 +66,7 @@ def test_seeded_channels_and_untouched_others():
     assert np.array_equal(only["propeller_shaft_torque"], a["propeller_shaft_torque"])
 
 
-def test_a_run_with_rig_sensors(tmp_path):
+def test_a_run_with_rig_sensors(tmp_path, fmu_dir):
     """Rig sensors change the readings (noise, counts) and are recorded; the ideal run of the same scene
     is bit-identical to a run that never heard of them."""
     from _shared import EXAMPLE, SHORT
@@ -77,9 +77,9 @@ def test_a_run_with_rig_sensors(tmp_path):
     runs = {}
     for s in ("ideal", "rig"):
         scene = load_scene(EXAMPLE, overrides=SHORT + ["effects.mesh_contact=analytic", f"effects.sensors={s}"])
-        runs[s] = run_scene(scene, out_dir=None, progress=False, backend="inprocess", fmu_dir=tmp_path / "fmus")
+        runs[s] = run_scene(scene, out_dir=None, progress=False, backend="inprocess", fmu_dir=fmu_dir)
     base = run_scene(load_scene(EXAMPLE, overrides=SHORT + ["effects.mesh_contact=analytic"]), out_dir=None,
-                     progress=False, backend="inprocess", fmu_dir=tmp_path / "fmus")
+                     progress=False, backend="inprocess", fmu_dir=fmu_dir)
     for k, v in base.signals.items():
         assert np.array_equal(v, runs["ideal"].signals[k])
     rig, ideal = runs["rig"], runs["ideal"]

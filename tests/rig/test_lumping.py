@@ -117,7 +117,7 @@ def test_two_body_limits_match_the_notes():
     assert radius(3.0, 300.0) < 1.0
 
 
-def test_whole_system_check_predicts_divergence(drivetrain_fmu_dir):
+def test_whole_system_check_predicts_divergence(fmu_dir):
     """The one-step map of the linearised co-simulation says 1/3000 s is stable and 1/2000 s is not
     for the rigid-shaft system; running it through the master (in-process backend) confirms both: a
     diverging run either fails (CosimError, the completed part in ``partial``) or its step-to-step change
@@ -136,7 +136,7 @@ def test_whole_system_check_predicts_divergence(drivetrain_fmu_dir):
         upper.parameters["node_phi_start"] = repr(float(upper.parameters.get("phi0", 0.0)) + 1e-3)
         try:
             res = simulate(spec, 0.3, float(inv), ["gear.flange_a_tau"], backend="inprocess",
-                           fmu_dir=drivetrain_fmu_dir, keep_raw=True, progress=False)
+                           fmu_dir=fmu_dir, keep_raw=True, progress=False)
             dy = np.abs(np.diff(res.raw["gear.flange_a_tau"]))
             grew = dy[len(dy) // 2:].max() > 10 * dy[: len(dy) // 2].max()
         except CosimError as exc:

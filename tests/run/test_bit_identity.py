@@ -21,7 +21,7 @@ def _bench():
     return mod
 
 
-def test_short_runs_hash_as_stored(tmp_path):
+def test_short_runs_hash_as_stored(tmp_path, fmu_dir):
     bench = _bench()
     here = bench.platform_key()
     entries = [e for e in bench.stored_entries() if e["platform"] == here]
@@ -31,7 +31,7 @@ def test_short_runs_hash_as_stored(tmp_path):
     stored = entries[0]
     cases = {n: (c["scene"], c["set"], c["backend"]) for n, c in stored["cases"].items()}
     assert cases and all(b == "inprocess" for _, _, b in cases.values())
-    got = bench.hashes(ROOT, cases, str(tmp_path / "fmus"))
+    got = bench.hashes(ROOT, cases, str(fmu_dir))
     for name, case in stored["cases"].items():
         assert got[name]["samples"] == case["samples"] and got[name]["signals"] == case["signals"], name
         assert got[name]["sha256"] == case["sha256"], f"{name}: results changed ({got[name]['sha256'][:16]} vs stored {case['sha256'][:16]})"

@@ -86,7 +86,7 @@ def test_the_budget_key_is_validated():
 
 
 @pytest.mark.slow
-def test_the_estimate_predicts_an_online_run(tmp_path):
+def test_the_estimate_predicts_an_online_run(tmp_path, fmu_dir):
     """The probe's loop estimate of a 0.1 s online-PCM run at a user mesh is within a factor 2 of the
     loop time the run measures (the probe follows the pair at the run's speed and sub-step)."""
     from drivetrain.models import stability
@@ -98,7 +98,7 @@ def test_the_estimate_predicts_an_online_run(tmp_path):
                                            "effects.mesh_contact=pcm"])
     spec = assemble(scene)
     (rep,) = stability.check_contact_cost(spec, 0.1, 4.0)
-    res = run_scene(scene, out_dir=None, progress=False, fmu_dir=tmp_path / "fmus")
+    res = run_scene(scene, out_dir=None, progress=False, fmu_dir=fmu_dir)
     loop = res.summary["loop_time_s"]
     print(f"estimated loop {rep['loop_s']:.1f} s, measured {loop:.1f} s")
     assert 0.5 < rep["loop_s"] / loop < 2.0

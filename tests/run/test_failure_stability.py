@@ -8,7 +8,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from _cosim_test_fmus import build_test_fmus
 import drivetrain.cosim as M
 from drivetrain.cli import main
 from drivetrain.cosim import CosimError, simulate
@@ -29,17 +28,6 @@ RATTLE_KEYS = ("window_s", "separated", "separated_time_s", "separated_fraction"
 H12 = 1.0 / 12000.0
 FAILURE_KEYS = ("time_s", "component", "model", "function", "status", "cause", "log", "steps_completed",
                 "last_sample_time_s", "outputs", "gear", "gear_state")
-
-
-@pytest.fixture(scope="module")
-def fmus(tmp_path_factory):
-    return build_test_fmus(tmp_path_factory.mktemp("mtfmus_fail"))
-
-
-@pytest.fixture(scope="module")
-def fmu_dir(tmp_path_factory):
-    """A private FMU directory (built on demand), so that tests never rewrite the shared fmus/."""
-    return tmp_path_factory.mktemp("fmus_fail")
 
 
 def toy_spec(fail_at_s=-1.0):
@@ -72,10 +60,10 @@ def _check_stability_block(st):
 # ---- a failed run keeps what it computed ------------------------------------------------------------
 
 @pytest.mark.parametrize("backend", ["fmi", "inprocess"])
-def test_master_returns_the_completed_part_with_the_error(fmus, backend):
+def test_master_returns_the_completed_part_with_the_error(mt_fmus, backend):
     spec = toy_spec(fail_at_s=0.1 - H12 / 2)
     with pytest.raises(CosimError) as ei:
-        simulate(spec, 0.5, 3000.0, ["load.flange_w"], backend=backend, fmu_paths=fmus,
+        simulate(spec, 0.5, 3000.0, ["load.flange_w"], backend=backend, fmu_paths=mt_fmus,
                  final=["load.energy_dissipated", "motor.no_such_variable"])
     e = ei.value
     p = e.partial
@@ -96,11 +84,11 @@ def test_master_returns_the_completed_part_with_the_error(fmus, backend):
     assert p.energy["available"] is False and p.energy["relative_residual"] is None
 
 
-def test_failed_run_writes_partial_results(tmp_path, fmus):
+def test_failed_run_writes_partial_results(tmp_path, mt_fmus):
     scene = load_scene(EXAMPLE, ["time.duration_s=0.5", "time.settle_s=0.05"])
     out = tmp_path / "out"
     with pytest.raises(RunFailedError) as ei:
-        run_scene(scene, out, spec=toy_spec(fail_at_s=0.2 - H12 / 2), fmu_paths=fmus, progress=False)
+        run_scene(scene, out, spec=toy_spec(fail_at_s=0.2 - H12 / 2), fmu_paths=mt_fmus, progress=False)
     exc = ei.value
     assert isinstance(exc, CosimError) and exc.result.status == "failed"
     s = json.loads((out / "summary.json").read_text())
@@ -130,11 +118,11 @@ def test_failed_run_writes_partial_results(tmp_path, fmus):
     assert (out / "sensors.csv").is_file()
 
 
-def test_failure_in_the_first_step_keeps_the_t0_sample(tmp_path, fmus):
+def test_failure_in_the_first_step_keeps_the_t0_sample(tmp_path, mt_fmus):
     """A failure in the very first step still writes the t = 0 sample (and no statistics after settle_s)."""
     scene = load_scene(EXAMPLE, ["time.duration_s=0.1"] + QUIET)
     with pytest.raises(RunFailedError) as ei:
-        run_scene(scene, tmp_path / "first", spec=toy_spec(fail_at_s=0.0), fmu_paths=fmus, progress=False)
+        run_scene(scene, tmp_path / "first", spec=toy_spec(fail_at_s=0.0), fmu_paths=mt_fmus, progress=False)
     r = ei.value.result
     assert len(r.time) == 1 and r.summary["failure"]["steps_completed"] == 0
     assert r.summary["torque"] == {}                                   # nothing after settle_s

@@ -87,13 +87,13 @@ def test_spectra_have_a_panel_for_the_shaft_orders(saved, tmp_path):
     assert np.nanmax(y[np.abs(x - CF["f_PSH"]) < 0.06]) == pytest.approx(1e-6)     # the f_PSH line is on it
 
 
-def test_run_plots_carry_operating_point_health_and_effects(saved, tmp_path, drivetrain_fmu_dir):
+def test_run_plots_carry_operating_point_health_and_effects(saved, tmp_path, fmu_dir):
     from drivetrain.run.runner import run_scene
 
     scene = load_scene(EXAMPLE, ["time.duration_s=0.3", "time.settle_s=0.1", "effects.mesh_contact=analytic",
                                  "effects.shaft_flexibility=rigid", "effects.friction=false",
                                  "operating_point.load_torque_Nm=0.71", "outputs.aalto_csv=false"])
-    run_scene(scene, tmp_path / "out", backend="inprocess", progress=False, fmu_dir=drivetrain_fmu_dir, plots=True)
+    run_scene(scene, tmp_path / "out", backend="inprocess", progress=False, fmu_dir=fmu_dir, plots=True)
     titles = [fig.get_suptitle() for fig in saved]
     assert len(titles) == 2 and "torque waveforms" in titles[0] and "spectra" in titles[1]
     for title in titles:

@@ -13,17 +13,15 @@ from pathlib import Path
 
 import pytest
 
-from drivetrain.fmu_build.fmus import ensure_fmus
 from drivetrain.run.outputs import read_hdf5
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
-def fmu_dir(tmp_path_factory):
-    d = tmp_path_factory.mktemp("fmus_interrupt")
-    ensure_fmus(["GearContact", "FlexibleShaft", "UpperTransmission", "MotorLoad"], d)
-    return d
+def fmu_dir(fmu_dir, pythonfmu_fmus):
+    """The session's FMU directory (tests/conftest.py), its FMUs built before a run is timed or killed."""
+    return fmu_dir
 
 
 def _start(out: Path, fmu_dir: Path, duration: float = 60.0):

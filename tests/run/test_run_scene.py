@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from _cosim_test_fmus import build_test_fmus, toy_spec
+from _cosim_test_fmus import toy_spec
 from drivetrain.cli import main
 from drivetrain.run.outputs import AALTO_COLUMNS, read_hdf5
 from drivetrain.run.runner import SUMMARY_KEYS, run_scene
@@ -21,20 +21,9 @@ EXAMPLE = ROOT / "scenarios" / "example.toml"
 HAVE_ASSEMBLER = importlib.util.find_spec("drivetrain.run.assemble") is not None
 
 
-@pytest.fixture(scope="module")
-def fmu_dir(tmp_path_factory):
-    """A private FMU directory (built on demand), so that tests never rewrite the shared fmus/."""
-    return tmp_path_factory.mktemp("fmus")
-
-
-@pytest.fixture(scope="module")
-def fmus(tmp_path_factory):
-    return build_test_fmus(tmp_path_factory.mktemp("mtfmus_run"))
-
-
-def test_run_scene_writes_everything(tmp_path, fmus):
+def test_run_scene_writes_everything(tmp_path, mt_fmus):
     scene = load_scene(EXAMPLE, ["time.duration_s=0.6", "outputs.variables=[\"load.flange_w\"]"])
-    res = run_scene(scene, tmp_path / "out", spec=toy_spec(), fmu_paths=fmus, progress=False)
+    res = run_scene(scene, tmp_path / "out", spec=toy_spec(), fmu_paths=mt_fmus, progress=False)
     out = tmp_path / "out"
     for f in ("signals.h5", "summary.json", "torques.png", "spectra.png", "sensors.csv"):
         assert (out / f).is_file() and (out / f).stat().st_size > 1000, f
@@ -92,20 +81,20 @@ def test_cli_refuses_malformed_scene_before_running(tmp_path, capsys):
     assert not out.exists()
 
 
-def test_sweep_local_processes(tmp_path, fmus):
+def test_sweep_local_processes(tmp_path, mt_fmus):
     from drivetrain.campaigns.sweep import run_sweep
 
     scenes = [load_scene(EXAMPLE, ["time.duration_s=0.2", f"scenario.name=toy{i}", f"operating_point.load_torque_Nm={v}"])
               for i, v in enumerate((0.12, 1.31))]
     specs = {s.name: toy_spec() for s in scenes}
-    man = run_sweep(scenes, tmp_path / "sw", workers=2, specs=specs, fmu_paths=fmus, plots=False, progress=False)
+    man = run_sweep(scenes, tmp_path / "sw", workers=2, specs=specs, fmu_paths=mt_fmus, plots=False, progress=False)
     assert [r["status"] for r in man["runs"]] == ["ok", "ok"], man
     assert (tmp_path / "sw" / "manifest.csv").is_file() and (tmp_path / "sw" / "manifest.json").is_file()
     for r in man["runs"]:
         assert Path(r["signals"]).is_file()
         assert r["pid"] != os.getpid()
     # the same case in this process gives the same signals (deterministic, independent of the process)
-    ref = run_scene(scenes[0], None, spec=toy_spec(), fmu_paths=fmus, progress=False)
+    ref = run_scene(scenes[0], None, spec=toy_spec(), fmu_paths=mt_fmus, progress=False)
     h = read_hdf5(man["runs"][0]["signals"])
     np.testing.assert_array_equal(h["signals"]["drive_shaft_torque"], ref.signals["drive_shaft_torque"])
 
@@ -145,7 +134,7 @@ class _InThisProcess:
         return fut
 
 
-def test_sweep_loses_no_work(tmp_path, fmus):
+def test_sweep_loses_no_work(tmp_path, mt_fmus):
     """Issue 11: the manifest was written only at the end (a kill left none), --skip-existing reused runs
     made with other settings and dropped their metrics, --only overwrote the whole sweep's manifest,
     plots were written for scenes that said outputs.plots = false. (The cases run in this process:
@@ -158,7 +147,7 @@ def test_sweep_loses_no_work(tmp_path, fmus):
                 for i, v in enumerate((0.12, load))]
 
     out = tmp_path / "sw"
-    kw = dict(specs={f"toy{i}": toy_spec() for i in range(2)}, fmu_paths=fmus, progress=False)
+    kw = dict(specs={f"toy{i}": toy_spec() for i in range(2)}, fmu_paths=mt_fmus, progress=False)
     with pytest.raises(KeyboardInterrupt):
         run_sweep(scenes(), out, executor=_OneThenKill(), **kw)
     m = json.loads((out / "manifest.json").read_text())
@@ -179,7 +168,7 @@ def test_sweep_loses_no_work(tmp_path, fmus):
     assert [r["name"] for r in man["runs"]] == ["toy0", "toy1"]
 
 
-def test_sweep_refuses_an_unwritable_out_before_running(tmp_path, fmus):
+def test_sweep_refuses_an_unwritable_out_before_running(tmp_path, mt_fmus):
     from drivetrain.cosim import ConfigurationError
     from drivetrain.campaigns.sweep import run_sweep
 
@@ -187,7 +176,7 @@ def test_sweep_refuses_an_unwritable_out_before_running(tmp_path, fmus):
     blocker.write_text("not a directory")
     sc = [load_scene(EXAMPLE, ["time.duration_s=0.2", "scenario.name=toy0"])]
     with pytest.raises(ConfigurationError, match="not writable"):
-        run_sweep(sc, blocker / "out", specs={"toy0": toy_spec()}, fmu_paths=fmus, progress=False)
+        run_sweep(sc, blocker / "out", specs={"toy0": toy_spec()}, fmu_paths=mt_fmus, progress=False)
 
 
 def _run_cli(args, tmp_path):
@@ -221,13 +210,13 @@ def _check_example_output(out):
 
 
 @pytest.mark.skipif(not HAVE_ASSEMBLER, reason="drivetrain.run.assemble not available yet")
-def test_cli_run_example_fast_fidelity(tmp_path, capsys):
+def test_cli_run_example_fast_fidelity(tmp_path, capsys, fmu_dir):
     """The example through the command line (analytic mesh: no contact map to build), in this process
     (`drivetrain.cli.main`; the console entry point in a fresh process: the slow test below and
     tests/campaigns/test_sweep_resume.py)."""
     out = tmp_path / "tmp"
     rc = main(["run", str(EXAMPLE), "--set", "time.duration_s=0.5", "--set", "effects.mesh_contact=analytic",
-               "--out", str(out), "--fmu-dir", str(tmp_path / "fmus"), "--quiet"])
+               "--out", str(out), "--fmu-dir", str(fmu_dir), "--quiet"])
     assert rc == 0, capsys.readouterr().err
     s = _check_example_output(out)
     assert [f["fidelity"] for f in s["fmus"] if f["name"] == "gear"] == ["analytic"]
@@ -326,7 +315,7 @@ def test_an_inprocess_run_leaves_pythonfmu_as_installed(tmp_path):
                                               "effects.mesh_contact=ideal", "outputs.plots=false"])
         run_scene(scene, None, backend="inprocess", progress=False, log=lambda m: None)
         import pythonfmu
-        from _cosim_test_fmus import build_test_fmus, toy_spec
+        from _cosim_test_fmus import build_test_fmus
         paths = build_test_fmus(Path({str(tmp_path)!r}))
         import zipfile
         names = zipfile.ZipFile(paths["MTInertia"]).namelist()

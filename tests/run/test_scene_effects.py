@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,11 +14,6 @@ from drivetrain.run.runner import run_scene
 from drivetrain.scene.load import load_scene
 
 from _shared import EXAMPLE, SHORT
-
-
-@pytest.fixture(scope="module")
-def fmu_dir(tmp_path_factory):
-    return tmp_path_factory.mktemp("fmus_effects")
 
 
 @pytest.mark.parametrize("shafts", ["flexible", "rigid"])

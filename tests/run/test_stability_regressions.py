@@ -15,11 +15,6 @@ SCENES = Path(__file__).resolve().parents[1] / "scenes"
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.fixture(scope="module")
-def fmu_dir(tmp_path_factory):
-    return tmp_path_factory.mktemp("fmus_stab")
-
-
 def test_mild_void_passage_stays_elastic(tmp_path, fmu_dir):
     """Three passages of the mild fault's void: the penetration stays elastic (µm) inside the void
     window as everywhere else (was 0.75-0.81 mm at every passage)."""

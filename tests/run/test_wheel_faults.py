@@ -22,12 +22,6 @@ from drivetrain.rig.signals import amplitude_near, amplitude_spectrum, character
 pytest.importorskip("fmpy")
 
 
-@pytest.fixture(scope="module")
-def fmu_dir(tmp_path_factory):
-    """A private FMU directory (built on demand), so that tests never rewrite the shared fmus/."""
-    return tmp_path_factory.mktemp("fmus")
-
-
 def _scene(member: str, tooth: int, duration_s: float, coarse: bool, kind: str = "void"):
     num = {"profile_element_mm": 0.3, "face_element_mm": 3.0} if coarse else {}
     return resolve({"scenario": {"name": f"{kind}_{member}_{tooth}"},

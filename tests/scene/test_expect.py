@@ -43,12 +43,6 @@ def tiny(tmp_path, expect: str = "", name: str = "tiny", load: float = 1.31, ext
 
 
 @pytest.fixture(scope="module")
-def fmu_dir(tmp_path_factory):
-    """A private FMU directory (built on demand), so that tests never rewrite the shared fmus/."""
-    return tmp_path_factory.mktemp("fmus")
-
-
-@pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory, fmu_dir):
     """One tiny run (scene, CaseRun) reused by the evaluation tests."""
     from drivetrain.campaigns.check import run_case

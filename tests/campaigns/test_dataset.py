@@ -1,5 +1,5 @@
 """`drivetrain dataset`: a sweep directory as one labelled file set; labels and signals read back equal
-what the runs wrote (issue 11)."""
+what the runs wrote."""
 from __future__ import annotations
 
 import json
@@ -171,7 +171,7 @@ def test_the_paper_faults_are_their_fault_specifications():
 @pytest.mark.parametrize("bad", ["../../escape", "/tmp/victim", "a/../../b", ".hidden"])
 def test_a_hostile_run_name_reads_and_writes_nothing_outside(sweep, tmp_path, capsys, bad):
     """A manifest is data: a run name that is not a scene name (a path) is refused before any file is read
-    or written for it, with exit 2 and a message naming it (issue 33: `dataset --format aalto` wrote
+    or written for it, with exit 2 and a message naming it (fuzz pass: `dataset --format aalto` wrote
     escape.csv beside the sweep and victim.csv anywhere)."""
     import shutil
 
@@ -189,7 +189,7 @@ def test_a_hostile_run_name_reads_and_writes_nothing_outside(sweep, tmp_path, ca
 
 def test_a_dataset_out_that_cannot_take_it(sweep, tmp_path, capsys):
     """An existing directory as the parquet file, or a place that cannot be written: exit 2, the path named,
-    no stray temporary file (issue 33: a traceback and taken.tmp)."""
+    no stray temporary file (fuzz pass: a traceback and taken.tmp)."""
     taken = tmp_path / "taken"
     taken.mkdir()
     assert main(["dataset", str(sweep), "--out", str(taken)]) == 2
@@ -202,7 +202,7 @@ def test_a_dataset_out_that_cannot_take_it(sweep, tmp_path, capsys):
 
 
 def test_the_export_holds_one_run_at_a_time(sweep, tmp_path, monkeypatch):
-    """A dataset of thousands of runs is never held in memory (issue 29): ``collect`` keeps labels only, and
+    """A dataset of thousands of runs is never held in memory: ``collect`` keeps labels only, and
     each writer reads a run's samples when it writes that run, once. Counted: every signals.h5 is read
     once for the labels and once more by the writer, and the collected runs hold no arrays."""
     from drivetrain.campaigns import dataset as D
@@ -220,7 +220,7 @@ def test_the_export_holds_one_run_at_a_time(sweep, tmp_path, monkeypatch):
 
 
 def test_a_growth_grid_runs_and_exports_with_its_stage_labels(tmp_path, fmu_dir):
-    """Issue 29 on a real sweep (the drivetrain's own models, not toy specs): a pinion pit grows and becomes a
+    """The same on a real sweep (the drivetrain's own models, not toy specs): a pinion pit grows and becomes a
     spall in one gearbox; every stage is a run labelled with its stage, remaining life and the fault's sizes
     (fault0.*), the healthy stage with empty fault labels; the labels of effects that are off are empty; the
     settled column marks the samples after settle_s; units in the parquet schema. Coarse meshes and map so

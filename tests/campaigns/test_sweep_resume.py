@@ -1,5 +1,5 @@
 """A sweep killed with SIGKILL (the whole process group) after some runs finished, then resumed:
-manifest complete, no run lost or duplicated, signals bit-identical to an uninterrupted sweep (issue 11)."""
+manifest complete, no run lost or duplicated, signals bit-identical to an uninterrupted sweep."""
 from __future__ import annotations
 
 import json

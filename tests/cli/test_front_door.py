@@ -1,4 +1,4 @@
-"""The front door (issue 31): the Python API and the README's example of it, commands that write where
+"""The front door: the Python API and the README's example of it, commands that write where
 they are told (shipped files only with --update-shipped, FMU folders with FMUs only, nothing in the
 current folder), and words that say what is printed (--tolerance against the scene's own setting,
 eigen's overdamped modes)."""

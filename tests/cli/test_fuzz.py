@@ -1,4 +1,4 @@
-"""Fuzz pass (issue 33): randomly mutated scenes, grids, mesh files and FMI call sequences, seeded, each judged by
+"""Fuzz pass: randomly mutated scenes, grids, mesh files and FMI call sequences, seeded, each judged by
 the same rules as the hostile batteries: an exit code below 128 (a clear refusal or a result), no traceback,
 nothing written outside the output directory, no success claimed for what did not finish.
 
@@ -356,7 +356,7 @@ def test_fuzz_fmi_call_sequences_pythonfmu(line_fmus, model, request):
 
 def test_fuzz_fmi_unknown_references_pythonfmu(line_fmus):
     """Sequences that call on after a refusal, with unknown and mistyped value references: the pythonfmu FMUs
-    crashed here until issue 30 (pythonfmu answered fmi2Fatal and released the slave; the next call crashed);
+    crashed here until their FMI wrapper (pythonfmu answered fmi2Fatal and released the slave; the next call crashed);
     their FMI wrapper now refuses with fmi2Error and the host goes on (as with the native builds, below)."""
     _fmi_fuzz(line_fmus / "FlexibleShaft.fmu", 40, SEED + 3, unknown_refs=True, go_on=True)
 
@@ -384,6 +384,6 @@ def test_fuzz_fmi_call_sequences_gear(tmp_path):
     from drivetrain.fmu_build.native_line import toolchain_problems
 
     ensure_fmus(["GearContact"], tmp_path)
-    _fmi_fuzz(tmp_path / "GearContact.fmu", 200, SEED + 5)      # calls on after refusals (issue 30: the wrapper)
+    _fmi_fuzz(tmp_path / "GearContact.fmu", 200, SEED + 5)      # calls on after refusals (the FMI wrapper)
     if not toolchain_problems():
         _fmi_fuzz(build_native_gear({}, tmp_path / "native" / "GearContact.fmu"), 400, SEED + 6)

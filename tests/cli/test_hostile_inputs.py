@@ -1,5 +1,5 @@
-"""Bad input to the command line gets a message naming the problem and an exit code, never a traceback
-(issue 11). Cheap cases only: nothing here runs a simulation."""
+"""Bad input to the command line gets a message naming the problem and an exit code, never a traceback.
+Cheap cases only: nothing here runs a simulation."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -233,7 +233,7 @@ _BAD_MESHES = {
 @pytest.mark.parametrize("name", sorted(_BAD_MESHES))
 def test_a_bad_mesh_file_is_an_error_naming_it(tmp_path, capsys, name):
     """Every unreadable or broken mesh file ends in a message naming the file and exit 2, wherever it is first
-    read (the contact-cost check reads it before any step), never a traceback (issue 33: 18 of 23 mesh
+    read (the contact-cost check reads it before any step), never a traceback (fuzz pass: 18 of 23 mesh
     cases were tracebacks: IndexError, ValueError, a missing charset_normalizer)."""
     f = tmp_path / name
     f.write_bytes(_BAD_MESHES[name]())
@@ -255,8 +255,8 @@ def _bad_outs(tmp_path):
 
 @pytest.mark.parametrize("case", ["existing file", "/dev/null", "dangling symlink", "read-only", "300 characters"])
 def test_a_bad_out_is_refused_before_the_simulation(tmp_path, capsys, case):
-    """`drivetrain run --out` that cannot take the results is refused at once with its reason (issue 33: found
-    after the whole simulation, as a traceback)."""
+    """`drivetrain run --out` that cannot take the results is refused at once with its reason (the fuzz pass found it
+    only after the whole simulation, as a traceback)."""
     import os
     import time
 
@@ -281,7 +281,7 @@ def test_a_deeply_nested_toml_is_a_scene_error(tmp_path, capsys):
 
 
 def test_a_huge_grid_is_refused_at_once(tmp_path, capsys):
-    """A grid of 10^6 cases is refused in well under a second, naming its size and the limit (issue 33: it
+    """A grid of 10^6 cases is refused in well under a second, naming its size and the limit (fuzz pass: it
     neither started nor was refused within 90 s)."""
     import time
 
@@ -295,7 +295,7 @@ def test_a_huge_grid_is_refused_at_once(tmp_path, capsys):
 
 
 def test_a_corrupt_baseline_is_named(tmp_path):
-    """A baseline file that is not HDF5 (or not ours) fails with its path in the message (issue 33: "bad
+    """A baseline file that is not HDF5 (or not ours) fails with its path in the message (fuzz pass: "bad
     superblock version number" alone)."""
     from drivetrain.campaigns.baseline import read_baseline
 
@@ -307,7 +307,7 @@ def test_a_corrupt_baseline_is_named(tmp_path):
 
 @pytest.mark.parametrize("edit, why", [("zero", "a measured torque > 0"), ("negative_speed", "a drive speed > 0")])
 def test_calibrate_refuses_rows_it_cannot_fit(tmp_path, capsys, edit, why):
-    """All-zero torques (issue 33: a scipy message naming no row) and a negative speed (accepted, 187 % error)
+    """All-zero torques (fuzz pass: a scipy message naming no row) and a negative speed (accepted, 187 % error)
     are refused naming the row."""
     lines = MEASURED.read_text().splitlines()
     hdr_i = next(i for i, ln in enumerate(lines) if ln and not ln.startswith("#"))
@@ -330,7 +330,7 @@ def test_calibrate_refuses_rows_it_cannot_fit(tmp_path, capsys, edit, why):
 
 
 def test_a_file_size_limit_is_a_message_not_a_traceback(tmp_path):
-    """`ulimit -f` (issue 33: a traceback from inside the FMU build or fmpy's unpacking): the command names the
+    """`ulimit -f` (fuzz pass: a traceback from inside the FMU build or fmpy's unpacking): the command names the
     operation and the limit, exits 1, and the output directory does not say ok."""
     import resource
     import subprocess
@@ -350,7 +350,7 @@ def test_a_file_size_limit_is_a_message_not_a_traceback(tmp_path):
 
 
 def test_version(capsys):
-    """`drivetrain --version` (issue 31) says the version, the Python and where the package is."""
+    """`drivetrain --version` says the version, the Python and where the package is."""
     from drivetrain import __version__
 
     rc, text = _rc(["--version"], capsys)

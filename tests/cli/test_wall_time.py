@@ -1,4 +1,4 @@
-"""The times a command prints account for its whole wall time (issue 31): each command that prints a time
+"""The times a command prints account for its whole wall time: each command that prints a time
 runs in a fresh process, its wall time is measured from outside, and the printed parts (and, for ``run``,
 summary.json's ``time_breakdown_s``) add up to it.
 
@@ -93,7 +93,7 @@ def test_many_run_commands_account_for_their_wall_time(tmp_path, fmu_dir, comman
 
 def test_run_help_imports_nothing_heavy(tmp_path):
     """``drivetrain run --help`` (and every command's parser) loads no numerical library: scipy.signal alone
-    cost 3.7 s of a 6 s start-up on a busy machine (issue 31; now imported where a filter is first used)."""
+    cost 3.7 s of a 6 s start-up on a busy machine (now imported where a filter is first used)."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")])}
     r = subprocess.run([sys.executable, "-X", "importtime", "-m", "drivetrain", "run", "--help"], cwd=tmp_path,
                        env=env, capture_output=True, text=True, timeout=120)

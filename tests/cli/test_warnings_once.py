@@ -1,4 +1,4 @@
-"""Each warning and each "wrote ..." once (issue 31): the compiler fallback of ``run --native`` was said
+"""Each warning and each "wrote ..." once: the compiler fallback of ``run --native`` was said
 while the run ran (the run's log) and again in the report after it (summary warnings); ``build-native``'s
 "wrote PATH" came from the library's log and again from the command."""
 import os

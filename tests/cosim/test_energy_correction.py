@@ -1,4 +1,4 @@
-"""The energy-conserving coupling correction (gearcontact_fmu.coupling; issue 7, docs/STABILITY.md §4).
+"""The energy-conserving coupling correction (gearcontact_fmu.coupling; docs/STABILITY.md §4).
 
 Oracles, none of them the correction's own output: the master's energy audit (its own bookkeeping of the
 work through every connection from the recorded held torques and inertia-side angles, and of every FMU's

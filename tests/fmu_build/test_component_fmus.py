@@ -99,7 +99,7 @@ def test_fmu_validates_with_units_and_causalities(fmus, model):
     for x in md.modelVariables:
         if x.type in ("Integer", "Boolean"):
             assert x.causality == "parameter" and x.variability == "fixed"
-        if x.causality == "output":      # computed in initialization mode, no start (issue 30)
+        if x.causality == "output":      # computed in initialization mode, no start
             assert x.initial == "calculated" and x.start is None
 
 

@@ -1,4 +1,4 @@
-"""FMI 2.0 conformance of every FMU in both builds (issue 30): every misuse that FMI calls an error returns
+"""FMI 2.0 conformance of every FMU in both builds: every misuse that FMI calls an error returns
 fmi2Error with a logged reason, the state machine is the Reference FMUs' one, and no call sequence crashes the
 host. The pythonfmu FMUs (GearContact, FlexibleShaft, UpperTransmission, MotorLoad) are the FMI wrapper in front
 of pythonfmu's export library (drivetrain.fmu_build.fmi_wrapper); the native builds are compiled C
@@ -86,7 +86,7 @@ SCRIPT = textwrap.dedent(r'''
                 status(lambda: f.getBoolean([INPUT.valueReference]))]
 
     def c_calls_go_on_after_refusals(f):
-        # the pythonfmu FMUs crashed here before the wrapper (issue 30): getReal(bad), setReal(bad), a valid setReal
+        # the pythonfmu FMUs crashed here before the FMI wrapper: getReal(bad), setReal(bad), a valid setReal
         return [status(lambda: f.getReal([987654])), status(lambda: f.setReal([987654], [1.0])),
                 status(lambda: f.setReal([INPUT.valueReference], [1.0])), status(lambda: f.getReal(OUTPUTS)),
                 status(lambda: f.getString([V["error"].valueReference])), status(lambda: f.reset()),
@@ -153,7 +153,7 @@ SCRIPT = textwrap.dedent(r'''
         return [status(lambda: f.doStep(5.0, H))]
 
     def c_rollback_then_serialize(f):
-        # the pythonfmu FMUs crashed at exit after this (issue 30); serialization is declared by each build
+        # the pythonfmu FMUs crashed at exit after this, before the FMI wrapper; serialization is declared by each build
         out = []
         s = f.getFMUstate()
         out.append(status(lambda: f.doStep(H, H)))

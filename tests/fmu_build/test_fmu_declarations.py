@@ -1,4 +1,4 @@
-"""What the modelDescription of every FMU declares, in both builds (issue 30, item 4), as the FMI 2.0 standard
+"""What the modelDescription of every FMU declares, in both builds, as the FMI 2.0 standard
 and the FMI Reference FMUs (modelica/Reference-FMUs) have it: outputs computed in initialization mode are
 ``initial="calculated"`` without a start value and listed in ``<ModelStructure><InitialUnknowns>`` with the
 knowns they are computed from; counts are Integer, switches Boolean; a ``min``/``max`` where the code refuses
@@ -223,7 +223,7 @@ def test_the_gear_starts_in_balance_on_the_example_scene():
     """The t = 0 outputs of the gear as the master starts it: the mesh torque on the pinion balances the port
     spring (steady start), and the wheel's is ratio times the pinion's (the mesh balance, less its friction;
     independent oracle: 15.03 N.m steady on the propeller shaft, docs/DRIVETRAIN.md). Before the mesh started
-    at its own static deflection (issue 30): -5.63 / 22.5 N.m."""
+    at its own static deflection: -5.63 / 22.5 N.m."""
     s, _ = _gear_at_t0([])
     assert s.mesh_torque_wheel == pytest.approx(-4.0 * s.mesh_torque_pinion, rel=WHEEL_RATIO_REL)   # the mesh balance
     assert s.mesh_torque_pinion == pytest.approx(s.flange_a_tau, rel=PINION_BALANCE_REL)           # the pinion's

@@ -1,4 +1,4 @@
-"""Hostile calls to every FMU through its FMI interface (issue 11): each is refused with a logged message
+"""Hostile calls to every FMU through its FMI interface: each is refused with a logged message
 naming the problem, or behaves as FMI 2.0 says; none crashes the host.
 
 The calls of one FMU run in one subprocess (one FMU load and JIT per model, not per case), each case on
@@ -137,7 +137,7 @@ SCRIPT = textwrap.dedent(r'''
 
 #: host errors the native builds survive (run by tests/fmu_build/test_native_*.py, each in a subprocess of its own):
 #: a wrong GUID is refused at fmi2Instantiate (fmpy raises), a second fmi2FreeInstance of one instance is
-#: harmless. The pythonfmu FMUs do the same since issue 30 (their FMI wrapper checks the GUID and keeps the list
+#: harmless. The pythonfmu FMUs do the same since their FMI wrapper (which checks the GUID and keeps the list
 #: of live instances; pythonfmu's export library does neither): tests/fmu_build/test_fmi_conformance.py.
 LIFECYCLE = textwrap.dedent(r'''
     import json, sys, warnings
@@ -216,18 +216,18 @@ EXPECT = {
     "reset_and_run_again": (["ok"] * 6, None),
     "normal_steps_still_work": (["ok"] * 3, None),
 }
-#: where the native builds answer otherwise; tests/fmu_build/test_native_*.py use these. (nan_parameter, stop_before_start
-#: and nan_start_time were here until issue 30: the pythonfmu FMUs accepted the call and refused the next step;
+#: where the native builds answer otherwise; test_native_*.py use these. (nan_parameter, stop_before_start
+#: and nan_start_time were here before the FMI wrapper: the pythonfmu FMUs accepted the call and refused the next step;
 #: their FMI wrapper now refuses the call itself with fmi2Error, as the native builds do.)
 NATIVE_EXPECT = {
     # the native gear is fidelity table with the built meshes: fidelity, health and mesh files are fixed by the build
     "hostile_mesh_path": (["refused", "refused", "refused", "ok", "ok", "refused"], "this FMU was built with"),
 }
-#: cases the pythonfmu FMUs pass and the native builds do not (none since issue 33)
+#: cases the pythonfmu FMUs pass and the native builds do not (none now)
 PYTHONFMU_ONLY: set = set()
 NO_STRINGS: set = set()          # models without a String parameter to abuse (each has node_phi_start)
 #: models without an Integer parameter that declares a range (UpperTransmission has no Integer parameter;
-#: GearContact declares its contact-map grid 2..4096 since issue 30)
+#: GearContact declares its contact-map grid 2..4096 now)
 NO_BOUNDED_INTEGERS = {"UpperTransmission"}
 
 

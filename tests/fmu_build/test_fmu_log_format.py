@@ -1,5 +1,4 @@
-"""User text in an FMU's log message never crashes the host, and a bad value reference is named
-(issue 11).
+"""User text in an FMU's log message never crashes the host, and a bad value reference is named.
 
 FMI 2.0's fmi2CallbackLogger takes the message as a printf-style format. A ``%n`` or ``%s`` in a mesh
 path or a profile string used to reach fmpy's formatting logger as it was: the host process died with a

@@ -1,4 +1,4 @@
-"""Each FMU alone, as a new user meets it (issue 30): its DefaultExperiment with the example input it ships
+"""Each FMU alone, as a new user meets it: its DefaultExperiment with the example input it ships
 (``documentation/example_input.csv``), run by ``fmpy.simulate_fmu`` exactly as its documentation says, gives a
 non-trivial, plausible result, judged against oracles that do not use the FMU's code: the rig's steady state
 (``rig.data.steady_state``: the torque balance at 500 rpm, 1.31 N·m), the gear ratio, a shaft's torque =

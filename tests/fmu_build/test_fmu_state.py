@@ -1,4 +1,4 @@
-"""FMI semantics of the four FMUs that other hosts rely on (issue 12): GearContact's initial-state
+"""FMI semantics of the four FMUs that other hosts rely on: GearContact's initial-state
 parameters (a host that passes nothing during initialization), NaN outputs and the ``error`` output
 after a failure, and FMU state get/set (a rolled-back step repeats bit for bit).
 
@@ -235,7 +235,7 @@ def test_after_a_failure_outputs_are_nan_and_error_says_why(fmus, assembled, mod
         assert {"flange_a_tau", "flange_b_tau", "flange_a_tau_mean", "energy_stored"} <= set(out["nan"])
         # the bodies at the last completed step and the stability counters stay readable
         assert {"pinion_phi", "pinion_w", "peak_penetration"} <= set(out["finite"])
-        assert out["n_substeps"] > 0              # an Integer counter (fmi2GetInteger), issue 30
+        assert out["n_substeps"] > 0              # an Integer counter (fmi2GetInteger)
     else:
         assert out["finite"] == []
 

@@ -164,7 +164,7 @@ def test_nan_input_is_an_fmi_error_and_the_host_survives(fmu):
     """
     p = _run(code)
     assert p.returncode == 0, p.stderr
-    # the failing step is fmi2Discard; a step in the error state is a misuse: fmi2Error (issue 30)
+    # the failing step is fmi2Discard; a step in the error state is a misuse: fmi2Error
     assert "STATUS 2" in p.stdout and "STATUS2 3" in p.stdout and "SURVIVED" in p.stdout, p.stdout
     # fmpy's default logger prints the FMU's error message
     assert "non-finite input at t = 0.0001" in p.stdout, p.stdout

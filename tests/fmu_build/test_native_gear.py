@@ -146,7 +146,7 @@ def test_validates_and_declares_like_the_pythonfmu(native, pyfmu):
         return {sv.get("name"): (sv.get("valueReference"), sv.get("causality"), sv[0].tag, sv[0].get("unit"))
                 for sv in r.find("ModelVariables")}
 
-    # (a parameter the build fixed is a constant here, issue 30: causality local instead of parameter)
+    # (a parameter the build fixed is a constant here, causality local instead of parameter)
     native_sig = {n: (vr, "parameter" if c == "local" else c, t, u) for n, (vr, c, t, u) in sig(root).items()}
     assert native_sig == sig(proot)
     assert all("fixed by this native build" in sv.get("description") for sv in svs.values()
@@ -215,7 +215,7 @@ def test_matches_the_pythonfmu_gearcontact(native, pyfmu, gear, extra):
 def test_the_comparison_sees_a_wrong_parameter(native, pyfmu, gear, name, factor):
     """The bounds have teeth: a parameter off by 1e-9 (J_pinion) or 1e-8 (k_b) relative in one FMU breaks
     them. Measured, per 1e-9: the coupling torques move by 2e-7 (J_pinion) and 5e-9 (k_b) relative; k_b
-    moved them by 3e-8 while the mesh started off its balance and rang (issue 30: it now starts at its
+    moved them by 3e-8 while the mesh started off its balance and rang (it now starts at its
     own static deflection, and a stiffer or softer port spring only shifts the steady twist)."""
     a = _drive(*_open(native, gear), 1200)
     b = _drive(*_open(pyfmu, {**gear, name: gear[name] * factor}), 1200)
@@ -269,7 +269,7 @@ def test_the_map_is_the_one_the_slave_steps_with(gear):
     assert maps[0] != maps[1] and maps[1][1]          # the second build took its own parameters
 
 def test_build_fixed_parameters_are_refused(native, gear):
-    """The parameters the contact map was computed with are constants of the build (issue 30: they were
+    """The parameters the contact map was computed with are constants of the build (they were
     declared settable and another value was refused only when set): causality local, variability constant,
     the built value as start; any fmi2Set of one is refused with the reason, even of the built value."""
     md = fmpy.read_model_description(str(native))
@@ -393,7 +393,7 @@ def test_manufacturing_errors_match(tmp_path, pyfmu, profile):
     fmu = build_native_gear(gear, tmp_path / "GearContact.fmu")
     a = _drive(*_open(fmu, gear), 1200)
     b = _drive(*_open(pyfmu, gear), 1200)
-    # Bounds widened after this test failed (issue 30's balanced mesh start changed the trajectory): at step 762
+    # Bounds widened after this test failed (the balanced mesh start changed the trajectory): at step 762
     # a contact event drops n_contact from 55 to 39 within one step, and the two builds' rounding, amplified
     # at that kink, reached wheel_w 1.1e-9 / 2.3e-9 and n_contact 2.1e-8 / 1.2e-7 (pitch_runout / with_profile);
     # the coupling torques stay <= 8.1e-10. Before the change: wheel_w <= 1e-9, mesh outputs <= 6.6e-9.
@@ -402,7 +402,7 @@ def test_manufacturing_errors_match(tmp_path, pyfmu, profile):
 
 @pytest.mark.slow
 def test_example_system_with_the_native_gear(native, tmp_path):
-    """The issue's figure: 1 s of the example scene, the native GearContact swapped in for the pythonfmu
+    """The native gear in the system: 1 s of the example scene, the native GearContact swapped in for the pythonfmu
     one (Master's fmu_paths), every recorded torque within 1e-6 relative (measured: <= 2.7e-11; the native
     ros2 agrees to rounding, not bit for bit, see TOL)."""
     from drivetrain.cosim import simulate
@@ -424,7 +424,7 @@ def test_example_system_with_the_native_gear(native, tmp_path):
 
 @needs_gcc
 def test_a_build_from_a_running_scene_keeps_at_rest_defaults(native, gear):
-    """Issue 30: `build-native SCENE` baked the scene's running state into the FMU's defaults
+    """`build-native SCENE` once baked the scene's running state into the FMU's defaults
     (pinion_w_start = 52.36, initial_state = parameters), so the FMU run alone with its defaults started with
     large transients, unlike every other build of the same gear. The running state is the host's to set."""
     from fmpy import read_model_description

@@ -344,7 +344,7 @@ def test_a_bad_parameter_is_an_error_message_not_a_crash(native, pyfmu, model, p
     ("MotorLoad", "load_mode", 2, ("0", "1")), ("MotorLoad", "load_mode", -1, ("0", "1")),
     ("FlexibleShaft", "mass_model", 2, ("0", "1"))])
 def test_an_integer_outside_its_declared_range_is_refused_when_set(native, pyfmu, model, name, value, bounds):
-    """n_elements declares 1..1000 (issue 33), load_mode and mass_model 0..1 (issue 30: the range the component
+    """n_elements declares 1..1000, load_mode and mass_model 0..1 (the range the component
     checks; mass_model 2 was taken as lumped without a word):
     both builds refuse a value outside at fmi2SetInteger, not at initialization (a value of 2^31 - 1 used
     to hang the host building its chain)."""

@@ -214,7 +214,7 @@ def _tiny_map_built_here(cache_dir: str) -> bool:
 
 
 def test_two_processes_build_one_map_once(tmp_path):
-    """Issue 11: two processes asking for the same new map both built it. Now the second waits for the
+    """Two processes asking for the same new map both built it. Now the second waits for the
     first's build (a lock beside the cache file) and reads it."""
     import concurrent.futures as cf
     import multiprocessing as mp

@@ -1,4 +1,4 @@
-"""Issue 29: a faulty contact map built from the healthy one equals the map computed row by row.
+"""A faulty contact map built from the healthy one equals the map computed row by row.
 
 Oracle: every row and flank of the faulty pair tabulated by the engine (``contact_map._tabulate``), on the
 healthy map's approach nodes. The incremental build (``compute_map(pair, grid, healthy=...)``) takes the

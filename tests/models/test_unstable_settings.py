@@ -1,4 +1,4 @@
-"""Deliberately unstable settings (issue 7): refused before running where the instability can be predicted
+"""Deliberately unstable settings: refused before running where the instability can be predicted
 (a communication step beyond a cut's limit; a u_max the static load alone would exceed), with a message
 naming the setting and the numbers, and nothing written."""
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The measured background (issue 28, first part): the record's figures, the background generators against
+"""The measured background: the record's figures, the background generators against
 closed forms, the record couplings' modes, and "off" leaving a scene's system untouched."""
 from __future__ import annotations
 

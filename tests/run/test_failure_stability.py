@@ -1,4 +1,4 @@
-"""Hard cases stay stable (issue 7): a failed run keeps what it computed, every summary has a stability
+"""Hard cases stay stable: a failed run keeps what it computed, every summary has a stability
 block, the gear stage counts penetration, sub-steps and tooth separation."""
 import importlib.util
 import json
@@ -293,7 +293,7 @@ def test_stage_counters_and_fmu_outputs(fmu_dir):
         else:
             assert c["peak_penetration"] > 0.0
             assert c["separated_time"] > 0.0               # from rest inside the backlash until contact
-    # the FMU exposes them as outputs: the measures Real with units, the counts Integer (issue 30)
+    # the FMU exposes them as outputs: the measures Real with units, the counts Integer
     info = M.load_fmu_info(M.ensure_fmus(["GearContact"], fmu_dir)["GearContact"])
     for name, unit in (("peak_penetration", "m"), ("min_substep", "s"), ("n_substeps", None),
                        ("n_refinements", None), ("separated_time", "s"), ("n_separations", None)):

@@ -1,4 +1,4 @@
-"""The run's plots read right (issue 31): spectra not clipped, the amplitude convention on the axis, the
+"""The run's plots read right: spectra not clipped, the amplitude convention on the axis, the
 operating point, health and effects in the titles, a shaft-order panel, a difference plot of `check` only
 where both runs have samples, waveforms drawn as a min/max envelope that keeps every peak.
 

@@ -1,6 +1,6 @@
 """A run into an existing --out says what it is: "running" from its start (an earlier run's files cleared), an
 interrupt (SIGINT, SIGTERM) ends it "interrupted" with what it computed, exit 130; only a finished run says
-"ok" (issue 33). Each case is a subprocess (signals)."""
+"ok". Each case is a subprocess (signals)."""
 from __future__ import annotations
 
 import json
@@ -81,7 +81,7 @@ def test_a_killed_rerun_never_says_ok(tmp_path, fmu_dir):
 def test_ctrl_c_during_a_sweep_stops_it_without_tracebacks(tmp_path, fmu_dir):
     """Ctrl-C reaches every process of the terminal: the sweep's workers end the runs they are stepping as
     "interrupted" (what they computed written), start no other, print no traceback; the sweep exits 130 at
-    once, its manifest written; --resume then runs what is missing. Issue 33: each worker printed its
+    once, its manifest written; --resume then runs what is missing. Each worker used to print its
     KeyboardInterrupt traceback, and the parent waited for the queued runs."""
     grid = tmp_path / "grid.toml"
     grid.write_text((ROOT / "scenarios" / "example.toml").read_text() + """

@@ -135,7 +135,7 @@ class _InThisProcess:
 
 
 def test_sweep_loses_no_work(tmp_path, mt_fmus):
-    """Issue 11: the manifest was written only at the end (a kill left none), --skip-existing reused runs
+    """The manifest was written only at the end (a kill left none), --skip-existing reused runs
     made with other settings and dropped their metrics, --only overwrote the whole sweep's manifest,
     plots were written for scenes that said outputs.plots = false. (The cases run in this process:
     what is checked is the sweep's bookkeeping, not its process pool.)"""

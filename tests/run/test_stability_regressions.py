@@ -1,4 +1,4 @@
-"""Minimised scenes of every stability failure found (issue 7, docs/STABILITY.md). Short ones run in the
+"""Minimised scenes of every stability failure found (docs/STABILITY.md). Short ones run in the
 default suite, long ones are marked slow."""
 from __future__ import annotations
 

@@ -64,7 +64,7 @@ def _cli(args, fmu_dir, out):
 # --------------------------------------------------------------------------------------------------
 
 
-def test_issue_example_and_syntax_accepted(tmp_path):
+def test_the_expect_syntax_of_every_kind_is_accepted(tmp_path):
     scene = load_scene(tiny(tmp_path, """\
         "torque.propeller_shaft_torque.mean" = { value = 15.03, rel = 0.01 }
         "energy_residual" = { max = 1e-3 }

@@ -39,10 +39,9 @@ SCRIPT = textwrap.dedent("""
 """)
 
 
-@pytest.fixture(scope="module")
-def fmu_dir(fmu_dir, pythonfmu_fmus):
-    """The session's FMU directory (tests/conftest.py), its FMUs built."""
-    return fmu_dir
+@pytest.fixture(scope="module", autouse=True)
+def _fmus_built(pythonfmu_fmus):
+    """The session's FMUs built in ``fmu_dir`` (tests/conftest.py) before a test runs them."""
 
 
 @pytest.mark.parametrize("model, name, value, extra", [

@@ -18,10 +18,9 @@ from drivetrain.run.outputs import read_hdf5
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.fixture(scope="module")
-def fmu_dir(fmu_dir, pythonfmu_fmus):
-    """The session's FMU directory (tests/conftest.py), its FMUs built before a run is timed or killed."""
-    return fmu_dir
+@pytest.fixture(scope="module", autouse=True)
+def _fmus_built(pythonfmu_fmus):
+    """The session's FMUs built in ``fmu_dir`` (tests/conftest.py) before a test runs them."""
 
 
 def _start(out: Path, fmu_dir: Path, duration: float = 60.0):

@@ -192,3 +192,18 @@ def build_test_fmus(out_dir: Path) -> dict[str, Path]:
         add_units(Path(fmu), unit_over)
         paths[cls] = Path(fmu)
     return paths
+
+
+def toy_spec():
+    """Motor inertia -> spring -> load inertia of the test FMUs above, standing in for the drivetrain (sensors
+    mapped)."""
+    from drivetrain.system import ComponentSpec, Connection, SystemSpec
+
+    return SystemSpec(
+        components=[ComponentSpec("motor", "MTInertia", {"J": 0.01, "d": 0.002, "tau_src": 1.0}),
+                    ComponentSpec("shaft", "MTSpring", {"k": 300.0, "c": 0.05}),
+                    ComponentSpec("load", "MTInertia", {"J": 0.02, "d": 0.01})],
+        connections=[Connection("shaft.flange_a", "motor.flange"), Connection("shaft.flange_b", "load.flange")],
+        comm_step=1.0 / 12000.0,
+        metadata={"sensors": {"drive_shaft_torque": "shaft.flange_b_tau", "propeller_shaft_torque": "shaft.flange_b_tau",
+                              "enc1": "motor.flange_phi", "enc5": "load.flange_phi"}})

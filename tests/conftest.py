@@ -32,11 +32,34 @@ def pytest_unconfigure(config):
     os._exit(_EXIT["status"])
 
 
+# The FMUs the tests share, each built once per test run (a pythonfmu FMU takes ~7 s to build, a native
+# line FMU ~1 s, the native gear ~5 s). Tests that check a build, its cache or its staleness build into a
+# directory of their own (tmp_path); the others read or run these and never write into their directory.
+
 @pytest.fixture(scope="session")
-def drivetrain_fmu_dir(tmp_path_factory):
-    """A private FMU directory shared by the tests that run scenes through the master (built on demand once
-    per session), so that tests never rewrite the shared fmus/."""
+def fmu_dir(tmp_path_factory):
+    """A private FMU directory shared by every test that runs scenes or systems through the master or reads the
+    drivetrain's FMUs (built on demand into it, once per session), so that tests never rewrite the shared
+    fmus/."""
     return tmp_path_factory.mktemp("fmus_session")
+
+
+@pytest.fixture(scope="session")
+def pythonfmu_fmus(fmu_dir):
+    """{model: path} of the four drivetrain FMUs, pythonfmu build, built once per session into ``fmu_dir``."""
+    from drivetrain.fmu_build.fmus import ensure_fmus
+    from drivetrain.fmu_build.native_line import MODELS as LINE_MODELS
+
+    return ensure_fmus(["GearContact", *LINE_MODELS], fmu_dir)
+
+
+@pytest.fixture(scope="session")
+def mt_fmus(tmp_path_factory):
+    """{model: path} of the small test FMUs of tests/_cosim_test_fmus.py (MTInertia, MTSpring, ...), built
+    once per session for the tests of the master, the runner and the sweeps."""
+    from _cosim_test_fmus import build_test_fmus
+
+    return build_test_fmus(tmp_path_factory.mktemp("mt_fmus"))
 
 
 @pytest.fixture(scope="session")
@@ -48,17 +71,15 @@ def native_cache_dir(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
-def fmus_both_builds(drivetrain_fmu_dir, tmp_path_factory):
+def fmus_both_builds(pythonfmu_fmus, tmp_path_factory):
     """{(build, model): path} of the four FMUs in both builds, built once per session for the tests that read
-    or run them without testing their build: "pythonfmu" (ensure_fmus into the session's FMU directory) and,
-    with a C toolchain, "native" (GearContact with its at-rest defaults). Without a toolchain the native
-    entries are absent (and the pythonfmu FMUs carry no FMI wrapper)."""
-    from drivetrain.cosim import ensure_fmus
+    or run them without testing their build: "pythonfmu" (``pythonfmu_fmus``) and, with a C toolchain,
+    "native" (GearContact with its at-rest defaults). Without a toolchain the native entries are absent (and
+    the pythonfmu FMUs carry no FMI wrapper)."""
     from drivetrain.fmu_build.native_gear import build_native_gear
     from drivetrain.fmu_build.native_line import MODELS as LINE_MODELS, build_native_line, toolchain_problems
 
-    models = ("GearContact", *LINE_MODELS)
-    out = {("pythonfmu", m): p for m, p in ensure_fmus(list(models), drivetrain_fmu_dir).items()}
+    out = {("pythonfmu", m): p for m, p in pythonfmu_fmus.items()}
     if not toolchain_problems():
         d = tmp_path_factory.mktemp("native_both_builds")
         for m in LINE_MODELS:

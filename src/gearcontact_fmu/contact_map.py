@@ -30,7 +30,7 @@ beyond u_max there sets the error status.
 The map is cached on disk keyed by a hash of geometry, PCM parameters, resolution, health, mesh files
 and grid (``$BEVEL_CACHE_DIR`` or ``~/.cache/bevel-drivetrain``). The package ships the maps of the rig's
 healthy gear at the default resolution and grid (``gearcontact_fmu/data/seed_maps``, the same files a
-build writes, checked bit for bit against a fresh build by ``tests/test_contact_map.py``): a cache miss
+build writes, checked bit for bit against a fresh build by ``tests/gear_contact/test_contact_map.py``): a cache miss
 for one of them copies it into the cache instead of building it, so a first run of a healthy scene pays
 neither the map build nor the contact kernels' compilation (about a minute on 2 cores).
 """

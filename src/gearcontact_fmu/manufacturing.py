@@ -19,7 +19,7 @@ divided by its own base radius and referred through r, come out over r_bp as wel
   pitch cone, whose in-plane part is sin(alpha) cos(delta); so the once-per-revolution transmission
   error has the amplitude kappa e, kappa = sqrt(cos^2 alpha + sin^2 alpha cos^2 delta) (0.997 for the
   pinion, 0.943 for the wheel), and a phase offset that a drawn phase absorbs. Checked against the
-  online PCM with an eccentric mesh (tests/test_manufacturing.py: within 2 %);
+  online PCM with an eccentric mesh (tests/gear_contact/test_manufacturing.py: within 2 %);
 * pitch: the position error of the tooth pair in mesh, e_n = P_p[k] - P_w[j] (over r_bp), where pair n
   (pinion tooth n mod z1, wheel tooth n mod z2 when both angles start together) is engaged over
   epsilon_alpha pitches centred at theta_p = n + CENTRE pitches (contact_map finds tooth n in blocks n-1, n),
@@ -27,7 +27,7 @@ divided by its own base radius and referred through r, come out over r_bp as wel
   carries the load, as the online PCM shows when one tooth is advanced by more than the load
   deflection (5 um at 20 N·m: that tooth carries 90-100 % of its error over its whole engagement):
   the larger error on the drive flank, the smaller on the coast flank, blended C1 with the engagement
-  weights. Within 10 % of the PCM with a displaced tooth (tests/test_manufacturing.py); what it
+  weights. Within 10 % of the PCM with a displaced tooth (tests/gear_contact/test_manufacturing.py); what it
   leaves out is the load sharing between two pairs whose errors differ by less than the deflection;
 * profile: every tooth of a gear has the same profile form deviation, so the pair's transmission error
   gets a term periodic with the mesh (once per pitch), its fundamental
@@ -71,7 +71,7 @@ P_PITCH_P, P_RATIO, P_ECC_P, P_PHASE_P, P_ECC_W, P_PHASE_W, P_EPS, P_RAMP, P_PRO
 
 #: where pair n's engagement is centred [pitches from theta_p = n pitches] and the length of the C1
 #: ramps at its ends [pitches]: measured on the online PCM with one advanced tooth at 20 N·m (entry at
-#: 4.16, exit at 5.72 pitches for tooth 5, each within ~0.05 pitch; tests/test_manufacturing.py)
+#: 4.16, exit at 5.72 pitches for tooth 5, each within ~0.05 pitch; tests/gear_contact/test_manufacturing.py)
 CENTRE = -0.06
 RAMP = 0.05
 

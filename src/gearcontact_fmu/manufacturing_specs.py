@@ -114,7 +114,7 @@ def draw_errors(gear: BevelGearParams | None = None, grade: int = DEFAULT_GRADE,
     (e = P_pinion - P_wheel), so the most advanced pinion tooth carries the most, and a flank fracture
     starts where the load is highest: a fault on tooth 0 (the default of every fault) sits there. The
     numbering turns both gears together by the same number of teeth, eccentricities included, so it is
-    the same pair of gears in the same assembly, started a few pitches later (tests/test_manufacturing.py)."""
+    the same pair of gears in the same assembly, started a few pitches later (tests/gear_contact/test_manufacturing.py)."""
     gear = gear or BevelGearParams()
     rng = np.random.default_rng(int(seed))
     out, source = {}, {"grade": int(grade), "runout_grade": int(runout_grade), "seed": int(seed)}

@@ -146,7 +146,7 @@ class MeshResolution:
     """Element size of the tooth surface meshes, set separately along the profile and the face width.
 
     Sizes are measured at the mean cone distance (the teeth scale with the cone distance). The
-    defaults are the converged resolution of the mesh-convergence study (tests/test_gearpair.py):
+    defaults are the converged resolution of the mesh-convergence study (tests/gear_contact/test_pcm_pair.py):
     halving the profile size from 0.05 mm changes the mesh stiffness by 0.2 %; the flanks are
     straight along the face width, so 0.5-2 mm along it changes it by < 0.1 %."""
 

@@ -714,7 +714,7 @@ class GearStage:
         fraction of a sub-step; a quadrature of the dissipated power at the stage points then counts
         far more than was ever stored (measured: 140 J against 5.3 J of port work on the missing-tooth
         scene). That quadrature stays available as :attr:`energy_dissipated_quadrature`; its agreement
-        with this balance is the integrator-accuracy check (tests/test_stage.py)."""
+        with this balance is the integrator-accuracy check (tests/gear_contact/test_stage.py)."""
         if self._mode == _M_BARE:
             return float(self.x[6])
         return float(self._e_diss_balance)

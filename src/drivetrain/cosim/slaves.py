@@ -278,7 +278,7 @@ class FmiSlave(Slave):
                 # pythonfmu 0.7.0: freeing an instance after a fatal error (a Python exception inside the
                 # FMU, cf. PythonFMU issues #68/#71 on exception and GIL handling) corrupts the interpreter
                 # and crashes the process at a later garbage collection (measured again after the logger
-                # fix: 1 of 2 runs of tests/test_master.py then test_ssp_export.py). The broken instance
+                # fix: 1 of 2 runs of tests/cosim/test_master.py then test_ssp_export.py). The broken instance
                 # is never called again; it is kept alive and not freed.
                 _LEAKED.append(self.fmu)
                 self.instantiated = False

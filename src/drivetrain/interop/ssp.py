@@ -54,7 +54,7 @@ _SSV_TYPE = {"Real": "Real", "Integer": "Integer", "Enumeration": "Integer", "Bo
              "String": "String"}
 _BASE_UNITS = ("kg", "m", "s", "A", "K", "mol", "cd", "rad")
 #: what fmpy's SSP runner (fmpy.ssp.simulation.simulate_ssp, read in fmpy 0.3.32) does not read of the archive;
-#: docs/FMU.md says the same and tests/test_ssp_export.py checks both against fmpy's behaviour
+#: docs/FMU.md says the same and tests/interop/test_ssp_export.py checks both against fmpy's behaviour
 FMPY_RUNNER_IGNORES = (
     "the parameter bindings (the .ssv files): it parses them, but applies only the parameter_set "
     "argument of simulate_ssp (names 'instance.variable'), and sets no String there (it raises "

@@ -237,8 +237,8 @@ def _surgery(mesh: SurfaceMesh, params, role, g, tooth: int, flank: str, s_box, 
         s_lo, s_hi, r_lo, r_hi = nodes[i0], nodes[i1], rows[j0], rows[j1]
         inner = fine_rows[(fine_rows > r_lo + 1e-9) & (fine_rows < r_hi - 1e-9)]
         rho_p = np.concatenate([[r_lo], inner, [r_hi]])
-        step = min(profile_step / g.Rm, float(np.min(np.diff(nodes[i0:i1 + 1])))) * g.Rm
-        patch = geometry.flank_patch(params, role, side, s_lo, s_hi, rho_p, step, tooth=tooth, notch=notch)
+        patch = geometry.flank_patch(params, role, side, s_lo, s_hi, rho_p, profile_step, tooth=tooth, notch=notch,
+                                     nodes=nodes)
         if depth_field is None:
             break
         patch, moved = _dent_patch(patch, flank, depth_field)

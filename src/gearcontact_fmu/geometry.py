@@ -622,7 +622,7 @@ def _strip_arrays(strip, rho, ds):
     nodes_u = []
     seg_piece, seg_t0, seg_t1 = [], [], []
     for ip, pc in enumerate(strip):
-        n = max(1, int(math.ceil(pc.length / ds - 1e-9)))
+        n = max(1, int(math.ceil(pc.length / ds - 1e-9)), getattr(pc, "min_segments", 1))
         if pc.kind == KIND_TIP_ROUND:
             n = max(n, _MIN_ROUND_SEGMENTS)
         t = np.linspace(0.0, 1.0, n + 1)
@@ -726,11 +726,13 @@ def flank_profile_nodes(g: GearGeometry, profile: float, side: int) -> np.ndarra
 
 
 def flank_patch(params: BevelGearParams | None, role: str, side: int, s_lo: float, s_hi: float, rho_nodes,
-                profile: float, tooth: int = 0, notch=None) -> SurfaceMesh:
+                profile: float, tooth: int = 0, notch=None, nodes=None) -> SurfaceMesh:
     """A structured patch of one side's flank strip (root part, involute, tip rounding) of ``tooth``: the
     profile parameters ``s_lo`` .. ``s_hi`` [rad] by the face rows ``rho_nodes`` [m], element size at most
     ``profile`` [m] along the profile, run and wound as the tooth's own strip (body frame, exact face data).
-    ``notch``: ``(side, s_a, s_b, depth_angle)``, a void inside the patch. Vertex ``i * len(rho_nodes) + j``
+    ``notch``: ``(side, s_a, s_b, depth_angle)``, a void inside the patch. ``nodes``: the profile parameters
+    of the tooth's own nodes (:func:`flank_profile_nodes`): a piece gets at least as many elements as they
+    put on it. Vertex ``i * len(rho_nodes) + j``
     is profile node i (in the strip's direction: towards the root on the +1 side) on row j. Used by
     :mod:`faults` for local surgery: the patch replaces the healthy elements of the same rectangle."""
     _check_role(role)
@@ -742,8 +744,14 @@ def flank_patch(params: BevelGearParams | None, role: str, side: int, s_lo: floa
         a, b = max(s0, s_lo), min(s1, s_hi)
         if b - a <= 1e-15:
             continue
-        pieces.extend(_split_for_notch(g, -1, a, b, kind, notch, down=False) if side == -1 else
-                      _split_for_notch(g, 1, b, a, kind, notch, down=True))
+        new = (_split_for_notch(g, -1, a, b, kind, notch, down=False) if side == -1 else
+               _split_for_notch(g, 1, b, a, kind, notch, down=True))
+        if nodes is not None:
+            for pc in new:
+                if pc.kind in (KIND_FLANK, KIND_ROOT_RADIAL, KIND_TIP_ROUND):
+                    lo_, hi_ = sorted(float(x) for x in pc.sfun(np.array([0.0, 1.0])))
+                    pc.min_segments = int(np.sum((nodes > lo_ + 1e-15) & (nodes <= hi_ + 1e-15)))
+        pieces.extend(new)
     if not pieces:
         raise ValueError(f"no flank between profile parameters {s_lo:g} and {s_hi:g}")
     V, F, FP, FN, FK, FF, FS = _strip_arrays(pieces, rho_nodes, profile / g.Rm)

@@ -1,0 +1,109 @@
+"""Convergence of each fault family's own effect with the element size (issue 40, item 2): the table of
+docs/GEAR-CONTACT.md ("A fault changes only the fault").
+
+The effect is the label ``mesh_torque_drop`` (gearcontact_fmu.fault_contact: the largest relative drop of the
+mesh torque at fixed mesh coordinate, read from the healthy and the faulty contact map of the default grid),
+for every family at its default size on pinion tooth 0's drive flank (and the wheel's with ``--wheel``), at
+the lightest and the heaviest load a scene runs (0.12 and 11.9 N·m at the load motor; the pinion torque is
+the scene's own steady state), at the default element size and at half of it (profile and face). Fault-local
+refinements (a pit's face rows every radius/4, a spall's every width/8) are the faults' own and stay.
+
+Pass rule, stated before computing: a family passes at a load when its drops at the two element sizes agree
+within 5 % of the finer one's, |d_default - d_half| <= 0.05 d_half.
+
+The largest drop saturates at 1 for a fault that takes a tooth's whole load off in single contact (void,
+wear, missing tooth), where it cannot show a mesh error. So the table also gives the drop integrated over the
+map's angles, in pinion pitches (sum of the row drops x row spacing / pitch: the load the fault takes off
+over its passage, as a share of one pitch's), with the same 5 % rule (stated with the first, before the
+wheel's faults and the integral were computed).
+
+    python benchmarks/fault_convergence.py [--wheel] [--json out.json]     # ~20-40 min on 2 busy cores
+
+Maps go through the disk cache ($BEVEL_CACHE_DIR): a rerun reads them; build times are printed.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+import numpy as np
+
+from gearcontact_fmu import fault_contact as fc
+from gearcontact_fmu.contact_map import get_map
+from gearcontact_fmu.fault_specs import FAULT_KINDS
+from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCMParams
+
+LOADS_NM = (0.12, 11.9)
+RULE = 0.05
+
+
+def pinion_torque(load_Nm: float) -> float:
+    """The pinion torque [N m] of the rig's scene at this load-motor torque (its steady state)."""
+    from drivetrain.run.runner import assemble_scene
+    from drivetrain.scene.load import resolve
+
+    scene = resolve({"scenario": {"name": "load"}, "operating_point": {"load_torque_Nm": load_Nm},
+                     "outputs": {"plots": False}})
+    return float(assemble_scene(scene).metadata["steady_state"]["T_msh"])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--wheel", action="store_true", help="the wheel's faults too")
+    ap.add_argument("--families", nargs="*", default=sorted(FAULT_KINDS))
+    ap.add_argument("--json", help="write the numbers here")
+    ap.add_argument("--factors", nargs=2, type=float, default=(1.0, 0.5), metavar=("COARSE", "FINE"),
+                    help="the two element sizes compared, as factors of the default (default 1 0.5)")
+    args = ap.parse_args()
+    gear, pcm, grid = BevelGearParams(), PCMParams(), MapGrid()
+    base = MeshResolution()
+    default, half = (MeshResolution(profile=f * base.profile, face=f * base.face) for f in args.factors)
+    torques = {load: pinion_torque(load) for load in LOADS_NM}
+    print("pinion torque at the load-motor torques:", {k: round(v, 4) for k, v in torques.items()})
+    members = ["pinion", "wheel"] if args.wheel else ["pinion"]
+    out = {"torques": torques, "rule": RULE, "rows": []}
+    maps = {}
+    for name, res in (("default", default), ("half", half)):
+        t0 = time.perf_counter()
+        maps[name] = get_map(gear, pcm, res, "healthy", None, grid)
+        print(f"healthy map, {name} element size ({res.profile * 1e3:g} x {res.face * 1e3:g} mm): "
+              f"{time.perf_counter() - t0:.1f} s", flush=True)
+    for member in members:
+        for kind in args.families:
+            spec = {"kind": kind, "member": member, "tooth": 0}
+            row = {"kind": kind, "member": member}
+            for name, res in (("default", default), ("half", half)):
+                t0 = time.perf_counter()
+                faulty = get_map(gear, pcm, res, "faults", None, grid, fault_kwargs={"faults": [spec]})
+                row[f"build_s_{name}"] = time.perf_counter() - t0
+                for load, T in torques.items():
+                    row[f"{name}@{load}"] = fc.mesh_torque_drop(maps[name], faulty, T)
+                    theta, drops = fc.row_drops(maps[name], faulty, T)
+                    row[f"{name}_int@{load}"] = float(np.nansum(drops) * (theta[1] - theta[0]) / (2 * np.pi / gear.z_pinion))
+            for load in LOADS_NM:
+                for key in ("", "_int"):
+                    d0, d1 = row[f"default{key}@{load}"], row[f"half{key}@{load}"]
+                    row[f"rel{key}@{load}"] = abs(d0 - d1) / abs(d1) if d1 != 0 else (0.0 if d0 == 0 else float("inf"))
+                    row[f"pass{key}@{load}"] = row[f"rel{key}@{load}"] <= RULE
+            out["rows"].append(row)
+            print(json.dumps(row), flush=True)
+    print()
+    print(f"| family | member | load-motor torque [N·m] | drop, size x{args.factors[0]:g} | drop, size "
+          f"x{args.factors[1]:g} | difference | integrated [pitch], x{args.factors[0]:g} / x{args.factors[1]:g} | "
+          f"difference | within 5 % (both) |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for row in out["rows"]:
+        for load in LOADS_NM:
+            ok = row[f"pass@{load}"] and row[f"pass_int@{load}"]
+            print(f"| {row['kind']} | {row['member']} | {load:g} | {row[f'default@{load}']:.4f} | "
+                  f"{row[f'half@{load}']:.4f} | {100 * row[f'rel@{load}']:.1f} % | "
+                  f"{row[f'default_int@{load}']:.4f} / {row[f'half_int@{load}']:.4f} | "
+                  f"{100 * row[f'rel_int@{load}']:.1f} % | {'yes' if ok else '**no**'} |")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(out, f, indent=1)
+
+
+if __name__ == "__main__":
+    main()

@@ -112,11 +112,14 @@ def pit_band(rho_c: float, radius: float) -> tuple:
 
 
 def partner_face_bands(params: BevelGearParams | None, specs, member: str) -> list:
-    """Face bands the ``member`` needs because the other gear has local faults (pits): the pinion's
-    elements probe the wheel's surface, so a wheel pit narrower than the pinion's face rows would fall
-    between them (a blind spot). Both cones share the apex, so the pit's cone distance is where the
-    pinion meets it; every pinion tooth gets the band (the teeth stay rotated copies of one tooth and
-    the contact map keeps computing one healthy pitch). The wheel, as the target, needs none."""
+    """Face bands the ``member`` needs because the other gear has faults with edges across the face (a
+    pit; a spall, a crack, a chipped tip over part of the face): the pinion's elements probe the wheel's
+    surface, so a wheel fault's face edges fall between the pinion's face rows wherever they happen to sit
+    (a pit narrower than the rows: a blind spot; a 4 mm spall or a 5 mm crack: 2 or 3 of the 2 mm rows,
+    a drop 15 % off the converged one, issue 40). The band puts the pinion's rows as the fault's own
+    patch has them. Both cones share the apex, so the fault's cone distance is where the pinion meets
+    it; every pinion tooth gets the band (the teeth stay rotated copies of one tooth and the contact map
+    keeps computing one healthy pitch). The wheel, as the target, needs none."""
     if member != "pinion":
         return []
     params = params or BevelGearParams()
@@ -124,8 +127,20 @@ def partner_face_bands(params: BevelGearParams | None, specs, member: str) -> li
     out = []
     for spec in specs:
         spec = normalised_spec(spec)
-        if spec["member"] == "wheel" and spec["kind"] == "pit":
-            out.append(pit_band(g.Ri + spec["face_position"] * (g.Re - g.Ri), spec["radius_mm"] * 1e-3))
+        if spec["member"] != "wheel":
+            continue
+        rho_c = g.Ri + spec.get("face_position", 0.5) * (g.Re - g.Ri)
+        if spec["kind"] == "pit":
+            out.append(pit_band(rho_c, spec["radius_mm"] * 1e-3))
+        elif spec["kind"] == "spall":
+            w = spec["width_mm"] * 1e-3
+            out.append((rho_c - 0.5 * w - w / 8.0, rho_c + 0.5 * w + w / 8.0, w / 8.0))
+        elif spec["kind"] == "crack":
+            L = spec["length_mm"] * 1e-3
+            out.append((rho_c - 0.5 * L, rho_c + 0.5 * L, L / 4.0))
+        elif spec["kind"] == "chipped_tip" and 0.0 < spec["length_mm"] * 1e-3 < g.b:
+            L = spec["length_mm"] * 1e-3
+            out.append((rho_c - 0.5 * L - L / 8.0, rho_c + 0.5 * L + L / 8.0, L / 8.0))
     return out
 
 

@@ -56,7 +56,9 @@ def integrated_drop(healthy, faulty, torque: float, gear) -> float:
     theta, drops = fc.row_drops(healthy, faulty, torque)
     pitch = 2 * np.pi / gear.z_pinion
     d = np.nan_to_num(drops)
-    near = np.abs(theta - theta[int(np.argmax(d))]) <= 1.5 * pitch
+    span = theta.size * (theta[1] - theta[0])                  # the map is periodic over its span
+    off = np.abs(theta - theta[int(np.argmax(d))]) % span
+    near = np.minimum(off, span - off) <= 1.5 * pitch
     return float(np.sum(d[near]) * (theta[1] - theta[0]) / pitch)
 
 

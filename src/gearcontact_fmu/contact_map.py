@@ -62,8 +62,8 @@ from gearcontact_fmu.progress import Silent, reporter as progress_reporter
 #: faulty maps built from the healthy map, on its approach nodes)
 MAP_VERSION = 7
 #: part of a faulty map's cache key: raised when a fault's mesh or its rows change (2: local surgery, the
-#: fault rows chosen by the fault's patch)
-FAULT_VERSION = 2
+#: fault rows chosen by the fault's patch; 3: partner bands for a wheel spall, crack, part-face chip)
+FAULT_VERSION = 3
 # channels stored per grid node
 CH_TAU_P, CH_TAU_W, CH_N, CH_AREA, CH_PEAK, CH_PEN, CH_FN, CH_EEL, CH_DAMP, CH_FRIC_P, CH_FRIC_W = range(11)
 N_CH = 11

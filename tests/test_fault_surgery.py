@@ -142,3 +142,17 @@ def test_a_fault_nothing_touches_gives_the_healthy_signals_bit_for_bit(tmp_path,
     assert healthy.keys() == faulty.keys()
     for k in healthy:
         assert np.array_equal(healthy[k], faulty[k]), k
+
+
+@pytest.mark.parametrize("kind, half_mm", [("spall", 2.0), ("crack", 2.5)])
+def test_a_wheel_spall_or_crack_puts_pinion_rows_on_its_face_edges(kind, half_mm):
+    """Without them the drop depended on how many of the pinion's 2 mm rows fell inside (issue 40's
+    convergence: a wheel spall and crack 15 % off the converged drop)."""
+    bands = faults.partner_face_bands(GEAR, [{"kind": kind, "member": "wheel", "tooth": 7}], "pinion")
+    g = geometry.gear_geometry(GEAR, "pinion")
+    rows = np.asarray(geometry.graded_face_nodes(g, 2e-3, bands))
+    rho_c = g.Ri + 0.5 * g.b
+    for edge in (rho_c - half_mm * 1e-3, rho_c + half_mm * 1e-3):
+        assert np.min(np.abs(rows - edge)) < 1e-12
+    assert np.max(np.diff(rows[(rows >= rho_c - half_mm * 1e-3) & (rows <= rho_c + half_mm * 1e-3)])) <= 1.25e-3 + 1e-12
+    assert faults.partner_face_bands(GEAR, [{"kind": kind, "member": "pinion", "tooth": 7}], "pinion") == []

@@ -167,8 +167,8 @@ def _wheel_block(tooth: int, n_blocks: int) -> int:
     return int(tooth) % n_blocks
 
 
-#: the contact table of an incremental build looks this much beyond the deepest approach node (the faulty
-#: tooth is re-meshed, so its elements may meet the partner a little before the healthy tooth's would)
+#: the contact table of an incremental build looks this much beyond the deepest approach node (a fault's
+#: patch is re-meshed, so its elements may meet the partner a little before the healthy ones would)
 TOUCH_MARGIN = 1.05
 
 
@@ -270,7 +270,8 @@ def _tabulate_by_pitch(pair, theta, a, grid: MapGrid, n_rev: int = 1, progress: 
     unchanged, and generated teeth are rotated copies of one tooth, so a pair of healthy gears has the same
     rows a pitch apart: one block (``points_per_pitch`` rows) is computed and tiled. With faults, the
     healthy rows are the ``healthy`` map's or, without it, the block farthest from every fault, tiled; then
-    the flank rows in which a faulty tooth meets its partner are computed again:
+    the flank rows in which a fault's patch (:class:`_FaultReach`; a missing tooth: the tooth) meets its
+    partner are computed again:
 
     Contact forces are sums over the elements in contact, and every fault removes material. Where the
     healthy tooth at a faulty tooth's place touches nothing over a row's whole approach range (its deepest

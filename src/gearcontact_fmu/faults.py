@@ -6,8 +6,8 @@
   strip centred on the pitch cone (``position = 0``; ``position`` > 0 moves it towards the tip, a
   profile distance in m). Like the teeth (tapered depth, all cones through the apex) the void scales
   with the cone distance: width, depth and position are the values at the mean cone distance R_m,
-  so the removed flank area is exactly ``width * face_width``. The void is built properly: the
-  tooth is re-meshed with the strip edges as mesh lines, the flank elements inside the strip are
+  so the removed flank area is exactly ``width * face_width``. The void is built properly: a patch
+  of the flank around it is re-meshed with the strip edges as mesh lines, the flank elements inside the strip are
   replaced by the void's floor (the flank offset by ``depth`` into the tooth; a parallel surface with
   the same exact normal) and two walls (planar sectors through the apex; exact normals along the
   profile tangent, pointing into the void). Floor and walls carry ``face_flank = 0`` and
@@ -16,8 +16,11 @@
 * :func:`missing_tooth` - severe fault: all surfaces of one tooth removed.
 * :func:`pit`, :func:`spall`, :func:`chipped_tip`, :func:`wear` - material removed from a flank along
   its normal by a depth field (a spherical cap; a flat-bottomed patch; a 45° chamfer at the tip; a
-  uniform or sliding-weighted layer), the tooth re-meshed finely where the fault is (:func:`_dent`).
+  uniform or sliding-weighted layer), re-meshed finely where the fault is (:func:`_dent`).
 * :func:`crack` - a tooth-root crack grown through: the flank missing over part of the face width.
+* Every fault but the missing tooth is cut in by local surgery (:func:`_surgery`): only a patch of its flank
+  around the fault is meshed anew, every other element of the gear stays as it was, bit for bit and in
+  order (a fault changes only the fault; issue 40).
 * :func:`apply_health` - ``"healthy" | "mild" | "severe" | "faults"`` for one member (pinion or wheel);
   ``"faults"`` applies a list of fault specifications (:data:`FAULT_KINDS`, :func:`apply_faults`), each
   on either gear, any tooth and flank, several at once.

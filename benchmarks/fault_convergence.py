@@ -62,6 +62,17 @@ def integrated_drop(healthy, faulty, torque: float, gear) -> float:
     return float(np.sum(d[near]) * (theta[1] - theta[0]) / pitch)
 
 
+def healthy_under_load(cmap, torque: float, per: int) -> tuple[float, float]:
+    """(mean approach beyond the onset, amplitude of the GMF harmonic of the mesh coordinate) [rad] of a
+    healthy map under the pinion torque ``torque`` over one pitch (``per`` rows): its stiffness and its
+    static transmission error's mesh-frequency line."""
+    from gearcontact_fmu.contact_map import CH_TAU_P, SIDE_DRIVE
+
+    a = np.array([np.interp(torque, np.abs(cmap.values[i, SIDE_DRIVE, :, CH_TAU_P]), cmap.a) for i in range(per)])
+    s = cmap.onset[:per, SIDE_DRIVE] + a
+    return float(a.mean()), float(2.0 * abs(np.fft.rfft(s - s.mean())[1]) / per)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--wheel", action="store_true", help="the wheel's faults too")
@@ -83,6 +94,10 @@ def main() -> None:
         maps[name] = get_map(gear, pcm, res, "healthy", None, grid)
         print(f"healthy map, {name} element size ({res.profile * 1e3:g} x {res.face * 1e3:g} mm): "
               f"{time.perf_counter() - t0:.1f} s", flush=True)
+    for load, T in torques.items():
+        (a0, g0), (a1, g1) = (healthy_under_load(maps[n], T, grid.points_per_pitch) for n in ("default", "half"))
+        print(f"healthy at {load:g} N·m: approach under load {100 * (a0 / a1 - 1):+.2f} %, GMF line of the static "
+              f"transmission error {100 * (g0 / g1 - 1):+.2f} % (coarse against fine)", flush=True)
     for member in members:
         for kind in args.families:
             spec = {"kind": kind, "member": member, "tooth": 0}

@@ -61,6 +61,9 @@ from gearcontact_fmu.progress import Silent, reporter as progress_reporter
 #: part of every cache key: raised when the map content or the file format changes (6: content digest; 7:
 #: faulty maps built from the healthy map, on its approach nodes)
 MAP_VERSION = 7
+#: part of a faulty map's cache key: raised when a fault's mesh or its rows change (2: local surgery, the
+#: fault rows chosen by the fault's patch; 3: partner bands for a wheel spall, crack, part-face chip)
+FAULT_VERSION = 3
 # channels stored per grid node
 CH_TAU_P, CH_TAU_W, CH_N, CH_AREA, CH_PEAK, CH_PEN, CH_FN, CH_EEL, CH_DAMP, CH_FRIC_P, CH_FRIC_W = range(11)
 N_CH = 11
@@ -164,26 +167,83 @@ def _wheel_block(tooth: int, n_blocks: int) -> int:
     return int(tooth) % n_blocks
 
 
-#: the contact table of an incremental build looks this much beyond the deepest approach node (the faulty
-#: tooth is re-meshed, so its elements may meet the partner a little before the healthy tooth's would)
+#: the contact table of an incremental build looks this much beyond the deepest approach node (a fault's
+#: patch is re-meshed, so its elements may meet the partner a little before the healthy ones would)
 TOUCH_MARGIN = 1.05
 
 
-def _contact_teeth(pair, theta_pinion: float, s: float) -> tuple[set, set]:
-    """The pinion and wheel teeth with an element in contact at pinion angle ``theta_pinion`` and mesh
-    coordinate ``s`` (static): the elements the engine found in contact, mapped from its tree order to
-    the meshes' faces and their teeth."""
+def _contact_faces(pair, theta_pinion: float, s: float) -> tuple[np.ndarray, np.ndarray]:
+    """The pinion faces and the wheel faces in contact at pinion angle ``theta_pinion`` and mesh coordinate
+    ``s`` (static): the elements the engine found in contact (pinion) and the triangles they hit (wheel),
+    mapped from its tree order to the meshes' faces."""
     out = np.zeros(N_OUT)
     pair.evaluate(theta_pinion, pair.wheel_angle(theta_pinion, s), 0.0, 0.0, out)
     n = int(out[OUT_N_CONTACT])
     if n == 0:
-        return set(), set()
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
     base, target = pair.bodies[0], pair.bodies[1]
     slots = pair.data.work.active[:n]
-    pinion_faces = base.order[slots]
-    wheel_faces = target.order[pair.data.work.best_j[slots]]
-    return (set(np.unique(pair.pinion.face_tooth[pinion_faces]).tolist()),
-            set(np.unique(pair.wheel.face_tooth[wheel_faces]).tolist()))
+    return np.unique(base.order[slots]), np.unique(target.order[pair.data.work.best_j[slots]])
+
+
+def _contact_teeth(pair, theta_pinion: float, s: float) -> tuple[set, set]:
+    """The pinion and wheel teeth with an element in contact at pinion angle ``theta_pinion`` and mesh
+    coordinate ``s`` (static)."""
+    pf, wf = _contact_faces(pair, theta_pinion, s)
+    return (set(np.unique(pair.pinion.face_tooth[pf]).tolist()), set(np.unique(pair.wheel.face_tooth[wf]).tolist()))
+
+
+class _FaultReach:
+    """Where the faults of one gear sit, for the contact table of an incremental build: per faulty tooth
+    either the whole tooth (a missing tooth, a fault without a patch) or the patches local surgery replaced
+    (:func:`gearcontact_fmu.faults._surgery`: flank, profile and cone-distance ranges), widened by one
+    element of the gear's own mesh each way (a finer element of the patch may meet the partner where the
+    healthy element next to the patch's edge does). ``touches(faces, shift)``: whether an element among
+    ``faces`` (of the block the table is read on), carried ``shift`` teeth on, lies in a fault's reach."""
+
+    def __init__(self, mesh, z: int, faulty):
+        from gearcontact_fmu.fault_specs import FLANKS
+
+        self.mesh, self.z = mesh, z
+        patches = mesh.meta.get("patches", [])
+        patched = {int(p[0]) % z for p in patches}
+        whole = {int(f["tooth"]) % z for f in mesh.meta.get("faults", []) if f.get("type") == "missing_tooth"}
+        self.whole = set(faulty) - (patched - whole)
+        g = geometry.gear_geometry(mesh.meta.get("params") or BevelGearParams(), mesh.meta["role"]) \
+            if mesh.meta.get("source") == "analytic" else None
+        self.boxes = {}
+        if patches and g is not None:
+            ds = 1.01 * float(mesh.meta["profile"]) / g.Rm
+            rows = np.asarray(geometry.graded_face_nodes(g, mesh.meta["face"], list(mesh.meta.get("face_bands", []))))
+            dr = 1.01 * float(np.max(np.diff(rows)))
+            for tooth, flank, s_lo, s_hi, r_lo, r_hi in patches:
+                self.boxes.setdefault(int(tooth) % z, []).append((FLANKS[flank], s_lo - ds, s_hi + ds, r_lo - dr,
+                                                                  r_hi + dr))
+            # the strip side of every face: a flank's code, the tip rounding by the way its normal turns
+            pts, nrm = mesh.element_points(), mesh.element_normals()
+            az = nrm[:, 1] * pts[:, 0] - nrm[:, 0] * pts[:, 1]
+            drive = mesh.face_flank == FLANKS["drive"]
+            sign = np.sign(np.mean(az[drive])) if np.any(drive) else 1.0
+            self.side = np.where(mesh.face_flank != 0, mesh.face_flank,
+                                 np.where(az * sign > 0.0, FLANKS["drive"], FLANKS["coast"])).astype(np.int8)
+            self.rho = np.linalg.norm(mesh.centroids(), axis=1)
+
+    def touches(self, faces: np.ndarray, shift: int) -> bool:
+        if faces.size == 0:
+            return False
+        teeth = self.mesh.face_tooth[faces]
+        moved = (teeth + shift) % self.z
+        if any(int(t) in self.whole for t in np.unique(moved)):
+            return True
+        for tooth, boxes in self.boxes.items():
+            sel = faces[moved == tooth]
+            if sel.size == 0:
+                continue
+            s, rho, side = self.mesh.face_profile[sel], self.rho[sel], self.side[sel]
+            for code, s_lo, s_hi, r_lo, r_hi in boxes:
+                if np.any((side == code) & (s > s_lo) & (s < s_hi) & (rho > r_lo) & (rho < r_hi)):
+                    return True
+        return False
 
 
 def _fault_window(pair, n_blocks: int):
@@ -210,7 +270,8 @@ def _tabulate_by_pitch(pair, theta, a, grid: MapGrid, n_rev: int = 1, progress: 
     unchanged, and generated teeth are rotated copies of one tooth, so a pair of healthy gears has the same
     rows a pitch apart: one block (``points_per_pitch`` rows) is computed and tiled. With faults, the
     healthy rows are the ``healthy`` map's or, without it, the block farthest from every fault, tiled; then
-    the flank rows in which a faulty tooth meets its partner are computed again:
+    the flank rows in which a fault's patch (:class:`_FaultReach`; a missing tooth: the tooth) meets its
+    partner are computed again:
 
     Contact forces are sums over the elements in contact, and every fault removes material. Where the
     healthy tooth at a faulty tooth's place touches nothing over a row's whole approach range (its deepest
@@ -247,14 +308,14 @@ def _tabulate_by_pitch(pair, theta, a, grid: MapGrid, n_rev: int = 1, progress: 
     sides = np.zeros((len(theta), 2), dtype=bool)
     if window:
         depth = TOUCH_MARGIN * float(a[-1])
-        f_pin, f_whl = set(f_pin), set(f_whl)
+        reach_p, reach_w = _FaultReach(pair.pinion, z1, f_pin), _FaultReach(pair.wheel, z2, f_whl)
         for i in range(per):
             r = far * per + i
             for side, sign in ((SIDE_DRIVE, 1.0), (SIDE_COAST, -1.0)):
-                pins, whls = _contact_teeth(pair, float(theta[r]), float(onset[r, side]) + sign * depth)
+                pf, wf = _contact_faces(pair, float(theta[r]), float(onset[r, side]) + sign * depth)
                 for b in range(n_blocks):
                     d = b - far
-                    if any((t + d) % z1 in f_pin for t in pins) or any((w + d) % z2 in f_whl for w in whls):
+                    if reach_p.touches(pf, d) or reach_w.touches(wf, d):
                         sides[b * per + i, side] = True
     rows = np.flatnonzero(sides.any(axis=1))
     if len(rows):
@@ -392,7 +453,9 @@ def cache_key(gear, pcm, resolution, health, mesh_files, grid, fault_kwargs=None
     files = {k: _file_digest(v) for k, v in mf.items()}
     if files and mesh_units != "mm":         # the same file read in other units is another geometry
         files["units"] = mesh_units
-    return params_hash(gear, pcm, resolution, health, files, grid, fault_kwargs or {}, MAP_VERSION)
+    if health == "healthy":        # the shipped healthy maps keep their names
+        return params_hash(gear, pcm, resolution, health, files, grid, fault_kwargs or {}, MAP_VERSION)
+    return params_hash(gear, pcm, resolution, health, files, grid, fault_kwargs or {}, MAP_VERSION, FAULT_VERSION)
 
 
 _MAP_ARRAYS = ("theta", "a", "onset", "values")

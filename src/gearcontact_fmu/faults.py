@@ -6,8 +6,8 @@
   strip centred on the pitch cone (``position = 0``; ``position`` > 0 moves it towards the tip, a
   profile distance in m). Like the teeth (tapered depth, all cones through the apex) the void scales
   with the cone distance: width, depth and position are the values at the mean cone distance R_m,
-  so the removed flank area is exactly ``width * face_width``. The void is built properly: the
-  tooth is re-meshed with the strip edges as mesh lines, the flank elements inside the strip are
+  so the removed flank area is exactly ``width * face_width``. The void is built properly: a patch
+  of the flank around it is re-meshed with the strip edges as mesh lines, the flank elements inside the strip are
   replaced by the void's floor (the flank offset by ``depth`` into the tooth; a parallel surface with
   the same exact normal) and two walls (planar sectors through the apex; exact normals along the
   profile tangent, pointing into the void). Floor and walls carry ``face_flank = 0`` and
@@ -16,8 +16,11 @@
 * :func:`missing_tooth` - severe fault: all surfaces of one tooth removed.
 * :func:`pit`, :func:`spall`, :func:`chipped_tip`, :func:`wear` - material removed from a flank along
   its normal by a depth field (a spherical cap; a flat-bottomed patch; a 45° chamfer at the tip; a
-  uniform or sliding-weighted layer), the tooth re-meshed finely where the fault is (:func:`_dent`).
+  uniform or sliding-weighted layer), re-meshed finely where the fault is (:func:`_dent`).
 * :func:`crack` - a tooth-root crack grown through: the flank missing over part of the face width.
+* Every fault but the missing tooth is cut in by local surgery (:func:`_surgery`): only a patch of its flank
+  around the fault is meshed anew, every other element of the gear stays as it was, bit for bit and in
+  order (a fault changes only the fault; issue 40).
 * :func:`apply_health` - ``"healthy" | "mild" | "severe" | "faults"`` for one member (pinion or wheel);
   ``"faults"`` applies a list of fault specifications (:data:`FAULT_KINDS`, :func:`apply_faults`), each
   on either gear, any tooth and flank, several at once.
@@ -78,12 +81,10 @@ def mild_flank_fracture(mesh: SurfaceMesh, params: BevelGearParams | None = None
         raise ValueError("the void must not straddle the base cone (radial root part / involute)")
     if depth > 0.5 * g.s_pitch:
         raise ValueError("void deeper than half the tooth thickness")
-    res = MeshResolution(profile=mesh.meta["profile"], face=mesh.meta["face"])
-    faulty = geometry.build_gear_mesh(params, role, res, teeth=[tooth], top_land=mesh.meta.get("top_land", False),
-                                      notch={tooth: (geometry._side_of_flank(FLANKS[flank]), s_a, s_b, depth / g.Rm)},
-                                      face_bands=mesh.meta.get("face_bands", ()))
-    return _with_tooth(mesh, tooth, faulty, {"type": "flank_fracture", "tooth": tooth, "width": width,
-                                             "depth": depth, "position": position, "flank": flank})
+    notch = (geometry._side_of_flank(FLANKS[flank]), s_a, s_b, depth / g.Rm)
+    return _surgery(mesh, params, role, g, tooth, flank, (s_a, s_b), (g.Ri, g.Re), mesh.meta["profile"], [],
+                    {"type": "flank_fracture", "tooth": tooth, "width": width, "depth": depth,
+                     "position": position, "flank": flank}, f"void ({width * 1e3:g} mm)", notch=notch)
 
 
 def missing_tooth(mesh: SurfaceMesh, tooth: int = 0) -> SurfaceMesh:
@@ -114,11 +115,14 @@ def pit_band(rho_c: float, radius: float) -> tuple:
 
 
 def partner_face_bands(params: BevelGearParams | None, specs, member: str) -> list:
-    """Face bands the ``member`` needs because the other gear has local faults (pits): the pinion's
-    elements probe the wheel's surface, so a wheel pit narrower than the pinion's face rows would fall
-    between them (a blind spot). Both cones share the apex, so the pit's cone distance is where the
-    pinion meets it; every pinion tooth gets the band (the teeth stay rotated copies of one tooth and
-    the contact map keeps computing one healthy pitch). The wheel, as the target, needs none."""
+    """Face bands the ``member`` needs because the other gear has faults with edges across the face (a
+    pit; a spall, a crack, a chipped tip over part of the face): the pinion's elements probe the wheel's
+    surface, so a wheel fault's face edges fall between the pinion's face rows wherever they happen to sit
+    (a pit narrower than the rows: a blind spot; a 4 mm spall or a 5 mm crack: 2 or 3 of the 2 mm rows,
+    a drop 15 % off the converged one, issue 40). The band puts the pinion's rows as the fault's own
+    patch has them. Both cones share the apex, so the fault's cone distance is where the pinion meets
+    it; every pinion tooth gets the band (the teeth stay rotated copies of one tooth and the contact map
+    keeps computing one healthy pitch). The wheel, as the target, needs none."""
     if member != "pinion":
         return []
     params = params or BevelGearParams()
@@ -126,8 +130,20 @@ def partner_face_bands(params: BevelGearParams | None, specs, member: str) -> li
     out = []
     for spec in specs:
         spec = normalised_spec(spec)
-        if spec["member"] == "wheel" and spec["kind"] == "pit":
-            out.append(pit_band(g.Ri + spec["face_position"] * (g.Re - g.Ri), spec["radius_mm"] * 1e-3))
+        if spec["member"] != "wheel":
+            continue
+        rho_c = g.Ri + spec.get("face_position", 0.5) * (g.Re - g.Ri)
+        if spec["kind"] == "pit":
+            out.append(pit_band(rho_c, spec["radius_mm"] * 1e-3))
+        elif spec["kind"] == "spall":
+            w = spec["width_mm"] * 1e-3
+            out.append((rho_c - 0.5 * w - w / 8.0, rho_c + 0.5 * w + w / 8.0, w / 8.0))
+        elif spec["kind"] == "crack":
+            L = spec["length_mm"] * 1e-3
+            out.append((rho_c - 0.5 * L, rho_c + 0.5 * L, L / 4.0))
+        elif spec["kind"] == "chipped_tip" and 0.0 < spec["length_mm"] * 1e-3 < g.b:
+            L = spec["length_mm"] * 1e-3
+            out.append((rho_c - 0.5 * L - L / 8.0, rho_c + 0.5 * L + L / 8.0, L / 8.0))
     return out
 
 
@@ -156,56 +172,46 @@ def _with_tooth(mesh: SurfaceMesh, tooth: int, new_tooth: SurfaceMesh | None, re
     return out
 
 
-def _remesh_tooth(mesh: SurfaceMesh, params, role, g, tooth: int, bands, profile_step: float) -> SurfaceMesh:
-    """``tooth`` of ``mesh`` built again at its resolution, the profile spacing at most ``profile_step``
-    and the face rows refined in ``bands`` as well as in the mesh's own face bands."""
-    res = MeshResolution(profile=min(mesh.meta["profile"], profile_step), face=mesh.meta["face"])
-    nodes = geometry.graded_face_nodes(g, res.face, list(mesh.meta.get("face_bands", [])) + list(bands))
-    return geometry.build_gear_mesh(params, role, res, teeth=[tooth], top_land=mesh.meta.get("top_land", False),
-                                    rho_nodes={tooth: nodes})
-
-
-def _dent(mesh: SurfaceMesh, params, role, g, tooth: int, flank: str, depth_field, bands, profile_step: float,
-          record: dict, what: str) -> SurfaceMesh:
-    """``mesh`` with ``tooth`` re-meshed (face rows refined in ``bands``, profile spacing at most
-    ``profile_step``) and the vertices of its ``flank`` (with the tip rounding next to it) moved inward
-    along their exact normals by ``depth_field(vertices, profile_param, rho)`` [m] (0 = untouched).
-    Elements with a moved vertex become flat facets (point = centroid, normal = facet normal), as in a
-    mesh file: the exact flank no longer describes them. (The exact point of a rim element, whose
-    centroid parameter lies just outside a pit while two of its vertices moved in, stands proud of its
-    facet by tens of µm: measured, it made the pair touch 0.6 mrad early.)"""
-    t = _remesh_tooth(mesh, params, role, g, tooth, bands, profile_step)
-    # this flank and the tip rounding on its side (the outward normals of a side point the same way
-    # round the gear axis, body z)
-    side = t.face_flank == FLANKS[flank]
-    az = np.einsum("ij,ij->i", t.face_normals, np.stack([-t.face_points[:, 1], t.face_points[:, 0],
-                                                          np.zeros(len(t.faces))], axis=1))
+def _side_faces(mesh: SurfaceMesh, tooth: int, flank: str) -> np.ndarray:
+    """The faces of ``tooth`` on the strip of ``flank``: the flank itself (root part, involute) and the tip
+    rounding next to it (the outward normals of a side point the same way round the gear axis, body z)."""
+    on_tooth = mesh.face_tooth == tooth
+    side = on_tooth & (mesh.face_flank == FLANKS[flank])
+    pts = mesh.element_points()
+    az = np.einsum("ij,ij->i", mesh.element_normals(), np.stack([-pts[:, 1], pts[:, 0], np.zeros(len(pts))], axis=1))
     sign = np.sign(np.mean(az[side]))
-    on_flank = side | ((t.face_kind == KIND_TIP_ROUND) & (az * sign > 0.0))
+    return side | (on_tooth & (mesh.face_kind == KIND_TIP_ROUND) & (az * sign > 0.0))
+
+
+def _dent_patch(patch: SurfaceMesh, flank: str, depth_field) -> tuple:
+    """The vertices of ``patch`` (all on one side's strip) moved inward along their exact normals by
+    ``depth_field(vertices, profile_param, rho)`` [m] (0 = untouched): (moved patch, which vertices moved).
+    Elements with a moved vertex become flat facets (point = centroid, normal = facet normal), as in a mesh
+    file: the exact flank no longer describes them. (The exact point of a rim element, whose centroid
+    parameter lies just outside a pit while two of its vertices moved in, stands proud of its facet by tens
+    of um: measured, it made the pair touch 0.6 mrad early.)"""
+    t = patch
+    side = t.face_flank == FLANKS[flank]
     nv = len(t.vertices)
-    # per vertex: the profile parameter and exact normal averaged over its faces on this flank
+    # per vertex: the profile parameter and exact normal averaged over its faces
     cnt = np.zeros(nv)
     s_v = np.zeros(nv)
     n_v = np.zeros((nv, 3))
     n_side = np.zeros((nv, 3))              # the normal of the flank itself where a vertex has one
     for c in range(3):
-        idx = t.faces[on_flank, c]
+        idx = t.faces[:, c]
         np.add.at(cnt, idx, 1.0)
-        np.add.at(s_v, idx, t.face_profile[on_flank])
-        np.add.at(n_v, idx, t.face_normals[on_flank])
+        np.add.at(s_v, idx, t.face_profile)
+        np.add.at(n_v, idx, t.face_normals)
         np.add.at(n_side, t.faces[side, c], t.face_normals[side])
-    flank_vertices = cnt > 0
-    s_v[flank_vertices] /= cnt[flank_vertices]
+    used = cnt > 0
+    s_v[used] /= cnt[used]
     has_side = np.linalg.norm(n_side, axis=1) > 0.0
     n_v[has_side] = n_side[has_side]
-    n_v[flank_vertices] /= np.linalg.norm(n_v[flank_vertices], axis=1)[:, None]
+    n_v[used] /= np.linalg.norm(n_v[used], axis=1)[:, None]
     rho_v = np.linalg.norm(t.vertices, axis=1)
-    d_v = np.where(flank_vertices, depth_field(t.vertices, s_v, rho_v), 0.0)
+    d_v = np.where(used, depth_field(t.vertices, s_v, rho_v), 0.0)
     moved = d_v > 0.0
-    other_vertices = np.zeros(nv, dtype=bool)
-    other_vertices[t.faces[~on_flank].ravel()] = True
-    if np.any(moved & other_vertices) or not np.any(moved):
-        raise ValueError(f"the {what} leaves the {flank} flank of tooth {tooth}")
     V = t.vertices - d_v[:, None] * n_v
     touched = np.any(moved[t.faces], axis=1)
     fp = t.face_points.copy()
@@ -214,9 +220,86 @@ def _dent(mesh: SurfaceMesh, params, role, g, tooth: int, flank: str, depth_fiel
     geo = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     fp[touched] = tri.mean(axis=1)
     fn[touched] = geo / np.linalg.norm(geo, axis=1)[:, None]
-    faulty = SurfaceMesh(vertices=V, faces=t.faces, face_points=fp, face_normals=fn, face_tooth=t.face_tooth,
-                         face_flank=t.face_flank, face_kind=t.face_kind, face_profile=t.face_profile, meta=t.meta)
-    return _with_tooth(mesh, tooth, faulty, {"tooth": tooth, "flank": flank, **record})
+    return SurfaceMesh(vertices=V, faces=t.faces, face_points=fp, face_normals=fn, face_tooth=t.face_tooth,
+                       face_flank=t.face_flank, face_kind=t.face_kind, face_profile=t.face_profile), moved
+
+
+def _surgery(mesh: SurfaceMesh, params, role, g, tooth: int, flank: str, s_box, rho_box, profile_step: float,
+             bands, record: dict, what: str, depth_field=None, notch=None, cut=None) -> SurfaceMesh:
+    """``mesh`` with the fault cut into ``tooth`` by local surgery: every element outside the fault's patch
+    stays as it is, bit for bit (vertices, faces, face data, order); only the healthy elements of the patch
+    are taken out and replaced at the end of the face list.
+
+    The patch is the rectangle of ``flank``'s strip (root part, involute, tip rounding on that side) whose
+    edges are the tooth's own mesh lines just outside ``s_box`` (profile parameters [rad]) and ``rho_box``
+    (cone distances [m]). It is meshed anew with the profile spacing at most ``profile_step`` [m] and the
+    face rows refined in ``bands`` (as well as in the mesh's own face bands); the healthy rows and nodes on
+    its edges are kept, so the patch meets its neighbours along their edges (finer nodes on those edges
+    lie on the exact flank, a few 1e-11 m from the healthy chord: hanging nodes, which the element-wise
+    contact does not mind). Then ``notch`` (a void: walls and floor in place of the flank), or
+    ``depth_field`` (:func:`_dent_patch`; a field that still moves a vertex on the patch's edge widens the
+    patch by one element that way), and ``cut(patch)`` -> faces to drop (a crack). A patch that overlaps an
+    earlier fault's on the same tooth refuses (the earlier one would be lost)."""
+    side_code = FLANKS[flank]
+    side = geometry._side_of_flank(side_code)
+    top_land = mesh.meta.get("top_land", False)
+    nodes = geometry.flank_profile_nodes(g, mesh.meta["profile"], side)
+    mesh_bands = list(mesh.meta.get("face_bands", []))
+    rows = np.asarray(geometry.graded_face_nodes(g, mesh.meta["face"], mesh_bands))
+    fine_rows = np.asarray(geometry.graded_face_nodes(g, mesh.meta["face"], mesh_bands + list(bands)))
+    i0 = max(int(np.searchsorted(nodes, s_box[0] + 1e-15, side="right")) - 1, 0)
+    i1 = min(int(np.searchsorted(nodes, s_box[1] - 1e-15, side="left")), nodes.size - 1)
+    j0 = max(int(np.searchsorted(rows, rho_box[0] + 1e-12, side="right")) - 1, 0)
+    j1 = min(int(np.searchsorted(rows, rho_box[1] - 1e-12, side="left")), rows.size - 1)
+    for _ in range(64):
+        s_lo, s_hi, r_lo, r_hi = nodes[i0], nodes[i1], rows[j0], rows[j1]
+        inner = fine_rows[(fine_rows > r_lo + 1e-9) & (fine_rows < r_hi - 1e-9)]
+        rho_p = np.concatenate([[r_lo], inner, [r_hi]])
+        patch = geometry.flank_patch(params, role, side, s_lo, s_hi, rho_p, profile_step, tooth=tooth, notch=notch,
+                                     nodes=nodes)
+        if depth_field is None:
+            break
+        patch, moved = _dent_patch(patch, flank, depth_field)
+        if not np.any(moved):
+            raise ValueError(f"the {what} leaves the {flank} flank of tooth {tooth}")
+        # which edges of the patch moved: widen it that way (an edge at the strip's free end may move)
+        grid = moved.reshape(-1, rho_p.size)          # (profile nodes in the strip's direction, rows)
+        first, last = (grid[-1], grid[0]) if side == 1 else (grid[0], grid[-1])     # low s, high s
+        grow = [bool(first.any()) and i0 > 0, bool(last.any()) and i1 < nodes.size - 1,
+                bool(grid[:, 0].any()) and j0 > 0, bool(grid[:, -1].any()) and j1 < rows.size - 1]
+        if (last.any() and i1 == nodes.size - 1 and top_land) or (first.any() and i0 == 0 and s_lo > 0.0):
+            raise ValueError(f"the {what} leaves the {flank} flank of tooth {tooth}")
+        if not any(grow):
+            break
+        i0, i1, j0, j1 = i0 - grow[0], i1 + grow[1], j0 - grow[2], j1 + grow[3]
+    else:
+        raise ValueError(f"the {what} does not fit a patch of the {flank} flank of tooth {tooth}")
+    if cut is not None:
+        patch = patch.subset(~cut(patch))
+    # the healthy elements of the rectangle
+    strip = _side_faces(mesh, tooth, flank)
+    cent_rho = np.linalg.norm(mesh.centroids(), axis=1)
+    out = strip & (mesh.face_profile > s_lo) & (mesh.face_profile < s_hi) & (cent_rho > r_lo) & (cent_rho < r_hi)
+    expected = 2 * (i1 - i0) * (j1 - j0)
+    later = [p for p in mesh.meta.get("patches", []) if p[0] == tooth and p[1] == flank
+             and p[2] < s_hi and s_lo < p[3] and p[4] < r_hi and r_lo < p[5]]
+    if later or int(out.sum()) != expected:
+        raise FaultGeometryError(f"the {what} on the {flank} flank of tooth {tooth} overlaps another fault on that "
+                                 f"tooth: put one fault per place (the patches may not overlap)")
+    res = concatenate([mesh.subset(~out), patch])
+    res.meta = dict(mesh.meta)
+    res.meta["faults"] = list(mesh.meta.get("faults", [])) + [{"tooth": tooth, "flank": flank, **record}]
+    res.meta["patches"] = list(mesh.meta.get("patches", [])) + [(tooth, flank, float(s_lo), float(s_hi),
+                                                                  float(r_lo), float(r_hi))]
+    return res
+
+
+def _dent(mesh: SurfaceMesh, params, role, g, tooth: int, flank: str, depth_field, s_box, rho_box, bands,
+          profile_step: float, record: dict, what: str) -> SurfaceMesh:
+    """``mesh`` with the material of ``depth_field`` removed from ``flank`` of ``tooth`` by local surgery
+    (:func:`_surgery`) over the patch around ``s_box`` x ``rho_box``."""
+    return _surgery(mesh, params, role, g, tooth, flank, s_box, rho_box, profile_step, bands, record, what,
+                    depth_field=depth_field)
 
 
 def _face_rho(g, face_position: float, half: float, what: str, flank: str, tooth: int) -> float:
@@ -244,8 +327,10 @@ def pit(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth: int = 0
     rho_c = _face_rho(g, face_position, radius, what, flank, tooth)
     record = {"type": "pit", "radius": radius, "depth": depth, "face_position": face_position,
               "position": position, "volume": pit_volume(radius, depth)}
+    s_c, half_s = g.s_pitch_param + position / g.Rm, 1.25 * radius / (rho_c - radius)
+    band = pit_band(rho_c, radius)
     return _dent(mesh, params, role, g, tooth, flank, _pit_field(g, flank, tooth, radius, depth, rho_c, position),
-                 [pit_band(rho_c, radius)], radius / 8.0, record, what)
+                 (s_c - half_s, s_c + half_s), band[:2], [band], radius / 8.0, record, what)
 
 
 def _pit_field(g, flank: str, tooth: int, radius: float, depth: float, rho_c: float, position: float):
@@ -274,8 +359,9 @@ def spall(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth: int =
     el_s = min(mesh.meta["profile"], length / 32.0) / g.Rm       # the profile spacing [rad]
     el_f = width / 8.0                                            # the face rows inside the spall
     field = _spall_field(g, length, width, depth, rho_c, position, el_s, el_f)
-    return _dent(mesh, params, role, g, tooth, flank, field, [(lo - el_f, hi + el_f, el_f)], length / 32.0,
-                 record, what)
+    s_c, half_s = g.s_pitch_param + position / g.Rm, 0.5 * length / g.Rm + el_s
+    return _dent(mesh, params, role, g, tooth, flank, field, (s_c - half_s, s_c + half_s), (lo - el_f, hi + el_f),
+                 [(lo - el_f, hi + el_f, el_f)], length / 32.0, record, what)
 
 
 def _spall_field(g, length: float, width: float, depth: float, rho_c: float, position: float, el_s: float,
@@ -314,7 +400,9 @@ def chipped_tip(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth:
     el_f = min(length / 8.0, mesh.meta["face"])
     field = _chip_field(g, height, length, rho_c, el_f)
     bands = [] if length >= g.b else [(lo - el_f, hi + el_f, el_f)]
-    return _dent(mesh, params, role, g, tooth, flank, field, bands, height / 16.0, record, what)
+    s_box = (g.L_radial + g.L_inv - height / g.Rm, math.inf)            # up to the end of the tip rounding
+    rho_box = (lo - el_f, hi + el_f) if bands else (g.Ri, g.Re)
+    return _dent(mesh, params, role, g, tooth, flank, field, s_box, rho_box, bands, height / 16.0, record, what)
 
 
 def _chip_field(g, height: float, length: float, rho_c: float, el_f: float):
@@ -342,13 +430,16 @@ def crack(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth: int =
     what = f"crack ({length * 1e3:g} mm of the face)"
     rho_c = _face_rho(g, face_position, 0.5 * length, what, flank, tooth)
     lo, hi = rho_c - 0.5 * length, rho_c + 0.5 * length
-    t = _remesh_tooth(mesh, params, role, g, tooth, [(lo, hi, min(length / 4.0, mesh.meta["face"]))],
-                      mesh.meta["profile"])
-    rho_f = np.linalg.norm(t.vertices[t.faces], axis=2).mean(axis=1)
-    gone = (t.face_flank == FLANKS[flank]) & (rho_f > lo) & (rho_f < hi)
-    return _with_tooth(mesh, tooth, t.subset(~gone),
-                       {"type": "crack", "tooth": tooth, "flank": flank, "length": length,
-                        "face_position": face_position, "area": 0.5 * (hi * hi - lo * lo) * (g.L_radial + g.L_inv)})
+    side_code = FLANKS[flank]
+
+    def cut(patch):
+        rho_f = np.linalg.norm(patch.centroids(), axis=1)
+        return (patch.face_flank == side_code) & (rho_f > lo) & (rho_f < hi)
+
+    return _surgery(mesh, params, role, g, tooth, flank, (0.0, g.L_radial + g.L_inv), (lo, hi), mesh.meta["profile"],
+                    [(lo, hi, min(length / 4.0, mesh.meta["face"]))],
+                    {"type": "crack", "length": length, "face_position": face_position,
+                     "area": 0.5 * (hi * hi - lo * lo) * (g.L_radial + g.L_inv)}, what, cut=cut)
 
 
 def wear(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth: int = 0, flank: str = "drive",
@@ -368,8 +459,8 @@ def wear(mesh: SurfaceMesh, params: BevelGearParams | None = None, tooth: int = 
               # depth scales with rho (tapered): V = depth/Rm int rho^2 drho int w(s) ds
               "volume": depth / g.Rm * (g.Re ** 3 - g.Ri ** 3) / 3.0 * ((s1 - s0) if profile == "uniform" else
                         ((g.s_pitch_param - s0) ** 2 + (s1 - g.s_pitch_param) ** 2) / (2.0 * far))}
-    return _dent(mesh, params, role, g, tooth, flank, _wear_field(g, depth, profile), [], mesh.meta["profile"],
-                 record, f"{profile} wear")
+    return _dent(mesh, params, role, g, tooth, flank, _wear_field(g, depth, profile), (s0, s1), (g.Ri, g.Re), [],
+                 mesh.meta["profile"], record, f"{profile} wear")
 
 
 def _wear_field(g, depth: float, profile: str):

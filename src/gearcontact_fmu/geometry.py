@@ -613,6 +613,66 @@ def graded_face_nodes(g: GearGeometry, face: float, bands) -> tuple:
     return tuple(float(r) for r in rows)
 
 
+def _strip_arrays(strip, rho, ds):
+    """One structured strip of profile pieces (``strip``, run in order) by the face rows ``rho`` [m], the
+    profile spacing at most ``ds`` [rad]: vertices, faces (order: segment, row, two triangles), exact face
+    points and normals, kinds, flank codes and profile parameters."""
+    rho = np.asarray(rho, dtype=float)
+    nf = len(rho) - 1
+    nodes_u = []
+    seg_piece, seg_t0, seg_t1 = [], [], []
+    for ip, pc in enumerate(strip):
+        n = max(1, int(math.ceil(pc.length / ds - 1e-9)), getattr(pc, "min_segments", 1))
+        if pc.kind == KIND_TIP_ROUND:
+            n = max(n, _MIN_ROUND_SEGMENTS)
+        t = np.linspace(0.0, 1.0, n + 1)
+        u, _ = pc.eval(t)
+        nodes_u.append(u if not nodes_u else u[1:])
+        seg_piece += [ip] * n
+        seg_t0.append(t[:-1])
+        seg_t1.append(t[1:])
+    U = np.concatenate(nodes_u, axis=0)
+    seg_piece = np.array(seg_piece)
+    seg_t0 = np.concatenate(seg_t0)
+    seg_t1 = np.concatenate(seg_t1)
+    N = U.shape[0]
+    nseg = N - 1
+    verts = (rho[None, :, None] * U[:, None, :]).reshape(-1, 3)
+    i = np.arange(nseg)[:, None]
+    j = np.arange(nf)[None, :]
+    a = i * (nf + 1) + j
+    b_ = (i + 1) * (nf + 1) + j
+    tri1 = np.stack([a, b_, b_ + 1], axis=-1)
+    tri2 = np.stack([a, b_ + 1, a + 1], axis=-1)
+    faces = np.stack([tri1, tri2], axis=2).reshape(-1, 3)          # order: seg, rho, (tri1, tri2)
+    # exact per-face data: weighted parameter of the centroid
+    r0 = rho[:-1][None, :]
+    r1 = rho[1:][None, :]
+    t0 = seg_t0[:, None]
+    t1 = seg_t1[:, None]
+    tc1 = (r0 * t0 + (r0 + r1) * t1) / (2 * r0 + r1)
+    tc2 = ((r0 + r1) * t0 + r1 * t1) / (r0 + 2 * r1)
+    tc = np.stack([tc1, tc2], axis=2).reshape(nseg, -1)          # (nseg, 2 nf)
+    fu = np.empty((nseg, 2 * nf, 3))
+    fn_ = np.empty((nseg, 2 * nf, 3))
+    fk = np.empty(nseg, dtype=np.int8)
+    ff = np.empty(nseg, dtype=np.int8)
+    fs = np.empty((nseg, 2 * nf))
+    for ip, pc in enumerate(strip):
+        msk = seg_piece == ip
+        uu, nn = pc.eval(tc[msk])
+        fu[msk], fn_[msk] = uu, nn
+        fk[msk] = pc.kind
+        ff[msk] = pc.flank
+        fs[msk] = pc.sfun(tc[msk])
+    fu = fu.reshape(-1, 3)
+    fn_ = fn_.reshape(-1, 3)
+    cent = verts[faces].mean(axis=1)
+    rc = np.einsum("ij,ij->i", cent, fu)
+    return (verts, faces, rc[:, None] * fu, fn_ / np.linalg.norm(fn_, axis=1)[:, None], np.repeat(fk, 2 * nf),
+            np.repeat(ff, 2 * nf), fs.reshape(-1))
+
+
 def _tooth_template(g: GearGeometry, resolution: MeshResolution, top_land=False, notch=None, rho_nodes=None):
     """Mesh of tooth 0 in the gear frame: vertices, faces and per-face data (strips of the polyline).
     ``rho_nodes``: the cone distances of the face rows (default uniform at ``resolution.face``)."""
@@ -636,66 +696,69 @@ def _tooth_template(g: GearGeometry, resolution: MeshResolution, top_land=False,
     V, Fc, FP, FN, FK, FF, FS = [], [], [], [], [], [], []
     nv = 0
     for strip in strips:
-        nodes_u = []
-        seg_piece, seg_t0, seg_t1 = [], [], []
-        for ip, pc in enumerate(strip):
-            n = max(1, int(math.ceil(pc.length / ds - 1e-9)))
-            if pc.kind == KIND_TIP_ROUND:
-                n = max(n, _MIN_ROUND_SEGMENTS)
-            t = np.linspace(0.0, 1.0, n + 1)
-            u, _ = pc.eval(t)
-            nodes_u.append(u if not nodes_u else u[1:])
-            seg_piece += [ip] * n
-            seg_t0.append(t[:-1])
-            seg_t1.append(t[1:])
-        U = np.concatenate(nodes_u, axis=0)
-        seg_piece = np.array(seg_piece)
-        seg_t0 = np.concatenate(seg_t0)
-        seg_t1 = np.concatenate(seg_t1)
-        N = U.shape[0]
-        nseg = N - 1
-        verts = (rho[None, :, None] * U[:, None, :]).reshape(-1, 3)
-        i = np.arange(nseg)[:, None]
-        j = np.arange(nf)[None, :]
-        a = i * (nf + 1) + j
-        b_ = (i + 1) * (nf + 1) + j
-        tri1 = np.stack([a, b_, b_ + 1], axis=-1)
-        tri2 = np.stack([a, b_ + 1, a + 1], axis=-1)
-        faces = np.stack([tri1, tri2], axis=2).reshape(-1, 3)          # order: seg, rho, (tri1, tri2)
-        # exact per-face data: weighted parameter of the centroid
-        r0 = rho[:-1][None, :]
-        r1 = rho[1:][None, :]
-        t0 = seg_t0[:, None]
-        t1 = seg_t1[:, None]
-        tc1 = (r0 * t0 + (r0 + r1) * t1) / (2 * r0 + r1)
-        tc2 = ((r0 + r1) * t0 + r1 * t1) / (r0 + 2 * r1)
-        tc = np.stack([tc1, tc2], axis=2).reshape(nseg, -1)          # (nseg, 2 nf)
-        fu = np.empty((nseg, 2 * nf, 3))
-        fn_ = np.empty((nseg, 2 * nf, 3))
-        fk = np.empty(nseg, dtype=np.int8)
-        ff = np.empty(nseg, dtype=np.int8)
-        fs = np.empty((nseg, 2 * nf))
-        for ip, pc in enumerate(strip):
-            msk = seg_piece == ip
-            uu, nn = pc.eval(tc[msk])
-            fu[msk], fn_[msk] = uu, nn
-            fk[msk] = pc.kind
-            ff[msk] = pc.flank
-            fs[msk] = pc.sfun(tc[msk])
-        fu = fu.reshape(-1, 3)
-        fn_ = fn_.reshape(-1, 3)
-        cent = verts[faces].mean(axis=1)
-        rc = np.einsum("ij,ij->i", cent, fu)
+        verts, faces, fp, fn_, fk, ff, fs = _strip_arrays(strip, rho, ds)
         V.append(verts)
         Fc.append(faces + nv)
-        FP.append(rc[:, None] * fu)
-        FN.append(fn_ / np.linalg.norm(fn_, axis=1)[:, None])
-        FK.append(np.repeat(fk, 2 * nf))
-        FF.append(np.repeat(ff, 2 * nf))
-        FS.append(fs.reshape(-1))
+        FP.append(fp)
+        FN.append(fn_)
+        FK.append(fk)
+        FF.append(ff)
+        FS.append(fs)
         nv += verts.shape[0]
     return (np.concatenate(V), np.concatenate(Fc), np.concatenate(FP), np.concatenate(FN),
             np.concatenate(FK), np.concatenate(FF), np.concatenate(FS))
+
+
+def flank_profile_nodes(g: GearGeometry, profile: float, side: int) -> np.ndarray:
+    """Profile parameters [rad] of the nodes of one side's flank strip (root part, involute, tip rounding;
+    not the top land) as :func:`_tooth_template` places them at the element size ``profile`` [m], ascending."""
+    ds = profile / g.Rm
+    out = []
+    for s0, s1, kind in _flank_breaks(g):
+        if kind == KIND_TOP_LAND:
+            continue
+        n = max(1, int(math.ceil(abs(s1 - s0) / ds - 1e-9)))
+        if kind == KIND_TIP_ROUND:
+            n = max(n, _MIN_ROUND_SEGMENTS)
+        t = np.linspace(0.0, 1.0, n + 1)
+        out.append(s0 + (s1 - s0) * t if side == -1 else s1 + (s0 - s1) * t)
+    return np.unique(np.concatenate(out))
+
+
+def flank_patch(params: BevelGearParams | None, role: str, side: int, s_lo: float, s_hi: float, rho_nodes,
+                profile: float, tooth: int = 0, notch=None, nodes=None) -> SurfaceMesh:
+    """A structured patch of one side's flank strip (root part, involute, tip rounding) of ``tooth``: the
+    profile parameters ``s_lo`` .. ``s_hi`` [rad] by the face rows ``rho_nodes`` [m], element size at most
+    ``profile`` [m] along the profile, run and wound as the tooth's own strip (body frame, exact face data).
+    ``notch``: ``(side, s_a, s_b, depth_angle)``, a void inside the patch. ``nodes``: the profile parameters
+    of the tooth's own nodes (:func:`flank_profile_nodes`): a piece gets at least as many elements as they
+    put on it. Vertex ``i * len(rho_nodes) + j``
+    is profile node i (in the strip's direction: towards the root on the +1 side) on row j. Used by
+    :mod:`faults` for local surgery: the patch replaces the healthy elements of the same rectangle."""
+    _check_role(role)
+    params = params or BevelGearParams()
+    g = gear_geometry(params, role)
+    breaks = [b for b in _flank_breaks(g) if b[2] != KIND_TOP_LAND]
+    pieces = []
+    for s0, s1, kind in (breaks if side == -1 else reversed(breaks)):
+        a, b = max(s0, s_lo), min(s1, s_hi)
+        if b - a <= 1e-15:
+            continue
+        new = (_split_for_notch(g, -1, a, b, kind, notch, down=False) if side == -1 else
+               _split_for_notch(g, 1, b, a, kind, notch, down=True))
+        if nodes is not None:
+            for pc in new:
+                if pc.kind in (KIND_FLANK, KIND_ROOT_RADIAL, KIND_TIP_ROUND):
+                    lo_, hi_ = sorted(float(x) for x in pc.sfun(np.array([0.0, 1.0])))
+                    pc.min_segments = int(np.sum((nodes > lo_ + 1e-15) & (nodes <= hi_ + 1e-15)))
+        pieces.extend(new)
+    if not pieces:
+        raise ValueError(f"no flank between profile parameters {s_lo:g} and {s_hi:g}")
+    V, F, FP, FN, FK, FF, FS = _strip_arrays(pieces, rho_nodes, profile / g.Rm)
+    R = _tooth_rotation(g, int(tooth) % g.z)
+    return SurfaceMesh(vertices=V @ R.T, faces=F, face_points=FP @ R.T, face_normals=FN @ R.T,
+                       face_tooth=np.full(F.shape[0], int(tooth) % g.z, dtype=np.int32), face_flank=FF,
+                       face_kind=FK, face_profile=FS)
 
 
 def _teeth_list(g: GearGeometry, teeth):

@@ -232,8 +232,9 @@ def test_map_computed_by_pitch_equals_every_row_computed(health, tooth, member):
     tooth is in mesh. Oracle: every row tabulated by the engine. The fault sits on another tooth than
     the default, so a wrong engagement window would show. A wheel fault spans the tooth-pairing period
     (4 pinion revolutions), a pinion fault one revolution. Two rows per pitch (the least the grid takes): the
-    blocks and the tiling are what is checked; the faulty rows still differ by 1.2 % (mild) to 59 % (severe)
-    of the largest torque from the healthy ones, measured."""
+    blocks and the tiling are what is checked; the faulty rows (the blocks tooth - 1 and tooth: with local
+    surgery the mild void differs only where the contact line crosses it) still differ from the healthy ones
+    by more than 0.1 % of the largest torque."""
     from gearcontact_fmu import contact_map as cm
 
     res = MeshResolution(profile=0.3e-3, face=3e-3)
@@ -254,8 +255,9 @@ def test_map_computed_by_pitch_equals_every_row_computed(health, tooth, member):
     np.testing.assert_allclose(fast.onset, onset, rtol=0, atol=1e-9)
     # the faulty blocks are really different from the tiled healthy ones (the check can fail)
     per = grid.points_per_pitch
-    fault_rows = vals[tooth * per:(tooth + 1) * per, :, :, cm.CH_TAU_P]
-    assert np.abs(fault_rows - vals[0:per, :, :, cm.CH_TAU_P]).max() > 1e-3 * scale[cm.CH_TAU_P]
+    diff = max(np.abs(vals[b * per:(b + 1) * per, :, :, cm.CH_TAU_P] - vals[0:per, :, :, cm.CH_TAU_P]).max()
+               for b in (tooth - 1, tooth))
+    assert diff > 1e-3 * scale[cm.CH_TAU_P]
 
 
 def test_healthy_map_computes_one_pitch():

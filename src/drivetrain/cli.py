@@ -540,11 +540,14 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
     from drivetrain.campaigns.dataset import DatasetError, export
 
     try:
-        path = export(args.sweep_dir, args.format, args.out, settled_only=args.settled_only, log=print)
+        path = export(args.sweep_dir, args.format, args.out, settled_only=args.settled_only, log=print,
+                      split_fractions=args.split, split_seed=args.split_seed)
     except DatasetError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    print(f"wrote {path}")
+    from drivetrain.campaigns.card import CARD_FILE
+
+    print(f"wrote {path} and its card {(path if args.format == 'aalto' else path.parent) / CARD_FILE}")
     return 0
 
 
@@ -553,7 +556,7 @@ def _cmd_features(args: argparse.Namespace) -> int:
     from drivetrain.errors import DatasetError
 
     try:
-        path = write_features(args.dir, args.out)
+        path = write_features(args.dir, args.out, split_fractions=args.split, split_seed=args.split_seed)
     except (DatasetError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -927,18 +930,33 @@ def _parser_accuracy_cost(sub) -> None:
 def _parser_dataset(sub) -> None:
     p = sub.add_parser("dataset", help="one labelled dataset (signals + labels of every run) from a sweep directory")
     p.add_argument("sweep_dir", help="the --out directory of a sweep (with manifest.json)")
-    p.add_argument("--format", choices=("parquet", "hdf5", "aalto"), default="parquet")
+    p.add_argument("--format", choices=("parquet", "hdf5", "aalto"), default="parquet",
+                   help="parquet: one table, a row per sample (default); hdf5: /labels and /runs/<run>/<channel>; "
+                        "aalto: a CSV per run in the Aalto gear-fault layout and labels.csv")
     p.add_argument("--out", default=None, help="output file (directory for aalto); default: inside SWEEP_DIR")
     p.add_argument("--settled-only", action="store_true",
                    help="leave out each run's samples before its time.settle_s (the start-up transient); without "
                         "it they are kept and marked by the settled column")
+    _add_split_options(p)
     p.set_defaults(func=_cmd_dataset)
+
+
+def _add_split_options(p) -> None:
+    """The gearbox-level split's options (campaigns.splits) of ``dataset`` and ``features``."""
+    from drivetrain.campaigns.splits import DEFAULT_FRACTIONS, DEFAULT_SPLIT_SEED
+
+    p.add_argument("--split", nargs=3, type=float, default=list(DEFAULT_FRACTIONS), metavar=("TRAIN", "VAL", "TEST"),
+                   help="shares of the gearboxes in the train, validation and test sets of the split column "
+                        f"(default: {' '.join(f'{x:g}' for x in DEFAULT_FRACTIONS)}); one gearbox is never in two sets")
+    p.add_argument("--split-seed", type=int, default=DEFAULT_SPLIT_SEED, metavar="SEED",
+                   help=f"seed of the split (default: {DEFAULT_SPLIT_SEED}); the same seed and gearboxes give the same split")
 
 def _parser_features(sub) -> None:
     p = sub.add_parser("features", help="condition indicators (TSA per shaft, FM4, NA4, SER, ...) of every run of a "
                                         "run or sweep directory -> DIR/features.parquet")
     p.add_argument("dir", help="a run directory (with signals.h5) or a sweep directory (with manifest.json)")
     p.add_argument("--out", default=None, help="output file (default: DIR/features.parquet)")
+    _add_split_options(p)
     p.set_defaults(func=_cmd_features)
 
 def _parser_detectability(sub) -> None:

@@ -687,7 +687,10 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
     manifest = _Manifest(out, scenes={s.name: s for s in all_scenes},
                          order={n: i for i, n in enumerate(grid_names or names)},
                          meta={"executor": _executor_name(address, executor), "backend": backend, "code_commit": code_commit(),
-                               "preparation_s": preparation_s, "reused_runs": len(reused)},
+                               "preparation_s": preparation_s, "reused_runs": len(reused),
+                               # where the scenes came from (the dataset card names them)
+                               "scene_files": sorted({str(s.source) for s in all_scenes if s.source}),
+                               "overrides": list(dict.fromkeys(o for s in all_scenes for o in s.overrides))},
                          kept=kept, t0=t0)
     manifest.runs = [manifest.annotate(r) for r in reused + _start_failures(refused, all_scenes, out)]
     _start_journal(out, kept + manifest.runs)

@@ -1,0 +1,153 @@
+"""The ML user's front door (issue 43): class labels, a gearbox-level split, units in df.attrs read back by
+load_dataset, a windows iterator that reads run by run, the dataset card."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from _cosim_test_fmus import build_test_fmus
+from drivetrain.campaigns import splits as S
+from drivetrain.cli import main
+from drivetrain.scene.load import load_scene
+from test_run import EXAMPLE, toy_spec
+
+#: four gearboxes (manufacturing seeds 3, 5, 8, 13), each healthy and with the paper's severe fault
+SEEDS = (3, 5, 8, 13)
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory):
+    from drivetrain.campaigns.sweep import run_sweep
+
+    fmus = build_test_fmus(tmp_path_factory.mktemp("mtfmus_ml"))
+    out = tmp_path_factory.mktemp("ml") / "sw"
+    scenes = [load_scene(EXAMPLE, ["time.duration_s=0.3", "time.settle_s=0.1", f"scenario.name=g{seed}_{h}",
+                                   "outputs.plots=false", f"gear.health={h}", "effects.manufacturing_errors=true",
+                                   f"manufacturing.seed={seed}"])
+              for seed in SEEDS for h in ("healthy", "severe")]
+    run_sweep(scenes, out, workers=1, specs={s.name: toy_spec() for s in scenes}, fmu_paths=fmus, progress=False)
+    return out
+
+
+# ------------------------------------------------------------------ the split, on its own
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_the_split_never_puts_one_gearbox_in_two_sets(seed):
+    rng = np.random.default_rng(seed)
+    # runs of 37 gearboxes, each at several operating points and with and without faults, in random order
+    labels = [{"manufacturing.seed": int(b), "run": f"r{i}"} for i, b in enumerate(rng.integers(0, 37, 400))]
+    cols = S.class_columns(labels, (0.6, 0.2, 0.2), seed=seed)
+    where: dict = {}
+    for lab, c in zip(labels, cols):
+        where.setdefault(lab["manufacturing.seed"], set()).add(c["split"])
+    assert all(len(v) == 1 for v in where.values())
+    per = {s: sum(next(iter(v)) == s for v in where.values()) for s in S.SPLITS}
+    n = len(where)
+    assert sum(per.values()) == n
+    assert all(abs(per[s] - f * n) < 1 for s, f in zip(S.SPLITS, (0.6, 0.2, 0.2)))
+    # deterministic from the seed, whatever the order of the runs
+    again = S.class_columns(labels[::-1], (0.6, 0.2, 0.2), seed=seed)[::-1]
+    assert [c["split"] for c in again] == [c["split"] for c in cols]
+    other = S.class_columns(labels, (0.6, 0.2, 0.2), seed=seed + 100)
+    assert [c["split"] for c in other] != [c["split"] for c in cols]
+
+
+def test_fractions_are_checked_and_labels_name_family_and_member():
+    with pytest.raises(ValueError, match="adding up to 1"):
+        S.check_fractions((0.5, 0.5, 0.5))
+    assert S.class_label({"fault0.kind": "pit", "fault0.member": "wheel"}) == "pit/wheel"
+    assert S.class_label({"fault0.kind": "pit", "fault0.member": "wheel", "fault1.kind": "void",
+                          "fault1.member": "pinion"}) == "pit/wheel+void/pinion"
+    assert S.class_label({"gear.health": "healthy"}) == "healthy"
+    assert S.gearbox_of({"manufacturing.seed": None, "scenario.noise_name": "p7"}) == "pair:p7"
+
+
+# ------------------------------------------------------------------ an exported dataset
+
+
+def test_dataset_has_split_label_faulty_units_and_a_card(sweep, tmp_path):
+    from drivetrain import load_dataset
+
+    out = tmp_path / "d.parquet"
+    assert main(["dataset", str(sweep), "--out", str(out), "--split", "0.5", "0.25", "0.25",
+                 "--split-seed", "1"]) == 0
+    df = load_dataset(out)
+    per_run = df.groupby("run").first()
+    assert set(per_run["label"]) == {"healthy", "missing_tooth/pinion"}   # severe: the paper's missing pinion tooth
+    assert (per_run["faulty"] == (per_run["gear.health"] == "severe")).all()
+    boxes = per_run.groupby("gearbox")["split"].nunique()
+    assert len(boxes) == len(SEEDS) and (boxes == 1).all()                # a gearbox's runs in one set
+    assert sorted(per_run.groupby("gearbox")["split"].first()) == ["test", "train", "train", "validation"]
+    # units: in df.attrs, for every column, from load_dataset and from plain pandas
+    import pandas as pd
+
+    units = df.attrs["units"]
+    assert set(units) == set(df.columns)
+    assert units["propeller_shaft_torque"] == "N.m" and units["time_s"] == "s" and units["drive_shaft_torque"] == "N.m"
+    assert units["operating_point.load_torque_Nm"] == "N.m" and units["label"] == ""
+    assert pd.read_parquet(out).attrs["units"] == units
+    # the card beside the data
+    card = (tmp_path / "DATASET.md").read_text()
+    for text in ("| missing_tooth/pinion | 4 |", "| healthy | 4 |", "commit", "`propeller_shaft_torque` | N.m |",
+                 "`split`", "load_dataset(", "faulty runs carry contact", "manufacturing.seed 3, 5, 8, 13",
+                 "propeller shaft ≈ 10.5 N·m", "Detectability"):
+        assert text in card, text
+    assert all(f"| `{c}` |" in card for c in df.columns)                 # every column with its unit and meaning
+
+
+def test_units_round_trip_through_hdf5_and_features(sweep, tmp_path):
+    import h5py
+
+    from drivetrain import load_dataset
+
+    assert main(["dataset", str(sweep), "--format", "hdf5", "--out", str(tmp_path / "d.h5")]) == 0
+    df = load_dataset(tmp_path / "d.h5")
+    with h5py.File(tmp_path / "d.h5") as f:
+        run = json.loads(f.attrs["runs"])[0]
+        for c in ("propeller_shaft_torque", "drive_shaft_torque"):
+            assert df.attrs["units"][c] == f[f"runs/{run}/{c}"].attrs["unit"]
+        assert df.attrs["units"]["operating_point.drive_speed_rpm"] == f["labels/operating_point.drive_speed_rpm"].attrs["unit"] == "rpm"
+    assert main(["features", str(sweep), "--out", str(tmp_path / "f.parquet")]) == 0
+    feats = load_dataset(tmp_path / "f.parquet")
+    assert {"label", "faulty", "split", "gearbox"} <= set(feats.columns)
+    u = feats.attrs["units"]
+    assert set(u) == set(feats.columns)
+    assert u["amp_f_GMF.propeller_shaft_torque"] == "N.m" and u["fault0.kind"] == ""
+    assert u["operating_point.drive_speed_rpm"] == "rpm"
+    # the same split as the dataset's, run for run (same seed, same gearboxes)
+    d = load_dataset(tmp_path / "d.h5").groupby("run")["split"].first()
+    assert all(d[r] == s for r, s in zip(feats["run"], feats["split"]))
+
+
+def test_windows_read_run_by_run(sweep, tmp_path, monkeypatch):
+    import pyarrow.parquet as pq
+
+    from drivetrain import load_dataset, windows
+
+    out = tmp_path / "d.parquet"
+    assert main(["dataset", str(sweep), "--out", str(out)]) == 0
+    df = load_dataset(out, settled_only=True)
+    # memory-bounded: never the whole file, one row group (a run) per read
+    monkeypatch.setattr(pq, "read_table", lambda *a, **k: pytest.fail("windows read the whole dataset"))
+    sizes = []
+    real = pq.ParquetFile.read_row_group
+
+    def spy(self, i, *a, **k):
+        t = real(self, i, *a, **k)
+        sizes.append(set(t.column("run").to_pylist()))
+        return t
+
+    monkeypatch.setattr(pq.ParquetFile, "read_row_group", spy)
+    got = list(windows(out, ["propeller_shaft_torque", "drive_shaft_torque"], length=64, hop=32))
+    assert all(len(s) == 1 for s in sizes) and len(sizes) == len(got) == 2 * len(SEEDS)
+    for w in got:
+        x = df[df["run"] == w.run][["propeller_shaft_torque", "drive_shaft_torque"]].to_numpy(np.float32)
+        n = (len(x) - 64) // 32 + 1
+        assert w.x.shape == (n, 64, 2) and w.x.dtype == np.float32
+        np.testing.assert_array_equal(w.x[1], x[32:96])                     # the second window, both channels
+        assert w.faulty == (w.label != "healthy") and (w.y == int(w.faulty)).all()
+    train = list(windows(out, ["drive_shaft_torque"], length=64, splits=("train",), channels_first=True))
+    assert {w.split for w in train} == {"train"} and train[0].x.shape[1:] == (1, 64)

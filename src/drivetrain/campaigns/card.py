@@ -126,10 +126,9 @@ def _count_table(title: str, counts: Counter, limit: int = 40) -> list[str]:
 
 
 def card_markdown(runs: list[dict], data_path: Path, fmt: str, sweep_dir: Path, settled_only: bool,
-                  split: tuple, columns: dict[str, str]) -> str:
+                  split: tuple, columns: dict[str, str], contact: str) -> str:
     """The card's text. ``columns``: every column of the written data -> its unit."""
     from drivetrain import __version__
-    from drivetrain.campaigns.dataset import contact_counts, contact_line
     from drivetrain.campaigns.provenance import code_commit
     from drivetrain.run.outputs import load_text
 
@@ -170,7 +169,7 @@ def card_markdown(runs: list[dict], data_path: Path, fmt: str, sweep_dir: Path, 
         *_count_table("gearbox", boxes, limit=20), "",
         "## Fault contact",
         "",
-        contact_line(contact_counts(runs)) + ". A fault without contact is a label without physics: filter on "
+        contact + ". A fault without contact is a label without physics: filter on "
         "`fault0.contact_share > 0` to keep only the faults the load runs over.",
         "",
         "## Detectability of the label families",
@@ -206,36 +205,17 @@ def _seed_text(values: list) -> str:
     return ", ".join(str(v) for v in values)
 
 
-def write_card(runs: list[dict], data_path: Path, fmt: str, sweep_dir, settled_only: bool = False,
-               split: tuple = ((0.7, 0.15, 0.15), 0)) -> Path:
-    """``DATASET.md`` beside the data (in the aalto directory for that format); returns its path."""
+def write_card(runs: list[dict], data_path: Path, fmt: str, sweep_dir, columns: dict, contact: str,
+               settled_only: bool = False, split: tuple = ((0.7, 0.15, 0.15), 0)) -> Path:
+    """``DATASET.md`` beside the data (in the aalto directory for that format); returns its path. ``columns``:
+    every column of the written data -> its unit; ``contact``: the sentence on the faults' contact."""
     data_path = Path(data_path)
-    columns = _columns(runs, data_path, fmt)
     card = (data_path if fmt == "aalto" else data_path.parent) / CARD_FILE
     tmp = card.with_name(card.name + ".tmp")
-    tmp.write_text(card_markdown(runs, data_path, fmt, Path(sweep_dir), settled_only, split, columns),
+    tmp.write_text(card_markdown(runs, data_path, fmt, Path(sweep_dir), settled_only, split, columns, contact),
                    encoding="utf-8")
     tmp.replace(card)
     return card
-
-
-def _columns(runs: list[dict], data_path: Path, fmt: str) -> dict:
-    """Every column of the written data with its unit (parquet: from the file's own metadata)."""
-    from drivetrain.campaigns.dataset import _label_columns, label_unit
-
-    if fmt == "parquet":
-        from drivetrain.campaigns.loaders import units_of
-        import pyarrow.parquet as pq
-
-        units = units_of(data_path)
-        return {c: units.get(c, "") for c in pq.read_schema(data_path).names}
-    channel_units = {c: u for r in runs for c, u in r["units"].items()}
-    cols = {"run": "", "time_s": "s", "settled": "", **{c: channel_units.get(c, "") for c in sorted(channel_units)}}
-    for k in _label_columns(runs):
-        if k != "run":
-            v = next((r["labels"].get(k) for r in runs if r["labels"].get(k) is not None), None)
-            cols[k] = label_unit(k, channel_units, numeric=isinstance(v, (int, float)) and not isinstance(v, bool))
-    return cols
 
 
 __all__ = ["write_card", "card_markdown", "column_meaning", "CARD_FILE"]

@@ -346,6 +346,23 @@ def write_aalto(runs: list[dict], path: Path, settled_only: bool = False) -> Pat
     return path
 
 
+def written_columns(runs: list[dict], data_path: Path, fmt: str) -> dict:
+    """Every column of the written data with its unit (parquet: from the file's own metadata)."""
+    if fmt == "parquet":
+        from drivetrain.campaigns.loaders import units_of
+        import pyarrow.parquet as pq
+
+        units = units_of(data_path)
+        return {c: units.get(c, "") for c in pq.read_schema(data_path).names}
+    channel_units = {c: u for r in runs for c, u in r["units"].items()}
+    cols = {"run": "", "time_s": "s", "settled": "", **{c: channel_units.get(c, "") for c in sorted(channel_units)}}
+    for k in _label_columns(runs):
+        if k != "run":
+            v = next((r["labels"].get(k) for r in runs if r["labels"].get(k) is not None), None)
+            cols[k] = label_unit(k, channel_units, numeric=isinstance(v, (int, float)) and not isinstance(v, bool))
+    return cols
+
+
 WRITERS = {"parquet": write_parquet, "hdf5": write_hdf5, "aalto": write_aalto}
 
 
@@ -389,7 +406,8 @@ def export(sweep_dir: Path | str, fmt: str = "parquet", out: Path | str | None =
         if card:
             from drivetrain.campaigns.card import write_card
 
-            write_card(runs, written, fmt, sweep_dir, settled_only=settled_only,
+            write_card(runs, written, fmt, sweep_dir, written_columns(runs, written, fmt),
+                       contact_line(contact_counts(runs)), settled_only=settled_only,
                        split=(tuple(split_fractions), split_seed))
         return written
     except OSError as exc:                     # a read-only place, a full disk: named, and no stray temporary

@@ -151,3 +151,52 @@ def test_windows_read_run_by_run(sweep, tmp_path, monkeypatch):
         assert w.faulty == (w.label != "healthy") and (w.y == int(w.faulty)).all()
     train = list(windows(out, ["drive_shaft_torque"], length=64, splits=("train",), channels_first=True))
     assert {w.split for w in train} == {"train"} and train[0].x.shape[1:] == (1, 64)
+
+
+# ------------------------------------------------------------------ a spectrum in one call
+
+
+def test_spectrum_reads_a_known_sine_at_its_amplitude():
+    """Oracle: a sine of amplitude a at a bin frequency below the low-pass reads a there (the plots'
+    convention, single-sided peak amplitude), and the characteristic frequencies ride along."""
+    from drivetrain.run.runner import spectrum_frame
+
+    fs, settle, dur = 3000.0, 0.5, 4.5
+    t = np.arange(int(dur * fs)) / fs
+    n_settled = int(np.sum(t >= settle))
+    f0 = 120 * fs / n_settled                     # a bin of the settled part: 90 Hz
+    x = 7.0 + 0.35 * np.sin(2 * np.pi * f0 * t) + 0.02 * np.sin(2 * np.pi * 3 * f0 * t)
+    x[t < settle] += 50.0                         # a start-up transient the spectrum leaves out
+    sp = spectrum_frame(t, x, settle, fs, 1500.0, "propeller_shaft_torque", "N.m")
+    i = int(np.argmin(np.abs(sp["frequency_Hz"] - f0)))
+    assert sp["amplitude"][i] == pytest.approx(0.35, rel=1e-3)
+    j = int(np.argmin(np.abs(sp["frequency_Hz"] - 3 * f0)))
+    assert sp["amplitude"][j] == pytest.approx(0.02, rel=2e-3)
+    assert sp["amplitude"][0] < 1e-6                                       # the mean is removed
+    cf = sp.attrs["characteristic_frequencies"]
+    assert cf["f_GMF"] == pytest.approx(1500 / 60 / 3 * 15) and sp.attrs["units"]["amplitude"] == "N.m"
+    assert sp.attrs["lowpass_Hz"] == pytest.approx(5 * cf["f_GMF"]) and "Hann" in sp.attrs["convention"]
+    # far above the low-pass edge (5 x f_GMF = 625 Hz) a line is filtered out, as in the plots: 1200 Hz
+    x2 = np.sin(2 * np.pi * (4800 * fs / n_settled) * t)
+    sp2 = spectrum_frame(t, x2, settle, fs, 1500.0)
+    assert sp2["amplitude"].max() < 1e-3
+
+
+def test_spectrum_of_a_loaded_run_is_the_summary_s(sweep):
+    """The spectrum from a run's directory and from the dataset equal the one its summary read its GMF line
+    from (the spectrum the plots draw)."""
+    from drivetrain import load_dataset, spectrum
+    from drivetrain.rig.signals import amplitude_near
+
+    name = "g3_severe"
+    summary = json.loads((sweep / name / "summary.json").read_text())
+    want = summary["spectrum_peaks"]["propeller_shaft_torque"]["GMF_harmonics"][0]["amplitude"]
+    sp = spectrum(sweep / name, "propeller_shaft_torque")
+    f_gmf = sp.attrs["characteristic_frequencies"]["f_GMF"]
+    assert amplitude_near(sp["frequency_Hz"].to_numpy(), sp["amplitude"].to_numpy(), f_gmf) == pytest.approx(want, rel=1e-12)
+    df = load_dataset(sweep / "dataset.parquet") if (sweep / "dataset.parquet").exists() else None
+    if df is None:
+        assert main(["dataset", str(sweep)]) == 0
+        df = load_dataset(sweep / "dataset.parquet")
+    sp2 = spectrum(df, "propeller_shaft_torque", run=name)
+    np.testing.assert_allclose(sp2["amplitude"], sp["amplitude"], rtol=0, atol=1e-12)

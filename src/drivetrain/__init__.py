@@ -22,6 +22,7 @@ _API = {
     "SweepResult": "drivetrain.campaigns.sweep_api",
     "load_dataset": "drivetrain.campaigns.loaders",
     "windows": "drivetrain.campaigns.loaders",
+    "spectrum": "drivetrain.campaigns.loaders",
 }
 
 __all__ = ["__version__", *_API]

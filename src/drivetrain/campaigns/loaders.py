@@ -238,4 +238,52 @@ def windows(path: Path | str, channels: list[str], length: int, hop: int | None 
                       str(lab.get("split", "")), lab, tuple(channels))
 
 
-__all__ = ["load_dataset", "windows", "Windows", "units_of", "schema_metadata", "UNITS_KEY", "LABELS_KEY"]
+def _final_speed(value, profile) -> float:
+    if profile:
+        prof = json.loads(profile) if isinstance(profile, str) else profile
+        return float(prof[-1][1])
+    return float(value)
+
+
+def spectrum(source, channel: str, run: str | None = None):
+    """The amplitude spectrum of a loaded run's channel, as ``RunResult.spectrum`` and the run's plots compute it
+    (rig.signals.run_spectrum): ``source`` a run's directory or its ``signals.h5``, or a DataFrame of
+    :func:`load_dataset` (``run`` names the run when it holds several). A DataFrame ``frequency_Hz``,
+    ``amplitude`` with the units, the convention and the characteristic frequencies in its attrs."""
+    from drivetrain.run.runner import spectrum_frame
+
+    if isinstance(source, (str, Path)):
+        from drivetrain.run.outputs import read_hdf5
+
+        sig = Path(source) / "signals.h5" if Path(source).is_dir() else Path(source)
+        if not sig.is_file():
+            raise DatasetError(f"{source}: no signals.h5 (a run's directory or its signals.h5)")
+        h = read_hdf5(sig)
+        if channel not in h["signals"]:
+            raise DatasetError(f"{sig}: no channel {channel!r} (it has {', '.join(h['signals'])})")
+        scene = (h.get("scene") or {}).get("scene") or h.get("scene") or {}
+        op = scene.get("operating_point") or {}
+        return spectrum_frame(h["time"], h["signals"][channel], float(h["attrs"]["settle_s"]),
+                              float(h["attrs"]["sample_rate_Hz"]),
+                              _final_speed(op.get("drive_speed_rpm"), op.get("speed_profile_rpm")), channel,
+                              str(h["units"].get(channel, "")))
+    df = source
+    if run is not None:
+        df = df[df["run"] == run]
+    elif "run" in df and df["run"].nunique() > 1:
+        raise DatasetError(f"the DataFrame holds {df['run'].nunique()} runs: name one with run=")
+    if not len(df):
+        raise DatasetError(f"no samples of run {run!r}")
+    first = df.iloc[0]
+    need = ["time_s", channel, "time.settle_s", "time.sample_rate_Hz", "operating_point.drive_speed_rpm"]
+    missing = [c for c in need if c not in df]
+    if missing:
+        raise DatasetError(f"the DataFrame has no column {', '.join(missing)} (a load_dataset DataFrame has them)")
+    return spectrum_frame(df["time_s"].to_numpy(), df[channel].to_numpy(), float(first["time.settle_s"] or 0.0),
+                          float(first["time.sample_rate_Hz"]),
+                          _final_speed(first["operating_point.drive_speed_rpm"],
+                                       first.get("operating_point.speed_profile_rpm")),
+                          channel, (df.attrs.get("units") or {}).get(channel, ""))
+
+
+__all__ = ["spectrum", "load_dataset", "windows", "Windows", "units_of", "schema_metadata", "UNITS_KEY", "LABELS_KEY"]

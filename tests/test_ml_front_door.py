@@ -3,6 +3,7 @@ load_dataset, a windows iterator that reads run by run, the dataset card."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -200,3 +201,56 @@ def test_spectrum_of_a_loaded_run_is_the_summary_s(sweep):
         df = load_dataset(sweep / "dataset.parquet")
     sp2 = spectrum(df, "propeller_shaft_torque", run=name)
     np.testing.assert_allclose(sp2["amplitude"], sp["amplitude"], rtol=0, atol=1e-12)
+
+
+# ------------------------------------------------------------------ the command line
+
+
+def test_set_applies_to_a_grid_s_sweep_table():
+    from drivetrain.errors import ScenarioError
+    from drivetrain.scene.load import load_scenes
+
+    root = Path(__file__).resolve().parents[1]
+    grid = root / "scenarios" / "datasets" / "random_faults.toml"
+    scenes = load_scenes(grid, ["sweep.draw.n=2", "time.duration_s=3"])
+    assert len(scenes) == 8 and all(s.time.duration_s == 3 for s in scenes)      # 2 draws x 2 speeds x 2 loads
+    assert len({s.name for s in scenes}) == 8
+    one = load_scenes(grid, ["sweep.draw.n=1", "sweep.axes.operating_point.drive_speed_rpm=[1500.0]"])
+    assert [s.operating_point.drive_speed_rpm for s in one] == [1500.0, 1500.0]
+    other_seed = load_scenes(grid, ["sweep.draw.n=2", "sweep.draw.seed=7"])
+    assert [s.gear.faults for s in other_seed] != [s.gear.faults for s in scenes]
+    with pytest.raises(ScenarioError, match="not a grid"):
+        load_scenes(root / "scenarios" / "example.toml", ["sweep.draw.n=2"])
+    with pytest.raises(ScenarioError, match="sweep.draw.n"):                    # still checked as a grid
+        load_scenes(grid, ["sweep.draw.n=0"])
+
+
+def _subparsers():
+    import argparse
+
+    from drivetrain.cli import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return parser, sub.choices
+
+
+def test_every_option_has_help_and_help_is_plain_text():
+    import argparse
+
+    parser, commands = _subparsers()
+    missing = [f"{name} {a.option_strings or a.dest}" for name, p in commands.items() for a in p._actions
+               if not isinstance(a, argparse._HelpAction) and not (a.help or "").strip()]
+    assert not missing, missing
+    for text in [parser.format_help(), *(p.format_help() for p in commands.values())]:
+        for markup in ("``", ":func:", ":mod:", ":data:", ":class:"):
+            assert markup not in text, (markup, text[:200])
+
+
+def test_loads_name_the_load_motor_and_the_propeller_shaft():
+    from drivetrain.run.outputs import load_text, run_title
+    from drivetrain.scene.load import load_scene
+
+    assert load_text(1.31) == "load motor 1.31 N·m (propeller shaft ≈ 10.5 N·m)"        # the 1:8 planetary
+    title = run_title(load_scene(EXAMPLE), "torque waveforms")
+    assert "load motor 1.31 N·m (propeller shaft ≈ 10.5 N·m)" in title

@@ -193,13 +193,28 @@ def draw_background(table: dict, rng: np.random.Generator) -> dict:
             for k, rule in table.items()}
 
 
+def override_value(key: str, value: str):
+    """A ``--set`` override's value read as a TOML value (numbers, true/false, "strings", [lists], {inline
+    tables}); anything that is not valid TOML is taken as a string (scene keys and a grid's [sweep] keys alike)."""
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10
+        import tomli as tomllib
+
+    value = value.strip()
+    try:
+        return tomllib.loads(f"v = {value}")["v"]
+    except tomllib.TOMLDecodeError:
+        return value
+    except RecursionError:
+        raise ScenarioError([(key, value[:60] + "...", "a value nested less deeply")]) from None
+
+
 def apply_grid_overrides(raw: dict, overrides: list[str], src: str) -> None:
     """``--set sweep.<key>=value`` changes of a grid file's ``[sweep]`` table, in place, before it is checked:
     ``sweep.draw.n=2``, ``sweep.draw.seed=7``, ``sweep.name="{base}_{operating_point.drive_speed_rpm:g}"``,
     ``sweep.axes.operating_point.drive_speed_rpm=[500.0]`` (after ``axes`` or ``expect`` the rest of the key is
     one name). The value is read as TOML. A file without ``[sweep]`` is refused: it is not a grid."""
-    from drivetrain.scene.load import override_value
-
     for text in overrides:
         key, _, value = text.partition("=")
         key = key.strip()

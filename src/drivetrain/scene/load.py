@@ -23,7 +23,8 @@ else:  # pragma: no cover
 from drivetrain.errors import MISSING as _MISSING
 from drivetrain.errors import ScenarioError
 from drivetrain.rig.data import Z_PINION, Z_WHEEL
-from drivetrain.scene.grid import GRID_SECTION, apply_grid_overrides, expand, refuse_swept_overrides, split_grid
+from drivetrain.scene.grid import (GRID_SECTION, apply_grid_overrides, expand, override_value, refuse_swept_overrides,
+                                   split_grid)
 from drivetrain.scene.schema import (BASE_UNIT, CHECK_SECTIONS, NAME_RE, NAME_RULE, SCHEMA, SECTION_CLASSES,  # noqa: F401
                                      UNITS, VAR_RE, Key, Scene, all_keys, default_of, dump_toml, schema_markdown)
 from drivetrain.scene.schema import (FIDELITIES, HEALTH_STATES, SHAFT_MODELS,  # noqa: F401  (re-exported)
@@ -388,18 +389,6 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     if len(parts) != 2 or not all(parts):
         raise ScenarioError([(key, value, "a key of the form section.key (e.g. time.duration_s)")])
     return parts, override_value(key, value)
-
-
-def override_value(key: str, value: str):
-    """An override's value read as a TOML value (numbers, true/false, "strings", [lists], {inline tables});
-    anything that is not valid TOML is taken as a string."""
-    value = value.strip()
-    try:
-        return tomllib.loads(f"v = {value}")["v"]
-    except tomllib.TOMLDecodeError:
-        return value
-    except RecursionError:
-        raise ScenarioError([(key, value[:60] + "...", "a value nested less deeply")]) from None
 
 
 def apply_overrides(raw: dict, overrides: list[str] | tuple[str, ...]) -> dict:

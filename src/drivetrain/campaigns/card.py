@@ -142,10 +142,10 @@ def card_markdown(runs: list[dict], data_path: Path, fmt: str, sweep_dir: Path, 
              for k in ("manufacturing.seed", "background.seed", "instruments.seed")}
     split_boxes = {s: len({lab["gearbox"] for lab in labs if lab["split"] == s}) for s in SPLITS}
     name = data_path.name
-    load = {"parquet": [f'from drivetrain import load_dataset', f'df = load_dataset("{name}")            '
+    load = {"parquet": ['from drivetrain import load_dataset', f'df = load_dataset("{name}")            '
                         '# units in df.attrs["units"]', 'train = df[df["split"] == "train"]',
                         f'# or: pandas.read_parquet("{name}").attrs["units"]'],
-            "hdf5": [f'from drivetrain import load_dataset', f'df = load_dataset("{name}")',
+            "hdf5": ['from drivetrain import load_dataset', f'df = load_dataset("{name}")',
                      f'# or: h5py.File("{name}")["labels/label"], ["runs/<run>/<channel>"].attrs["unit"]'],
             "aalto": ['import pandas as pd', f'labels = pd.read_csv("{name}/labels.csv")   # one row per run',
                       f'signals = pd.read_csv("{name}/<run>.csv")']}[fmt]

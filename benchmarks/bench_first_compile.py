@@ -45,13 +45,20 @@ def measure(root: Path, n: int, cases: int, numba_dir: str, cache_dir: str) -> d
     env = {**os.environ, "NUMBA_CACHE_DIR": numba_dir, "BEVEL_CACHE_DIR": cache_dir,
            "PYTHONPATH": str(root / "src")}
     grid = root / "scenarios" / "datasets" / "random_faults.toml"
+    import resource
+
     t = time.perf_counter()
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     p = subprocess.run([sys.executable, "-c", CHILD, str(n), str(cases), str(grid)], env=env, capture_output=True,
                        text=True)
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     if p.returncode != 0:
         raise SystemExit(f"{root}: failed\n{p.stderr[-3000:]}")
     out = json.loads(p.stdout.strip().splitlines()[-1])
     out["wall_s"] = time.perf_counter() - t
+    # CPU seconds of the process and every process it waited for (the pools' workers): what the cores spent,
+    # whatever else ran on them (a busy machine stretches the wall time, not this)
+    out["cpu_s"] = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
     return out
 
 
@@ -73,10 +80,11 @@ def main() -> None:
             numba_dir = tempfile.mkdtemp(prefix="numba_", dir=tmp)
             cold = measure(root, args.n, args.cases, numba_dir, tempfile.mkdtemp(prefix="maps_", dir=tmp))
             warm = measure(root, args.n, args.cases, numba_dir, tempfile.mkdtemp(prefix="maps_", dir=tmp))
-            print(f"{label}: {args.cases} cases, cold numba cache {cold['wall_s']:.1f} s (assembly "
-                  f"{cold['assembly_s']:.1f} s, preparation {cold['prepare_s']:.1f} s); warm numba cache "
-                  f"{warm['wall_s']:.1f} s (assembly {warm['assembly_s']:.1f} s, preparation {warm['prepare_s']:.1f} s); "
-                  f"compile ≈ {cold['wall_s'] - warm['wall_s']:.1f} s", flush=True)
+            print(f"{label}: {args.cases} cases, cold numba cache {cold['wall_s']:.1f} s wall, {cold['cpu_s']:.1f} "
+                  f"CPU-s (assembly {cold['assembly_s']:.1f} s, preparation {cold['prepare_s']:.1f} s); warm numba "
+                  f"cache {warm['wall_s']:.1f} s wall, {warm['cpu_s']:.1f} CPU-s (assembly {warm['assembly_s']:.1f} s, "
+                  f"preparation {warm['prepare_s']:.1f} s); compile ≈ {cold['wall_s'] - warm['wall_s']:.1f} s wall, "
+                  f"{cold['cpu_s'] - warm['cpu_s']:.1f} CPU-s", flush=True)
     finally:
         if args.against:
             subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(Path(tmp) / "against")],

@@ -67,8 +67,9 @@ def main() -> None:
     ap.add_argument("--n", type=int, default=2, help="draws per operating point (default 2: 8 cases)")
     ap.add_argument("--cases", type=int, default=8, help="cases prepared (default 8)")
     ap.add_argument("--against", default=None, metavar="REV", help="also measure this git revision")
+    ap.add_argument("--only-against", action="store_true", help="measure REV only (another process measures this tree)")
     args = ap.parse_args()
-    trees = [("this tree", ROOT)]
+    trees = [] if args.only_against and args.against else [("this tree", ROOT)]
     tmp = tempfile.mkdtemp(prefix="bench_compile_")
     if args.against:
         wt = Path(tmp) / "against"

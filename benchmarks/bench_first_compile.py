@@ -43,7 +43,7 @@ print(json.dumps({"imports_and_scenes_s": t1 - t0, "assembly_s": t2 - t1, "prepa
 
 def measure(root: Path, n: int, cases: int, numba_dir: str, cache_dir: str) -> dict:
     env = {**os.environ, "NUMBA_CACHE_DIR": numba_dir, "BEVEL_CACHE_DIR": cache_dir,
-           "PYTHONPATH": str(root / "src")}
+           "PYTHONPATH": str(root / "src"), "PYTHONDONTWRITEBYTECODE": "1"}
     # the grid with n draws, as a file (a revision before issue 43 has no --set sweep.draw.n)
     import re
 
@@ -73,8 +73,12 @@ def main() -> None:
     ap.add_argument("--cases", type=int, default=8, help="cases prepared (default 8)")
     ap.add_argument("--against", default=None, metavar="REV", help="also measure this git revision")
     ap.add_argument("--only-against", action="store_true", help="measure REV only (another process measures this tree)")
+    ap.add_argument("--tree", default=None, metavar="PATH", help="measure the checkout at PATH instead of this tree "
+                    "(read only: no bytecode or numba cache is written there)")
     args = ap.parse_args()
     trees = [] if args.only_against and args.against else [("this tree", ROOT)]
+    if args.tree:
+        trees = [(args.tree, Path(args.tree))]
     tmp = tempfile.mkdtemp(prefix="bench_compile_")
     if args.against:
         wt = Path(tmp) / "against"

@@ -7,9 +7,10 @@ contact maps (``prepare_caches``: the sweep's pool) and prints the seconds of ea
 first distinct-fault run's share; then the same again on the warm numba cache (the maps cold), whose difference
 is the compile.
 
-    python benchmarks/bench_first_compile.py [--n 2] [--cases 8] [--against REV]
+    python benchmarks/bench_first_compile.py [--n 2] [--cases 8] [--tree PATH]
 
-``--against REV`` measures REV's tree (a git worktree in a temporary folder) the same way, side by side.
+``--tree PATH`` measures another checkout (e.g. ``git worktree add /tmp/before REV``) the same way; run both
+side by side, and read the CPU seconds when the machine is shared.
 """
 from __future__ import annotations
 
@@ -71,34 +72,19 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--n", type=int, default=2, help="draws per operating point (default 2: 8 cases)")
     ap.add_argument("--cases", type=int, default=8, help="cases prepared (default 8)")
-    ap.add_argument("--against", default=None, metavar="REV", help="also measure this git revision")
-    ap.add_argument("--only-against", action="store_true", help="measure REV only (another process measures this tree)")
     ap.add_argument("--tree", default=None, metavar="PATH", help="measure the checkout at PATH instead of this tree "
-                    "(read only: no bytecode or numba cache is written there)")
+                    "(read only: no bytecode or numba cache is written there), e.g. a worktree of the revision before")
     args = ap.parse_args()
-    trees = [] if args.only_against and args.against else [("this tree", ROOT)]
-    if args.tree:
-        trees = [(args.tree, Path(args.tree))]
+    label, root = (args.tree, Path(args.tree)) if args.tree else ("this tree", ROOT)
     tmp = tempfile.mkdtemp(prefix="bench_compile_")
-    if args.against:
-        wt = Path(tmp) / "against"
-        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(wt), args.against], check=True,
-                       capture_output=True)
-        trees.append((args.against, wt))
-    try:
-        for label, root in trees:
-            numba_dir = tempfile.mkdtemp(prefix="numba_", dir=tmp)
-            cold = measure(root, args.n, args.cases, numba_dir, tempfile.mkdtemp(prefix="maps_", dir=tmp))
-            warm = measure(root, args.n, args.cases, numba_dir, tempfile.mkdtemp(prefix="maps_", dir=tmp))
-            print(f"{label}: {args.cases} cases, cold numba cache {cold['wall_s']:.1f} s wall, {cold['cpu_s']:.1f} "
-                  f"CPU-s (assembly {cold['assembly_s']:.1f} s, preparation {cold['prepare_s']:.1f} s); warm numba "
-                  f"cache {warm['wall_s']:.1f} s wall, {warm['cpu_s']:.1f} CPU-s (assembly {warm['assembly_s']:.1f} s, "
-                  f"preparation {warm['prepare_s']:.1f} s); compile ≈ {cold['wall_s'] - warm['wall_s']:.1f} s wall, "
-                  f"{cold['cpu_s'] - warm['cpu_s']:.1f} CPU-s", flush=True)
-    finally:
-        if args.against:
-            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(Path(tmp) / "against")],
-                           capture_output=True)
+    numba_dir = tempfile.mkdtemp(prefix="numba_", dir=tmp)
+    cold = measure(root, args.n, args.cases, numba_dir, tempfile.mkdtemp(prefix="maps_", dir=tmp))
+    warm = measure(root, args.n, args.cases, numba_dir, tempfile.mkdtemp(prefix="maps_", dir=tmp))
+    print(f"{label}: {args.cases} cases, cold numba cache {cold['wall_s']:.1f} s wall, {cold['cpu_s']:.1f} "
+          f"CPU-s (assembly {cold['assembly_s']:.1f} s, preparation {cold['prepare_s']:.1f} s); warm numba "
+          f"cache {warm['wall_s']:.1f} s wall, {warm['cpu_s']:.1f} CPU-s (assembly {warm['assembly_s']:.1f} s, "
+          f"preparation {warm['prepare_s']:.1f} s); compile ≈ {cold['wall_s'] - warm['wall_s']:.1f} s wall, "
+          f"{cold['cpu_s'] - warm['cpu_s']:.1f} CPU-s", flush=True)
 
 
 if __name__ == "__main__":

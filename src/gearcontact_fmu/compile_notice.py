@@ -14,9 +14,10 @@ import threading
 
 from gearcontact_fmu import progress
 
-#: seconds of a cold compile of the map build's kernels on 2 idle cores, measured with
-#: benchmarks/bench_first_compile.py (one distinct-fault map from an empty NUMBA_CACHE_DIR)
-COLD_COMPILE_S = 60
+#: seconds of a cold compile of the kernels (one core: numba compiles serially), measured with
+#: benchmarks/bench_first_compile.py: 8 distinct-fault maps from an empty NUMBA_CACHE_DIR took 160 CPU-seconds,
+#: 67 from a warm one (2 cores shared with other work; 2026-11-28)
+COLD_COMPILE_S = 95
 
 
 def kernels_cold(kernel) -> bool:
@@ -37,7 +38,7 @@ def notice_text(kernel) -> str:
     except Exception:  # noqa: BLE001
         where = "numba's cache"
     return (f"compiling the contact kernels (numba; once after an install or a change of the sources, cached in "
-            f"{where}; about {COLD_COMPILE_S} s on 2 idle cores)")
+            f"{where}; about {COLD_COMPILE_S} s of one idle core)")
 
 
 @contextlib.contextmanager

@@ -101,7 +101,8 @@ def _grid_lines(sweep_dir: Path) -> list[str]:
         out.append(f"- scene or grid file: `{f}`")
         grid = _grid_table(Path(f))
         if grid:
-            out.append(f"  - its [sweep]: `{json.dumps(grid, sort_keys=True)}`")
+            out.append(f"  - its [sweep] as the file has it (a `--set sweep.*` of the sweep changed it; the counts "
+                       f"below are what ran): `{json.dumps(grid, sort_keys=True)}`")
     if manifest.get("overrides"):
         out.append("- overrides: " + " ".join(f"`--set {o}`" for o in manifest["overrides"]))
     return out
@@ -153,8 +154,8 @@ def card_markdown(runs: list[dict], data_path: Path, fmt: str, sweep_dir: Path, 
         f"# Dataset card: {name}",
         "",
         f"Written {datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds')} by drivetrain "
-        f"{__version__}, commit {code_commit()} (`drivetrain dataset --format {fmt}`"
-        f"{' --settled-only' if settled_only else ''}).",
+        f"{__version__}, commit {code_commit()} (`drivetrain dataset --format {fmt}"
+        f"{' --settled-only' if settled_only else ''}`).",
         "",
         "## Source",
         *_grid_lines(Path(sweep_dir)),

@@ -20,6 +20,9 @@ _API = {
     "RunResult": "drivetrain.run.runner",
     "sweep": "drivetrain.campaigns.sweep_api",
     "SweepResult": "drivetrain.campaigns.sweep_api",
+    "load_dataset": "drivetrain.campaigns.loaders",
+    "windows": "drivetrain.campaigns.loaders",
+    "spectrum": "drivetrain.campaigns.loaders",
 }
 
 __all__ = ["__version__", *_API]

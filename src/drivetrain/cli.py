@@ -1,4 +1,4 @@
-"""The ``drivetrain`` command line.
+"""The drivetrain command line.
 
 Each subcommand lives in its own module and is imported lazily, so that ``drivetrain --help`` stays fast
 and a missing optional piece does not break the others.
@@ -192,6 +192,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(f"{scene.name}: {s['sim_time_s']:g} s simulated in {s['wall_time_s']:.3g} s wall: "
               + _run_time_parts(s))
+        from drivetrain.run.outputs import load_text
+
+        op = scene.operating_point
+        print(f"  operating point: {op.final_speed_rpm:g} rpm, "
+              + (load_text(op.load_profile_Nm[-1][1], profile=True) if op.load_profile_Nm else load_text(op.load_torque_Nm)))
         for name, st in s["torque"].items():
             print(f"  {name}: mean {st['mean']:.4g} N·m, RMS {st['rms']:.4g} N·m")
         print(f"  f_DSH {s['f_DSH']:.4g} Hz, f_MSH {s['f_MSH']:.4g} Hz, f_PSH {s['f_PSH']:.4g} Hz, "
@@ -540,11 +545,14 @@ def _cmd_dataset(args: argparse.Namespace) -> int:
     from drivetrain.campaigns.dataset import DatasetError, export
 
     try:
-        path = export(args.sweep_dir, args.format, args.out, settled_only=args.settled_only, log=print)
+        path = export(args.sweep_dir, args.format, args.out, settled_only=args.settled_only, log=print,
+                      split_fractions=args.split, split_seed=args.split_seed)
     except DatasetError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    print(f"wrote {path}")
+    from drivetrain.campaigns.card import CARD_FILE
+
+    print(f"wrote {path} and its card {(path if args.format == 'aalto' else path.parent) / CARD_FILE}")
     return 0
 
 
@@ -553,7 +561,7 @@ def _cmd_features(args: argparse.Namespace) -> int:
     from drivetrain.errors import DatasetError
 
     try:
-        path = write_features(args.dir, args.out)
+        path = write_features(args.dir, args.out, split_fractions=args.split, split_seed=args.split_seed)
     except (DatasetError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -746,6 +754,13 @@ _FMU_DIR_HELP = ("where the FMUs are, built on demand (default: the source check
                  "user-level cache $BEVEL_CACHE_DIR or ~/.cache/bevel-drivetrain; never the current folder)")
 
 
+_BACKEND_HELP = ("how the FMUs run: fmi, the pythonfmu FMUs through fmpy (default); native, compiled C FMUs "
+                 "(about 4x faster end to end; a gear that is not fidelity table keeps its pythonfmu FMU); inprocess, "
+                 "the same models called without FMI")
+_QUIET_HELP = "no progress bars and no report lines while it runs (errors and the final result are still printed)"
+_NO_PLOTS_HELP = "do not write the PNG plots of each run (torques.png, spectra.png)"
+
+
 def _add_execution_options(p: argparse.ArgumentParser,
                            workers_help: str = "local worker processes (default: CPU count)") -> None:
     """Where and how the runs of a many-run command execute: --workers, --scheduler, --backend, --fmu-dir."""
@@ -753,7 +768,7 @@ def _add_execution_options(p: argparse.ArgumentParser,
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="Dask scheduler address (tcp://host:8786), or 'local' for a Dask cluster of --workers "
                         "processes started by the command; default: local process pool")
-    p.add_argument("--backend", choices=BACKENDS, default="fmi")
+    p.add_argument("--backend", choices=BACKENDS, default="fmi", help=_BACKEND_HELP)
     p.add_argument("--fmu-dir", default=None, help=_FMU_DIR_HELP)
 
 
@@ -848,7 +863,7 @@ def _parser_export_ssp(sub) -> None:
 
 def _parser_eigen(sub) -> None:
     p = sub.add_parser("eigen", help="natural frequencies of the assembled, linearised drivetrain")
-    p.add_argument("scene")
+    p.add_argument("scene", help="scene file (.toml)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a scene key")
     p.add_argument("--modes", type=_positive_int, default=12, help="how many modes to list (default 12)")
     p.set_defaults(func=_cmd_eigen)
@@ -867,15 +882,18 @@ def _parser_calibrate(sub) -> None:
 def _parser_sweep(sub) -> None:
     p = sub.add_parser("sweep", help="run many scenes (grid files expand) in parallel; one HDF5 per run + manifest")
     p.add_argument("scenes", nargs="+", help="scene or grid files")
-    p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key of every scene")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="override a key of every scene (section.key=value), or of a grid's [sweep] table: "
+                        "sweep.draw.n=2, sweep.draw.seed=7, sweep.axes.operating_point.drive_speed_rpm=[500.0] "
+                        "(repeatable)")
     p.add_argument("--out", default="out/sweep", help="output directory (default: out/sweep)")
     p.add_argument("--only", nargs="*", default=None, help="run only cases whose name matches these patterns")
     _add_execution_options(p)
     p.add_argument("--resume", "--skip-existing", dest="skip_existing", action="store_true",
                    help="continue a sweep: reuse finished runs of the same scene and model sources "
                         "(fingerprint in case.json), run the rest")
-    p.add_argument("--no-plots", action="store_true")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--no-plots", action="store_true", help=_NO_PLOTS_HELP)
+    p.add_argument("--quiet", action="store_true", help=_QUIET_HELP)
     p.add_argument("--force", action="store_true", help=_FORCE_HELP)
     p.set_defaults(func=_cmd_sweep)
 
@@ -899,7 +917,7 @@ def _parser_validate(sub) -> None:
     p.add_argument("--resume", action="store_true", help="reuse finished runs of the same scenes")
     p.add_argument("--judge-only", action="store_true",
                    help="run nothing: judge the runs already in --out again and rewrite the report")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help=_QUIET_HELP)
     p.set_defaults(func=_cmd_validate)
 
 def _parser_accuracy_cost(sub) -> None:
@@ -921,24 +939,39 @@ def _parser_accuracy_cost(sub) -> None:
     p.add_argument("--resume", action="store_true", help="reuse finished runs of the same scenes and settings")
     p.add_argument("--evaluate-only", action="store_true",
                    help="run nothing: evaluate every run found in --out (e.g. rows run separately)")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help=_QUIET_HELP)
     p.set_defaults(func=_cmd_accuracy_cost)
 
 def _parser_dataset(sub) -> None:
     p = sub.add_parser("dataset", help="one labelled dataset (signals + labels of every run) from a sweep directory")
     p.add_argument("sweep_dir", help="the --out directory of a sweep (with manifest.json)")
-    p.add_argument("--format", choices=("parquet", "hdf5", "aalto"), default="parquet")
+    p.add_argument("--format", choices=("parquet", "hdf5", "aalto"), default="parquet",
+                   help="parquet: one table, a row per sample (default); hdf5: /labels and /runs/<run>/<channel>; "
+                        "aalto: a CSV per run in the Aalto gear-fault layout and labels.csv")
     p.add_argument("--out", default=None, help="output file (directory for aalto); default: inside SWEEP_DIR")
     p.add_argument("--settled-only", action="store_true",
                    help="leave out each run's samples before its time.settle_s (the start-up transient); without "
                         "it they are kept and marked by the settled column")
+    _add_split_options(p)
     p.set_defaults(func=_cmd_dataset)
+
+
+def _add_split_options(p) -> None:
+    """The gearbox-level split's options (campaigns.splits) of ``dataset`` and ``features``."""
+    from drivetrain.campaigns.splits import DEFAULT_FRACTIONS, DEFAULT_SPLIT_SEED
+
+    p.add_argument("--split", nargs=3, type=float, default=list(DEFAULT_FRACTIONS), metavar=("TRAIN", "VAL", "TEST"),
+                   help="shares of the gearboxes in the train, validation and test sets of the split column "
+                        f"(default: {' '.join(f'{x:g}' for x in DEFAULT_FRACTIONS)}); one gearbox is never in two sets")
+    p.add_argument("--split-seed", type=int, default=DEFAULT_SPLIT_SEED, metavar="SEED",
+                   help=f"seed of the split (default: {DEFAULT_SPLIT_SEED}); the same seed and gearboxes give the same split")
 
 def _parser_features(sub) -> None:
     p = sub.add_parser("features", help="condition indicators (TSA per shaft, FM4, NA4, SER, ...) of every run of a "
                                         "run or sweep directory -> DIR/features.parquet")
     p.add_argument("dir", help="a run directory (with signals.h5) or a sweep directory (with manifest.json)")
     p.add_argument("--out", default=None, help="output file (default: DIR/features.parquet)")
+    _add_split_options(p)
     p.set_defaults(func=_cmd_features)
 
 def _parser_detectability(sub) -> None:
@@ -956,8 +989,10 @@ def _parser_detectability(sub) -> None:
     p.add_argument("--gearboxes", type=_positive_int, default=GEARBOXES,
                    help=f"gearboxes (seeds) per cell (default: {GEARBOXES})")
     p.add_argument("--kinds", nargs="+", choices=tuple(FAULT_KINDS), default=None, help="fault kinds (default: all)")
-    p.add_argument("--members", nargs="+", choices=D.MEMBERS, default=list(D.MEMBERS))
-    p.add_argument("--sizes", nargs="+", choices=("default", "small"), default=["default", "small"])
+    p.add_argument("--members", nargs="+", choices=D.MEMBERS, default=list(D.MEMBERS),
+                   help="the gears that carry the fault (default: both)")
+    p.add_argument("--sizes", nargs="+", choices=("default", "small"), default=["default", "small"],
+                   help="fault sizes: each kind's default and half of it (default: both)")
     p.add_argument("--speeds", nargs="+", type=float, default=list(D.SPEEDS_RPM), help="drive speeds [rpm]")
     p.add_argument("--loads", nargs="+", type=float, default=list(D.LOADS_NM), help="load-motor torques [N·m]")
     p.add_argument("--duration", type=float, default=7.0, help="simulated seconds per run (default: 7)")
@@ -970,7 +1005,7 @@ def _parser_detectability(sub) -> None:
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key of every scene")
     _add_execution_options(p)
     p.add_argument("--resume", action="store_true", help="reuse finished runs of the same scenes")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help=_QUIET_HELP)
     p.set_defaults(func=_cmd_detectability)
 
 def _parser_frontier(sub) -> None:
@@ -1056,7 +1091,7 @@ def _parser_check_and_baseline(sub) -> None:
                        help="baseline files DIR/<scene>.baseline.h5 (default: beside each scene file, "
                             "or [check] baseline)")
         _add_execution_options(p, "local worker processes for several cases")
-        p.add_argument("--quiet", action="store_true")
+        p.add_argument("--quiet", action="store_true", help=_QUIET_HELP)
         if name == "check":
             p.add_argument("--out", default="out/check",
                            help="run results and failure plots, one directory per case (default: out/check)")
@@ -1091,16 +1126,27 @@ def _parser_stress(sub) -> None:
     p.add_argument("--fidelities", default=None, metavar="LIST",
                    help="comma-separated mesh_contact fidelities the random scenes may use (default: all)")
     p.add_argument("--paper-grid", default=None, metavar="TOML", help="the paper grid (default: scenarios/paper/paper.toml)")
-    p.add_argument("--backend", choices=BACKENDS, default="fmi")
+    p.add_argument("--backend", choices=BACKENDS, default="fmi", help=_BACKEND_HELP)
     p.add_argument("--fmu-dir", default=None, help=_FMU_DIR_HELP)
     p.add_argument("--only", nargs="*", default=None, metavar="PATTERN",
                    help="run only the cases whose name matches (e.g. rnd_s0_0042 'paper_severe_*')")
     p.add_argument("--report-only", action="store_true",
                    help="re-judge the runs in --out and rewrite stress.json / stress.md without running")
-    p.add_argument("--quiet", action="store_true")
+    p.add_argument("--quiet", action="store_true", help=_QUIET_HELP)
     p.set_defaults(func=_cmd_stress)
 
 
+
+#: what ``drivetrain --help`` says above and below the commands (plain text: a terminal shows no markup)
+_DESCRIPTION = ("Simulate torsional vibrations of healthy and faulty bevel-gear drivetrains (the azimuth-thruster\n"
+                "test rig) as co-simulated FMUs, and turn the runs into labelled datasets.")
+_EPILOG = """first steps:
+  drivetrain run scenarios/example.toml --native --out out/example     one run: signals, summary, plots
+  drivetrain sweep GRID.toml --set sweep.draw.n=2 --out out/grid       a grid (any key, its [sweep] too)
+  drivetrain dataset out/grid                                          dataset.parquet + DATASET.md card
+  drivetrain COMMAND --help                                            every option of a command
+
+docs/ of the source checkout: SCENARIOS.md (every scene key), MASTER.md, FMU.md, ARCHITECTURE.md."""
 
 #: one function per command (or pair of commands sharing their options), in the order of --help
 _PARSERS = (_parser_build_fmus, _parser_run, _parser_build_native_gear, _parser_build_native, _parser_export_ssp,
@@ -1111,7 +1157,8 @@ _PARSERS = (_parser_build_fmus, _parser_run, _parser_build_native_gear, _parser_
 def build_parser() -> argparse.ArgumentParser:
     from drivetrain import __version__
 
-    parser = argparse.ArgumentParser(prog="drivetrain", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="drivetrain", description=_DESCRIPTION, epilog=_EPILOG,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=(
         f"drivetrain {__version__} (Python {sys.version.split()[0]}, {Path(__file__).resolve().parent})"))
     sub = parser.add_subparsers(dest="command", required=True)

@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from gearcontact_fmu import geometry
+from gearcontact_fmu import compile_notice, geometry
 from gearcontact_fmu.contact import engine
 from gearcontact_fmu.fault_specs import normalised_spec
 from gearcontact_fmu.locks import cache_dir  # noqa: F401  (the maps' cache; re-exported)
@@ -357,11 +357,13 @@ def _tabulate(pair, theta, a, grid: MapGrid, workers: int | None = None, sides=N
     try:
         if workers == 1 or "fork" not in mp.get_all_start_methods():
             return _tabulate_rows(pair, theta, a, grid, sides, bar)
-        n_chunks = min(len(theta), max(4 * workers, len(theta) // 6))
-        chunks = np.array_split(np.arange(len(theta)), n_chunks)
+        # the first row here, before the fork: its first call compiles the kernels (numba, on a fresh cache) once,
+        # in this process, and every forked worker inherits the compiled code instead of compiling it again
+        parts = [_tabulate_rows(pair, theta[:1], a, grid, sides[:1], bar)]
+        n_chunks = min(len(theta) - 1, max(4 * workers, (len(theta) - 1) // 6))
+        chunks = np.array_split(np.arange(1, len(theta)), n_chunks) if n_chunks > 0 else []
         global _FORK_STATE
         _FORK_STATE = (pair, theta, a, grid, sides)
-        parts = []
         try:
             with mp.get_context("fork").Pool(workers) as pool:
                 for idx, part in zip(chunks, pool.imap(_tabulate_chunk, chunks)):
@@ -446,6 +448,17 @@ def _tabulate_side(datas, th, on, sign, a, consts, rows, out):
         engine.fixed_axis_eval(data_fr, th, thw, w_ref, w_ref * z1 / z2, out)
         row[CH_FRIC_P] = out[OUT_TAU_PINION] - tp_el
         row[CH_FRIC_W] = out[OUT_TAU_WHEEL] - tw_el
+
+
+def kernels_cold() -> bool:
+    """True when the map builder's kernels are not compiled yet, here or in numba's cache (the next map build
+    compiles them first: :mod:`gearcontact_fmu.compile_notice`)."""
+    return compile_notice.kernels_cold(_tabulate_side)
+
+
+def compile_notice_text() -> str:
+    """What is said while the map builder's kernels compile."""
+    return compile_notice.notice_text(_tabulate_side)
 
 
 def cache_key(gear, pcm, resolution, health, mesh_files, grid, fault_kwargs=None, mesh_units: str = "mm") -> str:
@@ -607,10 +620,12 @@ def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
                     return cached()
                 except ContactMapFileError:
                     pass            # damaged meanwhile: built again below
-            cmap = _build_map(gear, pcm, resolution, health, mesh_files, mesh_units, grid, fault_kwargs, healthy)
+            with compile_notice.compiling(_tabulate_side):
+                cmap = _build_map(gear, pcm, resolution, health, mesh_files, mesh_units, grid, fault_kwargs, healthy)
             save_map(cmap, path)
     else:
-        cmap = _build_map(gear, pcm, resolution, health, mesh_files, mesh_units, grid, fault_kwargs, healthy)
+        with compile_notice.compiling(_tabulate_side):
+            cmap = _build_map(gear, pcm, resolution, health, mesh_files, mesh_units, grid, fault_kwargs, healthy)
     cmap.info["cache"] = str(path)
     cmap.info["from_cache"] = False
     if problem:

@@ -86,35 +86,69 @@ def _readme_api_code() -> str:
     return "\n".join(blocks)
 
 
-def test_the_readme_python_example_runs_and_writes_nothing_in_the_current_folder(
-        tmp_path, monkeypatch, fmu_dir, native_cache_dir):
-    """The README's notebook example, as written but with 0.3 s runs, from a fresh folder holding only the
-    scene: the run writes nothing there (no fmus/), the sweep only its out/ directory; the DataFrames carry
-    their units."""
+#: appended to the README's block when the test runs it: what the block computed, for the test to check
+_README_CHECK = """
+if __name__ == "__main__":
+    import json, os
+    json.dump({"index": df.index.name, "units": df.attrs["units"], "last_t": float(df.index[-1]),
+               "n_columns": len(df.columns), "runs": sorted(data["run"].unique()),
+               "data_units": data.attrs["units"], "f_GMF": sp.attrs["characteristic_frequencies"]["f_GMF"],
+               "spectrum_columns": list(sp.columns)}, open(os.environ["README_CHECK"], "w"))
+"""
+
+
+def test_the_readme_python_example_runs_and_writes_nothing_in_the_current_folder(tmp_path):
+    """The README's notebook example as a user runs it: saved as a .py file and run with python in a
+    fresh process from a fresh folder holding only the scene, with 0.3 s runs. It completes (a sweep's workers
+    import the file again: the block keeps its work under the __main__ guard), the run writes nothing there
+    (no fmus/), the sweep only its out/ directory; the DataFrames carry their units."""
+    import json
+
     code = _readme_api_code()
-    assert "time.duration_s=2" in code
+    assert "time.duration_s=2" in code and 'if __name__ == "__main__":' in code
     code = code.replace("time.duration_s=2", "time.duration_s=0.3")
     cwd = tmp_path / "notebook"
     (cwd / "scenarios").mkdir(parents=True)
     shutil.copy(EXAMPLE, cwd / "scenarios")
+    (tmp_path / "example.py").write_text(code + _README_CHECK)
     before = _tree(cwd)
-    # the session's FMUs (built once per test session) stand in for the package's FMU directory
-    native = fmu_dir / "native"
-    if not native.exists():
-        native.symlink_to(native_cache_dir, target_is_directory=True)
-    monkeypatch.setattr(F, "default_fmu_dir", lambda: fmu_dir, raising=False)
-    monkeypatch.setenv("MPLBACKEND", "Agg")
-    monkeypatch.chdir(cwd)
-    ns = {"__name__": "readme_example"}
-    exec(compile(code, str(README), "exec"), ns)
+    check = tmp_path / "check.json"
+    env = {**_env(tmp_path), "MPLBACKEND": "Agg", "README_CHECK": str(check)}
+    env.pop("BEVEL_CACHE_DIR")              # the FMUs and maps where a user's come from (the checkout's fmus/)
+    p = subprocess.run([sys.executable, str(tmp_path / "example.py")], cwd=cwd, env=env, capture_output=True,
+                       text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-3000:]
     new = _tree(cwd) - before
-    assert new and all(p.split("/")[0] == "out" for p in new), sorted(new)
-    df, data = ns["df"], ns["data"]
-    assert df.index.name == "time_s" and df.attrs["units"]["time_s"] == "s"
-    assert df.attrs["units"]["drive_shaft_torque"] == "N.m" and df.attrs["units"]["enc1"] == "rad"
-    assert df.index[-1] == pytest.approx(0.3) and len(df.columns) == 7
-    assert sorted(data["run"].unique()) == ["rpm1500", "rpm500"]
-    assert data.attrs["units"]["propeller_shaft_torque"] == "N.m" and data.attrs["units"]["time_s"] == "s"
+    assert new and all(q.split("/")[0] == "out" for q in new), sorted(new)
+    got = json.loads(check.read_text())
+    assert got["index"] == "time_s" and got["units"]["time_s"] == "s"
+    assert got["units"]["drive_shaft_torque"] == "N.m" and got["units"]["enc1"] == "rad"
+    assert got["last_t"] == pytest.approx(0.3) and got["n_columns"] == 7
+    assert got["runs"] == ["rpm1500", "rpm500"]
+    assert got["data_units"]["propeller_shaft_torque"] == "N.m" and got["data_units"]["time_s"] == "s"
+    assert got["f_GMF"] == pytest.approx(125.0) and got["spectrum_columns"] == ["frequency_Hz", "amplitude"]
+
+
+def test_the_readme_fmpy_commands_write_their_results(tmp_path, fmus_both_builds):
+    """The README's fmpy commands as a shell runs them: each writes its --output-file."""
+    text = README.read_text()
+    section = text.split("## Using the FMUs from fmpy", 1)[1].split("\n## ", 1)[0]
+    cmd = re.search(r"(fmpy simulate fmus/GearContact\.fmu.*?--output-file \S+)", section, re.S).group(1)
+    standalone = re.search(r"`(unzip -p fmus/MotorLoad\.fmu.*?)`", section, re.S).group(1)
+    fmus = tmp_path / "fmus"
+    fmus.mkdir()
+    for m in ("GearContact", "MotorLoad"):
+        shutil.copy(fmus_both_builds[("pythonfmu", m)], fmus / f"{m}.fmu")
+    (tmp_path / "examples").mkdir()
+    shutil.copy(ROOT / "examples" / "gearcontact_input.csv", tmp_path / "examples")
+    bindir = Path(sys.executable).parent
+    env = {**_env(tmp_path), "PATH": f"{bindir}{os.pathsep}{os.environ.get('PATH', '')}"}
+    for line in (cmd.replace("\\\n", " "), " ".join(standalone.split())):
+        p = subprocess.run(line, shell=True, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+        assert p.returncode == 0, (line, p.stderr[-2000:])
+        out = tmp_path / line.split("--output-file", 1)[1].split()[0]
+        rows = out.read_text().splitlines()
+        assert len(rows) > 10 and rows[0].startswith('"time"'), (line, rows[:2])
 
 
 # ------------------------------------------------------------------------------------------------

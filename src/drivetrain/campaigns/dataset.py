@@ -40,6 +40,8 @@ import numpy as np
 
 from drivetrain.errors import DatasetError  # noqa: F401  (re-exported)
 from drivetrain.run.outputs import read_hdf5, write_aalto_csv
+from drivetrain.campaigns.loaders import schema_metadata
+from drivetrain.campaigns.splits import DEFAULT_FRACTIONS, DEFAULT_SPLIT_SEED, class_columns
 from drivetrain.campaigns.sweep import read_runs
 from drivetrain.scene.schema import NAME_RE, NAME_RULE, setting_acts
 from gearcontact_fmu.fault_specs import health_faults
@@ -122,12 +124,13 @@ def read_run(sig: Path, rec: dict) -> dict:
             "signals": h["signals"], "units": h["units"]}
 
 
-def collect(sweep_dir: Path | str) -> list[dict]:
+def collect(sweep_dir: Path | str, split_fractions=DEFAULT_FRACTIONS, split_seed: int = DEFAULT_SPLIT_SEED) -> list[dict]:
     """[{"name", "labels", "units", "channels"}] of every run of the sweep that wrote signals, without the
-    signals: a dataset of thousands of runs is never held in memory. The labels include the condition
-    indicators and, for a faulty run with a healthy twin ([sweep.draw] paired_healthy), the fault's
-    signal-to-background ratio, each computed from the run's signals as it is read. :func:`run_data` reads
-    a run's samples again when a writer needs them."""
+    signals: a dataset of thousands of runs is never held in memory. The labels include the class columns
+    ``label``, ``faulty``, ``gearbox`` and ``split`` (campaigns.splits: the split drawn per gearbox with
+    ``split_fractions`` and ``split_seed``), the condition indicators and, for a faulty run with a healthy twin
+    ([sweep.draw] paired_healthy), the fault's signal-to-background ratio, each computed from the run's signals
+    as it is read. :func:`run_data` reads a run's samples again when a writer needs them."""
     d = Path(sweep_dir)
     runs = []
     for rec in run_records(d):
@@ -140,6 +143,8 @@ def collect(sweep_dir: Path | str) -> list[dict]:
     if not runs:
         raise DatasetError(f"{d}: the manifest lists no run with signals")
     _add_paired_sbr(runs)
+    for r, cls in zip(runs, class_columns([r["labels"] for r in runs], split_fractions, split_seed)):
+        r["labels"] = {"run": r["labels"]["run"], **cls, **{k: v for k, v in r["labels"].items() if k != "run"}}
     return runs
 
 
@@ -266,13 +271,12 @@ def write_parquet(runs: list[dict], path: Path, settled_only: bool = False) -> P
     types = {k: _arrow_type([r["labels"].get(k) for r in runs]) for k in label_cols}
     names = {k: f"label.{k}" if k in channels or k in ("time_s", "settled") else k for k in label_cols}
     units = {c: next((r["units"].get(c, "") for r in runs if c in r["units"]), "") for c in channels}
-    units.update({"time_s": "s", "settled": "", **{names[k]: label_unit(
+    units.update({"run": "", "time_s": "s", "settled": "", **{names[k]: label_unit(
         k, units, numeric=pa.types.is_integer(types[k]) or pa.types.is_floating(types[k])) for k in label_cols}})
     schema = pa.schema([("run", pa.dictionary(pa.int32(), pa.string())), ("time_s", pa.float64()),
                         ("settled", pa.bool_()), *((c, pa.float64()) for c in channels),
                         *((names[k], types[k]) for k in label_cols)],
-                       metadata={"drivetrain.units": json.dumps(units),
-                                 "drivetrain.labels": json.dumps(["run", *label_cols])})
+                       metadata=schema_metadata(units, ["run", *label_cols]))
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     with pq.ParquetWriter(tmp, schema) as writer:
@@ -342,6 +346,23 @@ def write_aalto(runs: list[dict], path: Path, settled_only: bool = False) -> Pat
     return path
 
 
+def written_columns(runs: list[dict], data_path: Path, fmt: str) -> dict:
+    """Every column of the written data with its unit (parquet: from the file's own metadata)."""
+    if fmt == "parquet":
+        from drivetrain.campaigns.loaders import units_of
+        import pyarrow.parquet as pq
+
+        units = units_of(data_path)
+        return {c: units.get(c, "") for c in pq.read_schema(data_path).names}
+    channel_units = {c: u for r in runs for c, u in r["units"].items()}
+    cols = {"run": "", "time_s": "s", "settled": "", **{c: channel_units.get(c, "") for c in sorted(channel_units)}}
+    for k in _label_columns(runs):
+        if k != "run":
+            v = next((r["labels"].get(k) for r in runs if r["labels"].get(k) is not None), None)
+            cols[k] = label_unit(k, channel_units, numeric=isinstance(v, (int, float)) and not isinstance(v, bool))
+    return cols
+
+
 WRITERS = {"parquet": write_parquet, "hdf5": write_hdf5, "aalto": write_aalto}
 
 
@@ -362,20 +383,33 @@ def contact_line(counts: dict) -> str:
 
 
 def export(sweep_dir: Path | str, fmt: str = "parquet", out: Path | str | None = None,
-           settled_only: bool = False, log=None) -> Path:
+           settled_only: bool = False, log=None, split_fractions=DEFAULT_FRACTIONS,
+           split_seed: int = DEFAULT_SPLIT_SEED, card: bool = True) -> Path:
     """Write the dataset of a sweep directory; returns the written path. ``settled_only``: leave out each run's
     samples before its ``time.settle_s``. ``log``: told how many faulty runs carry contact
-    (:func:`contact_counts`)."""
+    (:func:`contact_counts`). ``split_fractions`` (train, validation, test) and ``split_seed``: the gearbox-level
+    split (campaigns.splits). ``card``: also write the dataset card ``DATASET.md`` beside the data
+    (campaigns.card)."""
     if fmt not in WRITERS:
         raise DatasetError(f"format {fmt!r}: expected one of {', '.join(FORMATS)}")
     path = Path(out) if out else Path(sweep_dir) / DEFAULT_NAMES[fmt]
     if fmt != "aalto" and path.is_dir():
         raise DatasetError(f"{path}: a directory; the {fmt} dataset is one file (give its file name)")
-    runs = collect(sweep_dir)
+    try:
+        runs = collect(sweep_dir, split_fractions, split_seed)
+    except ValueError as exc:                  # the split's fractions
+        raise DatasetError(str(exc)) from None
     if log is not None:
         log(contact_line(contact_counts(runs)))
     try:
-        return WRITERS[fmt](runs, path, settled_only)
+        written = WRITERS[fmt](runs, path, settled_only)
+        if card:
+            from drivetrain.campaigns.card import write_card
+
+            write_card(runs, written, fmt, sweep_dir, written_columns(runs, written, fmt),
+                       contact_line(contact_counts(runs)), settled_only=settled_only,
+                       split=(tuple(split_fractions), split_seed))
+        return written
     except OSError as exc:                     # a read-only place, a full disk: named, and no stray temporary
         try:
             path.with_name(path.name + ".tmp").unlink(missing_ok=True)

@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from drivetrain.campaigns.splits import (CLASS_COLUMNS, DEFAULT_FRACTIONS, DEFAULT_SPLIT_SEED, check_fractions,
+                                         class_columns)
 from drivetrain.errors import DatasetError
 from drivetrain.rig import indicators as ci
 
@@ -63,14 +65,19 @@ def indicator_columns(run: dict, where: Path | str) -> dict:
         raise DatasetError(f"{where}: run {run['name']}: {exc}") from None
 
 
-def features(directory: str | Path) -> list[dict]:
-    """One row per run: its labels and its indicator columns. The runs are read one at a time (a study of
-    thousands of runs never holds their signals together); a healthy run's torques are kept while a faulty
-    run paired with it (one ``scenario.noise_name``) may follow."""
+def features(directory: str | Path, split_fractions=DEFAULT_FRACTIONS, split_seed: int = DEFAULT_SPLIT_SEED,
+             channel_units: dict | None = None) -> list[dict]:
+    """One row per run: its labels (with the class columns ``label``, ``faulty``, ``gearbox`` and ``split`` of
+    campaigns.splits, the split as ``drivetrain dataset`` draws it with the same seed) and its indicator
+    columns. The runs are read one at a time (a study of thousands of runs never holds their signals together);
+    a healthy run's torques are kept while a faulty run paired with it (one ``scenario.noise_name``) may follow.
+    ``channel_units``: a dict given is filled with the runs' channel units."""
     d = Path(directory)
     rows = []
     twins: dict = {}
     for r in _iter_runs(d):
+        if channel_units is not None:
+            channel_units.update(r["units"])
         lab = r["labels"]
         settle = float(lab.get("time.settle_s") or 0.0)
         cols = indicator_columns(r, d)
@@ -85,19 +92,35 @@ def features(directory: str | Path) -> list[dict]:
                     cols[f"SBR_dB.{sig}"] = ci.signal_to_background_dB(np.asarray(r["signals"][sig])[keep],
                                                                        np.asarray(h["signals"][sig])[keep])
         rows.append({**lab, **cols})
-    return rows
+    for row, cls in zip(rows, class_columns(rows, split_fractions, split_seed)):
+        row.update(cls)
+    return [{"run": row["run"], **{k: row[k] for k in CLASS_COLUMNS}, **row} for row in rows]
 
 
-def write_features(directory: str | Path, out: str | Path | None = None) -> Path:
-    """``DIR/features.parquet`` (or ``out``): the rows of :func:`features`, a column per label and indicator."""
+def write_features(directory: str | Path, out: str | Path | None = None, split_fractions=DEFAULT_FRACTIONS,
+                   split_seed: int = DEFAULT_SPLIT_SEED) -> Path:
+    """``DIR/features.parquet`` (or ``out``): the rows of :func:`features`, a column per label and indicator,
+    every column's unit in the schema metadata (``load_dataset`` and ``pandas.read_parquet`` put them in
+    ``df.attrs["units"]``)."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    rows = features(directory)
+    from drivetrain.campaigns.dataset import label_unit
+    from drivetrain.campaigns.loaders import schema_metadata
+
+    try:
+        check_fractions(split_fractions)
+    except ValueError as exc:
+        raise DatasetError(str(exc)) from None
+    channel_units: dict = {}
+    rows = features(directory, split_fractions, split_seed, channel_units)
     cols: list[str] = []
     for r in rows:
         cols += [k for k in r if k not in cols]
     table = pa.table({c: [_cell(r.get(c)) for r in rows] for c in cols})
+    units = {c: label_unit(c, channel_units, numeric=pa.types.is_integer(table.schema.field(c).type)
+                           or pa.types.is_floating(table.schema.field(c).type)) for c in cols}
+    table = table.replace_schema_metadata(schema_metadata(units, cols))
     path = Path(out) if out else Path(directory) / FEATURES_FILE
     pq.write_table(table, path)
     return path

@@ -333,17 +333,37 @@ def prepare_caches(specs: list, fmu_dir: str | Path | None = None, fmu_paths: di
     import multiprocessing as mp
 
     t0 = time.perf_counter()
+    ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+    if ctx.get_start_method() == "fork":
+        # the first configuration here, its map's rows on every core: on a fresh install its first call compiles
+        # the contact kernels (numba) once, in this process, and the pool's forked processes inherit the compiled
+        # code, where each of them compiled it again before, side by side on the same cores
+        comp, H = todo.pop(0)
+        from gearcontact_fmu.contact_map import compile_notice_text, kernels_cold
+
+        if log and kernels_cold():
+            log(compile_notice_text().capitalize())
+        if log:
+            log(f"preparing {comp.model} ({comp.name}: fidelity {comp.parameters.get('fidelity')}, health "
+                f"{comp.parameters.get('health', '?')}), the first of {len(todo) + 1} configurations, on every core")
+        problem = _prepare_one(comp, H, fmu_dir, fmu_paths)
+        if log:
+            log(f"  1/{len(todo) + 1} prepared ({time.perf_counter() - t0:.0f} s)"
+                + (f"; {comp.name} failed ({problem}): the run will report it" if problem else ""))
+        if not todo:
+            return 1
+        workers = max(1, min(workers, len(todo)))
+    n_all = len(todo) + (1 if ctx.get_start_method() == "fork" else 0)
     if log:
         log(f"preparing {len(todo)} component configurations (contact maps) in {workers} processes")
-    ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
     # a multiprocessing pool (its processes single-core map builders): on an interrupt it is terminated at
     # once, not waited for, and its processes ignore SIGINT (the parent reports the stop)
     pool = ctx.Pool(workers, initializer=_one_core_builder)
     try:
         jobs = [(comp, H, fmu_dir, fmu_paths) for comp, H in todo]
-        for k, (name, problem) in enumerate(pool.imap_unordered(_prepare_job, jobs), 1):
-            if log and (problem or k == len(todo) or k % max(1, len(todo) // 10) == 0):
-                log(f"  {k}/{len(todo)} prepared ({time.perf_counter() - t0:.0f} s)"
+        for k, (name, problem) in enumerate(pool.imap_unordered(_prepare_job, jobs), n_all - len(todo) + 1):
+            if log and (problem or k == n_all or k % max(1, n_all // 10) == 0):
+                log(f"  {k}/{n_all} prepared ({time.perf_counter() - t0:.0f} s)"
                     + (f"; {name} failed ({problem}): the run will report it" if problem else ""))
         pool.close()
     except BaseException:
@@ -351,7 +371,7 @@ def prepare_caches(specs: list, fmu_dir: str | Path | None = None, fmu_paths: di
         raise
     finally:
         pool.join()
-    return len(todo)
+    return n_all
 
 
 def _prepare_job(job) -> tuple[str, str | None]:
@@ -687,7 +707,10 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
     manifest = _Manifest(out, scenes={s.name: s for s in all_scenes},
                          order={n: i for i, n in enumerate(grid_names or names)},
                          meta={"executor": _executor_name(address, executor), "backend": backend, "code_commit": code_commit(),
-                               "preparation_s": preparation_s, "reused_runs": len(reused)},
+                               "preparation_s": preparation_s, "reused_runs": len(reused),
+                               # where the scenes came from (the dataset card names them)
+                               "scene_files": sorted({str(s.source) for s in all_scenes if s.source}),
+                               "overrides": list(dict.fromkeys(o for s in all_scenes for o in s.overrides))},
                          kept=kept, t0=t0)
     manifest.runs = [manifest.annotate(r) for r in reused + _start_failures(refused, all_scenes, out)]
     _start_journal(out, kept + manifest.runs)

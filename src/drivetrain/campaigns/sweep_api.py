@@ -6,7 +6,6 @@ is the dataset ``drivetrain dataset out/grid`` writes, as a pandas DataFrame.
 """
 from __future__ import annotations
 
-import json
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,16 +34,12 @@ class SweepResult:
         and one per label (the scene keys as ``section.key``, the condition indicators); every column's
         unit in ``df.attrs["units"]`` ("1" dimensionless, "" text). ``settled_only``: the samples after each
         run's ``time.settle_s`` only."""
-        import pandas as pd
-        import pyarrow.parquet as pq
+        from drivetrain.campaigns.loaders import load_dataset
 
         with tempfile.TemporaryDirectory(prefix="drivetrain_sweep_") as tmp:
-            path = export(self.out_dir, "parquet", Path(tmp) / "dataset.parquet", settled_only=settled_only)
-            table = pq.read_table(path)
-        df = table.to_pandas()
-        df["run"] = df["run"].astype(str)
-        df.attrs["units"] = json.loads((table.schema.metadata or {}).get(b"drivetrain.units", b"{}"))
-        return df
+            path = export(self.out_dir, "parquet", Path(tmp) / "dataset.parquet", settled_only=settled_only,
+                          card=False)
+            return load_dataset(path)
 
 
 def sweep(scenes: str | Path | Scene | Iterable[str | Path | Scene], out_dir: str | Path, *,

@@ -190,6 +190,23 @@ def amplitude_spectrum(x: np.ndarray, fs: float, lowpass_Hz: float | None = None
     return f, A
 
 
+def run_spectrum(time_s: np.ndarray, x: np.ndarray, settle_s: float, fs: float,
+                 drive_speed_rpm: float) -> tuple[np.ndarray, np.ndarray, dict]:
+    """The spectrum of a run's channel as its plots, its summary and ``result.spectrum`` read it (the one
+    place that rule is written): the samples at or after ``settle_s``, mean removed, low-passed at
+    :func:`spectrum_lowpass_Hz` of the run's f_GMF, :func:`amplitude_spectrum` (Hann, :data:`AMPLITUDE_CONVENTION`).
+    Returns (f [Hz], A [unit of x], the characteristic frequencies of ``drive_speed_rpm``). ValueError when too
+    few samples are settled."""
+    cf = characteristic_frequencies(drive_speed_rpm)
+    keep = np.asarray(time_s) >= settle_s
+    xs = np.asarray(x, dtype=float)[keep]
+    if len(xs) <= 16 or not cf["f_GMF"] > 0:
+        raise ValueError(f"{len(xs)} settled samples at {drive_speed_rpm:g} rpm: too few for a spectrum "
+                         "(or no mesh frequency)")
+    f, A = amplitude_spectrum(xs, fs, lowpass_Hz=spectrum_lowpass_Hz(cf["f_GMF"]))
+    return f, A, cf
+
+
 def amplitude_near(f: np.ndarray, A: np.ndarray, f0: float, bins: int = SPECTRUM_LINE_BINS) -> float:
     """Largest amplitude within ±bins bins of f0 (for reading a peak whose frequency is known)."""
     df = f[1] - f[0]
@@ -227,4 +244,4 @@ def stats(x: np.ndarray) -> dict:
 
 
 __all__ = ["characteristic_frequencies", "decimate", "decimation_factor", "fir_antialias", "butter_antialias",
-           "SPECTRUM_LOWPASS_GMF", "SPECTRUM_LINE_BINS", "spectrum_lowpass_Hz", "lowpass", "amplitude_spectrum", "amplitude_near", "local_floor", "peak_frequency", "to_db", "stats"]
+           "SPECTRUM_LOWPASS_GMF", "SPECTRUM_LINE_BINS", "spectrum_lowpass_Hz", "lowpass", "amplitude_spectrum", "run_spectrum", "amplitude_near", "local_floor", "peak_frequency", "to_db", "stats"]

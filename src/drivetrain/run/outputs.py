@@ -305,6 +305,17 @@ def _fault_text(health: str, faults) -> str:
     return f"{health}: " + "; ".join(words) if words else health
 
 
+def load_text(load_Nm: float | None, profile: bool = False) -> str:
+    """A load as the rig has it: the load motor's setting and the torque it makes on the propeller shaft through
+    the 1:8 planetary (rig.data.PG_RATIO, losses aside): "load motor 1.31 N·m (propeller shaft ≈ 10.5 N·m)"."""
+    from drivetrain.rig.data import PG_RATIO
+
+    if load_Nm is None:
+        return "load motor (profile)"
+    tail = ", profile end" if profile else ""
+    return f"load motor {float(load_Nm):g} N·m (propeller shaft ≈ {PG_RATIO * float(load_Nm):.3g} N·m{tail})"
+
+
 def run_title(scene, what: str, failed_at_s: float | None = None) -> str:
     """A run's plot title: the scene and what the plot shows, then the operating point (final speed, load),
     the gear's health and faults and the active effects by their scene keys (switches that are on; the
@@ -314,8 +325,7 @@ def run_title(scene, what: str, failed_at_s: float | None = None) -> str:
     d = scene.to_dict()
     op = scene.operating_point
     speed = f"{op.final_speed_rpm:g} rpm" + (" (profile)" if op.speed_profile_rpm else "")
-    load = (f"load {op.load_profile_Nm[-1][1]:g} N·m (profile)" if op.load_profile_Nm
-            else f"load {op.load_torque_Nm:g} N·m")
+    load = (load_text(op.load_profile_Nm[-1][1], profile=True) if op.load_profile_Nm else load_text(op.load_torque_Nm))
     g = scene.gear
     health = _fault_text(g.health, g.faults)
     if g.health == "mesh":

@@ -27,7 +27,7 @@ from drivetrain.errors import ConfigurationError, CosimError, RunFailedError, Ru
 from drivetrain.models import stability
 from drivetrain.rig import instruments
 from drivetrain.rig.data import RIG_SENSORS, TORQUE_SENSORS
-from drivetrain.rig.signals import (amplitude_near, amplitude_spectrum, characteristic_frequencies, spectrum_lowpass_Hz, stats,
+from drivetrain.rig.signals import (amplitude_near, characteristic_frequencies, run_spectrum, spectrum_lowpass_Hz, stats,
                                     to_db)
 from drivetrain.run import accuracy
 from drivetrain.run import cost as runcost
@@ -104,6 +104,32 @@ class RunResult:
         df.attrs["units"] = {"time_s": "s", **{name: self.units.get(name, "") for name in self.signals}}
         df.attrs["scene"] = self.scene.name
         return df
+
+    def spectrum(self, channel: str):
+        """The amplitude spectrum of a channel as the run's plots and summary read it (rig.signals.run_spectrum:
+        settled samples, mean removed, low-pass at 5 x f_GMF, Hann window, single-sided peak amplitude: a sine
+        of amplitude a reads a) as a DataFrame ``frequency_Hz``, ``amplitude``; its attrs: ``units``,
+        ``convention``, ``characteristic_frequencies`` (f_DSH, f_MSH, f_PSH, f_GMF, harmonics, sidebands),
+        ``lowpass_Hz``, ``bin_Hz``, ``channel``."""
+        if channel not in self.signals:
+            raise KeyError(f"no channel {channel!r} in the run (it has {', '.join(self.signals)})")
+        return spectrum_frame(self.time, self.signals[channel], self.scene.time.settle_s,
+                              self.scene.time.sample_rate_Hz, self.scene.operating_point.final_speed_rpm,
+                              channel, self.units.get(channel, ""))
+
+
+def spectrum_frame(time_s, x, settle_s: float, fs: float, drive_speed_rpm: float, channel: str = "", unit: str = ""):
+    """:func:`drivetrain.rig.signals.run_spectrum` as a DataFrame (``RunResult.spectrum``, ``drivetrain.spectrum``)."""
+    import pandas as pd
+
+    from drivetrain.rig.signals import AMPLITUDE_CONVENTION
+
+    f, A, cf = run_spectrum(time_s, x, settle_s, fs, drive_speed_rpm)
+    df = pd.DataFrame({"frequency_Hz": f, "amplitude": A})
+    df.attrs.update(units={"frequency_Hz": "Hz", "amplitude": unit}, convention=AMPLITUDE_CONVENTION,
+                    characteristic_frequencies=cf, lowpass_Hz=spectrum_lowpass_Hz(cf["f_GMF"]),
+                    bin_Hz=float(f[1] - f[0]), channel=channel, settle_s=float(settle_s))
+    return df
 
 
 def stability_summary(res: CosimResult, spec: SystemSpec, time_s: float, energy_residual,
@@ -464,7 +490,8 @@ def torque_spectra(plan: RunPlan, ch: Channels) -> Spectra:
         out.torque[name] = {**stats(x), "unit": ch.units[name]}
         if len(x) > 16 and out.cf["f_GMF"] > 0:
             try:
-                f, A = amplitude_spectrum(x, fs, lowpass_Hz=spectrum_lowpass_Hz(out.cf["f_GMF"]))
+                f, A, _ = run_spectrum(ch.time, ch.signals[name], scene.time.settle_s, fs,
+                                       scene.operating_point.final_speed_rpm)
             except ValueError as exc:    # too short for the low-pass (a short or failed run)
                 plan.warnings.append(f"no spectrum of {name}: {exc}")
                 continue

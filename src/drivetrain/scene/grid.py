@@ -193,6 +193,55 @@ def draw_background(table: dict, rng: np.random.Generator) -> dict:
             for k, rule in table.items()}
 
 
+def override_value(key: str, value: str):
+    """A ``--set`` override's value read as a TOML value (numbers, true/false, "strings", [lists], {inline
+    tables}); anything that is not valid TOML is taken as a string (scene keys and a grid's [sweep] keys alike)."""
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10
+        import tomli as tomllib
+
+    value = value.strip()
+    try:
+        return tomllib.loads(f"v = {value}")["v"]
+    except tomllib.TOMLDecodeError:
+        return value
+    except RecursionError:
+        raise ScenarioError([(key, value[:60] + "...", "a value nested less deeply")]) from None
+
+
+def apply_grid_overrides(raw: dict, overrides: list[str], src: str) -> None:
+    """``--set sweep.<key>=value`` changes of a grid file's ``[sweep]`` table, in place, before it is checked:
+    ``sweep.draw.n=2``, ``sweep.draw.seed=7``, ``sweep.name="{base}_{operating_point.drive_speed_rpm:g}"``,
+    ``sweep.axes.operating_point.drive_speed_rpm=[500.0]`` (after ``axes`` or ``expect`` the rest of the key is
+    one name). The value is read as TOML. A file without ``[sweep]`` is refused: it is not a grid."""
+    for text in overrides:
+        key, _, value = text.partition("=")
+        key = key.strip()
+        if not _:
+            raise ScenarioError([(text, None, "an override of the form sweep.key=value")], src)
+        table = raw.get(GRID_SECTION)
+        if not isinstance(table, dict):
+            raise ScenarioError([(key, value, f"a key of a grid file; {src} has no [{GRID_SECTION}] table (not a grid)")],
+                                src)
+        parts = key.split(".")[1:]
+        if not parts or not all(parts):
+            raise ScenarioError([(key, value, "a key of [sweep], e.g. sweep.draw.n")], src)
+        path: list[str] = []
+        for i, part in enumerate(parts):
+            path.append(part)
+            if part in ("axes", "expect") and i + 1 < len(parts):
+                path.append(".".join(parts[i + 1:]))
+                break
+        node = table
+        for part in path[:-1]:
+            nxt = node.setdefault(part, {})
+            if not isinstance(nxt, dict):
+                raise ScenarioError([(key, value, f"a key inside a table; {GRID_SECTION}.{part} is not a table")], src)
+            node = nxt
+        node[path[-1]] = override_value(key, value)
+
+
 def refuse_swept_overrides(grid: Grid, overrides: tuple[str, ...], path) -> None:
     """Overriding a swept key would silently replace the axis: refused."""
     for text in overrides:

@@ -23,7 +23,8 @@ else:  # pragma: no cover
 from drivetrain.errors import MISSING as _MISSING
 from drivetrain.errors import ScenarioError
 from drivetrain.rig.data import Z_PINION, Z_WHEEL
-from drivetrain.scene.grid import GRID_SECTION, expand, refuse_swept_overrides, split_grid
+from drivetrain.scene.grid import (GRID_SECTION, apply_grid_overrides, expand, override_value, refuse_swept_overrides,
+                                   split_grid)
 from drivetrain.scene.schema import (BASE_UNIT, CHECK_SECTIONS, NAME_RE, NAME_RULE, SCHEMA, SECTION_CLASSES,  # noqa: F401
                                      UNITS, VAR_RE, Key, Scene, all_keys, default_of, dump_toml, schema_markdown)
 from drivetrain.scene.schema import (FIDELITIES, HEALTH_STATES, SHAFT_MODELS,  # noqa: F401  (re-exported)
@@ -382,16 +383,12 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     key, _, value = text.partition("=")
     key = key.strip()
     parts = key.split(".")
+    if parts[0] == GRID_SECTION:
+        raise ScenarioError([(key, value, "a scene key; a grid's [sweep] key (sweep.draw.n, sweep.axes.<section.key>, "
+                              "...) changes a grid file (load_scenes, drivetrain sweep), not one scene")])
     if len(parts) != 2 or not all(parts):
         raise ScenarioError([(key, value, "a key of the form section.key (e.g. time.duration_s)")])
-    value = value.strip()
-    try:
-        parsed = tomllib.loads(f"v = {value}")["v"]
-    except tomllib.TOMLDecodeError:
-        parsed = value
-    except RecursionError:
-        raise ScenarioError([(key, value[:60] + "...", "a value nested less deeply")]) from None
-    return parts, parsed
+    return parts, override_value(key, value)
 
 
 def apply_overrides(raw: dict, overrides: list[str] | tuple[str, ...]) -> dict:
@@ -440,8 +437,11 @@ def load_scenes(path: Path | str, overrides: list[str] | tuple[str, ...] = ()) -
     path = Path(path)
     src = str(path)
     raw = read_toml(path)
+    # "--set sweep.draw.n=2": a key of the grid's own [sweep] table, applied before the grid is read
+    grid_sets = [o for o in overrides or () if o.partition("=")[0].strip().split(".")[0] == GRID_SECTION]
+    apply_grid_overrides(raw, grid_sets, src)
     grid = split_grid(raw, src)
-    overrides = tuple(overrides or ())
+    overrides = tuple(o for o in overrides or () if o not in grid_sets)
     apply_overrides(raw, overrides)
     if grid is None:
         return [resolve(raw, base_dir=path.parent, source=path, overrides=overrides)]

@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 from drivetrain.system import BACKENDS
+from drivetrain.errors import Refused
 
 
 def _cmd_build_fmus(args: argparse.Namespace) -> int:
@@ -1199,6 +1200,9 @@ def _run_command(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         return 130
     except MeshError as exc:             # a mesh file found unusable wherever it is read (the cost check, a build)
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except Refused as exc:               # any door's refusal (a file, a grid, a folder in use) that no command caught
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except (OSError, shutil.Error) as exc:

@@ -56,10 +56,11 @@ from drivetrain import __version__
 from drivetrain.run import cost as runcost
 from drivetrain.campaigns.provenance import code_commit
 from drivetrain.cosim import ConfigurationError
-from drivetrain.errors import StartStateError
+from drivetrain.errors import FileFormatError, StartStateError
 from drivetrain.cosim import simulate as simulate_system
 from drivetrain.fmu_build.fmus import sources_hash
 from drivetrain.fmu_build.fmus import fmu_dir_or_default
+from drivetrain.run.files import RUN_RECORD_SCHEMA, check_fields, read_manifest
 from drivetrain.run.outputs import check_output_dir, clear_run_files, jsonable
 from drivetrain.run.runner import RunFailedError, assemble_scene, assembled_with_map, run_scene
 from drivetrain.scene.load import Scene, resolve
@@ -445,29 +446,33 @@ def _start_journal(out: Path, records: list[dict]) -> None:
 def read_runs(out_dir: str | Path) -> list[dict]:
     """Every run record of a sweep directory: those of manifest.json, then the journal's (a later record
     of a name replaces an earlier one; a torn last line of a killed sweep is skipped). In manifest
-    order, the journal's new names after. Raises OSError when the directory has neither file."""
+    order, the journal's new names after. Raises OSError when the directory has neither file, and
+    FileFormatError (naming the file and the field) when a manifest or a journal record is not one."""
     out = Path(out_dir)
     by_name: dict[str, dict] = {}
     found = False
     try:
-        for r in json.loads((out / "manifest.json").read_text()).get("runs", []):
-            if isinstance(r, dict) and r.get("name"):
-                by_name[r["name"]] = r
+        for r in read_manifest(out / "manifest.json")["runs"]:
+            by_name[r["name"]] = r
         found = True
-    except (OSError, ValueError, AttributeError):
+    except OSError:
         pass
     try:
         lines = (out / JOURNAL).read_bytes().splitlines()
         found = True
     except OSError:
         lines = []
-    for ln in lines:
+    for i, ln in enumerate(lines):
         try:
             r = json.loads(ln)
         except ValueError:
-            continue                     # a line torn by a kill
-        if isinstance(r, dict) and r.get("name"):
-            by_name[r["name"]] = r
+            if i == len(lines) - 1 or not ln.strip():
+                continue                 # a line torn by a kill
+            raise FileFormatError([f"{out / JOURNAL}: line {i + 1}: not JSON"]) from None
+        problems = check_fields(r, RUN_RECORD_SCHEMA, f"{out / JOURNAL}: line {i + 1}", required=("name",))
+        if problems:
+            raise FileFormatError(problems)
+        by_name[r["name"]] = r
     if not found:
         raise OSError(f"{out}: neither manifest.json nor {JOURNAL}")
     return list(by_name.values())

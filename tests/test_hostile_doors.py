@@ -140,3 +140,31 @@ def test_a_run_listed_ok_without_signals_is_named_as_left_out(copy, tmp_path, fm
     else:
         left = json.loads((out / "left_out.json").read_text())
     assert "signals.h5 is missing" in left["toy0"]
+
+
+# ------------------------------------------------------------------------------------------------
+# draw grids: every value a rule can draw is checked when the grid is loaded (item 3)
+# ------------------------------------------------------------------------------------------------
+GRID = '[scenario]\nname = "g"\n[sweep.draw]\nn = 1\nseed = {seed}\n'
+
+
+@pytest.mark.parametrize("body, words", [
+    ('[[sweep.draw.faults]]\nkind = ["pit", "meteor"]\n', ["'meteor'", "before any draw"]),
+    ('[[sweep.draw.faults]]\nkind = [["pit", "void"]]\n', ["kind", "no list or table inside"]),
+    ('[[sweep.draw.faults]]\nkind = "pit"\nradius_mm = {uniform = [0.5, inf]}\n', ["radius_mm", "finite"]),
+    ('[[sweep.draw.faults]]\nkind = "pit"\nradius_mm = [1.0, -3.0]\n', ["radius_mm", "-3.0", "> 0"]),
+    ('[[sweep.draw.faults]]\nkind = "pit"\ndepth_mm = 1e400\n', ["depth_mm", "finite"]),
+    ('[[sweep.draw.faults]]\nkind = "pit"\ntooth = [0, 99]\n', ["tooth", "99"]),
+    ('[sweep.draw.background]\nload_noise_Nm_rtHz = [0.01, -5]\n', ["load_noise_Nm_rtHz", "-5"]),
+])
+def test_a_draw_grid_is_refused_at_load_whatever_the_seed(tmp_path, body, words):
+    """Seed 1 draws "pit" from ["pit", "meteor"] (812c552 accepted it then); each case is refused at every seed,
+    naming the key and the value, before any draw."""
+    for seed in (1, 11):
+        g = tmp_path / f"g{seed}.toml"
+        g.write_text(GRID.format(seed=seed) + body)
+        rc, text = cli(["sweep", g, "--out", tmp_path / f"o{seed}", "--quiet"])
+        assert rc == 2 and "Traceback" not in text, text[-2000:]
+        for w in words:
+            assert w in text, (w, text)
+        assert not (tmp_path / f"o{seed}" / "manifest.json").exists()

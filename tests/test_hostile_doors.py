@@ -168,3 +168,24 @@ def test_a_draw_grid_is_refused_at_load_whatever_the_seed(tmp_path, body, words)
         for w in words:
             assert w in text, (w, text)
         assert not (tmp_path / f"o{seed}" / "manifest.json").exists()
+
+
+# ------------------------------------------------------------------------------------------------
+# counts and numbers below their minimum (item 2)
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("argv, flag", [
+    (["stress", "--n-random", "-5"], "--n-random"),
+    (["stress", "--n-random", "0"], "--n-random"),
+    (["stress", "--halving-subset", "-1"], "--halving-subset"),
+    (["stress", "--seed", "-3"], "--seed"),
+    (["stress", "--duration-random", "nan"], "--duration-random"),
+    (["stress", "--duration-pcm", "-0.1"], "--duration-pcm"),
+    (["validate", "--duration", "inf"], "--duration"),
+    (["validate", "--settle", "-1"], "--settle"),
+    (["detectability", "--speeds", "nan"], "--speeds"),
+    (["frontier", "--ladder", "0"], "--ladder"),
+])
+def test_counts_and_numbers_below_their_minimum_are_refused(tmp_path, argv, flag):
+    rc, text = cli([*argv, "--out", tmp_path / "o"])
+    assert rc == 2 and flag in text and "Traceback" not in text, text
+    assert not (tmp_path / "o").exists()

@@ -189,3 +189,16 @@ def test_counts_and_numbers_below_their_minimum_are_refused(tmp_path, argv, flag
     rc, text = cli([*argv, "--out", tmp_path / "o"])
     assert rc == 2 and flag in text and "Traceback" not in text, text
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("override, key", [("operating_point.drive_speed_rpm=1.7e308", "drive_speed_rpm"),
+                                           ("operating_point.load_torque_Nm=1.7e308", "load_torque_Nm"),
+                                           ("operating_point.speed_profile_rpm=[[0, 1.7e308]]", "speed_profile_rpm")])
+def test_a_start_state_that_overflows_is_a_scene_error(tmp_path, override, key):
+    """812c552: ValueError: parameters that are not finite numbers: phi0 = -inf, w0 = inf, tau0 = inf."""
+    for argv in (["eigen", EXAMPLE, "--set", override],
+                 ["run", EXAMPLE, "--set", override, "--out", tmp_path / "o", "--quiet"]):
+        rc, text = cli(argv)
+        assert rc == 2 and "Traceback" not in text and "invalid scene" in text, text[-2000:]
+        assert f"operating_point.{key}" in text and "overflows" in text
+    assert not (tmp_path / "o" / "signals.h5").exists()

@@ -202,3 +202,101 @@ def test_a_start_state_that_overflows_is_a_scene_error(tmp_path, override, key):
         assert rc == 2 and "Traceback" not in text and "invalid scene" in text, text[-2000:]
         assert f"operating_point.{key}" in text and "overflows" in text
     assert not (tmp_path / "o" / "signals.h5").exists()
+
+
+# ------------------------------------------------------------------------------------------------
+# an FMU swapped in with --fmu: checked before use, in both builds (item 1)
+# ------------------------------------------------------------------------------------------------
+def _swap(src: Path, dst: Path, md_fn=None, extra=()) -> Path:
+    import zipfile
+
+    with zipfile.ZipFile(src) as z, zipfile.ZipFile(dst, "w") as o:
+        for n in z.namelist():
+            data = z.read(n)
+            if n == "modelDescription.xml" and md_fn is not None:
+                data = md_fn(data.decode()).encode()
+            o.writestr(n, data, compress_type=zipfile.ZIP_DEFLATED)
+        for n, data in extra:
+            o.writestr(n, data)
+    return dst
+
+
+def _no_guid(md: str) -> str:
+    import re
+    return md.replace(re.search(r'guid="([^"]+)"', md).group(1), "{00000000-1111-2222-3333-444444444444}")
+
+
+def _drop_output(md: str) -> str:
+    import re
+    return md.replace(re.search(r'<ScalarVariable[^>]*name="flange_a_tau".*?</ScalarVariable>', md, re.S).group(0), "")
+
+
+_BOMB = ('<?xml version="1.0"?>\n<!DOCTYPE lolz [<!ENTITY lol "lol"><!ENTITY lol2 "&lol;&lol;&lol;&lol;&lol;&lol;">'
+         '<!ENTITY lol3 "&lol2;&lol2;&lol2;&lol2;&lol2;&lol2;&lol2;&lol2;">]>\n')
+SWAPS = {
+    "not a zip": (None, "not a zip archive"),
+    "wrong guid": (dict(md_fn=_no_guid), "not the one its binary was built with"),
+    "lacks a variable": (dict(md_fn=_drop_output), "ModelStructure"),
+    "entity bomb": (dict(md_fn=lambda md: _BOMB + md.split("?>", 1)[1].replace('description="', 'description="&lol3;', 1)),
+                    "DTD"),
+    "entry outside": (dict(extra=[("../../evil.txt", "x")]), "outside the FMU's folder"),
+    "absolute entry": (dict(extra=[("/tmp/evil_h3.txt", "x")]), "outside the FMU's folder"),
+    "FMI 1.0": (dict(md_fn=lambda md: md.replace('fmiVersion="2.0"', 'fmiVersion="1.0"')), "FMI 2.0"),
+}
+
+
+@pytest.mark.parametrize("build", ["pythonfmu", "native"])
+@pytest.mark.parametrize("case", list(SWAPS))
+def test_a_swapped_fmu_is_refused_before_use(fmus_both_builds, drivetrain_fmu_dir, tmp_path, build, case):
+    """812c552: a traceback for each, and summary.json "running" for good."""
+    good = fmus_both_builds.get((build, "GearContact"))
+    if good is None:
+        pytest.skip("no C toolchain: no native build")
+    kw, words = SWAPS[case]
+    bad = tmp_path / "swap" / "GearContact.fmu"
+    bad.parent.mkdir()
+    if kw is None:
+        bad.write_bytes(b"not a zip " * 50)
+    else:
+        _swap(good, bad, **kw)
+    out = tmp_path / "run"
+    rc, text = cli(["run", EXAMPLE, "--set", "time.duration_s=0.01", "--fmu", f"GearContact={bad}",
+                    "--fmu-dir", drivetrain_fmu_dir, "--out", out, "--quiet"])
+    assert rc == 2 and "Traceback" not in text and words in text and str(bad) in text, text[-2000:]
+    assert not (out / "summary.json").exists()            # refused before the folder says "running"
+    assert not (tmp_path / "evil.txt").exists() and not Path("/tmp/evil_h3.txt").exists()
+
+
+def test_an_fmu_of_another_model_is_refused(fmus_both_builds, drivetrain_fmu_dir, tmp_path):
+    other = fmus_both_builds[("pythonfmu", "MotorLoad")]
+    rc, text = cli(["run", EXAMPLE, "--set", "time.duration_s=0.01", "--fmu", f"GearContact={other}",
+                    "--fmu-dir", drivetrain_fmu_dir, "--out", tmp_path / "o", "--quiet"])
+    assert rc == 2 and "Traceback" not in text and "given for model 'GearContact'" in text, text[-2000:]
+
+
+def test_the_variables_a_system_needs_of_a_given_fmu(tmp_path):
+    from drivetrain.errors import ConfigurationError
+    from drivetrain.run.runner import check_given_fmus
+    from drivetrain.system import ComponentSpec, SystemSpec
+
+    fmus = build_test_fmus(tmp_path / "f")
+    spec = SystemSpec([ComponentSpec("s", "MTSpring", {"nosuch_parameter": 1.0}, {})], [], 1e-3, {})
+    with pytest.raises(ConfigurationError, match="lacks variables the system needs of s: nosuch_parameter"):
+        check_given_fmus(spec, {"MTSpring": fmus["MTSpring"]})
+
+
+def test_a_run_that_fails_for_any_reason_is_marked_failed(tmp_path, monkeypatch):
+    """A run that raises after it started (here: the loader of an FMU) leaves summary.json "failed" with the
+    cause, never "running"."""
+    from drivetrain.run import runner
+
+    fmus = build_test_fmus(tmp_path / "f")
+    scene = load_scene(EXAMPLE, ["time.duration_s=0.05", "outputs.plots=false"])
+
+    def boom(*a, **k):
+        raise RuntimeError("the loader tripped")
+    monkeypatch.setattr(runner, "simulate_plan", boom)
+    with pytest.raises(RuntimeError):
+        runner.run_scene(scene, tmp_path / "o", spec=toy_spec(), fmu_paths=fmus, progress=False)
+    s = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert s["status"] == "failed" and "the loader tripped" in s["failure"]["cause"]

@@ -23,6 +23,9 @@ import numpy as np
 
 from drivetrain import __version__
 from drivetrain.cosim import CosimResult, Master
+from drivetrain.cosim.plan import split_ref
+from drivetrain.fmu_build.fmu_check import fmu_archive_problems
+from drivetrain.fmu_build.fmus import load_fmu_info
 from drivetrain.errors import ConfigurationError, CosimError, RunFailedError, RunInterrupted  # noqa: F401  (re-exported)
 from drivetrain.models import stability
 from drivetrain.rig import instruments
@@ -36,7 +39,7 @@ from drivetrain.scene.expect import RUN_SUMMARY_TREE, SUMMARY_TREE
 from drivetrain.scene.load import Scene
 from drivetrain.system import BACKENDS, SystemSpec
 from gearcontact_fmu.fault_specs import FaultGeometryError, health_faults
-from gearcontact_fmu.params import GEAR_MODEL
+from gearcontact_fmu.params import FLANGE_QUANTITIES, GEAR_MODEL
 from gearcontact_fmu.progress import reporter
 
 #: messages for the user (progress, warnings); the CLI passes its own ``log``, a library caller sees them
@@ -382,10 +385,37 @@ def prepare_run(scene: Scene, spec: SystemSpec | None, backend: str, fmu_paths: 
     if assembled:            # past the cost checks the table map may be built (the run needs it)
         plan.spec = spec = assembled_with_map(scene, spec)
     plan.sources = _sources(scene, spec, plan.warnings)
+    check_given_fmus(spec, fmu_paths)
     plan.t_native = _time.perf_counter()
     _choose_backend(plan, fmu_dir, log)
     plan.t_master = _time.perf_counter()
     return plan
+
+
+def check_given_fmus(spec: SystemSpec, fmu_paths: dict | None) -> None:
+    """The FMUs a caller hands over ({model: path}, ``--fmu``), checked before they are used or the output
+    folder says "running": the archive (drivetrain.fmu_build.fmu_check: a zip, safe entries, a bounded model
+    description without a DTD, FMI 2.0 co-simulation, the model asked for, its GUID) and every variable the
+    system needs of it (parameters, inputs, the flanges of its connections). Raises ConfigurationError."""
+    problems: list[str] = []
+    for model, path in (fmu_paths or {}).items():
+        problems += fmu_archive_problems(path, model)
+    if problems:
+        raise ConfigurationError(problems)
+    for model, path in (fmu_paths or {}).items():
+        have = load_fmu_info(path).variables
+        for c in spec.components:
+            if c.model != model:
+                continue
+            ports = [split_ref(ref)[1] for conn in spec.connections for ref in (conn.spring, conn.inertia)
+                     if split_ref(ref)[0] == c.name]
+            need = [*c.parameters, *c.inputs, *(f"{p}_{q}" for p in ports for q in FLANGE_QUANTITIES)]
+            missing = sorted({n for n in need if n not in have})
+            if missing:
+                problems.append(f"{path}: the FMU given for {model} lacks variables the system needs of "
+                                f"{c.name}: {', '.join(missing[:12])}" + (" ..." if len(missing) > 12 else ""))
+    if problems:
+        raise ConfigurationError(problems)
 
 
 def simulate_plan(plan: RunPlan, *, fmu_dir, build: bool, progress: bool, log):
@@ -628,8 +658,18 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
         O.check_output_dir(Path(out_dir), expected_output_bytes(scene), create=False)
     plan = prepare_run(scene, spec, backend, fmu_paths, fmu_dir=fmu_dir, force=force, log=log,
                        started=started)
-    if out_dir is not None:              # refusals write nothing; from here on the directory says "running"
-        O.mark_running(Path(out_dir), scene.name)
+    if out_dir is None:
+        return _simulate_and_write(plan, None, fmu_dir, build, progress, log, plots)
+    O.mark_running(Path(out_dir), scene.name)  # refusals write nothing; from here on the directory says "running"
+    try:
+        return _simulate_and_write(plan, out_dir, fmu_dir, build, progress, log, plots)
+    except BaseException as exc:         # whatever ended the run: its summary says so, never "running" for good
+        O.mark_failed(Path(out_dir), scene.name, exc)
+        raise
+
+
+def _simulate_and_write(plan: RunPlan, out_dir, fmu_dir, build: bool, progress: bool, log, plots) -> RunResult:
+    """The run after its checks: co-simulate, post-process, write (a failed run's completed part too)."""
     res, failed = simulate_plan(plan, fmu_dir=fmu_dir, build=build, progress=progress, log=log)
     ch = measured_channels(plan, res)
     sp = torque_spectra(plan, ch)

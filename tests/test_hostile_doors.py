@@ -300,3 +300,120 @@ def test_a_run_that_fails_for_any_reason_is_marked_failed(tmp_path, monkeypatch)
         runner.run_scene(scene, tmp_path / "o", spec=toy_spec(), fmu_paths=fmus, progress=False)
     s = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert s["status"] == "failed" and "the loader tripped" in s["failure"]["cause"]
+
+
+# ------------------------------------------------------------------------------------------------
+# every FMU returns fmi2Error from a call whose work failed (item 2), in both builds
+# ------------------------------------------------------------------------------------------------
+#: (build, model, String parameters set before initialization, text of the failure the log reports)
+INIT_FAILURES = [
+    ("pythonfmu", "GearContact", {"fidelity": "pcm", "health": "mesh", "pinion_mesh_file": "/dev/zero"},
+     "mesh files must be .obj or .stl"),
+    ("pythonfmu", "GearContact", {"initial_state": "sideways"}, "initial_state = 'sideways'"),
+    ("pythonfmu", "MotorLoad", {"node_w_start": "1, 2"}, "initialization failed"),
+    ("pythonfmu", "FlexibleShaft", {"node_phi_start": "x"}, "initialization failed"),
+    ("pythonfmu", "UpperTransmission", {"node_w_start": "1, 2, 3, 4, 5"}, "initialization failed"),
+    ("native", "MotorLoad", {"node_w_start": "1, 2"}, "initialization failed"),
+    ("native", "FlexibleShaft", {"node_phi_start": "x"}, "initialization failed"),
+    ("native", "UpperTransmission", {"node_w_start": "1, 2, 3, 4, 5"}, "initialization failed"),
+]
+
+
+@pytest.mark.parametrize("build, model, strings, text", INIT_FAILURES,
+                         ids=[f"{b}-{m}-{next(iter(s))}" for b, m, s, _ in INIT_FAILURES])
+def test_a_failed_initialization_returns_fmi2error(fmus_both_builds, build, model, strings, text):
+    """812c552: the GearContact FMU logged "initialization failed: ... mesh files must be .obj or .stl" for a
+    /dev/zero mesh and fmi2ExitInitializationMode still returned fmi2OK."""
+    import subprocess
+    import sys
+    import textwrap
+
+    path = fmus_both_builds.get((build, model))
+    if path is None:
+        pytest.skip("no C toolchain: no native build")
+    script = textwrap.dedent(r'''
+        import json, sys
+        from fmpy import extract, read_model_description
+        from fmpy.fmi2 import FMU2Slave
+        from drivetrain.cosim.slaves import FmiCallbacks
+        path, strings = sys.argv[1], json.loads(sys.argv[2])
+        md = read_model_description(path)
+        V = {v.name: v for v in md.modelVariables}
+        cb = FmiCallbacks()
+        f = FMU2Slave(guid=md.guid, unzipDirectory=extract(path), modelIdentifier=md.coSimulation.modelIdentifier,
+                      instanceName="i")
+        f.instantiate(callbacks=cb.struct)
+        f.setupExperiment(startTime=0.0)
+        f.setString([V[k].valueReference for k in strings], list(strings.values()))
+        out = []
+        for call in (f.enterInitializationMode, f.exitInitializationMode, lambda: f.doStep(0.0, 1e-4)):
+            try:
+                call(); out.append(0)
+            except Exception as exc:
+                out.append(getattr(exc, "status", -1))
+        print(json.dumps({"statuses": out, "log": list(cb.logs["i"].lines)}))
+    ''')
+    r = subprocess.run([sys.executable, "-c", script, str(path), json.dumps(strings)], capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    got = json.loads(r.stdout.strip().splitlines()[-1])
+    assert got["statuses"] == [0, 3, 3], got                  # enter ok, exit fmi2Error, doStep refused
+    assert any(text in ln for ln in got["log"]), got["log"]
+    assert any("fmi2ExitInitializationMode: the initialization failed" in ln for ln in got["log"]), got["log"]
+
+
+
+# ------------------------------------------------------------------------------------------------
+# an output folder in use is refused (item 4)
+# ------------------------------------------------------------------------------------------------
+@pytest.fixture
+def held(tmp_path):
+    """A folder whose lock another live process holds (drivetrain.run.lock.output_lock)."""
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "busy"
+    flag = tmp_path / "holding"
+    p = subprocess.Popen([sys.executable, "-c", (
+        "import sys, time, pathlib\nfrom drivetrain.run.lock import output_lock\n"
+        f"with output_lock({str(out)!r}):\n    pathlib.Path({str(flag)!r}).write_text('1')\n    time.sleep(120)\n")])
+    t0 = time.time()
+    while not flag.exists():
+        assert time.time() - t0 < 60 and p.poll() is None
+        time.sleep(0.05)
+    yield out, p.pid
+    p.kill()
+    p.wait()
+
+
+def test_a_second_run_into_a_folder_in_use_is_refused_naming_the_holder(held):
+    out, pid = held
+    rc, text = cli(["run", EXAMPLE, "--set", "time.duration_s=0.01", "--out", out, "--quiet"])
+    assert rc == 2 and "Traceback" not in text and "in use by process" in text and str(pid) in text, text[-2000:]
+    assert not (out / "summary.json").exists()
+
+
+def test_a_second_sweep_into_a_folder_in_use_is_refused_naming_the_holder(held, tmp_path):
+    out, pid = held
+    from drivetrain.campaigns.sweep import run_sweep
+    from drivetrain.errors import OutputLockedError
+
+    fmus = build_test_fmus(tmp_path / "f")
+    scenes = [load_scene(EXAMPLE, ["time.duration_s=0.05", "scenario.name=t0", "outputs.plots=false"])]
+    with pytest.raises(OutputLockedError, match=f"in use by process {pid}"):
+        run_sweep(scenes, out, workers=1, specs={"t0": toy_spec()}, fmu_paths=fmus, progress=False)
+    assert not (out / "manifest.json").exists()
+
+
+def test_a_stale_lock_is_taken_over(tmp_path):
+    """A killed writer's lock (its flock gone with its process, its pid in the file) does not block the next."""
+    from drivetrain.run.lock import LOCK_FILE, output_lock
+
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / LOCK_FILE).write_text(json.dumps({"pid": 2 ** 22 + 12345, "host": "elsewhere", "command": "killed"}))
+    with output_lock(out, takeover=True):
+        assert json.loads((out / LOCK_FILE).read_text())["pid"] != 2 ** 22 + 12345
+    with output_lock(out):
+        pass

@@ -60,6 +60,7 @@ from drivetrain.errors import FileFormatError, StartStateError
 from drivetrain.cosim import simulate as simulate_system
 from drivetrain.fmu_build.fmus import sources_hash
 from drivetrain.fmu_build.fmus import fmu_dir_or_default
+from drivetrain.run.lock import output_lock
 from drivetrain.run.files import RUN_RECORD_SCHEMA, check_fields, read_manifest
 from drivetrain.run.outputs import check_output_dir, clear_run_files, jsonable
 from drivetrain.run.runner import RunFailedError, assemble_scene, assembled_with_map, run_scene
@@ -673,45 +674,46 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
     if not force:
         _refuse_costly(scenes, all_specs, backend)
     check_output_dir(out)
-    _prepare_fmus(scenes, all_specs, backend=backend, fmu_dir=fmu_dir, fmu_paths=fmu_paths, prepare=prepare, log=log)
-    # the maps are there now: a table gear assembled before its map was cached starts at its own deflection, as
-    # `drivetrain run` starts it (the specs a caller gave are theirs)
-    by_spec = dict(zip([s.name for s in scenes], all_specs))
-    all_specs, more = _specs_of(scenes, specs, lambda s: assembled_with_map(s, by_spec[s.name]))
-    refused.update(more)
-    scenes, all_specs = _runnable(scenes, all_specs)
-    if refused and log:
-        log(f"{len(refused)} of {len(all_scenes)} cases have no start state and are recorded as failed: "
-            + "; ".join(refused.values()))
-    preparation_s = time.perf_counter() - t0
-    kept = _kept_records(out, grid_names, names)
-    cases, reused = _cases(scenes, all_specs, out, skip_existing=skip_existing, backend=backend, fmu_dir=fmu_dir,
-                           plots=plots, fmu_paths=fmu_paths, force=force)
-    if skip_existing and log:
-        log(f"resume: {len(reused)} of {len(scenes)} runs reused (finished, same fingerprint), {len(cases)} to run")
-    manifest = _Manifest(out, scenes={s.name: s for s in all_scenes},
-                         order={n: i for i, n in enumerate(grid_names or names)},
-                         meta={"executor": _executor_name(address, executor), "backend": backend, "code_commit": code_commit(),
-                               "preparation_s": preparation_s, "reused_runs": len(reused)},
-                         kept=kept, t0=t0)
-    manifest.runs = [manifest.annotate(r) for r in reused + _start_failures(refused, all_scenes, out)]
-    _start_journal(out, kept + manifest.runs)
-    manifest.write(not cases)
-    if cases:
-        client = None
-        own = executor is None
-        if own:
-            executor, client = _executor(workers, address)
-        interrupted = True
-        try:
-            _run_cases(cases, manifest, executor, progress)
-            interrupted = False
-        finally:
+    with output_lock(out, takeover=skip_existing):     # a second writer into this folder is refused
+        _prepare_fmus(scenes, all_specs, backend=backend, fmu_dir=fmu_dir, fmu_paths=fmu_paths, prepare=prepare, log=log)
+        # the maps are there now: a table gear assembled before its map was cached starts at its own deflection, as
+        # `drivetrain run` starts it (the specs a caller gave are theirs)
+        by_spec = dict(zip([s.name for s in scenes], all_specs))
+        all_specs, more = _specs_of(scenes, specs, lambda s: assembled_with_map(s, by_spec[s.name]))
+        refused.update(more)
+        scenes, all_specs = _runnable(scenes, all_specs)
+        if refused and log:
+            log(f"{len(refused)} of {len(all_scenes)} cases have no start state and are recorded as failed: "
+                + "; ".join(refused.values()))
+        preparation_s = time.perf_counter() - t0
+        kept = _kept_records(out, grid_names, names)
+        cases, reused = _cases(scenes, all_specs, out, skip_existing=skip_existing, backend=backend, fmu_dir=fmu_dir,
+                               plots=plots, fmu_paths=fmu_paths, force=force)
+        if skip_existing and log:
+            log(f"resume: {len(reused)} of {len(scenes)} runs reused (finished, same fingerprint), {len(cases)} to run")
+        manifest = _Manifest(out, scenes={s.name: s for s in all_scenes},
+                             order={n: i for i, n in enumerate(grid_names or names)},
+                             meta={"executor": _executor_name(address, executor), "backend": backend, "code_commit": code_commit(),
+                                   "preparation_s": preparation_s, "reused_runs": len(reused)},
+                             kept=kept, t0=t0)
+        manifest.runs = [manifest.annotate(r) for r in reused + _start_failures(refused, all_scenes, out)]
+        _start_journal(out, kept + manifest.runs)
+        manifest.write(not cases)
+        if cases:
+            client = None
+            own = executor is None
             if own:
-                _shut_down(executor, interrupted)
-            if client is not None:
-                client.close()
-    return manifest.write(True)
+                executor, client = _executor(workers, address)
+            interrupted = True
+            try:
+                _run_cases(cases, manifest, executor, progress)
+                interrupted = False
+            finally:
+                if own:
+                    _shut_down(executor, interrupted)
+                if client is not None:
+                    client.close()
+        return manifest.write(True)
 
 
 __all__ = ["simulate", "run_sweep", "make_case", "prepare_caches", "read_runs"]

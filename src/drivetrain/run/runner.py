@@ -35,6 +35,7 @@ from drivetrain.rig.signals import (amplitude_near, amplitude_spectrum, characte
 from drivetrain.run import accuracy
 from drivetrain.run import cost as runcost
 from drivetrain.run import outputs as O
+from drivetrain.run.lock import output_lock
 from drivetrain.scene.expect import RUN_SUMMARY_TREE, SUMMARY_TREE
 from drivetrain.scene.load import Scene
 from drivetrain.system import BACKENDS, SystemSpec
@@ -660,12 +661,13 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
                        started=started)
     if out_dir is None:
         return _simulate_and_write(plan, None, fmu_dir, build, progress, log, plots)
-    O.mark_running(Path(out_dir), scene.name)  # refusals write nothing; from here on the directory says "running"
-    try:
-        return _simulate_and_write(plan, out_dir, fmu_dir, build, progress, log, plots)
-    except BaseException as exc:         # whatever ended the run: its summary says so, never "running" for good
-        O.mark_failed(Path(out_dir), scene.name, exc)
-        raise
+    with output_lock(out_dir):            # a second writer into this folder is refused, naming this process
+        O.mark_running(Path(out_dir), scene.name)  # refusals write nothing; from here on it says "running"
+        try:
+            return _simulate_and_write(plan, out_dir, fmu_dir, build, progress, log, plots)
+        except BaseException as exc:     # whatever ended the run: its summary says so, never "running" for good
+            O.mark_failed(Path(out_dir), scene.name, exc)
+            raise
 
 
 def _simulate_and_write(plan: RunPlan, out_dir, fmu_dir, build: bool, progress: bool, log, plots) -> RunResult:

@@ -97,6 +97,16 @@ static fmi2Status state_exit_allowed(Inst *c) {
 }
 static void state_exited(Inst *c) { c->phase = PH_STEP; }
 
+/* fmi2ExitInitializationMode's answer once the includer's initialization ran (and the state is step mode): a
+ * call whose work failed returns fmi2Error (issue 45), never fmi2OK after a logged failure. The instance is in
+ * its error state (the cause already logged by fail()); every later doStep is refused as before. */
+static fmi2Status state_exit_result(Inst *c) {
+    if (!c->failed) return fmi2OK;
+    FMI2_STATE_REFUSE(c, "%s: fmi2ExitInitializationMode: the initialization failed (%s); the instance is in its "
+                      "error state", FMI2_STATE_MODEL, c->failmsg);
+    return fmi2Error;
+}
+
 static fmi2Status state_terminate_allowed(Inst *c) {
     if (c->phase != PH_STEP)
         return state_error(c, "fmi2Terminate", "once, in step mode (after fmi2ExitInitializationMode)");

@@ -417,3 +417,30 @@ def test_a_stale_lock_is_taken_over(tmp_path):
         assert json.loads((out / LOCK_FILE).read_text())["pid"] != 2 ** 22 + 12345
     with output_lock(out):
         pass
+
+
+# ------------------------------------------------------------------------------------------------
+# a run with non-finite samples is failed, with the count, in the run and the manifest (item 2)
+# ------------------------------------------------------------------------------------------------
+def test_a_run_with_non_finite_samples_is_failed_with_its_count(tmp_path, monkeypatch):
+    from drivetrain.campaigns.sweep import make_case, simulate
+    from drivetrain.run import runner
+
+    fmus = build_test_fmus(tmp_path / "f")
+    scene = load_scene(EXAMPLE, ["time.duration_s=0.2", "outputs.plots=false", "scenario.name=nan83"])
+    measured = runner.measured_channels
+
+    def with_nan(plan, res):                 # 83 % of a torque channel NaN, as the battery found exported "ok"
+        ch = measured(plan, res)
+        x = np.array(ch.signals["propeller_shaft_torque"], dtype=float)
+        x[: int(0.83 * x.size)] = np.nan
+        ch.signals["propeller_shaft_torque"] = x
+        return ch
+    monkeypatch.setattr(runner, "measured_channels", with_nan)
+    res = runner.run_scene(scene, tmp_path / "run", spec=toy_spec(), fmu_paths=fmus, progress=False)
+    s = json.loads((tmp_path / "run" / "summary.json").read_text())
+    n = int(0.83 * len(res.time))
+    assert s["status"] == "failed" and s["nonfinite_samples"] == {"propeller_shaft_torque": n}
+    assert "non-finite samples" in s["failure"]["cause"] and "82.9 %" in s["failure"]["cause"]
+    rec = simulate(make_case(scene, tmp_path / "sw" / "nan83", spec=toy_spec(), fmu_paths=fmus))
+    assert rec["status"] == "failed" and rec["nonfinite_samples"] == n and "non-finite" in rec["error"]

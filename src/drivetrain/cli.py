@@ -190,6 +190,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
         print("  nothing was written (the run failed before its first step)", file=sys.stderr)
         return 3
     s = res.summary
+    if s.get("status") != "ok":          # completed, but with what no run may claim (non-finite samples)
+        print(f"error: {scene.name}: {s['failure']['cause']}; results written to {res.out_dir}/ with status "
+              f"\"{s['status']}\"", file=sys.stderr)
+        return 3
     if not args.quiet:
         print(f"{scene.name}: {s['sim_time_s']:g} s simulated in {s['wall_time_s']:.3g} s wall: "
               + _run_time_parts(s))

@@ -139,6 +139,7 @@ def _summary_fields(s: dict) -> dict:
         "torque_rms": {k: v["rms"] for k, v in s["torque"].items()},
         "warnings": s["warnings"],
         "stability": s.get("stability"),
+        "nonfinite_samples": sum((s.get("nonfinite_samples") or {}).values()),
     }
 
 
@@ -187,7 +188,8 @@ def simulate(case: dict) -> dict:
                         fmu_paths=case.get("fmu_paths"), plots=None if plots is None else bool(plots),
                         build=False, log=lambda m: None, force=bool(case.get("force")))
         rec.update({
-            "status": "ok",
+            "status": res.summary["status"],          # "failed" for a run with non-finite samples
+            **({"error": res.summary["failure"]["cause"]} if res.summary["status"] != "ok" else {}),
             "signals": str(Path(case["out_dir"]) / "signals.h5"),
             "summary": str(Path(case["out_dir"]) / "summary.json"),
             **_summary_fields(res.summary),

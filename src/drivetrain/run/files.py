@@ -87,7 +87,7 @@ MANIFEST_SCHEMA = {"runs": list, "n_runs": int, "complete": bool}
 #: a record of a run in the manifest or its journal
 RUN_RECORD_SCHEMA = {"name": str, "status": str, "labels": (dict, type(None)), "error": (str, type(None)),
                      "failure_time_s": (float, type(None)), "energy_residual": (float, type(None)),
-                     "nonfinite_samples": (dict, type(None))}
+                     "nonfinite_samples": (int, type(None))}
 #: a run's summary.json (and the copy in signals.h5); its full layout is scene.expect.SUMMARY_TREE
 SUMMARY_SCHEMA = {"status": str, "name": str, "failure": (dict, type(None)), "fault_contact": (list, type(None)),
                   "nonfinite_samples": (dict, type(None))}

@@ -35,6 +35,7 @@ from drivetrain.rig.signals import (amplitude_near, amplitude_spectrum, characte
 from drivetrain.run import accuracy
 from drivetrain.run import cost as runcost
 from drivetrain.run import outputs as O
+from drivetrain.run.files import nonfinite_counts, nonfinite_text
 from drivetrain.run.lock import output_lock
 from drivetrain.scene.expect import RUN_SUMMARY_TREE, SUMMARY_TREE
 from drivetrain.scene.load import Scene
@@ -197,6 +198,17 @@ def failure_summary(res: CosimResult, spec: SystemSpec) -> dict | None:
     f["gear"] = gear
     f["gear_state"] = outs.get(gear) if gear is not None else None
     return f
+
+
+def nonfinite_failure(ch: Channels, counts: dict) -> dict:
+    """``summary["failure"]`` of a run that completed with non-finite samples (no FMU failed): where the first
+    one is, and how many there are per channel (drivetrain.run.files.nonfinite_text)."""
+    first = min(int(np.argmax(~np.isfinite(np.asarray(ch.signals[k], dtype=float)))) for k in counts)
+    t_first = float(ch.time[first]) if len(ch.time) else None
+    return {"time_s": t_first, "component": None, "model": None, "function": None, "status": None,
+            "cause": "non-finite samples: " + nonfinite_text(counts, len(ch.time)), "log": [],
+            "steps_completed": None, "last_sample_time_s": float(ch.time[-1]) if len(ch.time) else None,
+            "outputs": None, "gear": None, "gear_state": None}
 
 
 def _fidelity(c, spec: SystemSpec):
@@ -593,11 +605,15 @@ def build_summary(plan: RunPlan, res: CosimResult, failed: CosimError | None, ch
     scene, spec = plan.scene, plan.spec
     m = ch.time >= scene.time.settle_s
     channel_stats = {name: {**stats(x[m]), "unit": ch.units[name]} for name, x in ch.signals.items() if m.any()}
-    nonfinite = [n for n, x in ch.signals.items() if not np.all(np.isfinite(x))]
+    counts = nonfinite_counts(ch.signals)
+    nonfinite = list(counts)
     energy_residual = res.energy.get("relative_residual")
     covered = res.sim_time_s if failed is None else max(float(failed.time), res.sim_time_s)
+    status, failure = res.status, failure_summary(res, spec)
+    if counts and status == "ok":            # a run whose samples are not all numbers did not succeed
+        status, failure = "failed", nonfinite_failure(ch, counts)
     summary = {
-        "name": scene.name, "status": res.status, "failure": failure_summary(res, spec),
+        "name": scene.name, "status": status, "failure": failure,
         "description": scene.scenario.description,
         "source": str(scene.source) if scene.source else None,
         "overrides": list(scene.overrides),
@@ -623,6 +639,7 @@ def build_summary(plan: RunPlan, res: CosimResult, failed: CosimError | None, ch
                       "static_contact": plan.contact_range, "contact_cost": plan.contact_cost},
         "fmus": [{"name": c.name, "model": c.model, "fidelity": _fidelity(c, spec)} for c in spec.components],
         "nonfinite_channels": nonfinite,
+        "nonfinite_samples": counts,
         "warnings": plan.warnings,
         "accuracy_choice": plan.choice.to_dict() if plan.choice is not None else None,
         "drivetrain_version": __version__,

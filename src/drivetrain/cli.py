@@ -645,6 +645,8 @@ def _stress_command(args: argparse.Namespace) -> str:
         v = getattr(args, attr)
         if v != default:
             words += [flag, str(v)]
+    if args.seeds:
+        words += ["--seeds", ",".join(map(str, args.seeds))]
     if args.only:
         words += ["--only", *args.only]
     if args.resume:
@@ -670,14 +672,20 @@ def _cmd_stress(args: argparse.Namespace) -> int:
                              duration_pcm_s=args.duration_pcm, duration_paper_s=args.duration_paper,
                              fidelities=fids, paper_grid=args.paper_grid, fmu_dir=args.fmu_dir,
                              backend=args.backend, progress=not args.quiet, only=args.only,
-                             command=_stress_command(args), log=log)
+                             command=_stress_command(args), log=log, seeds=args.seeds)
     except (ScenarioError, ConfigurationError, ValueError, FileNotFoundError) as exc:
         return _scene_errors(exc)
     tot = rec["table"][-1]
     pairs = rec["pairs"]
     print(f"{tot['runs']} runs: {tot['pass']} pass, {tot['fail']} fail, {tot['refused']} refused before running "
           f"(predicted unstable); {len(pairs)} halving pairs, {sum(p['outcome'] == 'fail' for p in pairs)} outside "
-          f"the limits; report: {out / 'stress.md'}")
+          f"the limits, {sum(p['outcome'] == 'refined' for p in pairs)} steps refused with a converged step chosen; "
+          f"report: {out / 'stress.md'}")
+    for p in pairs:
+        if p["outcome"] == "refined":
+            print(f"  step refused {p['base']}: " + "; ".join(p["reasons"])
+                  + (f" -> converged at H = {p['converged_step_s']:.6g} s" if p.get("converged_step_s") else ""),
+                  file=sys.stderr)
     print("  " + _wall_line(args, [("campaign", time.perf_counter() - args.t_command)]))
     for r in rec["runs"]:
         if r["outcome"] == "fail":
@@ -1127,6 +1135,8 @@ def _parser_stress(sub) -> None:
                    help="paper: the 54 paper scenes (20 s); random: the randomized scenes; all (default): both")
     p.add_argument("--n-random", type=_positive_int, default=200, help="number of random scenes (default 200)")
     p.add_argument("--seed", type=_count_or_zero, default=0, help="seed of the random scenes (scene i depends on (seed, i))")
+    p.add_argument("--seeds", type=_seed_list, default=None, metavar="LIST",
+                   help="several random sets, --n-random scenes each: 0-9, 0,3,7 or 4 (overrides --seed)")
     p.add_argument("--out", default="out/stress", help="output directory (default: out/stress)")
     p.add_argument("--workers", type=_positive_int, default=None, help="local worker processes (default: CPU count)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",

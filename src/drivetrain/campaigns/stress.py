@@ -722,16 +722,21 @@ def report_markdown(rec: dict) -> str:
     tot = rec["table"][-1] if rec.get("table") else {}
     npairs = len(rec.get("pairs", []))
     pf = sum(1 for p in rec.get("pairs", []) if p["outcome"] == "fail")
+    nref = sum(1 for p in rec.get("pairs", []) if p["outcome"] == "refined")
+    seeds = rec.get("seeds") or [rec.get("seed")]
+    seed_text = f"seed {seeds[0]}" if len(seeds) == 1 else f"seeds {', '.join(map(str, seeds))}"
     lines += [f"Command: `{rec.get('command', 'drivetrain stress')}`", "", commit_line(), "",
               f"Started {rec.get('started', '?')}; wall time {rec.get('wall_time_s', float('nan')):.0f} s "
               f"(this invocation; the runs' own wall times sum to {rec.get('runs_wall_time_s', float('nan')):.0f} s); "
-              f"seed {rec.get('seed')}, sets {rec.get('set_name')}, {rec.get('n_random', 0)} random scenes "
+              f"{seed_text}, sets {rec.get('set_name')}, {rec.get('n_random', 0)} random scenes per seed "
               f"({rec.get('duration_random_s', '?')} s each, pcm {rec.get('duration_pcm_s', '?')} s); "
               + (f"every {rec['halving_subset']}-th random scene also run at H/2." if rec.get("halving_subset")
                  else "no halving pairs."), "",
               f"**{tot.get('runs', 0)} runs: {tot.get('pass', 0)} pass, {tot.get('fail', 0)} fail, "
               f"{tot.get('refused', 0)} refused before running (predicted unstable); {npairs} halving pairs, "
-              f"{pf} outside the limits.**", "",
+              f"{pf} outside the limits"
+              + (f", {nref} of them at a step refused by the halving rule, a converged step chosen (below)" if nref
+                 else "") + ".**", "",
               f"A run passes when it completes (status ok), every channel is finite, the largest contact penetration "
               f"is below u_max (> {SUSPICIOUS_PENETRATION:g} u_max is flagged) and the energy residual is "
               f"< {100 * L['energy_residual']:g} %. A halving pair (the scene again at H/2) passes when both runs pass "

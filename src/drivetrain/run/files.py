@@ -10,7 +10,6 @@ from deep inside a reader. Non-finite samples are not refused here (a failed run
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -195,15 +194,6 @@ def read_signals(path: Path | str) -> dict:
     return h
 
 
-def finite_or_none(x: Any) -> float | None:
-    """A float if ``x`` is a finite number, else None."""
-    try:
-        v = float(x)
-    except (TypeError, ValueError, OverflowError):
-        return None
-    return v if math.isfinite(v) else None
-
-
 __all__ = ["read_json", "parse_json", "check_fields", "read_manifest", "read_summary", "read_signals",
            "check_signals", "nonfinite_counts", "nonfinite_text", "MANIFEST_SCHEMA", "RUN_RECORD_SCHEMA",
-           "SUMMARY_SCHEMA", "finite_or_none"]
+           "SUMMARY_SCHEMA"]

@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 from drivetrain.system import BACKENDS
+from drivetrain.errors import Refused
 
 
 def _cmd_build_fmus(args: argparse.Namespace) -> int:
@@ -189,6 +190,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
         print("  nothing was written (the run failed before its first step)", file=sys.stderr)
         return 3
     s = res.summary
+    if s.get("status") != "ok":          # completed, but with what no run may claim (non-finite samples)
+        print(f"error: {scene.name}: {s['failure']['cause']}; results written to {res.out_dir}/ with status "
+              f"\"{s['status']}\"", file=sys.stderr)
+        return 3
     if not args.quiet:
         print(f"{scene.name}: {s['sim_time_s']:g} s simulated in {s['wall_time_s']:.3g} s wall: "
               + _run_time_parts(s))
@@ -648,6 +653,8 @@ def _stress_command(args: argparse.Namespace) -> str:
         v = getattr(args, attr)
         if v != default:
             words += [flag, str(v)]
+    if args.seeds:
+        words += ["--seeds", ",".join(map(str, args.seeds))]
     if args.only:
         words += ["--only", *args.only]
     if args.resume:
@@ -673,14 +680,20 @@ def _cmd_stress(args: argparse.Namespace) -> int:
                              duration_pcm_s=args.duration_pcm, duration_paper_s=args.duration_paper,
                              fidelities=fids, paper_grid=args.paper_grid, fmu_dir=args.fmu_dir,
                              backend=args.backend, progress=not args.quiet, only=args.only,
-                             command=_stress_command(args), log=log)
+                             command=_stress_command(args), log=log, seeds=args.seeds)
     except (ScenarioError, ConfigurationError, ValueError, FileNotFoundError) as exc:
         return _scene_errors(exc)
     tot = rec["table"][-1]
     pairs = rec["pairs"]
     print(f"{tot['runs']} runs: {tot['pass']} pass, {tot['fail']} fail, {tot['refused']} refused before running "
           f"(predicted unstable); {len(pairs)} halving pairs, {sum(p['outcome'] == 'fail' for p in pairs)} outside "
-          f"the limits; report: {out / 'stress.md'}")
+          f"the limits, {sum(p['outcome'] == 'refined' for p in pairs)} steps refused with a converged step chosen; "
+          f"report: {out / 'stress.md'}")
+    for p in pairs:
+        if p["outcome"] == "refined":
+            print(f"  step refused {p['base']}: " + "; ".join(p["reasons"])
+                  + (f" -> converged at H = {p['converged_step_s']:.6g} s" if p.get("converged_step_s") else ""),
+                  file=sys.stderr)
     print("  " + _wall_line(args, [("campaign", time.perf_counter() - args.t_command)]))
     for r in rec["runs"]:
         if r["outcome"] == "fail":
@@ -783,15 +796,63 @@ def _percent(text: str) -> float:
     return v
 
 
-def _positive_int(text: str) -> int:
-    """argparse type of a count that must be >= 1 (``--workers -1`` was a traceback from the pool)."""
+def _int_at_least(minimum: int):
+    """argparse type of a count that must be >= ``minimum`` (``--workers -1`` was a traceback from the pool,
+    ``stress --n-random -5`` a report of "0 runs")."""
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a whole number >= {minimum}, got {text!r}") from None
+        if v < minimum:
+            raise argparse.ArgumentTypeError(f"expected a whole number >= {minimum}, got {v}")
+        return v
+    parse.__name__ = f"whole number >= {minimum}"
+    return parse
+
+
+_positive_int = _int_at_least(1)
+_count_or_zero = _int_at_least(0)
+
+
+def _finite(positive: bool = False, nonnegative: bool = False):
+    """argparse type of a finite number (a duration > 0, a settling time >= 0, a speed): NaN and infinities
+    refused with the rule."""
+    rule = "> 0" if positive else ">= 0" if nonnegative else "finite"
+
+    def parse(text: str) -> float:
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number ({rule}), got {text!r}") from None
+        if not math.isfinite(v) or (positive and not v > 0) or (nonnegative and not v >= 0):
+            raise argparse.ArgumentTypeError(f"expected a finite number {rule if rule != 'finite' else ''}, got {text}"
+                                             .replace("  ", " "))
+        return v
+    parse.__name__ = f"number {rule}"
+    return parse
+
+
+_duration = _finite(positive=True)
+_settle = _finite(nonnegative=True)
+_number = _finite()
+
+
+def _seed_list(text: str) -> list[int]:
+    """``--seeds``: ``0-9``, ``0,3,7`` or ``4``: whole numbers >= 0, a range inclusive."""
+    out: list[int] = []
     try:
-        v = int(text)
+        for part in text.split(","):
+            a, dash, b = part.strip().partition("-")
+            lo, hi = int(a), int(b) if dash else int(a)
+            if lo < 0 or hi < lo:
+                raise ValueError
+            out += range(lo, hi + 1)
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {v}")
-    return v
+        raise argparse.ArgumentTypeError(f"expected seeds >= 0 as 0-9, 0,3,7 or 4, got {text!r}") from None
+    if len(out) > 1000:
+        raise argparse.ArgumentTypeError(f"{len(out)} seeds: at most 1000")
+    return sorted(set(out))
 
 
 def _parser_build_fmus(sub) -> None:
@@ -909,8 +970,8 @@ def _parser_validate(sub) -> None:
                    help="the report (default: OUT/VALIDATION.md; with --update-shipped the checkout's docs/VALIDATION.md)")
     p.add_argument("--update-shipped", action="store_true",
                    help="write the shipped report, docs/VALIDATION.md of the source checkout, and its figures")
-    p.add_argument("--duration", type=float, default=20.0, help="simulated seconds per run (default: 20, the paper's)")
-    p.add_argument("--settle", type=float, default=None, help="settling time excluded (default: min(2 s, 20 %%))")
+    p.add_argument("--duration", type=_duration, default=20.0, help="simulated seconds per run (default: 20, the paper's)")
+    p.add_argument("--settle", type=_settle, default=None, help="settling time excluded (default: min(2 s, 20 %%))")
     p.add_argument("--gearboxes", type=_positive_int, default=GEARBOXES,
                    help=f"gearboxes (seeds 0..N-1) every check runs over (default: {GEARBOXES})")
     _add_execution_options(p)
@@ -993,10 +1054,10 @@ def _parser_detectability(sub) -> None:
                    help="the gears that carry the fault (default: both)")
     p.add_argument("--sizes", nargs="+", choices=("default", "small"), default=["default", "small"],
                    help="fault sizes: each kind's default and half of it (default: both)")
-    p.add_argument("--speeds", nargs="+", type=float, default=list(D.SPEEDS_RPM), help="drive speeds [rpm]")
-    p.add_argument("--loads", nargs="+", type=float, default=list(D.LOADS_NM), help="load-motor torques [N·m]")
-    p.add_argument("--duration", type=float, default=7.0, help="simulated seconds per run (default: 7)")
-    p.add_argument("--settle", type=float, default=1.0, help="settling time left out (default: 1 s)")
+    p.add_argument("--speeds", nargs="+", type=_number, default=list(D.SPEEDS_RPM), help="drive speeds [rpm]")
+    p.add_argument("--loads", nargs="+", type=_number, default=list(D.LOADS_NM), help="load-motor torques [N·m]")
+    p.add_argument("--duration", type=_duration, default=7.0, help="simulated seconds per run (default: 7)")
+    p.add_argument("--settle", type=_settle, default=1.0, help="settling time left out (default: 1 s)")
     p.add_argument("--compare", default=None, metavar="CSV",
                    help="another study's AUC table (e.g. the same study with --background off): the report says "
                         "what moved between them")
@@ -1024,16 +1085,16 @@ def _parser_frontier(sub) -> None:
     p.add_argument("--kinds", nargs="+", choices=tuple(FAULT_KINDS), default=list(FAULT_KINDS),
                    help="fault kinds (default: all)")
     p.add_argument("--members", nargs="+", choices=D.MEMBERS, default=list(D.MEMBERS), help="gears (default: both)")
-    p.add_argument("--speeds", nargs="+", type=float, default=list(F.SPEEDS_RPM), help="drive speeds [rpm]")
-    p.add_argument("--loads", nargs="+", type=float, default=list(F.LOADS_NM),
+    p.add_argument("--speeds", nargs="+", type=_number, default=list(F.SPEEDS_RPM), help="drive speeds [rpm]")
+    p.add_argument("--loads", nargs="+", type=_number, default=list(F.LOADS_NM),
                    help="load-motor torques [N·m] (default: " + " ".join(f"{x:g}" for x in F.LOADS_NM)
                         + ", the paper's lightest to the load "
                         "motor's nominal)")
-    p.add_argument("--ladder", nargs="+", type=float, default=list(F.LADDER),
+    p.add_argument("--ladder", nargs="+", type=_duration, default=list(F.LADDER),
                    help="size factors of each kind's default sizes, smallest to severe (default: "
                         f"{' '.join(f'{x:g}' for x in F.LADDER)})")
-    p.add_argument("--duration", type=float, default=20.0, help="simulated seconds per run (default: 20, as validate)")
-    p.add_argument("--settle", type=float, default=2.0, help="settling time left out (default: 2 s)")
+    p.add_argument("--duration", type=_duration, default=20.0, help="simulated seconds per run (default: 20, as validate)")
+    p.add_argument("--settle", type=_settle, default=2.0, help="settling time left out (default: 2 s)")
     p.add_argument("--background", choices=("on", "off"), default="on",
                    help="the rig's measured background (default: on)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key of every scene")
@@ -1107,21 +1168,23 @@ def _parser_stress(sub) -> None:
                                       "(completes, finite, stable, energy, step halving); writes stress.md")
     p.add_argument("--set-name", choices=("paper", "random", "all"), default="all",
                    help="paper: the 54 paper scenes (20 s); random: the randomized scenes; all (default): both")
-    p.add_argument("--n-random", type=int, default=200, help="number of random scenes (default 200)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the random scenes (scene i depends on (seed, i))")
+    p.add_argument("--n-random", type=_positive_int, default=200, help="number of random scenes (default 200)")
+    p.add_argument("--seed", type=_count_or_zero, default=0, help="seed of the random scenes (scene i depends on (seed, i))")
+    p.add_argument("--seeds", type=_seed_list, default=None, metavar="LIST",
+                   help="several random sets, --n-random scenes each: 0-9, 0,3,7 or 4 (overrides --seed)")
     p.add_argument("--out", default="out/stress", help="output directory (default: out/stress)")
     p.add_argument("--workers", type=_positive_int, default=None, help="local worker processes (default: CPU count)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="Dask scheduler address (tcp://host:8786), or 'local' for a Dask cluster of --workers "
                         "processes started by the command; default: local process pool")
     p.add_argument("--resume", action="store_true", help="do not rerun runs whose summary.json exists")
-    p.add_argument("--halving-subset", type=int, default=10, metavar="K",
+    p.add_argument("--halving-subset", type=_count_or_zero, default=10, metavar="K",
                    help="also run every K-th random scene with half the communication step (0: none; default 10)")
-    p.add_argument("--duration-random", type=float, default=1.5, metavar="S",
+    p.add_argument("--duration-random", type=_duration, default=1.5, metavar="S",
                    help="simulated time of a random scene [s] (default 1.5)")
-    p.add_argument("--duration-pcm", type=float, default=0.1, metavar="S",
+    p.add_argument("--duration-pcm", type=_duration, default=0.1, metavar="S",
                    help="simulated time of a random scene with online PCM contact [s] (default 0.1)")
-    p.add_argument("--duration-paper", type=float, default=None, metavar="S",
+    p.add_argument("--duration-paper", type=_duration, default=None, metavar="S",
                    help="shorten the paper scenes to S seconds (default: as in the grid, 20 s)")
     p.add_argument("--fidelities", default=None, metavar="LIST",
                    help="comma-separated mesh_contact fidelities the random scenes may use (default: all)")
@@ -1246,6 +1309,9 @@ def _run_command(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         return 130
     except MeshError as exc:             # a mesh file found unusable wherever it is read (the cost check, a build)
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except Refused as exc:               # any door's refusal (a file, a grid, a folder in use) that no command caught
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except (OSError, shutil.Error) as exc:

@@ -126,6 +126,19 @@ class DatasetError(Refused):
     headline = None
 
 
+class FileFormatError(Refused):
+    """A file the project reads back (a manifest, a summary, a signals file, an FMU archive, a record) is not
+    what it should be: ``problems`` name the file, the field and what was wrong (drivetrain.run.files)."""
+
+    headline = None
+
+
+class OutputLockedError(Refused):
+    """An output folder is in use by another run or sweep (drivetrain.run.lock): names the holder."""
+
+    headline = None
+
+
 class ComponentError(RuntimeError):
     """A drivetrain component cannot continue (non-finite input or state)."""
 

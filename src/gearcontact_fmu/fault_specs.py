@@ -5,6 +5,8 @@ with it before any mesh is built; :mod:`gearcontact_fmu.faults` builds the meshe
 """
 from __future__ import annotations
 
+import math
+
 from gearcontact_fmu.mesh_model import HEALTH_STATES
 
 DEFAULT_WIDTH = 1.0e-3      # [m] flank-fracture void width along the profile (the paper's mild fault)
@@ -81,9 +83,9 @@ def fault_spec_problems(spec, z_pinion: int, z_wheel: int) -> list[tuple[str, ob
         elif key == "profile":
             if value not in WEAR_PROFILES:
                 problems.append((key, value, f"one of {WEAR_PROFILES}"))
-        elif isinstance(value, bool) or not isinstance(value, (int, float)) or not value == value:
-            problems.append((key, value, "a number" + ("" if key == "face_position" else
-                                                       " [µm]" if key.endswith("_um") else " [mm]")))
+        elif isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            problems.append((key, value, "a finite number" + ("" if key == "face_position" else
+                                                              " [µm]" if key.endswith("_um") else " [mm]")))
         elif key == "face_position" and not 0.0 <= value <= 1.0:
             problems.append((key, value, "a fraction of the face width, 0 (toe) .. 1 (heel)"))
         elif key not in ("position_mm", "face_position") and not (value > 0 or (kind, key) == ("chipped_tip", "length_mm")
@@ -154,15 +156,30 @@ def draw_value(rule, rng):
 
 
 def rule_problem(rule) -> str | None:
-    """What is wrong with a draw rule's grammar (:func:`draw_value`), or None."""
+    """What is wrong with a draw rule's grammar (:func:`draw_value`), or None: ``{uniform = [a, b]}`` with finite
+    numbers a <= b; a non-empty list of plain values (no list or table inside: a nested list is no rule)."""
     if isinstance(rule, dict):
         u = rule.get("uniform")
         if (set(rule) != {"uniform"} or not isinstance(u, list) or len(u) != 2
-                or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in u) or not u[0] <= u[1]):
-            return "{uniform = [a, b]} with numbers a <= b"
-    elif isinstance(rule, list) and not rule:
-        return "a non-empty list to choose from"
+                or not all(isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) for x in u)
+                or not u[0] <= u[1]):
+            return "{uniform = [a, b]} with finite numbers a <= b"
+    elif isinstance(rule, list):
+        if not rule:
+            return "a non-empty list to choose from"
+        if any(isinstance(x, (list, dict)) for x in rule):
+            return "a list of plain values to choose from (no list or table inside)"
     return None
+
+
+def rule_values(rule) -> list:
+    """The values that stand for all a (well-formed) rule can draw: a list's items, a uniform's two bounds
+    (every check of a size is an interval), a fixed value itself."""
+    if isinstance(rule, dict):
+        return list(rule["uniform"])
+    if isinstance(rule, list):
+        return list(rule)
+    return [rule]
 
 
 def _draw_value(key, rule, rng, z):
@@ -171,10 +188,12 @@ def _draw_value(key, rule, rng, z):
     return draw_value(rule, rng)
 
 
-def draw_rule_problems(template) -> list[tuple[str, object, str]]:
-    """Problems of one random fault template (the grammar, not the drawn values: those are checked as
-    any fault). A key is a fixed value, a list (one of them, uniformly), ``{uniform = [a, b]}`` (a
-    number uniformly in [a, b]) or, for ``tooth``, ``"any"`` (uniformly over the member's teeth)."""
+def draw_rule_problems(template, z_pinion: int | None = None, z_wheel: int | None = None
+                       ) -> list[tuple[str, object, str]]:
+    """Problems of one random fault template. A key is a fixed value, a list (one of them, uniformly),
+    ``{uniform = [a, b]}`` (a number uniformly in [a, b]) or, for ``tooth``, ``"any"`` (uniformly over the
+    member's teeth). With the tooth counts, every value the template can draw is checked as a fault
+    (:func:`fault_spec_problems`), before any draw: an unknown kind in a list is refused whatever the seed."""
     if not isinstance(template, dict):
         return [("", template, "a table of fault keys, each a value, a list to choose from or {uniform = [a, b]}")]
     known = set(SPEC_KEYS).union(*FAULT_KINDS.values())
@@ -186,7 +205,33 @@ def draw_rule_problems(template) -> list[tuple[str, object, str]]:
             problems.append((key, rule, f"a fault key: {tuple(sorted(known))}"))
         elif rule_problem(rule):
             problems.append((key, rule, rule_problem(rule)))
-    return problems
+    if problems or z_pinion is None or z_wheel is None:
+        return problems
+    return _drawable_problems(template, z_pinion, z_wheel)
+
+
+def _drawable_problems(template: dict, z_pinion: int, z_wheel: int) -> list[tuple[str, object, str]]:
+    """The problems of every value a well-formed template can draw, each key's values in turn (the others at
+    their first value), as :func:`draw_faults` would assemble them."""
+    seen: dict = {}
+    for kind in rule_values(template["kind"]):
+        if not isinstance(kind, str) or kind not in FAULT_KINDS:
+            seen[("kind", repr(kind))] = ("kind", kind, f"one of {tuple(FAULT_KINDS)} (every listed kind is checked "
+                                          "before any draw)")
+            continue
+        for member in rule_values(template.get("member", "pinion")):
+            base = {"kind": kind, "member": member}
+            keys = [k for k in template if k not in ("kind", "member") and (k in SPEC_KEYS or k in FAULT_KINDS[kind])
+                    and not (k == "flank" and kind == "missing_tooth")]
+            first = {k: rule_values(template[k])[0] for k in keys}
+            for key in keys or [None]:
+                for value in rule_values(template[key]) if key else [None]:
+                    spec = {**base, **first, **({key: value} if key else {})}
+                    if spec.get("tooth") == "any":
+                        spec["tooth"] = 0
+                    for k, v, e in fault_spec_problems(spec, z_pinion, z_wheel):
+                        seen.setdefault((k, repr(v)), (k, v, e))
+    return list(seen.values())
 
 
 def draw_faults(templates, rng, z_pinion: int, z_wheel: int, flank: str | None = None) -> list[dict]:

@@ -247,7 +247,8 @@ def test_a_wrong_node_start_is_an_initialization_error_with_the_nodes(fmus):
     try:
         inst.fmu.setString([inst.vr["node_w_start"]], ["1, 2"])
         inst.fmu.enterInitializationMode()
-        inst.fmu.exitInitializationMode()
+        with pytest.raises(FMICallException):        # its work failed: fmi2Error (issue 45)
+            inst.fmu.exitInitializationMode()
         with pytest.raises(FMICallException):
             inst.fmu.doStep(0.0, H)
         err = inst.fmu.getString([inst.vr["error"]])[0].decode()

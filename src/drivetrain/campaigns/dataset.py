@@ -39,7 +39,8 @@ from typing import Any
 import numpy as np
 
 from drivetrain.errors import DatasetError  # noqa: F401  (re-exported)
-from drivetrain.run.outputs import read_hdf5, write_aalto_csv
+from drivetrain.run.files import nonfinite_text, read_signals
+from drivetrain.run.outputs import write_aalto_csv
 from drivetrain.campaigns.loaders import schema_metadata
 from drivetrain.campaigns.splits import DEFAULT_FRACTIONS, DEFAULT_SPLIT_SEED, class_columns
 from drivetrain.campaigns.sweep import read_runs
@@ -49,6 +50,9 @@ from gearcontact_fmu.fault_specs import health_faults
 FORMATS = ("parquet", "hdf5", "aalto")
 #: the labels of a fault's contact a run's summary gives (summary["fault_contact"]), as ``fault<i>.<key>``
 CONTACT_LABELS = ("contact_share", "mesh_torque_drop", "loaded_flank")
+#: the Aalto layout's note of the runs not exported, and why (parquet: metadata drivetrain.left_out; HDF5: attribute
+#: left_out)
+LEFT_OUT_FILE = "left_out.json"
 DEFAULT_NAMES = {"parquet": "dataset.parquet", "hdf5": "dataset.h5", "aalto": "dataset_aalto"}
 
 
@@ -61,6 +65,7 @@ def _label_value(v: Any):
 def run_labels(name: str, record: dict, scene: dict, summary: dict | None) -> dict:
     """The labels of one run (see the module docstring)."""
     labels: dict[str, Any] = {"run": name, "status": record.get("status", "ok"),
+                              "nonfinite_samples": record.get("nonfinite_samples"),
                               "failure_time_s": record.get("failure_time_s"),
                               "energy_residual": record.get("energy_residual")}
     for section, keys in sorted(scene.items()):
@@ -92,11 +97,11 @@ def run_records(sweep_dir: Path | str) -> list[dict]:
                            "directory?") from None
 
 
-def load_run(sweep_dir: Path | str, rec: dict) -> dict | None:
-    """One run of a sweep as {"name", "labels", "time", "signals", "units"}; None if it wrote no signals. A
-    record's name becomes a path (the run's folder, an exported file's name): one that is not a valid
-    scene name (``..``, a slash, an absolute path) is refused, so whoever hands over a sweep directory
-    cannot make us read or write outside it."""
+def load_run(sweep_dir: Path | str, rec: dict, why: list | None = None) -> dict | None:
+    """One run of a sweep as {"name", "labels", "time", "signals", "units"}; None if it wrote no signals (then
+    ``why``, if given, gets the reason). A record's name becomes a path (the run's folder, an exported file's
+    name): one that is not a valid scene name (``..``, a slash, an absolute path) is refused, so whoever hands
+    over a sweep directory cannot make us read or write outside it."""
     name = rec.get("name")
     if not name:
         return None
@@ -105,38 +110,59 @@ def load_run(sweep_dir: Path | str, rec: dict) -> dict | None:
                            f"({NAME_RULE}); nothing is read or written for it")
     sig = Path(sweep_dir) / name / "signals.h5"
     if not sig.is_file():
+        if why is not None:
+            status = rec.get("status", "ok")
+            why.append(f"listed as {status}, but its signals.h5 is missing" if status == "ok" else
+                       f"{status} before it wrote signals" + (f" ({str(rec['error'])[:160]})" if rec.get("error") else ""))
         return None
     return read_run(sig, rec)
 
 
 def read_run(sig: Path, rec: dict) -> dict:
-    """A run's ``signals.h5`` as {"name", "labels", "time", "signals", "units"}; the name is the record's, else
-    the one its scene has; the status is the record's, else its summary's."""
-    try:
-        h = read_hdf5(sig)
-    except Exception as exc:  # noqa: BLE001 - name the file, whatever h5py says
-        raise DatasetError(f"{sig}: unreadable ({type(exc).__name__}: {exc})") from None
-    scene = (h.get("scene") or {}).get("scene") or h.get("scene") or {}
-    summary = json.loads(h["attrs"]["summary_json"]) if "summary_json" in h["attrs"] else None
-    name = rec.get("name") or (scene.get("scenario") or {}).get("name", Path(sig).parent.name)
+    """A run's ``signals.h5`` as {"name", "labels", "time", "signals", "units"}, checked (run.files.read_signals:
+    every channel as long as time, the JSON it keeps readable); the name is the record's, else the one its
+    scene has; the status is the record's, else its summary's. A run with non-finite samples is labelled
+    ``failed`` whatever its record says, with their count in ``nonfinite_samples`` (0 for a clean run)."""
+    h = read_signals(sig)
+    stored = h.get("scene") or {}
+    scene = stored.get("scene", stored) if isinstance(stored, dict) else None
+    if not isinstance(scene, dict):
+        raise DatasetError(f"{sig}: attribute scene_json: expected a scene (a JSON object)")
+    summary = h["summary"]
+    scenario = scene.get("scenario") if isinstance(scene.get("scenario"), dict) else {}
+    name = rec.get("name") or scenario.get("name") or Path(sig).parent.name
     rec = {"status": (summary or {}).get("status", "ok"), **rec}
-    return {"name": name, "labels": run_labels(name, rec, scene, summary), "time": h["time"],
-            "signals": h["signals"], "units": h["units"]}
+    bad = h["nonfinite_samples"]
+    rec["nonfinite_samples"] = sum(bad.values())
+    if bad:
+        rec["status"] = "failed"
+        rec["nonfinite_text"] = nonfinite_text(bad, len(h["time"]))
+    return {"name": str(name), "labels": run_labels(str(name), rec, scene, summary), "time": h["time"],
+            "signals": h["signals"], "units": h["units"], "nonfinite": rec.get("nonfinite_text")}
 
 
-def collect(sweep_dir: Path | str, split_fractions=DEFAULT_FRACTIONS, split_seed: int = DEFAULT_SPLIT_SEED) -> list[dict]:
+def collect(sweep_dir: Path | str, split_fractions=DEFAULT_FRACTIONS, split_seed: int = DEFAULT_SPLIT_SEED,
+            left_out: dict | None = None) -> list[dict]:
     """[{"name", "labels", "units", "channels"}] of every run of the sweep that wrote signals, without the
     signals: a dataset of thousands of runs is never held in memory. The labels include the class columns
     ``label``, ``faulty``, ``gearbox`` and ``split`` (campaigns.splits: the split drawn per gearbox with
     ``split_fractions`` and ``split_seed``), the condition indicators and, for a faulty run with a healthy twin
     ([sweep.draw] paired_healthy), the fault's signal-to-background ratio, each computed from the run's signals
-    as it is read. :func:`run_data` reads a run's samples again when a writer needs them."""
+    as it is read. :func:`run_data` reads a run's samples again when a writer needs them. ``left_out`` (if
+    given) gets {run: why} of every listed run that is not exported, and {run: what} of every run exported as
+    failed for its non-finite samples."""
     d = Path(sweep_dir)
     runs = []
+    left_out = {} if left_out is None else left_out
     for rec in run_records(d):
-        r = load_run(d, rec)
+        why: list = []
+        r = load_run(d, rec, why)
         if r is None:
+            if why:
+                left_out[str(rec.get("name"))] = f"left out: {why[0]}"
             continue
+        if r["nonfinite"]:
+            left_out[r["name"]] = f"exported as failed: {r['nonfinite']}"
         r["labels"].update(_indicators(r))
         runs.append({"name": r["name"], "labels": r["labels"], "units": r["units"], "channels": sorted(r["signals"]),
                      "_source": (d, rec)})
@@ -178,9 +204,17 @@ def _add_paired_sbr(runs: list[dict]) -> None:
         for r in members:
             time_s, signals, _ = run_data(r)
             loaded.append({"name": r["name"], "labels": r["labels"], "time": time_s, "signals": signals})
-        sbr = paired_sbr(loaded, TORQUES)
+        try:
+            sbr = paired_sbr(loaded, TORQUES)
+        except ValueError as exc:
+            raise DatasetError(f"{run_source_dir(members[0])}: {exc} (one noise record: one time axis)") from None
         for r in members:
             r["labels"].update({f"SBR_dB.{sig}": v for sig, v in sbr.get(r["name"], {}).items()})
+
+
+def run_source_dir(run: dict) -> Path:
+    """The sweep directory a collected run was read from."""
+    return Path(run["_source"][0])
 
 
 def _indicators(run: dict) -> dict:
@@ -260,7 +294,7 @@ def _arrow_label(v, n: int, t):
     return pa.array([str(v) if pa.types.is_string(t) and not isinstance(v, str) else v] * n, type=t)
 
 
-def write_parquet(runs: list[dict], path: Path, settled_only: bool = False) -> Path:
+def write_parquet(runs: list[dict], path: Path, settled_only: bool = False, left_out: dict | None = None) -> Path:
     """One row per sample, written run by run (one row group each: a run's repeated labels are built for that
     run only, and parquet's dictionary encoding stores them once)."""
     import pyarrow as pa
@@ -276,7 +310,8 @@ def write_parquet(runs: list[dict], path: Path, settled_only: bool = False) -> P
     schema = pa.schema([("run", pa.dictionary(pa.int32(), pa.string())), ("time_s", pa.float64()),
                         ("settled", pa.bool_()), *((c, pa.float64()) for c in channels),
                         *((names[k], types[k]) for k in label_cols)],
-                       metadata=schema_metadata(units, ["run", *label_cols]))
+                       metadata={**schema_metadata(units, ["run", *label_cols]),
+                                 "drivetrain.left_out": json.dumps(left_out or {})})
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
     with pq.ParquetWriter(tmp, schema) as writer:
@@ -294,7 +329,7 @@ def write_parquet(runs: list[dict], path: Path, settled_only: bool = False) -> P
     return path
 
 
-def write_hdf5(runs: list[dict], path: Path, settled_only: bool = False) -> Path:
+def write_hdf5(runs: list[dict], path: Path, settled_only: bool = False, left_out: dict | None = None) -> Path:
     import h5py
 
     label_cols = _label_columns(runs)
@@ -304,6 +339,7 @@ def write_hdf5(runs: list[dict], path: Path, settled_only: bool = False) -> Path
     with h5py.File(tmp, "w") as f:
         f.attrs["format"] = "drivetrain-dataset/1"
         f.attrs["runs"] = json.dumps([r["name"] for r in runs])
+        f.attrs["left_out"] = json.dumps(left_out or {})
         lab = f.create_group("labels")
         for k in label_cols:
             vals = [r["labels"].get(k) for r in runs]
@@ -329,9 +365,8 @@ def write_hdf5(runs: list[dict], path: Path, settled_only: bool = False) -> Path
     return path
 
 
-def write_aalto(runs: list[dict], path: Path, settled_only: bool = False) -> Path:
+def write_aalto(runs: list[dict], path: Path, settled_only: bool = False, left_out: dict | None = None) -> Path:
     import csv
-
 
     path.mkdir(parents=True, exist_ok=True)
     label_cols = _label_columns(runs)
@@ -343,6 +378,7 @@ def write_aalto(runs: list[dict], path: Path, settled_only: bool = False) -> Pat
         w.writeheader()
         for r in runs:
             w.writerow({k: r["labels"].get(k) for k in label_cols})
+    (path / LEFT_OUT_FILE).write_text(json.dumps(left_out or {}, indent=1) + "\n")
     return path
 
 
@@ -395,14 +431,17 @@ def export(sweep_dir: Path | str, fmt: str = "parquet", out: Path | str | None =
     path = Path(out) if out else Path(sweep_dir) / DEFAULT_NAMES[fmt]
     if fmt != "aalto" and path.is_dir():
         raise DatasetError(f"{path}: a directory; the {fmt} dataset is one file (give its file name)")
+    left_out: dict = {}
     try:
-        runs = collect(sweep_dir, split_fractions, split_seed)
+        runs = collect(sweep_dir, split_fractions, split_seed, left_out)
     except ValueError as exc:                  # the split's fractions
         raise DatasetError(str(exc)) from None
     if log is not None:
         log(contact_line(contact_counts(runs)))
+        for name, why in left_out.items():
+            log(f"warning: run {name}: {why}")
     try:
-        written = WRITERS[fmt](runs, path, settled_only)
+        written = WRITERS[fmt](runs, path, settled_only, left_out)
         if card:
             from drivetrain.campaigns.card import write_card
 

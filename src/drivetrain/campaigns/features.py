@@ -83,9 +83,12 @@ def features(directory: str | Path, split_fractions=DEFAULT_FRACTIONS, split_see
         cols = indicator_columns(r, d)
         pair = lab.get("scenario.noise_name")
         if pair and lab.get("gear.health") == "healthy":
-            twins[pair] = {"time": r["time"], "signals": {k: r["signals"][k] for k in TORQUES if k in r["signals"]}}
+            twins[pair] = {"name": r["name"], "time": r["time"], "signals": {k: r["signals"][k] for k in TORQUES if k in r["signals"]}}
         elif pair and pair in twins:
             h = twins[pair]
+            why = ci.twin_mismatch(r, h)
+            if why:
+                raise DatasetError(f"{d}: {why} (one noise record: one time axis)")
             keep = np.asarray(r["time"]) >= settle
             for sig in TORQUES:
                 if sig in r["signals"] and sig in h["signals"]:

@@ -42,6 +42,7 @@ This module never prints; progress goes to the ``log`` callable given by the cal
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import time
@@ -439,9 +440,52 @@ def random_cases(draws: list[dict], mesh_paths: dict | None = None, halving_subs
         cases.append(StressCase(p["name"], "random", sc, random_classes(p), p))
         if halving_subset and p["index"] % int(halving_subset) == 0 and not p["unstable_probe"]:
             sh = scene_from_dict(random_scene_dict(p, paths, halve_step=True), base_dir=base_dir)
-            hp = dict(p, comm_step_s=sh.numerics.comm_step_s, name=sh.name)
+            hp = dict(p, comm_step_s=sh.numerics.comm_step_s, name=sh.name, halving_root=p["name"], halving_level=1)
             cases.append(StressCase(sh.name, "halving", sh, ["halved_step_runs"], hp, pair_of=p["name"]))
     return cases
+
+
+#: how many times the campaign halves a scene's step again when a halving pair's runs pass but their torques
+#: differ beyond the limits (H/2 vs H/4, then H/4 vs H/8): the first pair within the limits names the converged
+#: step, the coarser steps are refused with the deviation as the reason; none within them is a failure
+MAX_REFINEMENTS = 2
+
+
+def refinement_case(half: StressCase) -> StressCase:
+    """The next refinement of a halving chain: the scene of ``half`` (a half-step run) at half its step again,
+    named ``<root>_H<2^level>``, paired with ``half``."""
+    p = half.parameters
+    level = int(p.get("halving_level", 1)) + 1
+    H = float(half.scene.numerics.comm_step_s) / 2.0
+    name = f"{p.get('halving_root', half.pair_of)}_H{2 ** level}"
+    sc = half.scene
+    sc = dataclasses.replace(sc, scenario=dataclasses.replace(sc.scenario, name=name),
+                             numerics=dataclasses.replace(sc.numerics, comm_step_s=H))
+    hp = dict(p, comm_step_s=H, name=name, halving_level=level)
+    return StressCase(name, "halving", sc, ["halved_step_runs"], hp, pair_of=half.name)
+
+
+def resolve_halving(pairs: list[dict]) -> None:
+    """The halving chains of a campaign (pairs of one ``halving_root``, by level): when the first pair fails
+    on the deviation of its torques alone and a finer pair passes, the coarser steps are refused with their
+    deviation as the reason (``outcome = "refined"``) and the finer pair names the converged step
+    (``converged_step_s``). A chain with no pair within the limits keeps its failures. Never a silent pass."""
+    chains: dict[str, list[dict]] = {}
+    for p in pairs:
+        chains.setdefault(p.get("root") or p["base"], []).append(p)
+    for chain in chains.values():
+        chain.sort(key=lambda p: p.get("level") or 1)
+        ok = next((i for i, p in enumerate(chain) if p["outcome"] == "pass"), None)
+        if ok is None:
+            continue
+        for p in chain[:ok]:
+            if p["outcome"] == "fail" and p.get("deviation"):
+                p["outcome"] = "refined"
+                p["reasons"] = [f"step refused by the halving rule (H = {p.get('step_s', float('nan')):.6g} s): "
+                                + "; ".join(p["reasons"])]
+        chain[ok]["converged_step_s"] = chain[ok].get("step_s")
+        for p in chain:
+            p["converged_step_s"] = chain[ok].get("step_s")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -649,7 +693,7 @@ def class_table(runs: list[dict], pairs: list[dict]) -> list[dict]:
                 "n_ran": len(ran)}
 
     def count(items):
-        return {k: sum(1 for x in items if x["outcome"] == k) for k in ("pass", "fail", "refused")}
+        return {k: sum(1 for x in items if x["outcome"] == k) for k in ("pass", "fail", "refused", "refined")}
 
     for c in sorted(by_class, key=_class_key):
         rs = by_class[c]
@@ -678,16 +722,21 @@ def report_markdown(rec: dict) -> str:
     tot = rec["table"][-1] if rec.get("table") else {}
     npairs = len(rec.get("pairs", []))
     pf = sum(1 for p in rec.get("pairs", []) if p["outcome"] == "fail")
+    nref = sum(1 for p in rec.get("pairs", []) if p["outcome"] == "refined")
+    seeds = rec.get("seeds") or [rec.get("seed")]
+    seed_text = f"seed {seeds[0]}" if len(seeds) == 1 else f"seeds {', '.join(map(str, seeds))}"
     lines += [f"Command: `{rec.get('command', 'drivetrain stress')}`", "", commit_line(), "",
               f"Started {rec.get('started', '?')}; wall time {rec.get('wall_time_s', float('nan')):.0f} s "
               f"(this invocation; the runs' own wall times sum to {rec.get('runs_wall_time_s', float('nan')):.0f} s); "
-              f"seed {rec.get('seed')}, sets {rec.get('set_name')}, {rec.get('n_random', 0)} random scenes "
+              f"{seed_text}, sets {rec.get('set_name')}, {rec.get('n_random', 0)} random scenes per seed "
               f"({rec.get('duration_random_s', '?')} s each, pcm {rec.get('duration_pcm_s', '?')} s); "
               + (f"every {rec['halving_subset']}-th random scene also run at H/2." if rec.get("halving_subset")
                  else "no halving pairs."), "",
               f"**{tot.get('runs', 0)} runs: {tot.get('pass', 0)} pass, {tot.get('fail', 0)} fail, "
               f"{tot.get('refused', 0)} refused before running (predicted unstable); {npairs} halving pairs, "
-              f"{pf} outside the limits.**", "",
+              f"{pf} outside the limits"
+              + (f", {nref} of them at a step refused by the halving rule, a converged step chosen (below)" if nref
+                 else "") + ".**", "",
               f"A run passes when it completes (status ok), every channel is finite, the largest contact penetration "
               f"is below u_max (> {SUSPICIOUS_PENETRATION:g} u_max is flagged) and the energy residual is "
               f"< {100 * L['energy_residual']:g} %. A halving pair (the scene again at H/2) passes when both runs pass "
@@ -716,6 +765,17 @@ def report_markdown(rec: dict) -> str:
     for p in pfails:
         lines.append(f"- halving pair `{p['base']}` / `{p['half']}`: " + "; ".join(p["reasons"]))
     if fails or pfails:
+        lines.append("")
+    refined = [p for p in rec.get("pairs", []) if p["outcome"] == "refined"]
+    if refined:
+        lines += ["## Steps refused by the halving rule (a converged step chosen)", "",
+                  "The pair's runs passed, but their torques differ beyond the limits: the campaign halved the step "
+                  f"again (up to {MAX_REFINEMENTS} times) and the first pair within the limits names the converged "
+                  "step of the scene.", ""]
+        for p in refined:
+            conv = p.get("converged_step_s")
+            lines.append(f"- `{p['base']}` / `{p['half']}`: " + "; ".join(p["reasons"])
+                         + (f" -> converged at H = {conv:.6g} s" if _finite(conv) else ""))
         lines.append("")
     refused = [r for r in rec.get("runs", []) if r["outcome"] == "refused"]
     if refused:
@@ -792,8 +852,29 @@ def judge_campaign(entries: list[dict], out_dir: Path, records: dict | None = No
         if r.get("pair_of") and r["pair_of"] in by_name:
             base = by_name[r["pair_of"]]
             v = judge_halving(base, r, summaries.get(base["name"]), summaries.get(r["name"]))
-            pairs.append({"base": base["name"], "half": r["name"], "classes": base["classes"], **v})
+            par = r.get("parameters") or {}
+            pairs.append({"base": base["name"], "half": r["name"], "classes": base["classes"],
+                          "root": par.get("halving_root") or base["name"], "level": par.get("halving_level") or 1,
+                          "step_s": (base.get("parameters") or {}).get("comm_step_s"), **v})
+    resolve_halving(pairs)
     return runs, pairs
+
+
+def to_refine(pairs: list[dict], cases: list[StressCase]) -> list[StressCase]:
+    """The refinement runs a judged campaign needs next: for each chain whose finest pair failed on its
+    torques' deviation alone (both runs passed), below :data:`MAX_REFINEMENTS`, its next step."""
+    by_name = {c.name: c for c in cases}
+    finest: dict[str, dict] = {}
+    for p in pairs:
+        root = p.get("root") or p["base"]
+        if root not in finest or (p.get("level") or 1) > (finest[root].get("level") or 1):
+            finest[root] = p
+    out = []
+    for p in finest.values():
+        if (p["outcome"] == "fail" and p.get("deviation") and (p.get("level") or 1) <= MAX_REFINEMENTS
+                and p["half"] in by_name):
+            out.append(refinement_case(by_name[p["half"]]))
+    return out
 
 
 def _finish(rec: dict, entries: list[dict], out: Path, records: dict | None) -> dict:
@@ -865,8 +946,9 @@ def build_cases(*, set_name: str = "all", n_random: int = 200, seed: int = 0, ou
                 duration_random_s: float = DEFAULT_DURATION_S, duration_pcm_s: float = DEFAULT_DURATION_PCM_S,
                 halving_subset: int = DEFAULT_HALVING_SUBSET, fidelities=None, paper_grid=None,
                 duration_paper_s: float | None = None, n_fault_meshes: int = N_FAULT_MESHES,
-                log=None) -> tuple[list[StressCase], list[dict]]:
+                log=None, seeds: list[int] | None = None) -> tuple[list[StressCase], list[dict]]:
     """Every case of the campaign (scenes validated; fault meshes written when a scene needs one).
+    ``seeds``: the random sets of these seeds (default: ``seed`` alone), ``n_random`` scenes each.
     Returns (cases, fault mesh descriptions)."""
     if set_name not in ("paper", "random", "all"):
         raise ValueError(f"set_name must be paper, random or all, not {set_name!r}")
@@ -875,15 +957,49 @@ def build_cases(*, set_name: str = "all", n_random: int = 200, seed: int = 0, ou
     meshes: list[dict] = []
     if set_name in ("paper", "all"):
         cases += paper_cases(paper_grid, duration_paper_s)
-    if set_name in ("random", "all") and n_random > 0:
-        draws = random_draws(seed, n_random, duration_s=duration_random_s, duration_pcm_s=duration_pcm_s,
+    for sd in (seeds if seeds is not None else [seed]) if set_name in ("random", "all") and n_random > 0 else ():
+        draws = random_draws(sd, n_random, duration_s=duration_random_s, duration_pcm_s=duration_pcm_s,
                              fidelities=fidelities, n_fault_meshes=n_fault_meshes)
         need = sorted({p["fault_mesh"] for p in draws if p["fault_mesh"] is not None})
-        paths = write_fault_meshes(out / "meshes", seed, need, log=log) if need else {}
-        meshes = [{"index": j, "path": str(paths[j]), "params": fault_mesh_params(seed, j),
-                   "description": describe_fault(fault_mesh_params(seed, j))} for j in need]
+        paths = write_fault_meshes(out / "meshes", sd, need, log=log) if need else {}
+        meshes += [{"index": j, "seed": sd, "path": str(paths[j]), "params": fault_mesh_params(sd, j),
+                    "description": describe_fault(fault_mesh_params(sd, j))} for j in need]
         cases += random_cases(draws, paths, halving_subset, base_dir=out)
     return cases, meshes
+
+
+def _entries(cases: list[StressCase]) -> list[dict]:
+    return [{"name": c.name, "set": c.set, "classes": c.classes, "parameters": c.parameters,
+             "pair_of": c.pair_of, "refused": c.refused} for c in cases]
+
+
+def _refine_steps(cases: list[StressCase], runnable: list[StressCase], out: Path, records: dict, sweep_kw: dict,
+                  log) -> dict | None:
+    """Halving chains whose pair failed on its torques alone get their next step (:func:`to_refine`), run
+    with the others reused (the sweep's skip_existing), until every chain is within the limits or at
+    :data:`MAX_REFINEMENTS`; ``cases`` and ``runnable`` grow by the refinement runs. The last manifest, or
+    None when nothing needed refining."""
+    manifest = None
+    for _ in range(MAX_REFINEMENTS):
+        _, pairs = judge_campaign(_entries(cases), out, records)
+        more = to_refine(pairs, cases)
+        if not more:
+            break
+        if log:
+            log(f"{len(more)} halving pairs outside the limits with both runs passing: their steps halved again "
+                f"({', '.join(c.name for c in more)})")
+        assemble_cases(more, log=log)
+        cases += more
+        runnable += [c for c in more if c.spec is not None and c.refused is None]
+        for c in more:
+            if c.extra.get("assembly_error"):
+                records[c.name] = {"name": c.name, "status": "failed", "error": c.extra["assembly_error"]}
+        order = sorted(runnable, key=_cost, reverse=True)
+        manifest = run_sweep([c.scene for c in order], out, skip_existing=True,
+                             specs={c.name: c.spec for c in order}, **sweep_kw)
+        for r in manifest["runs"]:
+            records[r["name"]] = r
+    return manifest
 
 
 def assemble_cases(cases: list[StressCase], log=None) -> None:
@@ -909,7 +1025,8 @@ def run_stress(out_dir: Path | str = "out/stress", *, set_name: str = "all", n_r
                duration_pcm_s: float = DEFAULT_DURATION_PCM_S, duration_paper_s: float | None = None,
                fidelities=None, paper_grid=None, n_fault_meshes: int = N_FAULT_MESHES,
                fmu_dir: Path | str | None = None, backend: str = "fmi", progress: bool = False, only=None,
-               command: str | None = None, log: Callable[[str], None] | None = None) -> dict:
+               command: str | None = None, log: Callable[[str], None] | None = None,
+               seeds: list[int] | None = None) -> dict:
     """Run the campaign into ``out_dir`` and return the record written to stress.json (see the module
     docstring). ``resume``: finished runs of the same scene and model sources are not rerun (the sweep's
     skip_existing, by fingerprint).
@@ -923,7 +1040,8 @@ def run_stress(out_dir: Path | str = "out/stress", *, set_name: str = "all", n_r
     cases, meshes = build_cases(set_name=set_name, n_random=n_random, seed=seed, out_dir=out,
                                 duration_random_s=duration_random_s, duration_pcm_s=duration_pcm_s,
                                 halving_subset=halving_subset, fidelities=fidelities, paper_grid=paper_grid,
-                                duration_paper_s=duration_paper_s, n_fault_meshes=n_fault_meshes, log=log)
+                                duration_paper_s=duration_paper_s, n_fault_meshes=n_fault_meshes, log=log,
+                                seeds=seeds)
     if only:
         import fnmatch
 
@@ -959,11 +1077,13 @@ def run_stress(out_dir: Path | str = "out/stress", *, set_name: str = "all", n_r
                              specs={c.name: c.spec for c in order}, prepare=False)
         for r in manifest["runs"]:
             records[r["name"]] = r
-    entries = [{"name": c.name, "set": c.set, "classes": c.classes, "parameters": c.parameters,
-                "pair_of": c.pair_of, "refused": c.refused} for c in cases]
+        manifest = _refine_steps(cases, runnable, out, records, dict(workers=workers, address=address, backend=backend,
+                                 fmu_dir=fmu_dir, plots=False, progress=progress, prepare=False), log) or manifest
+    entries = _entries(cases)
     rec = {
         "command": command or "drivetrain stress", "started": started, "out_dir": str(out),
-        "set_name": set_name, "seed": int(seed), "n_random": int(n_random) if set_name != "paper" else 0,
+        "set_name": set_name, "seed": int(seed), "seeds": list(seeds) if seeds is not None else [int(seed)],
+        "n_random": int(n_random) if set_name != "paper" else 0,
         "duration_random_s": duration_random_s, "duration_pcm_s": duration_pcm_s,
         "duration_paper_s": duration_paper_s, "halving_subset": halving_subset, "fidelities": list(fidelities or FIDELITIES),
         "resume": bool(resume), "executor": "dask" if address else "local processes",

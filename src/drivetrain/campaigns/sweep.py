@@ -56,10 +56,12 @@ from drivetrain import __version__
 from drivetrain.run import cost as runcost
 from drivetrain.campaigns.provenance import code_commit
 from drivetrain.cosim import ConfigurationError
-from drivetrain.errors import StartStateError
+from drivetrain.errors import FileFormatError, StartStateError
 from drivetrain.cosim import simulate as simulate_system
 from drivetrain.fmu_build.fmus import sources_hash
 from drivetrain.fmu_build.fmus import fmu_dir_or_default
+from drivetrain.run.lock import output_lock
+from drivetrain.run.files import RUN_RECORD_SCHEMA, check_fields, read_manifest
 from drivetrain.run.outputs import check_output_dir, clear_run_files, jsonable
 from drivetrain.run.runner import RunFailedError, assemble_scene, assembled_with_map, run_scene
 from drivetrain.scene.load import Scene, resolve
@@ -137,6 +139,7 @@ def _summary_fields(s: dict) -> dict:
         "torque_rms": {k: v["rms"] for k, v in s["torque"].items()},
         "warnings": s["warnings"],
         "stability": s.get("stability"),
+        "nonfinite_samples": sum((s.get("nonfinite_samples") or {}).values()),
     }
 
 
@@ -185,7 +188,8 @@ def simulate(case: dict) -> dict:
                         fmu_paths=case.get("fmu_paths"), plots=None if plots is None else bool(plots),
                         build=False, log=lambda m: None, force=bool(case.get("force")))
         rec.update({
-            "status": "ok",
+            "status": res.summary["status"],          # "failed" for a run with non-finite samples
+            **({"error": res.summary["failure"]["cause"]} if res.summary["status"] != "ok" else {}),
             "signals": str(Path(case["out_dir"]) / "signals.h5"),
             "summary": str(Path(case["out_dir"]) / "summary.json"),
             **_summary_fields(res.summary),
@@ -465,29 +469,33 @@ def _start_journal(out: Path, records: list[dict]) -> None:
 def read_runs(out_dir: str | Path) -> list[dict]:
     """Every run record of a sweep directory: those of manifest.json, then the journal's (a later record
     of a name replaces an earlier one; a torn last line of a killed sweep is skipped). In manifest
-    order, the journal's new names after. Raises OSError when the directory has neither file."""
+    order, the journal's new names after. Raises OSError when the directory has neither file, and
+    FileFormatError (naming the file and the field) when a manifest or a journal record is not one."""
     out = Path(out_dir)
     by_name: dict[str, dict] = {}
     found = False
     try:
-        for r in json.loads((out / "manifest.json").read_text()).get("runs", []):
-            if isinstance(r, dict) and r.get("name"):
-                by_name[r["name"]] = r
+        for r in read_manifest(out / "manifest.json")["runs"]:
+            by_name[r["name"]] = r
         found = True
-    except (OSError, ValueError, AttributeError):
+    except OSError:
         pass
     try:
         lines = (out / JOURNAL).read_bytes().splitlines()
         found = True
     except OSError:
         lines = []
-    for ln in lines:
+    for i, ln in enumerate(lines):
         try:
             r = json.loads(ln)
         except ValueError:
-            continue                     # a line torn by a kill
-        if isinstance(r, dict) and r.get("name"):
-            by_name[r["name"]] = r
+            if i == len(lines) - 1 or not ln.strip():
+                continue                 # a line torn by a kill
+            raise FileFormatError([f"{out / JOURNAL}: line {i + 1}: not JSON"]) from None
+        problems = check_fields(r, RUN_RECORD_SCHEMA, f"{out / JOURNAL}: line {i + 1}", required=("name",))
+        if problems:
+            raise FileFormatError(problems)
+        by_name[r["name"]] = r
     if not found:
         raise OSError(f"{out}: neither manifest.json nor {JOURNAL}")
     return list(by_name.values())
@@ -688,48 +696,49 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
     if not force:
         _refuse_costly(scenes, all_specs, backend)
     check_output_dir(out)
-    _prepare_fmus(scenes, all_specs, backend=backend, fmu_dir=fmu_dir, fmu_paths=fmu_paths, prepare=prepare, log=log)
-    # the maps are there now: a table gear assembled before its map was cached starts at its own deflection, as
-    # `drivetrain run` starts it (the specs a caller gave are theirs)
-    by_spec = dict(zip([s.name for s in scenes], all_specs))
-    all_specs, more = _specs_of(scenes, specs, lambda s: assembled_with_map(s, by_spec[s.name]))
-    refused.update(more)
-    scenes, all_specs = _runnable(scenes, all_specs)
-    if refused and log:
-        log(f"{len(refused)} of {len(all_scenes)} cases have no start state and are recorded as failed: "
-            + "; ".join(refused.values()))
-    preparation_s = time.perf_counter() - t0
-    kept = _kept_records(out, grid_names, names)
-    cases, reused = _cases(scenes, all_specs, out, skip_existing=skip_existing, backend=backend, fmu_dir=fmu_dir,
-                           plots=plots, fmu_paths=fmu_paths, force=force)
-    if skip_existing and log:
-        log(f"resume: {len(reused)} of {len(scenes)} runs reused (finished, same fingerprint), {len(cases)} to run")
-    manifest = _Manifest(out, scenes={s.name: s for s in all_scenes},
-                         order={n: i for i, n in enumerate(grid_names or names)},
-                         meta={"executor": _executor_name(address, executor), "backend": backend, "code_commit": code_commit(),
-                               "preparation_s": preparation_s, "reused_runs": len(reused),
-                               # where the scenes came from (the dataset card names them)
-                               "scene_files": sorted({str(s.source) for s in all_scenes if s.source}),
-                               "overrides": list(dict.fromkeys(o for s in all_scenes for o in s.overrides))},
-                         kept=kept, t0=t0)
-    manifest.runs = [manifest.annotate(r) for r in reused + _start_failures(refused, all_scenes, out)]
-    _start_journal(out, kept + manifest.runs)
-    manifest.write(not cases)
-    if cases:
-        client = None
-        own = executor is None
-        if own:
-            executor, client = _executor(workers, address)
-        interrupted = True
-        try:
-            _run_cases(cases, manifest, executor, progress)
-            interrupted = False
-        finally:
+    with output_lock(out, takeover=skip_existing):     # a second writer into this folder is refused
+        _prepare_fmus(scenes, all_specs, backend=backend, fmu_dir=fmu_dir, fmu_paths=fmu_paths, prepare=prepare, log=log)
+        # the maps are there now: a table gear assembled before its map was cached starts at its own deflection, as
+        # `drivetrain run` starts it (the specs a caller gave are theirs)
+        by_spec = dict(zip([s.name for s in scenes], all_specs))
+        all_specs, more = _specs_of(scenes, specs, lambda s: assembled_with_map(s, by_spec[s.name]))
+        refused.update(more)
+        scenes, all_specs = _runnable(scenes, all_specs)
+        if refused and log:
+            log(f"{len(refused)} of {len(all_scenes)} cases have no start state and are recorded as failed: "
+                + "; ".join(refused.values()))
+        preparation_s = time.perf_counter() - t0
+        kept = _kept_records(out, grid_names, names)
+        cases, reused = _cases(scenes, all_specs, out, skip_existing=skip_existing, backend=backend, fmu_dir=fmu_dir,
+                               plots=plots, fmu_paths=fmu_paths, force=force)
+        if skip_existing and log:
+            log(f"resume: {len(reused)} of {len(scenes)} runs reused (finished, same fingerprint), {len(cases)} to run")
+        manifest = _Manifest(out, scenes={s.name: s for s in all_scenes},
+                             order={n: i for i, n in enumerate(grid_names or names)},
+                             meta={"executor": _executor_name(address, executor), "backend": backend, "code_commit": code_commit(),
+                                   "preparation_s": preparation_s, "reused_runs": len(reused),
+                                   # where the scenes came from (the dataset card names them)
+                                   "scene_files": sorted({str(s.source) for s in all_scenes if s.source}),
+                                   "overrides": list(dict.fromkeys(o for s in all_scenes for o in s.overrides))},
+                             kept=kept, t0=t0)
+        manifest.runs = [manifest.annotate(r) for r in reused + _start_failures(refused, all_scenes, out)]
+        _start_journal(out, kept + manifest.runs)
+        manifest.write(not cases)
+        if cases:
+            client = None
+            own = executor is None
             if own:
-                _shut_down(executor, interrupted)
-            if client is not None:
-                client.close()
-    return manifest.write(True)
+                executor, client = _executor(workers, address)
+            interrupted = True
+            try:
+                _run_cases(cases, manifest, executor, progress)
+                interrupted = False
+            finally:
+                if own:
+                    _shut_down(executor, interrupted)
+                if client is not None:
+                    client.close()
+        return manifest.write(True)
 
 
 __all__ = ["simulate", "run_sweep", "make_case", "prepare_caches", "read_runs"]

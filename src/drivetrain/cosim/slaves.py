@@ -402,6 +402,8 @@ class InprocSlave(Slave):
 
     def exit_init(self):
         self._guard("exit_initialization_mode", self.obj.exit_initialization_mode)
+        if getattr(self.obj, "_failed", None):   # its work failed: fmi2Error, as the FMUs' binaries answer
+            raise CosimError(self.name, self.model, "exit_initialization_mode", 3, 0.0, list(self.log.lines))
 
     def bind(self, in_names, out_names, u: np.ndarray, u_off: int, y: np.ndarray, y_off: int):
         setters = [self._vars[self._vr(n)].setter for n in in_names]

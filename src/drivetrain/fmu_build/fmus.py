@@ -26,6 +26,7 @@ from typing import Any, Callable, Sequence
 import drivetrain
 import fmu_runtime
 import gearcontact_fmu
+from drivetrain.fmu_build.fmu_check import fmu_archive_problems
 from drivetrain.fmu_build.bundle import fmu_files
 from drivetrain.errors import ConfigurationError
 from gearcontact_fmu.locks import cache_dir, file_lock
@@ -82,7 +83,14 @@ def load_fmu_info(path: Path | str) -> FMUInfo:
     key = (str(path), path.stat().st_mtime)
     info = _INFO_CACHE.get(key)
     if info is None:
-        md = fmpy.read_model_description(str(path), validate=False)
+        problems = fmu_archive_problems(path)      # a swapped or hostile file: named, before fmpy reads it
+        if problems:
+            raise ConfigurationError(problems)
+        try:
+            md = fmpy.read_model_description(str(path), validate=False)
+        except Exception as exc:  # noqa: BLE001 - whatever the reader trips on, the file and the reason
+            raise ConfigurationError(f"{path}: its model description cannot be read ({type(exc).__name__}: "
+                                     f"{str(exc)[:160]})") from None
         if md.coSimulation is None:
             raise ConfigurationError(f"{path.name}: not a co-simulation FMU")
         variables = {}

@@ -304,9 +304,21 @@ def twin_groups(runs: list[dict]) -> list[list[dict]]:
     return list(by_pair.values())
 
 
+def twin_mismatch(run: dict, twin: dict) -> str | None:
+    """Why a faulty run cannot be compared with its healthy twin sample by sample (one noise record: one time
+    axis), or None: ``"run a has 601 samples, its healthy twin b 50"``."""
+    t, h = np.asarray(run["time"]), np.asarray(twin["time"])
+    if t.shape != h.shape:
+        return f"run {run['name']} has {t.size} samples, its healthy twin {twin['name']} {h.size}"
+    if t.size and not np.allclose(t, h, rtol=1e-9, atol=0.0):
+        return f"run {run['name']} and its healthy twin {twin['name']} were sampled at other times"
+    return None
+
+
 def paired_sbr(runs: list[dict], signals: tuple[str, ...]) -> dict:
     """{faulty run name: {signal: SBR dB}} of the runs with a healthy twin (:func:`twin_groups`, one of them
-    healthy), compared after the settling time (``time.settle_s``)."""
+    healthy), compared after the settling time (``time.settle_s``). A twin of another length or time axis is
+    a ValueError (:func:`twin_mismatch`)."""
     out = {}
     for members in twin_groups(runs):
         healthy = [r for r in members if r["labels"].get("gear.health") == "healthy"]
@@ -316,6 +328,9 @@ def paired_sbr(runs: list[dict], signals: tuple[str, ...]) -> dict:
         for r in members:
             if r is h:
                 continue
+            why = twin_mismatch(r, h)
+            if why:
+                raise ValueError(why)
             keep = np.asarray(r["time"]) >= float(r["labels"].get("time.settle_s") or 0.0)
             out[r["name"]] = {sig: signal_to_background_dB(np.asarray(r["signals"][sig])[keep],
                                                            np.asarray(h["signals"][sig])[keep])

@@ -25,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
+import math
 
 import numpy as np
 
@@ -36,7 +37,7 @@ from drivetrain.models.components import COMPONENTS, make_component
 from drivetrain.models.parameters import params_from
 from drivetrain.models.shaft import FlexibleShaft, FlexibleShaftParams
 from drivetrain.rig.signals import characteristic_frequencies
-from drivetrain.errors import NativeBuildError, StartStateError
+from drivetrain.errors import NativeBuildError, ScenarioError, StartStateError
 from drivetrain.system import ComponentSpec, Connection, SystemSpec
 from gearcontact_fmu.manufacturing_specs import draw_errors, errors_of
 from gearcontact_fmu.mesh_models import DEFAULT_FIDELITY
@@ -199,6 +200,26 @@ def start_wheel_angle(gear: dict, ss, theta_p: float, errors, build_map: bool = 
 COMPONENT_SUBSTEP = 1e-5
 
 
+def _check_start_finite(scene, ss, angles: dict) -> None:
+    """The steady start state at the scene's initial operating point must be finite numbers: a drive speed so
+    large that the start state overflows (w0 = inf, the loss torques, the twists) is a scene error naming the
+    operating point's keys, before any component is built."""
+    values = {**{f"{k} [{'rad/s' if k.startswith('w') else 'N m'}]": v for k, v in dataclasses.asdict(ss).items()},
+              **{f"{k} [rad]": v for k, v in angles.items()}}
+    bad = [f"{k} = {v:g}" for k, v in values.items() if not math.isfinite(v)]
+    if not bad:
+        return
+    op = scene.operating_point
+    if not math.isfinite(ss.w_drive):           # the speed overflows: the speed's key
+        key, value, what = (("operating_point.speed_profile_rpm", op.speed_profile_rpm, "speed") if op.speed_profile_rpm
+                            else ("operating_point.drive_speed_rpm", op.drive_speed_rpm, "speed"))
+    else:                                       # a finite speed: the load's torques (or both together) overflow
+        key, value, what = (("operating_point.load_profile_Nm", op.load_profile_Nm, "load") if op.load_profile_Nm
+                            else ("operating_point.load_torque_Nm", op.load_torque_Nm, "load"))
+    raise ScenarioError([(key, value, f"a {what} whose steady start state is finite (with this one it overflows: "
+                          + ", ".join(bad[:4]) + ")")], source=scene.name)
+
+
 def assemble(scene, calibration: dict | str | None = None, check: bool = True,
              component_substep: float | None = None, build_map: bool = False) -> SystemSpec:
     """Build the SystemSpec for a resolved Scene.
@@ -235,6 +256,7 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     th_motor = 0.0
     th_fw = th_motor - ss.T_dsh / mo["k_c1"]
     th_next = th_fw - ss.T_dsh / mo["k_c2"]          # hub A of the drive shaft, or the upper gearbox
+    _check_start_finite(scene, ss, {"drive-shaft hub angle": th_next})
     comps = []
     if eff.shaft_flexibility == "flexible":
         ds = dict(part.params["drive_shaft"])
@@ -256,7 +278,8 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     # the gear's manufacturing errors, read once from its parameter (the JSON the FMU receives)
     errors = errors_of(gear.get("manufacturing_errors"))
     try:
-        theta_w, mesh_start = start_wheel_angle(gear, ss, theta_p, errors, build_map)
+        with np.errstate(all="ignore"):     # an overflow is the StartStateError's to name, not a printed warning
+            theta_w, mesh_start = start_wheel_angle(gear, ss, theta_p, errors, build_map)
     except StartStateError as exc:          # no mesh position carries the start load: say which scene and gearbox
         raise StartStateError(f"{scene.name}: {gearbox_name(scene)} at {n0:g} rpm and {T0:g} N m: "
                               f"{'; '.join(exc.problems)}") from exc

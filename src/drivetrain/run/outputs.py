@@ -216,6 +216,24 @@ def mark_running(out: Path, name: str) -> None:
                                          "started": datetime.datetime.now().isoformat(timespec="seconds")})
 
 
+def mark_failed(out: Path, name: str, exc: BaseException) -> None:
+    """A run that ended by an exception before it wrote its results: summary.json says ``failed`` (or
+    ``interrupted``) with the cause, never "running" for good. A summary the run wrote itself (its completed
+    part, ``failed``) is kept."""
+    try:
+        cur = json.loads((out / "summary.json").read_text())
+    except (OSError, ValueError):
+        cur = None
+    if isinstance(cur, dict) and cur.get("status") not in (None, "running"):
+        return
+    interrupted = isinstance(exc, KeyboardInterrupt)
+    write_summary(out / "summary.json", {
+        "name": name, "status": "interrupted" if interrupted else "failed",
+        "started": (cur or {}).get("started"), "ended": datetime.datetime.now().isoformat(timespec="seconds"),
+        "failure": {"cause": f"{type(exc).__name__}: {str(exc)[:2000]}", "time_s": None,
+                    "where": "before any result was written"}})
+
+
 #: resolution of the plots (PNG)
 PLOT_DPI = 110
 

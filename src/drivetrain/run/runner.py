@@ -23,6 +23,9 @@ import numpy as np
 
 from drivetrain import __version__
 from drivetrain.cosim import CosimResult, Master
+from drivetrain.cosim.plan import split_ref
+from drivetrain.fmu_build.fmu_check import fmu_archive_problems
+from drivetrain.fmu_build.fmus import load_fmu_info
 from drivetrain.errors import ConfigurationError, CosimError, RunFailedError, RunInterrupted  # noqa: F401  (re-exported)
 from drivetrain.models import stability
 from drivetrain.rig import instruments
@@ -32,11 +35,13 @@ from drivetrain.rig.signals import (amplitude_near, characteristic_frequencies, 
 from drivetrain.run import accuracy
 from drivetrain.run import cost as runcost
 from drivetrain.run import outputs as O
+from drivetrain.run.files import nonfinite_counts, nonfinite_text
+from drivetrain.run.lock import output_lock
 from drivetrain.scene.expect import RUN_SUMMARY_TREE, SUMMARY_TREE
 from drivetrain.scene.load import Scene
 from drivetrain.system import BACKENDS, SystemSpec
 from gearcontact_fmu.fault_specs import FaultGeometryError, health_faults
-from gearcontact_fmu.params import GEAR_MODEL
+from gearcontact_fmu.params import FLANGE_QUANTITIES, GEAR_MODEL
 from gearcontact_fmu.progress import reporter
 
 #: messages for the user (progress, warnings); the CLI passes its own ``log``, a library caller sees them
@@ -219,6 +224,17 @@ def failure_summary(res: CosimResult, spec: SystemSpec) -> dict | None:
     f["gear"] = gear
     f["gear_state"] = outs.get(gear) if gear is not None else None
     return f
+
+
+def nonfinite_failure(ch: Channels, counts: dict) -> dict:
+    """``summary["failure"]`` of a run that completed with non-finite samples (no FMU failed): where the first
+    one is, and how many there are per channel (drivetrain.run.files.nonfinite_text)."""
+    first = min(int(np.argmax(~np.isfinite(np.asarray(ch.signals[k], dtype=float)))) for k in counts)
+    t_first = float(ch.time[first]) if len(ch.time) else None
+    return {"time_s": t_first, "component": None, "model": None, "function": None, "status": None,
+            "cause": "non-finite samples: " + nonfinite_text(counts, len(ch.time)), "log": [],
+            "steps_completed": None, "last_sample_time_s": float(ch.time[-1]) if len(ch.time) else None,
+            "outputs": None, "gear": None, "gear_state": None}
 
 
 def _fidelity(c, spec: SystemSpec):
@@ -408,10 +424,37 @@ def prepare_run(scene: Scene, spec: SystemSpec | None, backend: str, fmu_paths: 
     if assembled:            # past the cost checks the table map may be built (the run needs it)
         plan.spec = spec = assembled_with_map(scene, spec)
     plan.sources = _sources(scene, spec, plan.warnings)
+    check_given_fmus(spec, fmu_paths)
     plan.t_native = _time.perf_counter()
     _choose_backend(plan, fmu_dir, log)
     plan.t_master = _time.perf_counter()
     return plan
+
+
+def check_given_fmus(spec: SystemSpec, fmu_paths: dict | None) -> None:
+    """The FMUs a caller hands over ({model: path}, ``--fmu``), checked before they are used or the output
+    folder says "running": the archive (drivetrain.fmu_build.fmu_check: a zip, safe entries, a bounded model
+    description without a DTD, FMI 2.0 co-simulation, the model asked for, its GUID) and every variable the
+    system needs of it (parameters, inputs, the flanges of its connections). Raises ConfigurationError."""
+    problems: list[str] = []
+    for model, path in (fmu_paths or {}).items():
+        problems += fmu_archive_problems(path, model)
+    if problems:
+        raise ConfigurationError(problems)
+    for model, path in (fmu_paths or {}).items():
+        have = load_fmu_info(path).variables
+        for c in spec.components:
+            if c.model != model:
+                continue
+            ports = [split_ref(ref)[1] for conn in spec.connections for ref in (conn.spring, conn.inertia)
+                     if split_ref(ref)[0] == c.name]
+            need = [*c.parameters, *c.inputs, *(f"{p}_{q}" for p in ports for q in FLANGE_QUANTITIES)]
+            missing = sorted({n for n in need if n not in have})
+            if missing:
+                problems.append(f"{path}: the FMU given for {model} lacks variables the system needs of "
+                                f"{c.name}: {', '.join(missing[:12])}" + (" ..." if len(missing) > 12 else ""))
+    if problems:
+        raise ConfigurationError(problems)
 
 
 def simulate_plan(plan: RunPlan, *, fmu_dir, build: bool, progress: bool, log):
@@ -589,11 +632,15 @@ def build_summary(plan: RunPlan, res: CosimResult, failed: CosimError | None, ch
     scene, spec = plan.scene, plan.spec
     m = ch.time >= scene.time.settle_s
     channel_stats = {name: {**stats(x[m]), "unit": ch.units[name]} for name, x in ch.signals.items() if m.any()}
-    nonfinite = [n for n, x in ch.signals.items() if not np.all(np.isfinite(x))]
+    counts = nonfinite_counts(ch.signals)
+    nonfinite = list(counts)
     energy_residual = res.energy.get("relative_residual")
     covered = res.sim_time_s if failed is None else max(float(failed.time), res.sim_time_s)
+    status, failure = res.status, failure_summary(res, spec)
+    if counts and status == "ok":            # a run whose samples are not all numbers did not succeed
+        status, failure = "failed", nonfinite_failure(ch, counts)
     summary = {
-        "name": scene.name, "status": res.status, "failure": failure_summary(res, spec),
+        "name": scene.name, "status": status, "failure": failure,
         "description": scene.scenario.description,
         "source": str(scene.source) if scene.source else None,
         "overrides": list(scene.overrides),
@@ -619,6 +666,7 @@ def build_summary(plan: RunPlan, res: CosimResult, failed: CosimError | None, ch
                       "static_contact": plan.contact_range, "contact_cost": plan.contact_cost},
         "fmus": [{"name": c.name, "model": c.model, "fidelity": _fidelity(c, spec)} for c in spec.components],
         "nonfinite_channels": nonfinite,
+        "nonfinite_samples": counts,
         "warnings": plan.warnings,
         "accuracy_choice": plan.choice.to_dict() if plan.choice is not None else None,
         "drivetrain_version": __version__,
@@ -655,8 +703,19 @@ def run_scene(scene: Scene, out_dir: str | Path | None = None, backend: str = "f
         O.check_output_dir(Path(out_dir), expected_output_bytes(scene), create=False)
     plan = prepare_run(scene, spec, backend, fmu_paths, fmu_dir=fmu_dir, force=force, log=log,
                        started=started)
-    if out_dir is not None:              # refusals write nothing; from here on the directory says "running"
-        O.mark_running(Path(out_dir), scene.name)
+    if out_dir is None:
+        return _simulate_and_write(plan, None, fmu_dir, build, progress, log, plots)
+    with output_lock(out_dir):            # a second writer into this folder is refused, naming this process
+        O.mark_running(Path(out_dir), scene.name)  # refusals write nothing; from here on it says "running"
+        try:
+            return _simulate_and_write(plan, out_dir, fmu_dir, build, progress, log, plots)
+        except BaseException as exc:     # whatever ended the run: its summary says so, never "running" for good
+            O.mark_failed(Path(out_dir), scene.name, exc)
+            raise
+
+
+def _simulate_and_write(plan: RunPlan, out_dir, fmu_dir, build: bool, progress: bool, log, plots) -> RunResult:
+    """The run after its checks: co-simulate, post-process, write (a failed run's completed part too)."""
     res, failed = simulate_plan(plan, fmu_dir=fmu_dir, build=build, progress=progress, log=log)
     ch = measured_channels(plan, res)
     sp = torque_spectra(plan, ch)

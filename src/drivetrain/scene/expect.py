@@ -119,7 +119,7 @@ RUN_SUMMARY_TREE: dict = {
         "n_refinements": "int", "energy_residual": "num", "coupling_energy_pending_J": "any",
         "rattle": {"window_s": {"<i>": "num"}, "separated": "bool", **_RATTLE3, "whole_run": dict(_RATTLE3)},
         "static_contact": "any", "contact_cost": "any"},
-    "fmus": "any", "nonfinite_channels": "any", "warnings": "any", "accuracy_choice": "any",
+    "fmus": "any", "nonfinite_channels": "any", "nonfinite_samples": "any", "warnings": "any", "accuracy_choice": "any",
     "drivetrain_version": "str",
 }
 #: what :func:`drivetrain.run.runner.write_run` adds when it writes the files

@@ -25,7 +25,8 @@ import numpy as np
 from drivetrain.errors import ScenarioError
 from drivetrain.rig.data import Z_PINION, Z_WHEEL
 from drivetrain.scene.schema import NAME_RE, NAME_RULE, SCHEMA, Scene, default_of
-from gearcontact_fmu.fault_specs import draw_faults, draw_rule_problems, draw_value, loaded_flank, rule_problem
+from gearcontact_fmu.fault_specs import (draw_faults, draw_rule_problems, draw_value, loaded_flank, rule_problem,
+                                         rule_values)
 
 GRID_SECTION = "sweep"
 GRID_KEYS = {"axes", "name", "draw", "growth"}
@@ -165,7 +166,8 @@ def _draw_problems(draw) -> list:
         problems.append((f"{key}.faults", tpls, "at least one [[sweep.draw.faults]] table (or a [sweep.draw.background])"))
         return problems
     for i, tpl in enumerate(tpls):
-        problems += [(f"{key}.faults[{i}]" + (f".{k}" if k else ""), v, e) for k, v, e in draw_rule_problems(tpl)]
+        problems += [(f"{key}.faults[{i}]" + (f".{k}" if k else ""), v, e)
+                     for k, v, e in draw_rule_problems(tpl, Z_PINION, Z_WHEEL)]
     return problems
 
 
@@ -185,6 +187,25 @@ def _background_rule_problems(table) -> list:
         elif rule == "any" and k != "seed":
             problems.append((f"{key}.{k}", rule, '"any" only for seed; a value, a list or {uniform = [a, b]}'))
     return problems
+
+
+def _check_background_values(raw: dict, table: dict, resolve_case: Callable[[dict], Scene], src: str) -> None:
+    """Every value ``[sweep.draw.background]`` can draw (gearcontact_fmu.fault_specs.rule_values: a list's items,
+    a uniform's bounds) checked as the scene key it sets, before any draw: a value is refused whatever the seed."""
+    problems: dict = {}
+    for k, rule in table.items():
+        for value in ([0] if rule == "any" else rule_values(rule)):
+            case = copy.deepcopy(raw)
+            case.setdefault("background", {})[k] = value
+            try:
+                resolve_case(case)
+            except ScenarioError as exc:
+                for key, v, e in exc.problems:
+                    if key == f"background.{k}":
+                        problems.setdefault((k, repr(v)), (f"{GRID_SECTION}.draw.background.{k}", v,
+                                                           f"{e} (every value the rule can draw is checked)"))
+    if problems:
+        raise ScenarioError(list(problems.values()), src)
 
 
 def draw_background(table: dict, rng: np.random.Generator) -> dict:
@@ -381,6 +402,8 @@ def expand(raw: dict, grid: Grid, resolve_case: Callable[[dict], Scene], base_na
     if n_cases > MAX_GRID_CASES:              # refused at once: expanding it alone would take minutes
         raise ScenarioError([(GRID_SECTION, f"{n_cases} cases", f"a grid of at most {MAX_GRID_CASES} cases "
                               "(split it into several grid files, each its own sweep directory)")], src)
+    if grid.draw is not None and grid.draw.get("background"):
+        _check_background_values(raw, grid.draw["background"], resolve_case, src)
     scenes, problems, names = [], [], set()
     last_pair = ""
     template = grid.template or "_".join(["{base}"] + ["{" + k + "}" for k in grid.axes])

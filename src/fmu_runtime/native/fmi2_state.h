@@ -1,7 +1,7 @@
 /* fmi2_state.h: the FMI 2.0 co-simulation state machine of every C binary of the project's FMUs (as the Reference
  * FMUs have it), its rules and its messages written once. Included by the native FMUs' shell (fmi2_shell.h) and
  * by the pythonfmu FMUs' wrapper (drivetrain/fmu_build/native/pythonfmu_wrapper.c), so that a host reads the same
- * words from either kind of FMU (tests/test_fmi_conformance.py, tests/test_fmu_hostile.py).
+ * words from either kind of FMU (tests/fmu_build/test_fmi_conformance.py, tests/fmu_build/test_fmu_hostile.py).
  *
  * What it holds: the states and their names, a double as Python's repr prints it (pyfloat), and for each call
  * the check of its state (refused with fmi2Error and a logged reason, the state unchanged) and its transition;
@@ -96,6 +96,16 @@ static fmi2Status state_exit_allowed(Inst *c) {
     return fmi2OK;
 }
 static void state_exited(Inst *c) { c->phase = PH_STEP; }
+
+/* fmi2ExitInitializationMode's answer once the includer's initialization ran (and the state is step mode): a
+ * call whose work failed returns fmi2Error (issue 45), never fmi2OK after a logged failure. The instance is in
+ * its error state (the cause already logged by fail()); every later doStep is refused as before. */
+static fmi2Status state_exit_result(Inst *c) {
+    if (!c->failed) return fmi2OK;
+    FMI2_STATE_REFUSE(c, "%s: fmi2ExitInitializationMode: the initialization failed (%s); the instance is in its "
+                      "error state", FMI2_STATE_MODEL, c->failmsg);
+    return fmi2Error;
+}
 
 static fmi2Status state_terminate_allowed(Inst *c) {
     if (c->phase != PH_STEP)

@@ -1183,13 +1183,12 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component comp) {
     fmi2Status st = shell_exit(c);
     if (st != fmi2OK) return st;
     c->last_ok = c->t0;
-    if (c->failed) return fmi2OK;       /* already logged; the first doStep is refused */
-    if (build_stage(c)) {
+    if (!c->failed && build_stage(c)) {
         publish(c);
         logf_(c, fmi2OK, "logAll", "GearContact (native): fidelity table, mode stage, scheme %s",
               c->scheme == S_RK4 ? "rk4" : "ros2");
     }
-    return fmi2OK;     /* like the pythonfmu slave: a failed initialization makes the first doStep fail */
+    return state_exit_result(c);     /* fmi2Error when the initialization (or an earlier call) failed */
 }
 
 fmi2Status fmi2Reset(fmi2Component comp) {

@@ -14,7 +14,7 @@
  *      GearContact (messages, error state, value references, fmi2Get/Set*, refusals, the functions not
  *      provided) is fmu_runtime/native/fmi2_shell.h, included after Inst with this file's hooks.
  * The numerics follow the Python code in the same order (compile with -ffp-contract=off: no FMA), so the
- * results agree bit for bit (tests/test_native_line.py).
+ * results agree bit for bit (tests/fmu_build/test_native_line.py).
  *
  * Where this file lives: drivetrain/fmu_build/native/, in the drivetrain's FMU-building wing (it ports
  * drivetrain.models.components), not beside the gear's C: the line models belong to the drivetrain package;
@@ -1263,14 +1263,14 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component comp) {
     fmi2Status st = shell_exit(c);
     if (st != fmi2OK) return st;
     c->last_ok = 0.0;
-    if (c->failed) return fmi2OK;       /* already logged; the first doStep is refused */
+    if (c->failed) return state_exit_result(c);     /* fmi2Error: failed before (logged); doSteps refused */
     if (!c->built || c->dirty) {
-        if (!build(c)) return fmi2OK;
+        if (!build(c)) return state_exit_result(c);
     }
     char why[1536];
     if (!inputs_finite(c, 0.0, why, sizeof why)) {
         fail(c, "%s: initialization failed: ComponentError: %s", LN_MODEL_NAME, why);
-        return fmi2OK;
+        return state_exit_result(c);
     }
     comp_set_inputs(c);
 #if LN_MODEL == LN_MOTOR_LOAD
@@ -1279,7 +1279,7 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component comp) {
 #endif
     if (!publish(c, 1, why, sizeof why)) {
         fail(c, "%s: initialization failed: ComponentError: %s", LN_MODEL_NAME, why);
-        return fmi2OK;
+        return state_exit_result(c);
     }
     logf_(c, fmi2OK, "logAll", "%s (native): initialized, %lld nodes", LN_MODEL_NAME, (long long)c->ln.n);
     return fmi2OK;

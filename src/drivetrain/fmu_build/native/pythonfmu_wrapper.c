@@ -394,8 +394,8 @@ fmi2Status fmi2ExitInitializationMode(fmi2Component comp) {
     fmi2Status st = inner_status(c, "fmi2ExitInitializationMode", F.ExitInitializationMode(c->inner));
     if (st > fmi2Warning) return st;
     state_exited(c);
-    sync_failed(c);     /* a failed initialization: the first doStep is refused (as in the native builds) */
-    return st;
+    sync_failed(c);     /* a failed initialization: fmi2Error now, every doStep refused (as in the native builds) */
+    return st == fmi2OK ? state_exit_result(c) : (c->failed ? state_exit_result(c) : st);
 }
 
 fmi2Status fmi2Terminate(fmi2Component comp) {

@@ -12,7 +12,8 @@ from _cosim_test_fmus import build_test_fmus
 from drivetrain.campaigns import splits as S
 from drivetrain.cli import main
 from drivetrain.scene.load import load_scene
-from test_run import EXAMPLE, toy_spec
+from _cosim_test_fmus import toy_spec
+from _shared import EXAMPLE
 
 #: four gearboxes (manufacturing seeds 3, 5, 8, 13), each healthy and with the paper's severe fault
 SEEDS = (3, 5, 8, 13)

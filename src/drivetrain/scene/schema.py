@@ -82,7 +82,7 @@ BASE_UNIT = {"time": "s", "speed": "rpm", "torque": "N·m", "frequency": "Hz", "
 class Key:
     """One scene key."""
 
-    type: str                       # float | int | bool | str | enum | path | profile | str_list | var_list
+    type: str                       # float | int | bool | str | enum | path | profile | series | str_list | var_list
     default: Any = _MISSING         # _MISSING = required; None = optional (absent)
     unit: str = ""                  # unit of the value ("" = dimensionless / not a quantity)
     dimension: str = ""             # dimension accepted in "<number> <unit>" strings
@@ -134,6 +134,11 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "load_profile_Nm": Key("profile", None, "N·m", doc=(
             "piecewise-linear load torque, [[time_s, N·m], ...] like speed_profile_rpm; overrides "
             "load_torque_Nm (a step: two points 1 ms apart); values may be negative (a load reversal)")),
+        "load_series_csv": Key("series", None, "N·m", "torque", doc=(
+            "a measured load-motor torque series as the load input: a CSV file (path relative to the scene "
+            "file) with a header naming time and torque with their units (e.g. `time_s,load_torque_Nm`) and one "
+            "row per point, time from 0 strictly increasing; interpolated linearly, held after the last point; "
+            "overrides load_torque_Nm, excludes load_profile_Nm (docs/SCENARIOS.md, 'Measured load series')")),
     },
     "gear": {
         "health": Key("enum", "healthy", allowed=HEALTH_STATES, doc=(
@@ -407,6 +412,7 @@ class OperatingPoint:
     load_torque_Nm: float
     speed_profile_rpm: tuple[tuple[float, float], ...] | None
     load_profile_Nm: tuple[tuple[float, float], ...] | None
+    load_series_csv: Path | None = None      # the file load_profile_Nm was read from (None: given inline)
 
     def speed_at(self, t: float) -> float:
         """Speed reference [rpm] at time t (profile if given)."""
@@ -536,7 +542,8 @@ class Scene:
             d = {}
             for f in dataclasses.fields(obj):
                 v = getattr(obj, f.name)
-                if v is None:
+                if v is None or (section == "operating_point" and f.name == "load_profile_Nm"
+                                 and obj.load_series_csv is not None):   # read from the file the scene names
                     continue
                 if isinstance(v, Path):
                     v = str(v)
@@ -642,7 +649,7 @@ def schema_markdown() -> str:
                 if not allowed and spec.type in ("float", "profile"):
                     allowed = "any finite value (negative allowed)"
             typ = {"faults": "array of tables", "str_list": "list of str", "var_list": "list of str", "profile": "list of [float, float]",
-                   "path": "str (path)", "enum": "str"}.get(spec.type, spec.type)
+                   "path": "str (path)", "series": "str (path to a CSV)", "enum": "str"}.get(spec.type, spec.type)
             out.append(f"| `{key}` | {typ} | {spec.unit or '–'} | {dflt} | {allowed or '–'} | {spec.doc} |")
         out.append("")
     return "\n".join(out)

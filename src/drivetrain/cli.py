@@ -278,24 +278,49 @@ def _cmd_eigen(args: argparse.Namespace) -> int:
 
 
 def _calibrate_record(args: argparse.Namespace) -> int:
-    """``drivetrain calibrate --record [DIR]``: identify the background from a measured record (campaigns.record_fit),
-    print it beside the shipped defaults and write it as a scene's [background] and [instruments] sections."""
+    """``drivetrain calibrate --record [DIR]``: identify the background from the 500 rpm record (campaigns.record_fit)
+    and, where DIR holds them, what the 2004 rpm excitation records add (campaigns.excitation_fit: the first mode, the
+    speed control, the shaft-order lines and their speed law); print each value beside the shipped one with its
+    source and physical range, and write them as a scene's [background] and [instruments] sections (every value
+    finite, or nothing is written)."""
     import dataclasses
 
-    from drivetrain.campaigns import record_fit
+    from drivetrain.campaigns import excitation_fit, record_fit
     from drivetrain.rig import record as rec
     from drivetrain.rig.background import Background
 
+    where = args.record or rec.RECORD_DIR
+    t0 = time.perf_counter()
     try:
         r = rec.load_record(args.record or None)
         out = record_fit.identify(r)
     except (OSError, ValueError) as exc:
-        print(f"error: the record {args.record or rec.RECORD_DIR}: {exc}", file=sys.stderr)
+        print(f"error: the record {where}: {exc}", file=sys.stderr)
         return 2
+    t_base = time.perf_counter() - t0
+    d = Path(args.record) if args.record else rec.RECORD_DIR
+    excitation = None
+    if all((d / rec.RECORDS[n].sensor_csv).is_file() for n in excitation_fit.RECORD_NAMES):
+        t1 = time.perf_counter()
+        try:
+            excitation = excitation_fit.identify(args.record or None, Background(**out["background"]))
+        except (OSError, ValueError) as exc:
+            print(f"error: the excitation records in {where}: {exc}", file=sys.stderr)
+            return 2
+        t_exc = time.perf_counter() - t1
     shipped = dataclasses.asdict(Background())
-    print(f"identified from {args.record or rec.RECORD_DIR} (docs/DRIVETRAIN.md, 'The measured background')")
+    background = dict(out["background"])
+    if excitation is not None:
+        background["orders_speed_exponent"] = excitation["values"]["orders_speed_exponent"]["value"]
+    bad = [f"{k} = {v!r}" for k, v in {**background, **out["instruments"]}.items()
+           if isinstance(v, float) and not math.isfinite(v)]
+    if bad:
+        print(f"error: the record {where} gives non-finite parameters ({', '.join(bad)}); nothing written",
+              file=sys.stderr)
+        return 2
+    print(f"identified from {where} (docs/DRIVETRAIN.md, 'The measured background'; {t_base:.1f} s)")
     print(f"  {'[background]':28s} {'identified':>12s} {'shipped':>12s}")
-    for k, v in out["background"].items():
+    for k, v in background.items():
         print(f"  {k:28s} {v:12.5g} {shipped[k]:12.5g}")
     c = out["controller"]
     print(f"  speed controller: Kp {c['drive_Kp']:.4g} N·m·s/rad, Ti {c['drive_Ti_s']:.4g} s, logged speed delay "
@@ -303,12 +328,26 @@ def _calibrate_record(args: argparse.Namespace) -> int:
     print("  modes: " + ", ".join(f"{m['f_Hz']:.2f} Hz (zeta {m['zeta']:.3f})" for m in out["modes"]))
     print(f"  broadband fit: {out['fit']['rms_log10']:.3f} decades rms over {out['fit']['bins']} bins "
           f"{out['fit']['band_Hz'][0]:g}-{out['fit']['band_Hz'][1]:g} Hz")
+    comments = []
+    if excitation is not None:
+        print(f"identified from the 2004 rpm impulse and multi-sine records (campaigns.excitation_fit; {t_exc:.1f} s)")
+        for k, v in excitation["values"].items():
+            rng = (f"range {v['range'][0]:g}-{v['range'][1]:g}{'' if v['within'] else ' OUTSIDE'}"
+                   if "range" in v else "")
+            line = f"{k} = {v['value']:.5g} {v['unit']}  [{v['source']}] {rng} {v['note']}".rstrip()
+            print("  " + line)
+            comments.append("# " + line)
+        for k, v in excitation["model"]["sine_H"].items():
+            print(f"  multi-sine {k}: measured {v['measured']:.3g}, model (linear, 2004 rpm) {v['model']:.3g}")
+        print("  not identified here: " + "; ".join(f"{k}: {v if isinstance(v, str) else v[1]}"
+                                                  for k, v in excitation["assumed"].items()))
     path = Path(args.out or "background.toml")
-    lines = ["# drivetrain calibrate --record: the background identified from a measured record", "[background]"]
-    lines += [f"{k} = {v!r}" for k, v in out["background"].items()]
+    lines = ["# drivetrain calibrate --record: the background identified from measured records", *comments,
+             "[background]"]
+    lines += [f"{k} = {v!r}" for k, v in background.items()]
     lines += ["", "[instruments]"] + [f"{k} = {v!r}" for k, v in out["instruments"].items()]
     path.write_text("\n".join(lines) + "\n")
-    print(f"wrote {path}")
+    print(f"wrote {path} ({time.perf_counter() - t0:.1f} s in all)")
     return 0
 
 

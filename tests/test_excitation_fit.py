@@ -1,0 +1,124 @@
+"""Identification from the 2004 rpm excitation records (rig.excitation, campaigns.excitation_fit), checked against
+synthetic records whose mode, damping and controller are known (independent oracles: closed-form responses)."""
+import math
+import shutil
+
+import numpy as np
+import pytest
+from scipy import signal
+
+from drivetrain.rig import excitation as ex
+from drivetrain.rig import record as rec
+
+FS = 1004.0
+F_MSH = 2004.0 / 60.0 / 3.0
+
+
+def _oscillator_noise(fn, zeta, seconds, seed):
+    """A one-mode torque driven by white noise: x'' + 2 zeta wn x' + wn^2 x = wn^2 u (exact discretisation)."""
+    wn = 2 * math.pi * fn
+    sys = signal.cont2discrete(([wn * wn], [1.0, 2 * zeta * wn, wn * wn]), 1.0 / FS, method="zoh")
+    u = np.random.default_rng(seed).normal(0.0, 1.0, int(seconds * FS))
+    return signal.lfilter(sys[0].ravel(), sys[1], u)
+
+
+def _lines(t, amps=(0.15, 0.7, 0.5, 0.15)):
+    return sum(a * np.sin(2 * math.pi * k * F_MSH * t + k) for a, k in zip(amps, ex.ORDER_LINES.values()))
+
+
+@pytest.mark.parametrize("fn, zeta", [(27.0, 0.12), (30.0, 0.05)])
+def test_the_noise_driven_ring_gives_the_mode_beside_strong_lines(fn, zeta):
+    x = _oscillator_noise(fn, zeta, 8.0, seed=1)
+    t = np.arange(len(x)) / FS
+    x = x / np.std(x) * 0.3 + _lines(t) + np.random.default_rng(2).normal(0, 0.01, len(x))
+    m = ex.noise_mode(x, FS, F_MSH)
+    assert m["f_Hz"] == pytest.approx(fn, rel=0.04)
+    assert 1 / 1.35 < m["zeta"] / zeta < 1.35
+
+
+def test_the_damped_sine_fit_reads_a_clean_ring_down_beside_lines():
+    t = np.arange(0, 1.0, 1 / FS)
+    f, z = 28.0, 0.06
+    wd = 2 * math.pi * f
+    wn = wd / math.sqrt(1 - z * z)
+    x = 5.0 + 2.0 * np.exp(-z * wn * t) * np.sin(wd * t + 0.3) + _lines(t)
+    r = ex.ring_down(t, x, 0.0, [k * F_MSH for k in ex.ORDER_LINES.values()])
+    assert r["f_Hz"] == pytest.approx(f, rel=1e-3)
+    assert r["zeta"] == pytest.approx(z, rel=1e-2)
+    assert r["overshoot_Nm"] == pytest.approx(2.0, rel=1e-2)
+
+
+def _synthetic_impulse(kp, ti, offset_s=0.18):
+    """A record of a triangular load pulse on a drive held by a PI (Kp, Ti) on an inertia J: the speed and the
+    drive torque from the closed loop, integrated exactly here (not by the code under test)."""
+    J = 0.0085                                              # drive-side inertia [kg m^2]
+    tm = np.arange(0, 4.0, 1e-3)
+    setp = np.interp(tm, [0, 1.0, 1.1, 1.2, 4.0], [0.119, 0.119, 1.309, 0.119, 0.119])
+    load = 8 * (setp - 0.119) / 12.0                        # the pulse at the drive side (x8 / 12)
+    # J dw/dt = T - load; T = -Kp (w + I / Ti); dI/dt = w: a linear system, stepped by its exact propagator
+    A = np.array([[-kp / J, -kp / (J * ti)], [1.0, 0.0]])
+    B = np.array([-1.0 / J, 0.0])
+    dt = 1e-3
+    Ad = signal.cont2discrete((A, B[:, None], np.eye(2), np.zeros((2, 1))), dt)
+    s = np.zeros(2)
+    w, T = [], []
+    for u in load:
+        w.append(s[0])
+        T.append(-kp * (s[0] + s[1] / ti))
+        s = Ad[0] @ s + Ad[1].ravel() * u
+    w, T = np.array(w), np.array(T)
+    ts = np.arange(0, 4.0 - offset_s, 1 / FS)
+    psh = 6.0 + 8 * np.interp(ts + offset_s, tm, setp - 0.119) + _lines(ts)
+    enc = 209.86 + np.interp(ts + offset_s, tm, w)
+    ch = {"enc1_w": enc, "enc2_w": enc, "drive_shaft_torque": np.full_like(ts, 1.5), "propeller_shaft_torque": psh}
+    mo = {"drive_motor_torque_set": 0 * tm, "drive_motor_torque": 2.3 + T, "load_motor_torque_set": setp,
+          "load_motor_torque": setp}
+    return rec.Record(FS, ts, ch, 1000.0, mo, "impulse_2004rpm", tm)
+
+
+def test_the_speed_controller_is_identified_from_a_synthetic_pulse():
+    from drivetrain.campaigns import excitation_fit as xf
+
+    r = _synthetic_impulse(kp=0.8, ti=0.03)
+    figs = ex.impulse_figures(r.t, r.channels["propeller_shaft_torque"], r.channels["drive_shaft_torque"],
+                              r.channels["enc1_w"], r.fs, r.t_motor, r.motor["load_motor_torque_set"])
+    assert figs["times"]["peak_s"] == pytest.approx(1.1 - 0.18, abs=0.01)
+    assert figs["overshoot"] == pytest.approx(1.0, rel=0.05)     # a static load: no overshoot
+    c = xf.controller(r, figs)
+    assert c["drive_Kp"] / c["drive_Ti_s"] == pytest.approx(0.8 / 0.03, rel=0.1)   # the integral gain
+    assert c["drive_Kp"] == pytest.approx(0.8, rel=0.25)
+    assert c["clock_offset_s"] == pytest.approx(-0.18, abs=0.01)     # sensor time = motor time - 0.18 s here
+
+
+def test_the_identification_refuses_a_bad_record_naming_it(tmp_path):
+    from drivetrain.campaigns import excitation_fit as xf
+
+    for n in xf.RECORD_NAMES:
+        for f in (rec.RECORDS[n].sensor_csv, rec.RECORDS[n].motor_csv):
+            shutil.copy(rec.RECORD_DIR / f, tmp_path / f)
+    bad = tmp_path / rec.RECORDS["sine_2004rpm"].motor_csv
+    lines = bad.read_text().splitlines()
+    lines[9] = lines[9].rsplit(",", 1)[0] + ",nan"
+    bad.write_text("\n".join(lines) + "\n")
+    with pytest.raises(rec.RecordError, match="non-finite"):
+        xf.identify(tmp_path)
+
+
+def test_a_non_finite_value_is_refused_not_written():
+    from drivetrain.campaigns import excitation_fit as xf
+
+    with pytest.raises(xf.ExcitationFitError, match="non-finite"):
+        xf._finite("the ring frequency", float("nan"), "impulse_2004rpm")
+
+
+def test_calibrate_record_writes_nothing_from_a_bad_record(tmp_path, capsys):
+    from drivetrain.cli import main
+
+    for f in (rec.RECORDS["baseline_500rpm"].sensor_csv, rec.RECORDS["baseline_500rpm"].motor_csv):
+        shutil.copy(rec.RECORD_DIR / f, tmp_path / f)
+    (tmp_path / rec.SENSOR_CSV).write_text("")
+    out = tmp_path / "bg.toml"
+    assert main(["calibrate", "--record", str(tmp_path), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "empty record" in err and rec.SENSOR_CSV in err
+    assert not out.exists()

@@ -286,7 +286,7 @@ def test_order_ripple_grows_as_the_speed_squared():
     """A kinematic error's torque: the same gearbox at 1000 rpm has 4x the record's line amplitudes (exponent 2),
     at 250 rpm a quarter; exponent 0 keeps them; along a speed ramp the amplitude follows the reference."""
     bg = bgm.Background(order_msh_1x_Nm=0.2, order_msh_2x_Nm=0.0, order_dsh_1x_Nm=0.0, order_dsh_2x_Nm=0.0,
-                        planetary_mesh_Nm=0.0)
+                        planetary_mesh_Nm=0.0, orders_speed_exponent=2.0)
     fs = 3000.0
     for rpm, factor in ((1000.0, 4.0), (250.0, 0.25)):
         t = np.arange(int(fs * 3 * 60 / rpm * 3)) / fs          # whole middle-shaft revolutions

@@ -282,7 +282,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "orders_speed_exponent": _f(_BG.orders_speed_exponent, "", "", (
             "the periodic lines' amplitudes scale as (speed / 500 rpm)^this: 2 for kinematic errors (runout, "
             "misalignment, a mesh's transmission error between two bodies: the torque that makes a body follow a "
-            "displacement grows as its frequency squared), 0 for constant torques"), minimum=0.0),
+            "displacement grows as its frequency squared), 0 for constant torques; default identified over the "
+            "rig's 500 and 2004 rpm records (drivetrain calibrate --record; campaigns.excitation_fit)"), minimum=0.0),
         "drive_Kp": _f(_BG.drive_Kp, "N·m·s/rad", "", (
             "proportional gain of the drive's speed controller (effects.drive_control = record)"), minimum=0.0,
             min_exclusive=True),

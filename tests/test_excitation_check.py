@@ -42,3 +42,23 @@ def test_the_records_figures_are_finite_and_as_measured_by_hand():
     assert 2.0 < sin["H_32.1Hz"] < 6.0
     for figs in m.values():
         assert all(np.isfinite(v) for v in figs.values() if isinstance(v, float))
+
+
+@pytest.mark.slow
+def test_validate_check_12_on_one_gearbox(tmp_path):
+    """`drivetrain validate --checks 12` on one gearbox (2 runs, ~1 min): the report holds check 12 and its figure;
+    the criteria the model meets over 6 gearboxes hold for this one (ring frequency, overshoot, speed dip, std)."""
+    import subprocess
+    import sys
+
+    report = tmp_path / "VALIDATION.md"
+    p = subprocess.run([sys.executable, "-m", "drivetrain", "validate", "--checks", "12", "--gearboxes", "1",
+                        "--out", str(tmp_path / "out"), "--report", str(report), "--quiet"],
+                       capture_output=True, text=True, timeout=1800)
+    print(p.stdout[-3000:], p.stderr[-3000:])
+    text = report.read_text()
+    assert "| 12 |" in text and "validation_excitation.png" in text
+    assert (tmp_path / "figures" / "validation_excitation.png").is_file()
+    for fig in ("ring_Hz", "overshoot", "speed_dip_rad_s", "std_psh_Nm"):
+        row = next(line for line in text.splitlines() if line.startswith(f"| impulse_2004rpm | {fig} |"))
+        assert " within" in row, row

@@ -122,3 +122,20 @@ def test_calibrate_record_writes_nothing_from_a_bad_record(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "empty record" in err and rec.SENSOR_CSV in err
     assert not out.exists()
+
+
+def test_the_lines_speed_law_leaves_the_500rpm_record_scene_unchanged():
+    """The exponent scales (speed / 500 rpm): at the 500 rpm record's speed every exponent gives the same ripple, so
+    check 11 is untouched by the law identified at 2004 rpm; at 2004 rpm the identified 1.285 gives 4.008^1.285."""
+    import dataclasses
+
+    from drivetrain.rig import background as bgm
+
+    bg = bgm.Background()
+    t = np.arange(0, 1.0, 1 / 3012.0)
+    a = bgm.order_ripple(t, 500.0, bg, 3.0, 4.0)
+    b = bgm.order_ripple(t, 500.0, dataclasses.replace(bg, orders_speed_exponent=2.0), 3.0, 4.0)
+    assert np.array_equal(a, b)
+    c = bgm.order_ripple(t, 2004.0, bg, 3.0, 4.0)
+    d = bgm.order_ripple(t, 2004.0, dataclasses.replace(bg, orders_speed_exponent=0.0), 3.0, 4.0)
+    assert np.max(np.abs(c)) / np.max(np.abs(d)) == pytest.approx((2004 / 500) ** 1.285, rel=1e-9)

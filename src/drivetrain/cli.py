@@ -520,7 +520,9 @@ def _cmd_validate(args: argparse.Namespace) -> int:
             if runs.ok(V.excitation_check.case_name(rec_, 0)) else None, fig_path.parent / "validation_excitation.png")
     command = _command_line("validate")
     t_report = time.perf_counter()
+    lengths = sorted({(s.time.duration_s, s.time.settle_s) for s in scenes})
     meta = {"command": command, "n_scenes": len(scenes), "duration_s": args.duration, "gearboxes": args.gearboxes,
+            "durations": None if len(lengths) == 1 else ", ".join(f"{d:g} s (settle {st:g} s)" for d, st in lengths),
             "settle_s": scenes[0].time.settle_s, "wall_time_s": t_report - args.started,
             "workers": args.workers or os.cpu_count(), "judge_only": args.judge_only,
             "runs_cpu_s": sum(r.get("elapsed_s") or 0.0 for r in manifest.get("runs", []) + repeat.get("runs", []))}

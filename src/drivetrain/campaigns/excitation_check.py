@@ -162,7 +162,7 @@ def table_lines(c: dict) -> list[str]:
              "|---|---|---|---|---|---|---|"]
     for record, rows in c["table"].items():
         for fig, v in rows.items():
-            ok = "within" if v["within"] else ("**outside**" if v["deciding"] else "")
+            ok = ("within" if v["within"] else "**outside**") if v["deciding"] else ""
             lines.append(f"| {record} | {fig} | {v['measured']:.4g} | {v['median']:.4g} [{v['p10']:.3g}, {v['p90']:.3g}] "
                          f"| {_fmt_q(v['kind'], v['q'])} | {_fmt_tol(v['kind'], v['tol'])} {ok} "
                          f"| {100 * v['fraction_within']:.0f} % |")

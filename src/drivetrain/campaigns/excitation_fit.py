@@ -143,18 +143,20 @@ def identify(directory=None, bg: Background | None = None) -> dict:
     where = "impulse_2004rpm"
     values = {
         "first_mode_Hz": _value(_finite("the ring frequency", imp["ring_Hz"], where), "Hz",
-                                "identified: impulse record, noise-driven ring after the pulse", "first_mode_Hz"),
+                                "identified: impulse record, noise-driven ring after the pulse", "first_mode_Hz",
+                                note="a test of the couplings placed at 500 rpm, not written"),
         "first_mode_zeta": _value(_finite("the ring damping", imp["zeta"], where), "",
                                   "identified: impulse record, noise-driven ring after the pulse", "first_mode_zeta"),
         "drive_Kp": _value(ctrl["drive_Kp"], "N·m·s/rad", "identified: impulse record, drive torque vs encoder-1 "
-                           "speed around the pulse", "drive_Kp"),
+                           "speed around the pulse", "drive_Kp", note="shown, not written: [background] keeps the 500 "
+                           "rpm PI, whose integral gain this one repeats (drive_Ki)"),
         "drive_Ti_s": _value(ctrl["drive_Ti_s"], "s", "identified: as drive_Kp", "drive_Ti_s"),
         "drive_Ki": _value(ctrl["drive_Kp"] / ctrl["drive_Ti_s"], "N·m/rad", "identified: as drive_Kp",
                            note=f"500 rpm: {bg.drive_Kp / bg.drive_Ti_s:.3g} (the 100 ms ramps are followed by the "
                                 "integral term; Kp is weakly determined by them)"),
         "orders_speed_exponent": _value(law["exponent"], "", "identified: order sources at 500 rpm ([background]) "
                                         "and 2004 rpm (both records), one exponent for every line",
-                                        "orders_speed_exponent"),
+                                        "orders_speed_exponent", note="written to [background]"),
     }
     for key, row in law["lines"].items():
         values[f"{key}@2004rpm"] = _value(_finite(key, row["source_Nm"], "the 2004 rpm records"), "N·m",

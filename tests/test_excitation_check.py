@@ -44,6 +44,21 @@ def test_the_records_figures_are_finite_and_as_measured_by_hand():
         assert all(np.isfinite(v) for v in figs.values() if isinstance(v, float))
 
 
+def test_the_calibrated_lines_are_called_calibration():
+    """The impulse record's lines fitted the laws: the report names them calibration; the multi-sine's lines and
+    every other figure are validation, and a calibrated figure outside is named so in the verdict."""
+    m = xc.measured_figures()
+    ours = [{r: dict(m[r]) for r in xc.RECORDS}]
+    ours[0]["impulse_2004rpm"]["f_MSH"] *= 10.0
+    c = {"table": xc.compare_figures(ours, m), "missing": [], "n": 1}
+    text = "\n".join(xc.table_lines(c))
+    for line in ("f_MSH", "2f_MSH", "f_DSH", "2f_DSH"):
+        assert f"| impulse_2004rpm | {line} | calibration |" in text and f"| sine_2004rpm | {line} | validation |" in text
+    assert "| impulse_2004rpm | ring_Hz | validation |" in text
+    figure, bad = xc.verdict(c)
+    assert bad == ["impulse f_MSH (calibration)"] and "impulse (calibration): f_MSH +20.0 dB" in figure
+
+
 @pytest.mark.slow
 def test_validate_check_12_on_one_gearbox(tmp_path):
     """`drivetrain validate --checks 12` on one gearbox (2 runs, ~1 min): the report holds check 12 and its figure;

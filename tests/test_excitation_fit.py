@@ -125,8 +125,9 @@ def test_calibrate_record_writes_nothing_from_a_bad_record(tmp_path, capsys):
 
 
 def test_the_lines_speed_law_leaves_the_500rpm_record_scene_unchanged():
-    """The exponent scales (speed / 500 rpm): at the 500 rpm record's speed every exponent gives the same ripple, so
-    check 11 is untouched by the law identified at 2004 rpm; at 2004 rpm the identified 1.285 gives 4.008^1.285."""
+    """Every exponent scales (speed / 500 rpm): at the 500 rpm record's speed any exponents give the same ripple, so
+    check 11 is untouched by the laws calibrated at 2004 rpm; at 2004 rpm each line alone is its 500 rpm amplitude
+    times 4.008^(its own exponent) (closed form), the planetary's mesh times 4.008^orders_speed_exponent."""
     import dataclasses
 
     from drivetrain.rig import background as bgm
@@ -134,8 +135,52 @@ def test_the_lines_speed_law_leaves_the_500rpm_record_scene_unchanged():
     bg = bgm.Background()
     t = np.arange(0, 1.0, 1 / 3012.0)
     a = bgm.order_ripple(t, 500.0, bg, 3.0, 4.0)
-    b = bgm.order_ripple(t, 500.0, dataclasses.replace(bg, orders_speed_exponent=2.0), 3.0, 4.0)
-    assert np.array_equal(a, b)
-    c = bgm.order_ripple(t, 2004.0, bg, 3.0, 4.0)
-    d = bgm.order_ripple(t, 2004.0, dataclasses.replace(bg, orders_speed_exponent=0.0), 3.0, 4.0)
-    assert np.max(np.abs(c)) / np.max(np.abs(d)) == pytest.approx((2004 / 500) ** 1.285, rel=1e-9)
+    other = dataclasses.replace(bg, orders_speed_exponent=2.0, **{k: 2.0 for k in bgm.EXPONENT_KEYS.values()})
+    assert np.array_equal(a, bgm.order_ripple(t, 500.0, other, 3.0, 4.0))
+    zero = {k: 0.0 for k in bgm.ORDERS}
+    assert len(set(getattr(bg, k) for k in bgm.EXPONENT_KEYS.values()) | {bg.orders_speed_exponent}) == 5
+    for key in bgm.ORDERS:
+        one = dataclasses.replace(bg, **{**zero, key: 0.1})
+        x = bgm.order_ripple(t, 2004.0, one, 3.0, 4.0)
+        p = getattr(bg, bgm.EXPONENT_KEYS[key]) if key in bgm.EXPONENT_KEYS else bg.orders_speed_exponent
+        assert np.max(np.abs(x)) == pytest.approx(0.1 * (2004 / 500) ** p, rel=1e-3), key
+
+
+def test_each_lines_law_is_recovered_from_its_calibration_levels_and_judged_on_the_other():
+    """order_law on synthetic levels made with known exponents (level = A_500 4.008^p |H|, |H| the model's own)
+    returns those exponents (exactly determined from two speeds); a judging record with the same levels reads
+    0 dB, one 6 dB lower +6 dB."""
+    from drivetrain.campaigns import excitation_fit as ef, record_fit
+    from drivetrain.rig import background as bgm
+    from drivetrain.rig.data import LOWER_RATIO, UPPER_RATIO
+
+    bg = bgm.Background()
+    truth = {"f_MSH": 0.3, "2f_MSH": 1.1, "f_DSH": 1.9, "2f_DSH": 1.5}
+    f_psh = 2004.0 / 60.0 / (UPPER_RATIO * LOWER_RATIO)
+    keys = list(ef.LINE_KEYS.values())
+    freqs = np.array([bgm.propeller_order(k, bg, UPPER_RATIO, LOWER_RATIO) * f_psh for k in keys])
+    h = record_fit.response(bg, freqs, "load", 2004.0, 1.309)["propeller_shaft_torque"]
+    levels = {line: getattr(bg, key) * (2004 / 500) ** truth[line] * hk
+              for (line, key), hk in zip(ef.LINE_KEYS.items(), h)}
+    law = ef.order_law(levels, bg, judge={k: v / 10 ** (6 / 20) for k, v in levels.items()})
+    for key, row in law["lines"].items():
+        assert row["own_exponent"] == pytest.approx(truth[row["line"]], abs=1e-9)
+        assert row["judge_dB"] == pytest.approx(6.0, abs=1e-9)
+    assert law["exponent"] == pytest.approx(np.mean(list(truth.values())), abs=1e-9)
+
+
+def test_the_shipped_line_laws_are_the_impulse_records_calibration():
+    """The shipped per-line exponents are what `calibrate --record` identifies from the impulse record (and only
+    it: the multi-sine judges them), each within its physical range."""
+    from drivetrain.campaigns import excitation_fit as ef
+    from drivetrain.rig import background as bgm
+
+    out = ef.identify()
+    bg = bgm.Background()
+    for key, ek in bgm.EXPONENT_KEYS.items():
+        v = out["values"][ek]
+        assert v["value"] == pytest.approx(getattr(bg, ek), abs=2e-3) and v["within"], ek
+        assert "impulse record" in v["source"] and v["source"].startswith("calibration")
+        row = out["order_law"]["lines"][key]
+        assert row["measured_Nm"] == out["figures"]["impulse_2004rpm"][row["line"]]
+    assert out["values"]["orders_speed_exponent"]["value"] == pytest.approx(bg.orders_speed_exponent, abs=2e-3)

@@ -287,7 +287,7 @@ def _calibrate_record(args: argparse.Namespace) -> int:
 
     from drivetrain.campaigns import excitation_fit, record_fit
     from drivetrain.rig import record as rec
-    from drivetrain.rig.background import Background
+    from drivetrain.rig.background import EXPONENT_KEYS, Background
 
     where = args.record or rec.RECORD_DIR
     t0 = time.perf_counter()
@@ -311,7 +311,8 @@ def _calibrate_record(args: argparse.Namespace) -> int:
     shipped = dataclasses.asdict(Background())
     background = dict(out["background"])
     if excitation is not None:
-        background["orders_speed_exponent"] = excitation["values"]["orders_speed_exponent"]["value"]
+        for k in ("orders_speed_exponent", *EXPONENT_KEYS.values()):
+            background[k] = excitation["values"][k]["value"]
     bad = [f"{k} = {v!r}" for k, v in {**background, **out["instruments"]}.items()
            if isinstance(v, float) and not math.isfinite(v)]
     if bad:

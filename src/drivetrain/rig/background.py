@@ -55,6 +55,9 @@ from drivetrain.rig.record import RECORD_SPEED_RPM as REFERENCE_SPEED_RPM
 ORDERS = {"order_msh_1x_Nm": ("middle", 1), "order_msh_2x_Nm": ("middle", 2), "order_dsh_1x_Nm": ("drive", 1),
           "order_dsh_2x_Nm": ("drive", 2), "planetary_mesh_Nm": ("planetary", None)}
 
+#: the lines with a speed law of their own: [background] amplitude key -> its exponent's key
+EXPONENT_KEYS = {k: k.replace("_Nm", "_exponent") for k in ORDERS if k.startswith("order_")}
+
 
 @dataclass(frozen=True)
 class Background:
@@ -72,7 +75,11 @@ class Background:
     order_dsh_2x_Nm: float = 0.01836
     planetary_mesh_Nm: float = 0.319
     planetary_ring_teeth: int = 84
-    orders_speed_exponent: float = 1.285
+    orders_speed_exponent: float = 1.400
+    order_msh_1x_exponent: float = 0.6081
+    order_msh_2x_exponent: float = 1.388
+    order_dsh_1x_exponent: float = 1.936
+    order_dsh_2x_exponent: float = 1.670
     drive_Kp: float = 1.411
     drive_Ti_s: float = 0.06506
     coupling_stiffness_scale: float = 1.049
@@ -120,6 +127,13 @@ def drive_angle(t: np.ndarray, speed_rpm) -> np.ndarray:
     return out
 
 
+def line_exponent(key: str, bg: Background) -> float:
+    """The speed exponent of the periodic line ``key``: its own (``<key stem>_exponent``) where it has one, else
+    the common ``orders_speed_exponent`` (the planetary's mesh)."""
+    own = EXPONENT_KEYS.get(key)
+    return float(getattr(bg, own) if own else bg.orders_speed_exponent)
+
+
 def propeller_order(key: str, bg: Background, upper_ratio: float, lower_ratio: float) -> float:
     """Lines per propeller revolution of the periodic line ``key`` of :data:`ORDERS`."""
     what, k = ORDERS[key]
@@ -137,14 +151,15 @@ def order_ripple(t: np.ndarray, speed_rpm, bg: Background, upper_ratio: float, l
     between (1.285 identified over 500 and 2004 rpm, module docstring). The phases are drawn from ``bg.seed``
     (one gearbox, one set of phases; not the run's name)."""
     theta = drive_angle(t, speed_rpm) / (upper_ratio * lower_ratio)
-    scale = (speed_at(t, speed_rpm) / REFERENCE_SPEED_RPM) ** float(bg.orders_speed_exponent)
+    ratio = speed_at(t, speed_rpm) / REFERENCE_SPEED_RPM
     phases = _rng(bg.seed, "shaft_orders", "").uniform(0.0, 2.0 * math.pi, len(ORDERS))
     out = np.zeros_like(theta)
     for key, ph in zip(ORDERS, phases):
         amp = float(getattr(bg, key))
         if amp:
-            out += amp * np.sin(propeller_order(key, bg, upper_ratio, lower_ratio) * theta + ph)
-    return out * scale
+            out += amp * ratio ** line_exponent(key, bg) * np.sin(
+                propeller_order(key, bg, upper_ratio, lower_ratio) * theta + ph)
+    return out
 
 
 #: where the background's torques act: on the drive motor's rotor, or on the propeller mass

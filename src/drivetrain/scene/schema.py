@@ -280,10 +280,22 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "teeth of the planetary's ring gear: its mesh frequency is this times the propeller shaft's speed "
             "(84: the record's line at 84.0 f_PSH; 1 + 84/12 = 8, the planetary's ratio)")),
         "orders_speed_exponent": _f(_BG.orders_speed_exponent, "", "", (
-            "the periodic lines' amplitudes scale as (speed / 500 rpm)^this: 2 for kinematic errors (runout, "
+            "the planetary mesh line's amplitude (and every line without an exponent of its own) scales as (speed / 500 rpm)^this: 2 for kinematic errors (runout, "
             "misalignment, a mesh's transmission error between two bodies: the torque that makes a body follow a "
             "displacement grows as its frequency squared), 0 for constant torques; default identified over the "
             "rig's 500 and 2004 rpm records (drivetrain calibrate --record; campaigns.excitation_fit)"), minimum=0.0),
+        "order_msh_1x_exponent": _f(_BG.order_msh_1x_exponent, "", "", (
+            "the middle shaft's 1x line's amplitude scales as (speed / 500 rpm)^this (its own speed law; default a calibration on the "
+            "rig's 500 rpm record and its 2004 rpm impulse record, drivetrain calibrate --record)"), minimum=0.0),
+        "order_msh_2x_exponent": _f(_BG.order_msh_2x_exponent, "", "", (
+            "the middle shaft's 2x line's amplitude scales as (speed / 500 rpm)^this (its own speed law; default a calibration on the "
+            "rig's 500 rpm record and its 2004 rpm impulse record, drivetrain calibrate --record)"), minimum=0.0),
+        "order_dsh_1x_exponent": _f(_BG.order_dsh_1x_exponent, "", "", (
+            "the drive shaft's 1x line's amplitude scales as (speed / 500 rpm)^this (its own speed law; default a calibration on the "
+            "rig's 500 rpm record and its 2004 rpm impulse record, drivetrain calibrate --record)"), minimum=0.0),
+        "order_dsh_2x_exponent": _f(_BG.order_dsh_2x_exponent, "", "", (
+            "the drive shaft's 2x line's amplitude scales as (speed / 500 rpm)^this (its own speed law; default a calibration on the "
+            "rig's 500 rpm record and its 2004 rpm impulse record, drivetrain calibrate --record)"), minimum=0.0),
         "drive_Kp": _f(_BG.drive_Kp, "N·m·s/rad", "", (
             "proportional gain of the drive's speed controller (effects.drive_control = record)"), minimum=0.0,
             min_exclusive=True),
@@ -365,7 +377,9 @@ ACTS_WHEN: dict[str, tuple] = {
     "background.drive_noise_Nm_rtHz": (_DRIVE,),
     **{f"background.{k}": (_ORDERS,) for k in ("order_msh_1x_Nm", "order_msh_2x_Nm", "order_dsh_1x_Nm",
                                                "order_dsh_2x_Nm", "planetary_mesh_Nm", "planetary_ring_teeth",
-                                               "orders_speed_exponent")},
+                                               "orders_speed_exponent", "order_msh_1x_exponent",
+                                               "order_msh_2x_exponent", "order_dsh_1x_exponent",
+                                               "order_dsh_2x_exponent")},
     **{f"background.{k}": (_on("effects.drive_control", "record"),) for k in ("drive_Kp", "drive_Ti_s")},
     **{f"background.{k}": (_on("effects.couplings", "record"),)
        for k in ("coupling_stiffness_scale", "coupling_damping_scale", "propeller_stiffness_scale",

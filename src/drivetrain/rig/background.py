@@ -26,12 +26,14 @@ and the procedure: docs/DRIVETRAIN.md, "The measured background"):
   and at the planetary's mesh frequency (84 x the propeller shaft's speed: the record's largest line, at
   84.0 f_PSH, with 1 + 84/12 = 8 the planetary's ratio). In phase with the propeller shaft's nominal angle
   (the integral of the speed reference); phases drawn from ``seed``; amplitudes as a power of the speed
-  (``orders_speed_exponent``), the record's at 500 rpm. The exponent is 1.285, identified from the 500 rpm
-  record and the two 2004 rpm excitation records (campaigns.excitation_fit: one exponent for every line, least
-  squares in log over the four lines' sources); between 0 (a torque ripple of constant size) and 2 (a kinematic
-  error moving the propeller mass), which issue 28 had assumed and which put the lines 6-18 dB over the rig's
-  at 2004 rpm. The lines' own exponents differ (f_MSH 0.53, 2 f_MSH 1.32, f_DSH 1.82, 2 f_DSH 1.47): one law
-  leaves f_MSH +9 dB and f_DSH up to -10 dB off at 2004 rpm (docs/VALIDATION.md, check 12).
+  (one exponent per line, ``order_*_exponent``; ``orders_speed_exponent`` for the planetary's mesh), the record's
+  at 500 rpm. Each line has its own mechanism (runout and bow at 1x, misalignment at 2x, of a shaft of its own),
+  so each has its own law: the exponents 0.608 (f_MSH), 1.388 (2 f_MSH), 1.936 (f_DSH) and 1.670 (2 f_DSH) are a
+  calibration on the 500 rpm record and the 2004 rpm impulse record (campaigns.excitation_fit); the 2004 rpm
+  multi-sine record judges them (docs/VALIDATION.md, check 12). Between 0 (a torque ripple of constant size) and 2
+  (a kinematic error moving the propeller mass), which issue 28 had assumed for all and which put the lines 6-18
+  dB over the rig's at 2004 rpm. The planetary's mesh has no second speed: it keeps the lines' common exponent
+  1.400 (least squares in log over the four).
 
 Torques on the propeller mass reach the model as the load motor's setting (MotorLoad's ``load_torque``
 input, their 1/8 share), torques on the rotor as ``motor_torque_disturbance``: both are input profiles
@@ -145,10 +147,10 @@ def propeller_order(key: str, bg: Background, upper_ratio: float, lower_ratio: f
 def order_ripple(t: np.ndarray, speed_rpm, bg: Background, upper_ratio: float, lower_ratio: float) -> np.ndarray:
     """Periodic torque [N·m] on the propeller mass at the orders of ``ORDERS``, in phase with the
     propeller shaft's nominal angle (the drive's angle over the two gear stages). Each amplitude is the
-    record's at its speed (``REFERENCE_SPEED_RPM``) times (speed / that speed)^``orders_speed_exponent``: a
+    record's at its speed (``REFERENCE_SPEED_RPM``) times (speed / that speed)^(its exponent, :func:`line_exponent`): a
     kinematic error between two bodies is a displacement, and the torque that makes a body follow it grows as
     the square of its frequency (exponent 2); a motor's torque ripple keeps its size (0); the rig's lines grow
-    between (1.285 identified over 500 and 2004 rpm, module docstring). The phases are drawn from ``bg.seed``
+    between, each by its own exponent (:func:`line_exponent`, module docstring). The phases are drawn from ``bg.seed``
     (one gearbox, one set of phases; not the run's name)."""
     theta = drive_angle(t, speed_rpm) / (upper_ratio * lower_ratio)
     ratio = speed_at(t, speed_rpm) / REFERENCE_SPEED_RPM

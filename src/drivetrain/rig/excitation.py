@@ -23,7 +23,11 @@ Nothing here needs the two clocks (sensors, motor drives) to agree: every time i
   torque at f_MSH, 2 f_MSH, f_DSH, 2 f_DSH (largest bin within :data:`LINE_HALF_WIDTH_HZ`).
 * **Load response** (:func:`load_response`): the multi-sine's propeller-shaft torque amplitude at each load line
   over the load's own (referred to the propeller shaft, x8): a point of the transfer function the first mode
-  shapes.
+  shapes. The logged setpoint's 32 Hz line is not one bin: on the motor log's clock it spreads over
+  31.8-32.5 Hz (peak bin 2.4 of a band amplitude 3.7, file units), while the rig's propeller torque holds a clean
+  line at 32.08 Hz (8.8 of 9.1); replayed on that clock, the setpoint spreads our response alike. So
+  :func:`load_response_band` (``Hband_32.1Hz``) divides band powers (:func:`band_amplitude`, ±1.25 Hz), and
+  ``psh_{32,64,96}Hz_Nm`` give the propeller torque's band amplitude at the line and its 2nd and 3rd harmonics.
 
 Pure: arrays in, numbers out.
 """
@@ -50,6 +54,8 @@ MODE_AFTER_PULSE_S = 0.3
 DIP_BEFORE_S = 0.3
 DIP_AFTER_S = 0.3
 LINE_HALF_WIDTH_HZ = 0.6
+#: the band [Hz either side] of a load line's power in :func:`band_amplitude`
+BAND_HALF_WIDTH_HZ = 1.25
 #: the shaft-order lines [lines per middle-shaft revolution]
 ORDER_LINES = {"f_MSH": 1, "2f_MSH": 2, "f_DSH": UPPER_RATIO, "2f_DSH": 2 * UPPER_RATIO}
 #: the multi-sine's load lines, looked for near [Hz] (the logged setpoint's; README of the records)
@@ -186,6 +192,26 @@ def load_lines(t_set: np.ndarray, setpoint: np.ndarray) -> dict:
     return out
 
 
+def band_amplitude(x: np.ndarray, fs: float, f_Hz: float, half_width_Hz: float = BAND_HALF_WIDTH_HZ) -> float:
+    """The amplitude [unit] of the sine carrying the power of ``x`` within ``half_width_Hz`` of ``f_Hz``: the Hann
+    amplitudes' squares summed over the band, over the window's noise bandwidth (1.5 bins); for a clean line
+    the peak bin's amplitude, for one spread over several bins (a wandering frequency) still its whole power."""
+    f, a = amplitude_spectrum(np.asarray(x, dtype=float) - np.mean(x), fs)
+    sel = np.abs(f - f_Hz) <= half_width_Hz
+    return float(math.sqrt(np.sum(a[sel] ** 2) / 1.5))
+
+
+def load_response_band(x: np.ndarray, fs: float, t_set: np.ndarray, setpoint: np.ndarray, lines: dict) -> dict:
+    """As :func:`load_response` with :func:`band_amplitude` on both sides (the setpoint on a uniform grid at the
+    motor's median step): the response where the load's line is spread over several bins by the motor log's
+    clock (module docstring)."""
+    dt = float(np.median(np.diff(t_set)))
+    tu = np.arange(t_set[0], t_set[-1], dt)
+    su = np.interp(tu, t_set, setpoint)
+    return {key: band_amplitude(x, fs, ln["f_Hz"]) / (PG_RATIO * band_amplitude(su, 1.0 / dt, ln["f_Hz"]))
+            for key, ln in lines.items()}
+
+
 def load_response(x: np.ndarray, fs: float, lines: dict) -> dict:
     """The propeller-shaft torque's amplitude at each load line over the load's, referred to the propeller
     shaft (x PG_RATIO): |H| [N·m per N·m]."""
@@ -224,9 +250,13 @@ def sine_figures(t: np.ndarray, psh: np.ndarray, dsh: np.ndarray, enc1_w: np.nda
     keep = t >= t[0] + skip_s
     psh, dsh, enc1_w = psh[keep], dsh[keep], enc1_w[keep]
     fm = msh_hz(enc1_w)
-    resp = load_response(psh, fs, load_lines(t_set, setpoint))
+    lines = load_lines(t_set, setpoint)
+    resp = load_response(psh, fs, lines)
+    band = load_response_band(psh, fs, t_set, setpoint, {k: v for k, v in lines.items() if k == "32.1"})
     return {"std_psh_Nm": float(np.std(psh)), "std_dsh_Nm": float(np.std(dsh)), **line_levels(psh, fs, fm),
-            **{f"H_{k}Hz": v for k, v in resp.items()}, "f_MSH_Hz": fm}
+            **{f"H_{k}Hz": v for k, v in resp.items()}, **{f"Hband_{k}Hz": v for k, v in band.items()},
+            **{f"psh_{k * SINE_LINES_HZ[0]:.0f}Hz_Nm": band_amplitude(psh, fs, k * lines["32.1"]["f_Hz"])
+               for k in (1, 2, 3)}, "f_MSH_Hz": fm}
 
 
 def speed_of(angle: np.ndarray, fs: float) -> np.ndarray:
@@ -236,5 +266,6 @@ def speed_of(angle: np.ndarray, fs: float) -> np.ndarray:
 
 
 __all__ = ["impulse_figures", "sine_figures", "ring_down", "speed_dip", "line_levels", "load_lines", "load_response",
+           "load_response_band", "band_amplitude",
            "setpoint_pulse", "pulse_times", "revolution_mean", "msh_hz", "speed_of", "ORDER_LINES", "SINE_LINES_HZ",
            "RING_WINDOW_S", "SKIP_S"]

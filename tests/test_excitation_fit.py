@@ -184,3 +184,7 @@ def test_the_shipped_line_laws_are_the_impulse_records_calibration():
         row = out["order_law"]["lines"][key]
         assert row["measured_Nm"] == out["figures"]["impulse_2004rpm"][row["line"]]
     assert out["values"]["orders_speed_exponent"]["value"] == pytest.approx(bg.orders_speed_exponent, abs=2e-3)
+    # the other way round: calibrated on the multi-sine, judged on the impulse record; the judgements mirror
+    for key, row in out["order_law_reverse"]["lines"].items():
+        assert row["judge_dB"] == pytest.approx(-out["order_law"]["lines"][key]["judge_dB"], abs=1e-9)
+        assert row["measured_Nm"] == out["figures"]["sine_2004rpm"][row["line"]]

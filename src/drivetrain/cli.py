@@ -340,6 +340,9 @@ def _calibrate_record(args: argparse.Namespace) -> int:
             comments.append("# " + line)
         for k, v in excitation["model"]["sine_H"].items():
             print(f"  multi-sine {k}: measured {v['measured']:.3g}, model (linear, 2004 rpm) {v['model']:.3g}")
+        rev = excitation["order_law_reverse"]["lines"].values()
+        print("  the other way (shown, not written): laws calibrated on the multi-sine, judged on the impulse record: "
+              + ", ".join(f"{r['line']} p {r['own_exponent']:.3f} ({r['judge_dB']:+.1f} dB)" for r in rev))
         print("  not identified here: " + "; ".join(f"{k}: {v if isinstance(v, str) else v[1]}"
                                                   for k, v in excitation["assumed"].items()))
     path = Path(args.out or "background.toml")

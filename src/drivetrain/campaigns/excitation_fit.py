@@ -16,7 +16,8 @@ mode, the drive's speed control and the shaft-order lines, each value with its s
    mechanism (runout and bow of the middle and drive shafts at 1x, misalignment at 2x), so one exponent for
    all need not hold; the common exponent (least squares in log over the four) is shown beside them and kept
    for the planetary's mesh, which has no second speed. ``judge``: the multi-sine record's lines beside the
-   linear model's prediction from the calibrated law (the simulated judgement is check 12's).
+   linear model's prediction from the calibrated law (the simulated judgement is check 12's). ``order_law_reverse``:
+   the other way round (calibrated on the multi-sine, judged on the impulse record), shown, never written.
 
 Every value is finite or the identification refuses (ExcitationFitError naming the value): a record that
 gives no pulse, no mode or no line cannot write NaN into a scene. Pure: records in, numbers out.
@@ -146,6 +147,7 @@ def identify(directory=None, bg: Background | None = None) -> dict:
     imp, sin = figs["impulse_2004rpm"], figs["sine_2004rpm"]
     ctrl = controller(records["impulse_2004rpm"], imp)
     law = order_law({line: imp[line] for line in LINE_KEYS}, bg, judge={line: sin[line] for line in LINE_KEYS})
+    reverse = order_law({line: sin[line] for line in LINE_KEYS}, bg, judge={line: imp[line] for line in LINE_KEYS})
     model_modes = record_fit.first_modes(bg, 4, SPEED_RPM, 1.309)
     sine_keys = [k for k in sin if k.startswith("H_")]
     f_lines = [float(k[2:-2]) for k in sine_keys]
@@ -178,7 +180,7 @@ def identify(directory=None, bg: Background | None = None) -> dict:
             f"calibration: {row['line']} source at 500 rpm and 2004 rpm (impulse record)", "order_exponent",
             note=f"written to [background]; multi-sine (judge) linear prediction {row['judge_dB']:+.1f} dB over its "
                  f"{row['judge_measured_Nm']:.3g} N·m")
-    return {"values": values, "figures": figs, "controller": ctrl, "order_law": law,
+    return {"values": values, "figures": figs, "controller": ctrl, "order_law": law, "order_law_reverse": reverse,
             "model": {"modes_2004rpm": model_modes,
                       "sine_H": {k: {"measured": sin[k], "model": float(h)} for k, h in zip(sine_keys, h_model)}},
             "assumed": {"coupling_stiffness_scale": (bg.coupling_stiffness_scale, "identified at 500 rpm (hump 27.8 Hz)"),

@@ -178,7 +178,9 @@ _LEGITIMATE = {("scenario.description", '"a/b"'), ("scenario.description", '".."
                ("background.drive_noise_Nm_rtHz", "0"), ("background.order_msh_1x_Nm", "0"),
                ("background.order_msh_2x_Nm", "0"), ("background.order_dsh_1x_Nm", "0"),
                ("background.order_dsh_2x_Nm", "0"), ("background.planetary_mesh_Nm", "0"),
-               ("background.orders_speed_exponent", "0"), ("background.coupling_damping_scale", "0"),
+               ("background.orders_speed_exponent", "0"), ("background.order_msh_1x_exponent", "0"),
+               ("background.order_msh_2x_exponent", "0"), ("background.order_dsh_1x_exponent", "0"),
+               ("background.order_dsh_2x_exponent", "0"), ("background.coupling_damping_scale", "0"),
                ("background.propeller_damping_scale", "0")}
 
 

@@ -286,13 +286,13 @@ def test_order_ripple_grows_as_the_speed_squared():
     """A kinematic error's torque: the same gearbox at 1000 rpm has 4x the record's line amplitudes (exponent 2),
     at 250 rpm a quarter; exponent 0 keeps them; along a speed ramp the amplitude follows the reference."""
     bg = bgm.Background(order_msh_1x_Nm=0.2, order_msh_2x_Nm=0.0, order_dsh_1x_Nm=0.0, order_dsh_2x_Nm=0.0,
-                        planetary_mesh_Nm=0.0)
+                        planetary_mesh_Nm=0.0, order_msh_1x_exponent=2.0)
     fs = 3000.0
     for rpm, factor in ((1000.0, 4.0), (250.0, 0.25)):
         t = np.arange(int(fs * 3 * 60 / rpm * 3)) / fs          # whole middle-shaft revolutions
         x = bgm.order_ripple(t, rpm, bg, 3.0, 4.0)
         assert np.max(np.abs(x)) == pytest.approx(0.2 * factor, rel=1e-3)
-        flat = bgm.order_ripple(t, rpm, dataclasses.replace(bg, orders_speed_exponent=0.0), 3.0, 4.0)
+        flat = bgm.order_ripple(t, rpm, dataclasses.replace(bg, order_msh_1x_exponent=0.0), 3.0, 4.0)
         assert np.max(np.abs(flat)) == pytest.approx(0.2, rel=1e-3)
     t = np.linspace(0.0, 2.0, 20001)
     ramp = bgm.order_ripple(t, [[0.0, 0.0], [2.0, 1000.0]], bg, 3.0, 4.0)

@@ -55,24 +55,25 @@ START = Background(coupling_stiffness_scale=1.0, coupling_damping_scale=1.0, pro
                    propeller_damping_scale=1.0)
 
 
-def _scene(bg: Background):
+def _scene(bg: Background, speed_rpm: float = rec.RECORD_SPEED_RPM, load_Nm: float = rec.RECORD_LOAD_NM):
     from drivetrain.scene.load import resolve
 
     sc = resolve({"scenario": {"name": "record_fit"},
-                  "operating_point": {"drive_speed_rpm": rec.RECORD_SPEED_RPM, "load_torque_Nm": rec.RECORD_LOAD_NM},
+                  "operating_point": {"drive_speed_rpm": speed_rpm, "load_torque_Nm": load_Nm},
                   "effects": {"mesh_contact": "table", "tooth_compliance": True, "couplings": "record",
                               "drive_control": "record"}})
     return dataclasses.replace(sc, background=bg)
 
 
-def response(bg: Background, freqs: np.ndarray, at: str = "load") -> dict:
+def response(bg: Background, freqs: np.ndarray, at: str = "load", speed_rpm: float = rec.RECORD_SPEED_RPM,
+             load_Nm: float = rec.RECORD_LOAD_NM) -> dict:
     """|H(f)| of the two transducers' torques [N·m per N·m] to a torque ``at`` the propeller mass
     (``"load"``) or the drive motor's rotor (``"drive"``), linearised at the record's operating point with
-    the couplings and controller of ``bg``."""
+    the couplings and controller of ``bg`` (or at ``speed_rpm`` and ``load_Nm``)."""
     from drivetrain.models import eigen
     from drivetrain.run.assemble import assemble
 
-    spec = assemble(_scene(bg), check=False)
+    spec = assemble(_scene(bg, speed_rpm, load_Nm), check=False)
     ls = eigen.assemble_linear(spec, operating=True)
     M, K, C = ls.M, ls.K + ls.K_ground, ls.C + ls.C_ground
     lab = {name: i for i, name in enumerate(ls.labels)}
@@ -89,13 +90,15 @@ def response(bg: Background, freqs: np.ndarray, at: str = "load") -> dict:
     return {"propeller_shaft_torque": np.array(hp), "drive_shaft_torque": np.array(hd)}
 
 
-def first_modes(bg: Background, n: int = 3) -> list[dict]:
+def first_modes(bg: Background, n: int = 3, speed_rpm: float = rec.RECORD_SPEED_RPM,
+                load_Nm: float = rec.RECORD_LOAD_NM) -> list[dict]:
     """Damped natural frequencies [Hz] and damping ratios of the linearised drivetrain with the couplings
     and controller of ``bg`` (losses included), above 5 Hz (the speed loop's own slow pole is not a mode)."""
     from drivetrain.models import eigen
     from drivetrain.run.assemble import assemble
 
-    _, _, _, fd, zeta = eigen.modes(assemble(_scene(bg), check=False), controller=True, damped=True)
+    _, _, _, fd, zeta = eigen.modes(assemble(_scene(bg, speed_rpm, load_Nm), check=False), controller=True,
+                                    damped=True)
     keep = fd > 5.0
     return [{"f_Hz": float(a), "zeta": float(z)} for a, z in list(zip(fd[keep], zeta[keep]))[:n]]
 

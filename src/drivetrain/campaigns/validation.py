@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from drivetrain.campaigns.provenance import commit_line
-from drivetrain.campaigns import GEARBOXES, record_check
+from drivetrain.campaigns import GEARBOXES, excitation_check, record_check
 from drivetrain.rig import indicators as ci
 from drivetrain.rig.data import PAPER_LOADS_NM, PAPER_MAX_LOAD_NM, PAPER_MAX_SPEED_RPM, PAPER_SPEEDS_RPM, TORQUE_SENSORS
 from drivetrain.rig.record import MEASURED_TRANSDUCER_NOISE_NM
@@ -88,15 +88,25 @@ def gearbox_seeds(gearbox: int) -> list[str]:
     return [f"manufacturing.seed={gearbox}", f"background.seed={gearbox}", f"instruments.seed={gearbox}"]
 
 
+#: every check's number; the checks that need the realistic grid (the others: 11 the record scene, 12 the
+#: excitation scenes)
+ALL_CHECKS = tuple(range(1, 13))
+GRID_CHECKS = tuple(range(1, 11))
+
+
 def scenes(base: Path, duration_s: float, settle_s: float, overrides: tuple = (),
-           gearboxes: int = N_GEARBOXES) -> list:
-    """Every scene the checks need (module docstring), named by :func:`case_name` and :func:`stiff_name`."""
+           gearboxes: int = N_GEARBOXES, checks: tuple = ALL_CHECKS) -> list:
+    """Every scene the ``checks`` need (module docstring), named by :func:`case_name` and :func:`stiff_name`."""
     from drivetrain.scene.load import load_scene
 
     common = [f"time.duration_s={duration_s}", f"time.settle_s={settle_s}", "outputs.plots=false",
               "outputs.aalto_csv=false", "time.sample_rate_Hz=3012",          # the rig's clock, 4 steps a sample
               "numerics.comm_step_s=8.300132802124833e-05", *overrides]
     out = []
+    tail = ((record_check.scenes(common, gearboxes) if 11 in checks else [])
+            + (excitation_check.scenes(common, gearboxes) if 12 in checks else []))
+    if not set(checks) & set(GRID_CHECKS):
+        return tail
 
     def add(name, extra):
         out.append(load_scene(base, overrides=common + list(extra) + [f'scenario.name="{name}"']))
@@ -115,7 +125,7 @@ def scenes(base: Path, duration_s: float, settle_s: float, overrides: tuple = ()
     for n in SPEEDS_RPM:
         for t in LOADS_NM:
             add(case_name("healthy", n, t, realistic=False), op("healthy", n, t))
-    return out + record_check.scenes(common, gearboxes)
+    return out + tail
 
 
 #: the case run a second time (in a directory of its own, same name and seeds) for check 10
@@ -584,12 +594,35 @@ CHECKS = {1: check_mean_torques, 2: check_mode, 3: check_frequencies, 4: check_s
           6: check_order, 7: check_speed, 8: check_stiffness, 9: check_peaks_compliance}
 
 
-def evaluate(manifest: dict, names: list, repeat_manifest: dict | None = None) -> list[CheckResult]:
+def evaluate(manifest: dict, names: list, repeat_manifest: dict | None = None,
+             checks: tuple = ALL_CHECKS) -> list[CheckResult]:
+    """The ``checks`` judged on the runs (check 10 on ``names`` and the repeat)."""
     runs = Runs(manifest)
-    out = [fn(runs) for fn in CHECKS.values()]
-    out.append(check_complete(runs, names, Runs(repeat_manifest) if repeat_manifest else None))
-    out.append(check_record(runs))
+    out = [fn(runs) for k, fn in CHECKS.items() if k in checks]
+    if 10 in checks:
+        out.append(check_complete(runs, names, Runs(repeat_manifest) if repeat_manifest else None))
+    if 11 in checks:
+        out.append(check_record(runs))
+    if 12 in checks:
+        out.append(check_excitation(runs))
     return out
+
+
+def check_excitation(runs: Runs) -> CheckResult:
+    """Check 12: the 2004 rpm excitation records against their scenes (campaigns.excitation_check)."""
+    n = max(sum(name.startswith("excitation_impulse") for name in runs.records), 1)
+    r = CheckResult(12, "2004 rpm impulse and multi-sine vs the rig's records",
+                    "2004 rpm (2023 records), one parameter set: ring frequency ±10 %, damping x1.5, first overshoot "
+                    "±25 %, speed dip x1.5, torque std x2 (both shafts), shaft-order lines (f_MSH, 2 f_MSH, f_DSH, "
+                    f"2 f_DSH) ±6 dB, the multi-sine's 32 Hz load response ±6 dB (the median of {n} gearboxes; the "
+                    "fraction of gearboxes within is shown)")
+    c = excitation_check.compare(runs, n)
+    if c["missing"]:
+        r.details = [f"missing runs: {', '.join(c['missing'])}"]
+    r.figure, bad = excitation_check.verdict(c)
+    r.details += excitation_check.table_lines(c)
+    r.status = "pass" if not bad and not c["missing"] else "fail"
+    return r
 
 
 def check_record(runs: Runs) -> CheckResult:
@@ -675,14 +708,15 @@ def plot_separability(result: CheckResult, path: Path) -> Path | None:
 
 
 def report_markdown(results: list[CheckResult], meta: dict, figure: str | None,
-                    record_figure: str | None = None, separability_figure: str | None = None) -> str:
+                    record_figure: str | None = None, separability_figure: str | None = None,
+                    excitation_figure: str | None = None) -> str:
     lines = ["# Validation against the paper's findings", "",
              "Generated by `drivetrain validate` (src/drivetrain/campaigns/validation.py); do not edit by hand.", "",
              f"- command: `{meta.get('command', '')}`",
              commit_line(),
-             f"- scenes: {meta.get('n_scenes')} runs of {meta.get('duration_s'):g} s "
-             f"(settle {meta.get('settle_s'):g} s) over {meta.get('gearboxes')} gearboxes (seeds 0..N-1: "
-             f"manufacturing, background, instruments), realism effects: {', '.join(REALISM)} unless a check says",
+             f"- scenes: {meta.get('n_scenes')} runs of "
+             + (meta.get("durations") or f"{meta.get('duration_s'):g} s (settle {meta.get('settle_s'):g} s)") + f" over {meta.get('gearboxes')} gearboxes (seeds 0..N-1: "
+             "manufacturing, background, instruments), realism effects: " + ", ".join(REALISM) + " unless a check says",
              f"- pass rules are fractions of gearboxes ({PASS_FRACTION:.0%} unless a check says); figures are "
              "distributions over the gearboxes: median (10th, 90th percentile)",
              f"- wall time: {meta.get('wall_time_s', float('nan')) / 60:.1f} min on {meta.get('workers')} worker(s)"
@@ -709,4 +743,6 @@ def report_markdown(results: list[CheckResult], meta: dict, figure: str | None,
         lines += ["## Spectra (gearbox 0)", "", f"![spectra]({figure})", ""]
     if record_figure:
         lines += ["## The measured record and ours (check 11)", "", f"![record]({record_figure})", ""]
+    if excitation_figure:
+        lines += ["## The 2004 rpm excitation records and ours (check 12)", "", f"![excitation]({excitation_figure})", ""]
     return "\n".join(lines)

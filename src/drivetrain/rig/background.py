@@ -25,8 +25,15 @@ and the procedure: docs/DRIVETRAIN.md, "The measured background"):
   below the first mode their effect on both transducers is that of a torque on the one body free to follow)
   and at the planetary's mesh frequency (84 x the propeller shaft's speed: the record's largest line, at
   84.0 f_PSH, with 1 + 84/12 = 8 the planetary's ratio). In phase with the propeller shaft's nominal angle
-  (the integral of the speed reference); phases drawn from ``seed``; amplitudes as the square of the speed
-  (kinematic errors: ``orders_speed_exponent``), the record's at 500 rpm.
+  (the integral of the speed reference); phases drawn from ``seed``; amplitudes as a power of the speed
+  (one exponent per line, ``order_*_exponent``; ``orders_speed_exponent`` for the planetary's mesh), the record's
+  at 500 rpm. Each line has its own mechanism (runout and bow at 1x, misalignment at 2x, of a shaft of its own),
+  so each has its own law: the exponents 0.608 (f_MSH), 1.388 (2 f_MSH), 1.936 (f_DSH) and 1.670 (2 f_DSH) are a
+  calibration on the 500 rpm record and the 2004 rpm impulse record (campaigns.excitation_fit); the 2004 rpm
+  multi-sine record judges them (docs/VALIDATION.md, check 12). Between 0 (a torque ripple of constant size) and 2
+  (a kinematic error moving the propeller mass), which issue 28 had assumed for all and which put the lines 6-18
+  dB over the rig's at 2004 rpm. The planetary's mesh has no second speed: it keeps the lines' common exponent
+  1.400 (least squares in log over the four).
 
 Torques on the propeller mass reach the model as the load motor's setting (MotorLoad's ``load_torque``
 input, their 1/8 share), torques on the rotor as ``motor_torque_disturbance``: both are input profiles
@@ -50,6 +57,9 @@ from drivetrain.rig.record import RECORD_SPEED_RPM as REFERENCE_SPEED_RPM
 ORDERS = {"order_msh_1x_Nm": ("middle", 1), "order_msh_2x_Nm": ("middle", 2), "order_dsh_1x_Nm": ("drive", 1),
           "order_dsh_2x_Nm": ("drive", 2), "planetary_mesh_Nm": ("planetary", None)}
 
+#: the lines with a speed law of their own: [background] amplitude key -> its exponent's key
+EXPONENT_KEYS = {k: k.replace("_Nm", "_exponent") for k in ORDERS if k.startswith("order_")}
+
 
 @dataclass(frozen=True)
 class Background:
@@ -67,7 +77,11 @@ class Background:
     order_dsh_2x_Nm: float = 0.01836
     planetary_mesh_Nm: float = 0.319
     planetary_ring_teeth: int = 84
-    orders_speed_exponent: float = 2.0
+    orders_speed_exponent: float = 1.400
+    order_msh_1x_exponent: float = 0.6081
+    order_msh_2x_exponent: float = 1.388
+    order_dsh_1x_exponent: float = 1.936
+    order_dsh_2x_exponent: float = 1.670
     drive_Kp: float = 1.411
     drive_Ti_s: float = 0.06506
     coupling_stiffness_scale: float = 1.049
@@ -115,6 +129,13 @@ def drive_angle(t: np.ndarray, speed_rpm) -> np.ndarray:
     return out
 
 
+def line_exponent(key: str, bg: Background) -> float:
+    """The speed exponent of the periodic line ``key``: its own (``<key stem>_exponent``) where it has one, else
+    the common ``orders_speed_exponent`` (the planetary's mesh)."""
+    own = EXPONENT_KEYS.get(key)
+    return float(getattr(bg, own) if own else bg.orders_speed_exponent)
+
+
 def propeller_order(key: str, bg: Background, upper_ratio: float, lower_ratio: float) -> float:
     """Lines per propeller revolution of the periodic line ``key`` of :data:`ORDERS`."""
     what, k = ORDERS[key]
@@ -126,19 +147,21 @@ def propeller_order(key: str, bg: Background, upper_ratio: float, lower_ratio: f
 def order_ripple(t: np.ndarray, speed_rpm, bg: Background, upper_ratio: float, lower_ratio: float) -> np.ndarray:
     """Periodic torque [N·m] on the propeller mass at the orders of ``ORDERS``, in phase with the
     propeller shaft's nominal angle (the drive's angle over the two gear stages). Each amplitude is the
-    record's at its speed (``REFERENCE_SPEED_RPM``) times (speed / that speed)^``orders_speed_exponent``: a
+    record's at its speed (``REFERENCE_SPEED_RPM``) times (speed / that speed)^(its exponent, :func:`line_exponent`): a
     kinematic error between two bodies is a displacement, and the torque that makes a body follow it grows as
-    the square of its frequency (exponent 2; 0 = a constant torque). The phases are drawn from ``bg.seed``
+    the square of its frequency (exponent 2); a motor's torque ripple keeps its size (0); the rig's lines grow
+    between, each by its own exponent (:func:`line_exponent`, module docstring). The phases are drawn from ``bg.seed``
     (one gearbox, one set of phases; not the run's name)."""
     theta = drive_angle(t, speed_rpm) / (upper_ratio * lower_ratio)
-    scale = (speed_at(t, speed_rpm) / REFERENCE_SPEED_RPM) ** float(bg.orders_speed_exponent)
+    ratio = speed_at(t, speed_rpm) / REFERENCE_SPEED_RPM
     phases = _rng(bg.seed, "shaft_orders", "").uniform(0.0, 2.0 * math.pi, len(ORDERS))
     out = np.zeros_like(theta)
     for key, ph in zip(ORDERS, phases):
         amp = float(getattr(bg, key))
         if amp:
-            out += amp * np.sin(propeller_order(key, bg, upper_ratio, lower_ratio) * theta + ph)
-    return out * scale
+            out += amp * ratio ** line_exponent(key, bg) * np.sin(
+                propeller_order(key, bg, upper_ratio, lower_ratio) * theta + ph)
+    return out
 
 
 #: where the background's torques act: on the drive motor's rotor, or on the propeller mass

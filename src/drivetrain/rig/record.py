@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drivetrain.rig.data import TORQUE_SENSORS
+from drivetrain.rig.data import PG_RATIO, TORQUE_SENSORS
 from drivetrain.rig.signals import amplitude_spectrum, characteristic_frequencies
 
 RECORD_DIR = Path(__file__).resolve().parents[1] / "data" / "rig_records"
@@ -53,26 +53,104 @@ TORQUES = TORQUE_SENSORS
 
 @dataclass(frozen=True)
 class Record:
-    """The measured record: sensor time [s] and channels at ``fs`` [Hz]; the motor drives' signals at ``fs_motor``."""
+    """A measured record: sensor time [s] and channels at ``fs`` [Hz]; the motor drives' signals at ``fs_motor``
+    (their own clock, not synchronised with the sensors'); ``name`` one of :data:`RECORDS`."""
 
     fs: float
     t: np.ndarray
     channels: dict            # drive_shaft_torque, propeller_shaft_torque [N·m], enc1_w, enc2_w [rad/s]
     fs_motor: float
-    motor: dict               # drive_motor_w, load_motor_w [rad/s], drive_motor_torque, load_motor_torque [N·m]
+    motor: dict               # baseline: drive_motor_w, load_motor_w [rad/s], drive_motor_torque, load_motor_torque
+    #                           excitations: drive_motor_torque, load_motor_torque_set, load_motor_torque [N·m]
+    name: str = "baseline_500rpm"
+    t_motor: np.ndarray | None = None
 
 
-def load_record(directory: str | Path | None = None) -> Record:
-    """Read the record's two CSV files (columns as in its README)."""
+@dataclass(frozen=True)
+class RecordSpec:
+    """One shipped record: its files, the motor file's columns (after time) and the factor that brings each to
+    the load motor (the excitation files give the load torque referred to the propeller shaft, x8), its
+    operating point."""
+
+    sensor_csv: str
+    motor_csv: str
+    motor_columns: tuple
+    speed_rpm: float
+    load_Nm: float
+
+
+_EXCITATION_MOTOR = (("drive_motor_torque_set", 1.0), ("drive_motor_torque", 1.0),
+                     ("load_motor_torque_set", 1.0 / PG_RATIO), ("load_motor_torque", 1.0 / PG_RATIO))
+#: the shipped records (README in RECORD_DIR): name -> files and columns
+RECORDS = {
+    "baseline_500rpm": RecordSpec(SENSOR_CSV, MOTOR_CSV, (("drive_motor_w", 1.0), ("load_motor_w", 1.0),
+                                                          ("drive_motor_torque", 1.0), ("load_motor_torque", 1.0)),
+                                  RECORD_SPEED_RPM, RECORD_LOAD_NM),
+    "impulse_2004rpm": RecordSpec("excitation_2004rpm_impulse_sensor.csv", "excitation_2004rpm_impulse_motor.csv",
+                                  _EXCITATION_MOTOR, 2004.0, 0.119),
+    "sine_2004rpm": RecordSpec("excitation_2004rpm_sin_sensor.csv", "excitation_2004rpm_sin_motor.csv",
+                               _EXCITATION_MOTOR, 2004.0, 1.309),
+}
+SENSOR_COLUMNS = ("enc1_w", "enc2_w", "drive_shaft_torque", "propeller_shaft_torque")
+
+
+class RecordError(ValueError):
+    """A record file cannot be used: the message names the file and the problem."""
+
+
+def read_columns(path: str | Path, n_columns: int) -> np.ndarray:
+    """The rows of a headerless numeric CSV record file with time first; refuses (RecordError naming the file):
+    a missing or unreadable file, no rows, a single row, a row of another width than ``n_columns``, a
+    non-numeric or non-finite value, time not increasing strictly."""
+    p = Path(path)
+    if not p.is_file():
+        raise RecordError(f"{p}: no such record file")
+    try:
+        text = p.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise RecordError(f"{p}: unreadable ({exc})") from None
+    rows = [(i + 1, ln) for i, ln in enumerate(text.splitlines()) if ln.strip()]
+    if not rows:
+        raise RecordError(f"{p}: empty record (no rows)")
+    if len(rows) == 1:
+        raise RecordError(f"{p}: a single row: a record needs at least two samples")
+    out = np.empty((len(rows), n_columns))
+    for k, (ln, line) in enumerate(rows):
+        cells = line.split(",")
+        if len(cells) != n_columns:
+            raise RecordError(f"{p}: line {ln} has {len(cells)} columns, {n_columns} expected")
+        try:
+            out[k] = [float(c) for c in cells]
+        except ValueError:
+            raise RecordError(f"{p}: line {ln}: not a number ({line.strip()[:80]!r})") from None
+        if not np.all(np.isfinite(out[k])):
+            raise RecordError(f"{p}: line {ln}: a non-finite value ({line.strip()[:80]!r})")
+    dt = np.diff(out[:, 0])
+    if np.any(dt <= 0):
+        i = int(np.flatnonzero(dt <= 0)[0])
+        raise RecordError(f"{p}: time does not increase at line {rows[i + 1][0]} ({out[i + 1, 0]:g} s after {out[i, 0]:g} s)")
+    return out
+
+
+def load_record(directory: str | Path | None = None, name: str = "baseline_500rpm") -> Record:
+    """Read a record's two CSV files (``name`` from :data:`RECORDS`; columns as in its README); RecordError
+    naming the file when one cannot be used (:func:`read_columns`)."""
+    if name not in RECORDS:
+        raise RecordError(f"unknown record {name!r}: one of {', '.join(RECORDS)}")
+    spec = RECORDS[name]
     d = Path(directory) if directory is not None else RECORD_DIR
-    s = np.loadtxt(d / SENSOR_CSV, delimiter=",")
-    m = np.loadtxt(d / MOTOR_CSV, delimiter=",")
+    s = read_columns(d / spec.sensor_csv, 1 + len(SENSOR_COLUMNS))
+    m = read_columns(d / spec.motor_csv, 1 + len(spec.motor_columns))
     fs = 1.0 / float(np.median(np.diff(s[:, 0])))
     fm = 1.0 / float(np.median(np.diff(m[:, 0])))
-    ch = {"enc1_w": s[:, 1], "enc2_w": s[:, 2], "drive_shaft_torque": s[:, 3], "propeller_shaft_torque": s[:, 4]}
-    mo = {"drive_motor_w": m[:, 1], "load_motor_w": m[:, 2], "drive_motor_torque": m[:, 3],
-          "load_motor_torque": m[:, 4]}
-    return Record(fs, s[:, 0] - s[0, 0], ch, fm, mo)
+    ch = {k: s[:, i + 1] for i, k in enumerate(SENSOR_COLUMNS)}
+    mo = {k: m[:, i + 1] * f for i, (k, f) in enumerate(spec.motor_columns)}
+    return Record(fs, s[:, 0] - s[0, 0], ch, fm, mo, name, m[:, 0] - m[0, 0])
+
+
+#: the scene of each excitation record and the load series file it names (scenarios/validation)
+EXCITATION_SCENES = {"impulse_2004rpm": ("rig_impulse_2004rpm.toml", "rig_impulse_2004rpm_load.csv"),
+                     "sine_2004rpm": ("rig_sine_2004rpm.toml", "rig_sine_2004rpm_load.csv")}
 
 
 def windows(x: np.ndarray, fs: float, skip_s: float = SKIP_S, window_s: float = WINDOW_S) -> list[np.ndarray]:
@@ -121,5 +199,5 @@ def ratio_dB(sim: float, measured: float) -> float:
     return float(20.0 * np.log10(sim / measured)) if sim > 0 and measured > 0 else float("nan")
 
 
-__all__ = ["MEASURED_TRANSDUCER_NOISE_NM", "Record", "load_record", "windows", "background_figures", "record_figures",
+__all__ = ["MEASURED_TRANSDUCER_NOISE_NM", "Record", "RecordError", "RECORDS", "read_columns", "load_record", "EXCITATION_SCENES", "windows", "background_figures", "record_figures",
            "ratio_dB", "FIGURES", "HUMPS", "TORQUES", "SKIP_S", "WINDOW_S", "RECORD_SPEED_RPM", "RECORD_LOAD_NM"]

@@ -132,6 +132,21 @@ def _check_value(key: str, spec: Key, value: Any, base_dir: Path, problems) -> A
             problems.append((key, value, f"an existing mesh file (not found: {p})"))
             return None
         return p
+    if t == "series":                   # a CSV file of time and the key's quantity, read now (scene.series)
+        from drivetrain.scene.series import SeriesError, read_series
+
+        if not isinstance(value, str) or not value or "\x00" in value:
+            problems.append((key, value, "a CSV file path (a non-empty string without NUL characters)"))
+            return None
+        p = Path(value).expanduser()
+        if not p.is_absolute():
+            p = (base_dir / p).resolve()
+        try:
+            ts, vs = read_series(p, spec.dimension, spec.dimension)
+        except SeriesError as exc:
+            problems += [(key, value, f"a time/{spec.dimension} series file; {p}: {pr}") for pr in exc.problems]
+            return None
+        return _Series(p, tuple(zip(ts.tolist(), vs.tolist())))
     if t == "faults":                   # each specification: checked with the health (_check_gear)
         if not isinstance(value, list):
             problems.append((key, value, "an array of tables [[gear.faults]]"))
@@ -361,9 +376,24 @@ def _check_effects(values: dict, problems) -> None:
                          f"or {fidelities_with('manufacturing_errors')[-1]})"))
 
 
+class _Series(tuple):
+    """A series key's value while resolving: (the file, its (t, value) pairs)."""
+
+    def __new__(cls, path: Path, points: tuple):
+        return super().__new__(cls, (path, points))
+
+
 def _check_profiles(values: dict, problems) -> None:
-    """Speed and load profiles start at time 0."""
+    """Speed and load profiles start at time 0; a load series file is the load profile (not both)."""
     op = values["operating_point"]
+    series = op.get("load_series_csv")
+    if isinstance(series, _Series):
+        if op.get("load_profile_Nm") not in (None, _MISSING):
+            problems.append(("operating_point.load_series_csv", str(series[0]),
+                             "either load_series_csv or load_profile_Nm, not both"))
+        op["load_series_csv"], op["load_profile_Nm"] = series
+    elif series is _MISSING:
+        op["load_series_csv"] = None
     for pk in ("speed_profile_rpm", "load_profile_Nm"):
         prof = op.get(pk)
         if prof not in (None, _MISSING) and prof[0][0] != 0.0:

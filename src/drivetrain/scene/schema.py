@@ -82,7 +82,7 @@ BASE_UNIT = {"time": "s", "speed": "rpm", "torque": "N·m", "frequency": "Hz", "
 class Key:
     """One scene key."""
 
-    type: str                       # float | int | bool | str | enum | path | profile | str_list | var_list
+    type: str                       # float | int | bool | str | enum | path | profile | series | str_list | var_list
     default: Any = _MISSING         # _MISSING = required; None = optional (absent)
     unit: str = ""                  # unit of the value ("" = dimensionless / not a quantity)
     dimension: str = ""             # dimension accepted in "<number> <unit>" strings
@@ -134,6 +134,11 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "load_profile_Nm": Key("profile", None, "N·m", doc=(
             "piecewise-linear load torque, [[time_s, N·m], ...] like speed_profile_rpm; overrides "
             "load_torque_Nm (a step: two points 1 ms apart); values may be negative (a load reversal)")),
+        "load_series_csv": Key("series", None, "N·m", "torque", doc=(
+            "a measured load-motor torque series as the load input: a CSV file (path relative to the scene "
+            "file) with a header naming time and torque with their units (e.g. `time_s,load_torque_Nm`) and one "
+            "row per point, time from 0 strictly increasing; interpolated linearly, held after the last point; "
+            "overrides load_torque_Nm, excludes load_profile_Nm (docs/SCENARIOS.md, 'Measured load series')")),
     },
     "gear": {
         "health": Key("enum", "healthy", allowed=HEALTH_STATES, doc=(
@@ -275,9 +280,22 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "teeth of the planetary's ring gear: its mesh frequency is this times the propeller shaft's speed "
             "(84: the record's line at 84.0 f_PSH; 1 + 84/12 = 8, the planetary's ratio)")),
         "orders_speed_exponent": _f(_BG.orders_speed_exponent, "", "", (
-            "the periodic lines' amplitudes scale as (speed / 500 rpm)^this: 2 for kinematic errors (runout, "
+            "the planetary mesh line's amplitude (and every line without an exponent of its own) scales as (speed / 500 rpm)^this: 2 for kinematic errors (runout, "
             "misalignment, a mesh's transmission error between two bodies: the torque that makes a body follow a "
-            "displacement grows as its frequency squared), 0 for constant torques"), minimum=0.0),
+            "displacement grows as its frequency squared), 0 for constant torques; default identified over the "
+            "rig's 500 and 2004 rpm records (drivetrain calibrate --record; campaigns.excitation_fit)"), minimum=0.0),
+        "order_msh_1x_exponent": _f(_BG.order_msh_1x_exponent, "", "", (
+            "the middle shaft's 1x line's amplitude scales as (speed / 500 rpm)^this (its own speed law; default a calibration on the "
+            "rig's 500 rpm record and its 2004 rpm impulse record, drivetrain calibrate --record)"), minimum=0.0),
+        "order_msh_2x_exponent": _f(_BG.order_msh_2x_exponent, "", "", (
+            "the middle shaft's 2x line's amplitude scales as (speed / 500 rpm)^this (its own speed law; default a calibration on the "
+            "rig's 500 rpm record and its 2004 rpm impulse record, drivetrain calibrate --record)"), minimum=0.0),
+        "order_dsh_1x_exponent": _f(_BG.order_dsh_1x_exponent, "", "", (
+            "the drive shaft's 1x line's amplitude scales as (speed / 500 rpm)^this (its own speed law; default a calibration on the "
+            "rig's 500 rpm record and its 2004 rpm impulse record, drivetrain calibrate --record)"), minimum=0.0),
+        "order_dsh_2x_exponent": _f(_BG.order_dsh_2x_exponent, "", "", (
+            "the drive shaft's 2x line's amplitude scales as (speed / 500 rpm)^this (its own speed law; default a calibration on the "
+            "rig's 500 rpm record and its 2004 rpm impulse record, drivetrain calibrate --record)"), minimum=0.0),
         "drive_Kp": _f(_BG.drive_Kp, "N·m·s/rad", "", (
             "proportional gain of the drive's speed controller (effects.drive_control = record)"), minimum=0.0,
             min_exclusive=True),
@@ -359,7 +377,9 @@ ACTS_WHEN: dict[str, tuple] = {
     "background.drive_noise_Nm_rtHz": (_DRIVE,),
     **{f"background.{k}": (_ORDERS,) for k in ("order_msh_1x_Nm", "order_msh_2x_Nm", "order_dsh_1x_Nm",
                                                "order_dsh_2x_Nm", "planetary_mesh_Nm", "planetary_ring_teeth",
-                                               "orders_speed_exponent")},
+                                               "orders_speed_exponent", "order_msh_1x_exponent",
+                                               "order_msh_2x_exponent", "order_dsh_1x_exponent",
+                                               "order_dsh_2x_exponent")},
     **{f"background.{k}": (_on("effects.drive_control", "record"),) for k in ("drive_Kp", "drive_Ti_s")},
     **{f"background.{k}": (_on("effects.couplings", "record"),)
        for k in ("coupling_stiffness_scale", "coupling_damping_scale", "propeller_stiffness_scale",
@@ -407,6 +427,7 @@ class OperatingPoint:
     load_torque_Nm: float
     speed_profile_rpm: tuple[tuple[float, float], ...] | None
     load_profile_Nm: tuple[tuple[float, float], ...] | None
+    load_series_csv: Path | None = None      # the file load_profile_Nm was read from (None: given inline)
 
     def speed_at(self, t: float) -> float:
         """Speed reference [rpm] at time t (profile if given)."""
@@ -536,7 +557,8 @@ class Scene:
             d = {}
             for f in dataclasses.fields(obj):
                 v = getattr(obj, f.name)
-                if v is None:
+                if v is None or (section == "operating_point" and f.name == "load_profile_Nm"
+                                 and obj.load_series_csv is not None):   # read from the file the scene names
                     continue
                 if isinstance(v, Path):
                     v = str(v)
@@ -642,7 +664,7 @@ def schema_markdown() -> str:
                 if not allowed and spec.type in ("float", "profile"):
                     allowed = "any finite value (negative allowed)"
             typ = {"faults": "array of tables", "str_list": "list of str", "var_list": "list of str", "profile": "list of [float, float]",
-                   "path": "str (path)", "enum": "str"}.get(spec.type, spec.type)
+                   "path": "str (path)", "series": "str (path to a CSV)", "enum": "str"}.get(spec.type, spec.type)
             out.append(f"| `{key}` | {typ} | {spec.unit or '–'} | {dflt} | {allowed or '–'} | {spec.doc} |")
         out.append("")
     return "\n".join(out)

@@ -1,10 +1,10 @@
 """Fuzz pass for the newer doors: mutated manifests, summaries, signals files, draw grids, FMU
-archives and rig records, seeded, judged as tests/test_fuzz.py judges scenes and meshes: a result, or a refusal
+archives and rig records, seeded, judged as tests/cli/test_fuzz.py judges scenes and meshes: a result, or a refusal
 that names the file, never another exception (a traceback for the user).
 
 The default suite draws about two hundred cases (well under a minute on top of one 0.2 s toy sweep); ``-m slow``
 ten times as many. A failing case prints its seed and mutation: rerun it with
-``FUZZ_SEED=<seed> pytest tests/test_fuzz_doors.py -k <family>``.
+``FUZZ_SEED=<seed> pytest tests/cli/test_fuzz_doors.py -k <family>``.
 """
 from __future__ import annotations
 
@@ -332,8 +332,6 @@ def _record_fuzz(tmp_path, n):
         shutil.rmtree(d)
 
 
-@pytest.mark.xfail(strict=False, reason="the record reader of calibrate --record is refused/fixed on another branch "
-                                        "(issue 45); drop this mark once it is merged")
 def test_fuzz_rig_records(tmp_path, request):
     """Mutated rig records through `drivetrain calibrate --record`: a background without a non-finite value, or
     a refusal, never a traceback."""

@@ -6,7 +6,7 @@ import pytest
 
 from drivetrain.scene.load import ScenarioError, load_scene, resolve
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 VALIDATION = ROOT / "scenarios" / "validation"
 RECORDS = ROOT / "src" / "drivetrain" / "data" / "rig_records"
 KEY = "operating_point.load_series_csv"

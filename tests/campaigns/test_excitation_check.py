@@ -30,7 +30,7 @@ def test_the_criteria_are_as_stated(kind, tol, ours, measured, ok):
 
 
 def test_the_records_figures_are_finite_and_as_measured_by_hand():
-    """The records' own figures (an independent reading: README of the records and issue 41: encoder-1 at
+    """The records' own figures (an independent reading: the records' README: encoder-1 at
     209.86 rad/s, propeller torque std 1.44 (impulse, whole record) and 6.70 N·m (multi-sine), its 32.1 Hz
     response 8.8 N·m to the 10 N·m (x8) line; the first mode near 28 Hz)."""
     m = xc.measured_figures()

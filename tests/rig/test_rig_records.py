@@ -1,5 +1,5 @@
 """The rig records' reader (drivetrain.rig.record.load_record / read_columns): the shipped records load, and a bad
-record is refused with an error naming the file and the problem (issue 45)."""
+record is refused with an error naming the file and the problem."""
 import shutil
 from pathlib import Path
 

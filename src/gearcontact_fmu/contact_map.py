@@ -469,8 +469,9 @@ def cache_key(gear, pcm, resolution, health, mesh_files, grid, fault_kwargs=None
     if health == "healthy":        # the shipped healthy maps keep their names
         return params_hash(gear, pcm, resolution, health, files, grid, fault_kwargs or {}, MAP_VERSION)
     key = (gear, pcm, resolution, health, files, grid, fault_kwargs or {}, MAP_VERSION, FAULT_VERSION)
-    if health == "faults" and not files and _partner_profile(gear, fault_kwargs):
-        key += ("partner_profile_bands",)        # a wheel chipped tip's pinion: the other keys stay as they were
+    bands = _partner_profile(gear, fault_kwargs) if health == "faults" and not files else []
+    if bands:                    # a wheel chipped tip's pinion: the other keys stay as they were
+        key += ("partner_profile_bands", [list(b) for b in bands])
     return params_hash(*key)
 
 

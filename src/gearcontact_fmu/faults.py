@@ -172,10 +172,13 @@ def partner_profile_bands(params: BevelGearParams | None, specs, member: str) ->
     chipped tip: the chamfer's edge (the wheel's new tip) runs across the pinion's flank where the two
     involutes stop being conjugate, and where it sits between the pinion's profile nodes decides a light
     load's drop (issue 40: the wheel's chipped tip at 0.12 N·m, 0.430 at 0.05 mm and 0.382 at 0.025 mm).
-    The band covers the pinion's involute from where the healthy wheel tip meets it to a quarter of the
-    chamfer height beyond the edge's conjugate point, with nodes every height/32 (the chamfer's own
-    spacing is height/16). Every pinion tooth, both flanks, gets it (the teeth stay rotated copies of one
-    tooth). The wheel needs none (the pinion's chipped tip converges without it)."""
+    The band covers the pinion's involute from its start (the healthy wheel's tip rounding touches it
+    below the conjugate of the wheel's involute end: measured, that light contact is what the chip takes
+    away at the largest drop) to a quarter of the chamfer height beyond the edge's conjugate point, with
+    nodes every height/32 (the chamfer's own spacing is height/16). Every pinion tooth, both flanks, gets
+    it (the teeth stay rotated copies of one tooth), so the faulty map's own healthy pitch is the healthy
+    pair at that refinement: the drop's reference (benchmarks/fault_convergence.py). The wheel needs none
+    (the pinion's chipped tip converges without it)."""
     if member != "pinion":
         return []
     params = params or BevelGearParams()
@@ -187,8 +190,8 @@ def partner_profile_bands(params: BevelGearParams | None, specs, member: str) ->
             continue
         h = spec["height_mm"] * 1e-3
         s_end = g.L_radial + g.L_inv
-        edge, tip = conjugate_profile_param(params, "wheel", [s_end - h / g.Rm, s_end])
-        out.append((float(tip), float(edge + 0.25 * h / g.Rm), h / 32.0 / g.Rm))
+        edge = float(conjugate_profile_param(params, "wheel", s_end - h / g.Rm))
+        out.append((geometry.gear_geometry(params, "pinion").L_radial, edge + 0.25 * h / g.Rm, h / 32.0 / g.Rm))
     return out
 
 

@@ -171,6 +171,7 @@ def test_a_wheel_chipped_tip_refines_the_pinion_profile_where_its_edge_meets_it(
     roll0 = {r: Rm * math.tan(q.delta) * math.sin(a) for r, q in (("p", gp), ("w", gw))}
     rb = {r: Rm * math.tan(q.delta) * math.cos(a) for r, q in (("p", gp), ("w", gw))}
     s_end = gw.L_radial + gw.L_inv
+    assert s_lo == gp.L_radial                                       # from the pinion's involute start
     for s_w in (s_end - 0.5e-3 / Rm, s_end):
         dw = (s_w - gw.s_pitch_param) * Rm                           # wheel profile arc above its pitch point [m]
         roll_w = math.sqrt(roll0["w"] ** 2 + 2.0 * rb["w"] * dw)

@@ -29,7 +29,7 @@ import time
 
 import numpy as np
 
-from gearcontact_fmu import fault_contact as fc
+from gearcontact_fmu import fault_contact as fc, faults
 from gearcontact_fmu.contact_map import get_map
 from gearcontact_fmu.fault_specs import FAULT_KINDS
 from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCMParams
@@ -60,6 +60,21 @@ def integrated_drop(healthy, faulty, torque: float, gear) -> float:
     off = np.abs(theta - theta[int(np.argmax(d))]) % span
     near = np.minimum(off, span - off) <= 1.5 * pitch
     return float(np.sum(d[near]) * (theta[1] - theta[0]) / pitch)
+
+
+def own_healthy_pitch(faulty, healthy, per: int):
+    """The faulty map's own healthy pitch tiled over one revolution (the healthy map's rows): for a wheel
+    chipped tip, whose pinion carries the partner profile band (faults.partner_profile_bands), the healthy
+    pair at that refinement. The block half a map away from the largest drop (the faulty wheel tooth meets
+    the pinion once in the map's four revolutions)."""
+    import dataclasses
+
+    n = faulty.theta.size
+    i = int(np.nanargmax(np.abs(faulty.values[:, 0, -1, 0] - np.roll(faulty.values[:, 0, -1, 0], per))))
+    k = ((i + n // 2) % n) // per * per
+    reps = healthy.theta.size // per
+    return dataclasses.replace(healthy, values=np.tile(faulty.values[k:k + per], (reps, 1, 1, 1)),
+                               onset=np.tile(faulty.onset[k:k + per], (reps, 1)))
 
 
 def healthy_under_load(cmap, torque: float, per: int) -> tuple[float, float]:
@@ -106,9 +121,14 @@ def main() -> None:
                 t0 = time.perf_counter()
                 faulty = get_map(gear, pcm, res, "faults", None, grid, fault_kwargs={"faults": [spec]})
                 row[f"build_s_{name}"] = time.perf_counter() - t0
+                ref = maps[name]
+                if faults.partner_profile_bands(gear, [spec], "pinion"):
+                    ref = own_healthy_pitch(faulty, maps[name], grid.points_per_pitch)
+                    for load, T in torques.items():
+                        row[f"{name}_vs_shipped_healthy@{load}"] = fc.mesh_torque_drop(maps[name], faulty, T)
                 for load, T in torques.items():
-                    row[f"{name}@{load}"] = fc.mesh_torque_drop(maps[name], faulty, T)
-                    row[f"{name}_int@{load}"] = integrated_drop(maps[name], faulty, T, gear)
+                    row[f"{name}@{load}"] = fc.mesh_torque_drop(ref, faulty, T)
+                    row[f"{name}_int@{load}"] = integrated_drop(ref, faulty, T, gear)
             for load in LOADS_NM:
                 for key in ("", "_int"):
                     d0, d1 = row[f"default{key}@{load}"], row[f"half{key}@{load}"]

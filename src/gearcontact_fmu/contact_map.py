@@ -468,7 +468,17 @@ def cache_key(gear, pcm, resolution, health, mesh_files, grid, fault_kwargs=None
         files["units"] = mesh_units
     if health == "healthy":        # the shipped healthy maps keep their names
         return params_hash(gear, pcm, resolution, health, files, grid, fault_kwargs or {}, MAP_VERSION)
-    return params_hash(gear, pcm, resolution, health, files, grid, fault_kwargs or {}, MAP_VERSION, FAULT_VERSION)
+    key = (gear, pcm, resolution, health, files, grid, fault_kwargs or {}, MAP_VERSION, FAULT_VERSION)
+    bands = _partner_profile(gear, fault_kwargs) if health == "faults" and not files else []
+    if bands:                    # a wheel chipped tip's pinion: the other keys stay as they were
+        key += ("partner_profile_bands", [list(b) for b in bands])
+    return params_hash(*key)
+
+
+def _partner_profile(gear, fault_kwargs) -> list:
+    from gearcontact_fmu import faults
+
+    return faults.partner_profile_bands(gear, (fault_kwargs or {}).get("faults", []), "pinion")
 
 
 _MAP_ARRAYS = ("theta", "a", "onset", "values")
@@ -547,12 +557,14 @@ def incremental_from_healthy(gear, health: str, mesh_files, fault_kwargs) -> boo
     """Whether a configuration's map is built from the healthy map (:func:`_tabulate_by_pitch`):
     generated gears with generated faults, whose healthy teeth are the healthy gear's. Not with a mesh
     file, nor with a wheel pit, for which every pinion tooth gets extra face rows
-    (faults.partner_face_bands) and so differs from the healthy pinion."""
+    (faults.partner_face_bands) and so differs from the healthy pinion, nor with a wheel chipped tip (extra
+    profile nodes, faults.partner_profile_bands)."""
     from gearcontact_fmu import faults
 
     if health == "healthy" or any((mesh_files or {}).values()) or health not in faults.GENERATED_HEALTH:
         return False
-    return not faults.partner_face_bands(gear, (fault_kwargs or {}).get("faults", []), "pinion")
+    specs = (fault_kwargs or {}).get("faults", [])
+    return not (faults.partner_face_bands(gear, specs, "pinion") or faults.partner_profile_bands(gear, specs, "pinion"))
 
 
 def _build_map(gear, pcm, resolution, health, mesh_files, mesh_units, grid, fault_kwargs,

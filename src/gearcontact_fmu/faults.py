@@ -41,7 +41,7 @@ from .mesh_model import GENERATED_HEALTH
 from .meshes import KIND_TIP_ROUND, SurfaceMesh, concatenate
 from .params import BevelGearParams, MeshResolution
 
-__all__ = ["mild_flank_fracture", "missing_tooth", "pit", "spall", "chipped_tip", "crack", "wear", "apply_health", "apply_faults", "user_mesh",
+__all__ = ["mild_flank_fracture", "missing_tooth", "pit", "spall", "chipped_tip", "crack", "wear", "partner_profile_bands", "apply_health", "apply_faults", "user_mesh",
            "GENERATED_HEALTH", "FAULT_KINDS", "FAMILIES", "void_strip", "fault_footprint"]
 
 
@@ -147,6 +147,54 @@ def partner_face_bands(params: BevelGearParams | None, specs, member: str) -> li
     return out
 
 
+def conjugate_profile_param(params: BevelGearParams | None, role: str, s) -> np.ndarray:
+    """Profile parameter [rad] of the other gear's involute that meets ``role``'s involute at its profile
+    parameter ``s`` (in the plane of action). Both spherical involutes are drawn by points of that plane,
+    at the angles psi from the two base cones' generators; the two angles add up to the same total at
+    every contact, the sum of the pitch cones' psi (where the two meet at the pitch cone)."""
+    params = params or BevelGearParams()
+    g = geometry.gear_geometry(params, role)
+    h = geometry.gear_geometry(params, "wheel" if role == "pinion" else "pinion")
+
+    def psi_pitch(q):
+        return math.acos(math.cos(q.delta) / math.cos(q.delta_b))
+
+    sdb, cdb = math.sin(g.delta_b), math.cos(g.delta_b)
+    si = g.s_inv0 + (np.asarray(s, dtype=float) - g.L_radial)
+    psi = np.arccos(np.clip(1.0 - si * sdb / cdb, -1.0, 1.0))
+    psi_h = psi_pitch(g) + psi_pitch(h) - psi
+    shb, chb = math.sin(h.delta_b), math.cos(h.delta_b)
+    return h.L_radial + chb * (1.0 - np.cos(psi_h)) / shb - h.s_inv0
+
+
+def partner_profile_bands(params: BevelGearParams | None, specs, member: str) -> list:
+    """Profile bands ``[(s_lo, s_hi, fine), ...]`` [rad] the ``member`` needs because the other gear has a
+    chipped tip: the chamfer's edge (the wheel's new tip) runs across the pinion's flank where the two
+    involutes stop being conjugate, and where it sits between the pinion's profile nodes decides a light
+    load's drop (issue 40: the wheel's chipped tip at 0.12 N·m, 0.430 at 0.05 mm and 0.382 at 0.025 mm).
+    The band covers the pinion's involute from its start (the healthy wheel's tip rounding touches it
+    below the conjugate of the wheel's involute end: measured, that light contact is what the chip takes
+    away at the largest drop) to a quarter of the chamfer height beyond the edge's conjugate point, with
+    nodes every height/32 (the chamfer's own spacing is height/16). Every pinion tooth, both flanks, gets
+    it (the teeth stay rotated copies of one tooth), so the faulty map's own healthy pitch is the healthy
+    pair at that refinement: the drop's reference (benchmarks/fault_convergence.py). The wheel needs none
+    (the pinion's chipped tip converges without it)."""
+    if member != "pinion":
+        return []
+    params = params or BevelGearParams()
+    g = geometry.gear_geometry(params, "wheel")
+    out = []
+    for spec in specs:
+        spec = normalised_spec(spec)
+        if spec["member"] != "wheel" or spec["kind"] != "chipped_tip":
+            continue
+        h = spec["height_mm"] * 1e-3
+        s_end = g.L_radial + g.L_inv
+        edge = float(conjugate_profile_param(params, "wheel", s_end - h / g.Rm))
+        out.append((geometry.gear_geometry(params, "pinion").L_radial, edge + 0.25 * h / g.Rm, h / 32.0 / g.Rm))
+    return out
+
+
 def _check_tooth(mesh, params, tooth, flank):
     """The checks every fault on a generated gear shares: (params, role, geometry, tooth mod z)."""
     params = params or BevelGearParams()
@@ -243,7 +291,7 @@ def _surgery(mesh: SurfaceMesh, params, role, g, tooth: int, flank: str, s_box, 
     side_code = FLANKS[flank]
     side = geometry._side_of_flank(side_code)
     top_land = mesh.meta.get("top_land", False)
-    nodes = geometry.flank_profile_nodes(g, mesh.meta["profile"], side)
+    nodes = geometry.flank_profile_nodes(g, mesh.meta["profile"], side, mesh.meta.get("profile_bands", ()))
     mesh_bands = list(mesh.meta.get("face_bands", []))
     rows = np.asarray(geometry.graded_face_nodes(g, mesh.meta["face"], mesh_bands))
     fine_rows = np.asarray(geometry.graded_face_nodes(g, mesh.meta["face"], mesh_bands + list(bands)))

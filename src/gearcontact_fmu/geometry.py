@@ -613,10 +613,26 @@ def graded_face_nodes(g: GearGeometry, face: float, bands) -> tuple:
     return tuple(float(r) for r in rows)
 
 
-def _strip_arrays(strip, rho, ds):
+def _banded_t(t, s0: float, s1: float, profile_bands):
+    """The piece parameters ``t`` (uniform 0 .. 1 over profile parameters s0 -> s1) with the nodes inside each
+    of ``profile_bands`` ``[(s_lo, s_hi, fine), ...]`` ([rad]) replaced by nodes at most ``fine`` apart from the
+    band's ends (clipped to the piece); ``t`` itself where no band meets the piece."""
+    for s_lo, s_hi, fine in profile_bands:
+        a, b = max(min(s0, s1), s_lo), min(max(s0, s1), s_hi)
+        if b - a <= 1e-15:
+            continue
+        ta, tb = sorted(((a - s0) / (s1 - s0), (b - s0) / (s1 - s0)))
+        k = max(1, int(math.ceil((b - a) / fine - 1e-9)))
+        keep = t[(t < ta - 1e-12) | (t > tb + 1e-12)]
+        t = np.unique(np.concatenate([keep, np.linspace(ta, tb, k + 1)]))
+    return t
+
+
+def _strip_arrays(strip, rho, ds, profile_bands=()):
     """One structured strip of profile pieces (``strip``, run in order) by the face rows ``rho`` [m], the
-    profile spacing at most ``ds`` [rad]: vertices, faces (order: segment, row, two triangles), exact face
-    points and normals, kinds, flank codes and profile parameters."""
+    profile spacing at most ``ds`` [rad] (finer in ``profile_bands`` on the involute, :func:`_banded_t`):
+    vertices, faces (order: segment, row, two triangles), exact face points and normals, kinds, flank
+    codes and profile parameters."""
     rho = np.asarray(rho, dtype=float)
     nf = len(rho) - 1
     nodes_u = []
@@ -626,6 +642,9 @@ def _strip_arrays(strip, rho, ds):
         if pc.kind == KIND_TIP_ROUND:
             n = max(n, _MIN_ROUND_SEGMENTS)
         t = np.linspace(0.0, 1.0, n + 1)
+        if profile_bands and pc.kind == KIND_FLANK:
+            t = _banded_t(t, float(pc.sfun(0.0)), float(pc.sfun(1.0)), profile_bands)
+            n = t.size - 1
         u, _ = pc.eval(t)
         nodes_u.append(u if not nodes_u else u[1:])
         seg_piece += [ip] * n
@@ -673,9 +692,11 @@ def _strip_arrays(strip, rho, ds):
             np.repeat(ff, 2 * nf), fs.reshape(-1))
 
 
-def _tooth_template(g: GearGeometry, resolution: MeshResolution, top_land=False, notch=None, rho_nodes=None):
+def _tooth_template(g: GearGeometry, resolution: MeshResolution, top_land=False, notch=None, rho_nodes=None,
+                    profile_bands=()):
     """Mesh of tooth 0 in the gear frame: vertices, faces and per-face data (strips of the polyline).
-    ``rho_nodes``: the cone distances of the face rows (default uniform at ``resolution.face``)."""
+    ``rho_nodes``: the cone distances of the face rows (default uniform at ``resolution.face``);
+    ``profile_bands``: finer profile nodes on the involute (:func:`_banded_t`)."""
     ds = resolution.profile / g.Rm
     if rho_nodes is None:
         nf = max(1, int(math.ceil(g.b / resolution.face - 1e-9)))
@@ -696,7 +717,7 @@ def _tooth_template(g: GearGeometry, resolution: MeshResolution, top_land=False,
     V, Fc, FP, FN, FK, FF, FS = [], [], [], [], [], [], []
     nv = 0
     for strip in strips:
-        verts, faces, fp, fn_, fk, ff, fs = _strip_arrays(strip, rho, ds)
+        verts, faces, fp, fn_, fk, ff, fs = _strip_arrays(strip, rho, ds, profile_bands)
         V.append(verts)
         Fc.append(faces + nv)
         FP.append(fp)
@@ -709,9 +730,10 @@ def _tooth_template(g: GearGeometry, resolution: MeshResolution, top_land=False,
             np.concatenate(FK), np.concatenate(FF), np.concatenate(FS))
 
 
-def flank_profile_nodes(g: GearGeometry, profile: float, side: int) -> np.ndarray:
+def flank_profile_nodes(g: GearGeometry, profile: float, side: int, profile_bands=()) -> np.ndarray:
     """Profile parameters [rad] of the nodes of one side's flank strip (root part, involute, tip rounding;
-    not the top land) as :func:`_tooth_template` places them at the element size ``profile`` [m], ascending."""
+    not the top land) as :func:`_tooth_template` places them at the element size ``profile`` [m] (and
+    ``profile_bands``), ascending."""
     ds = profile / g.Rm
     out = []
     for s0, s1, kind in _flank_breaks(g):
@@ -721,6 +743,8 @@ def flank_profile_nodes(g: GearGeometry, profile: float, side: int) -> np.ndarra
         if kind == KIND_TIP_ROUND:
             n = max(n, _MIN_ROUND_SEGMENTS)
         t = np.linspace(0.0, 1.0, n + 1)
+        if profile_bands and kind == KIND_FLANK:
+            t = _banded_t(t, s0, s1, profile_bands) if side == -1 else _banded_t(t, s1, s0, profile_bands)
         out.append(s0 + (s1 - s0) * t if side == -1 else s1 + (s0 - s1) * t)
     return np.unique(np.concatenate(out))
 
@@ -774,7 +798,7 @@ def _teeth_list(g: GearGeometry, teeth):
 
 def build_gear_mesh(params: BevelGearParams | None, role: str, resolution: MeshResolution | None = None,
                     teeth=None, *, top_land: bool = False, notch: dict | None = None,
-                    rho_nodes: dict | None = None, face_bands=()) -> SurfaceMesh:
+                    rho_nodes: dict | None = None, face_bands=(), profile_bands=()) -> SurfaceMesh:
     """Surface mesh (body frame, m) of both flanks of the teeth incl. tip rounding (top land optional).
 
     Element size: ``resolution.profile`` along the profile and ``resolution.face`` along the face
@@ -785,7 +809,9 @@ def build_gear_mesh(params: BevelGearParams | None, role: str, resolution: MeshR
     ``face_normals`` the analytic outward normal. ``notch`` (used by :mod:`faults`):
     ``{tooth: (side, s_a, s_b, depth_angle)}``; ``rho_nodes`` (used by :mod:`faults`): ``{tooth: cone
     distances of its face rows}``; ``face_bands``: ``[(rho_lo, rho_hi, fine), ...]`` finer face rows for
-    every tooth (see :func:`graded_face_nodes`; used where the partner gear has a local fault)."""
+    every tooth (see :func:`graded_face_nodes`; used where the partner gear has a local fault);
+    ``profile_bands``: ``[(s_lo, s_hi, fine), ...]`` [rad] finer profile nodes on the involute of both flanks
+    of every tooth (:func:`_banded_t`; used where the partner gear has a chipped tip)."""
     _check_role(role)
     params = params or BevelGearParams()
     resolution = resolution or MeshResolution()
@@ -799,10 +825,10 @@ def build_gear_mesh(params: BevelGearParams | None, role: str, resolution: MeshR
         key = notch.get(k)
         if key not in cache:
             rows = graded_face_nodes(g, resolution.face, face_bands) if face_bands else None
-            cache[key] = _tooth_template(g, resolution, top_land, key, rows)
+            cache[key] = _tooth_template(g, resolution, top_land, key, rows, profile_bands)
         V, F, FP, FN, FK, FF, FS = cache[key]
         if rho_nodes and k in rho_nodes:     # a tooth with its own face rows (a local fault on it)
-            V, F, FP, FN, FK, FF, FS = _tooth_template(g, resolution, top_land, key, rho_nodes[k])
+            V, F, FP, FN, FK, FF, FS = _tooth_template(g, resolution, top_land, key, rho_nodes[k], profile_bands)
         R = _tooth_rotation(g, k)
         Vs.append(V @ R.T)
         Fs.append(F + nv)
@@ -821,7 +847,8 @@ def build_gear_mesh(params: BevelGearParams | None, role: str, resolution: MeshR
         face_tooth=np.concatenate(FTs), face_flank=np.concatenate(FFs), face_kind=np.concatenate(FKs),
         face_profile=np.concatenate(FSs),
         meta={"source": "analytic", "role": role, "profile": resolution.profile, "face": resolution.face,
-              "top_land": top_land, "params": params, "face_bands": [tuple(b) for b in face_bands]})
+              "top_land": top_land, "params": params, "face_bands": [tuple(b) for b in face_bands],
+              **({"profile_bands": [tuple(b) for b in profile_bands]} if profile_bands else {})})
 
 
 def analytic_area(params: BevelGearParams | None, role: str, top_land: bool = False, n_teeth: int | None = None) -> float:

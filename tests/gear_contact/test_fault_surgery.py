@@ -156,3 +156,45 @@ def test_a_wheel_spall_or_crack_puts_pinion_rows_on_its_face_edges(kind, half_mm
         assert np.min(np.abs(rows - edge)) < 1e-12
     assert np.max(np.diff(rows[(rows >= rho_c - half_mm * 1e-3) & (rows <= rho_c + half_mm * 1e-3)])) <= 1.25e-3 + 1e-12
     assert faults.partner_face_bands(GEAR, [{"kind": kind, "member": "pinion", "tooth": 7}], "pinion") == []
+
+
+def test_a_wheel_chipped_tip_refines_the_pinion_profile_where_its_edge_meets_it():
+    """The band must hold the pinion's conjugate of the chamfer edge (oracle: Tredgold's virtual spur gears
+    at the mean cone distance, roll lengths measured from the pitch point) and of the healthy wheel tip, at
+    most height/32 between nodes; nothing for a pinion chipped tip or any other wheel fault."""
+    import math
+
+    spec = {"kind": "chipped_tip", "member": "wheel", "tooth": 7, "height_mm": 0.5}
+    (s_lo, s_hi, fine), = faults.partner_profile_bands(GEAR, [spec], "pinion")
+    gp, gw = geometry.gear_geometry(GEAR, "pinion"), geometry.gear_geometry(GEAR, "wheel")
+    Rm, a = gp.Rm, GEAR.pressure_angle
+    roll0 = {r: Rm * math.tan(q.delta) * math.sin(a) for r, q in (("p", gp), ("w", gw))}
+    rb = {r: Rm * math.tan(q.delta) * math.cos(a) for r, q in (("p", gp), ("w", gw))}
+    s_end = gw.L_radial + gw.L_inv
+    assert s_lo == gp.L_radial                                       # from the pinion's involute start
+    for s_w in (s_end - 0.5e-3 / Rm, s_end):
+        dw = (s_w - gw.s_pitch_param) * Rm                           # wheel profile arc above its pitch point [m]
+        roll_w = math.sqrt(roll0["w"] ** 2 + 2.0 * rb["w"] * dw)
+        roll_p = roll0["p"] - (roll_w - roll0["w"])                  # the pinion rolls back as much
+        s_p = gp.s_pitch_param + (roll_p ** 2 - roll0["p"] ** 2) / (2.0 * rb["p"]) / Rm
+        assert abs(float(faults.conjugate_profile_param(GEAR, "wheel", s_w)) - s_p) * Rm < 2e-6
+        assert s_lo - 2e-6 / Rm <= s_p <= s_hi + 1e-12
+    assert fine * Rm == pytest.approx(0.5e-3 / 32)
+    for side in (-1, 1):
+        nodes = geometry.flank_profile_nodes(gp, 0.05e-3, side, [(s_lo, s_hi, fine)])
+        inside = nodes[(nodes >= s_lo - 1e-15) & (nodes <= s_hi + 1e-15)]
+        assert inside[0] == pytest.approx(s_lo, abs=1e-15) and inside[-1] == pytest.approx(s_hi, abs=1e-15)
+        assert np.max(np.diff(inside)) <= fine * (1 + 1e-9)
+        outside = nodes[(nodes < s_lo - 1e-15) | (nodes > s_hi + 1e-15)]
+        assert set(outside) <= set(geometry.flank_profile_nodes(gp, 0.05e-3, side))
+    # the mesh's own elements in the band are as fine (both flanks, every tooth)
+    mesh = geometry.build_gear_mesh(GEAR, "pinion", teeth=[0, 5], profile_bands=[(s_lo, s_hi, fine)])
+    plain = geometry.build_gear_mesh(GEAR, "pinion", teeth=[0, 5])
+    band = (mesh.face_profile > s_lo) & (mesh.face_profile < s_hi)
+    assert np.sum(band) >= 3 * np.sum((plain.face_profile > s_lo) & (plain.face_profile < s_hi))   # 0.05 / 0.0156
+    assert np.array_equal(mesh.face_profile[~band & (mesh.face_kind != geometry.KIND_FLANK)],
+                          plain.face_profile[(plain.face_kind != geometry.KIND_FLANK)])
+    for other in ({"kind": "chipped_tip", "member": "pinion", "tooth": 7}, {"kind": "spall", "member": "wheel"},
+                  {"kind": "pit", "member": "wheel"}):
+        assert faults.partner_profile_bands(GEAR, [other], "pinion") == []
+    assert faults.partner_profile_bands(GEAR, [spec], "wheel") == []

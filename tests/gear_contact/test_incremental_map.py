@@ -63,8 +63,9 @@ def test_incremental_map_equals_every_row(kind, member, healthy):
         # the default 0.5 mm chip lies inside the pinion's top 0.3 mm elements here: with the tooth no longer
         # re-meshed as a whole (local surgery), this coarse pair does not feel it (the default mesh does)
         spec["height_mm"] = 1.5
-    if kind in ("pit", "spall", "crack") and member == "wheel":
-        # a wheel pit, spall or crack gives every pinion tooth extra face rows: not the healthy pinion; its own
+    if kind in ("pit", "spall", "crack", "chipped_tip") and member == "wheel":
+        # a wheel pit, spall or crack gives every pinion tooth extra face rows (a chipped tip extra profile
+        # nodes): not the healthy pinion; its own
         # healthy pitch block is computed and tiled, then the fault rows
         assert not cm.incremental_from_healthy(GEAR, "faults", None, {"faults": [spec]})
         inc = _compare([spec], None, built="one pitch + fault rows")

@@ -74,9 +74,10 @@ def resolve_meshes(gear: BevelGearParams, resolution: MeshResolution, health: st
     if pinion_mesh_file:
         pinion = load_gear_mesh(pinion_mesh_file, gear, "pinion", units=mesh_units)
     else:
-        bands = faults.partner_face_bands(gear, (fault_kwargs or {}).get("faults", []), "pinion") \
-            if health == "faults" else []
-        pinion = geometry.build_gear_mesh(gear, "pinion", resolution, teeth=pinion_teeth, face_bands=bands)
+        specs = (fault_kwargs or {}).get("faults", []) if health == "faults" else []
+        pinion = geometry.build_gear_mesh(gear, "pinion", resolution, teeth=pinion_teeth,
+                                          face_bands=faults.partner_face_bands(gear, specs, "pinion"),
+                                          profile_bands=faults.partner_profile_bands(gear, specs, "pinion"))
         pinion = faults.apply_health(pinion, gear, health, "pinion", **(fault_kwargs or {}))
     if wheel_mesh_file:
         wheel = load_gear_mesh(wheel_mesh_file, gear, "wheel", units=mesh_units)

@@ -22,7 +22,7 @@ from numba import njit
 from gearcontact_fmu.contact import primitives as P
 from gearcontact_fmu.contact.engine import (PCMBody, cache_stats, fixed_axis_eval,
                                             make_fixed_axis_data, reset_cache)
-from gearcontact_fmu.mesh_model import N_OUT
+from gearcontact_fmu.mesh_models.base import N_OUT
 from gearcontact_fmu.params import PCMParams
 
 

@@ -20,7 +20,7 @@ from gearcontact_fmu import geometry
 from gearcontact_fmu.contact import engine
 from gearcontact_fmu.contact_map import MapGrid, get_map
 from gearcontact_fmu.mesh_models.table import make_table_data, table_eval
-from gearcontact_fmu.mesh_model import N_OUT
+from gearcontact_fmu.mesh_models.base import N_OUT
 from gearcontact_fmu.mesh_models.pcm import build_pcm_pair, static_deflection, PCMGearPair
 from gearcontact_fmu.meshes import SurfaceMesh
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams

@@ -32,7 +32,7 @@ import numpy as np
 from numba import njit
 from gearcontact_fmu.contact import engine
 from gearcontact_fmu.mesh_models.pcm import build_pcm_pair, make_pcm_model, static_deflection
-from gearcontact_fmu.mesh_model import N_OUT
+from gearcontact_fmu.mesh_models.base import N_OUT
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
 
 profile, face, torque, pitches, pitches10 = (float(x) for x in sys.argv[1:6])

@@ -23,7 +23,7 @@ import numpy as np
 from gearcontact_fmu import faults, geometry
 from gearcontact_fmu.contact import engine
 from gearcontact_fmu.mesh_models.pcm import PCMGearPair, contact_onset, static_deflection
-from gearcontact_fmu.mesh_model import N_OUT, OUT_TAU_PINION
+from gearcontact_fmu.mesh_models.base import N_OUT, OUT_TAU_PINION
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
 
 GEAR = BevelGearParams()

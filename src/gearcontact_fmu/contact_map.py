@@ -52,7 +52,7 @@ from gearcontact_fmu.contact import engine
 from gearcontact_fmu.fault_specs import normalised_spec
 from gearcontact_fmu.locks import cache_dir  # noqa: F401  (the maps' cache; re-exported)
 from gearcontact_fmu.mesh_models.pcm import build_pcm_pair, contact_onset, static_deflection
-from gearcontact_fmu.mesh_model import (N_OUT, OUT_CONTACT_AREA, OUT_ELASTIC_ENERGY, OUT_MAX_PENETRATION,
+from gearcontact_fmu.mesh_models.base import (N_OUT, OUT_CONTACT_AREA, OUT_ELASTIC_ENERGY, OUT_MAX_PENETRATION,
                                         OUT_N_CONTACT, OUT_NORMAL_FORCE, OUT_PEAK_PRESSURE, OUT_TAU_PINION,
                                         OUT_TAU_WHEEL)
 from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCMParams, file_sha256, params_hash

@@ -87,7 +87,7 @@ def probe(pair, pinion_speed_rad_s: float, substep_s: float, n_substeps: int = 1
     from gearcontact_fmu.contact import engine
     from gearcontact_fmu.contact_map import MapGrid, _approach_grid, _tabulate_rows
     from gearcontact_fmu.mesh_models.pcm import contact_onset
-    from gearcontact_fmu.mesh_model import N_OUT
+    from gearcontact_fmu.mesh_models.base import N_OUT
 
     z1, z2 = pair.gear.z_pinion, pair.gear.z_wheel
     out = np.zeros(N_OUT)

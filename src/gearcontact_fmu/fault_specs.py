@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import math
 
-from gearcontact_fmu.mesh_model import HEALTH_STATES
+from gearcontact_fmu.mesh_models.base import HEALTH_STATES
 
 DEFAULT_WIDTH = 1.0e-3      # [m] flank-fracture void width along the profile (the paper's mild fault)
 DEFAULT_DEPTH = 0.3e-3      # [m] its depth along the flank normal

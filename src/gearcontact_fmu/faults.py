@@ -37,7 +37,7 @@ from . import geometry
 from .fault_specs import (DEFAULT_DEPTH, DEFAULT_POSITION, DEFAULT_WIDTH, FAULT_KINDS, FLANKS, WEAR_PROFILES,
                           FaultGeometryError, normalised_spec)
 from .mesh_check import load_gear_mesh
-from .mesh_model import GENERATED_HEALTH
+from .mesh_models.base import GENERATED_HEALTH
 from .meshes import KIND_TIP_ROUND, SurfaceMesh, concatenate
 from .params import BevelGearParams, MeshResolution
 

@@ -21,7 +21,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from gearcontact_fmu.fault_specs import health_problems
-from gearcontact_fmu.mesh_model import MeshModel
+from gearcontact_fmu.mesh_models.base import MeshModel
 from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCMParams
 from gearcontact_fmu.stage import GearStage, StageParams, make_stage, stage_mesh_model
 

@@ -63,7 +63,7 @@ from numba import njit
 from gearcontact_fmu import geometry
 from gearcontact_fmu.mesh_models.analytic import _smoothstep, virtual_spur_gears
 from gearcontact_fmu.manufacturing_specs import ManufacturingErrors, errors_of
-from gearcontact_fmu.mesh_model import OUT_TAU_PINION, OUT_TAU_WHEEL, MeshModel
+from gearcontact_fmu.mesh_models.base import OUT_TAU_PINION, OUT_TAU_WHEEL, MeshModel
 from gearcontact_fmu.params import BevelGearParams
 
 # layout of the parameter array of the offset kernel

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from gearcontact_fmu.mesh_model import N_OUT, OUT_TAU_PINION, MeshModel
+from gearcontact_fmu.mesh_models.base import N_OUT, OUT_TAU_PINION, MeshModel
 from gearcontact_fmu.params import BevelGearParams
 
 

@@ -66,7 +66,7 @@ from numba import njit, types
 
 from gearcontact_fmu.coupling import EnergyCorrection
 from gearcontact_fmu.mesh_models import DEFAULT_FIDELITY, make_mesh_model
-from gearcontact_fmu.mesh_model import (
+from gearcontact_fmu.mesh_models.base import (
     N_OUT,
     OUT_DISSIPATED_POWER,
     OUT_ELASTIC_ENERGY,

@@ -252,8 +252,8 @@ def test_the_mesh_starts_at_its_own_static_deflection(overrides):
 
 def test_a_map_not_cached_at_assembly_is_balanced_on_after_the_cost_checks(monkeypatch, tmp_path):
     """The assembler builds no contact map (the cost refusal comes after it): a table gear whose map is not
-    cached starts at the analytic guess there, and the runner assembles again with the map once its checks
-    passed, so a first run starts like every later one."""
+    cached starts at the analytic guess there, and the runner recomputes the start with the map once its checks
+    passed (run.assemble.start_with_map), so a first run starts like every later one."""
     from drivetrain.run import assemble as asm
     from drivetrain.run.runner import prepare_run
     from drivetrain.scene.load import load_scene
@@ -274,8 +274,8 @@ def test_a_map_not_cached_at_assembly_is_balanced_on_after_the_cost_checks(monke
 
 
 def test_a_sweep_starts_a_map_not_cached_at_assembly_balanced_too(monkeypatch, tmp_path):
-    """The same rule in a sweep: it assembles every scene before preparing the maps, and then assembles again
-    the gears that started at the guess, so a sweep's runs start as `drivetrain run` starts them, whatever
+    """The same rule in a sweep: it assembles every scene before preparing the maps, and then recomputes the
+    start of the gears that started at the guess, so a sweep's runs start as `drivetrain run` starts them, whatever
     the cache held (the runs it hands to its workers are recorded here instead of run)."""
     from drivetrain.campaigns import sweep as S
     from drivetrain.run import assemble as asm

@@ -72,13 +72,13 @@ class _Closed:
     the coast flank for s < s_off. Closed form: the static deflection under a load T is s = s_on + T / k."""
 
     def __init__(self, k=3.0e5, s_on=-2.0e-3, s_off=-6.0e-3):
-        from gearcontact_fmu.mesh_model import N_OUT
+        from gearcontact_fmu.mesh_models.base import N_OUT
 
         self.k, self.s_on, self.s_off, self.n_out = k, s_on, s_off, N_OUT
         self.data = ()
 
     def eval(self, data, tp, tw, wp, ww, out):
-        from gearcontact_fmu.mesh_model import OUT_TAU_PINION
+        from gearcontact_fmu.mesh_models.base import OUT_TAU_PINION
 
         s = tp - 4.0 * tw
         out[:] = 0.0

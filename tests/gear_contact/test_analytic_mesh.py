@@ -6,7 +6,7 @@ import pytest
 
 from gearcontact_fmu.mesh_models import analytic as an
 from gearcontact_fmu.mesh_models import make_mesh_model
-from gearcontact_fmu.mesh_model import (N_OUT, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY, OUT_MAX_PENETRATION,
+from gearcontact_fmu.mesh_models.base import (N_OUT, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY, OUT_MAX_PENETRATION,
                                         OUT_N_CONTACT, OUT_NORMAL_FORCE, OUT_STATUS, OUT_TAU_PINION,
                                         OUT_TAU_WHEEL)
 from gearcontact_fmu.params import BevelGearParams, PCMParams

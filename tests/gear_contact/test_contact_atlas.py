@@ -12,7 +12,7 @@ import pytest
 from gearcontact_fmu.contact.engine import (cache_stats, fixed_axis_eval, make_fixed_axis_data,
                                             pitch_symmetry)
 from gearcontact_fmu.mesh_models.pcm import build_pcm_pair, contact_onset, make_pcm_model
-from gearcontact_fmu.mesh_model import N_OUT, OUT_N_CONTACT
+from gearcontact_fmu.mesh_models.base import N_OUT, OUT_N_CONTACT
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
 
 GEAR = BevelGearParams()

@@ -14,7 +14,7 @@ from gearcontact_fmu.contact.bvh import build_bvh
 from gearcontact_fmu.contact.engine import (PCMBody, PenetrationError, cache_stats,
                                             evaluate_pair, fixed_axis_eval, make_fixed_axis_data,
                                             reset_cache, rot_z)
-from gearcontact_fmu.mesh_model import (N_OUT, OUT_CONTACT_AREA, OUT_DISSIPATED_POWER,
+from gearcontact_fmu.mesh_models.base import (N_OUT, OUT_CONTACT_AREA, OUT_DISSIPATED_POWER,
                                       OUT_ELASTIC_ENERGY, OUT_MAX_PENETRATION, OUT_N_CONTACT,
                                       OUT_NORMAL_FORCE, OUT_PEAK_PRESSURE, OUT_STATUS,
                                       OUT_TAU_PINION, OUT_TAU_WHEEL)

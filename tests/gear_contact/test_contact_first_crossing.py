@@ -14,7 +14,7 @@ import pytest
 
 from gearcontact_fmu.contact import primitives as P
 from gearcontact_fmu.contact.engine import PCMBody, evaluate_pair, fixed_axis_eval, make_fixed_axis_data
-from gearcontact_fmu.mesh_model import N_OUT, OUT_MAX_PENETRATION, OUT_N_CONTACT, OUT_STATUS, OUT_TAU_PINION
+from gearcontact_fmu.mesh_models.base import N_OUT, OUT_MAX_PENETRATION, OUT_N_CONTACT, OUT_STATUS, OUT_TAU_PINION
 from gearcontact_fmu.params import PCMParams
 
 PCM = PCMParams(u_max=2e-3)

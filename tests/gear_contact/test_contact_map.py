@@ -9,7 +9,7 @@ import pytest
 
 from gearcontact_fmu.contact_map import MapGrid, get_map
 from gearcontact_fmu.mesh_models.table import make_table_data, table_eval
-from gearcontact_fmu.mesh_model import N_OUT, OUT_TAU_PINION, OUT_TAU_WHEEL, OUT_STATUS
+from gearcontact_fmu.mesh_models.base import N_OUT, OUT_TAU_PINION, OUT_TAU_WHEEL, OUT_STATUS
 from gearcontact_fmu.mesh_models.pcm import build_pcm_pair
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
 

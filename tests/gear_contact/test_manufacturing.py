@@ -403,7 +403,7 @@ def test_the_mesh_torque_is_continuous_across_the_backlash_in_every_gearbox():
     from drivetrain.run.assemble import start_mesh_model
     from drivetrain.run.runner import assemble_scene
     from drivetrain.scene.load import default_scene
-    from gearcontact_fmu.mesh_model import N_OUT, OUT_TAU_PINION
+    from gearcontact_fmu.mesh_models.base import N_OUT, OUT_TAU_PINION
 
     @njit
     def largest_jump(ev, data, tp, s, ratio):

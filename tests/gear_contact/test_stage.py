@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from gearcontact_fmu.mesh_models.analytic import iso6336_stiffness, single_pair_phase
-from gearcontact_fmu.mesh_model import OUT_N_CONTACT, OUT_TAU_PINION, OUT_TAU_WHEEL
+from gearcontact_fmu.mesh_models.base import OUT_N_CONTACT, OUT_TAU_PINION, OUT_TAU_WHEEL
 from gearcontact_fmu.params import BevelGearParams, PCMParams
 from gearcontact_fmu.stage import GearStage, StageError, StageParams, make_stage
 

@@ -9,7 +9,7 @@ from scipy.integrate import quad
 from gearcontact_fmu.mesh_models.analytic import iso6336_low_load_factor, iso6336_stiffness
 from gearcontact_fmu.mesh_models import make_mesh_model
 from gearcontact_fmu.mesh_statics import static_mesh_stiffness
-from gearcontact_fmu.mesh_model import N_OUT, OUT_ELASTIC_ENERGY, OUT_TAU_PINION
+from gearcontact_fmu.mesh_models.base import N_OUT, OUT_ELASTIC_ENERGY, OUT_TAU_PINION
 from gearcontact_fmu.params import TOOTH_COMPLIANCE_FACTOR, BevelGearParams
 
 G = BevelGearParams()

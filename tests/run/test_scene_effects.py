@@ -83,7 +83,7 @@ def test_mesh_units_reach_the_contact_model(tmp_path):
     m and in mm gives the same contact torques when each is read in its own unit, and the scene's unit
     reaches the GearContact FMU as a parameter."""
     from gearcontact_fmu import geometry
-    from gearcontact_fmu.mesh_model import N_OUT, OUT_TAU_PINION
+    from gearcontact_fmu.mesh_models.base import N_OUT, OUT_TAU_PINION
     from gearcontact_fmu.mesh_models.pcm import make_pcm_model
     from gearcontact_fmu.meshes import save_mesh
     from gearcontact_fmu.params import BevelGearParams, MeshResolution

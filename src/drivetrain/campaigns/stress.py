@@ -62,7 +62,7 @@ from drivetrain.campaigns.sweep import CACHED_FIDELITIES, prepare_caches, read_r
 from drivetrain.system import SystemSpec
 from gearcontact_fmu import faults, geometry
 from gearcontact_fmu.meshes import save_mesh
-from gearcontact_fmu.mesh_model import PAPER_HEALTH
+from gearcontact_fmu.mesh_models.base import PAPER_HEALTH
 from gearcontact_fmu.params import BevelGearParams
 
 # --------------------------------------------------------------------------------------------------

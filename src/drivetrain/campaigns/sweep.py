@@ -63,7 +63,8 @@ from drivetrain.fmu_build.fmus import fmu_dir_or_default
 from drivetrain.run.lock import output_lock
 from drivetrain.run.files import RUN_RECORD_SCHEMA, check_fields, read_manifest
 from drivetrain.run.outputs import check_output_dir, clear_run_files, jsonable
-from drivetrain.run.runner import RunFailedError, assemble_scene, assembled_with_map, run_scene
+from drivetrain.run.runner import RunFailedError, assemble_scene, run_scene
+from drivetrain.run.assemble import start_with_map
 from drivetrain.scene.load import Scene, resolve
 from drivetrain.system import SystemSpec
 from gearcontact_fmu.params import file_sha256
@@ -701,7 +702,7 @@ def run_sweep(scenes: list[Scene], out_dir: str | Path, *, workers: int | None =
         # the maps are there now: a table gear assembled before its map was cached starts at its own deflection, as
         # `drivetrain run` starts it (the specs a caller gave are theirs)
         by_spec = dict(zip([s.name for s in scenes], all_specs))
-        all_specs, more = _specs_of(scenes, specs, lambda s: assembled_with_map(s, by_spec[s.name]))
+        all_specs, more = _specs_of(scenes, specs, lambda s: start_with_map(s, by_spec[s.name]))
         refused.update(more)
         scenes, all_specs = _runnable(scenes, all_specs)
         if refused and log:

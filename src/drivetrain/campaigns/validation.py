@@ -40,7 +40,7 @@ from drivetrain.campaigns import GEARBOXES, excitation_check, record_check
 from drivetrain.rig import indicators as ci
 from drivetrain.rig.data import PAPER_LOADS_NM, PAPER_MAX_LOAD_NM, PAPER_MAX_SPEED_RPM, PAPER_SPEEDS_RPM, TORQUE_SENSORS
 from drivetrain.rig.record import MEASURED_TRANSDUCER_NOISE_NM
-from gearcontact_fmu.mesh_model import PAPER_HEALTH
+from gearcontact_fmu.mesh_models.base import PAPER_HEALTH
 
 SPEEDS_RPM = PAPER_SPEEDS_RPM
 LOADS_NM = PAPER_LOADS_NM

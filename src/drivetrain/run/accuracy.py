@@ -37,7 +37,7 @@ from drivetrain.rig.signals import (amplitude_near, amplitude_spectrum, characte
                                     to_db)
 from drivetrain.scene.load import parse_override, with_overrides
 from drivetrain.scene.schema import default_of
-from gearcontact_fmu.mesh_model import PAPER_HEALTH
+from gearcontact_fmu.mesh_models.base import PAPER_HEALTH
 
 ROOT = Path(__file__).resolve().parents[3]
 RESULTS_FILE = Path(__file__).resolve().parents[1] / "data" / "accuracy_cost.json"

@@ -22,6 +22,7 @@ mesh's start deflection was found: :func:`start_mesh_model`).
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 import functools
 import json
@@ -124,7 +125,7 @@ def initial_mesh_deflection(T_msh: float, fidelity: str) -> float:
 
 
 #: ``metadata["mesh_start"]`` when the mesh starts at the analytic guess because the table map is not cached
-#: yet (drivetrain.run.runner assembles again once the contact checks have built it)
+#: yet (drivetrain.run.runner recomputes the start once its contact checks have passed: :func:`start_with_map`)
 MESH_START_GUESS = "guess: contact map not cached"
 
 
@@ -142,8 +143,8 @@ def start_mesh_model(gear: dict, build_map: bool = False):
     """(the mesh model whose static deflection the gear starts at, how the start was found): the model the
     GearContact FMU builds from these parameters (``fmu_parameters.build_mesh_model``'s translation over
     the FMU's declared defaults, ``gearcontact_fmu.fmu_variables.parameter_values``). A table map is taken from the cache or the shipped maps only, unless
-    ``build_map`` (the cost checks come after the assembly; drivetrain.run.runner assembles again with
-    ``build_map`` after them). ``pcm`` starts at its shipped table map, the same contact law tabulated
+    ``build_map`` (the cost checks come after the assembly; past them the runner recomputes the start with
+    ``build_map``: :func:`start_with_map`). ``pcm`` starts at its shipped table map, the same contact law tabulated
     (building the online pair costs seconds, its first evaluation a compile; only a shipped map, so the
     start does not depend on what a cache holds). (None, reason) for the ideal gear (no mesh
     coordinate) and when there is no map to use."""
@@ -277,12 +278,7 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     theta_p = phi_a + twist_a
     # the gear's manufacturing errors, read once from its parameter (the JSON the FMU receives)
     errors = errors_of(gear.get("manufacturing_errors"))
-    try:
-        with np.errstate(all="ignore"):     # an overflow is the StartStateError's to name, not a printed warning
-            theta_w, mesh_start = start_wheel_angle(gear, ss, theta_p, errors, build_map)
-    except StartStateError as exc:          # no mesh position carries the start load: say which scene and gearbox
-        raise StartStateError(f"{scene.name}: {gearbox_name(scene)} at {n0:g} rpm and {T0:g} N m: "
-                              f"{'; '.join(exc.problems)}") from exc
+    theta_w, mesh_start = _start_wheel(scene, gear, ss, theta_p, errors, build_map)
     phi_b = theta_w - twist_b
     gear.update(twist_a_start=twist_a, twist_b_start=twist_b)
     mo.update(max_substep=csub, energy_correction=bool(num.energy_correction), phi0_motor=th_motor, w0=w,
@@ -320,17 +316,65 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     }
     spec = SystemSpec(components, connections, H, meta)
     if check:
-        try:
-            reports, rho = stability.check_cuts(spec)
-        except stability.UnstableCutError as exc:
-            from drivetrain.cosim import ConfigurationError
-
-            err = ConfigurationError(exc.problems)
-            err.reports = exc.reports
-            raise err from None
-        meta["cuts"] = [r.as_dict() for r in reports]
-        meta["cosim_spectral_radius"] = rho
+        _check_cuts(spec)
     return spec
+
+
+def _start_wheel(scene, gear: dict, ss, theta_p: float, errors, build_map: bool) -> tuple[float, str]:
+    """:func:`start_wheel_angle` for ``scene``'s gear; a StartStateError names the scene and gearbox."""
+    try:
+        with np.errstate(all="ignore"):     # an overflow is the StartStateError's to name, not a printed warning
+            return start_wheel_angle(gear, ss, theta_p, errors, build_map)
+    except StartStateError as exc:          # no mesh position carries the start load: say which scene and gearbox
+        n0, T0 = float(scene.operating_point.speed_at(0.0)), float(scene.operating_point.load_at(0.0))
+        raise StartStateError(f"{scene.name}: {gearbox_name(scene)} at {n0:g} rpm and {T0:g} N m: "
+                              f"{'; '.join(exc.problems)}") from exc
+
+
+def _check_cuts(spec: SystemSpec) -> None:
+    """Refuse unstable cuts (ConfigurationError with the reports); the reports into ``spec.metadata``."""
+    try:
+        reports, rho = stability.check_cuts(spec)
+    except stability.UnstableCutError as exc:
+        from drivetrain.cosim import ConfigurationError
+
+        err = ConfigurationError(exc.problems)
+        err.reports = exc.reports
+        raise err from None
+    spec.metadata["cuts"] = [r.as_dict() for r in reports]
+    spec.metadata["cosim_spectral_radius"] = rho
+
+
+def start_with_map(scene, spec: SystemSpec) -> SystemSpec:
+    """``spec`` (assembled from ``scene`` by :func:`assemble`), or, when its table gear started at the analytic
+    guess because the contact map was not cached at assembly (``metadata["mesh_start"] == MESH_START_GUESS``:
+    the assembler builds no map, the cost refusal comes after it), a copy whose gear starts at its own static
+    deflection with the map built (:func:`start_mesh_model`), as on every later run of the scene. Only the start
+    is recomputed on the assembled spec: the wheel's start angle, the load body's start angle
+    (``motors.phi0_load``), the gear's start state (:func:`gear_start_state`), ``metadata["mesh_start"]`` and the
+    cut reports; every value equal, bit for bit, to ``assemble(scene, build_map=True)``'s. For the runner past
+    its cost checks and a sweep past its preparation: one rule, whatever the cache held. ``spec`` is not changed."""
+    if spec.metadata.get("mesh_start") != MESH_START_GUESS:
+        return spec
+    components = [dataclasses.replace(c, parameters=dict(c.parameters)) for c in spec.components]
+    by_name = {c.name: c.parameters for c in components}
+    gear, mo, up = by_name["gear"], by_name["motors"], by_name["upper"]
+    twist_a, twist_b = gear["twist_a_start"], gear["twist_b_start"]
+    theta_p = up["phi0"] / up["ratio"] + twist_a            # as assemble: phi_a + twist_a
+    # the gear's parameters as start_wheel_angle saw them in assemble: before the start state was set
+    start_keys = {"twist_a_start", "twist_b_start", "initial_state",
+                  *(f"{body}_{q}_start" for body, _ in _GEAR_BODIES for q in ("phi", "w"))}
+    ss = rig.SteadyState(**spec.metadata["steady_state"])
+    theta_w, mesh_start = _start_wheel(scene, {k: v for k, v in gear.items() if k not in start_keys}, ss, theta_p,
+                                       errors_of(gear.get("manufacturing_errors")), True)
+    mo["phi0_load"] = theta_w - twist_b
+    gear.update(gear_start_state(components, spec.connections, "gear"))
+    meta = copy.deepcopy(spec.metadata)
+    meta["mesh_start"] = mesh_start
+    out = SystemSpec(components, list(spec.connections), spec.comm_step, meta)
+    if "cuts" in meta:
+        _check_cuts(out)
+    return out
 
 
 #: the gear stage's bodies and the flange whose connected body each one starts at

@@ -247,19 +247,6 @@ def _fidelity(c, spec: SystemSpec):
     return None
 
 
-def assembled_with_map(scene: Scene, spec: SystemSpec) -> SystemSpec:
-    """``spec`` (assembled from ``scene``), or, when its table gear started at the analytic guess because the
-    contact map was not cached at assembly (the assembler builds none: the cost refusal comes after it), the
-    scene assembled again with the map, so that the mesh starts at its own deflection
-    (drivetrain.run.assemble.start_mesh_model) as on every later run of the scene. For the runner past its
-    cost checks and a sweep past its preparation: one rule, whatever the cache held."""
-    from drivetrain.run.assemble import MESH_START_GUESS, assemble
-
-    if spec.metadata.get("mesh_start") == MESH_START_GUESS:
-        return assemble(scene, build_map=True)
-    return spec
-
-
 def assemble_scene(scene: Scene) -> SystemSpec:
     try:
         from drivetrain.run.assemble import assemble
@@ -421,8 +408,10 @@ def prepare_run(scene: Scene, spec: SystemSpec | None, backend: str, fmu_paths: 
                    contact_range=None, choice=choice, t_start=t_start,
                    t_started=t_start if started is None else min(started, t_start))
     _check_cost(plan, force, log)
-    if assembled:            # past the cost checks the table map may be built (the run needs it)
-        plan.spec = spec = assembled_with_map(scene, spec)
+    if assembled:            # past the cost checks the table map may be built (the run needs it): the start only
+        from drivetrain.run.assemble import start_with_map
+
+        plan.spec = spec = start_with_map(scene, spec)
     plan.sources = _sources(scene, spec, plan.warnings)
     check_given_fmus(spec, fmu_paths)
     plan.t_native = _time.perf_counter()

@@ -32,7 +32,7 @@ from drivetrain.scene.schema import (FIDELITIES, HEALTH_STATES, SHAFT_MODELS,  #
                                      TimeSpec)
 from drivetrain.system import steps_per_output
 from gearcontact_fmu.fault_specs import health_problems, normalised_spec
-from gearcontact_fmu.mesh_model import fidelities_with, supports
+from gearcontact_fmu.mesh_models.base import fidelities_with, supports
 
 # --------------------------------------------------------------------------------------------------
 # Value checking

@@ -27,7 +27,7 @@ from gearcontact_fmu.fault_specs import FAULT_KINDS
 from gearcontact_fmu.manufacturing_specs import DEFAULT_GRADE as MANUFACTURING_GRADE
 from gearcontact_fmu.manufacturing_specs import DEFAULT_RUNOUT_GRADE as MANUFACTURING_RUNOUT_GRADE
 from gearcontact_fmu.manufacturing_specs import GRADES
-from gearcontact_fmu.mesh_model import FIDELITIES, HEALTH_STATES, SCHEMES, fidelities_with
+from gearcontact_fmu.mesh_models.base import FIDELITIES, HEALTH_STATES, SCHEMES, fidelities_with
 from gearcontact_fmu.params import DEFAULT_COMM_STEP_S, TOOTH_COMPLIANCE_FACTOR, MapGrid, MeshResolution
 
 # --------------------------------------------------------------------------------------------------

@@ -1,7 +1,7 @@
 """Mesh models of every fidelity behind one interface: ``BUILDERS`` maps a fidelity name to its builder.
 
-The interface (``MeshModel``, the ``OUT_*`` layout, the vocabularies) lives in ``gearcontact_fmu.mesh_model``;
-one module of this folder per method builds it: ``pcm`` (online polygonal contact), ``table`` (the
+The interface (``MeshModel``, the ``OUT_*`` layout, the vocabularies) lives in ``base`` (which imports
+nothing of the package); one module of this folder per method builds it: ``pcm`` (online polygonal contact), ``table`` (the
 precomputed contact map of ``gearcontact_fmu.contact_map``), ``analytic`` (ISO 6336 reference pair) and
 ``ideal`` (the rigid mesh). ``make_mesh_model(fidelity, ...)`` is the one entry point (the shape of
 scipy.integrate's ``solve_ivp`` method table: an interface module, one file per method, a table mapping
@@ -23,7 +23,7 @@ from __future__ import annotations
 import importlib
 import math
 
-from gearcontact_fmu.mesh_model import FIDELITIES, MeshModel, supports
+from gearcontact_fmu.mesh_models.base import FIDELITIES, MeshModel, supports
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
 
 BUILDERS = {

@@ -56,7 +56,7 @@ import math
 import numpy as np
 from numba import njit
 
-from gearcontact_fmu.mesh_model import (
+from gearcontact_fmu.mesh_models.base import (
     OUT_CONTACT_AREA,
     OUT_DISSIPATED_POWER,
     OUT_ELASTIC_ENERGY,

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from gearcontact_fmu.mesh_model import MeshModel
+from gearcontact_fmu.mesh_models.base import MeshModel
 from gearcontact_fmu.params import BevelGearParams
 
 

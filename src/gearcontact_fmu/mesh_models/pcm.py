@@ -19,7 +19,7 @@ import numpy as np
 from gearcontact_fmu import faults, geometry
 from gearcontact_fmu.contact import engine
 from gearcontact_fmu.mesh_check import load_gear_mesh
-from gearcontact_fmu.mesh_model import N_OUT, OUT_STATUS, OUT_TAU_PINION, MeshModel
+from gearcontact_fmu.mesh_models.base import N_OUT, OUT_STATUS, OUT_TAU_PINION, MeshModel
 from gearcontact_fmu.meshes import SurfaceMesh
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
 

@@ -20,7 +20,7 @@ from numba import njit
 
 from gearcontact_fmu.contact_map import (CH_AREA, CH_DAMP, CH_EEL, CH_FN, CH_FRIC_P, CH_FRIC_W, CH_N, CH_PEAK,
                                          CH_PEN, CH_TAU_P, CH_TAU_W, SEED_DIR, ContactMap, get_map, map_file_name)
-from gearcontact_fmu.mesh_model import (OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY,
+from gearcontact_fmu.mesh_models.base import (OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY,
                                         OUT_MAX_PENETRATION, OUT_N_CONTACT, OUT_NORMAL_FORCE, OUT_PEAK_PRESSURE,
                                         OUT_STATUS, OUT_TAU_PINION, OUT_TAU_WHEEL, MeshModel)
 from gearcontact_fmu.mesh_models.pcm import fault_kwargs_of

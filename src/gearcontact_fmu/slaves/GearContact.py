@@ -35,7 +35,7 @@ from fmu_runtime import check_runtime  # noqa: E402
 
 check_runtime("GearContact", _HERE)        # a missing package named where the host shows it
 import gearcontact_fmu  # noqa: E402
-from gearcontact_fmu.mesh_model import (OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY,  # noqa: E402
+from gearcontact_fmu.mesh_models.base import (OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY,  # noqa: E402
                                       OUT_MAX_PENETRATION, OUT_N_CONTACT, OUT_NORMAL_FORCE,
                                       OUT_PEAK_PRESSURE, OUT_TAU_PINION, OUT_TAU_WHEEL)
 from pythonfmu import Boolean, DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real, String  # noqa: E402

@@ -79,7 +79,7 @@
 /* 1. The contact map resource                                                                     */
 /* ============================================================================================== */
 
-/* mesh outputs (gearcontact_fmu.mesh_model.OUT_*) */
+/* mesh outputs (gearcontact_fmu.mesh_models.base.OUT_*) */
 enum { OUT_TAU_PINION, OUT_TAU_WHEEL, OUT_N_CONTACT, OUT_CONTACT_AREA, OUT_PEAK_PRESSURE,
        OUT_MAX_PENETRATION, OUT_NORMAL_FORCE, OUT_ELASTIC_ENERGY, OUT_DISSIPATED_POWER, OUT_STATUS, N_OUT };
 /* map channels (contact_map.CH_*) */

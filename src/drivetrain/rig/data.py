@@ -20,10 +20,13 @@ import functools
 import json
 import math
 from dataclasses import dataclass, field
+from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
 
+from drivetrain.errors import ConfigurationError
+from drivetrain.rig.lumped_table import read_lumped_table
 from gearcontact_fmu.params import GEAR_MODEL, BevelGearParams
 
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -102,15 +105,49 @@ class PublicModel:
 
 
 def load_public(path: str | Path | None = None) -> PublicModel:
-    rows = [r for r in csv.reader(open(path or PUBLIC_CSV, newline="")) if r and not r[0].lstrip().startswith("#")]
-    hdr, body = rows[0], rows[1:]
-    col = {h: i for i, h in enumerate(hdr)}
-    J = np.array([float(r[col["J_kgm2"]]) for r in body])
-    cext = np.array([float(r[col["c_ext_Nms_per_rad"]]) for r in body])
-    k = np.array([float(r[col["k_next_Nm_per_rad"]]) for r in body[:-1]])
-    c = np.array([float(r[col["c_next_Nms_per_rad"]]) for r in body[:-1]])
-    ratio = np.array([float(r[col["ratio_next"]]) for r in body[:-1]])
-    return PublicModel(J, cext, k, c, ratio)
+    """The lumped model of a table in the layout of ``data/testbench_lumped_parameters.csv`` (``path``; default:
+    that shipped table, the rig's), read checked (:func:`drivetrain.rig.lumped_table.read_lumped_table`:
+    FileFormatError naming the file, the row and what was wrong)."""
+    t = read_lumped_table(path or PUBLIC_CSV)
+    return PublicModel(t["J"], t["c_ext"], t["k"], t["c"], t["ratio"])
+
+
+# ---- another machine's table: the places the partition maps onto the four FMUs ------------------------
+
+#: the rig's layout, which the partition maps onto the FMUs by place: nodes, and the geared elements
+RIG_LAYOUT_NODES = 22
+
+
+def tooth_ratio(ratio: float) -> Fraction:
+    """A table's speed ratio as the ratio of whole numbers it is written for: the nearest fraction with a
+    denominator up to 1000 when within 1e-9 of it (``0.3333333333`` -> 1/3), else the number itself.
+    The components' frames use it (the rig's 3 and 12 exactly)."""
+    frac = Fraction(float(ratio)).limit_denominator(1000)
+    return frac if abs(float(frac) - ratio) <= 1e-9 * abs(ratio) else Fraction(float(ratio))
+
+
+def layout_problems(model: PublicModel, lower_ratio: float | None = None) -> list[str]:
+    """Why ``model`` cannot be partitioned into the drivetrain FMUs ([] if it can). The partition maps the
+    table's nodes onto the components by their places in the rig's layout (docs/DRIVETRAIN.md): 22 nodes,
+    element 12 the upper gearbox (any ratio), element 17 the bevel mesh (the pair's z1/z2), every other
+    element ratio 1."""
+    n = len(model.J)
+    if n != RIG_LAYOUT_NODES:
+        return [f"{n} nodes: a run maps the table onto the four drivetrain FMUs by the places of the rig's "
+                f"layout, {RIG_LAYOUT_NODES} nodes (docs/DRIVETRAIN.md, 'Another machine'); `drivetrain eigen "
+                "--parameters FILE` reports the modes of any chain"]
+    out = []
+    want = Z_PINION / Z_WHEEL if lower_ratio is None else 1.0 / lower_ratio
+    r17 = float(model.ratio[GEAR_ELEMENT_LOWER - 1])
+    if abs(r17 - want) > 1e-9 * want:
+        out.append(f"element {GEAR_ELEMENT_LOWER} (the bevel mesh) has ratio_next = {r17:.10g}; the gear pair's "
+                   f"z1/z2 = {want:.10g}")
+    odd = [i + 1 for i, r in enumerate(model.ratio) if i + 1 not in (GEAR_ELEMENT_UPPER, GEAR_ELEMENT_LOWER)
+           and r != 1.0]
+    if odd:
+        out.append(f"element(s) {', '.join(map(str, odd))} have ratio_next != 1; in the rig's layout only elements "
+                   f"{GEAR_ELEMENT_UPPER} (upper gearbox) and {GEAR_ELEMENT_LOWER} (bevel mesh) are geared")
+    return out
 
 
 def public_matrices(model: PublicModel | None = None, referred: bool = True):
@@ -270,11 +307,9 @@ class RefChain:
 
 def _body_J(nd: _Node, model: PublicModel):
     """Inertia of a body per frame (local values, not referred): (J_drive, J_middle, J_prop)."""
-    R = model.R
     out = [0.0, 0.0, 0.0]
-    for pid, f in nd.members.items():
-        r = R[pid - 1]
-        fr = 0 if r > 0.5 else (1 if r > 0.2 else 2)
+    for pid, f in nd.members.items():      # the frame by place: drive up to the upper gear, middle up to the mesh
+        fr = 0 if pid <= GEAR_ELEMENT_UPPER else (1 if pid <= GEAR_ELEMENT_LOWER else 2)
         out[fr] += f * model.J[pid - 1]
     return out
 
@@ -315,6 +350,9 @@ def partition(shafts: str = "flexible", n_elements: int = 4, calibration: dict |
     if n_elements < 1:
         raise ValueError("n_elements must be >= 1")
     m = model or load_public()
+    problems = layout_problems(m)
+    if problems:
+        raise ConfigurationError([f"lumped parameter table: {p}" for p in problems])
     cal = calibration if calibration is not None else load_calibration()
     s = float(cal["coupling_scale"] if coupling_scale is None else coupling_scale)
     ch = _lumped_chain(m, shafts, s)
@@ -418,16 +456,19 @@ def _upper_gear_motors(ch: RefChain, m: PublicModel, cal: dict, losses: bool, C2
     J_ut = UT.J + J_in_extra
     Jd, Jm, _ = _body_J(UT, m)
     # J_in (drive frame) and J_out (middle frame) of the upper gearbox body
+    # the frames of the middle and propeller shafts (the rig: 1/3 and 1/12, exactly: tooth_ratio)
+    r_up = tooth_ratio(m.ratio[GEAR_ELEMENT_UPPER - 1])
+    upper_ratio, R_m, R_p = float(1 / r_up), float(r_up), float(r_up * tooth_ratio(m.ratio[GEAR_ELEMENT_LOWER - 1]))
     J_out = Jm
-    J_in = J_ut - J_out * (1.0 / UPPER_RATIO) ** 2
+    J_in = J_ut - J_out * R_m ** 2
     up = cal["upper"]
     pg = cal["planetary"]
     lz = 1.0 if losses else 0.0
-    params["upper"] = dict(J_in=J_in, J_out=J_out, ratio=UPPER_RATIO,
+    params["upper"] = dict(J_in=J_in, J_out=J_out, ratio=upper_ratio,
                            loss_c=lz * up["c_v"], loss_Tc=lz * up["T_c"], loss_wc=up["w_c"],
                            loss_a=lz * up["a"], J_sensor=J_sensor)
-    Rm2 = (1.0 / 3.0) ** 2
-    Rp2 = (1.0 / 12.0) ** 2
+    Rm2 = R_m ** 2
+    Rp2 = R_p ** 2
     params["gear"] = dict(J_pinion=pin.J / Rm2, J_wheel=whl.J / Rp2, k_a=Ka.k / Rm2, d_a=Ka.c / Rm2,
                           k_b=Kb.k / Rp2, d_b=Kb.c / Rp2)
     params["motors"] = dict(J_motor=M_.J, c_motor=lz * M_.c_ext, k_c1=C1.k, d_c1=C1.c, J_flywheel=FW.J,

@@ -76,6 +76,26 @@ PAPER_LOADS_NM = (0.12, 0.71, 1.31)
 PAPER_MAX_SPEED_RPM = PAPER_SPEEDS_RPM[-1]      #: 1500 rpm
 PAPER_MAX_LOAD_NM = PAPER_LOADS_NM[-1]          #: 1.31 N·m
 
+
+@dataclass(frozen=True)
+class DriveLoad:
+    """The drive's speed controller and the load motor as the rig runs them: the defaults of the scene's
+    ``[drivetrain]`` keys and of MotorLoad's parameters (declared here once)."""
+
+    drive_Kp: float = 0.1                  #: N m s/rad, proportional gain of the PI speed controller
+    drive_Ti_s: float = 0.4                #: s, its integral time (a ~2 Hz speed loop; assumed, not identified)
+    drive_Ni: float = 0.9                  #: anti-windup gain (LimPID back-calculation)
+    drive_torque_limit_Nm: float = 10.0    #: the drive motor's torque limit
+    load_law: str = "torque"               #: the load motor's law: one of LOAD_LAWS
+    load_w_reg_rad_s: float = 0.05         #: torque law: propeller-shaft speed below which the setting is regularised
+    load_gear_ratio: float = PG_RATIO      #: the planetary between the load motor and the propeller shaft
+    load_motor_J_kgm2: float = 0.0         #: the load motor's rotor inertia (referred through load_gear_ratio^2)
+
+
+#: the load motor's laws, in the order of MotorLoad's ``load_mode`` (0 torque setting, 1 viscous)
+LOAD_LAWS = ("torque", "viscous")
+RIG_DRIVE_LOAD = DriveLoad()
+
 FALLBACK_CALIBRATION = {
     "coupling_scale": 0.70,
     "upper": {"c_v": 1.5e-3, "T_c": 0.34, "w_c": 16.9, "a": 0.058},
@@ -533,7 +553,7 @@ def steady_state(speed_rpm: float, load_Nm: float, upper: dict, motors: dict, lo
     r8 = motors.get("ratio_pg", PG_RATIO)
     if int(load_mode) == 0:
         # the torque setting, regularised at standstill as in MotorLoad (tanh = 1 at any operating speed)
-        wr = load_w_reg if load_w_reg is not None else motors.get("load_w_reg", 0.05)
+        wr = load_w_reg if load_w_reg is not None else motors.get("load_w_reg", RIG_DRIVE_LOAD.load_w_reg_rad_s)
         T_prop_load = r8 * load_Nm * math.tanh(wp / wr) if wr > 0 else r8 * load_Nm
     else:
         T_prop_load = r8 * load_Nm * wp / load_w_nom

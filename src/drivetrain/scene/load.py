@@ -147,6 +147,8 @@ def _check_value(key: str, spec: Key, value: Any, base_dir: Path, problems) -> A
             problems += [(key, value, f"a time/{spec.dimension} series file; {p}: {pr}") for pr in exc.problems]
             return None
         return _Series(p, tuple(zip(ts.tolist(), vs.tolist())))
+    if t == "table":                    # a lumped torsional model ([drivetrain] parameters), read and checked now
+        return _check_table(key, value, base_dir, problems)
     if t == "faults":                   # each specification: checked with the health (_check_gear)
         if not isinstance(value, list):
             problems.append((key, value, "an array of tables [[gear.faults]]"))
@@ -197,6 +199,25 @@ def _check_value(key: str, spec: Key, value: Any, base_dir: Path, problems) -> A
             return None
         return tuple(value)
     raise AssertionError(t)  # pragma: no cover
+
+
+def _check_table(key: str, value: Any, base_dir: Path, problems) -> Path | None:
+    """A lumped parameter table (rig.lumped_table's layout): its path, read through the checked reader, and a
+    layout the partition maps onto the FMUs (rig.data.layout_problems); every problem named with the file."""
+    from drivetrain.errors import FileFormatError
+    from drivetrain.rig.data import layout_problems, load_public
+
+    if not isinstance(value, str) or not value or "\x00" in value:
+        problems.append((key, value, "a CSV file path (a non-empty string without NUL characters)"))
+        return None
+    p = Path(value).expanduser()
+    p = p if p.is_absolute() else (base_dir / p).resolve()
+    try:
+        found = layout_problems(load_public(p))
+    except FileFormatError as exc:
+        found = exc.problems
+    problems += [(key, value, f"a lumped parameter table; {pr if str(p) in pr else f'{p}: {pr}'}") for pr in found]
+    return None if found else p
 
 
 def _suggest(name: str, candidates) -> str:

@@ -238,6 +238,8 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     cal = calibration if isinstance(calibration, dict) else rig.load_calibration(calibration)
     if eff.couplings == "record":
         cal = dict(cal, coupling_scale=float(scene.background.coupling_stiffness_scale))
+    elif scene.drivetrain.coupling_scale is not None:
+        cal = dict(cal, coupling_scale=float(scene.drivetrain.coupling_scale))
     part = rig.partition(eff.shaft_flexibility, eff.shaft_elements, cal, losses=eff.losses,
                          model=machine_model(scene))
     if eff.couplings == "record":

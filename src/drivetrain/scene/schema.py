@@ -363,6 +363,11 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "(path relative to the scene file; docs/DRIVETRAIN.md, 'Another machine'): inertias, stiffnesses, "
             "dampings and ratios, read checked; a run maps it onto the four FMUs by the rig's 22-node layout"),
             default_doc="the rig's table (drivetrain/data/testbench_lumped_parameters.csv)"),
+        "coupling_scale": _f(None, "", "", (
+            "factor on the stiffness of the elastomer couplings (the table's elements 3-7) instead of the "
+            "calibration's (fitted to the rig's 24 Hz mode); 1 = the table's stiffnesses as written "
+            "(effects.couplings = fitted)"), minimum=0.0, min_exclusive=True,
+            default_doc="the calibration's (0.70 shipped)"),
         "drive_Kp": _f(_DL.drive_Kp, "N·m·s/rad", "", (
             "proportional gain of the drive motor's PI speed controller (effects.drive_control = assumed)"),
             minimum=0.0, min_exclusive=True),
@@ -414,6 +419,7 @@ ACTS_WHEN: dict[str, tuple] = {
     **{f"background.{k}": (_on("effects.drive_control", "record"),) for k in ("drive_Kp", "drive_Ti_s")},
     **{f"drivetrain.{k}": (_on("effects.drive_control", "assumed"),) for k in ("drive_Kp", "drive_Ti_s")},
     "drivetrain.load_w_reg_rad_s": (_on("drivetrain.load_law", "torque"),),
+    "drivetrain.coupling_scale": (_on("effects.couplings", "fitted"),),
     **{f"background.{k}": (_on("effects.couplings", "record"),)
        for k in ("coupling_stiffness_scale", "coupling_damping_scale", "propeller_stiffness_scale",
                  "propeller_damping_scale")},
@@ -556,6 +562,7 @@ class ManufacturingSpec:
 @dataclass(frozen=True)
 class DrivetrainSpec:
     parameters: Path | None              # the lumped table (absolute), None: the rig's
+    coupling_scale: float | None         # None: the calibration's
     drive_Kp: float
     drive_Ti_s: float
     drive_Ni: float

@@ -201,7 +201,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
         op = scene.operating_point
         print(f"  operating point: {op.final_speed_rpm:g} rpm, "
-              + (load_text(op.load_profile_Nm[-1][1], profile=True) if op.load_profile_Nm else load_text(op.load_torque_Nm)))
+              + (load_text(op.load_profile_Nm[-1][1], profile=True, ratio=scene.drivetrain.load_gear_ratio)
+                 if op.load_profile_Nm else load_text(op.load_torque_Nm, ratio=scene.drivetrain.load_gear_ratio)))
         for name, st in s["torque"].items():
             print(f"  {name}: mean {st['mean']:.4g} N·m, RMS {st['rms']:.4g} N·m")
         print(f"  f_DSH {s['f_DSH']:.4g} Hz, f_MSH {s['f_MSH']:.4g} Hz, f_PSH {s['f_PSH']:.4g} Hz, "

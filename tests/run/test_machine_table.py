@@ -1,0 +1,108 @@
+"""Another machine's drivetrain from its lumped table (issue 42, item 2), run: the rig stays the default and a scene
+that names the rig's own table runs bit for bit as one that names none; a modified table changes the run where
+physics says it must (the load body's response to a load step scales as 1 / its inertia, the mean torques do
+not move), and the [drivetrain] drive and load keys reach the drive motor."""
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivetrain.rig import data as rig
+from drivetrain.run.assemble import assemble
+from drivetrain.run.runner import run_scene
+from drivetrain.scene.load import load_scene, scene_from_dict
+
+ROOT = Path(__file__).resolve().parents[2]
+EXAMPLE = ROOT / "scenarios" / "example.toml"
+HEAVY = ROOT / "scenarios" / "other_gearboxes" / "heavy_propeller_machine.csv"
+QUIET = dict(backend="inprocess", progress=False, log=lambda m: None)
+
+
+def test_naming_the_rigs_own_table_runs_bit_identical(tmp_path):
+    """The example scene (table gear, flexible shafts) for 30 ms, once as shipped and once naming the rig's table
+    (a copy of it elsewhere, so that nothing can recognise the path): every signal equal, bit for bit."""
+    copy = tmp_path / "my_rig.csv"
+    copy.write_text(rig.PUBLIC_CSV.read_text())
+    sets = ["time.duration_s=0.03", "time.settle_s=0.01", "outputs.plots=false", "outputs.aalto_csv=false"]
+    a = run_scene(load_scene(EXAMPLE, sets), None, **QUIET)
+    b = run_scene(load_scene(EXAMPLE, sets + [f'drivetrain.parameters="{copy}"']), None, **QUIET)
+    assert b.scene.drivetrain.parameters == copy and a.scene.drivetrain.parameters is None
+    assert a.status == b.status == "ok"
+    assert np.array_equal(a.time, b.time) and sorted(a.signals) == sorted(b.signals) and len(a.signals) >= 7
+    for name in a.signals:
+        assert np.array_equal(a.signals[name], b.signals[name]), name
+    assert [c.parameters for c in a.spec.components] == [c.parameters for c in b.spec.components]
+
+
+def _step_run(table, rigid=True):
+    """A load step (1.0 -> 1.5 N m at 10 ms) with a rigid mesh and rigid shafts, the load body's speed sampled at
+    every communication step."""
+    raw = {"operating_point": {"drive_speed_rpm": 1000.0, "load_profile_Nm": [[0.0, 1.0], [0.01, 1.0],
+                                                                                [0.0101, 1.5]]},
+           "time": {"duration_s": 0.02, "settle_s": 0.005, "sample_rate_Hz": 12000.0},
+           "numerics": {"comm_step_s": 1.0 / 12000.0},
+           "effects": {"mesh_contact": "ideal", "shaft_flexibility": "rigid" if rigid else "flexible"},
+           "outputs": {"plots": False, "variables": ["motors.load_w"]}}
+    if table is not None:
+        raw["drivetrain"] = {"parameters": str(table)}
+    return run_scene(scene_from_dict(raw), None, **QUIET)
+
+
+def test_a_heavier_propeller_answers_a_load_step_as_its_inertia_says():
+    """The heavy machine's propeller mass is 3 x the rig's (node 22). Before the step both run at the same steady
+    state (the mean torques do not depend on inertia); just after it, before the propeller shaft's spring has
+    answered (a quarter period of its local mode is ~1.5 ms), the load body decelerates at the step's torque over
+    its inertia: the two runs' speed drops stand as the inverse ratio of the load bodies' inertias (from the
+    partition), within 5 %."""
+    rig_run, heavy_run = _step_run(None), _step_run(HEAVY)
+    J = [r.spec.components[0].parameters["J_load"] for r in (rig_run, heavy_run)]
+    assert J[1] / J[0] == pytest.approx((0.1485 + (J[0] - 0.0495)) / J[0], rel=1e-6)     # node 22 x 3
+    t = rig_run.time
+    before = (t > 0.005) & (t < 0.0095)
+    for name in ("propeller_shaft_torque", "drive_shaft_torque"):
+        assert np.mean(heavy_run.signals[name][before]) == pytest.approx(np.mean(rig_run.signals[name][before]),
+                                                                         rel=1e-3), name
+    i0 = int(np.searchsorted(t, 0.0101))
+    i1 = int(np.searchsorted(t, 0.0101 + 0.0004))
+    drops = [r.signals["motors.load_w"][i1] - r.signals["motors.load_w"][i0] for r in (rig_run, heavy_run)]
+    assert drops[0] < 0 and drops[1] < 0
+    assert drops[1] / drops[0] == pytest.approx(J[0] / J[1], rel=0.05)
+    assert not np.array_equal(rig_run.signals["propeller_shaft_torque"], heavy_run.signals["propeller_shaft_torque"])
+
+
+def test_the_drive_and_load_keys_reach_the_drive_motor():
+    """[drivetrain] drive and load keys become MotorLoad's parameters (the rig's when absent); the viscous load
+    law starts at its operating point (the steady state holds the setting at the initial speed)."""
+    base = assemble(scene_from_dict({}), check=False).components[0].parameters
+    assert (base["Kp"], base["Ti"], base["Ni"], base["tau_max"], base["load_mode"], base["ratio_pg"]) == \
+        (0.1, 0.4, 0.9, 10.0, 0, 8.0)
+    keys = {"drive_Kp": 0.25, "drive_Ti_s": 0.3, "drive_Ni": 0.5, "drive_torque_limit_Nm": 20.0,
+            "load_law": "viscous", "load_gear_ratio": 6.0, "load_motor_J_kgm2": 1e-4, "load_w_reg_rad_s": 0.1}
+    spec = assemble(scene_from_dict({"drivetrain": keys}), check=False)
+    p = spec.components[0].parameters
+    assert (p["Kp"], p["Ti"], p["Ni"], p["tau_max"], p["load_mode"], p["ratio_pg"], p["J_load_motor"],
+            p["load_w_reg"]) == (0.25, 0.3, 0.5, 20.0, 1, 6.0, 1e-4, 0.1)
+    ss = spec.metadata["steady_state"]
+    assert ss["T_load_prop"] == pytest.approx(6.0 * 1.31, rel=1e-12)           # viscous: the setting at w0
+    # the record's controller still wins with effects.drive_control = "record"
+    rec = assemble(scene_from_dict({"drivetrain": keys, "effects": {"drive_control": "record"}}), check=False)
+    bg = scene_from_dict({}).background
+    assert rec.components[0].parameters["Kp"] == bg.drive_Kp and rec.components[0].parameters["Ti"] == bg.drive_Ti_s
+
+
+def test_a_scene_refuses_a_table_it_cannot_run(tmp_path):
+    """A two-mass chain has no places for the four FMUs: the scene is refused at loading, naming the key, the
+    file and why (and `drivetrain eigen --parameters` is named for its modes)."""
+    from drivetrain.errors import ScenarioError
+
+    two = ROOT / "scenarios" / "other_gearboxes" / "two_mass_machine.csv"
+    with pytest.raises(ScenarioError) as ei:
+        scene_from_dict({"drivetrain": {"parameters": str(two)}})
+    text = str(ei.value)
+    assert "drivetrain.parameters" in text and "2 nodes" in text and "drivetrain eigen" in text
+    bad = tmp_path / "bad.csv"
+    bad.write_text(rig.PUBLIC_CSV.read_text().replace("22,0.0495", "22,-0.0495"))
+    with pytest.raises(ScenarioError) as ei:
+        scene_from_dict({"drivetrain": {"parameters": "bad.csv"}}, base_dir=tmp_path)
+    assert str(bad) in str(ei.value) and "(node 22): J_kgm2 = '-0.0495'" in str(ei.value)

@@ -106,3 +106,23 @@ def test_a_scene_refuses_a_table_it_cannot_run(tmp_path):
     with pytest.raises(ScenarioError) as ei:
         scene_from_dict({"drivetrain": {"parameters": "bad.csv"}}, base_dir=tmp_path)
     assert str(bad) in str(ei.value) and "(node 22): J_kgm2 = '-0.0495'" in str(ei.value)
+
+
+def test_an_upper_gearbox_of_another_ratio_moves_the_mesh_frequency(tmp_path):
+    """Element 12 at 1/2: at 1000 rpm the middle shaft turns at 1000/60/2 Hz and the mesh at z1 times that,
+    125 Hz (the rig: 83.3 Hz), in the summary and in the run's spectra; the load body turns at 1/8 of the drive."""
+    table = tmp_path / "half.csv"
+    table.write_text(rig.PUBLIC_CSV.read_text().replace("12,0.000325,0.0031,43300,1.84,0.3333333333",
+                                                        "12,0.000325,0.0031,43300,1.84,0.5"))
+    raw = {"drivetrain": {"parameters": str(table)}, "operating_point": {"drive_speed_rpm": 1000.0},
+           "time": {"duration_s": 0.05, "settle_s": 0.01},
+           "effects": {"mesh_contact": "ideal", "shaft_flexibility": "rigid"}, "outputs": {"plots": False,
+                                                                                           "variables": ["motors.load_w"]}}
+    res = run_scene(scene_from_dict(raw), None, **QUIET)
+    assert res.status == "ok"
+    assert res.summary["f_GMF"] == pytest.approx(15 * 1000 / 60 / 2, rel=1e-12)
+    assert res.summary["f_MSH"] == pytest.approx(1000 / 60 / 2, rel=1e-12)
+    assert res.spectrum("propeller_shaft_torque").attrs["characteristic_frequencies"]["f_GMF"] == \
+        pytest.approx(125.0, rel=1e-12)
+    w_load = np.mean(res.signals["motors.load_w"][res.time > 0.01])
+    assert w_load == pytest.approx(rig.rpm_to_rad_s(1000.0) / 2 / 4, rel=1e-4)

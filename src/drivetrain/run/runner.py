@@ -120,16 +120,25 @@ class RunResult:
             raise KeyError(f"no channel {channel!r} in the run (it has {', '.join(self.signals)})")
         return spectrum_frame(self.time, self.signals[channel], self.scene.time.settle_s,
                               self.scene.time.sample_rate_Hz, self.scene.operating_point.final_speed_rpm,
-                              channel, self.units.get(channel, ""))
+                              channel, self.units.get(channel, ""), upper_ratio=_upper_ratio(self.spec))
 
 
-def spectrum_frame(time_s, x, settle_s: float, fs: float, drive_speed_rpm: float, channel: str = "", unit: str = ""):
+def _upper_ratio(spec: SystemSpec | None) -> float:
+    """The upper gearbox's ratio of an assembled system (its machine's lumped table; the rig's for a custom spec)."""
+    from drivetrain.rig.data import UPPER_RATIO
+
+    return float(((spec.metadata if spec is not None else {}).get("characteristic") or {}).get("upper_ratio", UPPER_RATIO))
+
+
+def spectrum_frame(time_s, x, settle_s: float, fs: float, drive_speed_rpm: float, channel: str = "", unit: str = "",
+                   upper_ratio: float | None = None):
     """:func:`drivetrain.rig.signals.run_spectrum` as a DataFrame (``RunResult.spectrum``, ``drivetrain.spectrum``)."""
     import pandas as pd
 
     from drivetrain.rig.signals import AMPLITUDE_CONVENTION
 
-    f, A, cf = run_spectrum(time_s, x, settle_s, fs, drive_speed_rpm)
+    f, A, cf = run_spectrum(time_s, x, settle_s, fs, drive_speed_rpm,
+                            **({} if upper_ratio is None else {"upper_ratio": upper_ratio}))
     df = pd.DataFrame({"frequency_Hz": f, "amplitude": A})
     df.attrs.update(units={"frequency_Hz": "Hz", "amplitude": unit}, convention=AMPLITUDE_CONVENTION,
                     characteristic_frequencies=cf, lowpass_Hz=spectrum_lowpass_Hz(cf["f_GMF"]),
@@ -512,7 +521,8 @@ def torque_spectra(plan: RunPlan, ch: Channels) -> Spectra:
     scene = plan.scene
     m = ch.time >= scene.time.settle_s
     fs = scene.time.sample_rate_Hz
-    out = Spectra(cf=characteristic_frequencies(scene.operating_point.final_speed_rpm))
+    ur = _upper_ratio(plan.spec)
+    out = Spectra(cf=characteristic_frequencies(scene.operating_point.final_speed_rpm, upper_ratio=ur))
     for name in TORQUE_SENSORS:
         if name not in ch.signals:
             continue
@@ -523,7 +533,7 @@ def torque_spectra(plan: RunPlan, ch: Channels) -> Spectra:
         if len(x) > 16 and out.cf["f_GMF"] > 0:
             try:
                 f, A, _ = run_spectrum(ch.time, ch.signals[name], scene.time.settle_s, fs,
-                                       scene.operating_point.final_speed_rpm)
+                                       scene.operating_point.final_speed_rpm, ur)
             except ValueError as exc:    # too short for the low-pass (a short or failed run)
                 plan.warnings.append(f"no spectrum of {name}: {exc}")
                 continue

@@ -118,9 +118,13 @@ def test_an_upper_gearbox_of_another_ratio_moves_the_mesh_frequency(tmp_path):
            "time": {"duration_s": 0.05, "settle_s": 0.01},
            "effects": {"mesh_contact": "ideal", "shaft_flexibility": "rigid"}, "outputs": {"plots": False,
                                                                                            "variables": ["motors.load_w"]}}
-    res = run_scene(scene_from_dict(raw), None, **QUIET)
+    res = run_scene(scene_from_dict(raw), tmp_path / "run", **QUIET)
     assert res.status == "ok"
     assert res.summary["f_GMF"] == pytest.approx(15 * 1000 / 60 / 2, rel=1e-12)
+    from drivetrain.campaigns.loaders import spectrum          # the stored run, read back
+
+    assert spectrum(tmp_path / "run", "propeller_shaft_torque").attrs["characteristic_frequencies"]["f_GMF"] == \
+        pytest.approx(125.0, rel=1e-12)
     assert res.summary["f_MSH"] == pytest.approx(1000 / 60 / 2, rel=1e-12)
     assert res.spectrum("propeller_shaft_torque").attrs["characteristic_frequencies"]["f_GMF"] == \
         pytest.approx(125.0, rel=1e-12)

@@ -97,3 +97,33 @@ def test_drivetrain_eigen_reports_a_table_and_a_scene_naming_one(capsys, tmp_pat
     assert main(["eigen", "--parameters", str(bad)]) == 2
     err = capsys.readouterr().err
     assert str(bad) in err and "J_kgm2 = '-1'" in err
+
+
+def test_another_chain_assembled_has_the_modes_of_its_table_with_rigid_gears(tmp_path):
+    """A 7-node machine outside the rig's layout (every place its own node: nothing condensed), assembled into the
+    FMUs' parameters with rigid shafts and the ideal (rigid) mesh: its modes are those of the table's chain with
+    the upper gearbox and the mesh rigid, built here by hand from the table (referred to the motor: J R^2, a geared
+    element's k in its output node's frame)."""
+    from scipy.linalg import eigh
+
+    J = [0.01, 0.02, 0.025, 0.004, 0.0008, 0.006, 0.5]
+    k = [4000.0, 6000.0, 2e5, 12000.0, 1e6, 9000.0]
+    ratio = [1, 1, 0.5, 1, 0.25, 1]
+    table = _table(tmp_path / "seven.csv", [(i + 1, J[i], 0, k[i] if i < 6 else "", 0.1 if i < 6 else "",
+                                             ratio[i] if i < 6 else "") for i in range(7)])
+    ru, rp = 0.5, 0.5 * 0.25
+    M = np.diag([J[0], J[1], J[2] + J[3] * ru ** 2, J[4] * ru ** 2 + J[5] * rp ** 2, J[6] * rp ** 2])
+    springs = [(0, 1, k[0]), (1, 2, k[1]), (2, 3, k[3] * ru ** 2), (3, 4, k[5] * rp ** 2)]
+    K = np.zeros((5, 5))
+    for a, b, kk in springs:
+        K[a, a] += kk
+        K[b, b] += kk
+        K[a, b] -= kk
+        K[b, a] -= kk
+    w2 = eigh(K, M, eigvals_only=True)
+    oracle = np.sqrt(w2[1:]) / (2 * math.pi)
+    scene = scene_from_dict({"drivetrain": {"parameters": str(table)},
+                             "effects": {"mesh_contact": "ideal", "shaft_flexibility": "rigid"}})
+    f = eigen.natural_frequencies(assemble(scene, check=False))
+    np.testing.assert_allclose(f, oracle, rtol=1e-9)
+    assert len(f) == 4

@@ -103,8 +103,8 @@ def _rig_rows():
 
 
 def test_the_partition_maps_a_table_of_the_rig_layout_and_refuses_another(tmp_path):
-    """A table in the rig's 22-node layout partitions (its values reach the components); a two-mass chain and
-    a bevel element whose ratio is not the pair's z1/z2 are refused, before any component is built."""
+    """A table in the rig's 22-node layout partitions (its values reach the components); a two-mass chain (no
+    bevel mesh) and a bevel element whose ratio is not the pair's z1/z2 are refused, before any component is built."""
     rows = _rig_rows()
     rows[22] = rows[22].replace("0.0495", "0.099")              # node 22: the propeller mass doubled
     m = rig.load_public(write(tmp_path, rows, "heavy.csv"))
@@ -114,8 +114,9 @@ def test_the_partition_maps_a_table_of_the_rig_layout_and_refuses_another(tmp_pa
     assert heavy.params["motors"]["J_load"] - base.params["motors"]["J_load"] == pytest.approx(0.0495, rel=1e-9)
     assert heavy.params["upper"] == base.params["upper"] and heavy.params["drive_shaft"] == base.params["drive_shaft"]
     two = rig.load_public(write(tmp_path, GOOD[:2] + ["2,0.04,0.002,,,"], "two.csv"))
-    with pytest.raises(ConfigurationError, match="2 nodes: a run maps the table onto the four drivetrain FMUs"):
-        rig.partition(model=two)
+    with pytest.raises(ConfigurationError, match="the bevel mesh is the last geared element, its ratio_next the gear "
+                                                 "pair's z1/z2 = 0.25; no element has ratio_next != 1"):
+        rig.partition("rigid", model=two)
     rows = _rig_rows()
     rows[17] = rows[17].replace(",0.25", ",0.2")                # element 17: 1/5 but the pair is 15/60
     with pytest.raises(ConfigurationError, match=r"element 17 \(the bevel mesh\) has ratio_next = 0.2; the gear "
@@ -137,3 +138,70 @@ def test_an_upper_gearbox_of_another_ratio_sets_the_frames(tmp_path):
     assert part.params["upper"]["J_out"] == pytest.approx(base.params["upper"]["J_out"], rel=1e-9)
     assert part.params["motors"]["J_load"] == pytest.approx(base.params["motors"]["J_load"], rel=1e-9)
     assert part.params["upper"]["J_in"] == pytest.approx(base.params["upper"]["J_in"], rel=1e-9)   # drive frame
+
+
+def _chain(tmp_path, rows, name="chain.csv"):
+    return rig.load_public(write(tmp_path, [HEADER, *(",".join(map(str, r)) for r in rows)], name))
+
+
+#: a 7-node machine with every place of its own (nothing to condense): motor, flywheel, upper gearbox in/out
+#: (element 3, 2:1), pinion, bevel mesh (element 5, 15/60), wheel, load
+SEVEN = [(1, 0.01, 0.002, 4000, 0.4, 1), (2, 0.02, 0, 6000, 0.8, 1), (3, 0.025, 0, 2e5, 2, 0.5),
+         (4, 0.004, 0, 12000, 0.3, 1), (5, 0.0008, 0, 1e6, 0, 0.25), (6, 0.006, 0, 9000, 0.2, 1), (7, 0.5, 0.1, "", "", "")]
+
+
+def test_another_chain_finds_its_places_from_its_ratios(tmp_path):
+    """A chain outside the rig's layout: the mesh is the last geared element (the pair's 15/60), the upper gearbox
+    the geared element before it, the flywheel the heaviest node between the motor and the upper body; each
+    component's parameter is its node's or element's, in its own frame (nothing condensed), the upper ratio 2."""
+    m = _chain(tmp_path, SEVEN)
+    places, problems = rig.chain_places(m)
+    assert problems == [] and places == rig.Places(motor=1, flywheel=2, upper=3, upper_gear=3, mesh=5, pinion=5,
+                                                   wheel=6, load=7)
+    part = rig.partition("rigid", model=m, losses=False)
+    mo, up, gear = part.params["motors"], part.params["upper"], part.params["gear"]
+    assert (mo["J_motor"], mo["k_c1"], mo["d_c1"], mo["J_flywheel"], mo["k_c2"], mo["d_c2"], mo["J_load"]) == \
+        (0.01, 4000.0, 0.4, 0.02, 6000.0, 0.8, 0.5)
+    assert (up["J_in"], up["J_out"], up["ratio"]) == (0.025, 0.004, 2.0)
+    assert (gear["J_pinion"], gear["J_wheel"], gear["k_a"], gear["k_b"]) == (0.0008, 0.006, 12000.0, 9000.0)
+    assert part.calibration["coupling_scale"] == 1.0               # the rig's coupling factor is the rig's alone
+    with pytest.raises(ConfigurationError, match="runs with rigid shafts"):
+        rig.partition("flexible", model=m)
+
+
+def test_another_chain_condenses_the_nodes_between_its_places(tmp_path):
+    """Nodes between the places are condensed: springs in series (k = k1 k2 / (k1 + k2)), the inertia shared by
+    the neighbours in proportion to the adjacent stiffnesses; the total inertia referred to the motor is kept."""
+    rows = [(1, 0.01, 0.002, 4000, 0.4, 1), (2, 0.001, 0, 12000, 0.2, 1), (3, 0.02, 0, 6000, 0.8, 1),
+            (4, 0.025, 0, 2e5, 2, 0.5), (5, 0.004, 0, 12000, 0.3, 1), (6, 0.0008, 0, 1e6, 0, 0.25),
+            (7, 0.006, 0, 9000, 0.2, 1), (8, 0.002, 0, 18000, 0.1, 1), (9, 0.5, 0.1, "", "", "")]
+    m = _chain(tmp_path, rows)
+    part = rig.partition("rigid", model=m, losses=False)
+    mo, gear = part.params["motors"], part.params["gear"]
+    assert mo["k_c1"] == pytest.approx(4000 * 12000 / 16000, rel=1e-12)
+    assert mo["J_motor"] == pytest.approx(0.01 + 0.001 * 4000 / 16000, rel=1e-12)
+    assert mo["J_flywheel"] == pytest.approx(0.02 + 0.001 * 12000 / 16000, rel=1e-12)
+    assert gear["k_b"] == pytest.approx(9000 * 18000 / 27000, rel=1e-12)
+    assert mo["J_load"] + gear["J_wheel"] == pytest.approx(0.006 + 0.002 + 0.5, rel=1e-12)
+    ref = m.J @ m.R ** 2
+    lumped = (mo["J_motor"] + mo["J_flywheel"] + part.params["upper"]["J_in"] + part.params["upper"]["J_out"] / 4
+              + (gear["J_pinion"] + gear["J_wheel"] / 16 + mo["J_load"] / 16) / 4)
+    assert lumped == pytest.approx(ref, rel=1e-12)
+
+
+@pytest.mark.parametrize("rows, words", [
+    ([(1, 0.01, 0, 4000, 0, 1), (2, 0.02, 0, 6000, 0, 1), (3, 0.5, 0, "", "", "")], "no element has ratio_next != 1"),
+    ([(1, 0.01, 0, 4000, 0, 1), (2, 0.02, 0, 6000, 0, 0.2), (3, 0.5, 0, 100, 0, 1), (4, 0.5, 0, "", "", "")],
+     "element 2 has ratio_next = 0.2"),
+    ([(1, 0.01, 0, 4000, 0, 0.5), (2, 0.02, 0, 6000, 0, 0.5), (3, 0.01, 0, 100, 0, 1), (4, 0.01, 0, 100, 0, 0.25),
+      (5, 0.01, 0, 100, 0, 1), (6, 0.5, 0, "", "", "")], "elements 1, 2, 4 are geared: at most two"),
+    ([(1, 0.01, 0, 4000, 0, 1), (2, 0.02, 0, 6000, 0, 0.25), (3, 0.01, 0, 100, 0, 1), (4, 0.5, 0, "", "", "")],
+     "node 1 would be the upper gearbox's body"),
+    ([(1, 0.01, 0, 4000, 0, 1), (2, 0.02, 0, 6000, 0, 1), (3, 0.01, 0, 100, 0, 0.5), (4, 0.01, 0, 100, 0, 0.25),
+      (5, 0.01, 0, 100, 0, 1), (6, 0.5, 0, "", "", "")], "joins the bevel mesh's input node 4"),
+    ([(1, 0.01, 0, 4000, 0, 1), (2, 0.02, 0, 6000, 0, 1), (3, 0.01, 0, 100, 0, 1), (4, 0.01, 0, 100, 0, 0.25),
+      (5, 0.5, 0, "", "", "")], "the wheel (node 5) is the last node"),
+])
+def test_a_chain_without_the_places_is_refused_with_why(tmp_path, rows, words):
+    problems = rig.layout_problems(_chain(tmp_path, rows))
+    assert any(words in p for p in problems), problems

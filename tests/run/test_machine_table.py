@@ -92,15 +92,16 @@ def test_the_drive_and_load_keys_reach_the_drive_motor():
 
 
 def test_a_scene_refuses_a_table_it_cannot_run(tmp_path):
-    """A two-mass chain has no places for the four FMUs: the scene is refused at loading, naming the key, the
-    file and why (and `drivetrain eigen --parameters` is named for its modes)."""
+    """A two-mass chain has no bevel mesh, so no places for the FMUs: the scene is refused at loading, naming the
+    key, the file and why (and `drivetrain eigen --parameters` is named for its modes)."""
     from drivetrain.errors import ScenarioError
 
     two = ROOT / "scenarios" / "other_gearboxes" / "two_mass_machine.csv"
     with pytest.raises(ScenarioError) as ei:
         scene_from_dict({"drivetrain": {"parameters": str(two)}})
     text = str(ei.value)
-    assert "drivetrain.parameters" in text and "2 nodes" in text and "drivetrain eigen" in text
+    assert "drivetrain.parameters" in text and "a table of 2 nodes" in text and "drivetrain eigen" in text
+    assert "the bevel mesh is the last geared element" in text
     bad = tmp_path / "bad.csv"
     bad.write_text(rig.PUBLIC_CSV.read_text().replace("22,0.0495", "22,-0.0495"))
     with pytest.raises(ScenarioError) as ei:
@@ -130,3 +131,21 @@ def test_an_upper_gearbox_of_another_ratio_moves_the_mesh_frequency(tmp_path):
         pytest.approx(125.0, rel=1e-12)
     w_load = np.mean(res.signals["motors.load_w"][res.time > 0.01])
     assert w_load == pytest.approx(rig.rpm_to_rad_s(1000.0) / 2 / 4, rel=1e-4)
+
+
+def test_a_thruster_of_its_own_runs_at_its_torque_balance():
+    """The shipped 9-node thruster table (not the rig's layout: places from its ratios, rigid shafts, 3 FMUs), 0.3 s at
+    1200 rpm and 2 N m: the settled mean torques are the torque balance through its gears and losses
+    (rig.data.steady_state with the assembled parameters: T_PSH = 8 T + planetary loss, T_DSH = T_PSH / 4 / 2 +
+    upper loss) within 0.5 %, the mesh at z1 x 1200/60/2 = 150 Hz; every cut stable."""
+    scene = load_scene(ROOT / "scenarios" / "other_gearboxes" / "thruster_machine.toml",
+                       ["time.duration_s=0.3", "time.settle_s=0.1", "outputs.plots=false"])
+    res = run_scene(scene, None, **QUIET)
+    assert res.status == "ok" and [c.model for c in res.spec.components] == ["MotorLoad", "UpperTransmission",
+                                                                              "GearContact"]
+    ss = res.spec.metadata["steady_state"]
+    assert res.summary["torque"]["propeller_shaft_torque"]["mean"] == pytest.approx(ss["T_psh"], rel=0.005)
+    assert res.summary["torque"]["drive_shaft_torque"]["mean"] == pytest.approx(ss["T_dsh"], rel=0.005)
+    assert ss["T_psh"] > 8 * 2.0 and ss["T_dsh"] > ss["T_psh"] / 8       # the losses, on top of the ideal ratios
+    assert res.summary["f_GMF"] == pytest.approx(150.0, rel=1e-12)
+    assert res.spec.metadata["cosim_spectral_radius"] <= 1.0

@@ -147,15 +147,14 @@ def tooth_ratio(ratio: float) -> Fraction:
 
 
 def layout_problems(model: PublicModel, lower_ratio: float | None = None) -> list[str]:
-    """Why ``model`` cannot be partitioned into the drivetrain FMUs ([] if it can). The partition maps the
-    table's nodes onto the components by their places in the rig's layout (docs/DRIVETRAIN.md): 22 nodes,
-    element 12 the upper gearbox (any ratio), element 17 the bevel mesh (the pair's z1/z2), every other
-    element ratio 1."""
+    """Why ``model`` cannot be partitioned into the drivetrain FMUs ([] if it can). A table of 22 nodes is in the
+    rig's layout (docs/DRIVETRAIN.md): element 12 the upper gearbox (any ratio), element 17 the bevel mesh (the
+    pair's z1/z2), every other element ratio 1, the rig's places; any other chain has its places found from its
+    ratios (:func:`chain_places`)."""
     n = len(model.J)
-    if n != RIG_LAYOUT_NODES:
-        return [f"{n} nodes: a run maps the table onto the four drivetrain FMUs by the places of the rig's "
-                f"layout, {RIG_LAYOUT_NODES} nodes (docs/DRIVETRAIN.md, 'Another machine'); `drivetrain eigen "
-                "--parameters FILE` reports the modes of any chain"]
+    if n != RIG_LAYOUT_NODES:                # another chain: its places from its ratios (chain_places)
+        return [f"{p} (a table of {n} nodes: docs/DRIVETRAIN.md, 'Another machine'; `drivetrain eigen --parameters "
+                "FILE` reports the modes of any chain)" for p in chain_places(model, lower_ratio)[1]]
     out = []
     want = Z_PINION / Z_WHEEL if lower_ratio is None else 1.0 / lower_ratio
     r17 = float(model.ratio[GEAR_ELEMENT_LOWER - 1])
@@ -168,6 +167,64 @@ def layout_problems(model: PublicModel, lower_ratio: float | None = None) -> lis
         out.append(f"element(s) {', '.join(map(str, odd))} have ratio_next != 1; in the rig's layout only elements "
                    f"{GEAR_ELEMENT_UPPER} (upper gearbox) and {GEAR_ELEMENT_LOWER} (bevel mesh) are geared")
     return out
+
+
+@dataclass(frozen=True)
+class Places:
+    """Where the components sit in a lumped table (public node and element numbers): the drive motor, the drive
+    flywheel, the upper gearbox's body (its first node), the upper gearbox's geared element (0: none, ratio 1),
+    the bevel mesh's element, the pinion, the wheel, the load."""
+
+    motor: int
+    flywheel: int
+    upper: int
+    upper_gear: int
+    mesh: int
+    pinion: int
+    wheel: int
+    load: int
+
+
+#: the rig's places (its 22-node layout: docs/DRIVETRAIN.md, section 1)
+RIG_PLACES = Places(motor=1, flywheel=5, upper=GEAR_ELEMENT_UPPER, upper_gear=GEAR_ELEMENT_UPPER,
+                    mesh=GEAR_ELEMENT_LOWER, pinion=GEAR_ELEMENT_LOWER, wheel=GEAR_ELEMENT_LOWER + 1, load=22)
+
+
+def chain_places(model: PublicModel, lower_ratio: float | None = None) -> tuple[Places | None, list[str]]:
+    """The places of a table outside the rig's layout (any chain; docs/DRIVETRAIN.md, "Another machine"), found
+    from its ratios: the bevel mesh is the last geared element (its ratio the pair's z1/z2), an upper gearbox the
+    geared element before it (if any; its two nodes are one rigid body), the motor node 1, the load the last node,
+    the wheel the node after the mesh, the pinion the node before it, the flywheel the heaviest node between the
+    motor and the upper body (without an upper gearbox: the node before the pinion). (places, []) or (None, the
+    problems)."""
+    n = len(model.J)
+    want = Z_PINION / Z_WHEEL if lower_ratio is None else 1.0 / lower_ratio
+    geared = [i + 1 for i, r in enumerate(model.ratio) if r != 1.0]
+    if not geared or abs(float(model.ratio[geared[-1] - 1]) - want) > 1e-9 * want:
+        had = (f"element {geared[-1]} has ratio_next = {float(model.ratio[geared[-1] - 1]):.10g}" if geared
+               else "no element has ratio_next != 1")
+        return None, [f"the bevel mesh is the last geared element, its ratio_next the gear pair's z1/z2 = {want:.10g}; "
+                      f"{had}"]
+    if len(geared) > 2:
+        return None, [f"elements {', '.join(map(str, geared))} are geared: at most two (an upper gearbox and the "
+                      "bevel mesh, the last)"]
+    mesh = geared[-1]
+    ug = geared[0] if len(geared) == 2 else 0
+    upper = ug if ug else mesh - 1
+    last_upper = ug + 1 if ug else upper
+    problems = []
+    if upper < 3:
+        problems.append(f"node {upper} would be the upper gearbox's body: a run needs the motor (node 1) and at least "
+                        "one flywheel node before it")
+    if last_upper >= mesh:
+        problems.append(f"the upper gearbox (element {ug}) joins the bevel mesh's input node {mesh}: a run needs a "
+                        "shaft (an element) between them")
+    if n < mesh + 2:
+        problems.append(f"the wheel (node {mesh + 1}) is the last node: a run needs a load node after it")
+    if problems:
+        return None, problems
+    flywheel = 2 + int(np.argmax(model.J[1:upper - 1]))
+    return Places(1, flywheel, upper, ug, mesh, mesh, mesh + 1, n), []
 
 
 def public_matrices(model: PublicModel | None = None, referred: bool = True):
@@ -325,11 +382,12 @@ class RefChain:
         return self.elems[i]
 
 
-def _body_J(nd: _Node, model: PublicModel):
+def _body_J(nd: _Node, model: PublicModel, p: Places):
     """Inertia of a body per frame (local values, not referred): (J_drive, J_middle, J_prop)."""
     out = [0.0, 0.0, 0.0]
+    up = p.upper_gear or p.mesh            # without an upper gearbox the drive frame reaches the mesh
     for pid, f in nd.members.items():      # the frame by place: drive up to the upper gear, middle up to the mesh
-        fr = 0 if pid <= GEAR_ELEMENT_UPPER else (1 if pid <= GEAR_ELEMENT_LOWER else 2)
+        fr = 0 if pid <= up else (1 if pid <= p.mesh else 2)
         out[fr] += f * model.J[pid - 1]
     return out
 
@@ -371,16 +429,28 @@ def partition(shafts: str = "flexible", n_elements: int = 4, calibration: dict |
         raise ValueError("n_elements must be >= 1")
     m = model or load_public()
     problems = layout_problems(m)
+    rig_layout = len(m.J) == RIG_LAYOUT_NODES
+    if not problems and not rig_layout and shafts != "rigid":
+        problems = [f"a table of {len(m.J)} nodes runs with rigid shafts (effects.shaft_flexibility = \"rigid\"): the "
+                    "drive shaft's FMU maps the rig's transducer hubs and thin shaft, which only its 22-node layout places"]
     if problems:
         raise ConfigurationError([f"lumped parameter table: {p}" for p in problems])
     cal = calibration if calibration is not None else load_calibration()
-    s = float(cal["coupling_scale"] if coupling_scale is None else coupling_scale)
-    ch = _lumped_chain(m, shafts, s)
+    # the coupling factor is the rig's (its elastomer elements 3-7); another chain's stiffnesses are taken as written
+    s = float(cal["coupling_scale"] if coupling_scale is None else coupling_scale) if rig_layout else 1.0
     params: dict = {}
     cuts: list = []
     bodies: dict = {}
-    C2, J_in_extra, J_sensor = _drive_line(ch, m, shafts, n_elements, params, cuts, bodies)
-    _upper_gear_motors(ch, m, cal, losses, C2, J_in_extra, J_sensor, params, cuts, bodies)
+    if rig_layout:
+        places = RIG_PLACES
+        ch = _lumped_chain(m, shafts, s)
+        C2, J_in_extra, J_sensor = _drive_line(ch, m, shafts, n_elements, params, cuts, bodies)
+    else:
+        places = chain_places(m)[0]
+        ch = _chain_lumped(m, places)
+        C2, J_in_extra, J_sensor = ch.elem_between(places.flywheel, places.upper), 0.0, 0.0
+        cuts.append(dict(spring="motors.drive", inertia="upper.flange_a", elements=C2.members, k=C2.k, c=C2.c))
+    _upper_gear_motors(ch, m, cal, losses, C2, J_in_extra, J_sensor, params, cuts, bodies, places)
     models = {"motors": "MotorLoad", "upper": "UpperTransmission", "gear": GEAR_MODEL}
     if shafts == "flexible":
         models = {"motors": "MotorLoad", "drive_shaft": "FlexibleShaft", "upper": "UpperTransmission",
@@ -424,6 +494,19 @@ def _lumped_chain(m: PublicModel, shafts: str, coupling_scale: float) -> RefChai
     return ch
 
 
+def _chain_lumped(m: PublicModel, p: Places) -> RefChain:
+    """Another chain lumped onto its places (:func:`chain_places`): the upper gearbox rigid (its two nodes one
+    body), every node between the motor and the upper body but the flywheel, between the upper body and the
+    pinion, and between the wheel and the load condensed (springs in series, the inertia to the neighbours)."""
+    ch = RefChain(m, None, {p.upper_gear} if p.upper_gear else set())
+    ch.merge_rigid()
+    last_upper = p.upper_gear + 1 if p.upper_gear else p.upper
+    for pid in [*range(2, p.upper), *range(last_upper + 1, p.pinion), *range(p.wheel + 1, p.load)]:
+        if pid != p.flywheel:
+            ch.condense(pid)
+    return ch
+
+
 def _drive_line(ch: RefChain, m: PublicModel, shafts: str, n_elements: int, params: dict, cuts: list,
                 bodies: dict):
     """The drive line from coupling C2 to the upper gearbox into ``params``, ``cuts``, ``bodies``:
@@ -460,25 +543,25 @@ def _drive_line(ch: RefChain, m: PublicModel, shafts: str, n_elements: int, para
 
 
 def _upper_gear_motors(ch: RefChain, m: PublicModel, cal: dict, losses: bool, C2, J_in_extra: float,
-                       J_sensor: float, params: dict, cuts: list, bodies: dict) -> None:
+                       J_sensor: float, params: dict, cuts: list, bodies: dict, p: Places = RIG_PLACES) -> None:
     """The upper gearbox, the gear stage and the motors (their parameters, the gear stage's two cuts,
     the bodies) into ``params``, ``cuts``, ``bodies``; the losses from the calibration (0 if not
-    ``losses``)."""
-    M_ = ch.node(1)
-    FW = ch.node(5)
-    C1 = ch.elem_between(1, 5)
-    pin = ch.node(17)
-    whl = ch.node(18)
-    L = ch.node(22)
-    UT = ch.node(12)
-    Ka = ch.elem_between(12, 17)
-    Kb = ch.elem_between(18, 22)
+    ``losses``); ``p``: where they sit in the table (the rig's places by default)."""
+    M_ = ch.node(p.motor)
+    FW = ch.node(p.flywheel)
+    C1 = ch.elem_between(p.motor, p.flywheel)
+    pin = ch.node(p.pinion)
+    whl = ch.node(p.wheel)
+    L = ch.node(p.load)
+    UT = ch.node(p.upper)
+    Ka = ch.elem_between(p.upper, p.pinion)
+    Kb = ch.elem_between(p.wheel, p.load)
     J_ut = UT.J + J_in_extra
-    Jd, Jm, _ = _body_J(UT, m)
+    Jd, Jm, _ = _body_J(UT, m, p)
     # J_in (drive frame) and J_out (middle frame) of the upper gearbox body
     # the frames of the middle and propeller shafts (the rig: 1/3 and 1/12, exactly: tooth_ratio)
-    r_up = tooth_ratio(m.ratio[GEAR_ELEMENT_UPPER - 1])
-    upper_ratio, R_m, R_p = float(1 / r_up), float(r_up), float(r_up * tooth_ratio(m.ratio[GEAR_ELEMENT_LOWER - 1]))
+    r_up = tooth_ratio(m.ratio[p.upper_gear - 1]) if p.upper_gear else Fraction(1)
+    upper_ratio, R_m, R_p = float(1 / r_up), float(r_up), float(r_up * tooth_ratio(m.ratio[p.mesh - 1]))
     J_out = Jm
     J_in = J_ut - J_out * R_m ** 2
     up = cal["upper"]

@@ -328,9 +328,15 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
 # ---- the machine: its lumped table and its drive and load settings ([drivetrain], issue 42) ----------------
 
 def machine_model(scene) -> rig.PublicModel | None:
-    """The lumped model the scene names (``drivetrain.parameters``, read checked), None: the rig's."""
+    """The lumped model the scene names (``drivetrain.parameters``, read checked), None: the rig's. The coupling
+    factor (``drivetrain.coupling_scale``) scales the rig layout's elastomer couplings: refused for another chain."""
     path = scene.drivetrain.parameters
-    return None if path is None else rig.load_public(path)
+    model = None if path is None else rig.load_public(path)
+    if model is not None and len(model.J) != rig.RIG_LAYOUT_NODES and scene.drivetrain.coupling_scale is not None:
+        raise ScenarioError([("drivetrain.coupling_scale", scene.drivetrain.coupling_scale, (
+            f"no coupling factor with a table of {len(model.J)} nodes (it scales the rig layout's elastomer couplings, "
+            "elements 3-7; another chain's stiffnesses are taken as written)"))], source=scene.name)
+    return model
 
 
 def machine_upper_ratio(scene) -> float:

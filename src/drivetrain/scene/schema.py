@@ -361,12 +361,13 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "parameters": Key("table", None, doc=(
             "the machine's lumped torsional model: a CSV table in the layout of testbench_lumped_parameters.csv "
             "(path relative to the scene file; docs/DRIVETRAIN.md, 'Another machine'): inertias, stiffnesses, "
-            "dampings and ratios, read checked; a run maps it onto the four FMUs by the rig's 22-node layout"),
+            "dampings and ratios, read checked; a 22-node table in the rig's layout maps onto the four FMUs as the "
+            "rig's, any other chain by the places its ratios give (the bevel mesh, an upper gearbox; rigid shafts)"),
             default_doc="the rig's table (drivetrain/data/testbench_lumped_parameters.csv)"),
         "coupling_scale": _f(None, "", "", (
             "factor on the stiffness of the elastomer couplings (the table's elements 3-7) instead of the "
             "calibration's (fitted to the rig's 24 Hz mode); 1 = the table's stiffnesses as written "
-            "(effects.couplings = fitted)"), minimum=0.0, min_exclusive=True,
+            "(effects.couplings = fitted; a table in the rig's layout only)"), minimum=0.0, min_exclusive=True,
             default_doc="the calibration's (0.70 shipped)"),
         "drive_Kp": _f(_DL.drive_Kp, "N·m·s/rad", "", (
             "proportional gain of the drive motor's PI speed controller (effects.drive_control = assumed)"),

@@ -21,7 +21,7 @@ import textwrap
 
 import numpy as np
 import pytest
-from _hosts import (ANOTHER_MACHINE, EXAMPLE, SHORT, TORQUES, assert_matches, master_torques, run_host, schedule,
+from _hosts import (ANOTHER_CHAIN, ANOTHER_MACHINE, EXAMPLE, SHORT, TORQUES, assert_matches, master_torques, run_host, schedule,
                     torque_refs)
 
 from drivetrain.run.runner import assemble_scene
@@ -31,7 +31,8 @@ from drivetrain.scene.load import load_scene
 RAMP = ["operating_point.speed_profile_rpm=[[0.0, 0.0], [0.3, 1500.0]]"]
 
 
-@pytest.fixture(scope="module", params=[[], RAMP, ANOTHER_MACHINE], ids=["steady", "startup_ramp", "another_machine"])
+@pytest.fixture(scope="module", params=[[], RAMP, ANOTHER_MACHINE, ANOTHER_CHAIN],
+                ids=["steady", "startup_ramp", "another_machine", "another_chain"])
 def system(request, tmp_path_factory, fmu_dir):
     """The short example scene (steady, or a start-up ramp 0 -> 1500 rpm in 0.3 s: the speed profile as
     MotorLoad's parameter), its assembled system and our master's torques."""

@@ -2,7 +2,7 @@
 calibrated losses and coupling stiffness, and the steady state (the cut checks: ``drivetrain.models.stability``).
 
 Sources: ``data/testbench_lumped_parameters.csv`` (Manngard et al. 2022, public model of the same
-bench), ``data/calibration.json`` (written by ``drivetrain calibrate``; losses fitted to
+bench; another machine's table in its layout: a scene's ``[drivetrain] parameters``, :func:`partition`'s ``model``), ``data/calibration.json`` (written by ``drivetrain calibrate``; losses fitted to
 ``data/measured_mean_torques.csv``, elastomer stiffness fitted to the measured 24 Hz mode).
 Why the partition is what it is: docs/DRIVETRAIN.md.
 
@@ -421,7 +421,11 @@ def partition(shafts: str = "flexible", n_elements: int = 4, calibration: dict |
     rigid, no shaft FMU, the drive line from the C2 coupling to the upper gearbox one rigid body in
     ``upper``. In both: the elastomer couplings C1 (inside ``motors``) and C2 (port spring of
     ``motors.drive``) stay compliant; the gear stage's port springs are the remaining compliance
-    between the upper gearbox and the pinion (k_a) and between the wheel and the load (k_b)."""
+    between the upper gearbox and the pinion (k_a) and between the wheel and the load (k_b).
+
+    ``model``: the lumped table (default the rig's). A table of 22 nodes is in the rig's layout (its places and
+    lumping); any other chain is lumped onto the places its ratios give (:func:`chain_places`, rigid shafts only,
+    its stiffnesses as written); a table that cannot be mapped is a ConfigurationError naming why."""
     if shafts not in ("flexible", "rigid"):
         raise ValueError(f"shafts must be 'flexible' or 'rigid', got {shafts!r}")
     n_elements = int(n_elements)

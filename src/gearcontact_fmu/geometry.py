@@ -37,8 +37,9 @@ tooth centre line; a physical length at cone distance rho is ``rho * s``.
 
 Placement (docs/ARCHITECTURE.md)
 --------------------------------
-World: common apex at the origin, both axes in the world XY plane, the shaft angle S between them:
-pinion axis ``a1 = +Y``, wheel axis ``a2 = (sin S, -cos S, 0)`` (``+X`` at the rig's S = 90 deg, for which
+World: common apex at the origin, both axes in the world XY plane, the shaft angle S between the cone
+axes from the apex towards the teeth (+a1 and -a2, see below): pinion axis ``a1 = +Y``, wheel axis
+``a2 = (sin S, -cos S, 0)`` (``+X`` at the rig's S = 90 deg, for which
 the exact arrays are kept: bit-identical results). Pose of a gear at
 angle theta: ``R = R0 @ Rz(theta)`` (body -> world), translation zero. The body +z axis is the
 gear's positive rotation axis (``R0 @ e_z = a``). With these senses the kinematic meshing is

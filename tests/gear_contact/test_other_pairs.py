@@ -1,0 +1,133 @@
+"""Any bevel pair from its gear data (issue 42): the rig's pair bit-identical, the placement and the exact
+geometry at any shaft angle, and the library checks of the other pairs (gearcontact_fmu.pair_check.OTHER_PAIRS)
+against independent oracles: the contact ratio against ISO 10300's virtual spur gears, the loaded mesh
+stiffness against ISO 6336's c_gamma, the static transmission error against the analytic model.
+
+The figures are the table "Other pairs" of docs/GEAR-CONTACT.md (``python -m pytest -s -m slow
+tests/gear_contact/test_other_pairs.py`` prints them)."""
+from __future__ import annotations
+
+import hashlib
+import math
+
+import numpy as np
+import pytest
+
+from gearcontact_fmu import geometry as G
+from gearcontact_fmu.pair_check import OTHER_PAIRS, iso10300_contact_ratio, other_pair, pair_problems
+from gearcontact_fmu.params import BevelGearParams, MeshResolution
+
+RIG = BevelGearParams()
+#: sha256 of the rig's pitch cone, cone distance, derived tooth geometry, default meshes, placement, closure and
+#: analytic-model data, computed by :func:`_rig_fingerprint` on 8d99096 (before any pair but the rig's existed)
+RIG_FINGERPRINT = "989b7eb75806be78d101f91c071dad3e88151f8396d001b54c5acd6a524f3c0f"
+#: a pair at an obtuse shaft angle (passes pair_check), for the placement and conjugacy checks
+OBTUSE = BevelGearParams(z_pinion=30, z_wheel=40, face_width=20e-3, x_pinion=0.1, shaft_angle=math.radians(120.0))
+PAIRS = {"rig": RIG, **{n: other_pair(n) for n in OTHER_PAIRS}}
+
+
+def _rig_fingerprint() -> str:
+    from gearcontact_fmu.mesh_models.analytic import iso6336_stiffness, make_analytic_data
+
+    P = BevelGearParams()
+    h = hashlib.sha256()
+
+    def add(a):
+        h.update(np.ascontiguousarray(np.asarray(a, dtype=float)).tobytes())
+
+    add([P.delta_pinion, P.delta_wheel, P.outer_cone_distance])
+    for role in G.ROLES:
+        g = G.gear_geometry(P, role)
+        add([g.delta, g.delta_b, g.delta_a, g.delta_f, g.Re, g.omega0, g.psi_t, g.az_land, g.L_inv, g.s_pitch_param])
+        m = G.build_gear_mesh(P, role, MeshResolution())
+        add(m.vertices)
+        add(m.face_points)
+        add(m.face_normals)
+    add(G.pinion_R0(P))
+    add(G.wheel_R0(P))
+    add(G.pinion_axis(P))
+    add(G.wheel_axis(P))
+    add(G.closure(np.linspace(0, 0.4, 7), +1, P))
+    add(G.closure(np.linspace(0, 0.4, 7), -1, P))
+    add(make_analytic_data(P)[0])
+    add([iso6336_stiffness(P)["c_gamma"]])
+    return h.hexdigest()
+
+
+def test_rig_pair_is_bit_identical():
+    """The rig's pair after the generalisation to any shaft angle: its pitch cone is still atan2(z1, z2), its
+    cone distance, tooth geometry, meshes, poses, closure and analytic data hash as before."""
+    assert RIG.delta_pinion == math.atan2(15, 60) == 0.24497866312686414
+    assert RIG.outer_cone_distance == 0.09276987657639736
+    assert np.array_equal(G.wheel_axis(RIG), [1.0, 0.0, 0.0])
+    assert _rig_fingerprint() == RIG_FINGERPRINT
+
+
+@pytest.mark.parametrize("shaft_deg", [30.0, 70.0, 89.0, 90.0, 120.0, 150.0])
+def test_pitch_cones_at_any_shaft_angle(shaft_deg):
+    """tan(delta_1) = sin S / (z2/z1 + cos S), delta_1 + delta_2 = S, and the cone distance is the same from
+    either gear: m z1 / (2 sin delta_1) = m z2 / (2 sin delta_2) (the pitch circles of the outer end)."""
+    S = math.radians(shaft_deg)
+    p = BevelGearParams(z_pinion=18, z_wheel=31, shaft_angle=S)
+    d1, d2 = p.delta_pinion, p.delta_wheel
+    assert math.tan(d1) == pytest.approx(math.sin(S) / (31 / 18 + math.cos(S)), rel=1e-13)
+    assert d1 + d2 == pytest.approx(S, rel=1e-15)
+    assert p.outer_cone_distance == pytest.approx(p.module * 31 / (2 * math.sin(d2)), rel=1e-13)
+
+
+@pytest.mark.parametrize("name", ["rig", "20x40_m4", "20x30_s70_m3", "obtuse"])
+def test_placement_at_any_shaft_angle(name):
+    """Both axes in the world XY plane at the shaft angle (between the pinion's teeth side +a1 and the wheel's
+    -a2); the pitch line (body polar delta, azimuth 0 of both
+    gears) is one world line; the pitch-point velocities are equal at omega_w = omega_p z1/z2, both positive."""
+    P = OBTUSE if name == "obtuse" else PAIRS[name]
+    R0p, R0w = G.pinion_R0(P), G.wheel_R0(P)
+    for R in (R0p, R0w):
+        assert np.allclose(R @ R.T, np.eye(3), atol=1e-15) and np.linalg.det(R) == pytest.approx(1.0)
+    a1, a2 = G.pinion_axis(P), G.wheel_axis(P)
+    assert np.allclose(R0w[:, 2], a2) and abs(a2[2]) == 0.0
+    # the shaft angle is between the cone axes from the apex towards the teeth: +a1 (pinion), -a2 (wheel)
+    assert math.acos(np.clip(a1 @ -a2, -1, 1)) == pytest.approx(P.shaft_angle, rel=1e-14)
+    d1, d2 = P.delta_pinion, P.delta_wheel
+    Pp = R0p @ np.array([math.sin(d1), 0.0, math.cos(d1)])
+    Pw = R0w @ np.array([math.sin(d2), 0.0, -math.cos(d2)])
+    assert np.allclose(Pp, Pw, atol=1e-15)
+    assert math.acos(Pp @ a1) == pytest.approx(d1, rel=1e-12) and math.acos(-Pw @ a2) == pytest.approx(d2, rel=1e-12)
+    ww = P.z_pinion / P.z_wheel
+    assert np.allclose(np.cross(a1, Pp), np.cross(ww * a2, Pw), atol=1e-15)
+
+
+@pytest.mark.parametrize("name", ["20x40_m4", "miter25_m3", "20x30_s70_m3", "obtuse"])
+def test_exact_geometry_is_conjugate_at_any_shaft_angle(name):
+    """The exact flanks placed at the shaft angle are conjugate (unloaded TE below 1 nm) and close at the
+    backlash split equally (drive at +s_b/2, coast at -s_b/2): what a wrong axis, pose or cone would break."""
+    P = OBTUSE if name == "obtuse" else PAIRS[name]
+    assert pair_problems(P) == []
+    r = G.unloaded_transmission_error(P, n_theta=60)
+    rc = G.unloaded_transmission_error(P, n_theta=30, flank=-1)
+    sb = G.backlash_angle(P)
+    assert r["te_pp"] < 1e-9 and rc["te_pp"] < 1e-9
+    assert r["s_mean"] == pytest.approx(sb / 2, rel=1e-5)
+    assert rc["s_mean"] == pytest.approx(-sb / 2, rel=1e-5)
+
+
+#: the contact-ratio rule, the rig's since tests/gear_contact/test_geometry.py::test_contact_ratio (fixed
+#: before the other pairs were computed): the exact geometry within 0.02 of the virtual spur gears' contact
+#: ratio with the same active tip (the start of the tip rounding), and below the sharp-tip figure (the
+#: rounding shortens the active profile). The rig has 1.4943 vs 1.4940 (2e-4) and 1.5499
+CONTACT_RATIO_ABS_TOL = 0.02
+
+
+@pytest.mark.parametrize("name", list(PAIRS))
+def test_contact_ratio_against_iso10300(name):
+    P = PAIRS[name]
+    exact = G.contact_ratio(P)
+    exact_coast = G.contact_ratio(P, flank=-1)
+    iso_active = iso10300_contact_ratio(P)
+    iso_sharp = iso10300_contact_ratio(P, active_tip=False)
+    print(f"\n {name}: contact ratio exact {exact:.4f} (coast {exact_coast:.4f}); ISO 10300 virtual spur gears "
+          f"{iso_active:.4f} (active tips), {iso_sharp:.4f} (tip circles); exact - ISO = {exact - iso_active:+.4f}")
+    assert exact == pytest.approx(exact_coast, abs=1e-6)
+    assert abs(exact - iso_active) < CONTACT_RATIO_ABS_TOL
+    assert exact < iso_sharp
+    assert exact > 1.0

@@ -131,3 +131,135 @@ def test_contact_ratio_against_iso10300(name):
     assert abs(exact - iso_active) < CONTACT_RATIO_ABS_TOL
     assert exact < iso_sharp
     assert exact > 1.0
+
+
+# --------------------------------------------------------------------------------------------------------------
+# the loaded mesh: the table model (the contact map of the PCM pair, with the tooth compliance) against ISO 6336
+# and the analytic model. Each pair's healthy map is built once (a few seconds with compiled kernels) and cached.
+
+#: the pinion torques of the paper's grid on the rig [N m]; a new pair is loaded at the same line loads
+#: (tangential force at the virtual pinion's mean pitch radius per mm of face width), 1.8 .. 7.6 N/mm
+PAPER_TORQUES_NM = (0.86, 1.3, 2.4, 3.71)
+#: ISO 6336's reference line load [N/mm]: its low-load factor is 1 there, the analytic model is its c_gamma
+ISO_LINE_LOAD = 100.0
+#: the stiffness rule of tests/gear_contact/test_tooth_compliance.py (the rig): within 10 % of c_gamma with its
+#: low-load factor at each of the paper's loads
+STIFFNESS_REL_TOL = 0.10
+#: measured shortfalls (table model, this commit): the ratio k / (c_gamma LLF) at the four line loads
+STIFFNESS_SHORT = {
+    "20x40_m4": "1.11 1.10 1.22 1.23: the module-4 pair is stiffer than ISO by more than 10 % (the 0.5 mm "
+                "layer does not scale with the module; docs/GEAR-CONTACT.md, Other pairs)",
+    "miter25_m3": "1.03 1.07 1.11 1.10: over 10 % at the two heavier loads",
+}
+
+
+def _line_load_N_per_mm(gear, torque_Nm):
+    from gearcontact_fmu.mesh_models.analytic import virtual_spur_gears
+
+    return abs(torque_Nm) / virtual_spur_gears(gear)["r_m1"] / (gear.face_width * 1e3)
+
+
+def _torque_at(gear, line_load):
+    from gearcontact_fmu.mesh_models.analytic import virtual_spur_gears
+
+    return line_load * virtual_spur_gears(gear)["r_m1"] * gear.face_width * 1e3
+
+
+@pytest.fixture(scope="module")
+def table_models():
+    """{pair: table model with the default tooth compliance} (built on first use, from the map cache)."""
+    return {}
+
+
+def _table(table_models, name):
+    import time
+
+    from gearcontact_fmu.mesh_models import make_mesh_model
+    from gearcontact_fmu.params import TOOTH_COMPLIANCE_FACTOR
+
+    if name not in table_models:
+        t0 = time.perf_counter()
+        table_models[name] = make_mesh_model("table", PAIRS[name], tooth_compliance=TOOTH_COMPLIANCE_FACTOR)
+        info = table_models[name].info
+        print(f"\n {name}: table model in {time.perf_counter() - t0:.1f} s "
+              f"({'cached map' if info.get('from_cache') else 'map built'})")
+    return table_models[name]
+
+
+def _params_short(name, short):
+    return pytest.param(name, marks=pytest.mark.xfail(strict=True, reason=short[name])) if name in short else name
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", [_params_short(n, STIFFNESS_SHORT) for n in PAIRS])
+def test_loaded_mesh_stiffness_against_iso6336(table_models, name):
+    """The loaded mesh stiffness of the table model (layers and tooth compliance; mean over a pitch) within 10 %
+    of ISO 6336's c_gamma of the virtual spur gears (method B, with its low-load factor) at the line loads of the
+    paper's torques on the rig: the rig's check (test_tooth_compliance) for every pair."""
+    from gearcontact_fmu.mesh_models.analytic import iso6336_low_load_factor, iso6336_stiffness
+    from gearcontact_fmu.mesh_statics import static_mesh_stiffness
+
+    P = PAIRS[name]
+    model = _table(table_models, name)
+    c_gamma = iso6336_stiffness(P)["c_gamma"]
+    ratios = []
+    for T_rig in PAPER_TORQUES_NM:
+        T = _torque_at(P, _line_load_N_per_mm(RIG, T_rig))
+        k = static_mesh_stiffness(model, P, T)
+        ratios.append(k["mean"] / (c_gamma * iso6336_low_load_factor(P, T)))
+        assert k["double_single"] > 1.2            # the single/double alternation shows
+    print(f"\n {name}: c_gamma {c_gamma:.2f} N/(mm um); k / (c_gamma LLF) at "
+          f"{', '.join(f'{_line_load_N_per_mm(RIG, T):.1f}' for T in PAPER_TORQUES_NM)} N/mm: "
+          f"{' '.join(f'{r:.3f}' for r in ratios)}")
+    assert all(abs(r - 1.0) <= STIFFNESS_REL_TOL for r in ratios), ratios
+
+
+def _static_te(model, gear, thetas, torque):
+    """Static transmission error [m] along the line of action at the mean base radius, from the backlash-closed
+    position, where ``model`` carries ``torque`` on the drive flank (mesh_statics.balanced_wheel_angle)."""
+    from gearcontact_fmu.mesh_statics import balanced_wheel_angle
+
+    r = gear.z_wheel / gear.z_pinion
+    s = np.array([t - r * balanced_wheel_angle(model, r, t, -torque) for t in thetas])
+    return (s - G.backlash_angle(gear) / 2) * G.mean_base_radius(gear)
+
+
+#: the STE rule: the same period (one mesh pitch: the largest Fourier component over two pitches is the second)
+#: in the table model, the analytic model and the PCM pair's own teeth (over two pitches different teeth carry,
+#: equal within 2 % of the peak-to-peak); the same order of magnitude as the analytic model: mean and
+#: peak-to-peak within a factor 1.5 at ISO's line load of 100 N/mm, within a factor 3 at the paper's heaviest
+#: (the analytic model leaves out ISO's low-load factor: there the table is ~2.5x softer, the rig 2.57x)
+STE_FACTOR_ISO_LOAD, STE_FACTOR_PAPER_LOAD = 1.5, 3.0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(PAIRS))
+def test_static_transmission_error_against_the_analytic_model(table_models, name):
+    from gearcontact_fmu.mesh_models import make_mesh_model
+    from gearcontact_fmu.mesh_models.pcm import build_pcm_pair, static_transmission_error
+
+    P = PAIRS[name]
+    table = _table(table_models, name)
+    analytic = make_mesh_model("analytic", P)
+    pitch = 2 * math.pi / P.z_pinion
+    n = 24
+    th = 0.013 + np.arange(2 * n) * pitch / n
+    rows = []
+    for w, factor in ((ISO_LINE_LOAD, STE_FACTOR_ISO_LOAD),
+                      (_line_load_N_per_mm(RIG, PAPER_TORQUES_NM[-1]), STE_FACTOR_PAPER_LOAD)):
+        T = _torque_at(P, w)
+        te_t, te_a = _static_te(table, P, th, T), _static_te(analytic, P, th, T)
+        for te in (te_t, te_a):
+            assert int(np.argmax(np.abs(np.fft.rfft(te - te.mean())))) == 2       # one mesh pitch
+        r_mean, r_pp = te_t.mean() / te_a.mean(), np.ptp(te_t) / np.ptp(te_a)
+        rows.append(f"{w:.1f} N/mm: table {te_t.mean() * 1e6:.3f} / {np.ptp(te_t) * 1e6:.3f} um, analytic "
+                    f"{te_a.mean() * 1e6:.3f} / {np.ptp(te_a) * 1e6:.3f} um (mean / p-p), ratios {r_mean:.2f} / {r_pp:.2f}")
+        assert 1 / factor <= r_mean <= factor and 1 / factor <= r_pp <= factor, rows[-1]
+    # the PCM pair's own teeth (not the map's tiled pitch): teeth -2..3 of the pinion, -3..3 of the wheel
+    pair = build_pcm_pair(P, pinion_teeth=[k % P.z_pinion for k in range(-2, 4)],
+                          wheel_teeth=[k % P.z_wheel for k in range(-3, 4)])
+    te_p = static_transmission_error(pair, th, _torque_at(P, ISO_LINE_LOAD))["te"]
+    assert int(np.argmax(np.abs(np.fft.rfft(te_p - te_p.mean())))) == 2
+    assert np.max(np.abs(te_p[n:] - te_p[:n])) < 0.02 * np.ptp(te_p)
+    print(f"\n {name}: STE " + "; ".join(rows) + f"; PCM pair's teeth: pitch-to-pitch "
+          f"{np.max(np.abs(te_p[n:] - te_p[:n])) / np.ptp(te_p):.1e} of p-p")

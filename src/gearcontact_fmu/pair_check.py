@@ -27,10 +27,11 @@ any section):
 5. **pointed tip**: the normal tooth thickness at the outer tip circle,
    ``s_a = 2 r_va (s / (2 r_v) + inv(alpha) - inv(alpha_a))``, ``cos(alpha_a) = r_vb / r_va``, with the tooth
    thickness at the pitch circle ``s = m (pi/2 + 2 x tan(alpha)) - j/2`` (j the backlash, half on each gear,
-   as in the geometry), must be at least :data:`MIN_TIP_THICKNESS_MODULES` ``= 0.2`` modules: the usual
-   design minimum of the top land (Niemann / Winter, Machine Elements II; ISO 23509's "s_a >= 0.2 m" for
-   through-hardened gears, 0.4 m for case-hardened ones). Below it the tip chips off in service, and the
-   tip rounding of the geometry (``tip_radius``, 0.2 mm on the rig's 3 mm module) has no top land left;
+   as in the geometry), must be at least :data:`MIN_TIP_THICKNESS_MODULES` ``= 0.2`` modules: the common
+   design rule of thumb for the top land (about 0.2 m for through-hardened gears, 0.4 m for case-hardened
+   ones, whose hardened tip would be brittle through). Below it the tip chips off in service, and the tip
+   rounding of the geometry (``tip_radius``, 0.2 mm = 0.067 m on the rig) has little top land left; the
+   rig's pinion has 0.42 m;
 6. **interference**: the partner's tip must meet this gear's flank on its involute: along the line of
    action of the virtual pair (centre distance ``a_v = r_v1 + r_v2``, x1 + x2 = 0), the partner's tip circle
    cuts it at ``T1A = a_v sin(alpha) - sqrt(r_va2^2 - r_vb2^2)`` from this gear's tangent point T1, and the
@@ -38,11 +39,11 @@ any section):
    circle of the rack-cut gear, ISO 21771's d_Ff; 0, the base circle, for an undercut gear, which item 4
    reports). Interference when ``T1A < T1F``, in radii ``r_A = sqrt(r_vb^2 + T1A^2) < r_Ff`` (a negative T1A:
    the partner's tip reaches below the base circle);
-7. **face width** at most a third of the outer cone distance (ISO 23509; issue 42);
+7. **face width** at most a third of the outer cone distance (the usual bevel-gear limit; issue 42);
 8. **transverse contact ratio** at least 1: ISO 10300's virtual-spur-gear formula
    ``eps_va = (sqrt(r_va1^2 - r_vb1^2) + sqrt(r_va2^2 - r_vb2^2) - a_v sin(alpha)) / (pi m cos(alpha))``,
-   evaluated with the active tip circles (the tip circle less what the tip rounding takes off, as ISO 6336-2's
-   d_Na for a tip chamfer): :func:`iso10300_contact_ratio`;
+   evaluated with the active tip circles (the tip circle less what the tip rounding takes off: the contact
+   ends where the rounding starts): :func:`iso10300_contact_ratio`;
 
 and last, 9. the exact tooth (``geometry.gear_geometry``) must build: a tip rounding that does not fit
 above the base cone, or flanks meeting below the tip cone, are reported with the geometry's own words.

@@ -23,7 +23,11 @@ RIG = BevelGearParams()
 RIG_FINGERPRINT = "989b7eb75806be78d101f91c071dad3e88151f8396d001b54c5acd6a524f3c0f"
 #: a pair at an obtuse shaft angle (passes pair_check), for the placement and conjugacy checks
 OBTUSE = BevelGearParams(z_pinion=30, z_wheel=40, face_width=20e-3, x_pinion=0.1, shaft_angle=math.radians(120.0))
+#: the ends of the shaft-angle range (both pass pair_check)
+ACUTE = BevelGearParams(z_pinion=20, z_wheel=40, face_width=20e-3, x_pinion=0.3, shaft_angle=math.radians(30.0))
+FLAT = BevelGearParams(z_pinion=20, z_wheel=20, face_width=5e-3, x_pinion=0.0, shaft_angle=math.radians(150.0))
 PAIRS = {"rig": RIG, **{n: other_pair(n) for n in OTHER_PAIRS}}
+EXTRA = {"obtuse": OBTUSE, "acute30": ACUTE, "flat150": FLAT}
 
 
 def _rig_fingerprint() -> str:
@@ -75,12 +79,12 @@ def test_pitch_cones_at_any_shaft_angle(shaft_deg):
     assert p.outer_cone_distance == pytest.approx(p.module * 31 / (2 * math.sin(d2)), rel=1e-13)
 
 
-@pytest.mark.parametrize("name", ["rig", "20x40_m4", "20x30_s70_m3", "obtuse"])
+@pytest.mark.parametrize("name", ["rig", "20x40_m4", "20x30_s70_m3", "obtuse", "acute30", "flat150"])
 def test_placement_at_any_shaft_angle(name):
     """Both axes in the world XY plane at the shaft angle (between the pinion's teeth side +a1 and the wheel's
     -a2); the pitch line (body polar delta, azimuth 0 of both
     gears) is one world line; the pitch-point velocities are equal at omega_w = omega_p z1/z2, both positive."""
-    P = OBTUSE if name == "obtuse" else PAIRS[name]
+    P = EXTRA[name] if name in EXTRA else PAIRS[name]
     R0p, R0w = G.pinion_R0(P), G.wheel_R0(P)
     for R in (R0p, R0w):
         assert np.allclose(R @ R.T, np.eye(3), atol=1e-15) and np.linalg.det(R) == pytest.approx(1.0)
@@ -97,11 +101,11 @@ def test_placement_at_any_shaft_angle(name):
     assert np.allclose(np.cross(a1, Pp), np.cross(ww * a2, Pw), atol=1e-15)
 
 
-@pytest.mark.parametrize("name", ["20x40_m4", "miter25_m3", "20x30_s70_m3", "obtuse"])
+@pytest.mark.parametrize("name", ["20x40_m4", "miter25_m3", "20x30_s70_m3", "obtuse", "acute30", "flat150"])
 def test_exact_geometry_is_conjugate_at_any_shaft_angle(name):
     """The exact flanks placed at the shaft angle are conjugate (unloaded TE below 1 nm) and close at the
     backlash split equally (drive at +s_b/2, coast at -s_b/2): what a wrong axis, pose or cone would break."""
-    P = OBTUSE if name == "obtuse" else PAIRS[name]
+    P = EXTRA[name] if name in EXTRA else PAIRS[name]
     assert pair_problems(P) == []
     r = G.unloaded_transmission_error(P, n_theta=60)
     rc = G.unloaded_transmission_error(P, n_theta=30, flank=-1)

@@ -23,8 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivetrain.errors import ScenarioError
-from drivetrain.rig.data import Z_PINION, Z_WHEEL
-from drivetrain.scene.schema import NAME_RE, NAME_RULE, SCHEMA, Scene, default_of
+from drivetrain.scene.schema import NAME_RE, NAME_RULE, PAIR_SCHEMA, SCHEMA, Scene, default_of
 from gearcontact_fmu.fault_specs import (draw_faults, draw_rule_problems, draw_value, loaded_flank, rule_problem,
                                          rule_values)
 
@@ -52,6 +51,15 @@ class Grid:
     growth: dict | None = None
 
 
+def pair_teeth(raw: dict) -> tuple[int, int]:
+    """(z_pinion, z_wheel) of raw scene data's [gear.pair] (the rig's where it gives none, or none usable: the
+    scene's own check refuses a bad one), for the faults a grid draws."""
+    pair = (raw.get("gear") or {}).get("pair") if isinstance(raw.get("gear"), dict) else None
+    pair = pair if isinstance(pair, dict) else {}
+    return tuple(pair[k] if isinstance(pair.get(k), int) and not isinstance(pair.get(k), bool) and pair[k] >= 1
+                 else PAIR_SCHEMA[k].default for k in ("z_pinion", "z_wheel"))
+
+
 def split_grid(raw: dict, src: str) -> Grid | None:
     """Take the ``[sweep]`` table out of raw scene data and check it (None: not a grid file)."""
     grid = raw.pop(GRID_SECTION, None)
@@ -66,7 +74,7 @@ def split_grid(raw: dict, src: str) -> Grid | None:
             problems.append((f"{GRID_SECTION}.{k}", grid[k], "a known key of [sweep]: axes, name, draw, growth"))
     draw, growth = grid.get("draw"), grid.get("growth")
     if draw is not None:
-        problems.extend(_draw_problems(draw))
+        problems.extend(_draw_problems(draw, pair_teeth(raw)))
     if growth is not None:
         problems.extend(_growth_problems(growth))
         if draw is not None:
@@ -138,7 +146,7 @@ def growth_stages(growth: dict) -> list[tuple[int, float, dict | None]]:
     return out
 
 
-def _draw_problems(draw) -> list:
+def _draw_problems(draw, teeth: tuple[int, int]) -> list:
     """Problems of ``[sweep.draw]``: ``n`` drawn cases per axes combination, ``seed``, and
     ``[[sweep.draw.faults]]`` templates (gearcontact_fmu.fault_specs.draw_rule_problems) and/or a
     ``[sweep.draw.background]`` table (:func:`_background_rule_problems`)."""
@@ -167,7 +175,7 @@ def _draw_problems(draw) -> list:
         return problems
     for i, tpl in enumerate(tpls):
         problems += [(f"{key}.faults[{i}]" + (f".{k}" if k else ""), v, e)
-                     for k, v, e in draw_rule_problems(tpl, Z_PINION, Z_WHEEL)]
+                     for k, v, e in draw_rule_problems(tpl, *teeth)]
     return problems
 
 
@@ -337,7 +345,7 @@ def _cases(raw: dict, grid: Grid):
         healthy = copy.deepcopy(case) if d is not None and draw.get("paired_healthy") else None
         if d is not None and draw.get("faults"):
             case.setdefault("gear", {}).update(
-                health="faults", faults=draw_faults(draw["faults"], rng, Z_PINION, Z_WHEEL, flank=_loaded_flank(case)))
+                health="faults", faults=draw_faults(draw["faults"], rng, *pair_teeth(case), flank=_loaded_flank(case)))
         if d is not None and draw.get("background"):
             bg = draw_background(draw["background"], rng_bg)
             case.setdefault("background", {}).update(bg)

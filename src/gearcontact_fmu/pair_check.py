@@ -1,0 +1,3 @@
+# placeholder: replaced by the pairlib branch
+def pair_problems(params):
+    return []

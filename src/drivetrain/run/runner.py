@@ -512,7 +512,8 @@ def torque_spectra(plan: RunPlan, ch: Channels) -> Spectra:
     scene = plan.scene
     m = ch.time >= scene.time.settle_s
     fs = scene.time.sample_rate_Hz
-    out = Spectra(cf=characteristic_frequencies(scene.operating_point.final_speed_rpm))
+    pair = scene.gear.pair.params()
+    out = Spectra(cf=characteristic_frequencies(scene.operating_point.final_speed_rpm, pair.z_pinion, pair.z_wheel))
     for name in TORQUE_SENSORS:
         if name not in ch.signals:
             continue

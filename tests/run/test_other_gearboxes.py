@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from drivetrain.models.eigen import gear_block
+from drivetrain.rig.signals import spectrum_lowpass_Hz
 from drivetrain.run.assemble import assemble
 from drivetrain.run.runner import run_scene
 from drivetrain.scene.load import load_scene
@@ -84,6 +85,10 @@ def test_the_mesh_line_of_a_new_pair_sits_at_z1_f1(name, z1):
         near = np.linspace(f_mesh - 2.0 / (tm[-1] - tm[0]), f_mesh + 2.0 / (tm[-1] - tm[0]), 81)
         peak = near[np.argmax([_line_amplitude(tm, x, f) for f in near])]
         assert abs(peak - f_mesh) < 0.25 / (tm[-1] - tm[0]), (sensor, peak, f_mesh)
+    # what the run reports reads the pair's frequencies: the summary's spectra and RunResult.spectrum
+    spec_attrs = res.spectrum("propeller_shaft_torque").attrs
+    assert spec_attrs["characteristic_frequencies"]["z1"] == z1
+    assert spec_attrs["lowpass_Hz"] == pytest.approx(spectrum_lowpass_Hz(z1 * 1500.0 / 60.0 / 3.0))
     x = np.asarray(res.signals["propeller_shaft_torque"])[m]
     strongest = band[np.argmax([_line_amplitude(t[m], x, f) for f in band])]
     k = strongest / f_mesh

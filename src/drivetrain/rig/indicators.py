@@ -366,8 +366,15 @@ def _line(cf: dict, name: str) -> float:
 
 
 def label_teeth(labels: dict) -> tuple[int, int]:
-    """(z_pinion, z_wheel) of a run's labels: its [gear.pair] columns, the rig's where it has none."""
-    return tuple(int(labels.get(f"gear.pair.{k}") or z) for k, z in (("z_pinion", Z_PINION), ("z_wheel", Z_WHEEL)))
+    """(z_pinion, z_wheel) of a run's labels (a dict or a dataset row): its [gear.pair] columns, the rig's where
+    it has none (a run of the rig's pair, or an empty cell of a dataset that mixes pairs)."""
+    out = []
+    for key, rig_z in (("z_pinion", Z_PINION), ("z_wheel", Z_WHEEL)):
+        try:
+            out.append(int(labels.get(f"gear.pair.{key}")))
+        except (TypeError, ValueError):         # absent (None) or an empty cell (NaN)
+            out.append(rig_z)
+    return tuple(out)
 
 
 def run_features(time: np.ndarray, signals: dict, settle_s: float, drive_speed_rpm: float,

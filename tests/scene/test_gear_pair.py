@@ -120,3 +120,16 @@ def test_docs_list_every_pair_key():
     assert "### [gear.pair]" in doc
     for key in PAIR_SCHEMA:
         assert f"| `{key}` |" in doc, key
+
+
+def test_a_grid_sweeps_pair_keys(tmp_path):
+    f = tmp_path / "g.toml"
+    f.write_text('[gear.pair]\nmodule_mm = 4.0\n[time]\nduration_s = 1.0\n'
+                 '[sweep]\nname = "{base}_z{gear.pair.z_pinion}"\n'
+                 '[sweep.axes]\n"gear.pair.z_pinion" = [20, 25]\n"gear.pair.z_wheel" = [40]\n')
+    scenes = scene_load.load_scenes(f)
+    assert [(s.name, s.gear.pair.params().z_pinion, s.gear.pair.params().module) for s in scenes] == [
+        ("g_z20", 20, 4e-3), ("g_z25", 25, 4e-3)]
+    with pytest.raises(ScenarioError, match="sweep.axes.gear.pair.zz"):
+        f.write_text('[sweep.axes]\n"gear.pair.zz" = [20]\n')
+        scene_load.load_scenes(f)

@@ -51,6 +51,11 @@ class Grid:
     growth: dict | None = None
 
 
+def _pair_key(parts: list) -> bool:
+    """``gear.pair.<key>`` split at its dots: a key of the [gear.pair] table."""
+    return len(parts) == 3 and parts[:2] == ["gear", "pair"] and parts[2] in PAIR_SCHEMA
+
+
 def pair_teeth(raw: dict) -> tuple[int, int]:
     """(z_pinion, z_wheel) of raw scene data's [gear.pair] (the rig's where it gives none, or none usable: the
     scene's own check refuses a bad one), for the faults a grid draws."""
@@ -87,8 +92,9 @@ def split_grid(raw: dict, src: str) -> Grid | None:
         axes = {}
     for k, vals in axes.items():
         parts = k.split(".")
-        if len(parts) != 2 or parts[0] not in SCHEMA or parts[1] not in SCHEMA[parts[0]]:
-            problems.append((f"{GRID_SECTION}.axes.{k}", vals, "a scene key of the form section.key"))
+        if not (_pair_key(parts) or (len(parts) == 2 and parts[0] in SCHEMA and parts[1] in SCHEMA[parts[0]])):
+            problems.append((f"{GRID_SECTION}.axes.{k}", vals, "a scene key of the form section.key (or "
+                             "gear.pair.<key>)"))
         elif not isinstance(vals, list) or not vals:
             problems.append((f"{GRID_SECTION}.axes.{k}", vals, "a non-empty list of values"))
     template = grid.get("name", None)
@@ -308,9 +314,12 @@ def case_name(template: str, base: str, scene: "Scene", src: str = "") -> str:
             value = base
         else:
             sec, _, k = field.partition(".")
-            if sec not in SCHEMA or k not in SCHEMA[sec]:
+            if _pair_key(field.split(".")):              # {gear.pair.z_wheel}
+                value = scene.gear.pair.as_dict()[field.split(".")[2]]
+            elif sec not in SCHEMA or k not in SCHEMA[sec]:
                 raise bad(f"fields {{base}} or {{section.key}} of scene keys, not {{{field}}}")
-            value = getattr(getattr(scene, sec), k)
+            else:
+                value = getattr(getattr(scene, sec), k)
         try:
             out.append(format(value, spec or ""))
         except (TypeError, ValueError) as exc:
@@ -334,8 +343,11 @@ def _cases(raw: dict, grid: Grid):
     for number, (combo, d) in enumerate(itertools.product(itertools.product(*(grid.axes[k] for k in keys)), draws)):
         case = copy.deepcopy(raw)
         for k, v in zip(keys, combo):
-            sec, key = k.split(".")
-            case.setdefault(sec, {})[key] = v
+            sec, key, *sub = k.split(".")
+            if sub:                                     # gear.pair.<key>: into the [gear.pair] table
+                case.setdefault(sec, {}).setdefault(key, {})[sub[0]] = v
+            else:
+                case.setdefault(sec, {})[key] = v
         if d is not None and draw.get("gearboxes"):
             # each drawn case its own gearbox: manufacturing seed = the case's number in the grid (0, 1, ...)
             case.setdefault("manufacturing", {})["seed"] = number

@@ -93,3 +93,27 @@ def test_the_mesh_line_of_a_new_pair_sits_at_z1_f1(name, z1):
     strongest = band[np.argmax([_line_amplitude(t[m], x, f) for f in band])]
     k = strongest / f_mesh
     assert abs(k - round(k)) < 0.03 and round(k) >= 1, (strongest, f_mesh)
+
+
+@pytest.mark.parametrize("fidelity", ["analytic", "table"])
+def test_manufacturing_errors_and_faults_are_drawn_on_a_new_pair(fidelity):
+    """The errors are drawn per tooth of the pair's gears (20 and 40), with their pitch diameters m z (ISO 1328's
+    tolerances depend on them), and the wheel starts on the errors' offset mesh (table: a grid no cache holds,
+    so the start is the analytic guess offset by the errors, which once read the rig's teeth)."""
+    scene = load_scene(OTHER / "pair_20_40_m4.toml", ["effects.manufacturing_errors=true",
+                                                      f"effects.mesh_contact={fidelity}",
+                                                      "numerics.map_points_per_pitch=17"])
+    spec = assemble(scene)
+    errors = spec.metadata["manufacturing_errors"]
+    assert (len(errors["pinion_position_um"]), len(errors["wheel_position_um"])) == (20, 40)
+    assert errors["source"]["pinion"]["pitch_diameter_mm"] == pytest.approx(4.0 * 20)
+    assert errors["source"]["wheel"]["pitch_diameter_mm"] == pytest.approx(4.0 * 40)
+    if fidelity == "table":
+        assert spec.metadata["mesh_start"].startswith("guess")
+    faulty = load_scene(OTHER / "pair_20_40_m4.toml", [
+        "gear.health=faults",
+        'gear.faults=[{kind="missing_tooth", member="pinion", tooth=17}, {kind="pit", member="wheel", tooth=33}]'])
+    gear = assemble(faulty).components_of("GearContact")[0].parameters
+    import json
+
+    assert [f["tooth"] for f in json.loads(gear["faults"])] == [17, 33]   # teeth the rig's 15-tooth pinion lacks

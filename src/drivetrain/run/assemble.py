@@ -208,7 +208,7 @@ def start_wheel_angle(gear: dict, ss, theta_p: float, errors, build_map: bool = 
         # the errors offset the mesh coordinate by Delta(theta_p, theta_w): start where the offset mesh sits at s0
         from gearcontact_fmu.manufacturing import mesh_offset
 
-        theta_w += mesh_offset(errors, theta_p, theta_w) / pair.ratio
+        theta_w += mesh_offset(errors, theta_p, theta_w, pair) / pair.ratio
     return theta_w, how
 
 

@@ -117,3 +117,15 @@ def test_manufacturing_errors_and_faults_are_drawn_on_a_new_pair(fidelity):
     import json
 
     assert [f["tooth"] for f in json.loads(gear["faults"])] == [17, 33]   # teeth the rig's 15-tooth pinion lacks
+
+
+def test_the_accuracy_choice_is_refused_for_another_pair():
+    """The accuracy-cost study measured the rig's pair: its errors say nothing of another one."""
+    from drivetrain.run import accuracy
+
+    from _shared import accuracy_results
+
+    rig = load_scene(EXAMPLE)
+    assert accuracy.choose(rig, 5.0, accuracy_results()).setting
+    with pytest.raises(ValueError, match="rig's pair only"):
+        accuracy.choose(load_scene(OTHER / "miter_25_25.toml"), 5.0, accuracy_results())

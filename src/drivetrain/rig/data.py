@@ -486,7 +486,7 @@ def steady_state(speed_rpm: float, load_Nm: float, upper: dict, motors: dict, lo
         T_motor = T_DSH + c_motor w_DSH
 
     ``upper``/``motors``: the parameter dicts of UpperTransmission and MotorLoad; ``lower_ratio``: the lower
-    pair's z_wheel / z_pinion (the scene's [gear.pair]; 4 for the rig's 15/60). At standstill the
+    pair's z_wheel / z_pinion (the scene's [gear.pair]; default the rig's, LOWER_RATIO). At standstill the
     load setting is 0 (its regularisation below ``load_w_reg``), so a start from rest is at rest."""
     w = rpm_to_rad_s(speed_rpm)
     wm = w / upper.get("ratio", UPPER_RATIO)

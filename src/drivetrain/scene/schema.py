@@ -252,7 +252,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "pair": Key("pair", RIG_PAIR, doc=(
             "the lower bevel pair from its gear data: the table [gear.pair] (its keys below); absent keys take "
             "the rig's values; a pair that cannot be made is refused before any work"),
-            default_doc="the rig's 15/60 pair"),
+            default_doc=f"the rig's {RIG_PAIR.params().z_pinion}/{RIG_PAIR.params().z_wheel} pair"),
     },
     "time": {
         "duration_s": _f(20.0, "s", "time", "simulated time", minimum=0.0, min_exclusive=True),

@@ -129,3 +129,21 @@ def test_the_accuracy_choice_is_refused_for_another_pair():
     assert accuracy.choose(rig, 5.0, accuracy_results()).setting
     with pytest.raises(ValueError, match="rig's pair only"):
         accuracy.choose(load_scene(OTHER / "miter_25_25.toml"), 5.0, accuracy_results())
+
+
+def test_each_pair_has_its_own_contact_map_and_the_rig_keeps_its_shipped_one():
+    """The map cache is keyed by the whole pair and layer: two pairs never share a map; the rig's scene still
+    names the shipped seed map (the same file name as before [gear.pair] existed)."""
+    from gearcontact_fmu.contact_map import map_file_name, seed_configurations, seed_path
+    from gearcontact_fmu.params import MapGrid, MeshResolution
+
+    def name(scene):
+        return map_file_name(scene.gear.pair.params(), scene.gear.pair.pcm(), MeshResolution(), "healthy", {},
+                             MapGrid(), "mm", None)
+
+    rig = name(load_scene(EXAMPLE))
+    assert rig == seed_path(seed_configurations()[0]).name and seed_path(seed_configurations()[0]).is_file()
+    assert name(load_scene(EXAMPLE, RIG_WRITTEN)) == rig
+    others = {name(load_scene(OTHER / f)) for f in ("pair_20_40_m4.toml", "miter_25_25.toml")}
+    others |= {name(load_scene(EXAMPLE, ["gear.pair.E_GPa=210"])), name(load_scene(EXAMPLE, ["gear.pair.backlash_mm=0.1"]))}
+    assert len(others) == 4 and rig not in others

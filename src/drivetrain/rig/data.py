@@ -476,19 +476,21 @@ class SteadyState:
 
 
 def steady_state(speed_rpm: float, load_Nm: float, upper: dict, motors: dict, load_mode: int = 0,
-                 load_w_nom: float = 1.0, load_w_reg: float | None = None) -> SteadyState:
+                 load_w_nom: float = 1.0, load_w_reg: float | None = None,
+                 lower_ratio: float = LOWER_RATIO) -> SteadyState:
     """Torque balance at constant speed with an ideal lower gear (no mesh loss):
 
         T_PSH = 8 T_set + T_pg(w_PSH, 8 T_set)              (load side, propeller frame)
-        T_MSH = T_PSH / 4                                   (ideal lower gear)
+        T_MSH = T_PSH / lower_ratio                         (ideal lower gear; the rig: 4)
         T_DSH = T_MSH / 3 + T_ut(w_DSH, T_MSH / 3)         (upper gearbox, drive frame)
         T_motor = T_DSH + c_motor w_DSH
 
-    ``upper``/``motors``: the parameter dicts of UpperTransmission and MotorLoad. At standstill the
+    ``upper``/``motors``: the parameter dicts of UpperTransmission and MotorLoad; ``lower_ratio``: the lower
+    pair's z_wheel / z_pinion (the scene's [gear.pair]; default the rig's, LOWER_RATIO). At standstill the
     load setting is 0 (its regularisation below ``load_w_reg``), so a start from rest is at rest."""
     w = rpm_to_rad_s(speed_rpm)
     wm = w / upper.get("ratio", UPPER_RATIO)
-    wp = wm / LOWER_RATIO
+    wp = wm / lower_ratio
     r8 = motors.get("ratio_pg", PG_RATIO)
     if int(load_mode) == 0:
         # the torque setting, regularised at standstill as in MotorLoad (tanh = 1 at any operating speed)
@@ -498,7 +500,7 @@ def steady_state(speed_rpm: float, load_Nm: float, upper: dict, motors: dict, lo
         T_prop_load = r8 * load_Nm * wp / load_w_nom
     pg = {"c_v": motors["pg_c"], "T_c": motors["pg_Tc"], "w_c": motors["pg_wc"], "a": motors["pg_a"]}
     T_psh = T_prop_load + loss(wp, r8 * load_Nm, pg)
-    T_msh = T_psh / LOWER_RATIO
+    T_msh = T_psh / lower_ratio
     ratio = upper.get("ratio", UPPER_RATIO)
     ut = {"c_v": upper["loss_c"], "T_c": upper["loss_Tc"], "w_c": upper["loss_wc"], "a": upper["loss_a"]}
     T_dsh = T_msh / ratio + loss(w, T_msh / ratio, ut)

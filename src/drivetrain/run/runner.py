@@ -118,18 +118,20 @@ class RunResult:
         ``lowpass_Hz``, ``bin_Hz``, ``channel``."""
         if channel not in self.signals:
             raise KeyError(f"no channel {channel!r} in the run (it has {', '.join(self.signals)})")
+        pair = self.scene.gear.pair.params()
         return spectrum_frame(self.time, self.signals[channel], self.scene.time.settle_s,
                               self.scene.time.sample_rate_Hz, self.scene.operating_point.final_speed_rpm,
-                              channel, self.units.get(channel, ""))
+                              channel, self.units.get(channel, ""), teeth=(pair.z_pinion, pair.z_wheel))
 
 
-def spectrum_frame(time_s, x, settle_s: float, fs: float, drive_speed_rpm: float, channel: str = "", unit: str = ""):
+def spectrum_frame(time_s, x, settle_s: float, fs: float, drive_speed_rpm: float, channel: str = "", unit: str = "",
+                   teeth: tuple[int, int] | None = None):
     """:func:`drivetrain.rig.signals.run_spectrum` as a DataFrame (``RunResult.spectrum``, ``drivetrain.spectrum``)."""
     import pandas as pd
 
     from drivetrain.rig.signals import AMPLITUDE_CONVENTION
 
-    f, A, cf = run_spectrum(time_s, x, settle_s, fs, drive_speed_rpm)
+    f, A, cf = run_spectrum(time_s, x, settle_s, fs, drive_speed_rpm, *([teeth] if teeth else []))
     df = pd.DataFrame({"frequency_Hz": f, "amplitude": A})
     df.attrs.update(units={"frequency_Hz": "Hz", "amplitude": unit}, convention=AMPLITUDE_CONVENTION,
                     characteristic_frequencies=cf, lowpass_Hz=spectrum_lowpass_Hz(cf["f_GMF"]),
@@ -512,7 +514,8 @@ def torque_spectra(plan: RunPlan, ch: Channels) -> Spectra:
     scene = plan.scene
     m = ch.time >= scene.time.settle_s
     fs = scene.time.sample_rate_Hz
-    out = Spectra(cf=characteristic_frequencies(scene.operating_point.final_speed_rpm))
+    pair = scene.gear.pair.params()
+    out = Spectra(cf=characteristic_frequencies(scene.operating_point.final_speed_rpm, pair.z_pinion, pair.z_wheel))
     for name in TORQUE_SENSORS:
         if name not in ch.signals:
             continue
@@ -523,7 +526,7 @@ def torque_spectra(plan: RunPlan, ch: Channels) -> Spectra:
         if len(x) > 16 and out.cf["f_GMF"] > 0:
             try:
                 f, A, _ = run_spectrum(ch.time, ch.signals[name], scene.time.settle_s, fs,
-                                       scene.operating_point.final_speed_rpm)
+                                       scene.operating_point.final_speed_rpm, (pair.z_pinion, pair.z_wheel))
             except ValueError as exc:    # too short for the low-pass (a short or failed run)
                 plan.warnings.append(f"no spectrum of {name}: {exc}")
                 continue

@@ -1180,6 +1180,9 @@ def _parser_frontier(sub) -> None:
     p.add_argument("--background", choices=("on", "off"), default="on",
                    help="the rig's measured background (default: on)")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a key of every scene")
+    p.add_argument("--compare", metavar="AUC_CSV", default=None,
+                   help="an earlier paired study's AUC table (e.g. docs/detectability_auc.csv): the report says "
+                        "what moved, family by family, at the operating points both ran")
     _add_execution_options(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_frontier)
@@ -1191,6 +1194,9 @@ def _cmd_frontier(args: argparse.Namespace) -> int:
     from drivetrain.errors import DatasetError
     from drivetrain.scene.load import ScenarioError
 
+    if args.compare is not None and not Path(args.compare).is_file():
+        print(f"error: --compare {args.compare}: no such file", file=sys.stderr)
+        return 2
     ladder = sorted(set(args.ladder))
     if not ladder or any(not (x > 0 and math.isfinite(x)) for x in ladder):
         print(f"error: --ladder {args.ladder}: positive finite size factors", file=sys.stderr)
@@ -1216,7 +1222,13 @@ def _cmd_frontier(args: argparse.Namespace) -> int:
             "core_hours": wall * workers / 3600.0}
     (report.parent / f"{report.stem.lower()}.json").write_text(json.dumps({**result, "meta": meta}, indent=1,
                                                                           default=str))
-    report.write_text(F.report_markdown(result, study, meta, os.path.relpath(fig, report.parent)))
+    text = F.report_markdown(result, study, meta, os.path.relpath(fig, report.parent))
+    if args.compare:
+        try:
+            text += "\n## What moved\n\n" + F.compare_markdown(result, args.compare)
+        except (OSError, ValueError) as exc:
+            print(f"warning: --compare {args.compare}: not compared ({exc})", file=sys.stderr)
+    report.write_text(text)
     print(f"frontier of {len(result['cells'])} cells from {result['runs']} runs in {len(result['rounds'])} rounds; "
           f"wrote {report} ({wall / 60:.1f} min)")
     return 0

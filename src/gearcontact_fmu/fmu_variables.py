@@ -11,6 +11,7 @@ and edits ``sys.path``). Plain data: nothing of pythonfmu.
 """
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, NamedTuple
 
 from gearcontact_fmu.mesh_models import DEFAULT_FIDELITY
@@ -191,6 +192,13 @@ def default_sources() -> dict:
     """The objects ``From`` defaults refer to: the library's defaults, declared there once."""
     return {"gear": BevelGearParams(), "pcm": PCMParams(), "resolution": MeshResolution(), "stage": StageParams(),
             "grid": MapGrid()}
+
+
+def gear_pair(parameters) -> BevelGearParams:
+    """The pair a GearContact's parameter values name (name -> value; the declared default, the rig's, where
+    they name none): what a host reads of the pair (its ratio, its ISO stiffness) without building the FMU."""
+    return BevelGearParams(**{f.name: parameters[f.name] for f in dataclasses.fields(BevelGearParams)
+                              if f.name in parameters})
 
 
 def declared_default(var: Var, sources: dict | None = None):

@@ -37,7 +37,10 @@ tooth centre line; a physical length at cone distance rho is ``rho * s``.
 
 Placement (docs/ARCHITECTURE.md)
 --------------------------------
-World: common apex at the origin, pinion axis ``a1 = +Y``, wheel axis ``a2 = +X``. Pose of a gear at
+World: common apex at the origin, both axes in the world XY plane, the shaft angle S between the cone
+axes from the apex towards the teeth (+a1 and -a2, see below): pinion axis ``a1 = +Y``, wheel axis
+``a2 = (sin S, -cos S, 0)`` (``+X`` at the rig's S = 90 deg, for which
+the exact arrays are kept: bit-identical results). Pose of a gear at
 angle theta: ``R = R0 @ Rz(theta)`` (body -> world), translation zero. The body +z axis is the
 gear's positive rotation axis (``R0 @ e_z = a``). With these senses the kinematic meshing is
 ``theta_wheel = theta_pinion * z1/z2`` (both positive in operation).
@@ -47,11 +50,14 @@ whose body +z both point from the apex towards their teeth mesh with *opposite* 
 rotate positively about body +z (the pitch-point velocities ``a1 x P`` and ``a2 x P`` are
 antiparallel for any placement). To keep ``R = R0 Rz(theta)``, the world axes and the positive
 kinematics, the **wheel's teeth lie on the body -z side**: the pinion teeth are at world +Y, the
-wheel teeth at world -X, and the pitch cones touch along ``P = (-sin d1, cos d1, 0)``.
+wheel teeth towards ``-a2 = (-sin S, cos S, 0)`` (world -X at 90 deg), and the pitch cones touch along
+``P = (-sin d1, cos d1, 0)``, d1 from ``a1`` and d2 = S - d1 from ``-a2``. The pitch-point velocities are
+``w1 a1 x P = w1 sin(d1) e_Z`` and ``w2 a2 x P = w2 sin(d2) e_Z``: equal for ``w2 = w1 z1/z2`` at any S.
 The wheel body frame is its gear frame turned by 180 deg about x (``F = diag(1, -1, -1)``).
 
 Pinion ``R0`` maps body (x, y, z) to world (-X, +Z, +Y); wheel ``R0`` maps body (x, y, z) to world
-(+Y, +Z, +X). At theta = 0 the pitch line is at body azimuth 0 of both gears.
+((cos S, sin S, 0), +Z, a2), i.e. (+Y, +Z, +X) at 90 deg. At theta = 0 the pitch line is at body azimuth 0
+of both gears (wheel body: ``(sin d2, 0, -cos d2)``).
 
 Tooth numbering: tooth k enters the mesh k pitches later: pinion tooth k is centred at body azimuth
 ``-2 pi k / z1`` (tooth 0 centred on the pitch line at theta = 0); wheel tooth k is centred at body
@@ -85,7 +91,7 @@ from .meshes import (
     KIND_VOID_WALL,
     SurfaceMesh,
 )
-from .params import BevelGearParams, MeshResolution, backlash_angle  # noqa: F401  (declared with the gear)
+from .params import SHAFT_ANGLE_90, BevelGearParams, MeshResolution, backlash_angle  # noqa: F401  (declared with the gear)
 
 __all__ = [
     "GearGeometry", "gear_geometry", "flank_point_normal", "pinion_axis", "wheel_axis", "pinion_R0",
@@ -113,8 +119,9 @@ def pinion_axis(params: BevelGearParams | None = None) -> np.ndarray:
 
 
 def wheel_axis(params: BevelGearParams | None = None) -> np.ndarray:
-    """World direction of the wheel's positive rotation axis (= R0 e_z): +X."""
-    return np.array([1.0, 0.0, 0.0])
+    """World direction of the wheel's positive rotation axis (= R0 e_z): ``(sin S, -cos S, 0)``, +X at the
+    rig's shaft angle S = 90 deg (exactly, see :func:`wheel_R0`)."""
+    return wheel_R0(params)[:, 2].copy()
 
 
 def mean_base_radius(gear: BevelGearParams) -> float:
@@ -130,8 +137,14 @@ def pinion_R0(params: BevelGearParams | None = None) -> np.ndarray:
 
 
 def wheel_R0(params: BevelGearParams | None = None) -> np.ndarray:
-    """Body -> world rotation of the wheel at theta = 0: body (x, y, z) -> world (+Y, +Z, +X)."""
-    return np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    """Body -> world rotation of the wheel at theta = 0: body (x, y, z) -> world ((cos S, sin S, 0), +Z,
+    (sin S, -cos S, 0)) for the shaft angle S; at exactly 90 deg (the default) the exact matrix of body
+    (x, y, z) -> world (+Y, +Z, +X), not one with cos(pi/2) = 6e-17 in it."""
+    S = (params or BevelGearParams()).shaft_angle
+    if S == SHAFT_ANGLE_90:
+        return np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    c, s = math.cos(S), math.sin(S)
+    return np.array([[c, 0.0, s], [s, 0.0, -c], [0.0, 1.0, 0.0]])
 
 
 def pose(R0: np.ndarray, theta: float) -> np.ndarray:
@@ -1056,7 +1069,9 @@ def contact_ratio_tredgold(params: BevelGearParams | None = None, rounding: bool
 def summary(params: BevelGearParams | None = None, exact: bool = True) -> dict:
     """Derived quantities of the pair (angles in degrees, lengths in mm) for reports."""
     params = params or BevelGearParams()
-    out = {"outer_cone_distance_mm": params.outer_cone_distance * 1e3,
+    out = {"shaft_angle_deg": math.degrees(params.shaft_angle),
+           "outer_cone_distance_mm": params.outer_cone_distance * 1e3,
+           "face_width_mm": params.face_width * 1e3,
            "backlash_angle_rad": backlash_angle(params)}
     for role in ROLES:
         g = gear_geometry(params, role)

@@ -65,15 +65,27 @@ def checked_substeps(H: float, t: float, max_substep: float) -> tuple[int, str |
                f"{max_substep:.3g} s (at most {MAX_SUBSTEPS_PER_STEP}); take smaller communication steps")
 
 
+#: the shaft angle of the rig's pair [rad] (math.radians(90.0) == pi/2 exactly): the angle at which the
+#: placement and the pitch cones keep their original expressions (bit-identical results for the rig)
+SHAFT_ANGLE_90 = math.radians(90.0)
+
+
 @dataclass(frozen=True)
 class BevelGearParams:
-    """Straight bevel pair, spherical-involute flanks, common apex, all cones through the apex."""
+    """Straight bevel pair, spherical-involute flanks, common apex, all cones through the apex.
+
+    Any straight bevel pair: the numbers of teeth, the outer transverse module, the face width, the pressure
+    angle, the shaft angle S (the angle between the two axes; pitch cones ``delta_1 + delta_2 = S``), the
+    profile shift of the pinion (the wheel gets ``-x``: x1 + x2 = 0, no change of the working pressure
+    angle), the addendum and dedendum factors, the backlash and the tip rounding. Whether a pair can be
+    made (undercut, a pointed tip, interference, face width, contact ratio, the ranges) is
+    :func:`gearcontact_fmu.pair_check.pair_problems`; this dataclass only holds the data."""
 
     z_pinion: int = 15
     z_wheel: int = 60
     module: float = 3.0e-3                 # outer transverse module [m]
     pressure_angle: float = math.radians(20.0)
-    shaft_angle: float = math.radians(90.0)
+    shaft_angle: float = SHAFT_ANGLE_90     # angle between the axes [rad]
     face_width: float = 25.0e-3            # default (project choice), <= cone distance / 3
     x_pinion: float = 0.43                 # profile shift of the pinion; wheel gets -x (default, project choice)
     addendum_coefficient: float = 1.0      # h_a* (outer end)
@@ -87,8 +99,14 @@ class BevelGearParams:
 
     @property
     def delta_pinion(self) -> float:
-        """Pitch cone angle of the pinion [rad] (shaft angle 90 deg)."""
-        return math.atan2(self.z_pinion, self.z_wheel)
+        """Pitch cone angle of the pinion [rad]: ``tan delta_1 = sin S / (z2/z1 + cos S)`` (S the shaft angle),
+        as ``atan2(z1 sin S, z2 + z1 cos S)``. At a shaft angle of exactly 90 deg it is ``atan2(z1, z2)``, the
+        expression of the rig's pair since the start, kept so that its pitch cones stay bit-identical
+        (cos(pi/2) = 6e-17, not 0)."""
+        if self.shaft_angle == SHAFT_ANGLE_90:
+            return math.atan2(self.z_pinion, self.z_wheel)
+        S = self.shaft_angle
+        return math.atan2(self.z_pinion * math.sin(S), self.z_wheel + self.z_pinion * math.cos(S))
 
     @property
     def delta_wheel(self) -> float:
@@ -96,6 +114,7 @@ class BevelGearParams:
 
     @property
     def outer_cone_distance(self) -> float:
+        """Outer cone distance R_e = m z1 / (2 sin delta_1) [m]."""
         return self.module * self.z_pinion / (2.0 * math.sin(self.delta_pinion))
 
 

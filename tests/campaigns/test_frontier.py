@@ -78,3 +78,25 @@ def test_a_small_frontier_runs_end_to_end_and_resumes(tmp_path, fmu_dir):
     assert all(r["reused"] == r["runs"] for r in b["rounds"])
     md = F.report_markdown(a, study, {"command": "x", "workers": 2, "wall_time_s": 1.0, "core_hours": 0.0})
     assert "| pit | pinion | 1500 rpm | 1.31 N·m |" in md
+
+
+def test_what_moved_reads_the_earlier_paired_table(tmp_path):
+    """The comparison against an earlier paired study: a family the paired rise saw and the frontier does not see
+    at x1 is "lost", the other way "gained"; operating points the earlier study did not run are left out."""
+    csv = tmp_path / "auc.csv"
+    csv.write_text("family,kind,member,size,speed_rpm,load_Nm,indicator,n,paired_auc,same_noise_auc,unpaired_auc\n"
+                   "void_pinion_default,void,pinion,default,1500.0,1.31,a,20,0.95,0.5,0.5\n"
+                   "void_pinion_default,void,pinion,default,1500.0,1.31,b,20,0.60,0.5,0.5\n"
+                   "pit_pinion_default,pit,pinion,default,1500.0,1.31,a,20,0.70,0.5,0.5\n"
+                   "pit_pinion_small,pit,pinion,small,1500.0,1.31,a,20,0.99,0.5,0.5\n")
+    cell = dict(member="pinion", speed_rpm=1500.0, load_Nm=1.31, at_or_below_smallest=False, monotone=True)
+    result = {"cells": [
+        {**cell, "kind": "void", "frontier_factor": None, "beyond": True, "scores": {"2": 0.7}},
+        {**cell, "kind": "pit", "frontier_factor": 0.5, "beyond": False, "scores": {"0.25": 0.6, "0.5": 0.92, "1": 0.97}},
+        {**cell, "kind": "crack", "load_Nm": 11.9, "frontier_factor": 1.0, "beyond": False, "scores": {}},
+    ]}
+    md = F.compare_markdown(result, csv)
+    assert "1 cells gained, 1 lost, 0 the same" in md
+    assert "| void | pinion | 1500 rpm | 1.31 N·m | 0.95 (yes) | – (no) | not detectable up to severe | lost |" in md
+    assert "| pit | pinion | 1500 rpm | 1.31 N·m | 0.70 (no) | 0.97 (yes) |" in md and "| gained |" in md
+    assert "crack" not in md

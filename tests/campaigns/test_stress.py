@@ -216,6 +216,38 @@ def test_judge_halving():
     assert S.judge_halving(ok, bad, a, b)["outcome"] == "fail"
 
 
+def test_held_standstill_is_compared_over_its_moving_part():
+    """A draw that holds its drive at standstill under friction or losses: the held torque is indeterminate within
+    the friction band (the creep speed decides it, and the creep follows the step), so a halving pair compares the
+    part before the standstill; held from the start, it is not comparable: never a pass, never a failure."""
+    stop = {"friction": True, "losses": False, "speed_mode": "ramp_to_stop",
+            "speed_profile_rpm": [[0.0, 900.0], [0.2, 900.0], [0.729, 0.0]], "duration_s": 1.5}
+    assert S.held_standstill_from_s(stop) == pytest.approx(0.729)
+    assert S.held_standstill_from_s({**stop, "friction": False}) is None              # frictionless: determinate
+    assert S.held_standstill_from_s({**stop, "speed_profile_rpm": [[0.0, 0.0], [0.5, 900.0]]}) is None
+    assert S.held_standstill_from_s({"losses": True, "speed_mode": "hold_zero", "drive_speed_rpm": 0.0}) == 0.0
+
+    ok = S.judge_run(_summary())
+    whole_a = _summary(torque={"drive_shaft_torque": {"mean": 1.0, "rms": 1.0},
+                               "propeller_shaft_torque": {"mean": 4.0, "rms": 4.0}})
+    whole_b = _summary(torque={"drive_shaft_torque": {"mean": 1.05, "rms": 1.0},
+                               "propeller_shaft_torque": {"mean": 4.0, "rms": 4.0}})
+    assert S.judge_halving(ok, ok, whole_a, whole_b)["outcome"] == "fail"     # the whole run: 5 % apart
+    same = {"drive_shaft_torque": {"mean": 1.0, "rms": 1.0}, "propeller_shaft_torque": {"mean": 4.0, "rms": 4.0}}
+    held = {"window_s": [0.3, 0.729], "moving": (same, same),
+            "held": ({"drive_shaft_torque": {"mean": 0.9}}, {"drive_shaft_torque": {"mean": 1.1}})}
+    v = S.judge_halving(ok, ok, whole_a, whole_b, held)
+    assert v["outcome"] == "pass" and v["window_s"] == [0.3, 0.729]
+    assert v["held_means"]["drive_shaft_torque"] == [0.9, 1.1]
+    off = {"drive_shaft_torque": {"mean": 1.02, "rms": 1.0}, "propeller_shaft_torque": {"mean": 4.0, "rms": 4.0}}
+    v = S.judge_halving(ok, ok, whole_a, whole_b, {**held, "moving": (off, same)})
+    assert v["outcome"] == "fail" and v["reasons"][0].startswith("over the moving part 0.3 <= t < 0.729 s")
+    v = S.judge_halving(ok, ok, whole_a, whole_b, {**held, "window_s": [0.3, 0.3], "moving": None})
+    assert v["outcome"] == "not_comparable" and "indeterminate within the friction band" in v["reasons"][0]
+    md = S.report_markdown({"runs": [], "pairs": [{"base": "x", "half": "x_halfH", **v}], "table": []})
+    assert "not comparable" in md and "`x` / `x_halfH` | not_comparable" in md
+
+
 def test_class_table_and_report():
     runs = [
         {"name": "a", "classes": ["paper_healthy"], "outcome": "pass", "reasons": [], "flags": [], "not_reported": [],

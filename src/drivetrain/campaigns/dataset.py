@@ -72,6 +72,9 @@ def run_labels(name: str, record: dict, scene: dict, summary: dict | None) -> di
         if section in ("expect", "check") or not isinstance(keys, dict):
             continue
         for key, value in sorted(keys.items()):
+            if section == "gear" and key == "pair" and isinstance(value, dict):     # [gear.pair]: a column per key
+                labels.update({f"gear.pair.{k}": _label_value(v) for k, v in value.items()})
+                continue
             labels[f"{section}.{key}"] = _label_value(value) if setting_acts(section, key, scene) else None
     # each fault also as columns of its own (fault0.kind, fault0.member, fault0.tooth, its sizes ...), the
     # paper's mild and severe as the specifications of their geometry
@@ -221,14 +224,15 @@ def _indicators(run: dict) -> dict:
     """The run's condition indicators (rig.indicators.run_features: the columns of ``drivetrain features``),
     per-run columns of the dataset; none for a run without a constant drive speed (a speed profile moves
     the characteristic frequencies) or too short to judge."""
-    from drivetrain.rig.indicators import run_features
+    from drivetrain.rig.indicators import label_teeth, run_features
 
     lab = run["labels"]
     try:
         speed = float(lab.get("operating_point.drive_speed_rpm") or 0.0)
         if not speed > 0 or lab.get("operating_point.speed_profile_rpm"):
             return {}
-        return run_features(run["time"], run["signals"], float(lab.get("time.settle_s") or 0.0), speed)
+        return run_features(run["time"], run["signals"], float(lab.get("time.settle_s") or 0.0), speed,
+                            teeth=label_teeth(lab))
     except (TypeError, ValueError):
         return {}
 

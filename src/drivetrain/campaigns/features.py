@@ -60,7 +60,7 @@ def indicator_columns(run: dict, where: Path | str) -> dict:
         raise DatasetError(f"{where}: run {run['name']} has no constant drive speed (its characteristic frequencies "
                            "and shaft orders need one)")
     try:
-        return run_features(run["time"], run["signals"], settle, float(speed))
+        return run_features(run["time"], run["signals"], settle, float(speed), teeth=ci.label_teeth(lab))
     except ValueError as exc:
         raise DatasetError(f"{where}: run {run['name']}: {exc}") from None
 

@@ -264,6 +264,54 @@ def report_markdown(result: dict, study: FrontierStudy, meta: dict, figure: str 
     return "\n".join(lines) + "\n"
 
 
+#: the rule of the paired study the frontier replaces (docs/DETECTABILITY.md before issue 40): a cell was
+#: detectable when the best indicator's paired rise reached 0.9
+OLD_PAIRED_THRESHOLD = 0.9
+
+
+def compare_markdown(result: dict, auc_csv: Path | str) -> str:
+    """What moved, family by family, against an earlier paired study's AUC table (``drivetrain detectability``'s
+    ``*_auc.csv``, one row per family, operating point and indicator): at each frontier cell's operating point,
+    the earlier best paired rise of the family at its default size and its verdict, against the frontier's
+    verdict at x1 (the default size: detectable when the frontier lies at or below it) and the change score
+    there if x1 was run. Cells the earlier study did not run are left out."""
+    import csv
+
+    best: dict[tuple, float] = {}
+    with open(auc_csv, newline="") as f:
+        for r in csv.DictReader(f):
+            if r.get("size") != "default":
+                continue
+            try:
+                key = (r["kind"], r["member"], float(r["speed_rpm"]), float(r["load_Nm"]))
+                a = float(r["paired_auc"])
+            except (KeyError, ValueError):
+                continue
+            if math.isfinite(a):
+                best[key] = max(best.get(key, 0.0), a)
+    rows, moved = [], {"gained": 0, "lost": 0, "same": 0}
+    for c in sorted(result["cells"], key=lambda c: (c["kind"], c["member"], c["speed_rpm"], c["load_Nm"])):
+        key = (c["kind"], c["member"], float(c["speed_rpm"]), float(c["load_Nm"]))
+        if key not in best:
+            continue
+        before = best[key] >= OLD_PAIRED_THRESHOLD
+        now = (not c["beyond"]) and c["frontier_factor"] is not None and c["frontier_factor"] <= 1.0
+        score = c["scores"].get("1")
+        what = "same" if before == now else ("gained" if now else "lost")
+        moved[what] += 1
+        rows.append(f"| {c['kind']} | {c['member']} | {c['speed_rpm']:g} rpm | {c['load_Nm']:g} N·m | "
+                    f"{best[key]:.2f} ({'yes' if before else 'no'}) | "
+                    f"{'–' if score is None else f'{score:.2f}'} ({'yes' if now else 'no'}) | "
+                    f"{_size_text(c)} | {what} |")
+    head = [f"Against `{Path(auc_csv).name}` (the paired rule: best paired rise >= {OLD_PAIRED_THRESHOLD:g}), at the "
+            f"default size: {moved['gained']} cells gained, {moved['lost']} lost, {moved['same']} the same. The frontier's "
+            "verdict at x1 is read from its bisection (monotone cells: detectable at x1 when the frontier is at or "
+            "below x1); its change score at x1 is shown where x1 was run.", "",
+            "| kind | member | speed | load | before: best paired rise (detectable) | now: change score at x1 (detectable) "
+            "| frontier | moved |", "|---|---|---|---|---|---|---|---|"]
+    return "\n".join(head + rows) + "\n"
+
+
 def plot(result: dict, study: FrontierStudy, path: Path) -> Path:
     """The frontier factor per family (rows) and operating point (columns); blank: beyond severe."""
     import numpy as np
@@ -289,4 +337,4 @@ def plot(result: dict, study: FrontierStudy, path: Path) -> Path:
 
 
 __all__ = ["Cell", "FrontierStudy", "LADDER", "BEYOND", "next_index", "frontier_index", "monotone", "run_frontier",
-           "run_features", "report_markdown", "plot"]
+           "run_features", "report_markdown", "compare_markdown", "plot"]

@@ -22,6 +22,7 @@ from typing import Iterator
 import numpy as np
 
 from drivetrain.errors import DatasetError
+from drivetrain.rig.indicators import label_teeth
 
 UNITS_KEY = "drivetrain.units"
 LABELS_KEY = "drivetrain.labels"
@@ -274,10 +275,13 @@ def spectrum(source, channel: str, run: str | None = None):
             raise DatasetError(f"{sig}: no channel {channel!r} (it has {', '.join(h['signals'])})")
         scene = (h.get("scene") or {}).get("scene") or h.get("scene") or {}
         op = scene.get("operating_point") or {}
+        pair = (scene.get("gear") or {}).get("pair") or {}
         return spectrum_frame(h["time"], h["signals"][channel], float(h["attrs"]["settle_s"]),
                               float(h["attrs"]["sample_rate_Hz"]),
                               _final_speed(op.get("drive_speed_rpm"), op.get("speed_profile_rpm")), channel,
-                              str(h["units"].get(channel, "")), upper_ratio=_run_upper_ratio(h))
+                              str(h["units"].get(channel, "")),
+                              teeth=label_teeth({f"gear.pair.{k}": v for k, v in pair.items()}),
+                              upper_ratio=_run_upper_ratio(h))
     df = source
     if run is not None:
         df = df[df["run"] == run]
@@ -294,7 +298,7 @@ def spectrum(source, channel: str, run: str | None = None):
                           float(first["time.sample_rate_Hz"]),
                           _final_speed(first["operating_point.drive_speed_rpm"],
                                        first.get("operating_point.speed_profile_rpm")),
-                          channel, (df.attrs.get("units") or {}).get(channel, ""))
+                          channel, (df.attrs.get("units") or {}).get(channel, ""), teeth=label_teeth(first))
 
 
 __all__ = ["spectrum", "load_dataset", "windows", "Windows", "units_of", "schema_metadata", "UNITS_KEY", "LABELS_KEY"]

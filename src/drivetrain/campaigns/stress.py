@@ -28,7 +28,10 @@ Judging (:func:`judge_run`, :func:`judge_halving`): a run passes when it complet
 limits (``stability.max_penetration_rel_umax`` < 1, i.e. below u_max; > 0.1 is flagged suspicious) and
 the energy residual is < 1 %. A halving pair passes when both runs pass and the mean torque of the
 drive-shaft and propeller-shaft sensors agree within 0.5 % and their RMS (``summary["torque"][sensor]
-["rms"]``) within 2 %, relative to the half-step run. Figures a run does not report (older summaries)
+["rms"]``) within 2 %, relative to the half-step run. A draw that holds its drive at standstill with
+friction or losses on is compared over the moving part before the standstill only (the torque friction holds
+at rest is indeterminate within its band: :func:`held_standstill_from_s`); held from the start, its pair is
+"not comparable", with that reason. Figures a run does not report (older summaries)
 are "not reported": they do not fail the run and the report says how many runs lacked them.
 
 Outputs in ``out_dir``: one directory per run (``<name>/summary.json``, ``signals.h5``), the sweep
@@ -611,18 +614,118 @@ def _rel(a, b) -> float:
     return abs(float(a) - float(b)) / max(abs(float(b)), ZERO_TORQUE_NM)
 
 
-def judge_halving(run_h: dict, run_h2: dict, summary_h: dict | None, summary_h2: dict | None) -> dict:
+def held_standstill_from_s(p: dict) -> float | None:
+    """When a draw holds its drive at standstill with friction or losses on: the time from which the speed
+    reference stays 0 (0.0 for a scene held from the start), else None.
+
+    Why it matters. The loss law ``(T_c + a |T|) tanh(w / w_c)`` and the regularised mesh friction are
+    Coulomb laws smoothed at zero speed: a drivetrain held still under a load creeps at a speed well below
+    ``w_c``, and the torque the friction holds is whatever that creep speed makes of the band
+    ``+-(T_c + a |T|)``. Physically that torque is indeterminate (static friction holds anything inside the
+    band); numerically the creep speed, and with it the held torque, depends on the step. So a halving pair
+    compares a held standstill's torques over the part of the run before it (:func:`judge_halving`'s
+    ``window_s``) and reports the held part's means without judging them; a scene held from the start has
+    no part to compare and its pair is "not comparable", with that reason, never a pass."""
+    if not (p.get("friction") or p.get("losses")):
+        return None
+    if p.get("speed_mode") == "hold_zero" or p.get("drive_speed_rpm") == 0.0:
+        return 0.0
+    prof = p.get("speed_profile_rpm") or []
+    if not prof or float(prof[-1][1]) != 0.0:
+        return None
+    i = len(prof) - 1
+    while i > 0 and float(prof[i - 1][1]) == 0.0:
+        i -= 1
+    return float(prof[i][0])
+
+
+#: the shortest moving part [s] a halving pair of a held standstill is compared over (a tenth of a second:
+#: over a hundred mesh periods above 300 rpm); shorter, the pair is "not comparable"
+MIN_MOVING_WINDOW_S = 0.1
+
+
+def _window_stats(run_dir: Path, t0: float, t1: float) -> dict | None:
+    """Torque statistics of the halving sensors over t0 <= t < t1 from a run's signals (None if unreadable)."""
+    from drivetrain.rig.signals import stats
+    from drivetrain.run.files import FileFormatError, read_signals
+
+    try:
+        h = read_signals(run_dir / "signals.h5")
+    except (FileFormatError, OSError):
+        return None
+    t = np.asarray(h["time"], dtype=float)
+    m = (t >= t0) & (t < t1)
+    out = {}
+    for s in HALVING_SENSORS:
+        x = h["signals"].get(s)
+        if x is not None and m.any():
+            out[s] = stats(np.asarray(x, dtype=float)[m])
+    return out
+
+
+def _settle_s(summary: dict | None, p: dict) -> float:
+    """The settling time a random draw's run was judged from (its stability window, else the scene default
+    min(2 s, 20 % of the duration))."""
+    w = ((summary or {}).get("stability") or {}).get("window_s")
+    if isinstance(w, (list, tuple)) and w and _finite(w[0]):
+        return float(w[0])
+    return min(2.0, 0.2 * float(p.get("duration_s") or 0.0))
+
+
+def held_pair_statistics(base: dict, half: dict, summary_h: dict | None, summary_h2: dict | None,
+                         out_dir: Path) -> dict | None:
+    """For a halving pair whose draw holds a standstill (:func:`held_standstill_from_s`): {"window_s": [t0,
+    t1], "moving": (stats at H, stats at H/2) or None, "held": (stats at H, stats at H/2)}; None when the
+    draw holds no standstill."""
+    p = base.get("parameters") or {}
+    t_hold = held_standstill_from_s(p)
+    if t_hold is None:
+        return None
+    t0 = _settle_s(summary_h2, p)
+    D = float(p.get("duration_s") or 0.0)
+    moving = None
+    if t_hold - t0 >= MIN_MOVING_WINDOW_S:
+        a, b = _window_stats(out_dir / base["name"], t0, t_hold), _window_stats(out_dir / half["name"], t0, t_hold)
+        moving = (a, b) if a and b else None
+    held = (_window_stats(out_dir / base["name"], max(t0, t_hold), D + 1.0),
+            _window_stats(out_dir / half["name"], max(t0, t_hold), D + 1.0))
+    return {"window_s": [t0, t_hold], "moving": moving, "held": held}
+
+
+def judge_halving(run_h: dict, run_h2: dict, summary_h: dict | None, summary_h2: dict | None,
+                  held: dict | None = None) -> dict:
     """Verdict of a halving pair: the verdicts of the run at H and at H/2 and their summaries. Deviations
-    are relative to the H/2 run (denominators below ZERO_TORQUE_NM are taken as that floor)."""
+    are relative to the H/2 run (denominators below ZERO_TORQUE_NM are taken as that floor). ``held``
+    (:func:`held_pair_statistics`): the draw holds a standstill, so the pair is compared over the moving
+    part before it, or is "not comparable" when there is none."""
     outs = (run_h["outcome"], run_h2["outcome"])
     if "refused" in outs:
         return {"outcome": "refused", "reasons": ["a run of the pair was refused before running"], "deviation": {}}
     if "fail" in outs:
         return {"outcome": "fail", "reasons": ["a run of the pair failed"], "deviation": {}}
     reasons, dev = [], {}
+    torque_h = (summary_h or {}).get("torque") or {}
+    torque_h2 = (summary_h2 or {}).get("torque") or {}
+    extra: dict[str, Any] = {}
+    if held is not None:
+        t0, t1 = held["window_s"]
+        extra = {"window_s": [t0, t1], "held_means": {
+            s: [((held["held"][0] or {}).get(s) or {}).get("mean"), ((held["held"][1] or {}).get(s) or {}).get("mean")]
+            for s in HALVING_SENSORS}}
+        if held["moving"] is None:
+            why = (f"held at standstill under friction/losses from t = {t1:.6g} s, and the moving part after the "
+                   f"settling time {t0:.6g} s is " + ("unreadable" if t1 - t0 >= MIN_MOVING_WINDOW_S else
+                                                     f"shorter than {MIN_MOVING_WINDOW_S:g} s")
+                   + ": the held torque is indeterminate within the friction band, so the step's convergence "
+                     "cannot be judged from it")
+            return {"outcome": "not_comparable", "reasons": [why], "deviation": {}, **extra}
+        torque_h, torque_h2 = held["moving"]
+        reasons_prefix = f"over the moving part {t0:.6g} <= t < {t1:.6g} s (held at standstill after it): "
+    else:
+        reasons_prefix = ""
     for s in HALVING_SENSORS:
-        a = ((summary_h or {}).get("torque") or {}).get(s)
-        b = ((summary_h2 or {}).get("torque") or {}).get(s)
+        a = torque_h.get(s)
+        b = torque_h2.get(s)
         if not a or not b:
             reasons.append(f"{s}: torque statistics missing")
             continue
@@ -635,9 +738,11 @@ def judge_halving(run_h: dict, run_h2: dict, summary_h: dict | None, summary_h2:
         if not dr < LIMITS["halving_rms"]:
             reasons.append(f"{s}: RMS {a['rms']:.6g} vs {b['rms']:.6g} N·m differs by {100 * dr:.3g} % "
                            f"(limit {100 * LIMITS['halving_rms']:g} %)")
+    if reasons and reasons_prefix:
+        reasons = [reasons_prefix + r for r in reasons]
     return {"outcome": "fail" if reasons else "pass", "reasons": reasons, "deviation": dev,
             "max_mean_dev": max((d["mean"] for d in dev.values()), default=None),
-            "max_rms_dev": max((d["rms"] for d in dev.values()), default=None)}
+            "max_rms_dev": max((d["rms"] for d in dev.values()), default=None), **extra}
 
 
 # --------------------------------------------------------------------------------------------------
@@ -723,6 +828,8 @@ def report_markdown(rec: dict) -> str:
     npairs = len(rec.get("pairs", []))
     pf = sum(1 for p in rec.get("pairs", []) if p["outcome"] == "fail")
     nref = sum(1 for p in rec.get("pairs", []) if p["outcome"] == "refined")
+    nnc = sum(1 for p in rec.get("pairs", []) if p["outcome"] == "not_comparable")
+    nwin = sum(1 for p in rec.get("pairs", []) if p.get("window_s") and p["outcome"] != "not_comparable")
     seeds = rec.get("seeds") or [rec.get("seed")]
     seed_text = f"seed {seeds[0]}" if len(seeds) == 1 else f"seeds {', '.join(map(str, seeds))}"
     lines += [f"Command: `{rec.get('command', 'drivetrain stress')}`", "", commit_line(), "",
@@ -736,7 +843,8 @@ def report_markdown(rec: dict) -> str:
               f"{tot.get('refused', 0)} refused before running (predicted unstable); {npairs} halving pairs, "
               f"{pf} outside the limits"
               + (f", {nref} of them at a step refused by the halving rule, a converged step chosen (below)" if nref
-                 else "") + ".**", "",
+                 else "")
+              + (f"; {nnc} not comparable (held at standstill from the start, below)" if nnc else "") + ".**", "",
               f"A run passes when it completes (status ok), every channel is finite, the largest contact penetration "
               f"is below u_max (> {SUSPICIOUS_PENETRATION:g} u_max is flagged) and the energy residual is "
               f"< {100 * L['energy_residual']:g} %. A halving pair (the scene again at H/2) passes when both runs pass "
@@ -776,6 +884,29 @@ def report_markdown(rec: dict) -> str:
             conv = p.get("converged_step_s")
             lines.append(f"- `{p['base']}` / `{p['half']}`: " + "; ".join(p["reasons"])
                          + (f" -> converged at H = {conv:.6g} s" if _finite(conv) else ""))
+        lines.append("")
+    held = [p for p in rec.get("pairs", []) if p.get("window_s")]
+    if held:
+        lines += ["## Halving pairs held at standstill (compared over the moving part)", "",
+                  "These draws hold the drive at standstill under friction or losses: the torque the regularised "
+                  "Coulomb laws hold there is indeterminate within the friction band and follows the creep speed, "
+                  "which depends on the step, so the pair is compared over the moving part before the standstill "
+                  f"(at least {MIN_MOVING_WINDOW_S:g} s after the settling time) and the held means are shown, not "
+                  "judged; a draw held from the start has no moving part and is not comparable (neither a pass nor "
+                  "a failure). This rule came after `rnd_s8_0000` failed the whole-run comparison at every step "
+                  "(docs/STABILITY.md).", "",
+                  "| pair | outcome | moving part [s] | max dev. mean / RMS there | held means at H / H/2 [N·m] |",
+                  "|---|---|---|---|---|"]
+        for p in held:
+            w = p["window_s"]
+            hm = "; ".join(f"{s}: {_fmt(v[0], '')} / {_fmt(v[1], '')}" for s, v in (p.get("held_means") or {}).items())
+            dv = ("–" if p.get("max_mean_dev") is None else
+                  f"{_fmt(p.get('max_mean_dev'), 'pct')} / {_fmt(p.get('max_rms_dev'), 'pct')}")
+            lines.append(f"| `{p['base']}` / `{p['half']}` | {p['outcome']} | {w[0]:.3g}–{w[1]:.3g} | {dv} | {hm} |")
+        lines.append("")
+        for p in held:
+            if p["outcome"] == "not_comparable":
+                lines.append(f"- `{p['base']}` / `{p['half']}`: " + "; ".join(p["reasons"]))
         lines.append("")
     refused = [r for r in rec.get("runs", []) if r["outcome"] == "refused"]
     if refused:
@@ -851,7 +982,8 @@ def judge_campaign(entries: list[dict], out_dir: Path, records: dict | None = No
     for r in runs:
         if r.get("pair_of") and r["pair_of"] in by_name:
             base = by_name[r["pair_of"]]
-            v = judge_halving(base, r, summaries.get(base["name"]), summaries.get(r["name"]))
+            held = held_pair_statistics(base, r, summaries.get(base["name"]), summaries.get(r["name"]), out_dir)
+            v = judge_halving(base, r, summaries.get(base["name"]), summaries.get(r["name"]), held)
             par = r.get("parameters") or {}
             pairs.append({"base": base["name"], "half": r["name"], "classes": base["classes"],
                           "root": par.get("halving_root") or base["name"], "level": par.get("halving_level") or 1,

@@ -27,7 +27,8 @@ from drivetrain.rig.data import PublicModel, default_parameters, public_matrices
 from drivetrain.system import SPRING, SystemSpec
 from gearcontact_fmu.mesh_models import DEFAULT_FIDELITY
 from gearcontact_fmu.mesh_models.analytic import mesh_stiffness
-from gearcontact_fmu.params import GEAR_MODEL, BevelGearParams
+from gearcontact_fmu.fmu_variables import gear_pair
+from gearcontact_fmu.params import GEAR_MODEL
 
 
 
@@ -73,18 +74,9 @@ class LinearBlock:
 
 
 def _gear_mesh_stiffness(params: dict) -> float:
-    """ISO 6336 mean mesh stiffness of the default pair, pinion frame [N m/rad]."""
-
-    g = BevelGearParams()
-    kw = {}
-    for name in ("module", "face_width", "x_pinion", "pressure_angle"):
-        if name in params:
-            kw[name] = params[name]
-    try:
-        g = BevelGearParams(**kw)
-    except TypeError:
-        pass
-    return float(mesh_stiffness(g)["K_mean"])
+    """ISO 6336 mean mesh stiffness of the pair the parameters name (the rig's where they name none), pinion
+    frame [N m/rad]."""
+    return float(mesh_stiffness(gear_pair(params))["K_mean"])
 
 
 def gear_block(name: str, params: dict, gear: str = "auto") -> LinearBlock:
@@ -94,7 +86,7 @@ def gear_block(name: str, params: dict, gear: str = "auto") -> LinearBlock:
     p = dict(default_parameters(GEAR_MODEL))
     p.update({k: v for k, v in params.items()})
     Jp, Jw = float(p["J_pinion"]), float(p["J_wheel"])
-    r = float(p.get("z_wheel", 60)) / float(p.get("z_pinion", 15))
+    r = gear_pair(p).ratio
     fid = str(p.get("fidelity", DEFAULT_FIDELITY)).lower()
     rigid = (gear == "rigid") or (gear == "auto" and fid == "ideal")
     out = str(p.get("output_torque", "predicted"))

@@ -413,7 +413,7 @@ class Partition:
 
 def partition(shafts: str = "flexible", n_elements: int = 4, calibration: dict | None = None,
               coupling_scale: float | None = None, losses: bool = True,
-              model: PublicModel | None = None) -> Partition:
+              model: PublicModel | None = None, lower_ratio: float | None = None) -> Partition:
     """Lump the public model and split it into the components (docs/DRIVETRAIN.md, "Partition").
 
     shafts "flexible": FlexibleShaft ``drive_shaft`` between ``motors`` and ``upper`` (transducer,
@@ -425,14 +425,15 @@ def partition(shafts: str = "flexible", n_elements: int = 4, calibration: dict |
 
     ``model``: the lumped table (default the rig's). A table of 22 nodes is in the rig's layout (its places and
     lumping); any other chain is lumped onto the places its ratios give (:func:`chain_places`, rigid shafts only,
-    its stiffnesses as written); a table that cannot be mapped is a ConfigurationError naming why."""
+    its stiffnesses as written); a table that cannot be mapped is a ConfigurationError naming why.
+    ``lower_ratio``: the pair's z_wheel / z_pinion its bevel element must have (default the rig's)."""
     if shafts not in ("flexible", "rigid"):
         raise ValueError(f"shafts must be 'flexible' or 'rigid', got {shafts!r}")
     n_elements = int(n_elements)
     if n_elements < 1:
         raise ValueError("n_elements must be >= 1")
     m = model or load_public()
-    problems = layout_problems(m)
+    problems = layout_problems(m, lower_ratio)
     rig_layout = len(m.J) == RIG_LAYOUT_NODES
     if not problems and not rig_layout and shafts != "rigid":
         problems = [f"a table of {len(m.J)} nodes runs with rigid shafts (effects.shaft_flexibility = \"rigid\"): the "
@@ -450,7 +451,7 @@ def partition(shafts: str = "flexible", n_elements: int = 4, calibration: dict |
         ch = _lumped_chain(m, shafts, s)
         C2, J_in_extra, J_sensor = _drive_line(ch, m, shafts, n_elements, params, cuts, bodies)
     else:
-        places = chain_places(m)[0]
+        places = chain_places(m, lower_ratio)[0]
         ch = _chain_lumped(m, places)
         C2, J_in_extra, J_sensor = ch.elem_between(places.flywheel, places.upper), 0.0, 0.0
         cuts.append(dict(spring="motors.drive", inertia="upper.flange_a", elements=C2.members, k=C2.k, c=C2.c))
@@ -624,19 +625,21 @@ class SteadyState:
 
 
 def steady_state(speed_rpm: float, load_Nm: float, upper: dict, motors: dict, load_mode: int = 0,
-                 load_w_nom: float = 1.0, load_w_reg: float | None = None) -> SteadyState:
+                 load_w_nom: float = 1.0, load_w_reg: float | None = None,
+                 lower_ratio: float = LOWER_RATIO) -> SteadyState:
     """Torque balance at constant speed with an ideal lower gear (no mesh loss):
 
         T_PSH = 8 T_set + T_pg(w_PSH, 8 T_set)              (load side, propeller frame)
-        T_MSH = T_PSH / 4                                   (ideal lower gear)
+        T_MSH = T_PSH / lower_ratio                         (ideal lower gear; the rig: 4)
         T_DSH = T_MSH / 3 + T_ut(w_DSH, T_MSH / 3)         (upper gearbox, drive frame)
         T_motor = T_DSH + c_motor w_DSH
 
-    ``upper``/``motors``: the parameter dicts of UpperTransmission and MotorLoad. At standstill the
+    ``upper``/``motors``: the parameter dicts of UpperTransmission and MotorLoad; ``lower_ratio``: the lower
+    pair's z_wheel / z_pinion (the scene's [gear.pair]; default the rig's, LOWER_RATIO). At standstill the
     load setting is 0 (its regularisation below ``load_w_reg``), so a start from rest is at rest."""
     w = rpm_to_rad_s(speed_rpm)
     wm = w / upper.get("ratio", UPPER_RATIO)
-    wp = wm / LOWER_RATIO
+    wp = wm / lower_ratio
     r8 = motors.get("ratio_pg", PG_RATIO)
     if int(load_mode) == 0:
         # the torque setting, regularised at standstill as in MotorLoad (tanh = 1 at any operating speed)
@@ -646,7 +649,7 @@ def steady_state(speed_rpm: float, load_Nm: float, upper: dict, motors: dict, lo
         T_prop_load = r8 * load_Nm * wp / load_w_nom
     pg = {"c_v": motors["pg_c"], "T_c": motors["pg_Tc"], "w_c": motors["pg_wc"], "a": motors["pg_a"]}
     T_psh = T_prop_load + loss(wp, r8 * load_Nm, pg)
-    T_msh = T_psh / LOWER_RATIO
+    T_msh = T_psh / lower_ratio
     ratio = upper.get("ratio", UPPER_RATIO)
     ut = {"c_v": upper["loss_c"], "T_c": upper["loss_Tc"], "w_c": upper["loss_wc"], "a": upper["loss_a"]}
     T_dsh = T_msh / ratio + loss(w, T_msh / ratio, ut)

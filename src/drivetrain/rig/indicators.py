@@ -365,14 +365,28 @@ def _line(cf: dict, name: str) -> float:
     return cf[name]
 
 
-def run_features(time: np.ndarray, signals: dict, settle_s: float, drive_speed_rpm: float) -> dict:
-    """The indicator columns of one run (module docstring); signals it lacks give no columns."""
+def label_teeth(labels: dict) -> tuple[int, int]:
+    """(z_pinion, z_wheel) of a run's labels (a dict or a dataset row): its [gear.pair] columns, the rig's where
+    it has none (a run of the rig's pair, or an empty cell of a dataset that mixes pairs)."""
+    out = []
+    for key, rig_z in (("z_pinion", Z_PINION), ("z_wheel", Z_WHEEL)):
+        try:
+            out.append(int(labels.get(f"gear.pair.{key}")))
+        except (TypeError, ValueError):         # absent (None) or an empty cell (NaN)
+            out.append(rig_z)
+    return tuple(out)
+
+
+def run_features(time: np.ndarray, signals: dict, settle_s: float, drive_speed_rpm: float,
+                 teeth: tuple[int, int] = (Z_PINION, Z_WHEEL)) -> dict:
+    """The indicator columns of one run (module docstring); signals it lacks give no columns. ``teeth``: the
+    lower pair's (z_pinion, z_wheel) (the scene's [gear.pair]; the rig's by default)."""
     t = np.asarray(time, dtype=float)
     keep = t >= settle_s
     if keep.sum() < 16:
         raise ValueError(f"{int(keep.sum())} samples after the settling time {settle_s:g} s: too short")
     fs = 1.0 / float(np.median(np.diff(t)))
-    cf = characteristic_frequencies(drive_speed_rpm)
+    cf = characteristic_frequencies(drive_speed_rpm, *teeth)
     out: dict = {}
     for sig in TORQUES:
         if sig not in signals:
@@ -381,7 +395,8 @@ def run_features(time: np.ndarray, signals: dict, settle_s: float, drive_speed_r
         f, a = amplitude_spectrum(x, fs)
         for ln in LINES:
             out[f"amp_{ln}.{sig}"] = amplitude_near(f, a, _line(cf, ln), 1)
-        for shaft, (enc, teeth, f_key) in SHAFTS.items():
+        for shaft, (enc, _rig_teeth, f_key) in SHAFTS.items():
+            z = teeth[0] if shaft == "pinion" else teeth[1]
             if enc not in signals:
                 continue
             angle = np.asarray(signals[enc], dtype=float)[keep]
@@ -393,7 +408,7 @@ def run_features(time: np.ndarray, signals: dict, settle_s: float, drive_speed_r
                 recs = tsa_records(x, angle, pts, n_rec)
             except ValueError:
                 continue
-            for metric, value in indicators(recs, teeth).items():
+            for metric, value in indicators(recs, z).items():
                 out[f"{metric}_{shaft}.{sig}"] = value
     return out
 

@@ -319,6 +319,9 @@ def _cost_words(cost: float, own: str | None, own_cost: float | None, ref_cost: 
 def choose(scene, tolerance_pct: float, results: dict | None = None) -> Choice:
     """The cheapest choosable setting whose measured error for the closest studied scene is within the
     tolerance (the reference, which always is, when nothing cheaper is)."""
+    if not scene.gear.pair.is_rig:          # the study ran the rig's pair: its errors say nothing of another
+        raise ValueError("the accuracy-cost study was measured on the rig's pair only; a scene with another "
+                         "[gear.pair] sets its numerics itself (remove numerics.tolerance_pct)")
     results = results if results is not None else load_results()
     name = closest_scene(scene, results)
     rows = results["scenes"][name]["rows"]

@@ -40,9 +40,10 @@ from drivetrain.models.shaft import FlexibleShaft, FlexibleShaftParams
 from drivetrain.rig.signals import characteristic_frequencies
 from drivetrain.errors import NativeBuildError, ScenarioError, StartStateError
 from drivetrain.system import ComponentSpec, Connection, SystemSpec
+from gearcontact_fmu.fmu_variables import gear_pair, parameter_values
 from gearcontact_fmu.manufacturing_specs import draw_errors, errors_of
 from gearcontact_fmu.mesh_models import DEFAULT_FIDELITY
-from gearcontact_fmu.params import GEAR_MODEL, BevelGearParams, PCMParams
+from gearcontact_fmu.params import GEAR_MODEL, BevelGearParams
 
 #: Sensor variables per configuration (docs/DRIVETRAIN.md, "Sensors").
 SENSORS_COMMON = {
@@ -67,15 +68,31 @@ def manufacturing_errors(scene, gear: BevelGearParams | None = None):
     if not scene.effects.manufacturing_errors:
         return None
     m = scene.manufacturing
-    return draw_errors(gear or BevelGearParams(), grade=m.grade, seed=m.seed, single_pitch_um=m.single_pitch_um,
+    return draw_errors(gear or scene.gear.pair.params(), grade=m.grade, seed=m.seed, single_pitch_um=m.single_pitch_um,
                        runout_um=m.runout_um, members=tuple(m.members),
                        runout_grade=m.runout_grade, profile=bool(m.profile_errors), profile_um=m.profile_um)
 
 
+# ---- the scene's gear pair ([gear.pair]) as GearContact parameters -------------------------------------------
+#: the GearContact parameters the pair sets: BevelGearParams' fields and the elastic layer's (same names)
+PAIR_LAYER_FIELDS = ("E", "nu", "layer_depth")
+
+
+def pair_parameters(scene) -> dict:
+    """The GearContact parameters of the scene's ``[gear.pair]`` that differ from the FMU's declared defaults
+    (the rig's pair: none, so its assembled system is as it was)."""
+    pair = scene.gear.pair
+    values = {f.name: getattr(pair.params(), f.name) for f in dataclasses.fields(BevelGearParams)}
+    values.update({k: getattr(pair.pcm(), k) for k in PAIR_LAYER_FIELDS})
+    declared = parameter_values()
+    return {k: v for k, v in values.items() if v != declared[k]}
+
+
 def _gear_parameters(scene, part: rig.Partition, max_substep: float) -> dict:
     eff = scene.effects
-    pcm = PCMParams()
+    pcm = scene.gear.pair.pcm()
     p = dict(part.params["gear"])
+    p.update(pair_parameters(scene))
     p.update(fidelity=eff.mesh_contact, health=scene.gear.health, max_substep=float(max_substep),
              profile_element_size=scene.numerics.profile_element_mm * 1e-3,
              face_element_size=scene.numerics.face_element_mm * 1e-3,
@@ -87,8 +104,7 @@ def _gear_parameters(scene, part: rig.Partition, max_substep: float) -> dict:
         p["faults"] = json.dumps([dict(f) for f in scene.gear.faults])
     if eff.tooth_compliance and eff.mesh_contact == "table":      # the analytic pair has it already
         p["tooth_compliance"] = float(scene.tooth_compliance.factor)
-    errors = manufacturing_errors(scene, BevelGearParams(**{f.name: p[f.name] for f in
-                                                             dataclasses.fields(BevelGearParams) if f.name in p}))
+    errors = manufacturing_errors(scene, gear_pair(p))
     if errors is not None:
         p["manufacturing_errors"] = json.dumps(errors.to_dict())
     if scene.gear.pinion_mesh is not None:
@@ -105,19 +121,19 @@ def _gear_parameters(scene, part: rig.Partition, max_substep: float) -> dict:
     return p
 
 
-def initial_mesh_deflection(T_msh: float, fidelity: str) -> float:
+def initial_mesh_deflection(T_msh: float, fidelity: str, gear: BevelGearParams | None = None) -> float:
     """Pinion-referred mesh coordinate s = theta_p - (z2/z1) theta_w of the loaded flank at the steady
     middle-shaft torque (drive flank backlash/2 + T/K_mean; a reversed load, T < 0, loads the coast
     flank: -backlash/2 + T/K_mean); 0 for the ideal gear. The analytic estimate: it brackets the search for
     the mesh model's own static deflection (:func:`start_mesh_model`) and is the start when there is no
-    model to search (``metadata["mesh_start"]``)."""
+    model to search (``metadata["mesh_start"]``); ``gear``: the pair (default the rig's)."""
     if fidelity == "ideal":
         return 0.0
     try:
         from gearcontact_fmu.mesh_models.analytic import mesh_stiffness
-        from gearcontact_fmu.params import BevelGearParams, backlash_angle
+        from gearcontact_fmu.params import backlash_angle
 
-        g = BevelGearParams()
+        g = gear or BevelGearParams()
         half = 0.5 * float(backlash_angle(g))
         return (half if T_msh >= 0.0 else -half) + T_msh / float(mesh_stiffness(g)["K_mean"])
     except Exception:  # pragma: no cover - the gear package decides; a start-up transient only
@@ -171,7 +187,8 @@ def start_wheel_angle(gear: dict, ss, theta_p: float, errors, build_map: bool = 
     :func:`initial_mesh_deflection` brackets the search, and is the start when there is no model to search
     or no load (every position inside the backlash balances: the drive flank's onset, as always)."""
     fidelity = str(gear.get("fidelity", DEFAULT_FIDELITY)).strip().lower()
-    s0 = initial_mesh_deflection(ss.T_msh, fidelity)
+    pair = gear_pair(gear)
+    s0 = initial_mesh_deflection(ss.T_msh, fidelity, pair)
     model, how = start_mesh_model(gear, build_map)
     if ss.T_msh == 0.0:
         model, how = None, "unloaded: at the drive flank's onset"
@@ -182,16 +199,16 @@ def start_wheel_angle(gear: dict, ss, theta_p: float, errors, build_map: bool = 
         k_a = float(gear["k_a"])
         tau_port = k_a * (-ss.T_msh / k_a)             # the port spring's torque on the pinion, as twisted
         try:
-            return balanced_wheel_angle(model, rig.LOWER_RATIO, theta_p, tau_port, ss.w_middle, ss.w_prop,
+            return balanced_wheel_angle(model, pair.ratio, theta_p, tau_port, ss.w_middle, ss.w_prop,
                                         s_guess=s0), how
         except NoPosition as exc:
             raise StartStateError(str(exc)) from exc
-    theta_w = (theta_p - s0) / rig.LOWER_RATIO
+    theta_w = (theta_p - s0) / pair.ratio
     if errors is not None:
         # the errors offset the mesh coordinate by Delta(theta_p, theta_w): start where the offset mesh sits at s0
         from gearcontact_fmu.manufacturing import mesh_offset
 
-        theta_w += mesh_offset(errors, theta_p, theta_w) / rig.LOWER_RATIO
+        theta_w += mesh_offset(errors, theta_p, theta_w, pair) / pair.ratio
     return theta_w, how
 
 
@@ -240,8 +257,9 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
         cal = dict(cal, coupling_scale=float(scene.background.coupling_stiffness_scale))
     elif scene.drivetrain.coupling_scale is not None:
         cal = dict(cal, coupling_scale=float(scene.drivetrain.coupling_scale))
-    part = rig.partition(eff.shaft_flexibility, eff.shaft_elements, cal, losses=eff.losses,
-                         model=machine_model(scene))
+    model = machine_model(scene)      # a named table's bevel element is the scene's pair (the rig's own: the rig's)
+    part = rig.partition(eff.shaft_flexibility, eff.shaft_elements, cal, losses=eff.losses, model=model,
+                         lower_ratio=None if model is None else scene.gear.pair.params().ratio)
     if eff.couplings == "record":
         record_couplings(part, scene.background)
     H = float(num.comm_step_s)
@@ -256,8 +274,10 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     mo.update(drive_load_parameters(scene))
     if eff.drive_control == "record":
         mo.update(Kp=float(scene.background.drive_Kp), Ti=float(scene.background.drive_Ti_s))
-    w_p0 = rig.rpm_to_rad_s(n0) / up["ratio"] / rig.LOWER_RATIO      # the viscous law equals the setting here
-    ss = rig.steady_state(n0, T0, up, mo, load_mode=mo["load_mode"], load_w_nom=w_p0 if w_p0 > 0 else 1.0)
+    pair = scene.gear.pair.params()
+    w_p0 = rig.rpm_to_rad_s(n0) / up["ratio"] / pair.ratio      # the viscous law equals the setting here
+    ss = rig.steady_state(n0, T0, up, mo, load_mode=mo["load_mode"], load_w_nom=w_p0 if w_p0 > 0 else 1.0,
+                          lower_ratio=pair.ratio)
     w = ss.w_drive
     th_motor = 0.0
     th_fw = th_motor - ss.T_dsh / mo["k_c1"]
@@ -306,7 +326,8 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
 
     meta = {
         "sensors": sensor_map(eff.shaft_flexibility),
-        "characteristic": characteristic_frequencies(op.final_speed_rpm, upper_ratio=up["ratio"]),
+        "characteristic": characteristic_frequencies(op.final_speed_rpm, pair.z_pinion, pair.z_wheel,
+                                                     upper_ratio=up["ratio"]),
         "fidelity": {"gear": eff.mesh_contact},
         "partition": {"shafts": part.shafts, "n_elements": part.n_elements if part.shafts == "flexible" else 0,
                       "bodies": part.bodies,
@@ -475,7 +496,7 @@ def _background_values(scene, H: float, ratio_pg: float, where: str) -> np.ndarr
     n_steps = int(round(scene.time.duration_s / H)) + 1
     speed = [list(p) for p in op.speed_profile_rpm] if op.speed_profile_rpm else float(op.drive_speed_rpm)
     torque = background.disturbance(where, scene.effects, n_steps, H, speed, scene.background, scene.noise_name,
-                                    upper_ratio=machine_upper_ratio(scene), lower_ratio=rig.LOWER_RATIO)
+                                    upper_ratio=machine_upper_ratio(scene), lower_ratio=scene.gear.pair.params().ratio)
     if where == "drive":
         return torque
     t = np.arange(n_steps + 1) * H

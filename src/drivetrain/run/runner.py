@@ -118,9 +118,11 @@ class RunResult:
         ``lowpass_Hz``, ``bin_Hz``, ``channel``."""
         if channel not in self.signals:
             raise KeyError(f"no channel {channel!r} in the run (it has {', '.join(self.signals)})")
+        pair = self.scene.gear.pair.params()
         return spectrum_frame(self.time, self.signals[channel], self.scene.time.settle_s,
                               self.scene.time.sample_rate_Hz, self.scene.operating_point.final_speed_rpm,
-                              channel, self.units.get(channel, ""), upper_ratio=_upper_ratio(self.spec))
+                              channel, self.units.get(channel, ""), teeth=(pair.z_pinion, pair.z_wheel),
+                              upper_ratio=_upper_ratio(self.spec))
 
 
 def _upper_ratio(spec: SystemSpec | None) -> float:
@@ -131,13 +133,13 @@ def _upper_ratio(spec: SystemSpec | None) -> float:
 
 
 def spectrum_frame(time_s, x, settle_s: float, fs: float, drive_speed_rpm: float, channel: str = "", unit: str = "",
-                   upper_ratio: float | None = None):
+                   teeth: tuple[int, int] | None = None, upper_ratio: float | None = None):
     """:func:`drivetrain.rig.signals.run_spectrum` as a DataFrame (``RunResult.spectrum``, ``drivetrain.spectrum``)."""
     import pandas as pd
 
     from drivetrain.rig.signals import AMPLITUDE_CONVENTION
 
-    f, A, cf = run_spectrum(time_s, x, settle_s, fs, drive_speed_rpm,
+    f, A, cf = run_spectrum(time_s, x, settle_s, fs, drive_speed_rpm, *([teeth] if teeth else []),
                             **({} if upper_ratio is None else {"upper_ratio": upper_ratio}))
     df = pd.DataFrame({"frequency_Hz": f, "amplitude": A})
     df.attrs.update(units={"frequency_Hz": "Hz", "amplitude": unit}, convention=AMPLITUDE_CONVENTION,
@@ -521,8 +523,10 @@ def torque_spectra(plan: RunPlan, ch: Channels) -> Spectra:
     scene = plan.scene
     m = ch.time >= scene.time.settle_s
     fs = scene.time.sample_rate_Hz
+    pair = scene.gear.pair.params()
     ur = _upper_ratio(plan.spec)
-    out = Spectra(cf=characteristic_frequencies(scene.operating_point.final_speed_rpm, upper_ratio=ur))
+    out = Spectra(cf=characteristic_frequencies(scene.operating_point.final_speed_rpm, pair.z_pinion, pair.z_wheel,
+                                                upper_ratio=ur))
     for name in TORQUE_SENSORS:
         if name not in ch.signals:
             continue
@@ -533,7 +537,7 @@ def torque_spectra(plan: RunPlan, ch: Channels) -> Spectra:
         if len(x) > 16 and out.cf["f_GMF"] > 0:
             try:
                 f, A, _ = run_spectrum(ch.time, ch.signals[name], scene.time.settle_s, fs,
-                                       scene.operating_point.final_speed_rpm, ur)
+                                       scene.operating_point.final_speed_rpm, (pair.z_pinion, pair.z_wheel), ur)
             except ValueError as exc:    # too short for the low-pass (a short or failed run)
                 plan.warnings.append(f"no spectrum of {name}: {exc}")
                 continue

@@ -54,7 +54,7 @@ import numpy as np
 
 from drivetrain.rig.data import RIG_SENSORS, TORQUE_SENSORS, read_measured
 from drivetrain.rig.signals import SPECTRUM_LINE_BINS, amplitude_near, amplitude_spectrum, spectrum_lowpass_Hz
-from drivetrain.scene.schema import SCHEMA
+from drivetrain.scene.schema import RIG_PAIR, SCHEMA
 
 #: Statistics of ``signal.<channel>.<stat>``.
 SIGNAL_STATS = ("mean", "rms", "std", "p2p", "min", "max")
@@ -700,7 +700,9 @@ def parse_checks(raw_expect, raw_check, values: dict, base_dir: Path | str, prob
             from drivetrain.rig.signals import characteristic_frequencies
 
             speed = op["speed_profile_rpm"][-1][1] if op.get("speed_profile_rpm") else op["drive_speed_rpm"]
-            f0 = frequency_value(parsed["freq"], characteristic_frequencies(speed))
+            pair = (values.get("gear") or {}).get("pair")
+            pair = pair.params() if hasattr(pair, "params") else RIG_PAIR.params()     # [gear.pair]'s teeth
+            f0 = frequency_value(parsed["freq"], characteristic_frequencies(speed, pair.z_pinion, pair.z_wheel))
             if not (0.0 < f0 < 0.5 * fs):
                 problems.append((name, spec, f"a frequency between 0 and the Nyquist frequency {0.5 * fs:g} Hz "
                                              f"({parsed['freq']} = {f0:g} Hz at {speed:g} rpm)"))

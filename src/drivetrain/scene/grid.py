@@ -23,8 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivetrain.errors import ScenarioError
-from drivetrain.rig.data import Z_PINION, Z_WHEEL
-from drivetrain.scene.schema import NAME_RE, NAME_RULE, SCHEMA, Scene, default_of
+from drivetrain.scene.schema import NAME_RE, NAME_RULE, PAIR_SCHEMA, SCHEMA, Scene, default_of
 from gearcontact_fmu.fault_specs import (draw_faults, draw_rule_problems, draw_value, loaded_flank, rule_problem,
                                          rule_values)
 
@@ -52,6 +51,20 @@ class Grid:
     growth: dict | None = None
 
 
+def _pair_key(parts: list) -> bool:
+    """``gear.pair.<key>`` split at its dots: a key of the [gear.pair] table."""
+    return len(parts) == 3 and parts[:2] == ["gear", "pair"] and parts[2] in PAIR_SCHEMA
+
+
+def pair_teeth(raw: dict) -> tuple[int, int]:
+    """(z_pinion, z_wheel) of raw scene data's [gear.pair] (the rig's where it gives none, or none usable: the
+    scene's own check refuses a bad one), for the faults a grid draws."""
+    pair = (raw.get("gear") or {}).get("pair") if isinstance(raw.get("gear"), dict) else None
+    pair = pair if isinstance(pair, dict) else {}
+    return tuple(pair[k] if isinstance(pair.get(k), int) and not isinstance(pair.get(k), bool) and pair[k] >= 1
+                 else PAIR_SCHEMA[k].default for k in ("z_pinion", "z_wheel"))
+
+
 def split_grid(raw: dict, src: str) -> Grid | None:
     """Take the ``[sweep]`` table out of raw scene data and check it (None: not a grid file)."""
     grid = raw.pop(GRID_SECTION, None)
@@ -66,7 +79,7 @@ def split_grid(raw: dict, src: str) -> Grid | None:
             problems.append((f"{GRID_SECTION}.{k}", grid[k], "a known key of [sweep]: axes, name, draw, growth"))
     draw, growth = grid.get("draw"), grid.get("growth")
     if draw is not None:
-        problems.extend(_draw_problems(draw))
+        problems.extend(_draw_problems(draw, pair_teeth(raw)))
     if growth is not None:
         problems.extend(_growth_problems(growth))
         if draw is not None:
@@ -79,8 +92,9 @@ def split_grid(raw: dict, src: str) -> Grid | None:
         axes = {}
     for k, vals in axes.items():
         parts = k.split(".")
-        if len(parts) != 2 or parts[0] not in SCHEMA or parts[1] not in SCHEMA[parts[0]]:
-            problems.append((f"{GRID_SECTION}.axes.{k}", vals, "a scene key of the form section.key"))
+        if not (_pair_key(parts) or (len(parts) == 2 and parts[0] in SCHEMA and parts[1] in SCHEMA[parts[0]])):
+            problems.append((f"{GRID_SECTION}.axes.{k}", vals, "a scene key of the form section.key (or "
+                             "gear.pair.<key>)"))
         elif not isinstance(vals, list) or not vals:
             problems.append((f"{GRID_SECTION}.axes.{k}", vals, "a non-empty list of values"))
     template = grid.get("name", None)
@@ -138,7 +152,7 @@ def growth_stages(growth: dict) -> list[tuple[int, float, dict | None]]:
     return out
 
 
-def _draw_problems(draw) -> list:
+def _draw_problems(draw, teeth: tuple[int, int]) -> list:
     """Problems of ``[sweep.draw]``: ``n`` drawn cases per axes combination, ``seed``, and
     ``[[sweep.draw.faults]]`` templates (gearcontact_fmu.fault_specs.draw_rule_problems) and/or a
     ``[sweep.draw.background]`` table (:func:`_background_rule_problems`)."""
@@ -167,7 +181,7 @@ def _draw_problems(draw) -> list:
         return problems
     for i, tpl in enumerate(tpls):
         problems += [(f"{key}.faults[{i}]" + (f".{k}" if k else ""), v, e)
-                     for k, v, e in draw_rule_problems(tpl, Z_PINION, Z_WHEEL)]
+                     for k, v, e in draw_rule_problems(tpl, *teeth)]
     return problems
 
 
@@ -300,9 +314,12 @@ def case_name(template: str, base: str, scene: "Scene", src: str = "") -> str:
             value = base
         else:
             sec, _, k = field.partition(".")
-            if sec not in SCHEMA or k not in SCHEMA[sec]:
+            if _pair_key(field.split(".")):              # {gear.pair.z_wheel}
+                value = scene.gear.pair.as_dict()[field.split(".")[2]]
+            elif sec not in SCHEMA or k not in SCHEMA[sec]:
                 raise bad(f"fields {{base}} or {{section.key}} of scene keys, not {{{field}}}")
-            value = getattr(getattr(scene, sec), k)
+            else:
+                value = getattr(getattr(scene, sec), k)
         try:
             out.append(format(value, spec or ""))
         except (TypeError, ValueError) as exc:
@@ -326,8 +343,11 @@ def _cases(raw: dict, grid: Grid):
     for number, (combo, d) in enumerate(itertools.product(itertools.product(*(grid.axes[k] for k in keys)), draws)):
         case = copy.deepcopy(raw)
         for k, v in zip(keys, combo):
-            sec, key = k.split(".")
-            case.setdefault(sec, {})[key] = v
+            sec, key, *sub = k.split(".")
+            if sub:                                     # gear.pair.<key>: into the [gear.pair] table
+                case.setdefault(sec, {}).setdefault(key, {})[sub[0]] = v
+            else:
+                case.setdefault(sec, {})[key] = v
         if d is not None and draw.get("gearboxes"):
             # each drawn case its own gearbox: manufacturing seed = the case's number in the grid (0, 1, ...)
             case.setdefault("manufacturing", {})["seed"] = number
@@ -337,7 +357,7 @@ def _cases(raw: dict, grid: Grid):
         healthy = copy.deepcopy(case) if d is not None and draw.get("paired_healthy") else None
         if d is not None and draw.get("faults"):
             case.setdefault("gear", {}).update(
-                health="faults", faults=draw_faults(draw["faults"], rng, Z_PINION, Z_WHEEL, flank=_loaded_flank(case)))
+                health="faults", faults=draw_faults(draw["faults"], rng, *pair_teeth(case), flank=_loaded_flank(case)))
         if d is not None and draw.get("background"):
             bg = draw_background(draw["background"], rng_bg)
             case.setdefault("background", {}).update(bg)

@@ -22,17 +22,18 @@ else:  # pragma: no cover
 
 from drivetrain.errors import MISSING as _MISSING
 from drivetrain.errors import ScenarioError
-from drivetrain.rig.data import Z_PINION, Z_WHEEL
 from drivetrain.scene.grid import (GRID_SECTION, apply_grid_overrides, expand, override_value, refuse_swept_overrides,
                                    split_grid)
 from drivetrain.scene.schema import (BASE_UNIT, CHECK_SECTIONS, NAME_RE, NAME_RULE, SCHEMA, SECTION_CLASSES,  # noqa: F401
                                      UNITS, VAR_RE, Key, Scene, all_keys, default_of, dump_toml, schema_markdown)
+from drivetrain.scene.schema import PAIR_SCHEMA, RIG_PAIR, GearPair
 from drivetrain.scene.schema import (FIDELITIES, HEALTH_STATES, SHAFT_MODELS,  # noqa: F401  (re-exported)
                                      EffectsSpec, GearSpec, NumericsSpec, OperatingPoint, OutputSpec, ScenarioInfo,
                                      TimeSpec)
 from drivetrain.system import steps_per_output
 from gearcontact_fmu.fault_specs import health_problems, normalised_spec
 from gearcontact_fmu.mesh_models.base import fidelities_with, supports
+from gearcontact_fmu.pair_check import pair_problems
 
 # --------------------------------------------------------------------------------------------------
 # Value checking
@@ -149,6 +150,8 @@ def _check_value(key: str, spec: Key, value: Any, base_dir: Path, problems) -> A
         return _Series(p, tuple(zip(ts.tolist(), vs.tolist())))
     if t == "table":                    # a lumped torsional model ([drivetrain] parameters), read and checked now
         return _check_table(key, value, base_dir, problems)
+    if t == "pair":                     # [gear.pair]: its own keys (PAIR_SCHEMA); whether it can be made: _check_pair
+        return _check_pair_table(key, value, base_dir, problems)
     if t == "faults":                   # each specification: checked with the health (_check_gear)
         if not isinstance(value, list):
             problems.append((key, value, "an array of tables [[gear.faults]]"))
@@ -202,10 +205,10 @@ def _check_value(key: str, spec: Key, value: Any, base_dir: Path, problems) -> A
 
 
 def _check_table(key: str, value: Any, base_dir: Path, problems) -> Path | None:
-    """A lumped parameter table (rig.lumped_table's layout): its path, read through the checked reader, and a
-    layout the partition maps onto the FMUs (rig.data.layout_problems); every problem named with the file."""
+    """A lumped parameter table (rig.lumped_table's layout): its path, read through the checked reader; every
+    problem named with the file (whether it maps onto the FMUs with the scene's pair: :func:`_check_machine`)."""
     from drivetrain.errors import FileFormatError
-    from drivetrain.rig.data import layout_problems, load_public
+    from drivetrain.rig.data import load_public
 
     if not isinstance(value, str) or not value or "\x00" in value:
         problems.append((key, value, "a CSV file path (a non-empty string without NUL characters)"))
@@ -213,11 +216,40 @@ def _check_table(key: str, value: Any, base_dir: Path, problems) -> Path | None:
     p = Path(value).expanduser()
     p = p if p.is_absolute() else (base_dir / p).resolve()
     try:
-        found = layout_problems(load_public(p))
+        load_public(p)
     except FileFormatError as exc:
-        found = exc.problems
-    problems += [(key, value, f"a lumped parameter table; {pr if str(p) in pr else f'{p}: {pr}'}") for pr in found]
-    return None if found else p
+        problems += [(key, value, f"a lumped parameter table; {pr if str(p) in pr else f'{p}: {pr}'}")
+                     for pr in exc.problems]
+        return None
+    return p
+
+
+def _check_machine(values: dict, problems) -> None:
+    """A named lumped table maps onto the FMUs (rig.data.layout_problems) with the scene's pair: its bevel mesh
+    element at the pair's z1/z2."""
+    from drivetrain.rig.data import layout_problems, load_public
+
+    table = values["drivetrain"].get("parameters")
+    if table in (None, _MISSING) or not _ok(values, "gear", "pair"):
+        return
+    for why in layout_problems(load_public(table), values["gear"]["pair"].params().ratio):
+        problems.append(("drivetrain.parameters", str(table), f"a lumped parameter table the run can map; {table}: {why}"))
+
+
+def _check_pair_table(key: str, value: Any, base_dir: Path, problems) -> GearPair | None:
+    """A ``[gear.pair]`` table: every key known and checked like any scene key; absent keys at the rig's values.
+    None (and the problems recorded) when any is refused."""
+    if not isinstance(value, dict):
+        problems.append((key, value, "a table [gear.pair] of gear data (" + ", ".join(PAIR_SCHEMA) + ")"))
+        return None
+    given, n = {}, len(problems)
+    for k, v in value.items():
+        if k not in PAIR_SCHEMA:
+            problems.append((f"{key}.{k}", v, "a known key of [gear.pair]: " + ", ".join(PAIR_SCHEMA)
+                             + (_unit_hint_in(PAIR_SCHEMA, k) or _suggest(k, PAIR_SCHEMA))))
+            continue
+        given[k] = _check_value(f"{key}.{k}", PAIR_SCHEMA[k], v, base_dir, problems)
+    return GearPair.of(given) if len(problems) == n else None
 
 
 def _suggest(name: str, candidates) -> str:
@@ -227,8 +259,12 @@ def _suggest(name: str, candidates) -> str:
 
 def _unit_hint(section: str, key: str) -> str:
     """For a key that looks like a known key with another unit suffix, say so."""
+    return _unit_hint_in(SCHEMA.get(section, {}), key)
+
+
+def _unit_hint_in(keys: dict, key: str) -> str:
     stem = key.rsplit("_", 1)[0] if "_" in key else key
-    for k, spec in SCHEMA.get(section, {}).items():
+    for k, spec in keys.items():
         if spec.unit and k.rsplit("_", 1)[0] == stem and k != key:
             return f"; wrong unit: the key is {k!r} (unit {spec.unit})"
     return ""
@@ -249,6 +285,8 @@ def resolve(raw: dict, base_dir: Path | str = ".", source: Path | str | None = N
     _fill_defaults(values, problems)
     _check_name(values, source, problems)
     _check_time(values, problems)
+    _check_pair(values, problems)
+    _check_machine(values, problems)
     _check_gear(values, problems)
     _check_effects(values, problems)
     _check_profiles(values, problems)
@@ -354,9 +392,10 @@ def _check_gear(values: dict, problems) -> None:
     then at least one), and a fidelity that models the health state."""
     gr = values["gear"]
     eff = values["effects"]
+    pair = (gr["pair"] if _ok(values, "gear", "pair") else RIG_PAIR).params()     # the teeth the faults sit on
     if _ok(values, "gear", "faults"):       # gearcontact_fmu.fault_specs: the check the FMU makes too
         found = [(f"gear.{k}", _MISSING if v is None else v, e) for k, v, e in health_problems(
-            gr["health"] if _ok(values, "gear", "health") else None, list(gr["faults"]), Z_PINION, Z_WHEEL,
+            gr["health"] if _ok(values, "gear", "health") else None, list(gr["faults"]), pair.z_pinion, pair.z_wheel,
             health_key="gear.health", faults_name="[[gear.faults]] table")]
         problems += found
         gr["faults"] = _MISSING if found else tuple(normalised_spec(f) for f in gr["faults"])
@@ -379,6 +418,22 @@ def _check_gear(values: dict, problems) -> None:
                          "ideal gear has no teeth" if fid == "ideal" else
                          f"{toothed} for gear.health = {gr['health']!r} (the analytic ISO 6336 pair models the "
                          "healthy gear only: it has no fault and cannot read a mesh)"))
+
+
+def _check_pair(values: dict, problems) -> None:
+    """[gear.pair]: a pair that can be made (gearcontact_fmu.pair_check.pair_problems: each refusal with the
+    figure that failed and its limit), before any work; a layer with Poisson's ratio < 0.5."""
+    if not _ok(values, "gear", "pair") or values["gear"]["pair"].is_rig:
+        return
+    pair = values["gear"]["pair"]
+    given = pair.as_dict()
+    if given["nu"] >= 0.5:
+        problems.append(("gear.pair.nu", given["nu"], "a Poisson's ratio < 0.5 (0.5: an incompressible layer has "
+                         "no finite stiffness)"))
+        return
+    for why in pair_problems(pair.params()):
+        problems.append(("gear.pair", "{" + ", ".join(f"{k} = {v!r}" for k, v in given.items()) + "}",
+                         f"a bevel pair that can be made: {why}"))
 
 
 def _check_effects(values: dict, problems) -> None:
@@ -437,18 +492,25 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     if parts[0] == GRID_SECTION:
         raise ScenarioError([(key, value, "a scene key; a grid's [sweep] key (sweep.draw.n, sweep.axes.<section.key>, "
                               "...) changes a grid file (load_scenes, drivetrain sweep), not one scene")])
+    if len(parts) == 3 and parts[:2] == ["gear", "pair"] and parts[2]:      # a key of the [gear.pair] table
+        return parts, override_value(key, value)
     if len(parts) != 2 or not all(parts):
-        raise ScenarioError([(key, value, "a key of the form section.key (e.g. time.duration_s)")])
+        raise ScenarioError([(key, value, "a key of the form section.key (e.g. time.duration_s; gear.pair.z_wheel)")])
     return parts, override_value(key, value)
 
 
 def apply_overrides(raw: dict, overrides: list[str] | tuple[str, ...]) -> dict:
     """Apply ``--set`` strings to raw scene data in place (validation happens in :func:`resolve`)."""
     for text in overrides or ():
-        (section, key), value = parse_override(text)
+        (section, key, *sub), value = parse_override(text)
         tbl = raw.setdefault(section, {})
         if not isinstance(tbl, dict):
             raise ScenarioError([(section, tbl, f"a table [{section}]")])
+        if sub:                             # gear.pair.<key>: into the [gear.pair] table
+            tbl = tbl.setdefault(key, {})
+            if not isinstance(tbl, dict):
+                raise ScenarioError([(f"{section}.{key}", tbl, f"a table [{section}.{key}]")])
+            key = sub[0]
         tbl[key] = value
     return raw
 

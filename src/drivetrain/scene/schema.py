@@ -30,6 +30,7 @@ from gearcontact_fmu.manufacturing_specs import DEFAULT_RUNOUT_GRADE as MANUFACT
 from gearcontact_fmu.manufacturing_specs import GRADES
 from gearcontact_fmu.mesh_models.base import FIDELITIES, HEALTH_STATES, SCHEMES, fidelities_with
 from gearcontact_fmu.params import DEFAULT_COMM_STEP_S, TOOTH_COMPLIANCE_FACTOR, MapGrid, MeshResolution
+from gearcontact_fmu.params import BevelGearParams, PCMParams
 
 # --------------------------------------------------------------------------------------------------
 # Fixed vocabularies
@@ -105,6 +106,99 @@ _INST = Instruments()         # the instrument constants are declared in drivetr
 _BG = Background()            # the background constants, in drivetrain.rig.background
 SENSOR_MODELS = ("ideal", "rig")
 
+# ---- [gear.pair]: the lower bevel pair from its gear data (issue 42) ------------------------------------
+#: each [gear.pair] key: (the library object it sets: "gear" BevelGearParams | "pcm" PCMParams, its field, the
+#: scene unit). The defaults are the library's (the rig's pair), converted to the scene unit, never copied.
+PAIR_FIELDS: dict[str, tuple[str, str, str]] = {
+    "z_pinion": ("gear", "z_pinion", ""), "z_wheel": ("gear", "z_wheel", ""),
+    "module_mm": ("gear", "module", "mm"), "face_width_mm": ("gear", "face_width", "mm"),
+    "pressure_angle_deg": ("gear", "pressure_angle", "deg"), "shaft_angle_deg": ("gear", "shaft_angle", "deg"),
+    "x_pinion": ("gear", "x_pinion", ""), "addendum_coefficient": ("gear", "addendum_coefficient", ""),
+    "dedendum_coefficient": ("gear", "dedendum_coefficient", ""), "backlash_mm": ("gear", "backlash", "mm"),
+    "tip_radius_mm": ("gear", "tip_radius", "mm"),
+    "E_GPa": ("pcm", "E", "GPa"), "nu": ("pcm", "nu", ""), "layer_depth_mm": ("pcm", "layer_depth", "mm"),
+}
+#: scene unit -> (to SI, from SI); the rig's values go there and back exactly (tests/scene/test_gear_pair.py)
+PAIR_UNITS = {"": (lambda v: v, lambda v: v), "mm": (lambda v: v / 1e3, lambda v: v * 1e3),
+              "deg": (math.radians, math.degrees), "GPa": (lambda v: v * 1e9, lambda v: v / 1e9)}
+_PAIR_DEFAULTS = {"gear": BevelGearParams(), "pcm": PCMParams()}
+
+
+def _pair_default(key: str):
+    target, field, unit = PAIR_FIELDS[key]
+    return PAIR_UNITS[unit][1](getattr(_PAIR_DEFAULTS[target], field))
+
+
+#: the [gear.pair] keys: domain checks only; whether the pair can be made is gearcontact_fmu.pair_check's
+PAIR_SCHEMA: dict[str, Key] = {
+    "z_pinion": Key("int", _pair_default("z_pinion"), minimum=1, maximum=1000, doc="teeth of the pinion (driving, on the middle shaft)"),
+    "z_wheel": Key("int", _pair_default("z_wheel"), minimum=1, maximum=1000, doc="teeth of the wheel (on the propeller shaft)"),
+    "module_mm": _f(_pair_default("module_mm"), "mm", "length", "outer transverse module", minimum=0.0,
+                    min_exclusive=True),
+    "face_width_mm": _f(_pair_default("face_width_mm"), "mm", "length", "face width (at most a third of the outer "
+                        "cone distance)", minimum=0.0, min_exclusive=True),
+    "pressure_angle_deg": _f(_pair_default("pressure_angle_deg"), "deg", "", "pressure angle", minimum=0.0,
+                             min_exclusive=True, maximum=45.0),
+    "shaft_angle_deg": _f(_pair_default("shaft_angle_deg"), "deg", "", "angle between the shafts", minimum=0.0,
+                          min_exclusive=True, maximum=180.0),
+    "x_pinion": _f(_pair_default("x_pinion"), "", "", "profile shift coefficient of the pinion; the wheel gets -x_pinion"),
+    "addendum_coefficient": _f(_pair_default("addendum_coefficient"), "", "", "addendum / module at the outer end",
+                               minimum=0.0),
+    "dedendum_coefficient": _f(_pair_default("dedendum_coefficient"), "", "", "dedendum / module at the outer end",
+                               minimum=0.0),
+    "backlash_mm": _f(_pair_default("backlash_mm"), "mm", "length",
+                      "circumferential backlash on the outer pitch circle", minimum=0.0),
+    "tip_radius_mm": _f(_pair_default("tip_radius_mm"), "mm", "length", "rounding radius of the tip edge at the "
+                        "outer end", minimum=0.0),
+    "E_GPa": _f(_pair_default("E_GPa"), "GPa", "", "Young's modulus of the elastic layer (polygonal contact)",
+                minimum=0.0, min_exclusive=True),
+    "nu": _f(_pair_default("nu"), "", "", "Poisson's ratio of the elastic layer; < 0.5", minimum=0.0),
+    "layer_depth_mm": _f(_pair_default("layer_depth_mm"), "mm", "length", "depth of the elastic layer of each body",
+                         minimum=0.0, min_exclusive=True),
+}
+assert set(PAIR_SCHEMA) == set(PAIR_FIELDS)
+
+
+@dataclass(frozen=True)
+class GearPair:
+    """``[gear.pair]`` as the scene gives it, in the keys' units (:data:`PAIR_SCHEMA`; absent keys at the rig's
+    values): :meth:`params` and :meth:`pcm` are the library's objects of it (SI)."""
+
+    values: tuple            # ((key, value), ...) in PAIR_SCHEMA's order
+
+    @classmethod
+    def of(cls, given: dict | None = None) -> "GearPair":
+        given = given or {}
+        return cls(tuple((k, given[k] if k in given else spec.default) for k, spec in PAIR_SCHEMA.items()))
+
+    def as_dict(self) -> dict:
+        return dict(self.values)
+
+    def _objects(self) -> dict:
+        kw: dict = {"gear": {}, "pcm": {}}
+        for key, value in self.values:
+            target, field, unit = PAIR_FIELDS[key]
+            kw[target][field] = PAIR_UNITS[unit][0](value)
+        return kw
+
+    def params(self) -> BevelGearParams:
+        """The pair as ``gearcontact_fmu.params.BevelGearParams`` (SI)."""
+        return dataclasses.replace(_PAIR_DEFAULTS["gear"], **self._objects()["gear"])
+
+    def pcm(self) -> PCMParams:
+        """The elastic layer as ``gearcontact_fmu.params.PCMParams`` (its other fields at their defaults)."""
+        return dataclasses.replace(_PAIR_DEFAULTS["pcm"], **self._objects()["pcm"])
+
+    @property
+    def is_rig(self) -> bool:
+        """The rig's pair and layer (every key at its default)."""
+        return self.params() == _PAIR_DEFAULTS["gear"] and self.pcm() == _PAIR_DEFAULTS["pcm"]
+
+
+#: the rig's pair (every [gear.pair] key at its default)
+RIG_PAIR = GearPair.of()
+
+
 SCHEMA: dict[str, dict[str, Key]] = {
     "scenario": {
         "name": Key("str", None, doc="scene name (used for output files and manifests)",
@@ -156,6 +250,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "pinion_mesh": Key("path", None, doc="OBJ/STL of the pinion (health = \"mesh\"); relative to the scene file"),
         "wheel_mesh": Key("path", None, doc="OBJ/STL of the wheel (health = \"mesh\"; optional, healthy wheel if absent)"),
         "mesh_units": Key("enum", "mm", allowed=MESH_UNITS, doc="length unit of the mesh files"),
+        "pair": Key("pair", RIG_PAIR, doc=(
+            "the lower bevel pair from its gear data: the table [gear.pair] (its keys below); absent keys take "
+            "the rig's values; a pair that cannot be made is refused before any work"),
+            default_doc=f"the rig's {RIG_PAIR.params().z_pinion}/{RIG_PAIR.params().z_wheel} pair"),
     },
     "time": {
         "duration_s": _f(20.0, "s", "time", "simulated time", minimum=0.0, min_exclusive=True),
@@ -488,6 +586,7 @@ class GearSpec:
     pinion_mesh: Path | None             # absolute
     wheel_mesh: Path | None              # absolute
     mesh_units: str
+    pair: GearPair = RIG_PAIR            # [gear.pair]: .params() BevelGearParams, .pcm() PCMParams
 
 
 @dataclass(frozen=True)
@@ -615,6 +714,10 @@ class Scene:
                 if v is None or (section == "operating_point" and f.name == "load_profile_Nm"
                                  and obj.load_series_csv is not None):   # read from the file the scene names
                     continue
+                if isinstance(v, GearPair):      # the rig's pair is not written: its scenes stay as they were
+                    if v.is_rig:
+                        continue
+                    v = v.as_dict()
                 if isinstance(v, Path):
                     v = str(v)
                 elif isinstance(v, tuple):
@@ -693,37 +796,45 @@ def dump_toml(data: dict) -> str:
 
 
 def schema_markdown() -> str:
-    """The key reference table of docs/SCENARIOS.md, generated from SCHEMA."""
+    """The key reference table of docs/SCENARIOS.md, generated from SCHEMA (and [gear.pair]'s PAIR_SCHEMA)."""
     out = []
-    for section, keys in SCHEMA.items():
+    tables = [(section, keys) for section, keys in SCHEMA.items()]
+    tables.insert([s for s, _ in tables].index("gear") + 1, ("gear.pair", PAIR_SCHEMA))
+    for section, keys in tables:
         out.append(f"### [{section}]\n")
         out.append("| key | type | unit | default | allowed values | meaning |")
         out.append("|---|---|---|---|---|---|")
         for key, spec in keys.items():
-            if spec.default_doc:
-                dflt = spec.default_doc
-            elif spec.default is _MISSING:
-                dflt = "required"
-            elif spec.default is None:
-                dflt = "(absent)"
-            else:
-                dflt = "`" + _toml_value(spec.default) + "`"
-            if spec.allowed:
-                allowed = ", ".join(f"`{a}`" for a in spec.allowed)
-            else:
-                rng = []
-                if spec.minimum is not None:
-                    rng.append(f"{'>' if spec.min_exclusive else '>='} {spec.minimum:g}")
-                if spec.maximum is not None:
-                    rng.append(f"<= {spec.maximum:g}")
-                allowed = " and ".join(rng)
-                if not allowed and spec.type in ("float", "profile"):
-                    allowed = "any finite value (negative allowed)"
-            typ = {"table": "str (path to a CSV)", "faults": "array of tables", "str_list": "list of str", "var_list": "list of str", "profile": "list of [float, float]",
-                   "path": "str (path)", "series": "str (path to a CSV)", "enum": "str"}.get(spec.type, spec.type)
-            out.append(f"| `{key}` | {typ} | {spec.unit or '–'} | {dflt} | {allowed or '–'} | {spec.doc} |")
+            out.append(_key_row(key, spec))
         out.append("")
     return "\n".join(out)
+
+
+def _key_row(key: str, spec: Key) -> str:
+    """One key's row of the key reference table."""
+    if spec.default_doc:
+        dflt = spec.default_doc
+    elif spec.default is _MISSING:
+        dflt = "required"
+    elif spec.default is None:
+        dflt = "(absent)"
+    else:
+        dflt = "`" + _toml_value(spec.default) + "`"
+    if spec.allowed:
+        allowed = ", ".join(f"`{a}`" for a in spec.allowed)
+    else:
+        rng = []
+        if spec.minimum is not None:
+            rng.append(f"{'>' if spec.min_exclusive else '>='} {spec.minimum:g}")
+        if spec.maximum is not None:
+            rng.append(f"<= {spec.maximum:g}")
+        allowed = " and ".join(rng)
+        if not allowed and spec.type in ("float", "profile"):
+            allowed = "any finite value (negative allowed)"
+    typ = {"table": "str (path to a CSV)", "faults": "array of tables", "pair": "table", "str_list": "list of str", "var_list": "list of str",
+           "profile": "list of [float, float]", "path": "str (path)", "series": "str (path to a CSV)",
+           "enum": "str"}.get(spec.type, spec.type)
+    return f"| `{key}` | {typ} | {spec.unit or '–'} | {dflt} | {allowed or '–'} | {spec.doc} |"
 
 
 def all_keys() -> list[str]:

@@ -107,7 +107,7 @@ def test_faults_sit_on_the_pairs_teeth():
 
 def test_a_grid_draws_faults_on_the_pairs_teeth(tmp_path):
     f = tmp_path / "g.toml"
-    f.write_text('[gear.pair]\nz_pinion = 31\nz_wheel = 62\nmodule_mm = 2.0\n[time]\nduration_s = 1.0\n'
+    f.write_text('[gear.pair]\nz_pinion = 31\nz_wheel = 62\nmodule_mm = 2.0\nface_width_mm = 20.0\n[time]\nduration_s = 1.0\n'
                  '[sweep.draw]\nn = 40\nseed = 3\n'
                  '[[sweep.draw.faults]]\nkind = "missing_tooth"\nmember = "pinion"\ntooth = "any"\n')
     scenes = scene_load.load_scenes(f)

@@ -149,3 +149,25 @@ def test_a_thruster_of_its_own_runs_at_its_torque_balance():
     assert ss["T_psh"] > 8 * 2.0 and ss["T_dsh"] > ss["T_psh"] / 8       # the losses, on top of the ideal ratios
     assert res.summary["f_GMF"] == pytest.approx(150.0, rel=1e-12)
     assert res.spec.metadata["cosim_spectral_radius"] <= 1.0
+
+
+def test_a_named_tables_bevel_element_is_the_scenes_pair(tmp_path):
+    """With another pair ([gear.pair] 20/40), a named table's bevel element must be that pair's z1/z2 = 1/2: the rig's
+    table (1/4 there) is refused naming both ratios; the same table at 1/2 runs its propeller side in the frame
+    1/3 x 1/2 = 1/6 (the wheel's own inertia the table's node 18 body, whatever the frame)."""
+    from drivetrain.errors import ScenarioError
+
+    pair = ROOT / "scenarios" / "other_gearboxes" / "pair_20_40_m4.toml"
+    rig_copy = tmp_path / "rig.csv"
+    rig_copy.write_text(rig.PUBLIC_CSV.read_text())
+    with pytest.raises(ScenarioError) as ei:
+        load_scene(pair, [f'drivetrain.parameters="{rig_copy}"'])
+    assert "element 17 (the bevel mesh) has ratio_next = 0.25; the gear pair's z1/z2 = 0.5" in str(ei.value)
+    half = tmp_path / "half.csv"
+    half.write_text(rig.PUBLIC_CSV.read_text().replace("17,0.000269,0.0031,44300,1.88,0.25",
+                                                       "17,0.000269,0.0031,44300,1.88,0.5"))
+    spec = assemble(load_scene(pair, [f'drivetrain.parameters="{half}"']), check=False)
+    base = assemble(load_scene(pair), check=False)
+    g, g0 = spec.components_of("GearContact")[0].parameters, base.components_of("GearContact")[0].parameters
+    assert g["J_wheel"] == pytest.approx(g0["J_wheel"], rel=1e-9) and g["k_b"] == pytest.approx(g0["k_b"], rel=1e-9)
+    assert spec.metadata["steady_state"]["w_prop"] == pytest.approx(rig.rpm_to_rad_s(1500.0) / 3 / 2, rel=1e-12)

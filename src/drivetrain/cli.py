@@ -201,7 +201,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
         op = scene.operating_point
         print(f"  operating point: {op.final_speed_rpm:g} rpm, "
-              + (load_text(op.load_profile_Nm[-1][1], profile=True) if op.load_profile_Nm else load_text(op.load_torque_Nm)))
+              + (load_text(op.load_profile_Nm[-1][1], profile=True, ratio=scene.drivetrain.load_gear_ratio)
+                 if op.load_profile_Nm else load_text(op.load_torque_Nm, ratio=scene.drivetrain.load_gear_ratio)))
         for name, st in s["torque"].items():
             print(f"  {name}: mean {st['mean']:.4g} N·m, RMS {st['rms']:.4g} N·m")
         print(f"  f_DSH {s['f_DSH']:.4g} Hz, f_MSH {s['f_MSH']:.4g} Hz, f_PSH {s['f_PSH']:.4g} Hz, "
@@ -260,10 +261,23 @@ def _cmd_eigen(args: argparse.Namespace) -> int:
     from drivetrain.scene.load import ScenarioError, load_scene
     from drivetrain.models.stability import check_cuts
 
+    from drivetrain.errors import FileFormatError
+    from drivetrain.models.eigen import chain_modes
+    from drivetrain.rig.data import load_public
+
+    table = Path(args.parameters).resolve() if args.parameters else None
+    if args.scene is None and table is None:
+        return _scene_errors(ValueError("drivetrain eigen: give a scene file, or --parameters TABLE (or both)"))
     try:
-        scene = load_scene(args.scene, overrides=list(args.set or ()))
-    except ScenarioError as exc:
+        if args.scene is None:                 # a table alone: its own chain, whatever its layout
+            _print_chain_modes(table, chain_modes(load_public(table), args.modes))
+            return 0
+        sets = list(args.set or ()) + ([f"drivetrain.parameters={json.dumps(str(table))}"] if table else [])
+        scene = load_scene(args.scene, overrides=sets)
+    except (ScenarioError, FileFormatError) as exc:
         return _scene_errors(exc)
+    if scene.drivetrain.parameters is not None:
+        _print_chain_modes(scene.drivetrain.parameters, chain_modes(load_public(scene.drivetrain.parameters), args.modes))
     spec = assemble(scene, check=False)
     rows = describe_modes(spec, args.modes)
     eff = scene.effects
@@ -285,6 +299,16 @@ def _cmd_eigen(args: argparse.Namespace) -> int:
     print(f"  whole co-simulated system: spectral radius {rho:.6f} "
           f"({'stable' if rho <= 1 + 1e-9 else 'UNSTABLE'})")
     return 0
+
+
+def _print_chain_modes(table, rows: list[dict]) -> None:
+    """``drivetrain eigen``: the modes of a lumped table's own chain (models.eigen.chain_modes)."""
+    print(f"modes of the lumped table {table} (its chain as written, referred to node 1, free-free, gears rigid "
+          "at their ratios; zeta: the table's dampings projected on the mode)")
+    print(f"{'mode':>4} {'f [Hz]':>10} {'zeta':>8}  largest strain / kinetic energy")
+    for r in rows:
+        print(f"{r['mode']:>4} {r['f_Hz']:>10.2f} {r['zeta']:>8.3f}  element {r['strain_element']} "
+              f"({100 * r['strain_share']:.0f} %) / node {r['kinetic_node']} ({100 * r['kinetic_share']:.0f} %)")
 
 
 def _calibrate_record(args: argparse.Namespace) -> int:
@@ -978,9 +1002,11 @@ def _parser_export_ssp(sub) -> None:
 
 def _parser_eigen(sub) -> None:
     p = sub.add_parser("eigen", help="natural frequencies of the assembled, linearised drivetrain")
-    p.add_argument("scene", help="scene file (.toml)")
+    p.add_argument("scene", nargs="?", help="scene file (.toml); without it, --parameters alone")
     p.add_argument("--set", action="append", metavar="KEY=VALUE", help="override a scene key")
     p.add_argument("--modes", type=_positive_int, default=12, help="how many modes to list (default 12)")
+    p.add_argument("--parameters", metavar="TABLE", help="a lumped parameter table (the layout of "
+                   "testbench_lumped_parameters.csv): its own modes; with a scene, the scene's drivetrain.parameters")
     p.set_defaults(func=_cmd_eigen)
 
 def _parser_calibrate(sub) -> None:

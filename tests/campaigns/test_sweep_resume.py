@@ -211,3 +211,18 @@ def test_an_interrupted_dask_sweep_cancels_instead_of_failing(tmp_path, full_swe
     with pytest.raises(KeyboardInterrupt):
         S.run_sweep(load_scenes(grid), tmp_path / "sw", address="local", fmu_dir=fmu_dir, progress=False)
     assert calls == [("shutdown", False), ("close",)]
+
+
+def test_the_fingerprint_covers_the_machines_table(tmp_path):
+    """A scene naming a lumped table ([drivetrain] parameters): an edited table (same path) is another computation."""
+    import drivetrain.campaigns.sweep as S
+    from drivetrain.rig.data import PUBLIC_CSV
+    from drivetrain.scene.load import load_scene
+
+    table = tmp_path / "machine.csv"
+    table.write_text(PUBLIC_CSV.read_text())
+    scene = load_scene(ROOT / "scenarios" / "example.toml", [f'drivetrain.parameters="{table}"'])
+    a = S.fingerprint(scene)
+    assert S.fingerprint(scene) == a != S.fingerprint(load_scene(ROOT / "scenarios" / "example.toml"))
+    table.write_text(PUBLIC_CSV.read_text().replace("22,0.0495", "22,0.0496"))
+    assert S.fingerprint(scene) != a

@@ -157,6 +157,7 @@ _BAD_VALUES = {
     "var_list": ['["no_dot"]', '["gear.%n"]', '"x"'],
     "profile": ["[[0.0]]", "[[1.0, 0.0], [0.0, 1.0]]", '"x"', '[[0.0, "a"]]'],
     "path": ['"/nonexistent/x.obj"', "1", '"%n%s.obj"'],
+    "table": ['"/nonexistent/x.csv"', "1", '"%n%s.csv"', '"."'],
 }
 # legitimate settings among them: free text, a drive held at standstill, a reversed or zero load, no
 # settling time
@@ -181,7 +182,9 @@ _LEGITIMATE = {("scenario.description", '"a/b"'), ("scenario.description", '".."
                ("background.orders_speed_exponent", "0"), ("background.order_msh_1x_exponent", "0"),
                ("background.order_msh_2x_exponent", "0"), ("background.order_dsh_1x_exponent", "0"),
                ("background.order_dsh_2x_exponent", "0"), ("background.coupling_damping_scale", "0"),
-               ("background.propeller_damping_scale", "0")}
+               ("background.propeller_damping_scale", "0"),
+               # a load motor without rotor inertia (the rig's default)
+               ("drivetrain.load_motor_J_kgm2", "0")}
 
 
 def _scene_key_cases():

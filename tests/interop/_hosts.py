@@ -23,6 +23,13 @@ ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "scenarios" / "example.toml"
 SHORT = ["time.duration_s=0.5", "time.settle_s=0", "outputs.plots=false"]
 TORQUES = ("drive_shaft_torque", "propeller_shaft_torque")
+#: the example scene on another machine (issue 42): its lumped table and a drive tuned for it
+ANOTHER_MACHINE = [f'drivetrain.parameters="{ROOT / "scenarios" / "other_gearboxes" / "heavy_propeller_machine.csv"}"',
+                   "drivetrain.drive_Kp=0.2"]
+#: ... and on a chain of its own (not the rig's layout: 9 nodes, rigid shafts, 3 FMUs)
+ANOTHER_CHAIN = [f'drivetrain.parameters="{ROOT / "scenarios" / "other_gearboxes" / "thruster_machine.csv"}"',
+                 'effects.shaft_flexibility="rigid"', "drivetrain.drive_Kp=0.5", "drivetrain.drive_Ti_s=0.3",
+                 "drivetrain.drive_torque_limit_Nm=30"]
 
 
 def torque_refs(scene) -> dict[str, list[str]]:

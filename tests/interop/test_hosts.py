@@ -4,7 +4,7 @@
   libtbb12 and the unzip command), and
 - the four FMUs in an FMU container (``drivetrain.interop.container``, FMU Manipulation Toolbox) run by fmpy,
 
-each against our master on the example scene over 0.5 s, steady and on a start-up ramp: mean and RMS
+each against our master on the example scene over 0.5 s, steady, on a start-up ramp and on another machine (its lumped table, issue 42): mean and RMS
 of the drive-shaft and propeller-shaft torque transducers within 1e-4 relative. Ecos sets the
 parameters after entering initialization mode and passes the outputs it reads there to the connected
 inputs: the drive motor must be at its operating point after the first step (it once ran at 1 rad/s
@@ -21,7 +21,8 @@ import textwrap
 
 import numpy as np
 import pytest
-from _hosts import EXAMPLE, SHORT, TORQUES, assert_matches, master_torques, run_host, schedule, torque_refs
+from _hosts import (ANOTHER_CHAIN, ANOTHER_MACHINE, EXAMPLE, SHORT, TORQUES, assert_matches, master_torques, run_host, schedule,
+                    torque_refs)
 
 from drivetrain.run.runner import assemble_scene
 from drivetrain.scene.load import load_scene
@@ -30,7 +31,8 @@ from drivetrain.scene.load import load_scene
 RAMP = ["operating_point.speed_profile_rpm=[[0.0, 0.0], [0.3, 1500.0]]"]
 
 
-@pytest.fixture(scope="module", params=[[], RAMP], ids=["steady", "startup_ramp"])
+@pytest.fixture(scope="module", params=[[], RAMP, ANOTHER_MACHINE, ANOTHER_CHAIN],
+                ids=["steady", "startup_ramp", "another_machine", "another_chain"])
 def system(request, tmp_path_factory, fmu_dir):
     """The short example scene (steady, or a start-up ramp 0 -> 1500 rpm in 0.3 s: the speed profile as
     MotorLoad's parameter), its assembled system and our master's torques."""

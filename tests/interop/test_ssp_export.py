@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from _hosts import assert_matches, master_torques, run_host, schedule, torque_refs
+from _hosts import ANOTHER_CHAIN, ANOTHER_MACHINE, assert_matches, master_torques, run_host, schedule, torque_refs
 
 from drivetrain.errors import ConfigurationError
 from drivetrain.run.runner import assemble_scene
@@ -269,8 +269,9 @@ _LIBCOSIM = textwrap.dedent("""
 
 
 @pytest.mark.hosts
-@pytest.mark.parametrize("overrides", [[], ["operating_point.speed_profile_rpm=[[0.0, 0.0], [0.3, 1500.0]]"]],
-                         ids=["steady", "startup_ramp"])
+@pytest.mark.parametrize("overrides", [[], ["operating_point.speed_profile_rpm=[[0.0, 0.0], [0.3, 1500.0]]"],
+                                       ANOTHER_MACHINE, ANOTHER_CHAIN],
+                         ids=["steady", "startup_ramp", "another_machine", "another_chain"])
 def test_the_ssp_runs_in_libcosim_as_in_our_master(overrides, fmu_dir, tmp_path):
     pytest.importorskip("libcosimpy")
     scene = load_scene(EXAMPLE, SHORT + overrides)

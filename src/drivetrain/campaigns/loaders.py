@@ -246,6 +246,17 @@ def _final_speed(value, profile) -> float:
     return float(value)
 
 
+def _run_upper_ratio(h: dict) -> float | None:
+    """The upper gearbox's ratio a stored run was made with (its summary's characteristic frequencies: the
+    machine's lumped table, issue 42), None when the file does not say (the rig's)."""
+    try:
+        ratio = json.loads(h["attrs"].get("summary_json") or "{}")["characteristic_frequencies"]["upper_ratio"]
+    except (ValueError, KeyError, TypeError):
+        return None
+    ok = isinstance(ratio, (int, float)) and not isinstance(ratio, bool) and 0 < ratio < float("inf")
+    return float(ratio) if ok else None
+
+
 def spectrum(source, channel: str, run: str | None = None):
     """The amplitude spectrum of a loaded run's channel, as ``RunResult.spectrum`` and the run's plots compute it
     (rig.signals.run_spectrum): ``source`` a run's directory or its ``signals.h5``, or a DataFrame of
@@ -269,7 +280,8 @@ def spectrum(source, channel: str, run: str | None = None):
                               float(h["attrs"]["sample_rate_Hz"]),
                               _final_speed(op.get("drive_speed_rpm"), op.get("speed_profile_rpm")), channel,
                               str(h["units"].get(channel, "")),
-                              teeth=label_teeth({f"gear.pair.{k}": v for k, v in pair.items()}))
+                              teeth=label_teeth({f"gear.pair.{k}": v for k, v in pair.items()}),
+                              upper_ratio=_run_upper_ratio(h))
     df = source
     if run is not None:
         df = df[df["run"] == run]

@@ -112,6 +112,10 @@ def fingerprint(scene: Scene, fmu_paths: dict | None = None) -> str:
 
     text = json.dumps(jsonable(scene.to_dict()), sort_keys=True, default=str)
     h = hashlib.sha256(f"{text}|{__version__}|{sources_hash()}".encode())
+    table = scene.drivetrain.parameters          # the machine's lumped table: its content, not only its path
+    if table is not None:
+        st = os.stat(table)
+        h.update(f"|table:{_content_digest(str(table), st.st_mtime_ns, st.st_size)}".encode())
     for model, path in sorted((fmu_paths or {}).items()):
         st = os.stat(path)
         h.update(f"|{model}:{_content_digest(str(path), st.st_mtime_ns, st.st_size)}".encode())

@@ -23,7 +23,7 @@ import numpy as np
 from drivetrain.models.components import COMPONENTS, make_component
 
 from drivetrain.models.line import loss_slope
-from drivetrain.rig.data import default_parameters
+from drivetrain.rig.data import PublicModel, default_parameters, public_matrices
 from drivetrain.system import SPRING, SystemSpec
 from gearcontact_fmu.mesh_models import DEFAULT_FIDELITY
 from gearcontact_fmu.mesh_models.analytic import mesh_stiffness
@@ -465,4 +465,34 @@ def describe_modes(spec: SystemSpec, n_modes: int = 10, gear: str = "auto") -> l
         out.append({"mode": m + 1, "f_Hz": float(f[m]), "zeta": zm, "overdamped": over,
                     "strain": springs[si][0], "strain_share": float(se[si] / se.sum()),
                     "kinetic": ls.labels[ki], "kinetic_share": float(ke[ki] / ke.sum())})
+    return out
+
+
+# ------------------------------------------------------------------------------------------------
+# The modes of a lumped table itself (any chain: the rig's or another machine's, unpartitioned)
+# ------------------------------------------------------------------------------------------------
+
+def chain_modes(model: PublicModel, n_modes: int | None = None) -> list[dict]:
+    """The modes of a lumped torsional chain (``drivetrain.rig.data.PublicModel``: a table's nodes and elements,
+    as read by ``load_public``), referred to its first node, free-free (the rigid-body mode removed), every mesh
+    and gear rigid at its ratio: per mode the undamped natural frequency ``f_Hz``, the damping ratio ``zeta``
+    of the table's dampings (projected on the undamped mode: ``c_m / (2 w_m)``, mass-normalised), the node of
+    the largest kinetic energy ``kinetic_node`` (1-based) and its share, the element of the largest strain
+    energy ``strain_element`` and its share."""
+    from scipy.linalg import eigh
+
+    M, K, C = public_matrices(model)
+    w2, V = eigh(K, M)                      # mass-normalised: V.T M V = I
+    keep = w2 > (2 * math.pi * 0.05) ** 2
+    w2, V = w2[keep], V[:, keep]
+    R2 = model.R[1:] ** 2
+    out = []
+    for m in range(len(w2) if n_modes is None else min(n_modes, len(w2))):
+        x = V[:, m]
+        wn = math.sqrt(w2[m])
+        ke = np.diag(M) * x ** 2
+        se = np.asarray(model.k) * R2 * np.diff(x) ** 2
+        out.append({"mode": m + 1, "f_Hz": wn / (2 * math.pi), "zeta": float(x @ C @ x) / (2 * wn),
+                    "kinetic_node": int(np.argmax(ke)) + 1, "kinetic_share": float(ke.max() / ke.sum()),
+                    "strain_element": int(np.argmax(se)) + 1, "strain_share": float(se.max() / se.sum())})
     return out

@@ -15,7 +15,7 @@ from drivetrain.errors import ComponentError
 from drivetrain.models.line import Law, LineComponent, LineModel, Port, check_parameters
 from drivetrain.models.parameters import (energy_correction_parameter, max_substep_parameter, node_start_parameter,
                                           output_torque_parameter, parameter, parse_profile, rig_parameter)
-from drivetrain.rig.data import RAD_S_PER_RPM
+from drivetrain.rig.data import LOAD_LAWS, RAD_S_PER_RPM, RIG_DRIVE_LOAD as _DL
 from drivetrain.system import INERTIA, SPRING
 
 RPM = RAD_S_PER_RPM      #: rad/s per rpm (``rig.data.rpm_to_rad_s(1.0)``)
@@ -43,22 +43,22 @@ class MotorLoadParams:
     k_c2: float = rig_parameter("MotorLoad", "k_c2", "N.m/rad",
                      "stiffness of elastomer coupling C2 (drive flywheel - flange drive; the port spring)")
     d_c2: float = rig_parameter("MotorLoad", "d_c2", "N.m.s/rad", "damping of coupling C2")
-    Kp: float = parameter(0.1, "N.m.s/rad", "speed controller proportional gain")
-    Ti: float = parameter(0.4, "s", "speed controller integral time")
-    Ni: float = parameter(0.9, "1", "anti-windup gain of the controller (LimPID back-calculation)")
-    tau_max: float = parameter(10.0, "N.m", "drive motor torque limit")
+    Kp: float = parameter(_DL.drive_Kp, "N.m.s/rad", "speed controller proportional gain")
+    Ti: float = parameter(_DL.drive_Ti_s, "s", "speed controller integral time")
+    Ni: float = parameter(_DL.drive_Ni, "1", "anti-windup gain of the controller (LimPID back-calculation)")
+    tau_max: float = parameter(_DL.drive_torque_limit_Nm, "N.m", "drive motor torque limit")
     J_load: float = rig_parameter("MotorLoad", "J_load", "kg.m2",
                        "propeller-shaft side inertia (flywheel / propeller mass), propeller-shaft frame")
-    J_load_motor: float = parameter(0.0, "kg.m2", "load motor rotor inertia (referred through ratio_pg^2)")
-    ratio_pg: float = parameter(8.0, "1", "planetary gearbox ratio load motor speed / propeller-shaft speed (8 on the rig)")
+    J_load_motor: float = parameter(_DL.load_motor_J_kgm2, "kg.m2", "load motor rotor inertia (referred through ratio_pg^2)")
+    ratio_pg: float = parameter(_DL.load_gear_ratio, "1", "planetary gearbox ratio load motor speed / propeller-shaft speed (8 on the rig)")
     pg_c: float = rig_parameter("MotorLoad", "pg_c", "N.m.s/rad", "planetary loss law: viscous coefficient")
     pg_Tc: float = rig_parameter("MotorLoad", "pg_Tc", "N.m", "planetary loss law: Coulomb torque level")
     pg_wc: float = rig_parameter("MotorLoad", "pg_wc", "rad/s", "planetary loss law: regularisation speed")
     pg_a: float = rig_parameter("MotorLoad", "pg_a", "1", "planetary loss law: load-dependent share")
-    load_mode: int = parameter(0, None, "load motor law: 0 = torque setting (the rig; regularised below load_w_reg so "
+    load_mode: int = parameter(LOAD_LAWS.index(_DL.load_law), None, "load motor law: 0 = torque setting (the rig; regularised below load_w_reg so "
                                  "that it brakes but never drives), 1 = viscous torque equal to the setting at "
                                  "load_w_nom (the paper)", min=0, max=1)
-    load_w_reg: float = parameter(0.05, "rad/s", "load_mode 0: speed below which the load torque is regularised")
+    load_w_reg: float = parameter(_DL.load_w_reg_rad_s, "rad/s", "load_mode 0: speed below which the load torque is regularised")
     load_w_nom: float = parameter(1.0, "rad/s", "load_mode 1: speed at which the viscous load equals the setting")
     speed_profile: str = parameter("", None, "drive speed reference over time as 't0:v0; t1:v1; ...' [s:rpm], linear "
                                       "between points; empty = the speed_ref_rpm input")

@@ -2,7 +2,7 @@
 calibrated losses and coupling stiffness, and the steady state (the cut checks: ``drivetrain.models.stability``).
 
 Sources: ``data/testbench_lumped_parameters.csv`` (Manngard et al. 2022, public model of the same
-bench), ``data/calibration.json`` (written by ``drivetrain calibrate``; losses fitted to
+bench; another machine's table in its layout: a scene's ``[drivetrain] parameters``, :func:`partition`'s ``model``), ``data/calibration.json`` (written by ``drivetrain calibrate``; losses fitted to
 ``data/measured_mean_torques.csv``, elastomer stiffness fitted to the measured 24 Hz mode).
 Why the partition is what it is: docs/DRIVETRAIN.md.
 
@@ -20,10 +20,13 @@ import functools
 import json
 import math
 from dataclasses import dataclass, field
+from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
 
+from drivetrain.errors import ConfigurationError
+from drivetrain.rig.lumped_table import read_lumped_table
 from gearcontact_fmu.params import GEAR_MODEL, BevelGearParams
 
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -73,6 +76,26 @@ PAPER_LOADS_NM = (0.12, 0.71, 1.31)
 PAPER_MAX_SPEED_RPM = PAPER_SPEEDS_RPM[-1]      #: 1500 rpm
 PAPER_MAX_LOAD_NM = PAPER_LOADS_NM[-1]          #: 1.31 N·m
 
+
+@dataclass(frozen=True)
+class DriveLoad:
+    """The drive's speed controller and the load motor as the rig runs them: the defaults of the scene's
+    ``[drivetrain]`` keys and of MotorLoad's parameters (declared here once)."""
+
+    drive_Kp: float = 0.1                  #: N m s/rad, proportional gain of the PI speed controller
+    drive_Ti_s: float = 0.4                #: s, its integral time (a ~2 Hz speed loop; assumed, not identified)
+    drive_Ni: float = 0.9                  #: anti-windup gain (LimPID back-calculation)
+    drive_torque_limit_Nm: float = 10.0    #: the drive motor's torque limit
+    load_law: str = "torque"               #: the load motor's law: one of LOAD_LAWS
+    load_w_reg_rad_s: float = 0.05         #: torque law: propeller-shaft speed below which the setting is regularised
+    load_gear_ratio: float = PG_RATIO      #: the planetary between the load motor and the propeller shaft
+    load_motor_J_kgm2: float = 0.0         #: the load motor's rotor inertia (referred through load_gear_ratio^2)
+
+
+#: the load motor's laws, in the order of MotorLoad's ``load_mode`` (0 torque setting, 1 viscous)
+LOAD_LAWS = ("torque", "viscous")
+RIG_DRIVE_LOAD = DriveLoad()
+
 FALLBACK_CALIBRATION = {
     "coupling_scale": 0.70,
     "upper": {"c_v": 1.5e-3, "T_c": 0.34, "w_c": 16.9, "a": 0.058},
@@ -102,15 +125,106 @@ class PublicModel:
 
 
 def load_public(path: str | Path | None = None) -> PublicModel:
-    rows = [r for r in csv.reader(open(path or PUBLIC_CSV, newline="")) if r and not r[0].lstrip().startswith("#")]
-    hdr, body = rows[0], rows[1:]
-    col = {h: i for i, h in enumerate(hdr)}
-    J = np.array([float(r[col["J_kgm2"]]) for r in body])
-    cext = np.array([float(r[col["c_ext_Nms_per_rad"]]) for r in body])
-    k = np.array([float(r[col["k_next_Nm_per_rad"]]) for r in body[:-1]])
-    c = np.array([float(r[col["c_next_Nms_per_rad"]]) for r in body[:-1]])
-    ratio = np.array([float(r[col["ratio_next"]]) for r in body[:-1]])
-    return PublicModel(J, cext, k, c, ratio)
+    """The lumped model of a table in the layout of ``data/testbench_lumped_parameters.csv`` (``path``; default:
+    that shipped table, the rig's), read checked (:func:`drivetrain.rig.lumped_table.read_lumped_table`:
+    FileFormatError naming the file, the row and what was wrong)."""
+    t = read_lumped_table(path or PUBLIC_CSV)
+    return PublicModel(t["J"], t["c_ext"], t["k"], t["c"], t["ratio"])
+
+
+# ---- another machine's table: the places the partition maps onto the four FMUs ------------------------
+
+#: the rig's layout, which the partition maps onto the FMUs by place: nodes, and the geared elements
+RIG_LAYOUT_NODES = 22
+
+
+def tooth_ratio(ratio: float) -> Fraction:
+    """A table's speed ratio as the ratio of whole numbers it is written for: the nearest fraction with a
+    denominator up to 1000 when within 1e-9 of it (``0.3333333333`` -> 1/3), else the number itself.
+    The components' frames use it (the rig's 3 and 12 exactly)."""
+    frac = Fraction(float(ratio)).limit_denominator(1000)
+    return frac if abs(float(frac) - ratio) <= 1e-9 * abs(ratio) else Fraction(float(ratio))
+
+
+def layout_problems(model: PublicModel, lower_ratio: float | None = None) -> list[str]:
+    """Why ``model`` cannot be partitioned into the drivetrain FMUs ([] if it can). A table of 22 nodes is in the
+    rig's layout (docs/DRIVETRAIN.md): element 12 the upper gearbox (any ratio), element 17 the bevel mesh (the
+    pair's z1/z2), every other element ratio 1, the rig's places; any other chain has its places found from its
+    ratios (:func:`chain_places`)."""
+    n = len(model.J)
+    if n != RIG_LAYOUT_NODES:                # another chain: its places from its ratios (chain_places)
+        return [f"{p} (a table of {n} nodes: docs/DRIVETRAIN.md, 'Another machine'; `drivetrain eigen --parameters "
+                "FILE` reports the modes of any chain)" for p in chain_places(model, lower_ratio)[1]]
+    out = []
+    want = Z_PINION / Z_WHEEL if lower_ratio is None else 1.0 / lower_ratio
+    r17 = float(model.ratio[GEAR_ELEMENT_LOWER - 1])
+    if abs(r17 - want) > 1e-9 * want:
+        out.append(f"element {GEAR_ELEMENT_LOWER} (the bevel mesh) has ratio_next = {r17:.10g}; the gear pair's "
+                   f"z1/z2 = {want:.10g}")
+    odd = [i + 1 for i, r in enumerate(model.ratio) if i + 1 not in (GEAR_ELEMENT_UPPER, GEAR_ELEMENT_LOWER)
+           and r != 1.0]
+    if odd:
+        out.append(f"element(s) {', '.join(map(str, odd))} have ratio_next != 1; in the rig's layout only elements "
+                   f"{GEAR_ELEMENT_UPPER} (upper gearbox) and {GEAR_ELEMENT_LOWER} (bevel mesh) are geared")
+    return out
+
+
+@dataclass(frozen=True)
+class Places:
+    """Where the components sit in a lumped table (public node and element numbers): the drive motor, the drive
+    flywheel, the upper gearbox's body (its first node), the upper gearbox's geared element (0: none, ratio 1),
+    the bevel mesh's element, the pinion, the wheel, the load."""
+
+    motor: int
+    flywheel: int
+    upper: int
+    upper_gear: int
+    mesh: int
+    pinion: int
+    wheel: int
+    load: int
+
+
+#: the rig's places (its 22-node layout: docs/DRIVETRAIN.md, section 1)
+RIG_PLACES = Places(motor=1, flywheel=5, upper=GEAR_ELEMENT_UPPER, upper_gear=GEAR_ELEMENT_UPPER,
+                    mesh=GEAR_ELEMENT_LOWER, pinion=GEAR_ELEMENT_LOWER, wheel=GEAR_ELEMENT_LOWER + 1, load=22)
+
+
+def chain_places(model: PublicModel, lower_ratio: float | None = None) -> tuple[Places | None, list[str]]:
+    """The places of a table outside the rig's layout (any chain; docs/DRIVETRAIN.md, "Another machine"), found
+    from its ratios: the bevel mesh is the last geared element (its ratio the pair's z1/z2), an upper gearbox the
+    geared element before it (if any; its two nodes are one rigid body), the motor node 1, the load the last node,
+    the wheel the node after the mesh, the pinion the node before it, the flywheel the heaviest node between the
+    motor and the upper body (without an upper gearbox: the node before the pinion). (places, []) or (None, the
+    problems)."""
+    n = len(model.J)
+    want = Z_PINION / Z_WHEEL if lower_ratio is None else 1.0 / lower_ratio
+    geared = [i + 1 for i, r in enumerate(model.ratio) if r != 1.0]
+    if not geared or abs(float(model.ratio[geared[-1] - 1]) - want) > 1e-9 * want:
+        had = (f"element {geared[-1]} has ratio_next = {float(model.ratio[geared[-1] - 1]):.10g}" if geared
+               else "no element has ratio_next != 1")
+        return None, [f"the bevel mesh is the last geared element, its ratio_next the gear pair's z1/z2 = {want:.10g}; "
+                      f"{had}"]
+    if len(geared) > 2:
+        return None, [f"elements {', '.join(map(str, geared))} are geared: at most two (an upper gearbox and the "
+                      "bevel mesh, the last)"]
+    mesh = geared[-1]
+    ug = geared[0] if len(geared) == 2 else 0
+    upper = ug if ug else mesh - 1
+    last_upper = ug + 1 if ug else upper
+    problems = []
+    if upper < 3:
+        problems.append(f"node {upper} would be the upper gearbox's body: a run needs the motor (node 1) and at least "
+                        "one flywheel node before it")
+    if last_upper >= mesh:
+        problems.append(f"the upper gearbox (element {ug}) joins the bevel mesh's input node {mesh}: a run needs a "
+                        "shaft (an element) between them")
+    if n < mesh + 2:
+        problems.append(f"the wheel (node {mesh + 1}) is the last node: a run needs a load node after it")
+    if problems:
+        return None, problems
+    flywheel = 2 + int(np.argmax(model.J[1:upper - 1]))
+    return Places(1, flywheel, upper, ug, mesh, mesh, mesh + 1, n), []
 
 
 def public_matrices(model: PublicModel | None = None, referred: bool = True):
@@ -268,13 +382,12 @@ class RefChain:
         return self.elems[i]
 
 
-def _body_J(nd: _Node, model: PublicModel):
+def _body_J(nd: _Node, model: PublicModel, p: Places):
     """Inertia of a body per frame (local values, not referred): (J_drive, J_middle, J_prop)."""
-    R = model.R
     out = [0.0, 0.0, 0.0]
-    for pid, f in nd.members.items():
-        r = R[pid - 1]
-        fr = 0 if r > 0.5 else (1 if r > 0.2 else 2)
+    up = p.upper_gear or p.mesh            # without an upper gearbox the drive frame reaches the mesh
+    for pid, f in nd.members.items():      # the frame by place: drive up to the upper gear, middle up to the mesh
+        fr = 0 if pid <= up else (1 if pid <= p.mesh else 2)
         out[fr] += f * model.J[pid - 1]
     return out
 
@@ -300,7 +413,7 @@ class Partition:
 
 def partition(shafts: str = "flexible", n_elements: int = 4, calibration: dict | None = None,
               coupling_scale: float | None = None, losses: bool = True,
-              model: PublicModel | None = None) -> Partition:
+              model: PublicModel | None = None, lower_ratio: float | None = None) -> Partition:
     """Lump the public model and split it into the components (docs/DRIVETRAIN.md, "Partition").
 
     shafts "flexible": FlexibleShaft ``drive_shaft`` between ``motors`` and ``upper`` (transducer,
@@ -308,21 +421,41 @@ def partition(shafts: str = "flexible", n_elements: int = 4, calibration: dict |
     rigid, no shaft FMU, the drive line from the C2 coupling to the upper gearbox one rigid body in
     ``upper``. In both: the elastomer couplings C1 (inside ``motors``) and C2 (port spring of
     ``motors.drive``) stay compliant; the gear stage's port springs are the remaining compliance
-    between the upper gearbox and the pinion (k_a) and between the wheel and the load (k_b)."""
+    between the upper gearbox and the pinion (k_a) and between the wheel and the load (k_b).
+
+    ``model``: the lumped table (default the rig's). A table of 22 nodes is in the rig's layout (its places and
+    lumping); any other chain is lumped onto the places its ratios give (:func:`chain_places`, rigid shafts only,
+    its stiffnesses as written); a table that cannot be mapped is a ConfigurationError naming why.
+    ``lower_ratio``: the pair's z_wheel / z_pinion its bevel element must have (default the rig's)."""
     if shafts not in ("flexible", "rigid"):
         raise ValueError(f"shafts must be 'flexible' or 'rigid', got {shafts!r}")
     n_elements = int(n_elements)
     if n_elements < 1:
         raise ValueError("n_elements must be >= 1")
     m = model or load_public()
+    problems = layout_problems(m, lower_ratio)
+    rig_layout = len(m.J) == RIG_LAYOUT_NODES
+    if not problems and not rig_layout and shafts != "rigid":
+        problems = [f"a table of {len(m.J)} nodes runs with rigid shafts (effects.shaft_flexibility = \"rigid\"): the "
+                    "drive shaft's FMU maps the rig's transducer hubs and thin shaft, which only its 22-node layout places"]
+    if problems:
+        raise ConfigurationError([f"lumped parameter table: {p}" for p in problems])
     cal = calibration if calibration is not None else load_calibration()
-    s = float(cal["coupling_scale"] if coupling_scale is None else coupling_scale)
-    ch = _lumped_chain(m, shafts, s)
+    # the coupling factor is the rig's (its elastomer elements 3-7); another chain's stiffnesses are taken as written
+    s = float(cal["coupling_scale"] if coupling_scale is None else coupling_scale) if rig_layout else 1.0
     params: dict = {}
     cuts: list = []
     bodies: dict = {}
-    C2, J_in_extra, J_sensor = _drive_line(ch, m, shafts, n_elements, params, cuts, bodies)
-    _upper_gear_motors(ch, m, cal, losses, C2, J_in_extra, J_sensor, params, cuts, bodies)
+    if rig_layout:
+        places = RIG_PLACES
+        ch = _lumped_chain(m, shafts, s)
+        C2, J_in_extra, J_sensor = _drive_line(ch, m, shafts, n_elements, params, cuts, bodies)
+    else:
+        places = chain_places(m, lower_ratio)[0]
+        ch = _chain_lumped(m, places)
+        C2, J_in_extra, J_sensor = ch.elem_between(places.flywheel, places.upper), 0.0, 0.0
+        cuts.append(dict(spring="motors.drive", inertia="upper.flange_a", elements=C2.members, k=C2.k, c=C2.c))
+    _upper_gear_motors(ch, m, cal, losses, C2, J_in_extra, J_sensor, params, cuts, bodies, places)
     models = {"motors": "MotorLoad", "upper": "UpperTransmission", "gear": GEAR_MODEL}
     if shafts == "flexible":
         models = {"motors": "MotorLoad", "drive_shaft": "FlexibleShaft", "upper": "UpperTransmission",
@@ -366,6 +499,19 @@ def _lumped_chain(m: PublicModel, shafts: str, coupling_scale: float) -> RefChai
     return ch
 
 
+def _chain_lumped(m: PublicModel, p: Places) -> RefChain:
+    """Another chain lumped onto its places (:func:`chain_places`): the upper gearbox rigid (its two nodes one
+    body), every node between the motor and the upper body but the flywheel, between the upper body and the
+    pinion, and between the wheel and the load condensed (springs in series, the inertia to the neighbours)."""
+    ch = RefChain(m, None, {p.upper_gear} if p.upper_gear else set())
+    ch.merge_rigid()
+    last_upper = p.upper_gear + 1 if p.upper_gear else p.upper
+    for pid in [*range(2, p.upper), *range(last_upper + 1, p.pinion), *range(p.wheel + 1, p.load)]:
+        if pid != p.flywheel:
+            ch.condense(pid)
+    return ch
+
+
 def _drive_line(ch: RefChain, m: PublicModel, shafts: str, n_elements: int, params: dict, cuts: list,
                 bodies: dict):
     """The drive line from coupling C2 to the upper gearbox into ``params``, ``cuts``, ``bodies``:
@@ -402,32 +548,35 @@ def _drive_line(ch: RefChain, m: PublicModel, shafts: str, n_elements: int, para
 
 
 def _upper_gear_motors(ch: RefChain, m: PublicModel, cal: dict, losses: bool, C2, J_in_extra: float,
-                       J_sensor: float, params: dict, cuts: list, bodies: dict) -> None:
+                       J_sensor: float, params: dict, cuts: list, bodies: dict, p: Places = RIG_PLACES) -> None:
     """The upper gearbox, the gear stage and the motors (their parameters, the gear stage's two cuts,
     the bodies) into ``params``, ``cuts``, ``bodies``; the losses from the calibration (0 if not
-    ``losses``)."""
-    M_ = ch.node(1)
-    FW = ch.node(5)
-    C1 = ch.elem_between(1, 5)
-    pin = ch.node(17)
-    whl = ch.node(18)
-    L = ch.node(22)
-    UT = ch.node(12)
-    Ka = ch.elem_between(12, 17)
-    Kb = ch.elem_between(18, 22)
+    ``losses``); ``p``: where they sit in the table (the rig's places by default)."""
+    M_ = ch.node(p.motor)
+    FW = ch.node(p.flywheel)
+    C1 = ch.elem_between(p.motor, p.flywheel)
+    pin = ch.node(p.pinion)
+    whl = ch.node(p.wheel)
+    L = ch.node(p.load)
+    UT = ch.node(p.upper)
+    Ka = ch.elem_between(p.upper, p.pinion)
+    Kb = ch.elem_between(p.wheel, p.load)
     J_ut = UT.J + J_in_extra
-    Jd, Jm, _ = _body_J(UT, m)
+    Jd, Jm, _ = _body_J(UT, m, p)
     # J_in (drive frame) and J_out (middle frame) of the upper gearbox body
+    # the frames of the middle and propeller shafts (the rig: 1/3 and 1/12, exactly: tooth_ratio)
+    r_up = tooth_ratio(m.ratio[p.upper_gear - 1]) if p.upper_gear else Fraction(1)
+    upper_ratio, R_m, R_p = float(1 / r_up), float(r_up), float(r_up * tooth_ratio(m.ratio[p.mesh - 1]))
     J_out = Jm
-    J_in = J_ut - J_out * (1.0 / UPPER_RATIO) ** 2
+    J_in = J_ut - J_out * R_m ** 2
     up = cal["upper"]
     pg = cal["planetary"]
     lz = 1.0 if losses else 0.0
-    params["upper"] = dict(J_in=J_in, J_out=J_out, ratio=UPPER_RATIO,
+    params["upper"] = dict(J_in=J_in, J_out=J_out, ratio=upper_ratio,
                            loss_c=lz * up["c_v"], loss_Tc=lz * up["T_c"], loss_wc=up["w_c"],
                            loss_a=lz * up["a"], J_sensor=J_sensor)
-    Rm2 = (1.0 / 3.0) ** 2
-    Rp2 = (1.0 / 12.0) ** 2
+    Rm2 = R_m ** 2
+    Rp2 = R_p ** 2
     params["gear"] = dict(J_pinion=pin.J / Rm2, J_wheel=whl.J / Rp2, k_a=Ka.k / Rm2, d_a=Ka.c / Rm2,
                           k_b=Kb.k / Rp2, d_b=Kb.c / Rp2)
     params["motors"] = dict(J_motor=M_.J, c_motor=lz * M_.c_ext, k_c1=C1.k, d_c1=C1.c, J_flywheel=FW.J,
@@ -494,7 +643,7 @@ def steady_state(speed_rpm: float, load_Nm: float, upper: dict, motors: dict, lo
     r8 = motors.get("ratio_pg", PG_RATIO)
     if int(load_mode) == 0:
         # the torque setting, regularised at standstill as in MotorLoad (tanh = 1 at any operating speed)
-        wr = load_w_reg if load_w_reg is not None else motors.get("load_w_reg", 0.05)
+        wr = load_w_reg if load_w_reg is not None else motors.get("load_w_reg", RIG_DRIVE_LOAD.load_w_reg_rad_s)
         T_prop_load = r8 * load_Nm * math.tanh(wp / wr) if wr > 0 else r8 * load_Nm
     else:
         T_prop_load = r8 * load_Nm * wp / load_w_nom

@@ -191,13 +191,15 @@ def amplitude_spectrum(x: np.ndarray, fs: float, lowpass_Hz: float | None = None
 
 
 def run_spectrum(time_s: np.ndarray, x: np.ndarray, settle_s: float, fs: float,
-                 drive_speed_rpm: float, teeth: tuple[int, int] = (Z_PINION, Z_WHEEL)) -> tuple[np.ndarray, np.ndarray, dict]:
+                 drive_speed_rpm: float, teeth: tuple[int, int] = (Z_PINION, Z_WHEEL),
+                 upper_ratio: float = UPPER_RATIO) -> tuple[np.ndarray, np.ndarray, dict]:
     """The spectrum of a run's channel as its plots, its summary and ``result.spectrum`` read it (the one
     place that rule is written): the samples at or after ``settle_s``, mean removed, low-passed at
     :func:`spectrum_lowpass_Hz` of the run's f_GMF, :func:`amplitude_spectrum` (Hann, :data:`AMPLITUDE_CONVENTION`).
     Returns (f [Hz], A [unit of x], the characteristic frequencies of ``drive_speed_rpm``; ``teeth``: the lower
-    pair's (z_pinion, z_wheel), the scene's [gear.pair]). ValueError when too few samples are settled."""
-    cf = characteristic_frequencies(drive_speed_rpm, *teeth)
+    pair's (z_pinion, z_wheel), the scene's [gear.pair]; ``upper_ratio``: the machine's upper gearbox, the rig's 3
+    unless its lumped table says otherwise). ValueError when too few samples are settled."""
+    cf = characteristic_frequencies(drive_speed_rpm, *teeth, upper_ratio=upper_ratio)
     keep = np.asarray(time_s) >= settle_s
     xs = np.asarray(x, dtype=float)[keep]
     if len(xs) <= 16 or not cf["f_GMF"] > 0:

@@ -255,7 +255,11 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     cal = calibration if isinstance(calibration, dict) else rig.load_calibration(calibration)
     if eff.couplings == "record":
         cal = dict(cal, coupling_scale=float(scene.background.coupling_stiffness_scale))
-    part = rig.partition(eff.shaft_flexibility, eff.shaft_elements, cal, losses=eff.losses)
+    elif scene.drivetrain.coupling_scale is not None:
+        cal = dict(cal, coupling_scale=float(scene.drivetrain.coupling_scale))
+    model = machine_model(scene)      # a named table's bevel element is the scene's pair (the rig's own: the rig's)
+    part = rig.partition(eff.shaft_flexibility, eff.shaft_elements, cal, losses=eff.losses, model=model,
+                         lower_ratio=None if model is None else scene.gear.pair.params().ratio)
     if eff.couplings == "record":
         record_couplings(part, scene.background)
     H = float(num.comm_step_s)
@@ -267,10 +271,13 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     T0 = float(op.load_at(0.0))
     up = dict(part.params["upper"])
     mo = dict(part.params["motors"])
+    mo.update(drive_load_parameters(scene))
     if eff.drive_control == "record":
         mo.update(Kp=float(scene.background.drive_Kp), Ti=float(scene.background.drive_Ti_s))
     pair = scene.gear.pair.params()
-    ss = rig.steady_state(n0, T0, up, mo, lower_ratio=pair.ratio)
+    w_p0 = rig.rpm_to_rad_s(n0) / up["ratio"] / pair.ratio      # the viscous law equals the setting here
+    ss = rig.steady_state(n0, T0, up, mo, load_mode=mo["load_mode"], load_w_nom=w_p0 if w_p0 > 0 else 1.0,
+                          lower_ratio=pair.ratio)
     w = ss.w_drive
     th_motor = 0.0
     th_fw = th_motor - ss.T_dsh / mo["k_c1"]
@@ -319,7 +326,8 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
 
     meta = {
         "sensors": sensor_map(eff.shaft_flexibility),
-        "characteristic": characteristic_frequencies(op.final_speed_rpm, pair.z_pinion, pair.z_wheel),
+        "characteristic": characteristic_frequencies(op.final_speed_rpm, pair.z_pinion, pair.z_wheel,
+                                                     upper_ratio=up["ratio"]),
         "fidelity": {"gear": eff.mesh_contact},
         "partition": {"shafts": part.shafts, "n_elements": part.n_elements if part.shafts == "flexible" else 0,
                       "bodies": part.bodies,
@@ -336,6 +344,34 @@ def assemble(scene, calibration: dict | str | None = None, check: bool = True,
     if check:
         _check_cuts(spec)
     return spec
+
+
+# ---- the machine: its lumped table and its drive and load settings ([drivetrain], issue 42) ----------------
+
+def machine_model(scene) -> rig.PublicModel | None:
+    """The lumped model the scene names (``drivetrain.parameters``, read checked), None: the rig's. The coupling
+    factor (``drivetrain.coupling_scale``) scales the rig layout's elastomer couplings: refused for another chain."""
+    path = scene.drivetrain.parameters
+    model = None if path is None else rig.load_public(path)
+    if model is not None and len(model.J) != rig.RIG_LAYOUT_NODES and scene.drivetrain.coupling_scale is not None:
+        raise ScenarioError([("drivetrain.coupling_scale", scene.drivetrain.coupling_scale, (
+            f"no coupling factor with a table of {len(model.J)} nodes (it scales the rig layout's elastomer couplings, "
+            "elements 3-7; another chain's stiffnesses are taken as written)"))], source=scene.name)
+    return model
+
+
+def machine_upper_ratio(scene) -> float:
+    """The upper gearbox's ratio of the scene's machine (the rig's UPPER_RATIO unless its table says otherwise)."""
+    model = machine_model(scene)
+    return rig.UPPER_RATIO if model is None else float(1 / rig.tooth_ratio(model.ratio[rig.GEAR_ELEMENT_UPPER - 1]))
+
+
+def drive_load_parameters(scene) -> dict:
+    """MotorLoad's parameters of the scene's drive and load settings (``[drivetrain]``; the rig's by default)."""
+    d = scene.drivetrain
+    return dict(Kp=float(d.drive_Kp), Ti=float(d.drive_Ti_s), Ni=float(d.drive_Ni), tau_max=float(d.drive_torque_limit_Nm),
+                load_mode=rig.LOAD_LAWS.index(d.load_law), load_w_reg=float(d.load_w_reg_rad_s),
+                ratio_pg=float(d.load_gear_ratio), J_load_motor=float(d.load_motor_J_kgm2))
 
 
 def _start_wheel(scene, gear: dict, ss, theta_p: float, errors, build_map: bool) -> tuple[float, str]:
@@ -460,7 +496,7 @@ def _background_values(scene, H: float, ratio_pg: float, where: str) -> np.ndarr
     n_steps = int(round(scene.time.duration_s / H)) + 1
     speed = [list(p) for p in op.speed_profile_rpm] if op.speed_profile_rpm else float(op.drive_speed_rpm)
     torque = background.disturbance(where, scene.effects, n_steps, H, speed, scene.background, scene.noise_name,
-                                    upper_ratio=rig.UPPER_RATIO, lower_ratio=scene.gear.pair.params().ratio)
+                                    upper_ratio=machine_upper_ratio(scene), lower_ratio=scene.gear.pair.params().ratio)
     if where == "drive":
         return torque
     t = np.arange(n_steps + 1) * H

@@ -323,15 +323,17 @@ def _fault_text(health: str, faults) -> str:
     return f"{health}: " + "; ".join(words) if words else health
 
 
-def load_text(load_Nm: float | None, profile: bool = False) -> str:
+def load_text(load_Nm: float | None, profile: bool = False, ratio: float | None = None) -> str:
     """A load as the rig has it: the load motor's setting and the torque it makes on the propeller shaft through
-    the 1:8 planetary (rig.data.PG_RATIO, losses aside): "load motor 1.31 N·m (propeller shaft ≈ 10.5 N·m)"."""
+    its gear (``ratio``; default the rig's 1:8 planetary, rig.data.PG_RATIO; losses aside): "load motor 1.31 N·m
+    (propeller shaft ≈ 10.5 N·m)"."""
     from drivetrain.rig.data import PG_RATIO
 
     if load_Nm is None:
         return "load motor (profile)"
     tail = ", profile end" if profile else ""
-    return f"load motor {float(load_Nm):g} N·m (propeller shaft ≈ {PG_RATIO * float(load_Nm):.3g} N·m{tail})"
+    r = PG_RATIO if ratio is None else float(ratio)
+    return f"load motor {float(load_Nm):g} N·m (propeller shaft ≈ {r * float(load_Nm):.3g} N·m{tail})"
 
 
 def run_title(scene, what: str, failed_at_s: float | None = None) -> str:
@@ -343,7 +345,9 @@ def run_title(scene, what: str, failed_at_s: float | None = None) -> str:
     d = scene.to_dict()
     op = scene.operating_point
     speed = f"{op.final_speed_rpm:g} rpm" + (" (profile)" if op.speed_profile_rpm else "")
-    load = (load_text(op.load_profile_Nm[-1][1], profile=True) if op.load_profile_Nm else load_text(op.load_torque_Nm))
+    r = scene.drivetrain.load_gear_ratio
+    load = (load_text(op.load_profile_Nm[-1][1], profile=True, ratio=r) if op.load_profile_Nm
+            else load_text(op.load_torque_Nm, ratio=r))
     g = scene.gear
     health = _fault_text(g.health, g.faults)
     if g.health == "mesh":

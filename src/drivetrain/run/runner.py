@@ -121,17 +121,26 @@ class RunResult:
         pair = self.scene.gear.pair.params()
         return spectrum_frame(self.time, self.signals[channel], self.scene.time.settle_s,
                               self.scene.time.sample_rate_Hz, self.scene.operating_point.final_speed_rpm,
-                              channel, self.units.get(channel, ""), teeth=(pair.z_pinion, pair.z_wheel))
+                              channel, self.units.get(channel, ""), teeth=(pair.z_pinion, pair.z_wheel),
+                              upper_ratio=_upper_ratio(self.spec))
+
+
+def _upper_ratio(spec: SystemSpec | None) -> float:
+    """The upper gearbox's ratio of an assembled system (its machine's lumped table; the rig's for a custom spec)."""
+    from drivetrain.rig.data import UPPER_RATIO
+
+    return float(((spec.metadata if spec is not None else {}).get("characteristic") or {}).get("upper_ratio", UPPER_RATIO))
 
 
 def spectrum_frame(time_s, x, settle_s: float, fs: float, drive_speed_rpm: float, channel: str = "", unit: str = "",
-                   teeth: tuple[int, int] | None = None):
+                   teeth: tuple[int, int] | None = None, upper_ratio: float | None = None):
     """:func:`drivetrain.rig.signals.run_spectrum` as a DataFrame (``RunResult.spectrum``, ``drivetrain.spectrum``)."""
     import pandas as pd
 
     from drivetrain.rig.signals import AMPLITUDE_CONVENTION
 
-    f, A, cf = run_spectrum(time_s, x, settle_s, fs, drive_speed_rpm, *([teeth] if teeth else []))
+    f, A, cf = run_spectrum(time_s, x, settle_s, fs, drive_speed_rpm, *([teeth] if teeth else []),
+                            **({} if upper_ratio is None else {"upper_ratio": upper_ratio}))
     df = pd.DataFrame({"frequency_Hz": f, "amplitude": A})
     df.attrs.update(units={"frequency_Hz": "Hz", "amplitude": unit}, convention=AMPLITUDE_CONVENTION,
                     characteristic_frequencies=cf, lowpass_Hz=spectrum_lowpass_Hz(cf["f_GMF"]),
@@ -515,7 +524,9 @@ def torque_spectra(plan: RunPlan, ch: Channels) -> Spectra:
     m = ch.time >= scene.time.settle_s
     fs = scene.time.sample_rate_Hz
     pair = scene.gear.pair.params()
-    out = Spectra(cf=characteristic_frequencies(scene.operating_point.final_speed_rpm, pair.z_pinion, pair.z_wheel))
+    ur = _upper_ratio(plan.spec)
+    out = Spectra(cf=characteristic_frequencies(scene.operating_point.final_speed_rpm, pair.z_pinion, pair.z_wheel,
+                                                upper_ratio=ur))
     for name in TORQUE_SENSORS:
         if name not in ch.signals:
             continue
@@ -526,7 +537,7 @@ def torque_spectra(plan: RunPlan, ch: Channels) -> Spectra:
         if len(x) > 16 and out.cf["f_GMF"] > 0:
             try:
                 f, A, _ = run_spectrum(ch.time, ch.signals[name], scene.time.settle_s, fs,
-                                       scene.operating_point.final_speed_rpm, (pair.z_pinion, pair.z_wheel))
+                                       scene.operating_point.final_speed_rpm, (pair.z_pinion, pair.z_wheel), ur)
             except ValueError as exc:    # too short for the low-pass (a short or failed run)
                 plan.warnings.append(f"no spectrum of {name}: {exc}")
                 continue

@@ -148,6 +148,8 @@ def _check_value(key: str, spec: Key, value: Any, base_dir: Path, problems) -> A
             problems += [(key, value, f"a time/{spec.dimension} series file; {p}: {pr}") for pr in exc.problems]
             return None
         return _Series(p, tuple(zip(ts.tolist(), vs.tolist())))
+    if t == "table":                    # a lumped torsional model ([drivetrain] parameters), read and checked now
+        return _check_table(key, value, base_dir, problems)
     if t == "pair":                     # [gear.pair]: its own keys (PAIR_SCHEMA); whether it can be made: _check_pair
         return _check_pair_table(key, value, base_dir, problems)
     if t == "faults":                   # each specification: checked with the health (_check_gear)
@@ -202,6 +204,38 @@ def _check_value(key: str, spec: Key, value: Any, base_dir: Path, problems) -> A
     raise AssertionError(t)  # pragma: no cover
 
 
+def _check_table(key: str, value: Any, base_dir: Path, problems) -> Path | None:
+    """A lumped parameter table (rig.lumped_table's layout): its path, read through the checked reader; every
+    problem named with the file (whether it maps onto the FMUs with the scene's pair: :func:`_check_machine`)."""
+    from drivetrain.errors import FileFormatError
+    from drivetrain.rig.data import load_public
+
+    if not isinstance(value, str) or not value or "\x00" in value:
+        problems.append((key, value, "a CSV file path (a non-empty string without NUL characters)"))
+        return None
+    p = Path(value).expanduser()
+    p = p if p.is_absolute() else (base_dir / p).resolve()
+    try:
+        load_public(p)
+    except FileFormatError as exc:
+        problems += [(key, value, f"a lumped parameter table; {pr if str(p) in pr else f'{p}: {pr}'}")
+                     for pr in exc.problems]
+        return None
+    return p
+
+
+def _check_machine(values: dict, problems) -> None:
+    """A named lumped table maps onto the FMUs (rig.data.layout_problems) with the scene's pair: its bevel mesh
+    element at the pair's z1/z2."""
+    from drivetrain.rig.data import layout_problems, load_public
+
+    table = values["drivetrain"].get("parameters")
+    if table in (None, _MISSING) or not _ok(values, "gear", "pair"):
+        return
+    for why in layout_problems(load_public(table), values["gear"]["pair"].params().ratio):
+        problems.append(("drivetrain.parameters", str(table), f"a lumped parameter table the run can map; {table}: {why}"))
+
+
 def _check_pair_table(key: str, value: Any, base_dir: Path, problems) -> GearPair | None:
     """A ``[gear.pair]`` table: every key known and checked like any scene key; absent keys at the rig's values.
     None (and the problems recorded) when any is refused."""
@@ -252,6 +286,7 @@ def resolve(raw: dict, base_dir: Path | str = ".", source: Path | str | None = N
     _check_name(values, source, problems)
     _check_time(values, problems)
     _check_pair(values, problems)
+    _check_machine(values, problems)
     _check_gear(values, problems)
     _check_effects(values, problems)
     _check_profiles(values, problems)

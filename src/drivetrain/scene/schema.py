@@ -21,6 +21,7 @@ from typing import Any
 
 from drivetrain.errors import MISSING as _MISSING
 from drivetrain.rig.data import PAPER_LOADS_NM, PAPER_MAX_LOAD_NM, PAPER_MAX_SPEED_RPM, RAD_S_PER_RPM, RIG_SENSORS
+from drivetrain.rig.data import LOAD_LAWS, RIG_DRIVE_LOAD as _DL
 from drivetrain.rig.background import Background
 from drivetrain.rig.instruments import Instruments
 from gearcontact_fmu.fault_specs import FAULT_KINDS
@@ -344,7 +345,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "bow and misalignment against the stiffly held drive) and at the planetary's mesh frequency "
             "([background])")),
         "drive_control": Key("enum", "assumed", allowed=("assumed", "record"), doc=(
-            "the drive's PI speed controller: assumed (Kp 0.1 N·m·s/rad, Ti 0.4 s: a ~2 Hz speed loop) or record "
+            "the drive's PI speed controller: assumed ([drivetrain] drive_Kp, drive_Ti_s: the rig's ~2 Hz speed loop) or record "
             "(identified from the drive's own torque and speed signals in the measured record: [background] "
             "drive_Kp, drive_Ti_s)")),
         "couplings": Key("enum", "fitted", allowed=("fitted", "record"), doc=(
@@ -453,6 +454,42 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "profile_um": _f(None, "um", "length", "peak-to-peak profile form deviation of both gears along the "
                          "line of action, instead of the grade's f_falpha", minimum=0.0, default_doc="from grade"),
     },
+    # ---- the drivetrain around the pair: its lumped model and its drive and load (issue 42) ----------
+    "drivetrain": {
+        "parameters": Key("table", None, doc=(
+            "the machine's lumped torsional model: a CSV table in the layout of testbench_lumped_parameters.csv "
+            "(path relative to the scene file; docs/DRIVETRAIN.md, 'Another machine'): inertias, stiffnesses, "
+            "dampings and ratios, read checked; a 22-node table in the rig's layout maps onto the four FMUs as the "
+            "rig's, any other chain by the places its ratios give (the bevel mesh, an upper gearbox; rigid shafts)"),
+            default_doc="the rig's table (drivetrain/data/testbench_lumped_parameters.csv)"),
+        "coupling_scale": _f(None, "", "", (
+            "factor on the stiffness of the elastomer couplings (the table's elements 3-7) instead of the "
+            "calibration's (fitted to the rig's 24 Hz mode); 1 = the table's stiffnesses as written "
+            "(effects.couplings = fitted; a table in the rig's layout only)"), minimum=0.0, min_exclusive=True,
+            default_doc="the calibration's (0.70 shipped)"),
+        "drive_Kp": _f(_DL.drive_Kp, "N·m·s/rad", "", (
+            "proportional gain of the drive motor's PI speed controller (effects.drive_control = assumed)"),
+            minimum=0.0, min_exclusive=True),
+        "drive_Ti_s": _f(_DL.drive_Ti_s, "s", "time", "integral time of the PI speed controller "
+                         "(effects.drive_control = assumed)", minimum=0.0, min_exclusive=True),
+        "drive_Ni": _f(_DL.drive_Ni, "", "", "anti-windup gain of the PI speed controller (LimPID back-calculation)",
+                       minimum=0.0, min_exclusive=True),
+        "drive_torque_limit_Nm": _f(_DL.drive_torque_limit_Nm, "N·m", "torque", "the drive motor's torque limit",
+                                    minimum=0.0, min_exclusive=True),
+        "load_law": Key("enum", _DL.load_law, allowed=LOAD_LAWS, doc=(
+            "the load motor's law: torque (the rig: the setting as a torque, regularised below load_w_reg_rad_s "
+            "so that it brakes but never drives) or viscous (the paper: a torque proportional to the propeller "
+            "shaft's speed, equal to the setting at the initial speed)")),
+        "load_w_reg_rad_s": _f(_DL.load_w_reg_rad_s, "rad/s", "", (
+            "torque law: the propeller-shaft speed below which the load torque is regularised (tanh)"),
+            minimum=0.0, min_exclusive=True),
+        "load_gear_ratio": _f(_DL.load_gear_ratio, "", "", (
+            "the gear between the load motor and the propeller shaft (the rig's 1:8 planetary): load-motor speed / "
+            "propeller-shaft speed; operating_point.load_torque_Nm is the load motor's torque before it"),
+            minimum=0.0, min_exclusive=True),
+        "load_motor_J_kgm2": _f(_DL.load_motor_J_kgm2, "kg·m²", "", (
+            "the load motor's rotor inertia, added to the propeller-side body through load_gear_ratio²"), minimum=0.0),
+    },
 }
 
 def _on(path: str, *values) -> tuple:
@@ -479,6 +516,9 @@ ACTS_WHEN: dict[str, tuple] = {
                                                "order_msh_2x_exponent", "order_dsh_1x_exponent",
                                                "order_dsh_2x_exponent")},
     **{f"background.{k}": (_on("effects.drive_control", "record"),) for k in ("drive_Kp", "drive_Ti_s")},
+    **{f"drivetrain.{k}": (_on("effects.drive_control", "assumed"),) for k in ("drive_Kp", "drive_Ti_s")},
+    "drivetrain.load_w_reg_rad_s": (_on("drivetrain.load_law", "torque"),),
+    "drivetrain.coupling_scale": (_on("effects.couplings", "fitted"),),
     **{f"background.{k}": (_on("effects.couplings", "record"),)
        for k in ("coupling_stiffness_scale", "coupling_damping_scale", "propeller_stiffness_scale",
                  "propeller_damping_scale")},
@@ -620,6 +660,20 @@ class ManufacturingSpec:
 
 
 @dataclass(frozen=True)
+class DrivetrainSpec:
+    parameters: Path | None              # the lumped table (absolute), None: the rig's
+    coupling_scale: float | None         # None: the calibration's
+    drive_Kp: float
+    drive_Ti_s: float
+    drive_Ni: float
+    drive_torque_limit_Nm: float
+    load_law: str
+    load_w_reg_rad_s: float
+    load_gear_ratio: float
+    load_motor_J_kgm2: float
+
+
+@dataclass(frozen=True)
 class Scene:
     """A validated, fully resolved scene (every default filled in, paths absolute)."""
 
@@ -634,6 +688,7 @@ class Scene:
     background: Background
     tooth_compliance: ToothComplianceSpec
     manufacturing: ManufacturingSpec
+    drivetrain: DrivetrainSpec
     source: Path | None = None           # the file it came from (None if built in code)
     overrides: tuple[str, ...] = ()      # the --set strings applied
     # drivetrain.scene.expect.ExpectSpec of [expect]/[check] (None: absent); not part of what is simulated
@@ -689,6 +744,7 @@ SECTION_CLASSES = {
     "outputs": OutputSpec, "numerics": NumericsSpec, "effects": EffectsSpec, "background": Background,
     "instruments": Instruments,
     "tooth_compliance": ToothComplianceSpec, "manufacturing": ManufacturingSpec,
+    "drivetrain": DrivetrainSpec,
 }
 
 
@@ -775,7 +831,7 @@ def _key_row(key: str, spec: Key) -> str:
         allowed = " and ".join(rng)
         if not allowed and spec.type in ("float", "profile"):
             allowed = "any finite value (negative allowed)"
-    typ = {"faults": "array of tables", "pair": "table", "str_list": "list of str", "var_list": "list of str",
+    typ = {"table": "str (path to a CSV)", "faults": "array of tables", "pair": "table", "str_list": "list of str", "var_list": "list of str",
            "profile": "list of [float, float]", "path": "str (path)", "series": "str (path to a CSV)",
            "enum": "str"}.get(spec.type, spec.type)
     return f"| `{key}` | {typ} | {spec.unit or '–'} | {dflt} | {allowed or '–'} | {spec.doc} |"

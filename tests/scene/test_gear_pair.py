@@ -133,3 +133,19 @@ def test_a_grid_sweeps_pair_keys(tmp_path):
     with pytest.raises(ScenarioError, match="sweep.axes.gear.pair.zz"):
         f.write_text('[sweep.axes]\n"gear.pair.zz" = [20]\n')
         scene_load.load_scenes(f)
+
+
+def test_the_readmes_own_gearbox_scenes_load_with_their_pair_and_table():
+    """README "Your own gearbox": the scene and its dataset grid carry the 20/40 pair and the thruster table; a
+    pair the table's bevel element contradicts is refused before any work."""
+    d = ROOT / "scenarios" / "other_gearboxes"
+    sc = load_scene(d / "own_gearbox.toml")
+    p = sc.gear.pair.params()
+    assert (p.z_pinion, p.z_wheel, p.module) == (20, 40, 4e-3)
+    assert str(sc.drivetrain.parameters).endswith("own_gearbox.csv")
+    cases = scene_load.load_scenes(d / "own_gearbox_dataset.toml")
+    assert len(cases) == 8 and all(c.gear.faults and c.gear.pair.params().z_wheel == 40 for c in cases)
+    assert {c.gear.faults[0]["member"] for c in cases} <= {"pinion", "wheel"}
+    with pytest.raises(ScenarioError, match="drivetrain.parameters"):
+        load_scene(d / "own_gearbox.toml", ["gear.pair.z_wheel=60", "gear.pair.z_pinion=15",
+                                             "gear.pair.module_mm=3.0", "gear.pair.face_width_mm=20.0"])

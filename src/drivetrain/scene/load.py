@@ -120,12 +120,9 @@ def _check_value(key: str, spec: Key, value: Any, base_dir: Path, problems) -> A
             return None
         return value
     if t == "path":
-        if not isinstance(value, str) or not value or "\x00" in value:
-            problems.append((key, value, "a file path (a non-empty string without NUL characters)"))
+        p = _file_path(key, value, base_dir, problems, "a file path")
+        if p is None:
             return None
-        p = Path(value).expanduser()
-        if not p.is_absolute():
-            p = (base_dir / p).resolve()
         if p.suffix.lower() not in (".obj", ".stl"):
             problems.append((key, value, "an .obj or .stl mesh file"))
             return None
@@ -136,12 +133,9 @@ def _check_value(key: str, spec: Key, value: Any, base_dir: Path, problems) -> A
     if t == "series":                   # a CSV file of time and the key's quantity, read now (scene.series)
         from drivetrain.scene.series import SeriesError, read_series
 
-        if not isinstance(value, str) or not value or "\x00" in value:
-            problems.append((key, value, "a CSV file path (a non-empty string without NUL characters)"))
+        p = _file_path(key, value, base_dir, problems, "a CSV file path")
+        if p is None:
             return None
-        p = Path(value).expanduser()
-        if not p.is_absolute():
-            p = (base_dir / p).resolve()
         try:
             ts, vs = read_series(p, spec.dimension, spec.dimension)
         except SeriesError as exc:
@@ -204,17 +198,25 @@ def _check_value(key: str, spec: Key, value: Any, base_dir: Path, problems) -> A
     raise AssertionError(t)  # pragma: no cover
 
 
+def _file_path(key: str, value: Any, base_dir: Path, problems, what: str) -> Path | None:
+    """A file a scene key names: a non-empty string without NUL characters, ``~`` expanded, relative to the
+    scene's folder; None (and the problem, ``what`` saying what was expected) otherwise."""
+    if not isinstance(value, str) or not value or "\x00" in value:
+        problems.append((key, value, f"{what} (a non-empty string without NUL characters)"))
+        return None
+    p = Path(value).expanduser()
+    return p if p.is_absolute() else (base_dir / p).resolve()
+
+
 def _check_table(key: str, value: Any, base_dir: Path, problems) -> Path | None:
     """A lumped parameter table (rig.lumped_table's layout): its path, read through the checked reader; every
     problem named with the file (whether it maps onto the FMUs with the scene's pair: :func:`_check_machine`)."""
     from drivetrain.errors import FileFormatError
     from drivetrain.rig.data import load_public
 
-    if not isinstance(value, str) or not value or "\x00" in value:
-        problems.append((key, value, "a CSV file path (a non-empty string without NUL characters)"))
+    p = _file_path(key, value, base_dir, problems, "a CSV file path")
+    if p is None:
         return None
-    p = Path(value).expanduser()
-    p = p if p.is_absolute() else (base_dir / p).resolve()
     try:
         load_public(p)
     except FileFormatError as exc:

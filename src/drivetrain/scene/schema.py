@@ -383,18 +383,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "misalignment, a mesh's transmission error between two bodies: the torque that makes a body follow a "
             "displacement grows as its frequency squared), 0 for constant torques; default identified over the "
             "rig's 500 and 2004 rpm records (drivetrain calibrate --record; campaigns.excitation_fit)"), minimum=0.0),
-        "order_msh_1x_exponent": _f(_BG.order_msh_1x_exponent, "", "", (
-            "the middle shaft's 1x line's amplitude scales as (speed / 500 rpm)^this (its own speed law; default a calibration on the "
-            "rig's 500 rpm record and its 2004 rpm impulse record, drivetrain calibrate --record)"), minimum=0.0),
-        "order_msh_2x_exponent": _f(_BG.order_msh_2x_exponent, "", "", (
-            "the middle shaft's 2x line's amplitude scales as (speed / 500 rpm)^this (its own speed law; default a calibration on the "
-            "rig's 500 rpm record and its 2004 rpm impulse record, drivetrain calibrate --record)"), minimum=0.0),
-        "order_dsh_1x_exponent": _f(_BG.order_dsh_1x_exponent, "", "", (
-            "the drive shaft's 1x line's amplitude scales as (speed / 500 rpm)^this (its own speed law; default a calibration on the "
-            "rig's 500 rpm record and its 2004 rpm impulse record, drivetrain calibrate --record)"), minimum=0.0),
-        "order_dsh_2x_exponent": _f(_BG.order_dsh_2x_exponent, "", "", (
-            "the drive shaft's 2x line's amplitude scales as (speed / 500 rpm)^this (its own speed law; default a calibration on the "
-            "rig's 500 rpm record and its 2004 rpm impulse record, drivetrain calibrate --record)"), minimum=0.0),
+        # each shaft-order line's own speed law (order_<shaft>_<k>x_exponent)
+        **{f"order_{sh}_{k}x_exponent": _f(getattr(_BG, f"order_{sh}_{k}x_exponent"), "", "", (
+            f"the {shaft}'s {k}x line's amplitude scales as (speed / 500 rpm)^this (its own speed law; default a "
+            "calibration on the rig's 500 rpm record and its 2004 rpm impulse record, drivetrain calibrate --record)"),
+            minimum=0.0)
+           for sh, shaft in (("msh", "middle shaft"), ("dsh", "drive shaft")) for k in (1, 2)},
         "drive_Kp": _f(_BG.drive_Kp, "N·m·s/rad", "", (
             "proportional gain of the drive's speed controller (effects.drive_control = record)"), minimum=0.0,
             min_exclusive=True),

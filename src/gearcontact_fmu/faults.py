@@ -114,6 +114,14 @@ def pit_band(rho_c: float, radius: float) -> tuple:
     return (rho_c - 1.25 * radius, rho_c + 1.25 * radius, radius / 4.0)
 
 
+def _wheel_specs_for(member: str, specs) -> list[dict]:
+    """The wheel's faults (normalised) whose edges ``member``'s mesh must follow: the pinion follows the wheel's
+    faults (it probes the wheel's surface); the wheel, as the target, follows none."""
+    if member != "pinion":
+        return []
+    return [s for s in map(normalised_spec, specs) if s["member"] == "wheel"]
+
+
 def partner_face_bands(params: BevelGearParams | None, specs, member: str) -> list:
     """Face bands the ``member`` needs because the other gear has faults with edges across the face (a
     pit; a spall, a crack, a chipped tip over part of the face): the pinion's elements probe the wheel's
@@ -123,15 +131,10 @@ def partner_face_bands(params: BevelGearParams | None, specs, member: str) -> li
     patch has them. Both cones share the apex, so the fault's cone distance is where the pinion meets
     it; every pinion tooth gets the band (the teeth stay rotated copies of one tooth and the contact map
     keeps computing one healthy pitch). The wheel, as the target, needs none."""
-    if member != "pinion":
-        return []
     params = params or BevelGearParams()
     g = geometry.gear_geometry(params, "wheel")
     out = []
-    for spec in specs:
-        spec = normalised_spec(spec)
-        if spec["member"] != "wheel":
-            continue
+    for spec in _wheel_specs_for(member, specs):
         rho_c = g.Ri + spec.get("face_position", 0.5) * (g.Re - g.Ri)
         if spec["kind"] == "pit":
             out.append(pit_band(rho_c, spec["radius_mm"] * 1e-3))
@@ -179,14 +182,11 @@ def partner_profile_bands(params: BevelGearParams | None, specs, member: str) ->
     it (the teeth stay rotated copies of one tooth), so the faulty map's own healthy pitch is the healthy
     pair at that refinement: the drop's reference (benchmarks/fault_convergence.py). The wheel needs none
     (the pinion's chipped tip converges without it)."""
-    if member != "pinion":
-        return []
     params = params or BevelGearParams()
     g = geometry.gear_geometry(params, "wheel")
     out = []
-    for spec in specs:
-        spec = normalised_spec(spec)
-        if spec["member"] != "wheel" or spec["kind"] != "chipped_tip":
+    for spec in _wheel_specs_for(member, specs):
+        if spec["kind"] != "chipped_tip":
             continue
         h = spec["height_mm"] * 1e-3
         s_end = g.L_radial + g.L_inv

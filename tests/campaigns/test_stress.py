@@ -219,7 +219,8 @@ def test_judge_halving():
 def test_held_standstill_is_compared_over_its_moving_part():
     """A draw that holds its drive at standstill under friction or losses: the held torque is indeterminate within
     the friction band (the creep speed decides it, and the creep follows the step), so a halving pair compares the
-    part before the standstill; held from the start, it is not comparable: never a pass, never a failure."""
+    part before the standstill when the whole runs differ beyond the limits; held from the start, it is then not
+    comparable: never a pass, never a failure. A pair within the limits whole passes as every pair does."""
     stop = {"friction": True, "losses": False, "speed_mode": "ramp_to_stop",
             "speed_profile_rpm": [[0.0, 900.0], [0.2, 900.0], [0.729, 0.0]], "duration_s": 1.5}
     assert S.held_standstill_from_s(stop) == pytest.approx(0.729)
@@ -244,8 +245,17 @@ def test_held_standstill_is_compared_over_its_moving_part():
     assert v["outcome"] == "fail" and v["reasons"][0].startswith("over the moving part 0.3 <= t < 0.729 s")
     v = S.judge_halving(ok, ok, whole_a, whole_b, {**held, "window_s": [0.3, 0.3], "moving": None})
     assert v["outcome"] == "not_comparable" and "indeterminate within the friction band" in v["reasons"][0]
+    assert "whole runs differ beyond the limits" in v["reasons"][0]
     md = S.report_markdown({"runs": [], "pairs": [{"base": "x", "half": "x_halfH", **v}], "table": []})
     assert "not comparable" in md and "`x` / `x_halfH` | not_comparable" in md
+    # judged whole first, as every pair: whole runs within the limits pass, held from the start or not
+    w = S.judge_halving(ok, ok, whole_a, whole_a, {**held, "window_s": [0.3, 0.3], "moving": None})
+    assert w["outcome"] == "pass" and w["compared"] == "whole run" and w["max_mean_dev"] == 0.0
+    assert w["held_means"]["drive_shaft_torque"] == [0.9, 1.1]
+    md = S.report_markdown({"runs": [], "pairs": [{"base": "y", "half": "y_halfH", **w}], "table": []})
+    assert "`y` / `y_halfH` | pass | whole run |" in md
+    # ... and a pair beyond them whole is not excused by a moving part that is itself beyond them
+    assert S.judge_halving(ok, ok, whole_a, whole_b, {**held, "moving": (off, same)})["compared"] == "moving part"
 
 
 def test_class_table_and_report():

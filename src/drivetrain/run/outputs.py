@@ -38,10 +38,7 @@ def jsonable(obj: Any) -> Any:
         return [jsonable(v) for v in obj]
     if isinstance(obj, np.ndarray):
         return jsonable(obj.tolist())
-    if hasattr(obj, "__array__") and hasattr(obj, "shape"):
-        # an input profile generated when read (rig.background.GeneratedProfile): its description, not its
-        # samples (the scene, stored beside it, generates it again)
-        return {"generated_profile": repr(obj)}
+    # numpy scalars before array-likes: np.float64 has __array__ and shape too, and is a number, not a profile
     if isinstance(obj, (np.floating, float)):
         v = float(obj)
         return v if math.isfinite(v) else None
@@ -49,6 +46,10 @@ def jsonable(obj: Any) -> Any:
         return int(obj)
     if isinstance(obj, (np.bool_,)):
         return bool(obj)
+    if hasattr(obj, "__array__") and hasattr(obj, "shape"):
+        # an input profile generated when read (rig.background.GeneratedProfile): its description, not its
+        # samples (the scene, stored beside it, generates it again)
+        return {"generated_profile": repr(obj)}
     if isinstance(obj, Path):
         return str(obj)
     if dataclasses.is_dataclass(obj) and not isinstance(obj, type):

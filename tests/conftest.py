@@ -86,3 +86,9 @@ def fmus_both_builds(pythonfmu_fmus, tmp_path_factory):
             out[("native", m)] = build_native_line(m, d / f"{m}.fmu")
         out[("native", "GearContact")] = build_native_gear({}, d / "GearContact.fmu")
     return out
+
+
+def pytest_xdist_auto_num_workers(config):
+    """``-n auto`` (the default run, pyproject's addopts): one worker per CPU this process may use, at most 8
+    (each worker builds the session's FMUs once; beyond 8 those builds outweigh the gain)."""
+    return max(1, min(8, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1))

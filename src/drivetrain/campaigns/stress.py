@@ -834,6 +834,37 @@ def _fmt(x, kind: str) -> str:
     return f"{x:.3g}"
 
 
+def _held_section(held: list[dict]) -> list[str]:
+    """stress.md's section on the halving pairs of draws held at standstill."""
+    lines: list[str] = []
+    lines += ["## Halving pairs held at standstill", "",
+              "These draws hold the drive at standstill under friction or losses. Each pair is judged whole "
+              "first, as every pair is: within the limits, it passes. Beyond them, the torque the regularised "
+              "Coulomb laws hold at rest is indeterminate within the friction band and follows the creep speed, "
+              "which depends on the step, so the pair is compared over the moving part before the standstill "
+              f"(at least {MIN_MOVING_WINDOW_S:g} s after the settling time) and the held means are shown, not "
+              "judged; a draw held from the start has no moving part and is not comparable (neither a pass nor "
+              "a failure). The moving-part rule came after `rnd_s8_0000` failed the whole-run comparison at "
+              "every step; judging whole first came after the ten-seed campaign left four pairs not comparable, "
+              "three of them within the limits whole (docs/STABILITY.md).", "",
+              "| pair | outcome | compared over [s] | max dev. mean / RMS there | held means at H / H/2 [N·m] |",
+              "|---|---|---|---|---|"]
+    for p in held:
+        w = p["window_s"]
+        hm = "; ".join(f"{s}: {_fmt(v[0], '')} / {_fmt(v[1], '')}" for s, v in (p.get("held_means") or {}).items())
+        dv = ("–" if p.get("max_mean_dev") is None else
+              f"{_fmt(p.get('max_mean_dev'), 'pct')} / {_fmt(p.get('max_rms_dev'), 'pct')}")
+        span = ("whole run" if p.get("compared") == "whole run" else
+                f"{w[0]:.3g}–{w[1]:.3g}" + (" (moving part)" if p.get("compared") == "moving part" else ""))
+        lines.append(f"| `{p['base']}` / `{p['half']}` | {p['outcome']} | {span} | {dv} | {hm} |")
+    lines.append("")
+    for p in held:
+        if p["outcome"] == "not_comparable":
+            lines.append(f"- `{p['base']}` / `{p['half']}`: " + "; ".join(p["reasons"]))
+    lines.append("")
+    return lines
+
+
 def report_markdown(rec: dict) -> str:
     """stress.md from the campaign record (stress.json)."""
     L = LIMITS
@@ -901,31 +932,7 @@ def report_markdown(rec: dict) -> str:
         lines.append("")
     held = [p for p in rec.get("pairs", []) if p.get("window_s")]
     if held:
-        lines += ["## Halving pairs held at standstill", "",
-                  "These draws hold the drive at standstill under friction or losses. Each pair is judged whole "
-                  "first, as every pair is: within the limits, it passes. Beyond them, the torque the regularised "
-                  "Coulomb laws hold at rest is indeterminate within the friction band and follows the creep speed, "
-                  "which depends on the step, so the pair is compared over the moving part before the standstill "
-                  f"(at least {MIN_MOVING_WINDOW_S:g} s after the settling time) and the held means are shown, not "
-                  "judged; a draw held from the start has no moving part and is not comparable (neither a pass nor "
-                  "a failure). The moving-part rule came after `rnd_s8_0000` failed the whole-run comparison at "
-                  "every step; judging whole first came after the ten-seed campaign left four pairs not comparable, "
-                  "three of them within the limits whole (docs/STABILITY.md).", "",
-                  "| pair | outcome | compared over [s] | max dev. mean / RMS there | held means at H / H/2 [N·m] |",
-                  "|---|---|---|---|---|"]
-        for p in held:
-            w = p["window_s"]
-            hm = "; ".join(f"{s}: {_fmt(v[0], '')} / {_fmt(v[1], '')}" for s, v in (p.get("held_means") or {}).items())
-            dv = ("–" if p.get("max_mean_dev") is None else
-                  f"{_fmt(p.get('max_mean_dev'), 'pct')} / {_fmt(p.get('max_rms_dev'), 'pct')}")
-            span = ("whole run" if p.get("compared") == "whole run" else
-                    f"{w[0]:.3g}–{w[1]:.3g}" + (" (moving part)" if p.get("compared") == "moving part" else ""))
-            lines.append(f"| `{p['base']}` / `{p['half']}` | {p['outcome']} | {span} | {dv} | {hm} |")
-        lines.append("")
-        for p in held:
-            if p["outcome"] == "not_comparable":
-                lines.append(f"- `{p['base']}` / `{p['half']}`: " + "; ".join(p["reasons"]))
-        lines.append("")
+        lines += _held_section(held)
     refused = [r for r in rec.get("runs", []) if r["outcome"] == "refused"]
     if refused:
         lines += ["## Refused before running (predicted unstable)", ""]

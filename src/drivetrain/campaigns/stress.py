@@ -31,8 +31,9 @@ drive-shaft and propeller-shaft sensors agree within 0.5 % and their RMS (``summ
 ["rms"]``) within 2 %, relative to the half-step run. A draw that holds its drive at standstill with
 friction or losses on is judged whole first; only when the whole runs differ beyond the limits is it compared
 over the moving part before the standstill (the torque friction holds at rest is indeterminate within its band:
-:func:`held_standstill_from_s`), and without a moving part its pair is "not comparable", with that reason. Figures a run does not report (older summaries)
-are "not reported": they do not fail the run and the report says how many runs lacked them.
+:func:`held_standstill_from_s`), and without a moving part its pair is "not comparable", with that reason.
+Figures a run does not report (older summaries) are "not reported": they do not fail the run and the report
+says how many runs lacked them.
 
 Outputs in ``out_dir``: one directory per run (``<name>/summary.json``, ``signals.h5``), the sweep
 manifest (``manifest.json``, ``manifest.csv``), the random fault meshes (``meshes/``), ``stress.json``
@@ -836,19 +837,18 @@ def _fmt(x, kind: str) -> str:
 
 def _held_section(held: list[dict]) -> list[str]:
     """stress.md's section on the halving pairs of draws held at standstill."""
-    lines: list[str] = []
-    lines += ["## Halving pairs held at standstill", "",
-              "These draws hold the drive at standstill under friction or losses. Each pair is judged whole "
-              "first, as every pair is: within the limits, it passes. Beyond them, the torque the regularised "
-              "Coulomb laws hold at rest is indeterminate within the friction band and follows the creep speed, "
-              "which depends on the step, so the pair is compared over the moving part before the standstill "
-              f"(at least {MIN_MOVING_WINDOW_S:g} s after the settling time) and the held means are shown, not "
-              "judged; a draw held from the start has no moving part and is not comparable (neither a pass nor "
-              "a failure). The moving-part rule came after `rnd_s8_0000` failed the whole-run comparison at "
-              "every step; judging whole first came after the ten-seed campaign left four pairs not comparable, "
-              "three of them within the limits whole (docs/STABILITY.md).", "",
-              "| pair | outcome | compared over [s] | max dev. mean / RMS there | held means at H / H/2 [N·m] |",
-              "|---|---|---|---|---|"]
+    lines = ["## Halving pairs held at standstill", "",
+             "These draws hold the drive at standstill under friction or losses. Each pair is judged whole "
+             "first, as every pair is: within the limits, it passes. Beyond them, the torque the regularised "
+             "Coulomb laws hold at rest is indeterminate within the friction band and follows the creep speed, "
+             "which depends on the step, so the pair is compared over the moving part before the standstill "
+             f"(at least {MIN_MOVING_WINDOW_S:g} s after the settling time) and the held means are shown, not "
+             "judged; a draw held from the start has no moving part and is not comparable (neither a pass nor "
+             "a failure). The moving-part rule came after `rnd_s8_0000` failed the whole-run comparison at "
+             "every step; judging whole first came after the ten-seed campaign left four pairs not comparable, "
+             "three of them within the limits whole (docs/STABILITY.md).", "",
+             "| pair | outcome | compared over [s] | max dev. mean / RMS there | held means at H / H/2 [N·m] |",
+             "|---|---|---|---|---|"]
     for p in held:
         w = p["window_s"]
         hm = "; ".join(f"{s}: {_fmt(v[0], '')} / {_fmt(v[1], '')}" for s, v in (p.get("held_means") or {}).items())

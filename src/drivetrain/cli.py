@@ -609,6 +609,14 @@ def _cmd_accuracy_cost(args: argparse.Namespace) -> int:
             earlier = {}
         results["meta"].update({k: earlier[k] for k in ("command", "wall_time_s", "workers") if k in earlier})
         results["meta"]["evaluated_again_with"] = command
+    try:                                # the scenes this study did not run keep their earlier rows
+        S.keep_earlier(results, json.loads(results_path.read_text()))
+    except FileNotFoundError:
+        pass
+    except (OSError, ValueError) as exc:
+        print(f"error: cannot read the earlier results {results_path} to keep their other scenes: {exc}",
+              file=sys.stderr)
+        return 2
     report = Path(args.report) if args.report else (shipped or Path(args.out)) / "ACCURACY-COST.md"
     report.parent.mkdir(parents=True, exist_ok=True)
     figures = S.plot_pareto(results, report.parent / "figures")

@@ -49,6 +49,7 @@ from numba import njit
 
 from gearcontact_fmu import compile_notice, geometry
 from gearcontact_fmu.contact import engine
+from gearcontact_fmu.elastic_layer import pair_pcm
 from gearcontact_fmu.fault_specs import normalised_spec
 from gearcontact_fmu.locks import cache_dir  # noqa: F401  (the maps' cache; re-exported)
 from gearcontact_fmu.mesh_models.pcm import build_pcm_pair, contact_onset, static_deflection
@@ -586,7 +587,7 @@ def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
     """The contact map for this configuration, from the disk cache or computed (and cached).
     ``build=False``: only from the cache (None when it is not there)."""
     gear = gear or BevelGearParams()
-    pcm = pcm or PCMParams()
+    pcm = pair_pcm(gear, pcm)
     resolution = resolution or MeshResolution()
     grid = grid or MapGrid()
     mesh_files = {k: v for k, v in (mesh_files or {}).items() if v}

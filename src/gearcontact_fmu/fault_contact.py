@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from gearcontact_fmu import geometry
+from gearcontact_fmu.elastic_layer import pair_pcm
 from gearcontact_fmu.fault_specs import FLANKS, loaded_flank, normalised_spec
 from gearcontact_fmu.locks import cache_dir, file_lock
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams, params_hash
@@ -151,7 +152,8 @@ def loaded_regions(gear: BevelGearParams | None = None, pcm: PCMParams | None = 
     """{"pinion": Region, "wheel": Region} of the healthy pair under the pinion torque ``torque`` [N m]
     (> 0 driving), from the disk cache or computed (and cached; one computation per configuration when
     several processes ask at once)."""
-    gear, pcm, resolution = gear or BevelGearParams(), pcm or PCMParams(), resolution or MeshResolution()
+    gear = gear or BevelGearParams()
+    pcm, resolution = pair_pcm(gear, pcm), resolution or MeshResolution()
     if not (math.isfinite(torque) and torque != 0.0):
         raise ValueError(f"the loaded contact region needs a non-zero finite pinion torque, not {torque!r}")
     path = _region_path(gear, pcm, resolution, torque)

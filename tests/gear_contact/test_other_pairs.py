@@ -149,12 +149,10 @@ ISO_LINE_LOAD = 100.0
 #: the stiffness rule of tests/gear_contact/test_tooth_compliance.py (the rig): within 10 % of c_gamma with its
 #: low-load factor at each of the paper's loads
 STIFFNESS_REL_TOL = 0.10
-#: measured shortfalls (table model, this commit): the ratio k / (c_gamma LLF) at the four line loads
-STIFFNESS_SHORT = {
-    "20x40_m4": "1.11 1.10 1.22 1.23: the module-4 pair is stiffer than ISO by more than 10 % (the 0.5 mm "
-                "layer does not scale with the module; docs/GEAR-CONTACT.md, Other pairs)",
-    "miter25_m3": "1.03 1.07 1.11 1.10: over 10 % at the two heavier loads",
-}
+#: the layer of each other pair is the rig's carried to its flank curvature (gearcontact_fmu.elastic_layer).
+#: With the rig's 0.5 mm kept for every pair, 20x40_m4 (1.11 / 1.10 / 1.22 / 1.23) and miter25_m3 (1.03 / 1.07 /
+#: 1.11 / 1.10) failed this rule (docs/GEAR-CONTACT.md, "Other pairs"): the rule stayed, the layer law came after
+STIFFNESS_SHORT: dict[str, str] = {}
 
 
 def _line_load_N_per_mm(gear, torque_Nm):
@@ -188,6 +186,60 @@ def _table(table_models, name):
         print(f"\n {name}: table model in {time.perf_counter() - t0:.1f} s "
               f"({'cached map' if info.get('from_cache') else 'map built'})")
     return table_models[name]
+
+
+def test_the_layer_of_a_pair_is_the_rigs_carried_by_its_flank_curvature():
+    """The rig's pair (any backlash) keeps PCMParams() itself; a pair scaled by k has every radius k times the
+    rig's, so its layer is sqrt(k) times as deep (b / sqrt(rho) fixed); a given layer is kept; a scene without a
+    layer key gets the pair's, one with the key its own."""
+    from drivetrain.scene.schema import GearPair
+    from gearcontact_fmu.elastic_layer import layer_depth, pair_pcm, pitch_curvature_radius
+    from gearcontact_fmu.params import PCMParams
+
+    assert pair_pcm(RIG) is not None and pair_pcm(RIG) == PCMParams() and pair_pcm() == PCMParams()
+    assert layer_depth(BevelGearParams(backlash=0.2e-3, tip_radius=0.1e-3, x_pinion=0.3)) == 0.5e-3
+    for k in (0.5, 4 / 3, 2.0):
+        P = BevelGearParams(module=RIG.module * k, face_width=RIG.face_width * k)
+        assert pitch_curvature_radius(P) == pytest.approx(k * pitch_curvature_radius(RIG), rel=1e-12)
+        assert layer_depth(P) == pytest.approx(0.5e-3 * math.sqrt(k), rel=1e-12)
+    given = PCMParams(layer_depth=0.3e-3)
+    assert pair_pcm(PAIRS["20x40_m4"], given) is given
+    assert GearPair.of().pcm() == PCMParams()
+    scene_pair = GearPair.of({"z_pinion": 20, "z_wheel": 40, "module_mm": 4.0, "x_pinion": 0.35})
+    assert scene_pair.pcm().layer_depth == layer_depth(scene_pair.params()) > 0.6e-3
+    assert GearPair.of({"z_pinion": 20, "layer_depth_mm": 0.4}).pcm().layer_depth == pytest.approx(0.4e-3)
+
+
+#: a pair similar to the rig (every length 4/3 of the rig's: module 4 mm)
+SIMILAR = BevelGearParams(module=RIG.module * 4 / 3, face_width=RIG.face_width * 4 / 3, backlash=RIG.backlash * 4 / 3,
+                          tip_radius=RIG.tip_radius * 4 / 3)
+
+
+@pytest.mark.slow
+def test_the_layer_law_keeps_a_similar_pairs_stiffness():
+    """The closed form of the layer's line contact (gearcontact_fmu.elastic_layer): at a fixed line load the
+    approach goes as (b / sqrt(rho))^(2/3), so the secant stiffness per face width of the pair similar to the rig
+    with the rig's 0.5 mm layer is (sqrt(4/3))^(2/3) = 1.10x that with its carried layer (within 2 %), and with
+    its carried layer it is the rig's (within 6 %: the map's grid and the meshes' elements are not scaled).
+    Rules set after a first measurement (1.094-1.103; 0.950-1.013), stated here."""
+    from gearcontact_fmu.mesh_models import make_mesh_model
+    from gearcontact_fmu.mesh_statics import static_mesh_stiffness
+    from gearcontact_fmu.params import PCMParams, TOOTH_COMPLIANCE_FACTOR
+
+    assert pair_problems(SIMILAR) == []
+    models = {label: make_mesh_model("table", P, pcm, tooth_compliance=TOOTH_COMPLIANCE_FACTOR)
+              for label, P, pcm in (("rig", RIG, None), ("carried", SIMILAR, None), ("fixed", SIMILAR, PCMParams()))}
+    expected = (math.sqrt(4 / 3)) ** (2 / 3)
+    for T_rig in PAPER_TORQUES_NM:
+        w = _line_load_N_per_mm(RIG, T_rig)
+        k = {label: static_mesh_stiffness(m, SIMILAR if label != "rig" else RIG,
+                                          _torque_at(SIMILAR if label != "rig" else RIG, w))["mean"]
+             for label, m in models.items()}
+        print(f"\n {w:.1f} N/mm: rig {k['rig']:.3f}, similar pair with the carried layer {k['carried']:.3f}, with "
+              f"the rig's {k['fixed']:.3f} N/(mm um); fixed / carried {k['fixed'] / k['carried']:.4f} "
+              f"(closed form {expected:.4f})")
+        assert k["fixed"] / k["carried"] == pytest.approx(expected, rel=0.02)
+        assert k["carried"] / k["rig"] == pytest.approx(1.0, abs=0.06)
 
 
 def _params_short(name, short):

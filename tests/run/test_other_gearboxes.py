@@ -119,16 +119,21 @@ def test_manufacturing_errors_and_faults_are_drawn_on_a_new_pair(fidelity):
     assert [f["tooth"] for f in json.loads(gear["faults"])] == [17, 33]   # teeth the rig's 15-tooth pinion lacks
 
 
-def test_the_accuracy_choice_is_refused_for_another_pair():
-    """The accuracy-cost study measured the rig's pair: its errors say nothing of another one."""
+def test_the_accuracy_choice_reads_the_study_of_the_scenes_own_pair():
+    """The accuracy-cost errors are measured per pair: the rig's scenes choose from the rig's studied scenes, the
+    20/40 pair's from its own (pair20x40_healthy_1500rpm), and a pair the study never ran is refused, saying so."""
     from drivetrain.run import accuracy
 
     from _shared import accuracy_results
 
-    rig = load_scene(EXAMPLE)
-    assert accuracy.choose(rig, 5.0, accuracy_results()).setting
-    with pytest.raises(ValueError, match="rig's pair only"):
-        accuracy.choose(load_scene(OTHER / "miter_25_25.toml"), 5.0, accuracy_results())
+    results = accuracy_results()
+    rig = accuracy.choose(load_scene(EXAMPLE), 5.0, results)
+    assert rig.setting and "pair" not in results["scenes"][rig.studied_scene]
+    own = accuracy.choose(load_scene(OTHER / "pair_20_40_m4.toml"), 5.0, results)
+    assert own.studied_scene == "pair20x40_healthy_1500rpm"
+    assert results["scenes"][own.studied_scene]["pair"]["module_mm"] == 4.0
+    with pytest.raises(ValueError, match="ran no scene of this"):
+        accuracy.choose(load_scene(OTHER / "miter_25_25.toml"), 5.0, results)
 
 
 def test_each_pair_has_its_own_contact_map_and_the_rig_keeps_its_shipped_one():

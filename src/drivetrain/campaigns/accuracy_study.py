@@ -11,7 +11,7 @@ from pathlib import Path
 
 from drivetrain.campaigns.provenance import commit_line
 from drivetrain.run.accuracy import (DEFAULT, REFERENCE, SETTINGS, STUDY_DURATION_S, STUDY_SCENES, STUDY_SETTLE_S, Setting, compare,
-                                 health_class, run_name, study_overrides, within)
+                                 health_class, pair_of, run_name, study_overrides, within)
 from drivetrain.run.outputs import read_hdf5
 from drivetrain.run.runner import assemble_scene
 from drivetrain.scene.load import ScenarioError, load_scene
@@ -72,6 +72,8 @@ def evaluate(run_dir: Path, records: list[dict], scenes: list, refused: dict, me
         if ref_scene is not None:
             rec["speed_rpm"] = ref_scene.operating_point.final_speed_rpm
             rec["health_class"] = health_class(ref_scene)
+            if pair_of(ref_scene) is not None:
+                rec["pair"] = pair_of(ref_scene)
         ref = None
         ref_rec = by_name.get(run_name(sc, REFERENCE))
         if ref_rec and ref_rec.get("status") == "ok":
@@ -112,6 +114,24 @@ def evaluate(run_dir: Path, records: list[dict], scenes: list, refused: dict, me
             rec["rows"][st] = row
         out["scenes"][sc] = rec
     return out
+
+
+def keep_earlier(results: dict, earlier: dict) -> dict:
+    """``results`` with the scenes of ``earlier`` (the results file being rewritten) that this study did not
+    evaluate kept as they were, in STUDY_SCENES' order: a study run for one scene adds its rows and loses none.
+    ``meta["kept_from_earlier"]``: {scene: the command that measured it}."""
+    scenes = dict(results.get("scenes", {}))
+    kept = {}
+    for name, rec in (earlier.get("scenes") or {}).items():
+        if name not in scenes and name in STUDY_SCENES:
+            scenes[name] = rec
+            kept[name] = (earlier.get("meta") or {}).get("kept_from_earlier", {}).get(name) or \
+                (earlier.get("meta") or {}).get("command", "an earlier study")
+    order = {n: i for i, n in enumerate(STUDY_SCENES)}
+    results["scenes"] = dict(sorted(scenes.items(), key=lambda kv: order.get(kv[0], len(order))))
+    if kept:
+        results.setdefault("meta", {})["kept_from_earlier"] = kept
+    return results
 
 
 def _records_on_disk(run_dir: Path, runs: list) -> list[dict]:
@@ -257,6 +277,13 @@ def report_markdown(results: dict, figures: dict[str, str]) -> str:
            f"{meta.get('duration_s', STUDY_DURATION_S):g} s, of which the last "
            f"{meta.get('duration_s', STUDY_DURATION_S) - meta.get('settle_s', STUDY_SETTLE_S):g} s are compared "
            "with the same scene's reference run.", "", commit_line(), ""]
+    kept = meta.get("kept_from_earlier") or {}
+    if kept:
+        whom: dict = {}
+        for scene, cmd in kept.items():
+            whom.setdefault(cmd, []).append(scene)
+        out += ["Scenes measured by an earlier study and kept as they were: " + "; ".join(
+            f"{', '.join(scenes)} (`{cmd}`)" for cmd, scenes in whom.items()) + ".", ""]
     out += INTRO
     for name, sc in results.get("scenes", {}).items():
         rows = sc["rows"]

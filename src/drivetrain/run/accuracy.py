@@ -132,6 +132,10 @@ STUDY_SCENES: dict[str, tuple[str, tuple[str, ...], str]] = {
 }
 STUDY_SCENES["wheel_void_1500rpm"] = ("scenarios/faults/wheel_void_1500rpm.toml", (),
                                       "void on wheel tooth 38, 1500 rpm, 1.31 N·m")
+#: another pair (issue 42): its errors answer ``numerics.tolerance_pct`` for scenes of that pair only
+STUDY_SCENES["pair20x40_healthy_1500rpm"] = ("scenarios/other_gearboxes/pair_20_40_m4.toml", (),
+                                             "20/40 pair of module 4 mm (scenarios/other_gearboxes), healthy, "
+                                             "1500 rpm, 1.31 N·m")
 
 _COMMON = (f"time.duration_s={STUDY_DURATION_S}", f"time.settle_s={STUDY_SETTLE_S}", "outputs.plots=false",
            f"outputs.sensors={json.dumps(list(TORQUE_SENSORS))}")
@@ -250,18 +254,33 @@ def health_class(scene) -> str:
     return h if h in PAPER_HEALTH else "severe"
 
 
+def pair_of(scene) -> dict | None:
+    """The scene's ``[gear.pair]`` keys (a studied scene's record keeps them), None for the rig's pair."""
+    return None if scene.gear.pair.is_rig else dict(scene.gear.pair.as_dict())
+
+
 def closest_scene(scene, results: dict) -> str:
-    """The studied scene nearest to ``scene``: the same health class (healthy, mild, severe, wheel
-    fault; other faults count as severe), then the nearest speed on a log scale."""
+    """The studied scene nearest to ``scene`` among those of its gear pair (the rig's, or another pair's
+    with every ``[gear.pair]`` key equal): the same health class (healthy, mild, severe, wheel fault; other
+    faults count as severe), then the nearest speed on a log scale. ValueError when the study ran no scene
+    of the pair."""
     want = health_class(scene)
     rpm = max(float(scene.operating_point.final_speed_rpm), 1.0)
+    pair = pair_of(scene)
     best = None
     for name, rec in results.get("scenes", {}).items():
+        if rec.get("pair") != pair:
+            continue
         cls, speed = rec.get("health_class"), float(rec.get("speed_rpm", 0.0)) or 1.0
         key = (cls != want, abs(math.log(rpm / speed)))
         if best is None or key < best[0]:
             best = (key, name)
     if best is None:
+        if pair is not None:
+            raise ValueError("the accuracy-cost study ran no scene of this [gear.pair] (its errors are measured "
+                             "per pair); set the scene's numerics yourself (remove numerics.tolerance_pct), or "
+                             "add a studied scene of the pair to drivetrain.run.accuracy.STUDY_SCENES and run "
+                             "drivetrain accuracy-cost --scenes NAME")
         raise ValueError("the accuracy-cost results hold no scene")
     return best[1]
 
@@ -319,9 +338,6 @@ def _cost_words(cost: float, own: str | None, own_cost: float | None, ref_cost: 
 def choose(scene, tolerance_pct: float, results: dict | None = None) -> Choice:
     """The cheapest choosable setting whose measured error for the closest studied scene is within the
     tolerance (the reference, which always is, when nothing cheaper is)."""
-    if not scene.gear.pair.is_rig:          # the study ran the rig's pair: its errors say nothing of another
-        raise ValueError("the accuracy-cost study was measured on the rig's pair only; a scene with another "
-                         "[gear.pair] sets its numerics itself (remove numerics.tolerance_pct)")
     results = results if results is not None else load_results()
     name = closest_scene(scene, results)
     rows = results["scenes"][name]["rows"]
@@ -354,4 +370,5 @@ def apply_tolerance(scene) -> tuple:
 
 
 __all__ = ["SETTINGS", "STUDY_SCENES", "Setting", "compare", "choose", "apply_tolerance", "closest_scene",
-           "load_results", "within", "run_name", "study_overrides", "health_class", "RESULTS_FILE", "own_setting"]
+           "load_results", "within", "run_name", "study_overrides", "health_class", "RESULTS_FILE", "own_setting",
+           "pair_of"]

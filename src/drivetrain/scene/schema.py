@@ -153,8 +153,9 @@ PAIR_SCHEMA: dict[str, Key] = {
     "E_GPa": _f(_pair_default("E_GPa"), "GPa", "", "Young's modulus of the elastic layer (polygonal contact)",
                 minimum=0.0, min_exclusive=True),
     "nu": _f(_pair_default("nu"), "", "", "Poisson's ratio of the elastic layer; < 0.5", minimum=0.0),
-    "layer_depth_mm": _f(_pair_default("layer_depth_mm"), "mm", "length", "depth of the elastic layer of each body",
-                         minimum=0.0, min_exclusive=True),
+    "layer_depth_mm": _f(_pair_default("layer_depth_mm"), "mm", "length", "depth of the elastic layer of each body; "
+                         "absent: the rig's carried to the pair's flank curvature, "
+                         "b_rig sqrt(rho / rho_rig) (gearcontact_fmu.elastic_layer)", minimum=0.0, min_exclusive=True),
 }
 assert set(PAIR_SCHEMA) == set(PAIR_FIELDS)
 
@@ -168,8 +169,17 @@ class GearPair:
 
     @classmethod
     def of(cls, given: dict | None = None) -> "GearPair":
+        """The pair of the keys ``given``; an absent key at the rig's value, but ``layer_depth_mm``, which an
+        absent key takes from the pair (``gearcontact_fmu.elastic_layer.layer_depth``: the rig's layer carried to
+        the pair's flank curvature; the rig's own 0.5 mm for the rig's pair)."""
         given = given or {}
-        return cls(tuple((k, given[k] if k in given else spec.default) for k, spec in PAIR_SCHEMA.items()))
+        pair = cls(tuple((k, given[k] if k in given else spec.default) for k, spec in PAIR_SCHEMA.items()))
+        if "layer_depth_mm" in given or not any(PAIR_FIELDS[k][0] == "gear" for k in given):
+            return pair
+        from gearcontact_fmu.elastic_layer import layer_depth      # (numba's import: only for another pair)
+
+        depth = PAIR_UNITS[PAIR_FIELDS["layer_depth_mm"][2]][1](layer_depth(pair.params()))
+        return cls(tuple((k, depth if k == "layer_depth_mm" else v) for k, v in pair.values))
 
     def as_dict(self) -> dict:
         return dict(self.values)

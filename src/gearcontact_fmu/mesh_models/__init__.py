@@ -77,8 +77,10 @@ def make_mesh_model(fidelity: str, gear_params=None, pcm_params=None, resolution
                              f"approach axis) and already part of the analytic ISO 6336 pair; not by {fidelity!r}")
         if fidelity == "table":
             kw["tooth_compliance"] = compliance
+    from gearcontact_fmu.elastic_layer import pair_pcm     # (it reads this folder's analytic module)
+
     gear_params = gear_params or BevelGearParams()
-    model = builder(fidelity)(gear_params, pcm_params or PCMParams(), resolution or MeshResolution(),
+    model = builder(fidelity)(gear_params, pair_pcm(gear_params, pcm_params), resolution or MeshResolution(),
                               health=health, mesh_files=mesh_files, **kw)
     if errors:
         from gearcontact_fmu.manufacturing import with_errors

@@ -21,6 +21,7 @@ from gearcontact_fmu.contact import engine
 from gearcontact_fmu.mesh_check import load_gear_mesh
 from gearcontact_fmu.mesh_models.base import N_OUT, OUT_STATUS, OUT_TAU_PINION, MeshModel
 from gearcontact_fmu.meshes import SurfaceMesh
+from gearcontact_fmu.elastic_layer import pair_pcm
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
 
 
@@ -93,7 +94,7 @@ def build_pcm_pair(gear: BevelGearParams | None = None, pcm: PCMParams | None = 
                    mesh_units: str = "mm", friction: bool = True, damping: bool = True,
                    pinion_teeth=None, wheel_teeth=None, fault_kwargs: dict | None = None) -> PCMGearPair:
     gear = gear or BevelGearParams()
-    pcm = pcm or PCMParams()
+    pcm = pair_pcm(gear, pcm)
     resolution = resolution or MeshResolution()
     pinion, wheel = resolve_meshes(gear, resolution, health, pinion_mesh_file, wheel_mesh_file,
                                    mesh_units, pinion_teeth, wheel_teeth, fault_kwargs)

@@ -24,6 +24,7 @@ from gearcontact_fmu.mesh_models.base import (OUT_CONTACT_AREA, OUT_DISSIPATED_P
                                         OUT_MAX_PENETRATION, OUT_N_CONTACT, OUT_NORMAL_FORCE, OUT_PEAK_PRESSURE,
                                         OUT_STATUS, OUT_TAU_PINION, OUT_TAU_WHEEL, MeshModel)
 from gearcontact_fmu.mesh_models.pcm import fault_kwargs_of
+from gearcontact_fmu.elastic_layer import pair_pcm
 from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCMParams
 
 
@@ -56,7 +57,7 @@ def make_table_model(gear_params=None, pcm_params=None, resolution=None, health=
     cached or shipped map, ``build="shipped"``: only a shipped one (LookupError when there is none)."""
     fault_kwargs = fault_kwargs_of(health, faults)
     if build == "shipped" and not (SEED_DIR / map_file_name(
-            gear_params or BevelGearParams(), pcm_params or PCMParams(), resolution or MeshResolution(), health,
+            gear_params or BevelGearParams(), pair_pcm(gear_params, pcm_params), resolution or MeshResolution(), health,
             {k: v for k, v in (mesh_files or {}).items() if v}, grid or MapGrid(), mesh_units, fault_kwargs)).exists():
         raise LookupError("no contact map of this configuration is shipped")
     cmap = get_map(gear_params, pcm_params, resolution, health, mesh_files, grid, mesh_units,

@@ -735,7 +735,7 @@ def _stress_command(args: argparse.Namespace) -> str:
                                 ("--duration-random", "duration_random", 1.5), ("--duration-pcm", "duration_pcm", 0.1),
                                 ("--duration-paper", "duration_paper", None), ("--fidelities", "fidelities", None),
                                 ("--paper-grid", "paper_grid", None), ("--backend", "backend", "fmi"),
-                                ("--fmu-dir", "fmu_dir", None)):
+                                ("--fmu-dir", "fmu_dir", None), ("--pair", "pair", None)):
         v = getattr(args, attr)
         if v != default:
             words += [flag, str(v)]
@@ -766,7 +766,7 @@ def _cmd_stress(args: argparse.Namespace) -> int:
                              duration_pcm_s=args.duration_pcm, duration_paper_s=args.duration_paper,
                              fidelities=fids, paper_grid=args.paper_grid, fmu_dir=args.fmu_dir,
                              backend=args.backend, progress=not args.quiet, only=args.only,
-                             command=_stress_command(args), log=log, seeds=args.seeds)
+                             command=_stress_command(args), log=log, seeds=args.seeds, pair=args.pair)
     except (ScenarioError, ConfigurationError, ValueError, FileNotFoundError) as exc:
         return _scene_errors(exc)
     tot = rec["table"][-1]
@@ -1291,6 +1291,9 @@ def _parser_stress(sub) -> None:
     p.add_argument("--fidelities", default=None, metavar="LIST",
                    help="comma-separated mesh_contact fidelities the random scenes may use (default: all)")
     p.add_argument("--paper-grid", default=None, metavar="TOML", help="the paper grid (default: scenarios/paper/paper.toml)")
+    p.add_argument("--pair", default=None, metavar="NAME",
+                   help="draw the random scenes on another gear pair, one of gearcontact_fmu.pair_check.OTHER_PAIRS "
+                        "(e.g. 20x40_m4, miter25_m3, 20x30_s70_m3; with --set-name random; default the rig's)")
     p.add_argument("--backend", choices=BACKENDS, default="fmi", help=_BACKEND_HELP)
     p.add_argument("--fmu-dir", default=None, help=_FMU_DIR_HELP)
     p.add_argument("--only", nargs="*", default=None, metavar="PATTERN",

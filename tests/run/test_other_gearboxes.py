@@ -152,3 +152,12 @@ def test_each_pair_has_its_own_contact_map_and_the_rig_keeps_its_shipped_one():
     others = {name(load_scene(OTHER / f)) for f in ("pair_20_40_m4.toml", "miter_25_25.toml")}
     others |= {name(load_scene(EXAMPLE, ["gear.pair.E_GPa=210"])), name(load_scene(EXAMPLE, ["gear.pair.backlash_mm=0.1"]))}
     assert len(others) == 4 and rig not in others
+
+
+@pytest.mark.parametrize("scene, name", [("pair_20_40_m4.toml", "20x40_m4"), ("miter_25_25.toml", "miter25_m3")])
+def test_the_checked_pairs_are_the_scenes_pairs(scene, name):
+    """docs/GEAR-CONTACT.md's checks of the other pairs (gearcontact_fmu.pair_check.OTHER_PAIRS) are of the
+    scenes' own pairs, every gear datum equal."""
+    from gearcontact_fmu.pair_check import other_pair
+
+    assert load_scene(OTHER / scene).gear.pair.params() == other_pair(name)

@@ -63,11 +63,13 @@ from drivetrain.run.outputs import jsonable, now_iso
 from drivetrain.run.runner import assemble_scene
 from drivetrain.rig.data import PAPER_MAX_LOAD_NM, TORQUE_SENSORS
 from drivetrain.scene.load import FIDELITIES, Scene, load_scenes, scene_from_dict
+from drivetrain.scene.schema import pair_keys
 from drivetrain.campaigns.sweep import CACHED_FIDELITIES, prepare_caches, read_runs, run_sweep
 from drivetrain.system import SystemSpec
 from gearcontact_fmu import faults, geometry
 from gearcontact_fmu.meshes import save_mesh
 from gearcontact_fmu.mesh_models.base import PAPER_HEALTH
+from gearcontact_fmu.pair_check import OTHER_PAIRS, other_pair
 from gearcontact_fmu.params import BevelGearParams
 
 # --------------------------------------------------------------------------------------------------
@@ -191,13 +193,18 @@ def _load(u: np.ndarray, D: float) -> dict:
 
 def draw_random(seed: int, i: int, *, duration_s: float = DEFAULT_DURATION_S,
                 duration_pcm_s: float = DEFAULT_DURATION_PCM_S, fidelities=None,
-                n_fault_meshes: int = N_FAULT_MESHES, probe_fraction: float = PROBE_FRACTION) -> dict:
+                n_fault_meshes: int = N_FAULT_MESHES, probe_fraction: float = PROBE_FRACTION,
+                pair: str | None = None) -> dict:
     """The parameters of random scene ``i`` (plain data; :func:`random_scene_dict` makes the scene).
 
     Depends only on (seed, i) and the options. A fixed vector of uniforms is drawn first and each
     decision uses its own entry, so that restricting one choice (``fidelities``) leaves the others as
     they were. ``fidelities``: allowed ``effects.mesh_contact`` values (default all); the health states
-    are restricted to those some allowed fidelity can simulate."""
+    are restricted to those some allowed fidelity can simulate. ``pair``: one of
+    ``gearcontact_fmu.pair_check.OTHER_PAIRS`` for every scene (default the rig's); the draws are the same,
+    the scenes and their fault meshes are of that pair (named ``rnd_<pair>_s<seed>_<i>``)."""
+    if pair is not None:
+        other_pair(pair)                            # KeyError naming the pairs there are
     u = _rng(seed, _STREAM_SCENE, i).random(_N_UNIFORMS)
     allowed = tuple(fidelities) if fidelities else FIDELITIES
     bad = [f for f in allowed if f not in FIDELITIES]
@@ -216,7 +223,7 @@ def draw_random(seed: int, i: int, *, duration_s: float = DEFAULT_DURATION_S,
         fs = SAMPLE_RATE_HZ
     D = float(duration_pcm_s if fid == "pcm" else duration_s)
     p: dict[str, Any] = {
-        "seed": int(seed), "index": int(i), "name": random_name(seed, i),
+        "seed": int(seed), "index": int(i), "name": random_name(seed, i, pair),
         "health": health,
         "fault_mesh": (min(int(u[9] * n_fault_meshes), n_fault_meshes - 1) if health == "mesh" else None),
         "mesh_contact": fid,
@@ -229,11 +236,13 @@ def draw_random(seed: int, i: int, *, duration_s: float = DEFAULT_DURATION_S,
     }
     p.update(_speed(u, D))
     p.update(_load(u, D))
+    if pair is not None:            # the rig's draws keep their parameters as they were
+        p["pair"] = pair
     return p
 
 
-def random_name(seed: int, i: int) -> str:
-    return f"rnd_s{int(seed)}_{int(i):04d}"
+def random_name(seed: int, i: int, pair: str | None = None) -> str:
+    return f"rnd_s{int(seed)}_{int(i):04d}" if pair is None else f"rnd_{pair}_s{int(seed)}_{int(i):04d}"
 
 
 def halving_name(name: str) -> str:
@@ -249,6 +258,8 @@ def random_scene_dict(p: dict, mesh_paths: list | None = None, *, halve_step: bo
     if "load_torque_Nm" not in op:
         op["load_torque_Nm"] = float(p["load_profile_Nm"][0][1])
     gear: dict[str, Any] = {"health": p["health"]}
+    if p.get("pair") is not None:
+        gear["pair"] = pair_keys(other_pair(p["pair"]))
     if p["health"] == "mesh":
         if not mesh_paths:
             raise ValueError(f"{p['name']}: health 'mesh' needs the fault mesh files (write_fault_meshes)")
@@ -257,6 +268,7 @@ def random_scene_dict(p: dict, mesh_paths: list | None = None, *, halve_step: bo
     name = halving_name(p["name"]) if halve_step else p["name"]
     desc = (f"stress draw seed {p['seed']} #{p['index']}: {p['health']}/{p['mesh_contact']}/{p['shaft_flexibility']}, "
             f"speed {p['speed_mode']}, load {p['load_mode']}, H = 1/{1.0 / H:.0f} s"
+            + (f", pair {p['pair']}" if p.get("pair") is not None else "")
             + (" (unstable probe)" if p["unstable_probe"] else ""))
     return {
         "scenario": {"name": name, "description": desc},
@@ -275,13 +287,13 @@ def random_scene_dict(p: dict, mesh_paths: list | None = None, *, halve_step: bo
 # --------------------------------------------------------------------------------------------------
 
 
-def fault_mesh_params(seed: int, j: int) -> dict:
+def fault_mesh_params(seed: int, j: int, pair: str | None = None) -> dict:
     """Parameters of random fault mesh ``j`` (depends only on (seed, j)). Meshes 0, 1, 2 (mod 4): a
     flank-fracture void of random tooth, width 0.5..2 mm, depth 0.1..0.5 mm and position -0.8..1.5 mm
     from the pitch cone (:func:`gearcontact_fmu.faults.mild_flank_fracture`); mesh 3 (mod 4): a random
-    missing tooth plus a void on another tooth."""
+    missing tooth plus a void on another tooth. ``pair``: on the pinion of that other pair (default the rig's)."""
 
-    P = BevelGearParams()
+    P = BevelGearParams() if pair is None else other_pair(pair)
     g = geometry.gear_geometry(P, "pinion")
     rng = _rng(seed, _STREAM_MESH, j)
     for _ in range(1000):
@@ -293,6 +305,8 @@ def fault_mesh_params(seed: int, j: int) -> dict:
     else:  # pragma: no cover - the ranges above are inside the flank
         raise RuntimeError("no valid void drawn")
     out = {"seed": int(seed), "index": int(j), "void": void, "missing_tooth": None}
+    if pair is not None:
+        out["pair"] = pair
     if j % 4 == 3:
         out["missing_tooth"] = int((void["tooth"] + rng.integers(1, g.z)) % g.z)
     return out
@@ -301,7 +315,7 @@ def fault_mesh_params(seed: int, j: int) -> dict:
 def build_fault_mesh(params: dict):
     """The pinion SurfaceMesh (body frame, m) of :func:`fault_mesh_params`."""
 
-    P = BevelGearParams()
+    P = BevelGearParams() if params.get("pair") is None else other_pair(params["pair"])
     mesh = geometry.build_gear_mesh(P, "pinion")
     mesh = faults.mild_flank_fracture(mesh, P, **params["void"])
     if params.get("missing_tooth") is not None:
@@ -309,11 +323,11 @@ def build_fault_mesh(params: dict):
     return mesh
 
 
-def fault_mesh_path(mesh_dir: Path | str, seed: int, j: int) -> Path:
-    return Path(mesh_dir) / f"fault_s{int(seed)}_{int(j)}.obj"
+def fault_mesh_path(mesh_dir: Path | str, seed: int, j: int, pair: str | None = None) -> Path:
+    return Path(mesh_dir) / (f"fault_s{int(seed)}_{int(j)}.obj" if pair is None else f"fault_{pair}_s{int(seed)}_{int(j)}.obj")
 
 
-def write_fault_meshes(mesh_dir: Path | str, seed: int, indices, log=None) -> dict[int, Path]:
+def write_fault_meshes(mesh_dir: Path | str, seed: int, indices, log=None, pair: str | None = None) -> dict[int, Path]:
     """Write the fault meshes ``indices`` as OBJ (mm) into ``mesh_dir`` (kept when the file and its
     parameter sidecar exist with the same parameters: the contact-map cache is keyed by the content)."""
 
@@ -321,9 +335,9 @@ def write_fault_meshes(mesh_dir: Path | str, seed: int, indices, log=None) -> di
     mesh_dir.mkdir(parents=True, exist_ok=True)
     out = {}
     for j in sorted(set(int(x) for x in indices)):
-        path = fault_mesh_path(mesh_dir, seed, j)
+        path = fault_mesh_path(mesh_dir, seed, j, pair)
         side = path.with_suffix(".json")
-        params = fault_mesh_params(seed, j)
+        params = fault_mesh_params(seed, j, pair)
         if path.is_file() and side.is_file():
             try:
                 if json.loads(side.read_text()) == params:
@@ -1117,12 +1131,18 @@ def build_cases(*, set_name: str = "all", n_random: int = 200, seed: int = 0, ou
                 duration_random_s: float = DEFAULT_DURATION_S, duration_pcm_s: float = DEFAULT_DURATION_PCM_S,
                 halving_subset: int = DEFAULT_HALVING_SUBSET, fidelities=None, paper_grid=None,
                 duration_paper_s: float | None = None, n_fault_meshes: int = N_FAULT_MESHES,
-                log=None, seeds: list[int] | None = None) -> tuple[list[StressCase], list[dict]]:
+                log=None, seeds: list[int] | None = None, pair: str | None = None) -> tuple[list[StressCase], list[dict]]:
     """Every case of the campaign (scenes validated; fault meshes written when a scene needs one).
     ``seeds``: the random sets of these seeds (default: ``seed`` alone), ``n_random`` scenes each.
-    Returns (cases, fault mesh descriptions)."""
+    ``pair``: the random scenes on that other pair (``OTHER_PAIRS``; the paper grid is the rig's, so only with
+    ``set_name="random"``). Returns (cases, fault mesh descriptions)."""
     if set_name not in ("paper", "random", "all"):
         raise ValueError(f"set_name must be paper, random or all, not {set_name!r}")
+    if pair is not None and set_name != "random":
+        raise ValueError(f"--pair {pair} draws the random scenes on another pair; the paper grid is the rig's: "
+                         f"use --set-name random")
+    if pair is not None and pair not in OTHER_PAIRS:
+        raise ValueError(f"no other pair {pair!r}; expected one of {', '.join(OTHER_PAIRS)}")
     out = Path(out_dir)
     cases: list[StressCase] = []
     meshes: list[dict] = []
@@ -1130,11 +1150,11 @@ def build_cases(*, set_name: str = "all", n_random: int = 200, seed: int = 0, ou
         cases += paper_cases(paper_grid, duration_paper_s)
     for sd in (seeds if seeds is not None else [seed]) if set_name in ("random", "all") and n_random > 0 else ():
         draws = random_draws(sd, n_random, duration_s=duration_random_s, duration_pcm_s=duration_pcm_s,
-                             fidelities=fidelities, n_fault_meshes=n_fault_meshes)
+                             fidelities=fidelities, n_fault_meshes=n_fault_meshes, pair=pair)
         need = sorted({p["fault_mesh"] for p in draws if p["fault_mesh"] is not None})
-        paths = write_fault_meshes(out / "meshes", sd, need, log=log) if need else {}
-        meshes += [{"index": j, "seed": sd, "path": str(paths[j]), "params": fault_mesh_params(sd, j),
-                    "description": describe_fault(fault_mesh_params(sd, j))} for j in need]
+        paths = write_fault_meshes(out / "meshes", sd, need, log=log, pair=pair) if need else {}
+        meshes += [{"index": j, "seed": sd, "path": str(paths[j]), "params": fault_mesh_params(sd, j, pair),
+                    "description": describe_fault(fault_mesh_params(sd, j, pair))} for j in need]
         cases += random_cases(draws, paths, halving_subset, base_dir=out)
     return cases, meshes
 
@@ -1197,7 +1217,7 @@ def run_stress(out_dir: Path | str = "out/stress", *, set_name: str = "all", n_r
                fidelities=None, paper_grid=None, n_fault_meshes: int = N_FAULT_MESHES,
                fmu_dir: Path | str | None = None, backend: str = "fmi", progress: bool = False, only=None,
                command: str | None = None, log: Callable[[str], None] | None = None,
-               seeds: list[int] | None = None) -> dict:
+               seeds: list[int] | None = None, pair: str | None = None) -> dict:
     """Run the campaign into ``out_dir`` and return the record written to stress.json (see the module
     docstring). ``resume``: finished runs of the same scene and model sources are not rerun (the sweep's
     skip_existing, by fingerprint).
@@ -1212,7 +1232,7 @@ def run_stress(out_dir: Path | str = "out/stress", *, set_name: str = "all", n_r
                                 duration_random_s=duration_random_s, duration_pcm_s=duration_pcm_s,
                                 halving_subset=halving_subset, fidelities=fidelities, paper_grid=paper_grid,
                                 duration_paper_s=duration_paper_s, n_fault_meshes=n_fault_meshes, log=log,
-                                seeds=seeds)
+                                seeds=seeds, pair=pair)
     if only:
         import fnmatch
 
@@ -1260,6 +1280,8 @@ def run_stress(out_dir: Path | str = "out/stress", *, set_name: str = "all", n_r
         "resume": bool(resume), "executor": "dask" if address else "local processes",
         "manifest": manifest["path"] if manifest else None, "fault_meshes": meshes,
     }
+    if pair is not None:
+        rec["pair"] = {"name": pair, "keys": pair_keys(other_pair(pair))}
     rec["wall_time_s"] = time.perf_counter() - t0
     return _finish(rec, entries, out, records)
 

@@ -209,6 +209,16 @@ class GearPair:
 RIG_PAIR = GearPair.of()
 
 
+def pair_keys(gear: BevelGearParams) -> dict:
+    """The ``[gear.pair]`` keys (scene units) of a ``BevelGearParams``: those of its gear data that differ from the
+    rig's (the elastic layer left to the pair's default), so that ``GearPair.of(pair_keys(g)).params() == g``."""
+    out = {}
+    for key, (target, field, unit) in PAIR_FIELDS.items():
+        if target == "gear" and getattr(gear, field) != getattr(_PAIR_DEFAULTS["gear"], field):
+            out[key] = PAIR_UNITS[unit][1](getattr(gear, field))
+    return out
+
+
 SCHEMA: dict[str, dict[str, Key]] = {
     "scenario": {
         "name": Key("str", None, doc="scene name (used for output files and manifests)",

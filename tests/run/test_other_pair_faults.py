@@ -1,9 +1,9 @@
 """Every fault family on either gear of the other pairs (issue 42): each family of
 ``gearcontact_fmu.fault_specs.FAULT_KINDS`` at its default size, on the pinion and on the wheel of the 20/40 pair
 of module 4 mm and of the 25/25 miter pair (their scenes in scenarios/other_gearboxes), runs (its own contact
-map, built incrementally on the pair's healthy one) and sits where the load runs: its share of the loaded
-contact region and the drop of the mesh torque it causes there (``fault_contact``, computed from the PCM pair's
-own teeth, apart from the map the run uses) are both positive. The figures are docs/GEAR-CONTACT.md's table
+map, built incrementally on the pair's healthy one) and sits where the load runs: the share of its footprint
+inside the loaded contact region (found on the PCM pair's own teeth) and the largest relative drop of the mesh
+torque between the healthy and the fault's contact maps (``fault_contact``) are both positive. The figures are docs/GEAR-CONTACT.md's table
 "Every fault family on the other pairs" (``python -m pytest -s -m slow tests/run/test_other_pair_faults.py``)."""
 from __future__ import annotations
 

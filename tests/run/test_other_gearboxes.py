@@ -124,9 +124,7 @@ def test_the_accuracy_choice_reads_the_study_of_the_scenes_own_pair():
     20/40 pair's from its own (pair20x40_healthy_1500rpm), and a pair the study never ran is refused, saying so."""
     from drivetrain.run import accuracy
 
-    from _shared import accuracy_results
-
-    results = accuracy_results()
+    results = accuracy.load_results()           # the shipped study
     rig = accuracy.choose(load_scene(EXAMPLE), 5.0, results)
     assert rig.setting and "pair" not in results["scenes"][rig.studied_scene]
     own = accuracy.choose(load_scene(OTHER / "pair_20_40_m4.toml"), 5.0, results)

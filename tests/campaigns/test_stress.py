@@ -132,6 +132,34 @@ def test_fault_meshes(tmp_path):
     assert S.write_fault_meshes(tmp_path, 0, [3]) == paths and paths[3].stat().st_mtime_ns == mtime   # reused
 
 
+def test_the_random_scenes_on_another_pair(draws, tmp_path):
+    """--pair: the same draws (every parameter but the name), the scenes carry the pair's [gear.pair] keys, the
+    fault meshes are the pair's pinion (20 teeth), the rig's draws unchanged; the paper grid or an unknown pair is
+    refused before any work."""
+    from drivetrain.scene.load import scene_from_dict
+    from gearcontact_fmu import faults
+    from gearcontact_fmu.pair_check import other_pair
+
+    other = S.random_draws(0, 40, pair="20x40_m4")
+    for p, q in zip(draws, other):
+        assert q["name"] == f"rnd_20x40_m4_s0_{p['index']:04d}" and q["pair"] == "20x40_m4"
+        assert {k: v for k, v in q.items() if k not in ("name", "pair")} == {k: v for k, v in p.items() if k != "name"}
+    j = next(p["fault_mesh"] for p in other if p["fault_mesh"] is not None)
+    paths = S.write_fault_meshes(tmp_path, 0, [j], pair="20x40_m4")
+    assert paths[j].name.startswith("fault_20x40_m4_")
+    teeth = set(faults.user_mesh(paths[j], other_pair("20x40_m4")).face_tooth.tolist())   # checked on the pair
+    assert teeth <= set(range(20)) and len(teeth) >= 19
+    mesh_paths = [paths.get(i, paths[j]) for i in range(S.N_FAULT_MESHES)]
+    for q in other:
+        sc = scene_from_dict(S.random_scene_dict(q, mesh_paths), base_dir=tmp_path)
+        assert sc.gear.pair.params() == other_pair("20x40_m4")
+    assert "pair" not in draws[0] and S.random_name(0, 3) == "rnd_s0_0003"
+    with pytest.raises(ValueError, match="paper grid is the rig's"):
+        S.build_cases(set_name="all", n_random=2, out_dir=tmp_path, pair="20x40_m4")
+    with pytest.raises(ValueError, match="expected one of"):
+        S.build_cases(set_name="random", n_random=2, out_dir=tmp_path, pair="nope")
+
+
 def test_unstable_probe_is_refused_before_running(draws):
     p = next(p for p in draws if p["unstable_probe"])
     p = dict(p, health="healthy", mesh_contact="analytic", fault_mesh=None)

@@ -7,7 +7,8 @@ delegates to the functions here. What the FMU declares (model information, varia
 bounds, initial dependencies) is plain data in ``drivetrain.models.fmu_variables``, which the native build
 reads too: :func:`init_slave` registers its variables (parameters: the fields of the component's parameter
 dataclass, variability fixed; inputs: the flange inputs of its ports and extra inputs; outputs, initial exact:
-flanges, sensors, energies, ``error``). The declarations' names are re-exported here for the shell's readers.
+flanges, sensors, energies, ``error``). The ports and the input and output names are re-exported here for the
+shell's readers (the order in which ``set_inputs`` takes the inputs is :func:`port_inputs`).
 
 Life cycle: the component is built in
 ``enter_initialization_mode`` (after the parameters are set: the parameter-dependent setup never runs
@@ -32,10 +33,8 @@ from pythonfmu.enums import Fmi2Status
 
 from drivetrain.errors import ComponentError
 from drivetrain.models import components as C
-from drivetrain.models.fmu_variables import (DEFAULT_EXPERIMENTS, DESCRIPTIONS, ENERGY, ERROR_DESCRIPTION,  # noqa: F401
-                                             EXTRA_INPUTS, INPUT_PROFILES, OUTPUTS, OWN_INPUTS, OWN_OUTPUTS, PORTS,
-                                             UNITS, bounds, declaration, port_inputs, port_outputs, variable_table,
-                                             variable_descriptions, variables)
+from drivetrain.models.fmu_variables import PORTS, port_inputs, port_outputs, variable_descriptions  # noqa: F401
+from drivetrain.models.fmu_variables import variables
 from drivetrain.models.parameters import params_from
 from fmu_runtime.guard import enter_error_state, fmi_text, guard_value_references, restore_shell_state, shell_state
 

@@ -16,7 +16,6 @@ import re
 import tempfile
 from pathlib import Path
 
-import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 PLACEHOLDER_GUID = "{00000000-0000-0000-0000-000000000000}"

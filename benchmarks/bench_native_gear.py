@@ -37,8 +37,8 @@ import fmpy
 import numpy as np
 from fmpy.fmi2 import FMU2Slave
 
-from drivetrain.fmu_build.build import build_all
-from drivetrain.fmu_build.native_gear import C_SOURCE, _probe_slave, build_native_gear, compile_command
+from drivetrain.fmu_build.build import build_all, slave_class
+from drivetrain.fmu_build.native_gear import C_SOURCE, build_native_gear, compile_command
 from drivetrain.run.assemble import gear_parameters
 from drivetrain.scene.load import load_scene
 from gearcontact_fmu.params import GEAR_MODEL
@@ -151,7 +151,8 @@ def run(path):
 def run_kernel():
     """The pythonfmu FMU's model without FMI: the numba stage kernel alone, and GearStage.step (the
     kernel plus the Python around it: energy balance, coupling correction), in this process."""
-    slave = _probe_slave()
+    cls = slave_class(ROOT / "src" / "gearcontact_fmu" / "slaves" / f"{GEAR_MODEL}.py")
+    slave = cls(instance_name="bench", resources=tempfile.gettempdir())
     for k, v in gear.items():
         setattr(slave, k, v)
     slave._build()

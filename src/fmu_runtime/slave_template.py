@@ -4,8 +4,10 @@ pythonfmu needs one script per FMU that defines ``class <Model>(Fmi2Slave):`` li
 finds the slave class by that pattern in the script's source; a class deriving from an intermediate
 base is not found on a second instantiation). The scripts differ only in the model name, so
 ``drivetrain.fmu_build.build`` renders them from this template at build time: there is no per-model file to
-keep in step. The shell itself (parameters, ports, units, error handling) is ``drivetrain.models.fmishell``;
-the model is ``drivetrain.models.components.<Model>``.
+keep in step. What the FMU declares (model information, variables, units, descriptions, bounds) is
+``drivetrain.models.fmu_variables.declaration(<Model>)``, which the native build reads too; the shell itself
+(registration, life cycle, error handling) is ``drivetrain.models.fmishell``; the model is
+``drivetrain.models.components.<Model>``.
 
 The preamble imports the installed packages when importable, else the copies bundled in
 ``resources/_bundled`` (``BEVEL_FMU_USE_BUNDLED=1`` forces the bundled copy).
@@ -33,19 +35,23 @@ if _BUNDLED.is_dir() and (_FORCE_BUNDLED or importlib.util.find_spec("drivetrain
 from fmu_runtime import check_runtime  # noqa: E402
 
 check_runtime("{model}", _HERE)        # a missing package named where the host shows it
-from pythonfmu import Fmi2Slave  # noqa: E402
+from pythonfmu import DefaultExperiment, Fmi2Slave  # noqa: E402
 
 from drivetrain.models import fmishell  # noqa: E402
+from drivetrain.models.fmu_variables import declaration  # noqa: E402
+
+_DECLARED = declaration("{model}")      # what the FMU declares, read by the native build too
 
 
 class {model}(Fmi2Slave):
-    description = fmishell.DESCRIPTIONS["{model}"]
-    author = "bevel-drivetrain"
-    version = "0.1.0"
-    units = fmishell.UNITS          # read by drivetrain.fmu_build.build (modelDescription units)
-    variable_descriptions = fmishell.variable_descriptions("{model}")   # and descriptions
-    bounds = fmishell.bounds("{model}")          # read by drivetrain.fmu_build.build (min/max)
-    default_experiment = fmishell.DEFAULT_EXPERIMENTS["{model}"]
+    # read by drivetrain.fmu_build.build (modelDescription: units, descriptions, min/max, DefaultExperiment)
+    description = _DECLARED.description
+    author = _DECLARED.author
+    version = _DECLARED.version
+    units = _DECLARED.units
+    variable_descriptions = _DECLARED.variable_descriptions
+    bounds = _DECLARED.bounds
+    default_experiment = DefaultExperiment(**_DECLARED.default_experiment._asdict())
     can_get_and_set_fmu_state = True   # read by drivetrain.fmu_build.build (canGetAndSetFMUstate)
 
     def __init__(self, **kwargs):
@@ -55,7 +61,7 @@ class {model}(Fmi2Slave):
     @classmethod
     def initial_dependencies(cls):
         """read by drivetrain.fmu_build.build (InitialUnknowns): found by running the initialization"""
-        return fmishell.initial_dependencies(cls)
+        return _DECLARED.initial_dependency_map()
 
     def enter_initialization_mode(self):
         fmishell.enter_init(self)

@@ -1,22 +1,26 @@
-"""The GearContact FMU's variables, declared once: name, type, causality, unit, default, description, bounds.
+"""The GearContact FMU's declaration, once: its variables (name, type, causality, unit, default, description,
+bounds) and its model information (description, author, version, default experiment, initial dependencies).
 
-The pythonfmu slave (``slaves/GearContact.py``) registers them; ``drivetrain.fmu_build.build`` and
-``.native_gear`` read their units, descriptions and bounds through it. The defaults are the library's own:
-literals, or attributes of its parameter dataclasses (``From``: ``BevelGearParams``, ``PCMParams``,
-``MeshResolution``, ``MapGrid``, ``StageParams``); the ``fidelity`` parameter starts at the library's default
-fidelity (``mesh_models.DEFAULT_FIDELITY``). Declared here in the library, not in the slave script, so that
-a host reads the FMU's defaults (:func:`parameter_values`, e.g. ``drivetrain.run.assemble`` for the start
-state, ``drivetrain.run.runner`` for the fault labels) without importing the slave (which imports pythonfmu
-and edits ``sys.path``). Plain data: nothing of pythonfmu.
+Both builds read it here: the pythonfmu slave (``slaves/GearContact.py``) registers the variables and takes its
+class attributes from it, the native builder (``drivetrain.fmu_build.native_gear``) writes its variable table
+and modelDescription.xml from :func:`declaration` (a ``fmu_runtime.declaration.FmuDeclaration``) without a
+slave. The defaults are the library's own: literals, or attributes of its parameter dataclasses (``From``:
+``BevelGearParams``, ``PCMParams``, ``MeshResolution``, ``MapGrid``, ``StageParams``); the ``fidelity``
+parameter starts at the library's default fidelity (``mesh_models.DEFAULT_FIDELITY``). Declared here in the
+library, not in the slave script, so that a host reads the FMU's defaults (:func:`parameter_values`, e.g.
+``drivetrain.run.assemble`` for the start state, ``drivetrain.run.runner`` for the fault labels) without
+importing the slave (which imports pythonfmu and edits ``sys.path``). Plain data: nothing of pythonfmu.
 """
 from __future__ import annotations
 
 import dataclasses
 from typing import Any, NamedTuple
 
+from fmu_runtime.declaration import Experiment, FmuDeclaration, Variable
+from gearcontact_fmu import __version__
 from gearcontact_fmu.mesh_models import DEFAULT_FIDELITY
-from gearcontact_fmu.params import (MAP_GRID_RANGE, POSITIVE, SPRING, BevelGearParams, MapGrid, MeshResolution,
-                                    PCMParams, flange_variables)
+from gearcontact_fmu.params import (DEFAULT_COMM_STEP_S, GEAR_MODEL, MAP_GRID_RANGE, POSITIVE, SPRING,
+                                    BevelGearParams, MapGrid, MeshResolution, PCMParams, flange_variables)
 from gearcontact_fmu.stage import StageParams
 
 #: values of the ``initial_state`` parameter (the first is the default)
@@ -36,7 +40,7 @@ class Counter(NamedTuple):
 
 class Var(NamedTuple):
     """One FMU variable, declared once: the slave registers it, drivetrain.fmu_build.build and .native_gear read its unit
-    and description from here."""
+    and description from here (:func:`declaration`)."""
     name: str
     type: str            # Real | Integer | Boolean | String
     causality: str       # PARAMETER (fixed) | INPUT | OUTPUT
@@ -218,3 +222,59 @@ def parameter_values(given=None) -> dict:
     sources = default_sources()
     return {v.name: given[v.name] if v.name in given else declared_default(v, sources)
             for v in VARIABLES if v.causality == PARAMETER}
+
+
+# ------------------------------------------------------------------------------------------------
+# the model information and what follows from the variables (read by the slave and the native build)
+# ------------------------------------------------------------------------------------------------
+DESCRIPTION = ("Lower bevel gear stage (15/60, m 3 mm) of the azimuth-thruster rig: pinion and wheel "
+               "inertias, port spring-dampers and the mesh (pcm/table/analytic/ideal), sub-stepped.")
+AUTHOR = "bevel-drivetrain"
+VERSION = __version__
+#: the shipped example input (documentation/example_input.csv: the rig's 500 rpm point ramped in over 0.25 s)
+#: settles well inside it; no tolerance: the stage integrates with fixed sub-steps
+DEFAULT_EXPERIMENT = Experiment(start_time=0.0, stop_time=1.0, step_size=DEFAULT_COMM_STEP_S)
+
+#: the modelDescription's units, descriptions and bounds (min/max), by variable name
+UNITS = {v.name: v.unit for v in VARIABLES if v.unit}
+VARIABLE_DESCRIPTIONS = {v.name: v.description for v in VARIABLES}
+BOUNDS = {v.name: v.bounds for v in VARIABLES if v.bounds != (None, None)}
+#: InitialUnknowns: at exit of initialization every output follows the flange inputs (initial_state inputs) and
+#: the parameters, but these: 0 whatever they are (no source inside; the sums and counts since t = 0, the
+#: smallest sub-step before the first step, the pending coupling work)
+INITIAL_DEPENDENCIES = {n: [] for n in ("energy_supplied", "energy_dissipated", "n_substeps", "n_refinements",
+                                        "n_separations", "separated_time", "min_substep", "coupling_energy_error")}
+
+#: the stability counters of the stage and the pending coupling mismatch, cumulative since t = 0: output name ->
+#: the ``GearStage`` property read when the host asks (after a failed step they include the failing sub-step)
+COUNTERS = {v.name: v.default.prop for v in VARIABLES if isinstance(v.default, Counter)}
+#: the outputs published after every step
+OUTPUTS = tuple(v.name for v in VARIABLES if v.causality == OUTPUT and v.type == "Real"
+                and not isinstance(v.default, Counter))
+#: after a failure: NaN (the state outputs keep the last completed step, see ``error``)
+NAN_ON_FAILURE = tuple(n for n in OUTPUTS if n not in ("pinion_phi", "pinion_w", "wheel_phi", "wheel_w"))
+
+
+def declared_variables() -> tuple[Variable, ...]:
+    """Every variable as the slave registers it (value reference = position in :data:`VARIABLES`): its start
+    is the declared default (a counter's: 0 before the first step), an Integer parameter has its bounds, a
+    parameter is fixed, a count or text output discrete."""
+    sources = default_sources()
+    rows = []
+    for vr, v in enumerate(VARIABLES):
+        counter = isinstance(v.default, Counter)
+        start = (0 if v.type == "Integer" else 0.0) if counter else declared_default(v, sources)
+        variability = ("fixed" if v.causality == PARAMETER else
+                       "discrete" if v.causality == OUTPUT and (v.type == "String" or (counter and v.type == "Integer"))
+                       else None)
+        lo, hi = v.bounds if v.causality == PARAMETER and v.type == "Integer" else (None, None)
+        rows.append(Variable(vr, v.name, v.type, v.causality, start, variability, lo, hi))
+    return tuple(rows)
+
+
+def declaration() -> FmuDeclaration:
+    """The GearContact FMU's declaration (module docstring), as both builds read it."""
+    return FmuDeclaration(model=GEAR_MODEL, description=DESCRIPTION, author=AUTHOR, version=VERSION,
+                          default_experiment=DEFAULT_EXPERIMENT, variables=declared_variables(), units=UNITS,
+                          variable_descriptions=VARIABLE_DESCRIPTIONS, bounds=BOUNDS,
+                          initial_dependencies=INITIAL_DEPENDENCIES)

@@ -3,6 +3,7 @@
 - The module import graph of src/, with imports inside functions counted, has no cycle.
 - The pure library of the pair (gearcontact_fmu outside slaves/) never imports drivetrain, pythonfmu,
   the CLI or plotting.
+- The native FMU builders read the FMUs' declarations in the library, never a pythonfmu slave.
 - Only the command line (drivetrain.cli) and the plotting module (drivetrain.run.outputs) print.
 """
 import ast
@@ -128,6 +129,55 @@ def test_the_wings_import_downwards_only():
             if b is not None and b != a and WING_RANK[b] >= WING_RANK[a]:
                 bad.append(f"{m} ({a}, rank {WING_RANK[a]}) imports {n} ({b}, rank {WING_RANK[b]})")
     assert not bad, "imports against the wings' order:\n" + "\n".join(bad)
+
+
+#: what loads a pythonfmu slave: pythonfmu itself, the slave script, the drivetrain slaves' shell and template
+SLAVE_SIDE = ("pythonfmu", "gearcontact_fmu.slaves", "drivetrain.models.fmishell", "fmu_runtime.slave_template",
+              "fmu_runtime.guard")
+#: the declarations both builds read (plain data)
+DECLARATIONS = ("gearcontact_fmu.fmu_variables", "drivetrain.models.fmu_variables", "fmu_runtime.declaration")
+
+
+def _import_names(path: Path) -> list[tuple[str, list[str]]]:
+    """(module, names taken from it) of every import statement of a file, functions included."""
+    out = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out += [(a.name, []) for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and not node.level:
+            out.append((node.module or "", [a.name for a in node.names]))
+    return out
+
+
+def _slave_side(module: str) -> bool:
+    return any(module == s or module.startswith(s + ".") for s in SLAVE_SIDE)
+
+
+def test_the_native_builders_read_the_declarations_not_a_slave():
+    """The FMU slave apart from the library: the native builders (fmu_build.native_gear, .native_line) write
+    their FMUs from the declarations in the library, which the pythonfmu slaves read too. Neither builder
+    imports pythonfmu, a slave script, the slave shell or template, nor the pythonfmu builder's slave loaders
+    (build.slave_class, build_fmu, build_all, find_slave_scripts); and the declarations, with every module of
+    src they import (functions included), import nothing of the slave side."""
+    mods = _modules()
+    loaders = {"slave_class", "build_fmu", "build_all", "find_slave_scripts"}
+    bad = []
+    for m in ("drivetrain.fmu_build.native_gear", "drivetrain.fmu_build.native_line"):
+        for module, names in _import_names(mods[m]):
+            if _slave_side(module):
+                bad.append(f"{m} imports {module}")
+            bad += [f"{m} imports {module}.{n}" for n in names if n in loaders or _slave_side(f"{module}.{n}")]
+    seen, todo = set(), list(DECLARATIONS)
+    while todo:
+        m = todo.pop()
+        if m in seen:
+            continue
+        seen.add(m)
+        bad += [f"{m} (imported by a declaration) imports {module}" for module, _ in _import_names(mods[m])
+                if _slave_side(module)]
+        todo += sorted(_imports(m, mods[m], mods))
+    assert len(seen) > 10, sorted(seen)               # the walk went through the declarations' imports
+    assert not bad, "the native build reaches the pythonfmu slave side:\n" + "\n".join(bad)
 
 
 def test_drivetrain_has_no_flat_room():

@@ -243,7 +243,10 @@ def test_the_map_is_the_one_the_slave_steps_with(gear):
     """The native build and the pythonfmu slave translate the GearContact parameters with one function
     (gearcontact_fmu.fmu_parameters): the map (and manufacturing offset) the build writes is the one the
     slave's stage evaluates, for the example's gear and for a coarse faulty gear with pitch errors."""
-    from drivetrain.fmu_build.native_gear import NEUTRAL, _probe_slave, _table_arrays
+    import tempfile
+
+    from drivetrain.fmu_build.build import slave_class
+    from drivetrain.fmu_build.native_gear import NEUTRAL, _table_arrays
     from gearcontact_fmu.manufacturing_specs import draw_errors
     from gearcontact_fmu.params import BevelGearParams
 
@@ -252,8 +255,9 @@ def test_the_map_is_the_one_the_slave_steps_with(gear):
              "manufacturing_errors": json.dumps(draw_errors(BevelGearParams(), 6, seed=2, profile=True).to_dict())}
     maps = []
     for params in (gear, other):
-        arrays = _table_arrays(_probe_slave(), params)
-        slave = _probe_slave()
+        arrays = _table_arrays(params)
+        slave = slave_class(ROOT / "src" / "gearcontact_fmu" / "slaves" / "GearContact.py")(
+            instance_name="map", resources=tempfile.gettempdir())
         for name, value in {**params, **NEUTRAL}.items():
             setattr(slave, name, value)
         slave._build()
@@ -429,14 +433,15 @@ def test_a_build_from_a_running_scene_keeps_at_rest_defaults(native, gear):
     large transients, unlike every other build of the same gear. The running state is the host's to set."""
     from fmpy import read_model_description
 
-    from drivetrain.fmu_build.native_gear import _probe_slave, is_running_state
+    from drivetrain.fmu_build.native_gear import is_running_state
+    from gearcontact_fmu.fmu_variables import parameter_values
 
-    assert gear["pinion_w_start"] != 0.0 and gear["initial_state"] != _probe_slave().initial_state   # a running scene
-    slave = _probe_slave()
+    defaults = parameter_values()                  # the FMU's declared defaults (what the pythonfmu slave starts at)
+    assert gear["pinion_w_start"] != 0.0 and gear["initial_state"] != defaults["initial_state"]   # a running scene
     starts = {v.name: v.start for v in read_model_description(str(native)).modelVariables}
     state = [n for n in starts if is_running_state(n)]
     assert "pinion_w_start" in state and "initial_state" in state
     for name in state:
-        default = getattr(slave, name)
+        default = defaults[name]
         assert (float(starts[name]) == float(default) if isinstance(default, float) else starts[name] == str(default)), \
             (name, starts[name], default)

@@ -53,7 +53,7 @@ from drivetrain.rig.data import RAD_S_PER_RPM
 SRC_ROOT = Path(__file__).resolve().parents[2]          # src/
 PACKAGES = ("gearcontact_fmu", "drivetrain", "fmu_runtime")
 #: hand-written slave scripts (the GearContact shell); the drivetrain component slaves are rendered
-#: from fmu_runtime.slave_template, one per model of drivetrain.models.fmishell.DESCRIPTIONS
+#: from fmu_runtime.slave_template, one per model of drivetrain.models.fmu_variables.DESCRIPTIONS
 SLAVE_DIRS = (SRC_ROOT / "gearcontact_fmu" / "slaves",)
 _IGNORE = shutil.ignore_patterns("__pycache__", "*.pyc", "*.pyo", "*.nbi", "*.nbc", "*.egg-info", ".*",
                                  "seed_maps")    # contact maps shipped for the user's cache, not for the FMU
@@ -125,7 +125,7 @@ def unit_for(name: str, overrides: dict | None = None) -> str | None:
 def find_slave_scripts(render_dir: str | Path | None = None) -> list[Path]:
     """Every slave script: the hand-written ones in SLAVE_DIRS and, when ``render_dir`` is given, the
     drivetrain component slaves rendered there from ``fmu_runtime.slave_template``."""
-    from drivetrain.models.fmishell import DESCRIPTIONS
+    from drivetrain.models.fmu_variables import DESCRIPTIONS
     from fmu_runtime.slave_template import render
 
     scripts = []
@@ -342,7 +342,7 @@ def edit_model_description(data: bytes, units: dict, output_dependencies: dict, 
 
 def declared_initial_dependencies(cls) -> dict | None:
     """A slave class's ``initial_dependencies``: a dict, or a class method that finds them (the drivetrain
-    component slaves run their initialization, fmishell.initial_dependencies)."""
+    component slaves run their initialization, drivetrain.models.fmu_variables.initial_dependencies)."""
     deps = getattr(cls, "initial_dependencies", None)
     return deps() if callable(deps) else deps
 

@@ -3,7 +3,7 @@ stage compiled from C (``gearcontact_fmu/native/gearcontact_native.c``), docs/FM
 GearContact".
 
 ``build_native_gear(parameters, out)`` takes the GearContact parameters (the dict ``drivetrain.run.assemble``
-produces for component "gear", or any subset; the rest take the pythonfmu slave's defaults) and
+produces for component "gear", or any subset; the rest take the FMU's declared defaults) and
 
 1. builds the contact map exactly as the pythonfmu slave does (``gearcontact_fmu.fmu_parameters``, the
    translation of the FMU's parameters the slave builds its stage with: the same cache, fault parsing and
@@ -12,9 +12,13 @@ produces for component "gear", or any subset; the rest take the pythonfmu slave'
 2. writes the map (and the manufacturing-error offset, if any) to ``resources/contact_map.bin``;
 3. writes ``gearcontact_build.h``: value references (the same as the pythonfmu FMU's), start values,
    the parameters fixed by the build, and the model constants (from the Python modules);
-4. writes ``modelDescription.xml`` (the slave's variables, units and descriptions);
+4. writes ``modelDescription.xml`` (the variables, units and descriptions);
 5. compiles ``binaries/linux64/GearContact.so`` with gcc (no Python) and zips the FMU with its
    ``sources/`` so other platforms can compile it.
+
+What the FMU declares (model information, variables in value-reference order, units, descriptions, bounds,
+initial dependencies) is read from the library, ``gearcontact_fmu.fmu_variables.declaration()`` (plain data,
+a ``fmu_runtime.declaration.FmuDeclaration``): the pythonfmu slave reads the same; no slave is loaded here.
 
 Parameters the map depends on (geometry, PCM constants, resolution, health, faults, mesh files, map
 grid, manufacturing errors, u_max) are fixed by the build: the FMU declares them as constants (causality
@@ -40,12 +44,13 @@ from xml.etree import ElementTree as ET
 import numpy as np
 
 import gearcontact_fmu
+from fmu_runtime.declaration import FmuDeclaration
+from gearcontact_fmu import fmu_variables
 from gearcontact_fmu.params import GEAR_MODEL
 from drivetrain.fmu_build.fmi_headers import COMMON_HEADERS, SHELL_HEADER, copy_fmi_headers, fmi_header_dir
 from drivetrain.errors import NativeBuildError
 
 NATIVE_DIR = Path(gearcontact_fmu.__file__).resolve().parent / "native"
-SLAVE_SCRIPT = Path(gearcontact_fmu.__file__).resolve().parent / "slaves" / f"{GEAR_MODEL}.py"
 C_SOURCE = "gearcontact_native.c"
 #: the coupling correction, shared with the native line FMUs (drivetrain.fmu_build.native_line): in
 #: gearcontact_fmu/native, shipped in each FMU's sources/ (the FMI shell and headers: :func:`shared_sources`)
@@ -71,38 +76,30 @@ FIXED_NOTE = (" [fixed by this native build: the contact map was computed with i
 IGNORED_NOTE = " [not used at fidelity table]"
 
 
-def _probe_slave():
-    """An instance of the pythonfmu GearContact slave (its variables, defaults, units and descriptions);
-    nothing of pythonfmu's export library is loaded."""
-    from drivetrain.fmu_build.build import slave_class
-
-    cls = slave_class(SLAVE_SCRIPT)
-    return cls(instance_name="native-build", resources=tempfile.gettempdir())
-
-
-def _check(slave, parameters: dict) -> list[str]:
+def _check(decl: FmuDeclaration, parameters: dict) -> list[str]:
     problems = []
-    known = {v.name: v for v in slave.vars.values()}
+    known = {v.name: v for v in decl.variables}
     for name in parameters:
         if name not in known:
             problems.append(f"parameter {name!r}: not a {GEAR_MODEL} parameter")
-        elif known[name].causality.name != "parameter":
-            problems.append(f"parameter {name!r}: is an {known[name].causality.name}, not a parameter")
-    fid = str(parameters.get("fidelity", slave.fidelity)).strip().lower()
+        elif known[name].causality != "parameter":
+            problems.append(f"parameter {name!r}: is an {known[name].causality}, not a parameter")
+    fid = str(parameters.get("fidelity", known["fidelity"].start)).strip().lower()
     if fid != "table":
         problems.append(f"fidelity = {fid!r}: the native GearContact implements fidelity 'table' only")
-    mode = str(parameters.get("mode", slave.mode)).strip().lower()
+    mode = str(parameters.get("mode", known["mode"].start)).strip().lower()
     if mode != "stage":
         problems.append(f"mode = {mode!r}: the native GearContact implements mode 'stage' only")
     return problems
 
 
-def _table_arrays(slave, parameters: dict) -> dict:
-    """The map and offset arrays of the table model the slave builds from these parameters (the slave's
-    defaults for the others; gearcontact_fmu.fmu_parameters.build_mesh_model, the slave's own translation)."""
+def _table_arrays(parameters: dict) -> dict:
+    """The map and offset arrays of the table model the slave builds from these parameters (the declared
+    defaults for the others, gearcontact_fmu.fmu_variables.parameter_values;
+    gearcontact_fmu.fmu_parameters.build_mesh_model, the slave's own translation)."""
     from gearcontact_fmu.fmu_parameters import build_mesh_model
 
-    values = {v.name: getattr(slave, v.name) for v in slave.vars.values() if v.causality.name == "parameter"}
+    values = fmu_variables.parameter_values()
     try:
         model = build_mesh_model({**values, **parameters, **NEUTRAL})
     except Exception as exc:  # noqa: BLE001 - every builder error becomes a refusal with its message
@@ -190,27 +187,26 @@ def is_running_state(name: str) -> bool:
     return name.endswith("_start") or name == "initial_state"
 
 
-def _variables(slave, parameters: dict) -> list[dict]:
-    """Every variable of the slave with its value reference, type, causality, start and role."""
+def _variables(decl: FmuDeclaration, parameters: dict) -> list[dict]:
+    """Every declared variable with its value reference, type, causality, start (this build's value of a
+    parameter it fixes) and role."""
     rows = []
-    counters = set(slave.STABILITY)
-    nan_on_failure = set(getattr(slave, "NAN_ON_FAILURE", ()))
-    for vr, v in sorted(slave.vars.items()):
-        kind = type(v).__name__
-        causality = v.causality.name
+    counters = set(fmu_variables.COUNTERS)
+    nan_on_failure = set(fmu_variables.NAN_ON_FAILURE)
+    for v in decl.variables:
         if v.name in counters:
             start = 0.0
         elif is_running_state(v.name):
             # at rest, wherever the FMU is built: a scene's running state goes into the host's parameter
             # values (the SSP's, our master's), never into the FMU's defaults (issue 30)
-            start = getattr(slave, v.name)
+            start = v.start
         else:
-            start = parameters.get(v.name, getattr(slave, v.name))
+            start = parameters.get(v.name, v.start)
         role = "runtime"
-        if causality == "parameter":
+        if v.causality == "parameter":
             role = ("runtime" if v.name in RUNTIME_PARAMETERS else
                     "ignored" if v.name in IGNORED_PARAMETERS else "fixed")
-        rows.append({"vr": vr, "name": v.name, "type": kind, "causality": causality, "start": start,
+        rows.append({"vr": v.vr, "name": v.name, "type": v.type, "causality": v.causality, "start": start,
                      "role": role, "counter": v.name in counters, "nan_on_failure": v.name in nan_on_failure})
     return rows
 
@@ -277,18 +273,19 @@ def xml_start(r: dict) -> str:
     return str(s)
 
 
-def native_model_description(model: str, slave, rows: list[dict], guid: str, *, c_source: str, note: str,
+def native_model_description(decl: FmuDeclaration, rows: list[dict], guid: str, *, c_source: str, note: str,
                              tool: str, descriptions: dict, real_start=repr) -> bytes:
-    """modelDescription.xml of a native FMU: the pythonfmu slave's variables (same names, types and value
-    references), units and ``descriptions`` (drivetrain.fmu_build.build's post-processing), the C source, ``note``
-    after the slave's description, ``real_start`` formatting the Real start values."""
-    from drivetrain.fmu_build.build import declared_initial_dependencies, edit_model_description
+    """modelDescription.xml of a native FMU: the declared variables (``rows``: the same names, types and value
+    references as the pythonfmu FMU's), model information, units, bounds and initial dependencies of ``decl``
+    and ``descriptions`` (drivetrain.fmu_build.build's post-processing, one place for both builds), the C
+    source, ``note`` after the declared description, ``real_start`` formatting the Real start values."""
+    from drivetrain.fmu_build.build import edit_model_description
 
-    cls = type(slave)
-    de = cls.default_experiment
+    model = decl.model
+    de = decl.default_experiment
     root = ET.Element("fmiModelDescription", {
-        "fmiVersion": "2.0", "modelName": model, "guid": guid, "description": cls.description + note,
-        "author": cls.author, "version": str(cls.version), "generationTool": tool,
+        "fmiVersion": "2.0", "modelName": model, "guid": guid, "description": decl.description + note,
+        "author": decl.author, "version": str(decl.version), "generationTool": tool,
         "variableNamingConvention": "flat", "numberOfEventIndicators": "0"})
     cs = ET.SubElement(root, "CoSimulation", {
         "modelIdentifier": model, "needsExecutionTool": "false", "canHandleVariableCommunicationStepSize": "true",
@@ -325,16 +322,16 @@ def native_model_description(model: str, slave, rows: list[dict], guid: str, *, 
     for i, r in enumerate(rows):
         if r["causality"] == "output":
             ET.SubElement(outs, "Unknown", index=str(i + 1))
-    return edit_model_description(ET.tostring(root, encoding="UTF-8", xml_declaration=True), cls.units, {},
-                                  descriptions, getattr(cls, "bounds", None), declared_initial_dependencies(cls))
+    return edit_model_description(ET.tostring(root, encoding="UTF-8", xml_declaration=True), decl.units, {},
+                                  descriptions, decl.bounds, decl.initial_dependency_map())
 
 
-def model_description(slave, rows: list[dict], guid: str) -> bytes:
+def model_description(decl: FmuDeclaration, rows: list[dict], guid: str) -> bytes:
     """modelDescription.xml of the native GearContact (the fixed and ignored parameters say so)."""
     notes = {"fixed": FIXED_NOTE, "ignored": IGNORED_NOTE}
-    descriptions = {r["name"]: type(slave).variable_descriptions.get(r["name"], "") + notes.get(r["role"], "")
+    descriptions = {r["name"]: decl.variable_descriptions.get(r["name"], "") + notes.get(r["role"], "")
                     for r in rows}
-    return native_model_description(GEAR_MODEL, slave, rows, guid, c_source=C_SOURCE,
+    return native_model_description(decl, rows, guid, c_source=C_SOURCE,
                                     tool="bevel-drivetrain fmu_build.native_gear",
                                     note=" Native build: fidelity table, mode stage, compiled C (no Python).",
                                     descriptions=descriptions)
@@ -443,8 +440,8 @@ def build_native_gear(parameters: dict | None = None, out: str | Path = "fmus/na
     if out.suffix != ".fmu":
         raise NativeBuildError([f"--out {out}: the FMU file name must end in .fmu"])
     cc = cc or os.environ.get("CC", "gcc")
-    slave = _probe_slave()
-    problems = _check(slave, parameters)
+    decl = fmu_variables.declaration()
+    problems = _check(decl, parameters)
     if shutil.which(cc) is None:
         problems.append(f"C compiler {cc!r} not found (set CC or install gcc)")
     if platform.system() != "Linux" or platform.machine() not in ("x86_64", "AMD64"):
@@ -454,8 +451,8 @@ def build_native_gear(parameters: dict | None = None, out: str | Path = "fmus/na
         raise NativeBuildError(problems)
     if log:
         log("contact map (from the cache or built) ...")
-    arrays = _table_arrays(slave, parameters)
-    rows = _variables(_probe_slave(), parameters)
+    arrays = _table_arrays(parameters)
+    rows = _variables(decl, parameters)
     with tempfile.TemporaryDirectory(prefix="native_gear_") as tmp:
         tmp = Path(tmp)
         src = tmp / "sources"
@@ -476,7 +473,7 @@ def build_native_gear(parameters: dict | None = None, out: str | Path = "fmus/na
         copy_shared_sources(src)
         write_header(rows, src / BUILD_HEADER)
         write_values(rows, guid, src / VALUES_SOURCE)
-        (tmp / "modelDescription.xml").write_bytes(model_description(slave, rows, guid))
+        (tmp / "modelDescription.xml").write_bytes(model_description(decl, rows, guid))
         compile_and_pack(tmp, GEAR_MODEL, (C_SOURCE, VALUES_SOURCE), cc, out, log,
                          "Lower bevel gear stage, fidelity table, mode stage, compiled C: no Python needed. The "
                          "contact map is <code>resources/contact_map.bin</code>.",

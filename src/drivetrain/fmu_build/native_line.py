@@ -4,9 +4,11 @@ native FMUs of a whole scene (docs/FMU.md, "Python-free drivetrain FMUs").
 ``build_native_line(model, out)`` writes one FMU: the C port of the model (``fmu_build/native/line_native.c``
 with the coupling correction and the FMI shell it shares with the native GearContact,
 ``gearcontact_fmu/native/coupling_correction.h`` and ``fmu_runtime/native/fmi2_shell.h``), compiled with gcc,
-with ``sources/`` so that other platforms can compile it. Nothing is retyped here: the variables (names, value references, types,
-causality, start values), units and descriptions are read from the pythonfmu slave of the model (the one
-``drivetrain.fmu_build.build`` builds), the port names from the component, the constants from the Python modules.
+with ``sources/`` so that other platforms can compile it. Nothing is retyped here: the variables (names, value
+references, types, causality, start values), units, descriptions and initial dependencies are the model's
+declaration, ``drivetrain.models.fmu_variables.declaration`` (plain data, which the pythonfmu slave that
+``drivetrain.fmu_build.build`` builds reads too; no slave is loaded here), the port names from the component,
+the constants from the Python modules.
 
 Unlike the native GearContact (its contact map is computed from the scene's gear, so it is built per
 contact map), these FMUs do not depend on the scene: every parameter stays settable. One build serves every
@@ -39,10 +41,12 @@ import gearcontact_fmu
 from gearcontact_fmu.mesh_models import DEFAULT_FIDELITY
 from gearcontact_fmu.params import GEAR_MODEL
 from drivetrain.errors import NativeBuildError
+from drivetrain.models import fmu_variables
 from drivetrain.fmu_build.native_gear import (c_double, c_string, compile_and_pack, copy_shared_sources,
                                               coupling_defines, start_literals, vr_enum)
 from drivetrain.fmu_build.native_gear import compile_command as native_compile_command
 from drivetrain.fmu_build.native_gear import native_model_description
+from fmu_runtime.declaration import FmuDeclaration
 
 MODELS = ("FlexibleShaft", "UpperTransmission", "MotorLoad")
 #: the model selector of line_native.c (LN_MODEL)
@@ -60,30 +64,18 @@ def default_native_dir() -> Path:
     return default_fmu_dir() / "native"
 
 
-def _probe_slave(model: str):
-    """An instance of the pythonfmu slave of ``model`` (rendered from fmu_runtime.slave_template as
-    drivetrain.fmu_build.build does): its variables, start values, units and descriptions."""
-    from drivetrain.fmu_build.build import slave_class
-    from fmu_runtime.slave_template import render
-
+def _declaration(model: str) -> FmuDeclaration:
+    """What the FMU of ``model`` declares (drivetrain.models.fmu_variables.declaration): its variables, start
+    values, units, descriptions and initial dependencies."""
     if model not in MODEL_CODES:
         raise NativeBuildError([f"model {model!r}: no native line FMU (one of {', '.join(MODELS)})"])
-    with tempfile.TemporaryDirectory(prefix="native_line_") as tmp:
-        script = Path(tmp) / f"{model}.py"
-        script.write_text(render(model))
-        cls = slave_class(script)
-    return cls(instance_name="native-build", resources=tempfile.gettempdir())
+    return fmu_variables.declaration(model)
 
 
-def variables(slave) -> list[dict]:
-    """Every variable of the slave: value reference, name, type, causality, variability, start."""
-    rows = []
-    for vr, v in sorted(slave.vars.items()):
-        rows.append({"vr": vr, "name": v.name, "type": type(v).__name__, "causality": v.causality.name,
-                     "variability": getattr(v.variability, "name", None) if v.variability is not None else None,
-                     "start": getattr(slave, v.name), "min": getattr(v, "min", None), "max": getattr(v, "max", None)})
-    assert [r["vr"] for r in rows] == list(range(len(rows))), "value references must be 0..n-1"
-    return rows
+def variables(decl: FmuDeclaration) -> list[dict]:
+    """Every declared variable: value reference, name, type, causality, variability, start, bounds."""
+    return [{"vr": v.vr, "name": v.name, "type": v.type, "causality": v.causality, "variability": v.variability,
+             "start": v.start, "min": v.min, "max": v.max} for v in decl.variables]
 
 
 def _port_names(model: str) -> list[str]:
@@ -124,14 +116,14 @@ def write_header(model: str, rows: list[dict], guid: str, path: Path) -> None:
     path.write_text("\n".join(lines))
 
 
-def model_description(model: str, slave, rows: list[dict], guid: str) -> bytes:
-    """modelDescription.xml: the slave's variables (names, value references, types, causality, variability,
+def model_description(decl: FmuDeclaration, rows: list[dict], guid: str) -> bytes:
+    """modelDescription.xml: the declared variables (names, value references, types, causality, variability,
     initial, start), units and descriptions. Real starts as pythonfmu writes them (f"{x:.16g}"), so the two
     FMUs declare the same; the value the instance starts from is the exact default in both (the C table
     holds it to the bit)."""
-    return native_model_description(model, slave, rows, guid, c_source=C_SOURCE, note=" Native build: compiled C "
+    return native_model_description(decl, rows, guid, c_source=C_SOURCE, note=" Native build: compiled C "
                                     "(no Python).", tool="bevel-drivetrain fmu_build.native_line",
-                                    descriptions=dict(type(slave).variable_descriptions),
+                                    descriptions=dict(decl.variable_descriptions),
                                     real_start=lambda x: format(x, ".16g"))
 
 
@@ -211,8 +203,8 @@ def _memo(key: tuple, compute: Callable[[], str]) -> str:
 
 
 def _line_fingerprint_now(model: str, cc: str) -> str:
-    """The fingerprint of the native ``model``, computed (probes the pythonfmu slave)."""
-    return _fingerprint(model, variables(_probe_slave(model)), cc)
+    """The fingerprint of the native ``model``, computed (from its declaration)."""
+    return _fingerprint(model, variables(_declaration(model)), cc)
 
 
 def line_fingerprint(model: str, cc: str | None = None) -> str:
@@ -230,11 +222,11 @@ def build_native_line(model: str, out: str | Path | None = None, *, cc: str | No
     if out.suffix != ".fmu":
         raise NativeBuildError([f"--out {out}: the FMU file name must end in .fmu"])
     cc = cc or os.environ.get("CC", "gcc")
-    slave = _probe_slave(model)
+    decl = _declaration(model)
     problems = _check_toolchain(cc)
     if problems:
         raise NativeBuildError(problems)
-    rows = variables(slave)
+    rows = variables(decl)
     guid = "{" + str(uuid.UUID(_fingerprint(model, rows, cc)[:32])) + "}"
     with tempfile.TemporaryDirectory(prefix="native_line_") as tmp:
         tmp = Path(tmp)
@@ -245,7 +237,7 @@ def build_native_line(model: str, out: str | Path | None = None, *, cc: str | No
         shutil.copy2(NATIVE_DIR / C_SOURCE, src / C_SOURCE)
         copy_shared_sources(src)
         write_header(model, rows, guid, src / BUILD_HEADER)
-        (tmp / "modelDescription.xml").write_bytes(model_description(model, slave, rows, guid))
+        (tmp / "modelDescription.xml").write_bytes(model_description(decl, rows, guid))
         compile_and_pack(tmp, model, C_SOURCE, cc, out, log,
                          "Compiled C: no Python needed; every parameter settable before and in initialization mode.")
     return out          # the caller says what it wrote (build-native said "wrote" twice)

@@ -23,7 +23,7 @@ model description, so a parameter is written as the type the FMU declares. fmpy'
 
 Time profiles (a speed ramp, a load step): our master feeds them as inputs, SSP 1.0 has no signal
 table every host reads. MotorLoad carries them itself (``speed_profile``, ``load_profile``:
-fmishell.INPUT_PROFILES), so they are written as those parameters; a profile on an input without such a
+fmu_variables.INPUT_PROFILES), so they are written as those parameters; a profile on an input without such a
 parameter is refused. The drive speed reference then moves linearly inside a step instead of being held
 from the step start (the load setting is read at the step start either way): a lag of half a step
 on a ramp. The master's own bookkeeping (energy audit, output sampling, rig instruments) is not part of
@@ -39,7 +39,7 @@ from xml.sax.saxutils import quoteattr
 from drivetrain.fmu_build.fmus import ensure_fmus, fmu_dir_or_default, load_fmu_info
 from drivetrain.cosim.plan import is_profile, settable
 from drivetrain.errors import ConfigurationError
-from drivetrain.models.fmishell import INPUT_PROFILES
+from drivetrain.models.fmu_variables import INPUT_PROFILES
 from drivetrain.run.runner import assemble_scene
 from drivetrain.system import INERTIA, SPRING, SystemSpec
 from gearcontact_fmu.params import flange_variables
@@ -99,7 +99,7 @@ def profile_text(points) -> str:
 
 def bound_values(component) -> dict:
     """The values an instance's parameter set binds: its parameters and constant inputs, and each time
-    profile on an input as the parameter that carries it (fmishell.INPUT_PROFILES)."""
+    profile on an input as the parameter that carries it (fmu_variables.INPUT_PROFILES)."""
     out = dict(component.parameters)
     carriers = INPUT_PROFILES.get(component.model, {})
     for name, value in component.inputs.items():

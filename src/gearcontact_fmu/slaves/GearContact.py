@@ -14,8 +14,10 @@ pythonfmu 0.7.0's export library corrupts the heap at process exit (double relea
 state; glibc then aborts the host after its work is done): ``fmu_runtime.guard`` fixes the
 reference count on instantiation.
 
-The variables (names, types, units, defaults, descriptions, bounds) are declared in the library,
-``gearcontact_fmu.fmu_variables``, where a host reads the defaults without importing this script.
+The variables (names, types, units, defaults, descriptions, bounds) and the model information (description,
+author, version, default experiment, initial dependencies) are declared in the library,
+``gearcontact_fmu.fmu_variables``, where a host reads the defaults and the native build the whole declaration
+without importing this script.
 
 Package import: the installed ``gearcontact_fmu`` when importable, else the copy bundled in
 ``resources/_bundled`` (``BEVEL_FMU_USE_BUNDLED=1`` forces the bundled copy).
@@ -42,9 +44,8 @@ from pythonfmu import Boolean, DefaultExperiment, Fmi2Causality, Fmi2Initial, Fm
 from pythonfmu.enums import Fmi2Status  # noqa: E402
 
 from fmu_runtime.guard import enter_error_state, fmi_text, guard_value_references, restore_shell_state, shell_state  # noqa: E402,E501
-from gearcontact_fmu.fmu_variables import (INITIAL_STATES, INPUT, INT_MAX, OUTPUT, PARAMETER, VARIABLES,  # noqa: E402
-                                           Counter, declared_default, default_sources)
-from gearcontact_fmu.params import DEFAULT_COMM_STEP_S  # noqa: E402
+from gearcontact_fmu import fmu_variables as declared  # noqa: E402
+from gearcontact_fmu.fmu_variables import INITIAL_STATES, INPUT, INT_MAX, OUTPUT, PARAMETER, VARIABLES  # noqa: E402
 
 PACKAGE_ORIGIN = str(Path(gearcontact_fmu.__file__).resolve().parent)
 
@@ -81,35 +82,22 @@ def _announce_first_build(slave) -> None:
 
 
 class GearContact(Fmi2Slave):
-    description = ("Lower bevel gear stage (15/60, m 3 mm) of the azimuth-thruster rig: pinion and wheel "
-                   "inertias, port spring-dampers and the mesh (pcm/table/analytic/ideal), sub-stepped.")
-    author = "bevel-drivetrain"
-    version = gearcontact_fmu.__version__
-    # the shipped example input (documentation/example_input.csv: the rig's 500 rpm point ramped in over 0.25 s)
-    # settles well inside it; no tolerance: the stage integrates with fixed sub-steps
-    default_experiment = DefaultExperiment(start_time=0.0, stop_time=1.0, step_size=DEFAULT_COMM_STEP_S)
+    # the model information, declared in the library (gearcontact_fmu.fmu_variables: the native build reads it
+    # there too); read by drivetrain.fmu_build.build (modelDescription units, descriptions, bounds, InitialUnknowns)
+    description = declared.DESCRIPTION
+    author = declared.AUTHOR
+    version = declared.VERSION
+    default_experiment = DefaultExperiment(**declared.DEFAULT_EXPERIMENT._asdict())
     can_get_and_set_fmu_state = True   # read by drivetrain.fmu_build.build (canGetAndSetFMUstate)
-
-    # read by drivetrain.fmu_build.build and .native_gear (modelDescription units and descriptions)
-    units = {v.name: v.unit for v in VARIABLES if v.unit}
-    variable_descriptions = {v.name: v.description for v in VARIABLES}
-    bounds = {v.name: v.bounds for v in VARIABLES if v.bounds != (None, None)}          # (min/max)
-    # InitialUnknowns: at exit of initialization every output follows the flange inputs (initial_state
-    # inputs) and the parameters, but these: 0 whatever they are (no source inside; the sums and counts
-    # since t = 0, the smallest sub-step before the first step, the pending coupling work)
-    initial_dependencies = {n: [] for n in ("energy_supplied", "energy_dissipated", "n_substeps", "n_refinements",
-                                            "n_separations", "separated_time", "min_substep",
-                                            "coupling_energy_error")}
+    units = declared.UNITS
+    variable_descriptions = declared.VARIABLE_DESCRIPTIONS
+    bounds = declared.BOUNDS
+    initial_dependencies = declared.INITIAL_DEPENDENCIES
 
     INPUTS = tuple(v.name for v in VARIABLES if v.causality == INPUT)
-    # the outputs published after every step
-    OUTPUTS = tuple(v.name for v in VARIABLES if v.causality == OUTPUT and v.type == "Real"
-                    and not isinstance(v.default, Counter))
-    # after a failure: NaN (the state outputs keep the last completed step, see ``error``)
-    NAN_ON_FAILURE = tuple(n for n in OUTPUTS if n not in ("pinion_phi", "pinion_w", "wheel_phi", "wheel_w"))
-    # stability counters of the stage and the pending coupling mismatch, cumulative since t = 0: read from
-    # the stage when the host asks; after a failed do_step they include the failing sub-step
-    STABILITY = {v.name: v.default.prop for v in VARIABLES if isinstance(v.default, Counter)}
+    OUTPUTS = declared.OUTPUTS                  # published after every step
+    NAN_ON_FAILURE = declared.NAN_ON_FAILURE    # after a failure: NaN (fmu_runtime.guard.enter_error_state)
+    STABILITY = declared.COUNTERS               # read from the stage when the host asks
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
@@ -117,29 +105,23 @@ class GearContact(Fmi2Slave):
 
         # pythonfmu 0.7.0 releases its interpreter state twice at process exit: see fmu_runtime.guard
         pin_export_library_state(kwargs, type(self).__name__)
-        sources = default_sources()
-        for v in VARIABLES:
+        for v in declared.declared_variables():
             kind = _TYPES[v.type]
-            if isinstance(v.default, Counter):
+            extra = {} if v.variability is None else {"variability": Fmi2Variability[v.variability]}
+            if v.causality == OUTPUT:
+                extra["initial"] = Fmi2Initial.exact
+            prop = self.STABILITY.get(v.name)
+            if prop is not None:
                 count = v.type == "Integer"
-                extra = {"variability": Fmi2Variability.discrete} if count else {}
-                self.register_variable(kind(v.name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact,
-                                            getter=(lambda prop=v.default.prop, c=count: self._counter(prop, c)),
-                                            **extra))
+                self.register_variable(kind(v.name, causality=Fmi2Causality.output,
+                                            getter=(lambda prop=prop, c=count: self._counter(prop, c)), **extra))
                 continue
-            setattr(self, v.name, declared_default(v, sources))
-            if v.causality == PARAMETER:
-                var = kind(v.name, causality=Fmi2Causality.parameter, variability=Fmi2Variability.fixed)
-                if v.type == "Integer":
-                    # an Integer set outside its declared range is refused when set (fmu_runtime.guard)
-                    var.min, var.max = v.bounds
-                self.register_variable(var)
-            elif v.causality == INPUT:
-                self.register_variable(kind(v.name, causality=Fmi2Causality.input))
-            else:
-                extra = {"variability": Fmi2Variability.discrete} if v.type == "String" else {}
-                self.register_variable(kind(v.name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact,
-                                            **extra))
+            setattr(self, v.name, v.start)
+            var = kind(v.name, causality=Fmi2Causality[v.causality], **extra)
+            if v.causality == PARAMETER and v.type == "Integer":
+                # an Integer set outside its declared range is refused when set (fmu_runtime.guard)
+                var.min, var.max = v.min, v.max
+            self.register_variable(var)
         self._stage = None
         self._failed = None          # message once the instance is in the error state
         guard_value_references(self, "GearContact", exported="logger" in kwargs)

@@ -71,3 +71,39 @@ def test_rigid_startup_at_the_coarsest_step_conserves_energy(fmu_dir):
     for name in ("drive_shaft_torque", "propeller_shaft_torque"):
         m, ref = res.summary["torque"][name]["mean"], fine.summary["torque"][name]["mean"]
         assert m == pytest.approx(ref, rel=3e-3), name
+
+
+#: the stress sample on the 20/40 pair (docs/STABILITY.md): a start at standstill ramped to 2758 rpm at
+#: H = 1/3000 s with rigid shafts, linearly stable at its start (spectral radius 0.99944, the losses' slope at
+#: standstill damps it) and unstable at the top of its ramp (1.00614): the run ended in a 199 Hz limit cycle of
+#: +-900 N m with an energy residual of 17.5 %; at H/2 it runs (1.4e-6)
+RAMP_2040 = ["gear.pair.z_pinion=20", "gear.pair.z_wheel=40", "gear.pair.module_mm=4.0", "gear.pair.x_pinion=0.35",
+             "gear.pair.backlash_mm=0.1", "gear.pair.tip_radius_mm=0.25", "effects.shaft_flexibility=rigid",
+             "effects.mesh_contact=analytic", "numerics.comm_step_s=0.0003333333333333333", "time.sample_rate_Hz=3000",
+             "time.duration_s=1.5", "operating_point.load_torque_Nm=0.2377",
+             "operating_point.speed_profile_rpm=[[0.0, 0.0], [0.410968, 2758.132]]"]
+
+
+def test_a_ramp_is_checked_at_the_speeds_it_reaches():
+    """The whole linearised co-simulation is checked at every speed of a drive speed profile, not only at its
+    start: the 20/40 ramp is refused before any step, naming the speed and both radii. Oracle for the check at a
+    speed: the same scene assembled at that constant speed gives the same radius (to 1e-12); a constant-speed
+    scene is checked at its start only."""
+    from drivetrain.cosim import ConfigurationError
+    from drivetrain.models import eigen
+    from drivetrain.run.assemble import assemble, spec_at_speed
+
+    ramp = load_scene(ROOT / "scenarios" / "example.toml", RAMP_2040)
+    with pytest.raises(ConfigurationError, match=r"(?s)at 2758.13 rpm, a speed of its drive speed profile.*1\.0061"):
+        assemble(ramp)
+    spec = assemble(ramp, check=False)
+    at_top = eigen.cosim_radius(spec_at_speed(spec, 2758.132))
+    const = [o for o in RAMP_2040 if "speed_profile" not in o] + ["operating_point.drive_speed_rpm=2758.132"]
+    steady = assemble(load_scene(ROOT / "scenarios" / "example.toml", const), check=False)
+    assert at_top == pytest.approx(eigen.cosim_radius(steady), abs=1e-12) and at_top > 1.0
+    assert eigen.cosim_radius(spec) < 1.0                       # at its start (standstill) it is stable
+    halved = load_scene(ROOT / "scenarios" / "example.toml",
+                        RAMP_2040 + ["numerics.comm_step_s=0.00016666666666666666", "time.sample_rate_Hz=6000"])
+    ok = assemble(halved)
+    assert max(ok.metadata["cosim_spectral_radius_at_rpm"].values()) < 1.0
+    assert "cosim_spectral_radius_at_rpm" not in assemble(load_scene(ROOT / "scenarios" / "example.toml")).metadata

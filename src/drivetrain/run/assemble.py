@@ -386,17 +386,64 @@ def _start_wheel(scene, gear: dict, ss, theta_p: float, errors, build_map: bool)
 
 
 def _check_cuts(spec: SystemSpec) -> None:
-    """Refuse unstable cuts (ConfigurationError with the reports); the reports into ``spec.metadata``."""
+    """Refuse unstable cuts (ConfigurationError with the reports); the reports into ``spec.metadata``. The
+    whole linearised system is checked at its start and at every other speed of its drive speed profile
+    (:func:`speeds_to_check`): its small-signal losses damp less the faster it runs, so a start at standstill
+    says little of the top of a ramp."""
+    from drivetrain.cosim import ConfigurationError
+    from drivetrain.models import eigen
+
     try:
         reports, rho = stability.check_cuts(spec)
     except stability.UnstableCutError as exc:
-        from drivetrain.cosim import ConfigurationError
-
         err = ConfigurationError(exc.problems)
         err.reports = exc.reports
         raise err from None
+    at_speeds = {}
+    for rpm in speeds_to_check(spec):
+        r = eigen.cosim_radius(spec_at_speed(spec, rpm))
+        at_speeds[f"{rpm:g}"] = r
+        if r > 1.0 + 1e-9:
+            err = ConfigurationError([
+                f"the whole co-simulated system is unstable at H = {spec.comm_step:.6g} s at {rpm:g} rpm, a speed of "
+                f"its drive speed profile (operating_point.speed_profile_rpm): spectral radius of the one-step map "
+                f"{r:.6f} > 1 (at its start: {rho:.6f}); reduce the communication step"])
+            err.reports = reports
+            raise err
     spec.metadata["cuts"] = [r.as_dict() for r in reports]
     spec.metadata["cosim_spectral_radius"] = rho
+    if at_speeds:
+        spec.metadata["cosim_spectral_radius_at_rpm"] = at_speeds
+
+
+def speeds_to_check(spec: SystemSpec) -> list[float]:
+    """The drive speeds [rpm] of the MotorLoad's speed profile (``speed_ref_rpm`` given as points) other than its
+    start: where the linearised co-simulation is checked besides the start. [] for a constant speed."""
+    motors = [c for c in spec.components if c.model == "MotorLoad"]
+    ref = motors[0].inputs.get("speed_ref_rpm") if motors else None
+    if not isinstance(ref, (list, tuple)) or not ref:
+        return []
+    start = float(ref[0][1])
+    return sorted({float(v) for _, v in ref if float(v) != start}, key=abs)
+
+
+def spec_at_speed(spec: SystemSpec, rpm: float) -> SystemSpec:
+    """``spec`` linearised at a steady drive speed ``rpm``: its components' start speeds (``w0`` of the drive
+    side, ``w0_load`` of the load body, the propeller speed through the upper and the lower ratio) at that speed,
+    everything else as it is. For the stability check only (the losses' small-signal damping is speed-dependent)."""
+    w = rig.rpm_to_rad_s(rpm)
+    upper = next(c for c in spec.components if c.model == "UpperTransmission").parameters
+    gear = next((c for c in spec.components if c.model == GEAR_MODEL), None)
+    lower = gear_pair(gear.parameters).ratio if gear is not None else rig.LOWER_RATIO
+    comps = []
+    for c in spec.components:
+        p = dict(c.parameters)
+        if "w0" in p:
+            p["w0"] = w
+        if "w0_load" in p:
+            p["w0_load"] = w / float(upper["ratio"]) / lower
+        comps.append(dataclasses.replace(c, parameters=p))
+    return SystemSpec(comps, list(spec.connections), spec.comm_step, spec.metadata)
 
 
 def start_with_map(scene, spec: SystemSpec) -> SystemSpec:

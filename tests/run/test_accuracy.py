@@ -148,3 +148,22 @@ def test_the_report_and_plots_render(tmp_path):
     md = S.report_markdown(R, {k: f"figures/{v}" for k, v in figs.items()})
     assert "## healthy_1500rpm" in md and "| fast | 0.9 |" in md and "not applicable: x" in md
     assert "Within 5 % / 5 dB: cheapest `fast`" in md and "(realism)" in md
+
+
+def test_a_study_of_one_scene_keeps_the_other_scenes_rows():
+    """drivetrain accuracy-cost --scenes NAME rewrites the results file with NAME's rows and every other scene's
+    earlier rows as they were (named with the command that measured them), in STUDY_SCENES' order; a scene the
+    new study ran replaces its earlier rows."""
+    from drivetrain.campaigns.accuracy_study import keep_earlier, report_markdown
+
+    earlier = {"meta": {"command": "drivetrain accuracy-cost --workers 2"},
+               "scenes": {"healthy_250rpm": {"what": "a", "rows": {}},
+                          "pair20x40_healthy_1500rpm": {"what": "old", "rows": {}},
+                          "not_a_studied_scene": {"what": "x", "rows": {}}}}
+    new = {"meta": {"command": "drivetrain accuracy-cost --scenes pair20x40_healthy_1500rpm"},
+           "scenes": {"pair20x40_healthy_1500rpm": {"what": "new", "rows": {}}}}
+    out = keep_earlier(new, earlier)
+    assert list(out["scenes"]) == ["healthy_250rpm", "pair20x40_healthy_1500rpm"]
+    assert out["scenes"]["pair20x40_healthy_1500rpm"]["what"] == "new"
+    assert out["meta"]["kept_from_earlier"] == {"healthy_250rpm": "drivetrain accuracy-cost --workers 2"}
+    assert "kept as they were: healthy_250rpm (`drivetrain accuracy-cost --workers 2`)" in report_markdown(out, {})

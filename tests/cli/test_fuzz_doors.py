@@ -332,30 +332,8 @@ def _record_fuzz(tmp_path, n):
         shutil.rmtree(d)
 
 
-@pytest.fixture
-def contact_map_read_once(monkeypatch):
-    """The calibration assembles the drivetrain some 300 times per record (each stiffness tried by its mode
-    placement), and each assembly reads and checks the rig pair's contact map from the map cache (11 of a
-    calibration's 17 s). That file is no part of what this family mutates: here it is read and checked once per
-    file state (path, size, mtime) and each later assembly gets a deep copy of that map, the same arrays any
-    read of those bytes gives."""
-    import copy
-
-    from gearcontact_fmu import contact_map
-
-    real, memo = contact_map.load_map, {}
-
-    def load_map(path, gear, pcm, grid, n_rev=1):
-        st = Path(path).stat()
-        key = (str(path), st.st_size, st.st_mtime_ns, gear, pcm, grid, n_rev)
-        if key not in memo:
-            memo[key] = real(path, gear, pcm, grid, n_rev)
-        return copy.deepcopy(memo[key])
-
-    monkeypatch.setattr(contact_map, "load_map", load_map)
-
-
-def test_fuzz_rig_records(tmp_path, request, contact_map_read_once):
+def test_fuzz_rig_records(tmp_path, request, contact_maps_read_once):
     """Mutated rig records through `drivetrain calibrate --record`: a background without a non-finite value, or
-    a refusal, never a traceback."""
+    a refusal, never a traceback. (The rig pair's contact map, which no case mutates, is read once:
+    _shared.contact_map_read_once.)"""
     _record_fuzz(tmp_path, _n(8, request))

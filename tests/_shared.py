@@ -1,5 +1,6 @@
 """Constants shared by the tests of several wings (tests/<wing>/): the checkout's root, the example scene,
 and a short run of it at a coarse contact mesh."""
+import contextlib
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -23,3 +24,30 @@ def accuracy_results():
         "severe_250rpm": {"health_class": "severe", "speed_rpm": 250.0,
                           "rows": {"reference": row(4.0, 0.0), "default": row(2.0, 2.0), "fast": row(0.9, 8.0)}},
     }}
+
+
+@contextlib.contextmanager
+def contact_map_read_once():
+    """While open, ``gearcontact_fmu.contact_map.load_map`` reads and checks each contact-map file once per file
+    state (path, size, mtime) and per layout asked for, and hands every later caller a deep copy of the map the
+    real reader returned (the same arrays any read of those bytes gives). For tests of what calls it many times
+    (the record calibration assembles the drivetrain ~300 times, each assembly re-reading the rig pair's map:
+    11 of its 17 s), not for tests of the map cache itself."""
+    import copy
+
+    import pytest
+
+    from gearcontact_fmu import contact_map
+
+    real, memo = contact_map.load_map, {}
+
+    def load_map(path, gear, pcm, grid, n_rev=1):
+        st = Path(path).stat()
+        key = (str(path), st.st_size, st.st_mtime_ns, gear, pcm, grid, n_rev)
+        if key not in memo:
+            memo[key] = real(path, gear, pcm, grid, n_rev)
+        return copy.deepcopy(memo[key])
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(contact_map, "load_map", load_map)
+        yield

@@ -88,6 +88,15 @@ def fmus_both_builds(pythonfmu_fmus, tmp_path_factory):
     return out
 
 
+@pytest.fixture
+def contact_maps_read_once():
+    """``_shared.contact_map_read_once`` around one test."""
+    from _shared import contact_map_read_once
+
+    with contact_map_read_once():
+        yield
+
+
 def pytest_xdist_auto_num_workers(config):
     """``-n auto`` (the default run, pyproject's addopts): one worker per CPU this process may use, at most 8
     (each worker builds the session's FMUs once; beyond 8 those builds outweigh the gain)."""

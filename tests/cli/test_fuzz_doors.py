@@ -332,7 +332,8 @@ def _record_fuzz(tmp_path, n):
         shutil.rmtree(d)
 
 
-def test_fuzz_rig_records(tmp_path, request):
+def test_fuzz_rig_records(tmp_path, request, contact_maps_read_once):
     """Mutated rig records through `drivetrain calibrate --record`: a background without a non-finite value, or
-    a refusal, never a traceback."""
+    a refusal, never a traceback. (The rig pair's contact map, which no case mutates, is read once:
+    _shared.contact_map_read_once.)"""
     _record_fuzz(tmp_path, _n(8, request))

@@ -194,14 +194,24 @@ load_noise_Nm_rtHz = { uniform = [-1.0, -0.5] }""")
         assert k in text, text
 
 
-def test_the_shipped_background_is_what_the_record_gives():
+@pytest.fixture(scope="module")
+def identified():
+    """The identification run once on the shipped record (campaigns.record_fit.identify), for the tests that
+    compare what it gives with what is shipped (they read it, never change it); the rig pair's contact map read
+    once for its ~300 assemblies (_shared.contact_map_read_once)."""
+    from _shared import contact_map_read_once
+    from drivetrain.campaigns.record_fit import identify
+
+    with contact_map_read_once():
+        return identify()
+
+
+def test_the_shipped_background_is_what_the_record_gives(identified):
     """A calibration, not a validation: rerunning the identification on the shipped record gives the shipped
     [background] defaults (to their 4 significant digits), so they were not edited by hand."""
     import dataclasses as dc
 
-    from drivetrain.campaigns.record_fit import identify
-
-    out = identify()
+    out = identified
     for k, v in dc.asdict(bgm.Background()).items():
         assert out["background"][k] == pytest.approx(v, rel=6e-4), k
     assert out["controller"]["drive_Kp"] > 10 * 0.1          # the rig's drive is far stiffer than the assumed PI
@@ -270,12 +280,11 @@ def rec_scene():
     return RECORD_SCENE
 
 
-def test_the_measured_transducer_noise_is_the_records():
+def test_the_measured_transducer_noise_is_the_records(identified):
     """The transducer noise the record scene and the validation use is what the identification measures."""
     from drivetrain.campaigns.record_check import RECORD_SCENE
-    from drivetrain.campaigns.record_fit import identify
 
-    out = identify()["instruments"]
+    out = identified["instruments"]
     sc = load_scene(RECORD_SCENE)
     for k, v in rec.MEASURED_TRANSDUCER_NOISE_NM.items():
         assert out[k] == pytest.approx(v, rel=0.01), k

@@ -79,7 +79,9 @@ def test_choose_picks_the_cheapest_setting_within_the_tolerance():
     assert "tooth_compliance" not in A.choose(healthy, 50.0, R).candidates
 
 
-def test_every_setting_and_scene_of_the_study_is_a_valid_scene():
+def test_every_setting_and_scene_of_the_study_is_a_valid_scene(contact_maps_read_once):
+    """Every (scene, setting) of the study assembles and its predicted cost is affordable (the ~180 assemblies
+    read the few contact maps they share once each: _shared.contact_map_read_once)."""
     runs, refused = S.study_scenes()
     assert len(runs) + len(refused) == len(A.STUDY_SCENES) * len(A.SETTINGS)
     # only the fidelities without tooth geometry are refused, and only for faulty gears

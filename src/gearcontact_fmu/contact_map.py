@@ -511,10 +511,43 @@ class ContactMapFileError(ValueError):
     """A contact-map file that cannot be read or does not hold a map of the expected layout."""
 
 
+#: maps read in this process: {(path, inode, mtime_ns, size, gear, pcm, grid, n_rev): (arrays, info)}, the arrays
+#: read-only and shared by every ContactMap returned for that file state (at most LOADED_MAPS_KEPT, the latest)
+_LOADED: dict = {}
+LOADED_MAPS_KEPT = 4
+
+
 def load_map(path: Path, gear, pcm, grid, n_rev: int = 1) -> ContactMap:
     """Read a cached map and check its layout against the gear, grid and pinion revolutions it was
     asked for (a truncated or altered file raises ContactMapFileError naming the file and the problem,
-    never a wrong map)."""
+    never a wrong map). A file read before in this process, unchanged since (the same inode, modification time
+    and size), is not read, decompressed and digested again: its checked arrays are shared, read-only (an
+    assembly reads the same map for every start state it looks for; a record calibration hundreds of times)."""
+    try:
+        st = os.stat(path)
+        key = (str(path), st.st_ino, st.st_mtime_ns, st.st_size, gear, pcm, grid, int(n_rev))
+        hash(key)
+    except (OSError, TypeError):
+        key = None
+    hit = _LOADED.get(key) if key is not None else None
+    if hit is None:
+        cmap = _read_map(path, gear, pcm, grid, n_rev)
+        if key is None:
+            return cmap
+        arrays = (cmap.theta, cmap.a, cmap.onset, cmap.values)
+        for arr in arrays:
+            arr.flags.writeable = False
+        hit = (arrays, dict(cmap.info))
+        _LOADED.pop(key, None)
+        _LOADED[key] = hit
+        while len(_LOADED) > LOADED_MAPS_KEPT:
+            _LOADED.pop(next(iter(_LOADED)))
+    (theta, a, onset, values), info = hit
+    return ContactMap(theta, a, onset, values, gear, pcm, grid, dict(info))
+
+
+def _read_map(path: Path, gear, pcm, grid, n_rev: int = 1) -> ContactMap:
+    """:func:`load_map` from the file itself."""
     import ast
     import zipfile
 

@@ -152,7 +152,6 @@ STIFFNESS_REL_TOL = 0.10
 #: the layer of each other pair is the rig's carried to its flank curvature (gearcontact_fmu.elastic_layer).
 #: With the rig's 0.5 mm kept for every pair, 20x40_m4 (1.11 / 1.10 / 1.22 / 1.23) and miter25_m3 (1.03 / 1.07 /
 #: 1.11 / 1.10) failed this rule (docs/GEAR-CONTACT.md, "Other pairs"): the rule stayed, the layer law came after
-STIFFNESS_SHORT: dict[str, str] = {}
 
 
 def _line_load_N_per_mm(gear, torque_Nm):
@@ -242,12 +241,8 @@ def test_the_layer_law_keeps_a_similar_pairs_stiffness():
         assert k["carried"] / k["rig"] == pytest.approx(1.0, abs=0.06)
 
 
-def _params_short(name, short):
-    return pytest.param(name, marks=pytest.mark.xfail(strict=True, reason=short[name])) if name in short else name
-
-
 @pytest.mark.slow
-@pytest.mark.parametrize("name", [_params_short(n, STIFFNESS_SHORT) for n in PAIRS])
+@pytest.mark.parametrize("name", list(PAIRS))
 def test_loaded_mesh_stiffness_against_iso6336(table_models, name):
     """The loaded mesh stiffness of the table model (layers and tooth compliance; mean over a pitch) within 10 %
     of ISO 6336's c_gamma of the virtual spur gears (method B, with its low-load factor) at the line loads of the

@@ -72,8 +72,9 @@ def evaluate(run_dir: Path, records: list[dict], scenes: list, refused: dict, me
         if ref_scene is not None:
             rec["speed_rpm"] = ref_scene.operating_point.final_speed_rpm
             rec["health_class"] = health_class(ref_scene)
-            if pair_of(ref_scene) is not None:
-                rec["pair"] = pair_of(ref_scene)
+            pair = pair_of(ref_scene)
+            if pair is not None:
+                rec["pair"] = pair
         ref = None
         ref_rec = by_name.get(run_name(sc, REFERENCE))
         if ref_rec and ref_rec.get("status") == "ok":

@@ -287,13 +287,18 @@ def random_scene_dict(p: dict, mesh_paths: list | None = None, *, halve_step: bo
 # --------------------------------------------------------------------------------------------------
 
 
+def _pair_params(pair: str | None) -> BevelGearParams:
+    """The gear data of a campaign's pair: the rig's (None) or one of ``OTHER_PAIRS``."""
+    return BevelGearParams() if pair is None else other_pair(pair)
+
+
 def fault_mesh_params(seed: int, j: int, pair: str | None = None) -> dict:
     """Parameters of random fault mesh ``j`` (depends only on (seed, j)). Meshes 0, 1, 2 (mod 4): a
     flank-fracture void of random tooth, width 0.5..2 mm, depth 0.1..0.5 mm and position -0.8..1.5 mm
     from the pitch cone (:func:`gearcontact_fmu.faults.mild_flank_fracture`); mesh 3 (mod 4): a random
     missing tooth plus a void on another tooth. ``pair``: on the pinion of that other pair (default the rig's)."""
 
-    P = BevelGearParams() if pair is None else other_pair(pair)
+    P = _pair_params(pair)
     g = geometry.gear_geometry(P, "pinion")
     rng = _rng(seed, _STREAM_MESH, j)
     for _ in range(1000):
@@ -315,7 +320,7 @@ def fault_mesh_params(seed: int, j: int, pair: str | None = None) -> dict:
 def build_fault_mesh(params: dict):
     """The pinion SurfaceMesh (body frame, m) of :func:`fault_mesh_params`."""
 
-    P = BevelGearParams() if params.get("pair") is None else other_pair(params["pair"])
+    P = _pair_params(params.get("pair"))
     mesh = geometry.build_gear_mesh(P, "pinion")
     mesh = faults.mild_flank_fracture(mesh, P, **params["void"])
     if params.get("missing_tooth") is not None:

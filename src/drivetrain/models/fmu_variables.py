@@ -47,6 +47,8 @@ INPUT_PROFILES = {
 #: per model: its own outputs, each declared once: name -> (unit, description); then the energies every
 #: drivetrain FMU has (ENERGY). Parameters are declared in the component's parameter dataclass (name,
 #: default, unit, description: drivetrain.models.parameters); the flange variables follow from the port kinds.
+#: the output of every FMU with a spring-side cut (its port's energy correction)
+COUPLING_ENERGY_ERROR = ("J", "work mismatch of the spring-side cut since t = 0 not yet corrected (energy audit)")
 OWN_OUTPUTS = {
     "FlexibleShaft": {
         "flange_b_tau_mean": ("N.m", "exact mean over the last step of the torque at flange_b"),
@@ -54,8 +56,7 @@ OWN_OUTPUTS = {
         "shaft_torque": ("N.m", "torque in the thin shaft at its flange_b end"),
         "hub_b_phi": ("rad", "angle of transducer hub B"),
         "hub_b_w": ("rad/s", "speed of transducer hub B"),
-        "coupling_energy_error": ("J", "work mismatch of the spring-side cut since t = 0 not yet corrected "
-                                       "(energy audit)"),
+        "coupling_energy_error": COUPLING_ENERGY_ERROR,
     },
     "UpperTransmission": {
         "torque_sensor": ("N.m", "drive-shaft transducer torque (rigid shafts: flange_a torque minus J_sensor "
@@ -73,8 +74,7 @@ OWN_OUTPUTS = {
         "load_motor_torque": ("N.m", "load motor torque at the propeller shaft"),
         "load_motor_w": ("rad/s", "load motor speed"),
         "coupling_torque": ("N.m", "torque in coupling C1"),
-        "coupling_energy_error": ("J", "work mismatch of the spring-side cut since t = 0 not yet corrected "
-                                       "(energy audit)"),
+        "coupling_energy_error": COUPLING_ENERGY_ERROR,
     },
 }
 #: per model: its extra inputs (beside the flange inputs): name -> (unit, description)

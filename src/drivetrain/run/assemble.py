@@ -431,17 +431,18 @@ def spec_at_speed(spec: SystemSpec, rpm: float) -> SystemSpec:
     """``spec`` linearised at a steady drive speed ``rpm``: its components' start speeds (``w0`` of the drive
     side, ``w0_load`` of the load body, the propeller speed through the upper and the lower ratio) at that speed,
     everything else as it is. For the stability check only (the losses' small-signal damping is speed-dependent)."""
-    w = rig.rpm_to_rad_s(rpm)
     upper = next(c for c in spec.components if c.model == "UpperTransmission").parameters
+    motors = next(c for c in spec.components if c.model == "MotorLoad").parameters
     gear = next((c for c in spec.components if c.model == GEAR_MODEL), None)
     lower = gear_pair(gear.parameters).ratio if gear is not None else rig.LOWER_RATIO
+    ss = rig.steady_state(rpm, 0.0, upper, motors, lower_ratio=lower)     # its speeds, as assemble's start
     comps = []
     for c in spec.components:
         p = dict(c.parameters)
         if "w0" in p:
-            p["w0"] = w
+            p["w0"] = ss.w_drive
         if "w0_load" in p:
-            p["w0_load"] = w / float(upper["ratio"]) / lower
+            p["w0_load"] = ss.w_prop
         comps.append(dataclasses.replace(c, parameters=p))
     return SystemSpec(comps, list(spec.connections), spec.comm_step, spec.metadata)
 

@@ -4,8 +4,8 @@ The kernels are compiled on their first call and cached on disk (``cache=True``:
 sources, or ``$NUMBA_CACHE_DIR``); later processes load them in about a second. The first compile is long, and
 silent unless someone says so: :func:`compiling` reports it through :mod:`gearcontact_fmu.progress` (the
 command line shows a bar counting the seconds against :data:`COLD_COMPILE_S`) when :func:`kernels_cold` finds
-no cached code for the kernel it is given (the map builder's, ``contact_map._tabulate_side``, which compiles the
-contact engine with it). The library never prints.
+no cached code for the kernel it is given (the contact engine's, ``engine.fixed_axis_eval``, which the first
+map build compiles with everything it calls). The library never prints.
 """
 from __future__ import annotations
 

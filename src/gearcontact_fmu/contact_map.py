@@ -44,8 +44,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import numba as nb
 import numpy as np
-from numba import njit
+from numba import njit, types
 
 from gearcontact_fmu import compile_notice, geometry
 from gearcontact_fmu.contact import engine
@@ -55,7 +56,7 @@ from gearcontact_fmu.locks import cache_dir  # noqa: F401  (the maps' cache; re-
 from gearcontact_fmu.mesh_models.pcm import build_pcm_pair, contact_onset, static_deflection
 from gearcontact_fmu.mesh_models.base import (N_OUT, OUT_CONTACT_AREA, OUT_ELASTIC_ENERGY, OUT_MAX_PENETRATION,
                                         OUT_N_CONTACT, OUT_NORMAL_FORCE, OUT_PEAK_PRESSURE, OUT_TAU_PINION,
-                                        OUT_TAU_WHEEL)
+                                        OUT_TAU_WHEEL, eval_signature)
 from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCMParams, file_sha256, params_hash
 from gearcontact_fmu.progress import Silent, reporter as progress_reporter
 
@@ -396,12 +397,16 @@ def _tabulate_rows(pair, theta, a, grid: MapGrid, sides=None, bar=None):
     data_dm = pair.data_with(friction=False, damping=True)
     onset = np.zeros((len(theta), 2))
     vals = np.zeros((len(theta), 2, len(a), N_CH))
+    a = a.view()                # read-only always (a map's own approach nodes are, once shared by load_map):
+    a.flags.writeable = False   # one compilation of the kernel, not one per writability
     out = np.zeros(N_OUT)
     w_ref = grid.reference_speed
     # a small probe rate of the mesh coordinate gives the damping coefficient (damping is linear in
     # the normal velocity, so D = -dT/d(s_dot) / c_compression exactly on the compressing side)
     sdot = 1e-6
     consts = (float(z1), float(z2), sdot, float(w_ref), float(pcm.c_compression))
+    datas = (data_el, data_dm, data_fr)
+    kernel = _tabulator(nb.typeof(data_el))
     for i, th in enumerate(theta):
         for side, sign in ((SIDE_DRIVE, 1.0), (SIDE_COAST, -1.0)):
             if sides is not None and not sides[i, side]:
@@ -410,14 +415,32 @@ def _tabulate_rows(pair, theta, a, grid: MapGrid, sides=None, bar=None):
             if not math.isfinite(on):
                 on = sign * s_far                        # nothing touches within the range
             onset[i, side] = on
-            _tabulate_side((data_el, data_dm, data_fr), th, on, sign, a, consts, vals[i, side], out)
+            kernel(engine.fixed_axis_eval, datas, th, on, sign, a, consts, vals[i, side], out)
             if bar is not None:
                 bar.update(1)
     return onset, vals
 
 
-@njit(cache=True)
-def _tabulate_side(datas, th, on, sign, a, consts, rows, out):
+_TABULATORS: dict = {}
+
+
+def _tabulator(data_type):
+    """:func:`_tabulate_side` compiled for the engine's data of numba type ``data_type``, the engine passed to it
+    as a function pointer. Why not a direct call: numba links every kernel a kernel calls into the caller's
+    machine code and optimises it all again, so a direct call compiled the contact engine (the longest compile)
+    a second time into this kernel, about 7 s of a cold first map. Through the pointer the engine is compiled
+    once; the cost is an indirect call per evaluation, nothing beside the engine's own work."""
+    kernel = _TABULATORS.get(data_type)
+    if kernel is None:
+        f64 = types.float64
+        sig = types.void(types.FunctionType(eval_signature(engine.fixed_axis_eval, data_type)),
+                         types.UniTuple(data_type, 3), f64, f64, f64, types.Array(f64, 1, "C", readonly=True),
+                         types.UniTuple(f64, 5), f64[:, ::1], f64[::1])
+        kernel = _TABULATORS[data_type] = njit(sig, cache=True)(_tabulate_side)
+    return kernel
+
+
+def _tabulate_side(fixed_axis_eval, datas, th, on, sign, a, consts, rows, out):
     """The rows of one pinion angle and flank (``rows``: one per approach ``a[j]`` past the onset): the
     elastic torques and diagnostics, the damping coefficient from a probe rate ``sdot`` of the mesh
     coordinate, the friction torques at the reference speed. One call from Python per angle and flank:
@@ -427,7 +450,7 @@ def _tabulate_side(datas, th, on, sign, a, consts, rows, out):
     for j in range(a.shape[0]):
         sj = on + sign * a[j]
         thw = (th - sj) * z1 / z2
-        engine.fixed_axis_eval(data_el, th, thw, 0.0, 0.0, out)
+        fixed_axis_eval(data_el, th, thw, 0.0, 0.0, out)
         row = rows[j]
         row[CH_TAU_P] = out[OUT_TAU_PINION]
         row[CH_TAU_W] = out[OUT_TAU_WHEEL]
@@ -442,11 +465,11 @@ def _tabulate_side(datas, th, on, sign, a, consts, rows, out):
         tp_el = out[OUT_TAU_PINION]
         tw_el = out[OUT_TAU_WHEEL]
         # damping: the pinion moves at a rate that compresses the flank in contact
-        engine.fixed_axis_eval(data_dm, th, thw, sign * sdot, 0.0, out)
+        fixed_axis_eval(data_dm, th, thw, sign * sdot, 0.0, out)
         d_tp = out[OUT_TAU_PINION] - tp_el
         row[CH_DAMP] = abs(d_tp) / (c_compression * sdot) if c_compression > 0 else 0.0
         # friction at the reference speed with kinematic wheel speed
-        engine.fixed_axis_eval(data_fr, th, thw, w_ref, w_ref * z1 / z2, out)
+        fixed_axis_eval(data_fr, th, thw, w_ref, w_ref * z1 / z2, out)
         row[CH_FRIC_P] = out[OUT_TAU_PINION] - tp_el
         row[CH_FRIC_W] = out[OUT_TAU_WHEEL] - tw_el
 
@@ -454,12 +477,12 @@ def _tabulate_side(datas, th, on, sign, a, consts, rows, out):
 def kernels_cold() -> bool:
     """True when the map builder's kernels are not compiled yet, here or in numba's cache (the next map build
     compiles them first: :mod:`gearcontact_fmu.compile_notice`)."""
-    return compile_notice.kernels_cold(_tabulate_side)
+    return compile_notice.kernels_cold(engine.fixed_axis_eval)
 
 
 def compile_notice_text() -> str:
     """What is said while the map builder's kernels compile."""
-    return compile_notice.notice_text(_tabulate_side)
+    return compile_notice.notice_text(engine.fixed_axis_eval)
 
 
 def cache_key(gear, pcm, resolution, health, mesh_files, grid, fault_kwargs=None, mesh_units: str = "mm") -> str:
@@ -666,11 +689,11 @@ def get_map(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
                     return cached()
                 except ContactMapFileError:
                     pass            # damaged meanwhile: built again below
-            with compile_notice.compiling(_tabulate_side):
+            with compile_notice.compiling(engine.fixed_axis_eval):
                 cmap = _build_map(gear, pcm, resolution, health, mesh_files, mesh_units, grid, fault_kwargs, healthy)
             save_map(cmap, path)
     else:
-        with compile_notice.compiling(_tabulate_side):
+        with compile_notice.compiling(engine.fixed_axis_eval):
             cmap = _build_map(gear, pcm, resolution, health, mesh_files, mesh_units, grid, fault_kwargs, healthy)
     cmap.info["cache"] = str(path)
     cmap.info["from_cache"] = False

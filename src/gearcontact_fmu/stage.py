@@ -77,6 +77,7 @@ from gearcontact_fmu.mesh_models.base import (
     OUT_TAU_WHEEL,
     SCHEMES,
     MeshModel,
+    eval_signature,
 )
 from gearcontact_fmu.params import (CODE_MESH_STATUS, CODE_NONFINITE_INPUT, CODE_NONFINITE_STATE, CODE_OK,
                                     BevelGearParams, checked_substeps, substeps)
@@ -325,6 +326,10 @@ def _in_contact(out):
     return out[OUT_TAU_PINION] != 0.0 or out[OUT_NORMAL_FORCE] != 0.0
 
 
+#: bare mode always tracks; a typed True, not the literal, so that _tally and _tally_start compile once for both modes
+_TRACK = np.bool_(True)
+
+
 @njit(cache=True)
 def _tally_start(res, c, pen, track):
     """Stability counters at the start of a step (state c, penetration pen): a contact lost between
@@ -374,7 +379,7 @@ def _advance_bare(f, data, u, H, n_sub, x, out, res):
     outp = np.empty(out.shape[0])
     t = 0.0
     f(data, u[0], u[2], u[1], u[3], out)
-    _tally_start(res, _in_contact(out), out[OUT_MAX_PENETRATION], True)
+    _tally_start(res, _in_contact(out), out[OUT_MAX_PENETRATION], _TRACK)
     for i in range(n_sub):
         if out[OUT_STATUS] != 0.0:
             res[_RTF] = t
@@ -394,7 +399,7 @@ def _advance_bare(f, data, u, H, n_sub, x, out, res):
             res[_RPEN] = pen1
         t = (i + 1) * h
         f(data, u[0] + u[1] * t, u[2] + u[3] * t, u[1], u[3], out)
-        _tally(res, h, c0, _in_contact(out), out[OUT_MAX_PENETRATION], True)
+        _tally(res, h, c0, _in_contact(out), out[OUT_MAX_PENETRATION], _TRACK)
         x[4] += h / 6.0 * (ta0 + 4.0 * ta1 + out[OUT_TAU_PINION])
         x[5] += h / 6.0 * (tb0 + 4.0 * tb1 + out[OUT_TAU_WHEEL])
         x[6] += h / 6.0 * (p0 + 4.0 * p1 + out[OUT_DISSIPATED_POWER])
@@ -573,20 +578,13 @@ _KERNELS: dict = {}
 _RUNNERS: dict = {}
 
 
-def _eval_signature(mesh_eval, data_type):
-    args = (data_type, types.float64, types.float64, types.float64, types.float64, types.float64[::1])
-    mesh_eval.compile(args)
-    ret = mesh_eval.overloads[args].signature.return_type
-    return ret(*args)
-
-
 def _get_runner(mesh_eval, data):
     data_type = nb.typeof(data)
     key = (mesh_eval, data_type)
     run = _RUNNERS.get(key)
     if run is not None:
         return run
-    fsig = _eval_signature(mesh_eval, data_type)
+    fsig = eval_signature(mesh_eval, data_type)
     kern = _KERNELS.get(fsig)
     if kern is None:
         arr = types.float64[::1]

@@ -434,6 +434,16 @@ def _first_crossing(n_out, active, best_u, best_j, line):
     return n_keep
 
 
+# Arguments that select a branch are passed as these typed values, not as literals: numba compiles a
+# kernel once per distinct literal argument it is called with (``_traverse(0, ...)`` and ``_traverse(1,
+# ...)`` were two compilations of the largest kernel), and once for one typed value.
+_EXACT = np.int64(0)        # _traverse: exact search
+_COLLECT = np.int64(1)      # _traverse: candidate collection for the cache
+_ROOT = np.int64(0)         # the root node of a tree
+_AABB = np.bool_(False)     # _max_disp_box: the axis-aligned box
+_OBB = np.bool_(True)       # _max_disp_box: the oriented box
+
+
 @njit(cache=True)
 def _traverse(mode, bm, tm, Rbt, tbt, L, s_neg, infl, delta, ws, col):
     """Dual-tree traversal of base ``bm`` and target ``tm`` (:class:`BaseMesh`,
@@ -576,7 +586,7 @@ def search_pair(bm, tm, Rbt, tbt, L, s_neg, ws):
     dummy_c = np.empty((0, 2), dtype=np.int64)
     dummy_i = np.zeros(1, dtype=np.int64)
     col = Collect(dummy_c, dummy_i, dummy_i, dummy_c, np.empty(0), np.empty((0, 6)))
-    return _traverse(0, bm, tm, Rbt, tbt, L, s_neg, s_neg, 0.0, ws, col)
+    return _traverse(_EXACT, bm, tm, Rbt, tbt, L, s_neg, s_neg, 0.0, ws, col)
 
 
 @njit(cache=True)
@@ -975,10 +985,10 @@ def _node_disp(dR, dt, b_seg, b_obb, i, grow, limit):
     """Bound of |dR x + dt| over base node i (axis-aligned box, then oriented box if needed)."""
     d = _max_disp_box(dR, dt, b_obb[i], 0, b_seg[i, 0] - b_seg[i, 3], b_seg[i, 1] - b_seg[i, 4],
                       b_seg[i, 2] - b_seg[i, 5], b_seg[i, 0] + b_seg[i, 3],
-                      b_seg[i, 1] + b_seg[i, 4], b_seg[i, 2] + b_seg[i, 5], False, grow)
+                      b_seg[i, 1] + b_seg[i, 4], b_seg[i, 2] + b_seg[i, 5], _AABB, grow)
     if d < limit:
         return d
-    return min(d, _max_disp_box(dR, dt, b_obb[i], 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, True, grow))
+    return min(d, _max_disp_box(dR, dt, b_obb[i], 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, _OBB, grow))
 
 
 # snapshot metadata layout of the pitch atlas (float64 rows of size N_SNAP)
@@ -1053,16 +1063,16 @@ def _cache_check(ps, lb, bm, fnode, s_neg, delta, cphi, margin, ndisp):
     # teeth's congruence (normals within 2 PITCH_TOL_NORMAL) for lists served from the atlas
     ndisp[ndisp.shape[0] - 1] = math.sqrt(fro) * (1.0 + 1e-12) + 1e-11
     # motion bound of the whole base (root box): covers every node whose minsep exceeds it
-    droot = _node_disp(dR, dt, b_seg, b_obb, 0, s_neg, np.inf)
+    droot = _node_disp(dR, dt, b_seg, b_obb, _ROOT, s_neg, np.inf)
     if gfar < np.inf and droot + margin >= gfar:
-        if _node_disp(dR, dt, b_seg, b_obb, 0, s_neg, gfar) + margin >= gfar:
+        if _node_disp(dR, dt, b_seg, b_obb, _ROOT, s_neg, gfar) + margin >= gfar:
             return -1.0
     dmax = 0.0
     for q in range(nclose):
         f = close[q]
         if nbox[f, 0] <= nbox[f, 3]:
             d = _max_disp_box(dR, dt, ref, 0, nbox[f, 0], nbox[f, 1], nbox[f, 2], nbox[f, 3],
-                              nbox[f, 4], nbox[f, 5], False, s_neg)
+                              nbox[f, 4], nbox[f, 5], _AABB, s_neg)
             ndisp[f] = d + margin
             if d + margin >= delta:
                 return -1.0
@@ -1326,7 +1336,7 @@ def _start_motion(ps, fresh, s_neg, bm, cache, far):
             for c in range(3):
                 dR[r, c] = Rc[r, c] - cache[C_RREF + 3 * r + c]
             dt[r] = tbt[r] - cache[C_TREF + r]
-        root = _node_disp(dR, dt, b_seg, b_obb, 0, s_neg, np.inf)
+        root = _node_disp(dR, dt, b_seg, b_obb, _ROOT, s_neg, np.inf)
     cache[C_R0] = 0.0 if fresh else ndisp[ndisp.shape[0] - 1]
     cache[C_ROOT0] = root
     cache[C_SEP0] = sep
@@ -1358,12 +1368,12 @@ def _advance_motion(ps, s_neg, bm, cache, far):
         f = close[q]
         if nbox[f, 0] <= nbox[f, 3]:
             d = _max_disp_box(dR, dt, cache, 0, nbox[f, 0], nbox[f, 1], nbox[f, 2], nbox[f, 3],
-                              nbox[f, 4], nbox[f, 5], False, s_neg)
+                              nbox[f, 4], nbox[f, 5], _AABB, s_neg)
             nsum[f] += d * (1.0 + 1e-12) + SKIP_EPS
             if nd0[f] + nsum[f] > dmax:
                 dmax = nd0[f] + nsum[f]
     cache[C_SUMD] = dmax
-    cache[C_SUMROOT] += _node_disp(dR, dt, b_seg, b_obb, 0, s_neg, np.inf) * (1.0 + 1e-12) \
+    cache[C_SUMROOT] += _node_disp(dR, dt, b_seg, b_obb, _ROOT, s_neg, np.inf) * (1.0 + 1e-12) \
         + SKIP_EPS
     cache[C_SUMR] += math.sqrt(fro) * (1.0 + 1e-12) + 1e-15
     _keep_pose(Rc, tbt, cache)
@@ -1479,7 +1489,7 @@ def _build_list(theta_b, theta_t, d, periodic):
             nbox[f, a] = np.inf
             nbox[f, 3 + a] = -np.inf
     col = Collect(cands.pairs, far.nstamp, far.icount, far.fc, minsep, nbox)
-    n = _traverse(1, d.base, d.target, Rbt, tbt, p[P_L], s_neg, far_m + s_neg, p[P_DELTA],
+    n = _traverse(_COLLECT, d.base, d.target, Rbt, tbt, p[P_L], s_neg, far_m + s_neg, p[P_DELTA],
                   d.work, col)
     cache[C_BUILDS] += 1.0
     if n < 0:

@@ -90,3 +90,17 @@ class MeshModel:
         self.eval(self.data, float(theta_pinion), float(theta_wheel), float(omega_pinion),
                   float(omega_wheel), out)
         return out
+
+
+def eval_signature(mesh_eval, data_type):
+    """The numba signature of a mesh kernel ``mesh_eval`` (``f(data, theta_pinion, theta_wheel, omega_pinion,
+    omega_wheel, out)``) for its data of numba type ``data_type``, compiled for it: the type of a first-class
+    function argument (``numba.types.FunctionType(...)``) through which a kernel calls a mesh model without
+    compiling it into its own code."""
+    from numba import types
+
+    args = (data_type, types.float64, types.float64, types.float64, types.float64, types.float64[::1])
+    mesh_eval.compile(args)
+    ret = mesh_eval.overloads[args].signature.return_type
+    return ret(*args)
+

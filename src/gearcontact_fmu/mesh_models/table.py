@@ -28,6 +28,15 @@ from gearcontact_fmu.elastic_layer import pair_pcm
 from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCMParams
 
 
+def _frozen(arr: np.ndarray) -> np.ndarray:
+    """A read-only contiguous view: the kernel's arrays have one type (numba compiles a kernel and all it calls
+    once per argument type, writable and read-only arrays being two), whether the map was built here or shared
+    read-only by :func:`~gearcontact_fmu.contact_map.load_map`."""
+    view = np.ascontiguousarray(arr).view()
+    view.flags.writeable = False
+    return view
+
+
 def make_table_data(cmap: ContactMap, friction: bool = True, damping: bool = True, compliance: float = 1.0) -> tuple:
     """Kernel data of a map. ``compliance`` > 1 puts a series compliance (compliance - 1) times the layers'
     own behind them: the approach axis stretches by that factor at every angle and load (the contact
@@ -43,7 +52,7 @@ def make_table_data(cmap: ContactMap, friction: bool = True, damping: bool = Tru
         values[..., CH_EEL] *= compliance
         values[..., CH_DAMP] /= compliance
         a = a * compliance
-    return (np.ascontiguousarray(values), np.ascontiguousarray(a), np.ascontiguousarray(cmap.onset),
+    return (_frozen(values), _frozen(a), _frozen(cmap.onset),
             float(cmap.theta[1] - cmap.theta[0]), float(z2) / float(z1),
             float(cmap.pcm.c_compression if damping else 0.0), float(cmap.pcm.c_expansion if damping else 0.0),
             float(cmap.pcm.u_max), 1.0 if friction else 0.0, float(cmap.grid.omega_regularisation), n_rev)
@@ -91,7 +100,7 @@ def _locate(s_nodes, s):
     return j, w
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")          # inlined: not one compilation per channel constant
 def _bilinear(values, i0, i1, side, j, w, b, ch):
     """Value of channel ch between pinion-angle rows i0, i1 (weight b) and approach nodes j, j+1 (w)."""
     v0 = values[i0, side, j, ch] + w * (values[i0, side, j + 1, ch] - values[i0, side, j, ch])

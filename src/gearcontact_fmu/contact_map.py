@@ -41,6 +41,7 @@ import math
 import os
 import shutil
 import time
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -525,8 +526,14 @@ def save_map(cmap: ContactMap, path: Path) -> None:
     arrays = {k: getattr(cmap, k) for k in _MAP_ARRAYS}
     info = repr(cmap.info)
     tmp = Path(str(path) + f".tmp{os.getpid()}")
-    with open(tmp, "wb") as f:
-        np.savez_compressed(f, **arrays, info=np.array(info), digest=np.array(content_digest(arrays, info)))
+    members = {**arrays, "info": np.array(info), "digest": np.array(content_digest(arrays, info))}
+    # an .npz as np.savez_compressed writes it, at zlib's fastest level: a map's values are floats that
+    # deflate hardly at all (24.3 MB to 18.1 at the default level, 18.4 at level 1), and level 1 writes
+    # them in 0.45 s instead of 0.78 (a new fault's map, measured)
+    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED, compresslevel=1) as zf:
+        for name, arr in members.items():
+            with zf.open(f"{name}.npy", "w", force_zip64=True) as f:
+                np.lib.format.write_array(f, np.asanyarray(arr), allow_pickle=False)
     os.replace(tmp, path)
 
 
@@ -572,7 +579,6 @@ def load_map(path: Path, gear, pcm, grid, n_rev: int = 1) -> ContactMap:
 def _read_map(path: Path, gear, pcm, grid, n_rev: int = 1) -> ContactMap:
     """:func:`load_map` from the file itself."""
     import ast
-    import zipfile
 
     try:
         with np.load(path, allow_pickle=False) as z:

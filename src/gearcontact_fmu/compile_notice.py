@@ -15,9 +15,9 @@ import threading
 from gearcontact_fmu import progress
 
 #: seconds of a cold compile of the kernels (one core: numba compiles serially), measured with
-#: benchmarks/bench_first_compile.py: 8 distinct-fault maps from an empty NUMBA_CACHE_DIR took 160 CPU-seconds,
-#: 67 from a warm one (2 cores shared with other work; 2026-11-28)
-COLD_COMPILE_S = 95
+#: benchmarks/bench_first_compile.py: 8 distinct-fault maps from an empty NUMBA_CACHE_DIR spent 56.7 and 53.2 CPU-seconds
+#: more than from a warm one (two runs; 2026-11-28, after the kernels compiled once per argument type)
+COLD_COMPILE_S = 60
 
 
 def kernels_cold(kernel) -> bool:

@@ -11,7 +11,11 @@ every such path (the exact and the cached contact search, a map tabulated, a tab
 here and from one loaded from its file, stepped in the gear stage), no kernel of the library holds two
 signatures that differ only by literal values or writability. Checked over everything this test process
 compiled, not only the workload. (Passing a literal again, e.g. ``_traverse(0, ...)``, or dropping the
-read-only view of ``make_table_data``, fails it.)
+read-only view of ``make_table_data``, fails it.) A literal also reaches a kernel on the way to its final type:
+``i = 0; ...; i += 1`` types ``i`` as ``Literal[int](0)`` first, and numba compiles the callee for that before
+``int64`` (``bvh._node_frame`` and ``coupling.correct_port`` were, found by this test on CI's cold cache). What a
+process loads from numba's disk cache it does not compile, so the check sees most on a cold cache (CI's fresh
+clone); on a warm one, what was not cached.
 """
 from __future__ import annotations
 

@@ -298,8 +298,8 @@ def line_step(H, n_sub, fp, ip, st, out, wk, cs):
             else:
                 out[o_to + q] = out[o_ti + q]
     # ---- energy-conserving correction of the spring-side outputs (gearcontact_fmu.coupling) -----------
-    i = 0
-    for q in range(npt):
+    i = np.int64(0)      # typed, not the literal 0: numba would compile correct_port for Literal[int](0) on its way
+    for q in range(npt):  # to int64 (a kernel compiles once per argument type: test_kernel_specialisations)
         if ip[o_pk + q] == 1:
             out[o_to + q] = correct_port(cs, i, H, fp[o_u0 + q], fp[o_u1 + q], out[o_ti + q], out[o_to + q],
                                          fp[o_pr + q] * st[s_th + ip[o_pn + q]])

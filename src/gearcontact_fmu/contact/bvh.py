@@ -245,7 +245,7 @@ def node_obbs(node_int, order, tri, seg_points, seg_normals, length):
         sx = 0.0
         sy = 0.0
         sz = 0.0
-        npts = 0
+        npts = np.int64(0)   # typed, not the literal 0: numba would also compile _node_frame for Literal[int](0)
         for k in range(start, start + count):
             p = order[k]
             e1x = tri[p, 1, 0] - tri[p, 0, 0]

@@ -57,7 +57,7 @@ from gearcontact_fmu.locks import cache_dir  # noqa: F401  (the maps' cache; re-
 from gearcontact_fmu.mesh_models.pcm import build_pcm_pair, contact_onset, static_deflection
 from gearcontact_fmu.mesh_models.base import (N_OUT, OUT_CONTACT_AREA, OUT_ELASTIC_ENERGY, OUT_MAX_PENETRATION,
                                         OUT_N_CONTACT, OUT_NORMAL_FORCE, OUT_PEAK_PRESSURE, OUT_TAU_PINION,
-                                        OUT_TAU_WHEEL, eval_signature)
+                                        OUT_TAU_WHEEL, eval_signature, read_only)
 from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCMParams, file_sha256, params_hash
 from gearcontact_fmu.progress import Silent, reporter as progress_reporter
 
@@ -398,8 +398,7 @@ def _tabulate_rows(pair, theta, a, grid: MapGrid, sides=None, bar=None):
     data_dm = pair.data_with(friction=False, damping=True)
     onset = np.zeros((len(theta), 2))
     vals = np.zeros((len(theta), 2, len(a), N_CH))
-    a = a.view()                # read-only always (a map's own approach nodes are, once shared by load_map):
-    a.flags.writeable = False   # one compilation of the kernel, not one per writability
+    a = read_only(a)            # as a map shared by load_map has them: one compilation of the kernel
     out = np.zeros(N_OUT)
     w_ref = grid.reference_speed
     # a small probe rate of the mesh coordinate gives the damping coefficient (damping is linear in

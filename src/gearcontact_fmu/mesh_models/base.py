@@ -104,3 +104,13 @@ def eval_signature(mesh_eval, data_type):
     ret = mesh_eval.overloads[args].signature.return_type
     return ret(*args)
 
+
+def read_only(arr) -> np.ndarray:
+    """A read-only contiguous view of ``arr`` (the array itself stays writable): what a kernel's array arguments
+    are made, so that they have one numba type. numba compiles a kernel, and everything it calls, once per
+    argument type, and a writable and a read-only array are two; the maps that
+    :func:`~gearcontact_fmu.contact_map.load_map` shares are read-only."""
+    view = np.ascontiguousarray(arr).view()
+    view.flags.writeable = False
+    return view
+

@@ -22,19 +22,10 @@ from gearcontact_fmu.contact_map import (CH_AREA, CH_DAMP, CH_EEL, CH_FN, CH_FRI
                                          CH_PEN, CH_TAU_P, CH_TAU_W, SEED_DIR, ContactMap, get_map, map_file_name)
 from gearcontact_fmu.mesh_models.base import (OUT_CONTACT_AREA, OUT_DISSIPATED_POWER, OUT_ELASTIC_ENERGY,
                                         OUT_MAX_PENETRATION, OUT_N_CONTACT, OUT_NORMAL_FORCE, OUT_PEAK_PRESSURE,
-                                        OUT_STATUS, OUT_TAU_PINION, OUT_TAU_WHEEL, MeshModel)
+                                        OUT_STATUS, OUT_TAU_PINION, OUT_TAU_WHEEL, MeshModel, read_only)
 from gearcontact_fmu.mesh_models.pcm import fault_kwargs_of
 from gearcontact_fmu.elastic_layer import pair_pcm
 from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCMParams
-
-
-def _frozen(arr: np.ndarray) -> np.ndarray:
-    """A read-only contiguous view: the kernel's arrays have one type (numba compiles a kernel and all it calls
-    once per argument type, writable and read-only arrays being two), whether the map was built here or shared
-    read-only by :func:`~gearcontact_fmu.contact_map.load_map`."""
-    view = np.ascontiguousarray(arr).view()
-    view.flags.writeable = False
-    return view
 
 
 def make_table_data(cmap: ContactMap, friction: bool = True, damping: bool = True, compliance: float = 1.0) -> tuple:
@@ -52,7 +43,7 @@ def make_table_data(cmap: ContactMap, friction: bool = True, damping: bool = Tru
         values[..., CH_EEL] *= compliance
         values[..., CH_DAMP] /= compliance
         a = a * compliance
-    return (_frozen(values), _frozen(a), _frozen(cmap.onset),
+    return (read_only(values), read_only(a), read_only(cmap.onset),
             float(cmap.theta[1] - cmap.theta[0]), float(z2) / float(z1),
             float(cmap.pcm.c_compression if damping else 0.0), float(cmap.pcm.c_expansion if damping else 0.0),
             float(cmap.pcm.u_max), 1.0 if friction else 0.0, float(cmap.grid.omega_regularisation), n_rev)

@@ -7,12 +7,24 @@
 - Only the command line (drivetrain.cli) and the plotting module (drivetrain.run.outputs) print.
 """
 import ast
+import functools
 import re
 from pathlib import Path
 
 from drivetrain.fmu_build.bundle import imported_modules, package_modules
 
 SRC = Path(__file__).resolve().parents[2] / "src"
+
+
+@functools.cache
+def _source(path: Path) -> str:
+    return path.read_text()
+
+
+@functools.cache
+def _tree(path: Path) -> ast.Module:
+    """The parsed module (read once per test run: the checks only walk it, none edits it)."""
+    return ast.parse(_source(path))
 
 
 def _modules() -> dict[str, Path]:
@@ -56,7 +68,7 @@ def test_pure_library_imports_no_host_side():
     for m, p in mods.items():
         if not m.startswith("gearcontact_fmu") or ".slaves" in m:
             continue
-        tree = ast.parse(p.read_text())
+        tree = _tree(p)
         for node in ast.walk(tree):
             names = ([a.name for a in node.names] if isinstance(node, ast.Import)
                      else [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level else [])
@@ -72,7 +84,7 @@ def test_only_the_cli_and_the_plots_print():
     for m, p in _modules().items():
         if m in allowed:
             continue
-        for node in ast.walk(ast.parse(p.read_text())):
+        for node in ast.walk(_tree(p)):
             if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and node.func.id == "print":
                 found.append(f"{m}:{node.lineno}")
     assert not found, "print() outside the CLI: " + ", ".join(found)
@@ -85,7 +97,7 @@ def test_only_the_plotting_module_imports_matplotlib():
     for m, p in _modules().items():
         if m == "drivetrain.run.outputs":
             continue
-        for node in ast.walk(ast.parse(p.read_text())):
+        for node in ast.walk(_tree(p)):
             names = ([a.name for a in node.names] if isinstance(node, ast.Import)
                      else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
             found += [f"{m}:{node.lineno} imports {n}" for n in names if n.split(".")[0] == "matplotlib"]
@@ -141,7 +153,7 @@ DECLARATIONS = ("gearcontact_fmu.fmu_variables", "drivetrain.models.fmu_variable
 def _import_names(path: Path) -> list[tuple[str, list[str]]]:
     """(module, names taken from it) of every import statement of a file, functions included."""
     out = []
-    for node in ast.walk(ast.parse(path.read_text())):
+    for node in ast.walk(_tree(path)):
         if isinstance(node, ast.Import):
             out += [(a.name, []) for a in node.names]
         elif isinstance(node, ast.ImportFrom) and not node.level:
@@ -214,8 +226,8 @@ def _is_kernel(node, source: str) -> bool:
 def test_no_function_over_120_lines_but_kernels_that_say_why():
     long = []
     for m, p in _modules().items():
-        source = p.read_text()
-        for fn in _functions(ast.parse(source)):
+        source = _source(p)
+        for fn in _functions(_tree(p)):
             n = fn.end_lineno - fn.lineno + 1
             if n <= MAX_FUNCTION_LINES:
                 continue
@@ -233,7 +245,7 @@ def test_no_wide_positional_record_crosses_a_module():
     mods = _modules()
     found = []
     for m, p in mods.items():
-        tree = ast.parse(p.read_text())
+        tree = _tree(p)
         imported = set()                 # names bound by from-imports of src modules, and module aliases
         for node in ast.walk(tree):
             if isinstance(node, ast.ImportFrom) and (node.level or (node.module or "").split(".")[0] in

@@ -11,6 +11,7 @@ host-only: editing it marks no FMU stale, and the FMUs do not carry it.
 from __future__ import annotations
 
 import ast
+import functools
 from pathlib import Path
 
 #: packages that run inside an FMU as a whole (the gear FMU's library, the FMI-side runtime)
@@ -34,20 +35,32 @@ def package_modules(pkg_dirs: dict[str, Path]) -> dict[str, Path]:
     return mods
 
 
+@functools.lru_cache(maxsize=4096)
+def _import_statements(path: str, mtime_ns: int, size: int) -> tuple:
+    """(level, module, names) of every import statement of the file, functions included: parsed once per
+    version of the file (its modification time and size key the memo; staleness checks walk the graph often)."""
+    out = []
+    for node in ast.walk(ast.parse(Path(path).read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            out.append((None, None, tuple(a.name for a in node.names)))
+        elif isinstance(node, ast.ImportFrom):
+            out.append((node.level, node.module, tuple(a.name for a in node.names)))
+    return tuple(out)
+
+
 def imported_modules(name: str, path: Path, known) -> set[str]:
     """The modules of ``known`` that module ``name`` imports anywhere in its code (functions included)."""
     pkg = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
+    st = Path(path).stat()
     found = set()
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-        if isinstance(node, ast.Import):
-            targets = [a.name for a in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                base = ".".join(pkg[:len(pkg) - node.level + 1] + ([node.module] if node.module else []))
-            targets = [base] + [f"{base}.{a.name}" for a in node.names]
+    for level, module, names in _import_statements(str(path), st.st_mtime_ns, st.st_size):
+        if level is None:
+            targets = list(names)
         else:
-            continue
+            base = module or ""
+            if level:
+                base = ".".join(pkg[:len(pkg) - level + 1] + ([module] if module else []))
+            targets = [base] + [f"{base}.{a}" for a in names]
         found.update(t for t in targets if t in known and t != name)
     return found
 

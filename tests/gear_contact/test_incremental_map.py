@@ -28,7 +28,8 @@ GRID = MapGrid(points_per_pitch=3, s_points=3, max_torque=120.0)
 #: too-shallow read failed only 2 (the rows at 0 and 1/2 pitch miss the patches' edges), so 3 it is.
 #: "exact to rounding": tiled healthy rows and recomputed faulty rows against every row computed. Healthy
 #: teeth are rotated copies of one tooth, so the same row a pitch apart differs by rounding (measured at
-#: most 1e-8 of a channel's scale, the damping probe, a difference quotient; 6e-9 on this grid); onsets to the search's 1e-10
+#: most 1e-8 of a channel's scale, the damping probe, a difference quotient; 6e-9 on this grid); onsets to
+#: the search's 1e-10 (0 on this grid)
 REL_TOL = 1e-6
 ONSET_TOL = 2e-10
 

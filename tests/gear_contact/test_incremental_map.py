@@ -4,7 +4,7 @@ Oracle: every row and flank of the faulty pair tabulated by the engine (``contac
 healthy map's approach nodes. The incremental build (``compute_map(pair, grid, healthy=...)``) takes the
 healthy rows and recomputes only the flank rows where a faulty tooth touches its partner; a wrong contact
 table (a missed row, a wrong pitch shift) shows as a difference here. Coarse meshes, three rows per pitch and
-three approach nodes, tabulated in this process (``$BEVEL_MAP_WORKERS`` = 1: the pool is not what is tested):
+two approach nodes (just short of the onset, the deepest), tabulated in this process (``$BEVEL_MAP_WORKERS`` = 1: the pool is not what is tested):
 what is checked is which rows are recomputed and that the rest equal the healthy ones, not the values'
 convergence. Every family on both members, and faults on several teeth of both gears at once; the faults
 sit on teeth other than 0, so a window guessed from tooth 0 would show.
@@ -21,11 +21,11 @@ from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCM
 
 GEAR, PCM = BevelGearParams(), PCMParams()
 RES = MeshResolution(profile=0.3e-3, face=3e-3)
-GRID = MapGrid(points_per_pitch=3, s_points=3, max_torque=120.0)
+GRID = MapGrid(points_per_pitch=3, s_points=2, max_torque=120.0)
 #: (A contact table read too shallow, 0.02 of the deepest node instead of TOUCH_MARGIN, fails 14 of these
-#: 16 tests; a pitch shift of the wrong sign fails 14.) On this grid (was 4 rows per pitch, 6 nodes: 71 CPU-s,
-#: now about 29) the too-shallow read fails 13 of 16, the wrong-sign shift 13; with 2 rows per pitch the
-#: too-shallow read failed only 2 (the rows at 0 and 1/2 pitch miss the patches' edges), so 3 it is.
+#: 16 tests; a pitch shift of the wrong sign fails 14.) On this grid (was 4 rows per pitch, 6 nodes: 63 CPU-s,
+#: now 22) the too-shallow read fails 13 of 16, the wrong-sign shift 13 (so with 3 nodes); with 2 rows per
+#: pitch the too-shallow read failed only 2 (the rows at 0 and 1/2 pitch miss the patches' edges), so 3 rows.
 #: "exact to rounding": tiled healthy rows and recomputed faulty rows against every row computed. Healthy
 #: teeth are rotated copies of one tooth, so the same row a pitch apart differs by rounding (measured at
 #: most 1e-8 of a channel's scale, the damping probe, a difference quotient; 6e-9 on this grid); onsets to

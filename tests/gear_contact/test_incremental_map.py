@@ -6,8 +6,8 @@ healthy rows and recomputes only the flank rows where a faulty tooth touches its
 table (a missed row, a wrong pitch shift) shows as a difference here. Coarse meshes, three rows per pitch and
 two approach nodes (just short of the onset, the deepest), tabulated in this process (``$BEVEL_MAP_WORKERS``
 = 1: the pool is not what is tested): what is checked is which rows are recomputed and that the rest equal
-the healthy ones, not the values' convergence. Every family on both members, and faults on several teeth of both gears at once; the faults
-sit on teeth other than 0, so a window guessed from tooth 0 would show.
+the healthy ones, not the values' convergence. Every family on both members, and faults on several teeth of
+both gears at once; the faults sit on teeth other than 0, so a window guessed from tooth 0 would show.
 """
 from __future__ import annotations
 

@@ -97,18 +97,21 @@ def test_pitch_symmetry_is_checked_on_the_meshes(healthy):
 
 def test_atlas_and_skips_match_the_exact_search_healthy(healthy):
     exact, plain, atlas = _datas(healthy)
-    # small steps over 1.6 pitches (lists reused, then served from the atlas), then large steps
-    # and jumps (cool-downs of exact search that a kept list can end)
-    thp1, thw1 = _trajectory(healthy, 0, 5000, 1.6, gentle=True)
-    thp2, thw2 = _trajectory(healthy, 1, 1500, 2.6)
+    # small steps over 0.8 pitches (lists reused, then served from the atlas), then large steps
+    # and jumps (cool-downs of exact search that a kept list can end); half the calls and pitches of before
+    # (5000 over 1.6 and 1500 over 2.6: 5.6 CPU-s, now 2.4), the step sizes and the jumps the same, the
+    # counts below halved with them (measured 2910 calls in contact, 2684 cached, 162 atlas hits, 1.4e5
+    # re-anchored). (A base shift one triangle off in the atlas's period fails this test here.)
+    thp1, thw1 = _trajectory(healthy, 0, 2500, 0.8, gentle=True)
+    thp2, thw2 = _trajectory(healthy, 1, 750, 1.3)
     thp, thw = np.r_[thp1, thp2], np.r_[thw1, thw2]
     ref = _run(exact, thp, thw)
     got = _run(atlas, thp, thw)
     rel = _assert_same_contact(ref, got)
     st = cache_stats(atlas)
     print(f"healthy: {int((ref[:, OUT_N_CONTACT] > 0).sum())} calls in contact, max rel diff {rel:.1e}, {st}")
-    assert (ref[:, OUT_N_CONTACT] > 20).sum() > 4000
-    assert st["atlas"] and st["atlas_hits"] > 100 and st["cached_calls"] > 3000
+    assert (ref[:, OUT_N_CONTACT] > 20).sum() > 2000
+    assert st["atlas"] and st["atlas_hits"] > 100 and st["cached_calls"] > 1500
     # the skip thresholds were re-anchored along the way (and the results above checked them)
     assert st["reanchored_total"] > 5000
     # a second pass over the same poses: the kept lists serve it, few new builds

@@ -3,10 +3,11 @@
 Oracle: every row and flank of the faulty pair tabulated by the engine (``contact_map._tabulate``), on the
 healthy map's approach nodes. The incremental build (``compute_map(pair, grid, healthy=...)``) takes the
 healthy rows and recomputes only the flank rows where a faulty tooth touches its partner; a wrong contact
-table (a missed row, a wrong pitch shift) shows as a difference here. Coarse meshes and four rows per pitch:
-what is checked is which rows are recomputed and that the rest equal the healthy ones, not the values'
-convergence. Every family on both members, and faults on several teeth of both gears at once; the faults
-sit on teeth other than 0, so a window guessed from tooth 0 would show.
+table (a missed row, a wrong pitch shift) shows as a difference here. Coarse meshes, three rows per pitch and
+two approach nodes (just short of the onset, the deepest), tabulated in this process (``$BEVEL_MAP_WORKERS``
+= 1: the pool is not what is tested): what is checked is which rows are recomputed and that the rest equal
+the healthy ones, not the values' convergence. Every family on both members, and faults on several teeth of
+both gears at once; the faults sit on teeth other than 0, so a window guessed from tooth 0 would show.
 """
 from __future__ import annotations
 
@@ -20,14 +21,24 @@ from gearcontact_fmu.params import BevelGearParams, MapGrid, MeshResolution, PCM
 
 GEAR, PCM = BevelGearParams(), PCMParams()
 RES = MeshResolution(profile=0.3e-3, face=3e-3)
-GRID = MapGrid(points_per_pitch=4, s_points=6, max_torque=120.0)
+GRID = MapGrid(points_per_pitch=3, s_points=2, max_torque=120.0)
 #: (A contact table read too shallow, 0.02 of the deepest node instead of TOUCH_MARGIN, fails 14 of these
-#: 16 tests; a pitch shift of the wrong sign fails 14.)
+#: 16 tests; a pitch shift of the wrong sign fails 14.) On this grid (was 4 rows per pitch, 6 nodes: 63 CPU-s,
+#: now 22) the too-shallow read fails 13 of 16, the wrong-sign shift 13 (so with 3 nodes); with 2 rows per
+#: pitch the too-shallow read failed only 2 (the rows at 0 and 1/2 pitch miss the patches' edges), so 3 rows.
 #: "exact to rounding": tiled healthy rows and recomputed faulty rows against every row computed. Healthy
 #: teeth are rotated copies of one tooth, so the same row a pitch apart differs by rounding (measured at
-#: most 1e-8 of a channel's scale, the damping probe, a difference quotient); onsets to the search's 1e-10
+#: most 1e-8 of a channel's scale, the damping probe, a difference quotient; 6e-9 on this grid); onsets to
+#: the search's 1e-10 (0 on this grid)
 REL_TOL = 1e-6
 ONSET_TOL = 2e-10
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _one_process():
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("BEVEL_MAP_WORKERS", "1")       # a fork pool per map and oracle cost a third more CPU here
+        yield
 
 
 @pytest.fixture(scope="module")

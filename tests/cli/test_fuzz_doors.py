@@ -332,8 +332,42 @@ def _record_fuzz(tmp_path, n):
         shutil.rmtree(d)
 
 
-def test_fuzz_rig_records(tmp_path, request, contact_maps_read_once):
+@pytest.fixture
+def baseline_fit_once(monkeypatch):
+    """record_fit.identify of the 500 rpm record computed once per distinct record: a case that mutates an
+    excitation file reads (and calibrate fits) the pristine baseline record first, 1.4 s each time, the same
+    deterministic result; a case that mutates a baseline file gives other arrays, so identify runs on them. The
+    key is the loaded arrays themselves (bytes of every channel), so no mutated input is ever answered from the
+    cache."""
+    import copy
+    import hashlib
+
+    from drivetrain.campaigns import record_fit
+
+    real, seen = record_fit.identify, {}
+
+    def identify(record=None, base=None):
+        if record is None or base is not None:
+            return real(record, base)
+        h = hashlib.sha1(repr((record.name, record.fs, record.fs_motor)).encode())
+        for group in (record.channels, record.motor):
+            for k in sorted(group):
+                h.update(k.encode())
+                h.update(np.ascontiguousarray(group[k]).tobytes())
+        for t in (record.t, record.t_motor):
+            h.update(b"-" if t is None else np.ascontiguousarray(t).tobytes())
+        key = h.hexdigest()
+        if key not in seen:
+            seen[key] = real(record, base)
+        return copy.deepcopy(seen[key])
+
+    monkeypatch.setattr(record_fit, "identify", identify)
+    # with this fixture (11.7 -> 2.6 s): rig.record's "not a number" or "unreadable" refusal planted as a
+    # RuntimeError fails test_fuzz_rig_records each time (1 of 1)
+
+
+def test_fuzz_rig_records(tmp_path, request, contact_maps_read_once, baseline_fit_once):
     """Mutated rig records through `drivetrain calibrate --record`: a background without a non-finite value, or
     a refusal, never a traceback. (The rig pair's contact map, which no case mutates, is read once:
-    _shared.contact_map_read_once.)"""
+    _shared.contact_map_read_once; the pristine baseline record's fit too: baseline_fit_once.)"""
     _record_fuzz(tmp_path, _n(8, request))

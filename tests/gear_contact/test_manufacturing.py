@@ -16,6 +16,7 @@ from gearcontact_fmu.contact import engine
 from gearcontact_fmu.mesh_models import make_mesh_model
 from gearcontact_fmu.mesh_models.pcm import PCMGearPair, resolve_meshes
 from gearcontact_fmu.manufacturing import mesh_offset, offset_data, runout_factor, te_offset, with_errors
+from gearcontact_fmu.mesh_models.base import N_OUT, OUT_TAU_PINION
 from gearcontact_fmu.manufacturing_specs import ManufacturingErrors, draw_errors, errors_of, iso1328_tolerances
 from gearcontact_fmu.params import BevelGearParams, MeshResolution, PCMParams
 from gearcontact_fmu.stage import StageParams, make_stage
@@ -388,6 +389,41 @@ def test_a_table_run_with_profile_errors_has_a_larger_gmf_line():
     assert gmf[True] > 1.5 * gmf[False], gmf
 
 
+def _largest_jump(ev, data, tp, s, ratio):
+    """The largest jump of the pinion torque along the mesh coordinates ``s`` at pinion angle ``tp`` (a step
+    over 0.05 N.m and over 4 times both neighbouring steps; 0 when none)."""
+    out = np.zeros(N_OUT)
+    tau = np.empty(s.shape[0])
+    for i in range(s.shape[0]):
+        ev(data, tp, (tp - s[i]) / ratio, 0.0, 0.0, out)
+        tau[i] = out[OUT_TAU_PINION]
+    step = np.abs(np.diff(tau))
+    worst = 0.0
+    for i in range(1, step.shape[0] - 1):
+        if step[i] > 0.05 and step[i] > 4.0 * max(step[i - 1], step[i + 1]):
+            worst = max(worst, step[i])
+    return worst
+
+
+_JUMP_KERNELS: dict = {}
+
+
+def _largest_jump_kernel(model):
+    """:func:`_largest_jump` compiled (and cached on disk) with the mesh kernel as a typed function pointer, as
+    the stage calls it: the model's kernel (a closure of manufacturing.with_errors) is not compiled into it, so
+    it compiles once and numba can cache it (a closure argument compiled it anew every session, ~4 s)."""
+    from numba import njit, typeof, types
+
+    from gearcontact_fmu.mesh_models.base import eval_signature
+
+    data_type = typeof(model.data)
+    fsig = eval_signature(model.eval, data_type)
+    if fsig not in _JUMP_KERNELS:
+        sig = types.float64(types.FunctionType(fsig), data_type, types.float64, types.float64[::1], types.float64)
+        _JUMP_KERNELS[fsig] = njit(sig, cache=True)(_largest_jump)
+    return _JUMP_KERNELS[fsig]
+
+
 def test_the_mesh_torque_is_continuous_across_the_backlash_in_every_gearbox():
     """Oracle: the elastic-layer contact law is continuous in the approach, so the mesh torque of a gear
     with errors is continuous in the mesh coordinate s at any pinion angle. Scanned across both flanks'
@@ -398,26 +434,9 @@ def test_the_mesh_torque_is_continuous_across_the_backlash_in_every_gearbox():
     Before the flank of the two-pair offset was chosen at the offset mesh's backlash centre, it was chosen
     at s = 0, and a gearbox whose errors close the backlash past 0 saw its drive-flank torque jump there
     (seed 42 at 11.9 N.m: 0 -> 32.5 N.m on the pinion)."""
-    from numba import njit
-
     from drivetrain.run.assemble import start_mesh_model
     from drivetrain.run.runner import assemble_scene
     from drivetrain.scene.load import default_scene
-    from gearcontact_fmu.mesh_models.base import N_OUT, OUT_TAU_PINION
-
-    @njit
-    def largest_jump(ev, data, tp, s, ratio):
-        out = np.zeros(N_OUT)
-        tau = np.empty(s.shape[0])
-        for i in range(s.shape[0]):
-            ev(data, tp, (tp - s[i]) / ratio, 0.0, 0.0, out)
-            tau[i] = out[OUT_TAU_PINION]
-        step = np.abs(np.diff(tau))
-        worst = 0.0
-        for i in range(1, step.shape[0] - 1):
-            if step[i] > 0.05 and step[i] > 4.0 * max(step[i - 1], step[i + 1]):
-                worst = max(worst, step[i])
-        return worst
 
     s = np.arange(-4e-3, 4e-3, 1e-7)
     jumps = []
@@ -425,6 +444,7 @@ def test_the_mesh_torque_is_continuous_across_the_backlash_in_every_gearbox():
         spec = assemble_scene(default_scene(effects__manufacturing_errors=True, manufacturing__seed=seed,
                                             time__duration_s=0.01))
         model, _ = start_mesh_model(spec.components_of("GearContact")[0].parameters)
+        largest_jump = _largest_jump_kernel(model)
         for tp in np.linspace(0.0, 2 * math.pi, 32, endpoint=False) + 0.013 * seed:
             j = largest_jump(model.eval, model.data, tp, s, G.z_wheel / G.z_pinion)
             if j > 0.0:

@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -23,11 +25,12 @@ def _fmus_built(pythonfmu_fmus):
     """The session's FMUs built in ``fmu_dir`` (tests/conftest.py) before a test runs them."""
 
 
-def _start(out: Path, fmu_dir: Path, duration: float = 60.0):
+def _start(out: Path, fmu_dir: Path, duration: float = 60.0, quiet: bool = True):
     return subprocess.Popen([sys.executable, "-m", "drivetrain", "run", str(ROOT / "scenarios" / "example.toml"),
                              "--set", f"time.duration_s={duration}", "--set", "effects.mesh_contact=\"ideal\"",
                              "--no-plots", "--backend", "inprocess", "--fmu-dir", str(fmu_dir), "--out", str(out),
-                             "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                             *(["--quiet"] if quiet else [])], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
 
 
 def _status(out: Path):
@@ -45,17 +48,53 @@ def _wait_stepping(p, out: Path, seconds: float) -> None:
     time.sleep(seconds)
 
 
+#: the co-simulation's progress bar on stderr with a step count above zero ("co-sim 60 s:   5%| ... | 36.3k/720k")
+_STEPPED = re.compile(r"co-sim [^|]*\|[^|]*\|\s*(?!0/)[0-9][0-9.]*[kM]?/")
+
+
+class _StderrReader:
+    """The child's stderr read as it comes (a thread), so that a test can wait for what the run says."""
+
+    def __init__(self, p):
+        self._chunks: list[bytes] = []
+        self._thread = threading.Thread(target=self._read, args=(p.stderr.fileno(),), daemon=True)
+        self._thread.start()
+
+    def _read(self, fd):
+        while chunk := os.read(fd, 65536):
+            self._chunks.append(chunk)
+
+    @property
+    def text(self) -> str:
+        return b"".join(self._chunks).decode(errors="replace")
+
+    def wait_for(self, pattern, p, timeout_s: float = 120.0) -> None:
+        t0 = time.time()
+        while not pattern.search(self.text) and time.time() - t0 < timeout_s and p.poll() is None:
+            time.sleep(0.05)
+
+    def rest(self) -> str:
+        self._thread.join(timeout=120)
+        return self.text
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_an_interrupted_run_keeps_what_it_computed(tmp_path, fmu_dir, sig):
     out = tmp_path / "run"
     out.mkdir()
     (out / "summary.json").write_text(json.dumps({"status": "ok"}))       # an earlier run's
     (out / "sensors.csv").write_text("time\n0\n")
-    p = _start(out, fmu_dir)
-    _wait_stepping(p, out, 10.0)
-    assert p.poll() is None, p.communicate()
+    # the run's own progress bar says when it steps (it used to be given 10 s after its start: 10 s of a
+    # 60 s run computed for nothing); then half a second more of steps before the signal. (The command's
+    # SIGINT/SIGTERM handler left uninstalled, cli.py: both cases fail with the shorter wait.)
+    p = _start(out, fmu_dir, quiet=False)
+    err_reader = _StderrReader(p)
+    err_reader.wait_for(_STEPPED, p)
+    time.sleep(0.5)
+    assert p.poll() is None, (p.communicate(), err_reader.rest())
     p.send_signal(sig)
-    _, err = p.communicate(timeout=120)
+    p.wait(timeout=120)
+    err = err_reader.rest()
     assert p.returncode == 130, err[-2000:]
     assert "interrupted at t =" in err and "Traceback" not in err, err[-2000:]
     s = json.loads((out / "summary.json").read_text())

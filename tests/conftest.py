@@ -97,6 +97,26 @@ def contact_maps_read_once():
         yield
 
 
+#: test folders whose modules run in one worker together (one unit of pytest-xdist's scheduling): the contact-map
+#: and online-PCM tests compile the contact engine (about 30 s of one core from a cold numba cache) and load it;
+#: as modules spread over the workers (``--dist loadscope``), every worker compiled it. Together, it compiles once
+#: per run, and the other workers take the other modules meanwhile.
+ONE_WORKER_FOLDERS = ("tests/gear_contact/",)
+
+
+def pytest_xdist_make_scheduler(config, log):
+    """``--dist loadscope`` (pyproject's addopts), with each folder of :data:`ONE_WORKER_FOLDERS` one scope."""
+    if config.getvalue("dist") != "loadscope":
+        return None
+    from xdist.scheduler import LoadScopeScheduling
+
+    class FolderScopes(LoadScopeScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            return next((f for f in ONE_WORKER_FOLDERS if nodeid.startswith(f)), None) or super()._split_scope(nodeid)
+
+    return FolderScopes(config, log)
+
+
 def pytest_xdist_auto_num_workers(config):
     """``-n auto`` (the default run, pyproject's addopts): one worker per CPU this process may use, at most 8
     (each worker builds the session's FMUs once; beyond 8 those builds outweigh the gain)."""

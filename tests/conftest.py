@@ -97,24 +97,26 @@ def contact_maps_read_once():
         yield
 
 
-#: test folders whose modules run in one worker together (one unit of pytest-xdist's scheduling): the contact-map
-#: and online-PCM tests compile the contact engine (about 30 s of one core from a cold numba cache) and load it;
-#: as modules spread over the workers (``--dist loadscope``), every worker compiled it. Together, it compiles once
-#: per run, and the other workers take the other modules meanwhile.
-ONE_WORKER_FOLDERS = ("tests/gear_contact/",)
+#: the tests that run the contact engine (node-id prefixes: a folder or a module), scheduled as one unit of
+#: pytest-xdist's ``--dist loadscope``, so in one worker: the contact-map and online-PCM tests compile the engine
+#: (about 30 s of one core from a cold numba cache) and load it; as modules spread over the workers, every worker
+#: compiled it. Together, it compiles once per run, and the other workers take the other modules meanwhile (the
+#: unit is the largest, so it starts first; it holds well under half of the suite's time).
+ENGINE_TESTS = ("tests/gear_contact/", "tests/run/test_scene_effects.py", "tests/run/test_failure_stability.py",
+                "tests/cli/test_hostile_inputs.py", "tests/fmu_build/test_native_gear.py")
 
 
 def pytest_xdist_make_scheduler(config, log):
-    """``--dist loadscope`` (pyproject's addopts), with each folder of :data:`ONE_WORKER_FOLDERS` one scope."""
+    """``--dist loadscope`` (pyproject's addopts), with the tests of :data:`ENGINE_TESTS` one scope."""
     if config.getvalue("dist") != "loadscope":
         return None
     from xdist.scheduler import LoadScopeScheduling
 
-    class FolderScopes(LoadScopeScheduling):
+    class EngineScope(LoadScopeScheduling):
         def _split_scope(self, nodeid: str) -> str:
-            return next((f for f in ONE_WORKER_FOLDERS if nodeid.startswith(f)), None) or super()._split_scope(nodeid)
+            return "contact engine" if nodeid.startswith(ENGINE_TESTS) else super()._split_scope(nodeid)
 
-    return FolderScopes(config, log)
+    return EngineScope(config, log)
 
 
 def pytest_xdist_auto_num_workers(config):

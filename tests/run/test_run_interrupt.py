@@ -137,7 +137,7 @@ def test_ctrl_c_during_a_sweep_stops_it_without_tracebacks(tmp_path, fmu_dir):
     while time.time() - t0 < 180 and p.poll() is None and not any(
             _status(d) == "running" for d in out.glob("*/") if d.is_dir()):
         time.sleep(0.1)
-    time.sleep(5.0)                                   # the runs are stepping
+    time.sleep(2.5)                                   # the runs are stepping (a run starts stepping within 1 s)
     assert p.poll() is None, p.communicate()
     os.killpg(p.pid, signal.SIGINT)
     t_sig = time.time()

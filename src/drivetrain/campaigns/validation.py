@@ -675,7 +675,11 @@ def plot_spectra(manifest: dict, path: Path) -> Path | None:
                 ax.set_xlabel("frequency [Hz]")
             if j == 0:
                 ax.set_ylabel("amplitude [N·m]")
-    axes[0, 0].legend(fontsize=7)
+    # the markers' key on the first panel that has them (the first case may be missing; then matplotlib warned
+    # of a legend without entries)
+    keyed = next((ax for ax in axes.flat if ax.get_legend_handles_labels()[0]), None)
+    if keyed is not None:
+        keyed.legend(fontsize=7)
     return _finish(plt, fig, path, "realistic grid, 1.31 N·m: spectra (Hann window)")
 
 

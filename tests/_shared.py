@@ -1,5 +1,5 @@
-"""Constants shared by the tests of several wings (tests/<wing>/): the checkout's root, the example scene,
-and a short run of it at a coarse contact mesh."""
+"""Constants and helpers shared by the tests of several wings (tests/<wing>/): the checkout's root, the example
+scene, a short run of it at a coarse contact mesh, test kernels that call a mesh kernel."""
 import contextlib
 from pathlib import Path
 
@@ -9,6 +9,27 @@ EXAMPLE = ROOT / "scenarios" / "example.toml"
 # the converged default is covered by tests/gear_contact/test_pcm_pair.py and the slow runs)
 SHORT = ["time.duration_s=0.03", "time.settle_s=0.01", "outputs.plots=false", "outputs.aalto_csv=false",
          "numerics.profile_element_mm=0.2", "numerics.max_substep_s=2e-6"]
+
+
+_POINTER_KERNELS: dict = {}
+
+
+def through_pointer(py_func, mesh_eval, data, ret, *rest):
+    """``py_func(mesh_eval, data, *rest) -> ret`` compiled (and cached on disk) with the mesh kernel as a typed
+    first-class function argument, as the gear stage takes it (``mesh_models.base.eval_signature``): it calls
+    the compiled kernel through its pointer. Given as a dispatcher, the kernel (the contact engine, or a closure
+    of ``manufacturing.with_errors``) would be compiled into the test kernel every session (~3-4 s), and numba
+    cannot cache that. One compile per function and signature in a process."""
+    from numba import njit, typeof, types
+
+    from gearcontact_fmu.mesh_models.base import eval_signature
+
+    data_type = typeof(data)
+    sig = ret(types.FunctionType(eval_signature(mesh_eval, data_type)), data_type, *rest)
+    key = (py_func, sig)
+    if key not in _POINTER_KERNELS:
+        _POINTER_KERNELS[key] = njit(sig, cache=True)(py_func)
+    return _POINTER_KERNELS[key]
 
 
 def accuracy_results():

@@ -354,7 +354,7 @@ def init_failures(fmus_both_builds):
     import subprocess
     import sys
 
-    cases = [[cid, str(fmus_both_builds[(b, m)]), s] for cid, (b, m, s, _) in zip(_INIT_IDS, INIT_FAILURES)
+    cases = [[_init_id(b, m, s), str(fmus_both_builds[(b, m)]), s] for b, m, s, _ in INIT_FAILURES
              if fmus_both_builds.get((b, m)) is not None]
     r = subprocess.run([sys.executable, "-c", _INIT_SCRIPT, json.dumps(cases)], capture_output=True, text=True,
                        timeout=300)
@@ -366,10 +366,13 @@ def init_failures(fmus_both_builds):
     return done, f"subprocess rc {r.returncode}\n{r.stderr[-2000:]}"
 
 
-_INIT_IDS = [f"{b}-{m}-{next(iter(s))}" for b, m, s, _ in INIT_FAILURES]
+def _init_id(build, model, strings) -> str:
+    """A case's id: its build, model and the first string parameter it sets."""
+    return f"{build}-{model}-{next(iter(strings))}"
 
 
-@pytest.mark.parametrize("build, model, strings, text", INIT_FAILURES, ids=_INIT_IDS)
+@pytest.mark.parametrize("build, model, strings, text", INIT_FAILURES,
+                         ids=[_init_id(b, m, s) for b, m, s, _ in INIT_FAILURES])
 def test_a_failed_initialization_returns_fmi2error(fmus_both_builds, init_failures, build, model, strings, text):
     """812c552: the GearContact FMU logged "initialization failed: ... mesh files must be .obj or .stl" for a
     /dev/zero mesh and fmi2ExitInitializationMode still returned fmi2OK. (The eight cases share one process:
@@ -378,7 +381,7 @@ def test_a_failed_initialization_returns_fmi2error(fmus_both_builds, init_failur
     if fmus_both_builds.get((build, model)) is None:
         pytest.skip("no C toolchain: no native build")
     done, why = init_failures
-    cid = f"{build}-{model}-{next(iter(strings))}"
+    cid = _init_id(build, model, strings)
     assert cid in done, why
     got = done[cid]
     assert got["statuses"] == [0, 3, 3], got                  # enter ok, exit fmi2Error, doStep refused

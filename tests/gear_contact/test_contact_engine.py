@@ -7,7 +7,8 @@ import time
 import numba as nb
 import numpy as np
 import pytest
-from numba import njit, types
+from numba import types
+from _shared import through_pointer
 from scipy.spatial.transform import Rotation
 
 from gearcontact_fmu.contact import primitives as P
@@ -15,7 +16,7 @@ from gearcontact_fmu.contact.bvh import build_bvh
 from gearcontact_fmu.contact.engine import (PCMBody, PenetrationError, cache_stats,
                                             evaluate_pair, fixed_axis_eval, make_fixed_axis_data,
                                             reset_cache, rot_z)
-from gearcontact_fmu.mesh_models.base import (N_OUT, eval_signature, OUT_CONTACT_AREA, OUT_DISSIPATED_POWER,
+from gearcontact_fmu.mesh_models.base import (N_OUT, OUT_CONTACT_AREA, OUT_DISSIPATED_POWER,
                                       OUT_ELASTIC_ENERGY, OUT_MAX_PENETRATION, OUT_N_CONTACT,
                                       OUT_NORMAL_FORCE, OUT_PEAK_PRESSURE, OUT_STATUS,
                                       OUT_TAU_PINION, OUT_TAU_WHEEL)
@@ -294,16 +295,6 @@ def test_penetration_beyond_u_max():
     assert out[OUT_STATUS] == 0.0
 
 
-def _through_pointer(py_func, mesh_eval, data, ret, *rest):
-    """``py_func`` compiled (and cached) with the mesh kernel as a first-class function argument, typed
-    ``FunctionType`` as the gear stage types it (``mesh_models.base.eval_signature``): it calls the compiled
-    kernel through its pointer and does not compile the engine into itself (a dispatcher argument would:
-    ~3 s per test session, and numba cannot cache that)."""
-    data_type = nb.typeof(data)
-    sig = ret(types.FunctionType(eval_signature(mesh_eval, data_type)), data_type, *rest)
-    return njit(sig, cache=True)(py_func)
-
-
 def _integrator_like(mesh_eval, data, n):
     """A caller that receives the kernel as a first-class function (as the gear stage does)."""
     out = np.zeros(10)
@@ -317,8 +308,8 @@ def _integrator_like(mesh_eval, data, n):
 def test_fixed_axis_callable_from_njit():
     base, target, R0b, R0t = fixed_axis_scene()
     data = make_fixed_axis_data(base, target, R0b, R0t, PCM)
-    kernel = _through_pointer(_integrator_like, fixed_axis_eval, data,
-                              types.UniTuple(types.float64, 2), types.int64)
+    kernel = through_pointer(_integrator_like, fixed_axis_eval, data,
+                             types.UniTuple(types.float64, 2), types.int64)
     acc, n = kernel(fixed_axis_eval, data, 3)
     out = np.zeros(N_OUT)
     ref = 0.0
@@ -359,7 +350,7 @@ def time_interleaved(datas, reps=100, rounds=9):
     out = np.zeros(N_OUT)
     best = [np.inf] * len(datas)
     outs = []
-    repeat = _through_pointer(_repeat, fixed_axis_eval, datas[0], types.none, types.int64, types.float64[::1])
+    repeat = through_pointer(_repeat, fixed_axis_eval, datas[0], types.none, types.int64, types.float64[::1])
     assert all(nb.typeof(d) == nb.typeof(datas[0]) for d in datas)
     for d in datas:
         repeat(fixed_axis_eval, d, 1, out)

@@ -19,13 +19,8 @@ RES = MeshResolution(profile=0.1e-3, face=2e-3)
 GRID = MapGrid(points_per_pitch=24, s_points=24, max_torque=120.0)
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_process():
-    """Maps tabulated in this process (a fork pool per map cost more CPU than it saved here); the seed-map
-    test keeps the pool (a build as a user's runs it)."""
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("BEVEL_MAP_WORKERS", "1")
-        yield
+# maps tabulated in this process; the seed-map test keeps the pool (a build as a user's runs it)
+pytestmark = pytest.mark.usefixtures("maps_tabulated_in_this_process")
 
 
 @pytest.fixture(scope="module")

@@ -24,7 +24,7 @@ RES = MeshResolution(profile=0.3e-3, face=3e-3)
 GRID = MapGrid(points_per_pitch=3, s_points=2, max_torque=120.0)
 #: (A contact table read too shallow, 0.02 of the deepest node instead of TOUCH_MARGIN, fails 14 of these
 #: 16 tests; a pitch shift of the wrong sign fails 14.) On this grid (was 4 rows per pitch, 6 nodes: 63 CPU-s,
-#: now 22) the too-shallow read fails 13 of 16, the wrong-sign shift 13 (so with 3 nodes); with 2 rows per
+#: now 22) the too-shallow read fails 13 of 16, the wrong-sign shift 13 (the same with 3 nodes); with 2 rows per
 #: pitch the too-shallow read failed only 2 (the rows at 0 and 1/2 pitch miss the patches' edges), so 3 rows.
 #: "exact to rounding": tiled healthy rows and recomputed faulty rows against every row computed. Healthy
 #: teeth are rotated copies of one tooth, so the same row a pitch apart differs by rounding (measured at
@@ -34,11 +34,8 @@ REL_TOL = 1e-6
 ONSET_TOL = 2e-10
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_process():
-    with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("BEVEL_MAP_WORKERS", "1")       # a fork pool per map and oracle cost a third more CPU here
-        yield
+# a fork pool per map and oracle cost a third more CPU here
+pytestmark = pytest.mark.usefixtures("maps_tabulated_in_this_process")
 
 
 @pytest.fixture(scope="module")

@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 from scipy.optimize import brentq
+from _shared import through_pointer
 from test_stage import _audit
 
 from gearcontact_fmu import geometry
@@ -405,25 +406,6 @@ def _largest_jump(ev, data, tp, s, ratio):
     return worst
 
 
-_JUMP_KERNELS: dict = {}
-
-
-def _largest_jump_kernel(model):
-    """:func:`_largest_jump` compiled (and cached on disk) with the mesh kernel as a typed function pointer, as
-    the stage calls it: the model's kernel (a closure of manufacturing.with_errors) is not compiled into it, so
-    it compiles once and numba can cache it (a closure argument compiled it anew every session, ~4 s)."""
-    from numba import njit, typeof, types
-
-    from gearcontact_fmu.mesh_models.base import eval_signature
-
-    data_type = typeof(model.data)
-    fsig = eval_signature(model.eval, data_type)
-    if fsig not in _JUMP_KERNELS:
-        sig = types.float64(types.FunctionType(fsig), data_type, types.float64, types.float64[::1], types.float64)
-        _JUMP_KERNELS[fsig] = njit(sig, cache=True)(_largest_jump)
-    return _JUMP_KERNELS[fsig]
-
-
 def test_the_mesh_torque_is_continuous_across_the_backlash_in_every_gearbox():
     """Oracle: the elastic-layer contact law is continuous in the approach, so the mesh torque of a gear
     with errors is continuous in the mesh coordinate s at any pinion angle. Scanned across both flanks'
@@ -434,6 +416,8 @@ def test_the_mesh_torque_is_continuous_across_the_backlash_in_every_gearbox():
     Before the flank of the two-pair offset was chosen at the offset mesh's backlash centre, it was chosen
     at s = 0, and a gearbox whose errors close the backlash past 0 saw its drive-flank torque jump there
     (seed 42 at 11.9 N.m: 0 -> 32.5 N.m on the pinion)."""
+    from numba import types
+
     from drivetrain.run.assemble import start_mesh_model
     from drivetrain.run.runner import assemble_scene
     from drivetrain.scene.load import default_scene
@@ -444,7 +428,9 @@ def test_the_mesh_torque_is_continuous_across_the_backlash_in_every_gearbox():
         spec = assemble_scene(default_scene(effects__manufacturing_errors=True, manufacturing__seed=seed,
                                             time__duration_s=0.01))
         model, _ = start_mesh_model(spec.components_of("GearContact")[0].parameters)
-        largest_jump = _largest_jump_kernel(model)
+        # the model's kernel (a closure of manufacturing.with_errors) through a typed pointer: compiled once
+        largest_jump = through_pointer(_largest_jump, model.eval, model.data, types.float64, types.float64,
+                                       types.float64[::1], types.float64)
         for tp in np.linspace(0.0, 2 * math.pi, 32, endpoint=False) + 0.013 * seed:
             j = largest_jump(model.eval, model.data, tp, s, G.z_wheel / G.z_pinion)
             if j > 0.0:

@@ -43,7 +43,8 @@ CRITERIA = {
     "sine_2004rpm": {"std_psh_Nm": ("factor", 2.0), "std_dsh_Nm": ("factor", 2.0), "f_MSH": _DB6, "2f_MSH": _DB6,
                      "f_DSH": _DB6, "2f_DSH": _DB6, "H_32.1Hz": _DB6},
 }
-SHOWN = {"sine_2004rpm": ("H_129Hz", "H_256Hz", "Hband_32.1Hz", "psh_32Hz_Nm", "psh_64Hz_Nm", "psh_96Hz_Nm")}
+SHOWN = {"sine_2004rpm": ("H_129Hz", "H_256Hz", "Hband_32.1Hz", "psh_32Hz_Nm", "psh_64Hz_Nm", "psh_96Hz_Nm",
+                          "f_MSH_sb", "2f_MSH_sb", "f_DSH_sb", "2f_DSH_sb")}
 #: the figures the parameters were fitted to (campaigns.excitation_fit): a calibration, not a validation
 CALIBRATED = {"impulse_2004rpm": ("f_MSH", "2f_MSH", "f_DSH", "2f_DSH")}
 
@@ -78,7 +79,7 @@ def scenes(common: list, gearboxes: int = N_GEARBOXES) -> list:
 
 def _figures(record: str, t, psh, dsh, enc1_w, fs, r: rec.Record) -> dict:
     fn = ex.impulse_figures if record.startswith("impulse") else ex.sine_figures
-    return fn(t, psh, dsh, enc1_w, fs, r.t_motor, r.motor["load_motor_torque_set"])
+    return fn(t, psh, dsh, enc1_w, fs, *rec.load_setpoint(r))
 
 
 def measured_figures(records: dict | None = None) -> dict:

@@ -72,7 +72,7 @@ def record_figures(records: dict) -> dict:
     for name, fn in (("impulse_2004rpm", ex.impulse_figures), ("sine_2004rpm", ex.sine_figures)):
         r = records[name]
         out[name] = fn(r.t, r.channels["propeller_shaft_torque"], r.channels["drive_shaft_torque"],
-                       r.channels["enc1_w"], r.fs, r.t_motor, r.motor["load_motor_torque_set"])
+                       r.channels["enc1_w"], r.fs, *rec.load_setpoint(r))
     return out
 
 

@@ -77,6 +77,9 @@ class RecordSpec:
     motor_columns: tuple
     speed_rpm: float
     load_Nm: float
+    #: the load line [Hz, near] by which the motor log is retimed onto the rig's clock (rig.clock), or None: the
+    #: log's own clock holds (a slow setpoint, a constant load)
+    retime_line_Hz: float | None = None
 
 
 _EXCITATION_MOTOR = (("drive_motor_torque_set", 1.0), ("drive_motor_torque", 1.0),
@@ -89,7 +92,7 @@ RECORDS = {
     "impulse_2004rpm": RecordSpec("excitation_2004rpm_impulse_sensor.csv", "excitation_2004rpm_impulse_motor.csv",
                                   _EXCITATION_MOTOR, 2004.0, 0.119),
     "sine_2004rpm": RecordSpec("excitation_2004rpm_sin_sensor.csv", "excitation_2004rpm_sin_motor.csv",
-                               _EXCITATION_MOTOR, 2004.0, 1.309),
+                               _EXCITATION_MOTOR, 2004.0, 1.309, retime_line_Hz=32.1),
 }
 SENSOR_COLUMNS = ("enc1_w", "enc2_w", "drive_shaft_torque", "propeller_shaft_torque")
 
@@ -148,6 +151,26 @@ def load_record(directory: str | Path | None = None, name: str = "baseline_500rp
     return Record(fs, s[:, 0] - s[0, 0], ch, fm, mo, name, m[:, 0] - m[0, 0])
 
 
+def load_setpoint(r: Record) -> tuple[np.ndarray, np.ndarray]:
+    """The times [s, from 0] and values [N·m at the load motor] of an excitation record's load-torque setpoint,
+    as applied: on the motor log's clock, or, for a record whose log slips against the rig
+    (``RecordSpec.retime_line_Hz``), retimed so that its load line runs at the propeller torque's response line
+    on the sensor clock (rig.clock). RecordError for a record without a setpoint."""
+    from drivetrain.rig import clock
+
+    if "load_motor_torque_set" not in r.motor:
+        raise RecordError(f"record {r.name!r} holds no load-torque setpoint (a constant-load record)")
+    x = np.asarray(r.motor["load_motor_torque_set"], dtype=float)
+    near = RECORDS[r.name].retime_line_Hz if r.name in RECORDS else None
+    if near is None:
+        return r.t_motor, x
+    try:
+        true_Hz = clock.line_frequency(r.channels["propeller_shaft_torque"], r.fs, near)
+        return clock.retime_by_line(x, r.fs_motor, near, true_Hz), x
+    except clock.ClockError as exc:
+        raise RecordError(f"record {r.name!r}: its load setpoint cannot be retimed ({exc})") from None
+
+
 #: the scene of each excitation record and the load series file it names (scenarios/validation)
 EXCITATION_SCENES = {"impulse_2004rpm": ("rig_impulse_2004rpm.toml", "rig_impulse_2004rpm_load.csv"),
                      "sine_2004rpm": ("rig_sine_2004rpm.toml", "rig_sine_2004rpm_load.csv")}
@@ -199,5 +222,5 @@ def ratio_dB(sim: float, measured: float) -> float:
     return float(20.0 * np.log10(sim / measured)) if sim > 0 and measured > 0 else float("nan")
 
 
-__all__ = ["MEASURED_TRANSDUCER_NOISE_NM", "Record", "RecordError", "RECORDS", "read_columns", "load_record", "EXCITATION_SCENES", "windows", "background_figures", "record_figures",
+__all__ = ["MEASURED_TRANSDUCER_NOISE_NM", "Record", "RecordError", "RECORDS", "read_columns", "load_record", "load_setpoint", "EXCITATION_SCENES", "windows", "background_figures", "record_figures",
            "ratio_dB", "FIGURES", "HUMPS", "TORQUES", "SKIP_S", "WINDOW_S", "RECORD_SPEED_RPM", "RECORD_LOAD_NM"]

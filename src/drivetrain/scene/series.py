@@ -127,18 +127,20 @@ def read_series(path: str | Path, dimension: str = "torque", what: str = "torque
 def write_load_series(name: str, path: str | Path, directory: str | Path | None = None) -> Path:
     """Write the load-motor torque setpoint of the excitation record ``name`` as a load series file
     (scene.series; ``operating_point.load_series_csv``): the motor file's column 3 over the planetary's
-    ratio (the file refers it to the propeller shaft), on the motor clock from 0."""
-    from drivetrain.rig.record import RECORDS, RecordError, load_record
+    ratio (the file refers it to the propeller shaft), at the times it was applied (rig.record.load_setpoint:
+    the motor clock, or the log retimed onto the rig's by its load line), from 0."""
+    from drivetrain.rig.record import RECORDS, load_record, load_setpoint
 
     r = load_record(directory, name)
-    if "load_motor_torque_set" not in r.motor:
-        raise RecordError(f"record {name!r} holds no load-torque setpoint (a constant-load record)")
     spec = RECORDS[name]
-    return write_series(path, r.t_motor, r.motor["load_motor_torque_set"], ("time_s", "load_motor_torque_Nm"), comments=(
+    t, x = load_setpoint(r)
+    clock = ("on the motor clock." if spec.retime_line_Hz is None else
+             f"retimed onto the rig's clock by its {spec.retime_line_Hz:g} Hz line (drivetrain.rig.clock: the log's "
+             "index slips against the applied load).")
+    return write_series(path, t, x, ("time_s", "load_motor_torque_Nm"), comments=(
         f"The load-motor torque setpoint of the rig record {name} (drivetrain/data/rig_records/{spec.motor_csv}, "
-        "column 3,", "referred there to the propeller shaft: divided here by the planetary's 8 to the load motor), "
-        "on the motor clock.", "Written by drivetrain.scene.series.write_load_series; read by "
-        "operating_point.load_series_csv."))
+        "column 3,", "referred there to the propeller shaft: divided here by the planetary's 8 to the load motor), ",
+        clock, "Written by drivetrain.scene.series.write_load_series; read by operating_point.load_series_csv."))
 
 
 def write_series(path: str | Path, t: np.ndarray, values: np.ndarray, header: tuple[str, str] = ("time_s", "torque_Nm"),

@@ -26,8 +26,7 @@ Nothing here needs the two clocks (sensors, motor drives) to agree: every time i
   shapes. The setpoint is read on the rig's clock (rig.record.load_setpoint: the motor drive's log retimed by its
   32 Hz line, rig.clock); on the log's own index its lines are spread over several bins. Shown beside it:
   :func:`load_response_band` (``Hband_32.1Hz``, band powers, :func:`band_amplitude`, ±1.25 Hz),
-  ``psh_{32,64,96}Hz_Nm`` (the propeller torque's band amplitude at the line and its 2nd and 3rd harmonics) and
-  :func:`line_sidebands` (each shaft-order line with its sidebands at ± the load line).
+  and ``psh_{32,64,96}Hz_Nm`` (the propeller torque's band amplitude at the line and its 2nd and 3rd harmonics).
 
 Pure: arrays in, numbers out.
 """
@@ -178,18 +177,6 @@ def line_levels(x: np.ndarray, fs: float, f_msh: float) -> dict:
     return out
 
 
-def line_sidebands(x: np.ndarray, fs: float, f_msh: float, f_load_Hz: float) -> dict:
-    """Each shaft-order line's amplitude with its two sidebands at ± the load line (``<line>_sb``: the root of
-    the summed squares of the three peaks, :data:`LINE_HALF_WIDTH_HZ` each): a line whose source the load
-    swing modulates spreads its power into them (docs/DRIVETRAIN.md, "The 2004 rpm excitation records")."""
-    f, a = amplitude_spectrum(x, fs)
-    out = {}
-    for name, k in ORDER_LINES.items():
-        peaks = [float(a[np.abs(f - abs(k * f_msh + d)) <= LINE_HALF_WIDTH_HZ].max()) for d in (0.0, -f_load_Hz, f_load_Hz)]
-        out[f"{name}_sb"] = math.sqrt(sum(p * p for p in peaks))
-    return out
-
-
 def load_lines(t_set: np.ndarray, setpoint: np.ndarray) -> dict:
     """The multi-sine setpoint's lines: frequency [Hz] and amplitude at the load motor [N·m] (Hann, on a uniform
     grid at the motor's median step)."""
@@ -268,7 +255,7 @@ def sine_figures(t: np.ndarray, psh: np.ndarray, dsh: np.ndarray, enc1_w: np.nda
     return {"std_psh_Nm": float(np.std(psh)), "std_dsh_Nm": float(np.std(dsh)), **line_levels(psh, fs, fm),
             **{f"H_{k}Hz": v for k, v in resp.items()}, **{f"Hband_{k}Hz": v for k, v in band.items()},
             **{f"psh_{k * SINE_LINES_HZ[0]:.0f}Hz_Nm": band_amplitude(psh, fs, k * lines["32.1"]["f_Hz"])
-               for k in (1, 2, 3)}, **line_sidebands(psh, fs, fm, lines["32.1"]["f_Hz"]), "f_MSH_Hz": fm}
+               for k in (1, 2, 3)}, "f_MSH_Hz": fm}
 
 
 def speed_of(angle: np.ndarray, fs: float) -> np.ndarray:
@@ -278,6 +265,6 @@ def speed_of(angle: np.ndarray, fs: float) -> np.ndarray:
 
 
 __all__ = ["impulse_figures", "sine_figures", "ring_down", "speed_dip", "line_levels", "load_lines", "load_response",
-           "load_response_band", "line_sidebands", "band_amplitude",
+           "load_response_band", "band_amplitude",
            "setpoint_pulse", "pulse_times", "revolution_mean", "msh_hz", "speed_of", "ORDER_LINES", "SINE_LINES_HZ",
            "RING_WINDOW_S", "SKIP_S"]

@@ -27,6 +27,9 @@ Nothing here needs the two clocks (sensors, motor drives) to agree: every time i
   32 Hz line, rig.clock); on the log's own index its lines are spread over several bins. Shown beside it:
   :func:`load_response_band` (``Hband_32.1Hz``, band powers, :func:`band_amplitude`, ±1.25 Hz),
   and ``psh_{32,64,96}Hz_Nm`` (the propeller torque's band amplitude at the line and its 2nd and 3rd harmonics).
+* **Lines by windows** (:func:`line_levels_windowed`, shown): the shaft-order lines of the multi-sine read as
+  check 11 reads the 500 rpm record's, over 1 s windows averaged in power (not f_DSH, which the 32 Hz response
+  1.3 Hz away covers in so short a window).
 
 Pure: arrays in, numbers out.
 """
@@ -177,6 +180,23 @@ def line_levels(x: np.ndarray, fs: float, f_msh: float) -> dict:
     return out
 
 
+#: the window of :func:`line_levels_windowed` [s], and the multi-sine's lines read so (not f_DSH: 1.3 Hz from the
+#: 32 Hz response, inside a 1 s window's main lobe)
+LINE_WINDOW_S = 1.0
+SINE_WINDOWED_LINES = ("f_MSH", "2f_MSH", "2f_DSH")
+
+
+def line_levels_windowed(x: np.ndarray, fs: float, f_msh: float, window_s: float = LINE_WINDOW_S,
+                         keys=tuple(ORDER_LINES)) -> dict:
+    """The shaft-order lines ``keys`` as check 11 reads the 500 rpm record's: :func:`line_levels` of consecutive
+    windows of ``window_s``, averaged in power (``<line>_w``). A line whose level or phase wanders reads lower over
+    the whole record than in its windows; a steady one reads alike."""
+    n = int(round(window_s * fs))
+    segs = [x[i:i + n] for i in range(0, len(x) - n + 1, n)] or [x]
+    per = [line_levels(np.asarray(s_) - np.mean(s_), fs, f_msh) for s_ in segs]
+    return {f"{k}_w": float(np.sqrt(np.mean([p[k] ** 2 for p in per]))) for k in keys}
+
+
 def load_lines(t_set: np.ndarray, setpoint: np.ndarray) -> dict:
     """The multi-sine setpoint's lines: frequency [Hz] and amplitude at the load motor [N·m] (Hann, on a uniform
     grid at the motor's median step)."""
@@ -255,7 +275,8 @@ def sine_figures(t: np.ndarray, psh: np.ndarray, dsh: np.ndarray, enc1_w: np.nda
     return {"std_psh_Nm": float(np.std(psh)), "std_dsh_Nm": float(np.std(dsh)), **line_levels(psh, fs, fm),
             **{f"H_{k}Hz": v for k, v in resp.items()}, **{f"Hband_{k}Hz": v for k, v in band.items()},
             **{f"psh_{k * SINE_LINES_HZ[0]:.0f}Hz_Nm": band_amplitude(psh, fs, k * lines["32.1"]["f_Hz"])
-               for k in (1, 2, 3)}, "f_MSH_Hz": fm}
+               for k in (1, 2, 3)}, **line_levels_windowed(psh, fs, fm, keys=SINE_WINDOWED_LINES),
+            "f_MSH_Hz": fm}
 
 
 def speed_of(angle: np.ndarray, fs: float) -> np.ndarray:
@@ -265,6 +286,6 @@ def speed_of(angle: np.ndarray, fs: float) -> np.ndarray:
 
 
 __all__ = ["impulse_figures", "sine_figures", "ring_down", "speed_dip", "line_levels", "load_lines", "load_response",
-           "load_response_band", "band_amplitude",
+           "load_response_band", "line_levels_windowed", "band_amplitude",
            "setpoint_pulse", "pulse_times", "revolution_mean", "msh_hz", "speed_of", "ORDER_LINES", "SINE_LINES_HZ",
            "RING_WINDOW_S", "SKIP_S"]

@@ -169,14 +169,18 @@ def main(argv=None) -> int:
         return RandomForestClassifier(n_estimators=300, class_weight="balanced", random_state=0, n_jobs=1)
 
     # the alarm threshold: each healthy window's P(fault) from a forest that never saw its gearbox
-    oof = np.zeros(len(X))
+    oof = np.full(len(X), np.nan)          # a fold whose fit lacks a class scores nothing
     for fit, held in GroupKFold(n_splits=min(5, n_boxes)).split(X[train], faulty[train], boxes[train]):
         idx_fit, idx_held = np.flatnonzero(train)[fit], np.flatnonzero(train)[held]
         if len(set(faulty[idx_fit])) < 2:
             continue
         m = forest().fit(X[idx_fit], faulty[idx_fit])
         oof[idx_held] = m.predict_proba(X[idx_held])[:, list(m.classes_).index(True)]
-    threshold = float(np.quantile(oof[train & ~faulty], 1.0 - args.false_alarm))
+    scored = train & ~faulty & np.isfinite(oof)
+    if not scored.any():
+        print("error: no fold had both healthy and faulty gearboxes to score the healthy windows with", file=sys.stderr)
+        return 2
+    threshold = float(np.quantile(oof[scored], 1.0 - args.false_alarm))
     det = forest().fit(X[train], faulty[train])
     p_fault = det.predict_proba(X)[:, list(det.classes_).index(True)]
     alarm = p_fault > threshold
@@ -187,7 +191,7 @@ def main(argv=None) -> int:
     fa_rec = float(np.mean(alarm_rec))
     result = {"threshold": threshold, "false_alarm_target": args.false_alarm, "families": {}}
     print(f"detector: alarm when P(fault) > {threshold:.3f} (set for {args.false_alarm:.0%} false alarms on "
-          f"{int((train & ~faulty).sum())} healthy windows, each scored by a forest without its gearbox)")
+          f"{int(scored.sum())} healthy windows, each scored by a forest without its gearbox)")
 
     clf = forest().fit(X[train], fam[train])
     pred = clf.predict(X[test])

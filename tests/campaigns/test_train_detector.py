@@ -22,7 +22,8 @@ def test_train_detector_on_a_small_grid(tmp_path):
     assert (out / "confusion.png").stat().st_size > 10_000
     assert res["measured_windows"] >= 5 and 0.0 <= res["false_alarm_measured"] <= 1.0
     assert "healthy" in res["families"] and len(res["families"]) >= 2 and 0.0 < res["threshold"] < 1.0
-    # the alarm threshold is set on healthy validation windows: on the test gearboxes' healthy windows the
+    # the alarm threshold is set on the train gearboxes' healthy windows, each scored without its gearbox: on the
+    # test gearboxes' healthy windows the
     # false alarms stay near its 5 % (a planted threshold of 0 alarms on every window)
     assert res["false_alarm_simulated"] <= 0.3
     # the test windows are of gearboxes the forest never saw

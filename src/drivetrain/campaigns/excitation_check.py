@@ -77,28 +77,30 @@ def scenes(common: list, gearboxes: int = N_GEARBOXES) -> list:
     return out
 
 
-def _figures(record: str, t, psh, dsh, enc1_w, fs, r: rec.Record) -> dict:
+def _figures(record: str, t, psh, dsh, enc1_w, fs, r: rec.Record, setpoint=None) -> dict:
     fn = ex.impulse_figures if record.startswith("impulse") else ex.sine_figures
-    return fn(t, psh, dsh, enc1_w, fs, *rec.load_setpoint(r))
+    return fn(t, psh, dsh, enc1_w, fs, *(setpoint or rec.load_setpoint(r)))
 
 
-def measured_figures(records: dict | None = None) -> dict:
-    """The records' own figures."""
+def measured_figures(records: dict | None = None, setpoints: dict | None = None) -> dict:
+    """The records' own figures (``setpoints``: their rec.load_setpoint, where the caller has them)."""
     out = {}
     for name in RECORDS:
         r = (records or {}).get(name) or rec.load_record(name=name)
         out[name] = _figures(name, r.t, r.channels["propeller_shaft_torque"], r.channels["drive_shaft_torque"],
-                             r.channels["enc1_w"], r.fs, r)
+                             r.channels["enc1_w"], r.fs, r, (setpoints or {}).get(name))
     return out
 
 
-def run_figures(signals: dict, record: str, r: rec.Record | None = None) -> dict:
-    """The figures of one run's signals (drivetrain.run.outputs.read_hdf5 layout; enc1 an angle)."""
+def run_figures(signals: dict, record: str, r: rec.Record | None = None, setpoint=None) -> dict:
+    """The figures of one run's signals (drivetrain.run.outputs.read_hdf5 layout; enc1 an angle); ``setpoint``:
+    the record's rec.load_setpoint, when the caller has it (retiming the multi-sine's log takes about 0.3 s)."""
     r = r or rec.load_record(name=record)
     t = np.asarray(signals["time"], dtype=float)
     s = signals["signals"]
     fs = 1.0 / float(np.median(np.diff(t)))
-    return _figures(record, t, s["propeller_shaft_torque"], s["drive_shaft_torque"], ex.speed_of(s["enc1"], fs), fs, r)
+    return _figures(record, t, s["propeller_shaft_torque"], s["drive_shaft_torque"], ex.speed_of(s["enc1"], fs), fs, r,
+                    setpoint)
 
 
 def within(kind: str, tol: float, ours: float, measured: float) -> tuple[bool, float]:
@@ -138,15 +140,16 @@ def compare(runs, gearboxes: int = N_GEARBOXES) -> dict:
     names = {record: [case_name(record, g) for g in range(gearboxes)] for record in RECORDS}
     missing = [n for ns in names.values() for n in ns if not runs.ok(n)]
     loaded = {record: rec.load_record(name=record) for record in RECORDS}
+    setpoints = {record: rec.load_setpoint(r) for record, r in loaded.items()}
     ours = []
     for g in range(gearboxes):
         one = {}
         for record in RECORDS:
             n = case_name(record, g)
             if runs.ok(n):
-                one[record] = run_figures(runs.signals(n), record, loaded[record])
+                one[record] = run_figures(runs.signals(n), record, loaded[record], setpoints[record])
         ours.append(one)
-    return {"table": compare_figures(ours, measured_figures(loaded)), "missing": missing, "n": gearboxes}
+    return {"table": compare_figures(ours, measured_figures(loaded, setpoints)), "missing": missing, "n": gearboxes}
 
 
 def _fmt_q(kind: str, q: float) -> str:

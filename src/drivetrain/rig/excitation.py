@@ -191,9 +191,9 @@ def line_levels_windowed(x: np.ndarray, fs: float, f_msh: float, window_s: float
     """The shaft-order lines ``keys`` as check 11 reads the 500 rpm record's: :func:`line_levels` of consecutive
     windows of ``window_s``, averaged in power (``<line>_w``). A line whose level or phase wanders reads lower over
     the whole record than in its windows; a steady one reads alike."""
-    n = int(round(window_s * fs))
-    segs = [x[i:i + n] for i in range(0, len(x) - n + 1, n)] or [x]
-    per = [line_levels(np.asarray(s_) - np.mean(s_), fs, f_msh) for s_ in segs]
+    from drivetrain.rig.record import windows
+
+    per = [line_levels(w - np.mean(w), fs, f_msh) for w in windows(x, fs, skip_s=0.0, window_s=window_s)]
     return {f"{k}_w": float(np.sqrt(np.mean([p[k] ** 2 for p in per]))) for k in keys}
 
 

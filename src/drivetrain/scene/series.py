@@ -139,8 +139,8 @@ def write_load_series(name: str, path: str | Path, directory: str | Path | None 
              "index slips against the applied load).")
     return write_series(path, t, x, ("time_s", "load_motor_torque_Nm"), comments=(
         f"The load-motor torque setpoint of the rig record {name} (drivetrain/data/rig_records/{spec.motor_csv}, "
-        "column 3,", "referred there to the propeller shaft: divided here by the planetary's 8 to the load motor), ",
-        clock, "Written by drivetrain.scene.series.write_load_series; read by operating_point.load_series_csv."))
+        "column 3,", f"referred there to the propeller shaft: divided here by the planetary's 8 to the load motor), {clock}",
+        "Written by drivetrain.scene.series.write_load_series; read by operating_point.load_series_csv."))
 
 
 def write_series(path: str | Path, t: np.ndarray, values: np.ndarray, header: tuple[str, str] = ("time_s", "torque_Nm"),

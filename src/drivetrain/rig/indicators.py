@@ -252,8 +252,8 @@ def separability(a: float) -> float:
 def chance_separability(gearboxes: int, indicators: int, level: float = 0.05) -> float:
     """The best-of-``indicators`` separability that healthy-vs-healthy comparisons (each gearbox's indicator a
     coin flip) exceed with probability ``level`` over ``gearboxes`` gearboxes, the indicators taken as
-    independent (correlated ones reach less): the chance level of paired separability (validate's check 6,
-    drivetrain detectability)."""
+    independent (correlated ones reach less): the chance level of paired separability (drivetrain
+    detectability's paired rise; validate's check 6 shows it beside its two-sided score)."""
     from scipy.stats import binom
 
     for k in range(gearboxes // 2, gearboxes + 1):        # separability >= k / n: at least k one way

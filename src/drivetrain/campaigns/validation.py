@@ -472,8 +472,9 @@ def _best_indicators(runs: Runs, trios: list) -> dict:
 def check_order(runs: Runs) -> CheckResult:
     r = CheckResult(6, "faults separable from healthy, per operating point",
                     "mild and severe against healthy at each of the 18 operating points, over the gearboxes: the best "
-                    "standard indicator's two-sided change score (|faulty - baseline| against |healthy - baseline|, "
-                    "the baseline a second healthy run with its own noise: the detectability study's rule since "
+                    "standard indicator's two-sided change score (the faulty runs' absolute change from the baseline "
+                    "against the healthy runs', the baseline a second healthy run of the gearbox with its own "
+                    "noise: the detectability study's rule since "
                     "issue 40); severe >= 0.9 (and above the chance level of the best of many indicators) at every "
                     "point, mild at one point at least (the paper: distinguishable 'at appropriate speeds and "
                     "loads'; restated for the population, issue 27; the two-sided score since issue 41's review, "

@@ -91,7 +91,7 @@ def fmus_both_builds(pythonfmu_fmus, tmp_path_factory):
 @pytest.fixture(scope="module")
 def maps_tabulated_in_this_process():
     """Contact maps tabulated in the test's own process for a whole module (``$BEVEL_MAP_WORKERS`` = 1): for the
-    small maps of the map tests a fork pool per map costs more CPU than it saves, and the pool is not what they
+    small maps of the map tests threads per map gain little, and the threads are not what they
     test. A module asks for it with ``pytestmark = pytest.mark.usefixtures(...)``."""
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("BEVEL_MAP_WORKERS", "1")

@@ -272,6 +272,36 @@ def test_the_map_is_the_one_the_slave_steps_with(gear):
         maps.append((arrays["values"].shape, te is not None))
     assert maps[0] != maps[1] and maps[1][1]          # the second build took its own parameters
 
+def test_the_map_resource_holds_distinct_rows_and_a_bad_index_is_refused(native, tmp_path):
+    """The resource holds the map's distinct rows and each angle's index among them (the example's healthy
+    map: one pitch of 48 rows for 720 angles); an index pointing past the rows is a refused instantiation
+    naming the resource, not a read outside the array."""
+    import struct
+
+    from drivetrain.cosim.slaves import FmiCallbacks
+
+    unzip = Path(fmpy.extract(str(native), unzipdir=str(tmp_path / "fmu")))
+    res = unzip / "resources" / "contact_map.bin"
+    blob = bytearray(res.read_bytes())
+    assert blob[:8] == b"GCNMAP3\0"
+    n_theta, n_a, _n_ch, _n_rev, _te, _zp, _zw, n_rows = struct.unpack_from("<8q", blob, 8)
+    assert n_rows == 48 and n_theta == 720
+    at = 8 + 8 * 8 + 3 * 8 + 8 * n_a + 8 * 2 * n_theta         # the index follows the onsets
+    index = np.frombuffer(bytes(blob[at:at + 8 * n_theta]), dtype="<i8")
+    assert np.array_equal(index, np.arange(n_theta) % 48)
+    struct.pack_into("<q", blob, at + 8 * 5, n_rows)          # angle 5 points one past the last row
+    res.write_bytes(bytes(blob))
+    md = fmpy.read_model_description(str(native))
+    s = FMU2Slave(guid=md.guid, unzipDirectory=str(unzip), modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName="bad_index")
+    cbs = FmiCallbacks()
+    with pytest.raises(Exception):
+        s.instantiate(callbacks=cbs.struct, loggingOn=True)
+    KEEP.append((s, cbs))
+    log = "\n".join(cbs.logs["bad_index"].lines) if "bad_index" in cbs.logs else ""
+    assert "contact_map.bin is damaged" in log, log
+
+
 def test_build_fixed_parameters_are_refused(native, gear):
     """The parameters the contact map was computed with are constants of the build (they were
     declared settable and another value was refused only when set): causality local, variability constant,

@@ -19,7 +19,7 @@ RES = MeshResolution(profile=0.1e-3, face=2e-3)
 GRID = MapGrid(points_per_pitch=24, s_points=24, max_torque=120.0)
 
 
-# maps tabulated in this process; the seed-map test keeps the pool (a build as a user's runs it)
+# maps tabulated in one thread; the seed-map test keeps the threads (a build as a user's runs it)
 pytestmark = pytest.mark.usefixtures("maps_tabulated_in_this_process")
 
 
@@ -169,6 +169,60 @@ def test_a_damaged_cache_file_is_named_and_rebuilt(cache):
             load_map(path, GEAR, PCM, grid)
     finally:
         path.write_bytes(good)
+
+
+def test_a_map_file_holds_its_distinct_rows(cache, tmp_path):
+    """A map is written as its distinct rows and each angle's index among them (a pitch tiled is one pitch
+    on disk) and read back bit for bit; a file written whole (an older writer, a seed) still reads; an index
+    that points outside the rows is named, not read."""
+    from gearcontact_fmu.contact_map import (ContactMapFileError, content_digest, distinct_rows, load_map,
+                                             save_map)
+
+    grid, res = MapGrid(points_per_pitch=2, s_points=8, max_torque=120.0), MeshResolution(profile=0.5e-3, face=5e-3)
+    cmap = get_map(GEAR, PCM, res, grid=grid)
+    rows, index = distinct_rows(cmap.values)
+    assert len(rows) == grid.points_per_pitch < len(cmap.values)     # healthy: one pitch, tiled
+    np.testing.assert_array_equal(rows[index], cmap.values)
+    path = tmp_path / "compact.npz"
+    save_map(cmap, path)
+    with np.load(path) as z:
+        assert z["values"].shape[0] == len(rows) and z["value_rows"].shape == (len(cmap.values),)
+    back = load_map(path, GEAR, PCM, grid)
+    for name in ("theta", "a", "onset", "values"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(cmap, name))
+    arrays = {"theta": cmap.theta, "a": cmap.a, "onset": cmap.onset, "values": cmap.values}
+    info = repr(cmap.info)
+    whole = tmp_path / "whole.npz"
+    np.savez_compressed(whole, **arrays, info=np.array(info), digest=np.array(content_digest(arrays, info)))
+    np.testing.assert_array_equal(load_map(whole, GEAR, PCM, grid).values, cmap.values)
+    bad = tmp_path / "bad.npz"
+    np.savez_compressed(bad, **{**arrays, "values": rows}, value_rows=index + len(rows), info=np.array(info),
+                        digest=np.array(content_digest(arrays, info)))
+    with pytest.raises(ContactMapFileError, match="value_rows"):
+        load_map(bad, GEAR, PCM, grid)
+
+
+def test_rows_tabulated_in_threads_are_the_rows_computed_one_chunk_after_another():
+    """The map's rows are tabulated in threads, each chunk of rows with kernel data of its own, the meshes'
+    trees shared: the result must be, bit for bit, the chunks computed one after another in one thread (no
+    state shared between threads, none left from one chunk to the next), on a faulty pair with both flanks
+    and a row subset."""
+    from gearcontact_fmu import contact_map as cm
+
+    grid, res = MapGrid(points_per_pitch=8, s_points=6, max_torque=120.0), MeshResolution(profile=0.5e-3, face=5e-3)
+    pair = build_pcm_pair(GEAR, PCM, res, "faults", fault_kwargs={"faults": [{"kind": "pit", "member": "wheel",
+                                                                              "tooth": 1}]})
+    a, _ = cm._approach_grid(pair, grid)
+    theta = np.linspace(0.0, 2 * math.pi / GEAR.z_pinion * 2, 25, endpoint=False)
+    sides = np.ones((len(theta), 2), dtype=bool)
+    sides[::3, 1] = False
+    on_t, v_t = cm._tabulate(pair, theta, a, grid, workers=2, sides=sides)
+    n_chunks = min(len(theta) - 1, max(4 * 2, (len(theta) - 1) // 6))      # the chunks _tabulate cuts
+    chunks = [np.arange(1)] + np.array_split(np.arange(1, len(theta)), n_chunks)
+    parts = [cm._tabulate_rows(pair, theta[idx], a, grid, sides[idx]) for idx in chunks]
+    np.testing.assert_array_equal(on_t, np.concatenate([p[0] for p in parts]))
+    np.testing.assert_array_equal(v_t, np.concatenate([p[1] for p in parts]))
+    assert np.count_nonzero(v_t[::3, 1]) == 0 and np.count_nonzero(v_t[:, 0]) > 0
 
 
 def test_missing_tooth_window_is_tabulated_as_early_engagement(cache):

@@ -34,7 +34,7 @@ REL_TOL = 1e-6
 ONSET_TOL = 2e-10
 
 
-# a fork pool per map and oracle cost a third more CPU here
+# maps and oracles tabulated in one thread (the small maps gain little from the threads)
 pytestmark = pytest.mark.usefixtures("maps_tabulated_in_this_process")
 
 

@@ -115,22 +115,28 @@ def _table_arrays(parameters: dict) -> dict:
 
 def write_map_resource(arrays: dict, path: Path) -> None:
     """The binary map read by the C model (little-endian int64 and IEEE 754 doubles): magic, header
-    (n_theta, n_a, n_ch, n_rev, has_offset, z_pinion, z_wheel of the offset), dtheta, ratio, w_reg, the
-    approach nodes, the onsets, the values, optionally the offset (parameters, pinion, wheel), end mark."""
+    (n_theta, n_a, n_ch, n_rev, has_offset, z_pinion, z_wheel of the offset, n_rows), dtheta, ratio, w_reg,
+    the approach nodes, the onsets, for every angle the index of its row among the distinct rows, the
+    distinct rows of the values (gearcontact_fmu.contact_map.distinct_rows: a faulty map is one healthy pitch
+    tiled with a few rows of its own), optionally the offset (parameters, pinion, wheel), end mark."""
+    from gearcontact_fmu.contact_map import distinct_rows
+
     values, te = arrays["values"], arrays["te"]
     n_theta, sides, n_a, n_ch = values.shape
     assert sides == 2 and arrays["onset"].shape == (n_theta, 2)
+    rows, index = distinct_rows(values)
     pin = whl = None
     if te is not None:
         p, pin, whl = (np.ascontiguousarray(x, dtype="<f8") for x in te)
     with open(path, "wb") as f:
-        f.write(b"GCNMAP2\0")
-        f.write(struct.pack("<7q", n_theta, n_a, n_ch, arrays["n_rev"], int(te is not None),
-                            0 if te is None else len(pin), 0 if te is None else len(whl)))
+        f.write(b"GCNMAP3\0")
+        f.write(struct.pack("<8q", n_theta, n_a, n_ch, arrays["n_rev"], int(te is not None),
+                            0 if te is None else len(pin), 0 if te is None else len(whl), len(rows)))
         f.write(struct.pack("<3d", arrays["dtheta"], arrays["ratio"], arrays["w_reg"]))
         f.write(arrays["a"].tobytes())
         f.write(arrays["onset"].tobytes())
-        f.write(values.tobytes())
+        f.write(np.ascontiguousarray(index, dtype="<i8").tobytes())
+        f.write(np.ascontiguousarray(rows, dtype="<f8").tobytes())
         if te is not None:
             f.write(p.tobytes())
             f.write(pin.tobytes())

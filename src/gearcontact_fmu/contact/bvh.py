@@ -21,7 +21,7 @@ from numba import njit
 LEAF_SIZE = 4
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _build(centres, prim_box, leaf_size):
     m = centres.shape[0]
     order = np.arange(m).astype(np.int64)
@@ -105,7 +105,7 @@ def _build(centres, prim_box, leaf_size):
     return node_box[:n_nodes].copy(), node_int[:n_nodes].copy(), order, max_depth
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _tri_boxes(tri):
     m = tri.shape[0]
     box = np.empty((m, 6))
@@ -139,7 +139,7 @@ def build_bvh(tri_vertices, leaf_size: int = LEAF_SIZE, extra_points=None):
     return node_box, node_int, order, int(max_depth)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def refit_segment_boxes(node_int, order_points, order_normals, length):
     """Boxes of the penetration-line segments ``[p, p - length*n]`` of every node, as centre and
     half extents ``(N, 6) = [c, e]``. ``order_points``/``order_normals`` are in slot order
@@ -226,7 +226,7 @@ def _node_frame(sx, sy, sz, pts, npts):
     return t1x, t1y, t1z, t2x, t2y, t2z, nx, ny, nz
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def node_obbs(node_int, order, tri, seg_points, seg_normals, length):
     """Oriented box of every node: ``(N, 15) = [axes (3 rows: t1, t2, n), centre(3), half(3)]``.
 

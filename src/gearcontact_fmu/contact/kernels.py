@@ -128,7 +128,7 @@ def make_params(pcm, search_length=None, friction=True, damping=True, ratio=0.5,
 # ----------------------------------------------------------------------------------------------
 # element data
 # ----------------------------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def element_data(tri, face_points, face_normals, has_exact):
     """Per triangle: geometric unit normal, area, centroid, and the target-role array ``ttri`` and
     base-role array ``belem`` (in triangle order). ``has_exact``: use face_points/face_normals as the
@@ -1774,7 +1774,7 @@ def pair_forces(n_active, ws, bm, tm, motion, params, out):
 # ----------------------------------------------------------------------------------------------
 # fixed-axis kernel (gear stage)
 # ----------------------------------------------------------------------------------------------
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def fixed_axis_eval(data, theta_base, theta_target, omega_base, omega_target, out):
     """Fixed-axis pair: pose = R0 @ Rz(theta), both axes through the world origin.
 

@@ -12,6 +12,7 @@ close at s = +s_b/2. A driving pinion torque T > 0 is balanced by a mesh torque 
 from __future__ import annotations
 
 import math
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -88,6 +89,24 @@ def resolve_meshes(gear: BevelGearParams, resolution: MeshResolution, health: st
     return pinion, wheel
 
 
+def _bodies(pinion: SurfaceMesh, wheel: SurfaceMesh) -> tuple:
+    """The two meshes' contact bodies (trees and kernel arrays), built side by side in two threads when
+    this process may use two CPUs (the tree kernels run without the GIL): a new fault's map builds both, the
+    wheel's 400,000 triangles in 0.8 s, the pinion's in 0.3 s."""
+    def body(m):
+        return engine.PCMBody(m.vertices, m.faces, m.face_points, m.face_normals)
+
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if cpus < 2:
+        return body(pinion), body(wheel)
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(1) as pool:
+        base = pool.submit(body, pinion)
+        target = body(wheel)
+        return base.result(), target
+
+
 def build_pcm_pair(gear: BevelGearParams | None = None, pcm: PCMParams | None = None,
                    resolution: MeshResolution | None = None, health: str = "healthy",
                    pinion_mesh_file: str | None = None, wheel_mesh_file: str | None = None,
@@ -98,8 +117,7 @@ def build_pcm_pair(gear: BevelGearParams | None = None, pcm: PCMParams | None = 
     resolution = resolution or MeshResolution()
     pinion, wheel = resolve_meshes(gear, resolution, health, pinion_mesh_file, wheel_mesh_file,
                                    mesh_units, pinion_teeth, wheel_teeth, fault_kwargs)
-    base = engine.PCMBody(pinion.vertices, pinion.faces, pinion.face_points, pinion.face_normals)
-    target = engine.PCMBody(wheel.vertices, wheel.faces, wheel.face_points, wheel.face_normals)
+    base, target = _bodies(pinion, wheel)
     r0p, r0w = geometry.pinion_R0(gear), geometry.wheel_R0(gear)
     data = engine.make_fixed_axis_data(base, target, r0p, r0w, pcm, friction=friction, damping=damping)
     info = {"pinion_triangles": int(len(pinion.faces)), "wheel_triangles": int(len(wheel.faces))}

@@ -95,7 +95,8 @@ static const int K_FROM_CH[N_K - 1] = {CH_TAU_P, CH_TAU_W, CH_FN, CH_DAMP, CH_FR
 /* manufacturing offset parameters (manufacturing.P_*) */
 enum { P_PITCH_P, P_RATIO, P_ECC_P, P_PHASE_P, P_ECC_W, P_PHASE_W, P_EPS, P_RAMP, P_PROF_A, P_PROF_PHASE, N_P };
 
-#define MAP_MAGIC "GCNMAP2"   /* 2: the offset parameters end with the profile term (P_PROF_A, P_PROF_PHASE) */
+#define MAP_MAGIC "GCNMAP3"   /* 2: the offset parameters end with the profile term (P_PROF_A, P_PROF_PHASE);
+                                 3: the values as distinct rows and each angle's index among them */
 
 typedef struct {
     int64_t n_theta, n_a, n_rev, te_zp, te_zw;
@@ -125,30 +126,39 @@ static Map *map_load(const char *path, char *why, size_t nwhy) {
     if (!f) { snprintf(why, nwhy, "cannot open the contact map %s", path); return NULL; }
     Map *m = (Map *)calloc(1, sizeof(Map));
     char magic[8];
-    int64_t hdr[7];
+    int64_t hdr[8];
     double sc[3];
     int ok = m && fread(magic, 1, 8, f) == 8 && memcmp(magic, MAP_MAGIC, 8) == 0
-             && fread(hdr, sizeof(int64_t), 7, f) == 7 && read_doubles(f, sc, 3);
+             && fread(hdr, sizeof(int64_t), 8, f) == 8 && read_doubles(f, sc, 3);
     if (ok) {
         m->n_theta = hdr[0]; m->n_a = hdr[1]; m->n_rev = hdr[3]; m->has_te = hdr[4] != 0;
         m->te_zp = hdr[5]; m->te_zw = hdr[6];
         m->dtheta = sc[0]; m->ratio = sc[1]; m->w_reg = sc[2];
         m->inv_dtheta = 1.0 / sc[0]; m->inv_w_reg = 1.0 / sc[2];
         ok = hdr[2] == N_CH && m->n_theta > 1 && m->n_a > 1 && m->n_rev >= 1 && m->n_theta < 100000000
-             && m->n_a < 100000;
+             && m->n_a < 100000 && hdr[7] >= 1 && hdr[7] <= m->n_theta;
     }
     if (ok) {
-        size_t nv = (size_t)m->n_theta * 2 * (size_t)m->n_a * N_CH;
+        const size_t n_rows = (size_t)hdr[7], per_row = 2 * (size_t)m->n_a;   /* points of a row */
         m->a = (double *)malloc(sizeof(double) * (size_t)m->n_a);
         m->onset = (double *)malloc(sizeof(double) * 2 * (size_t)m->n_theta);
-        double *raw = (double *)malloc(sizeof(double) * nv);
-        m->values = (double *)malloc(sizeof(double) * (nv / N_CH) * N_K);
-        ok = m->a && m->onset && raw && m->values && read_doubles(f, m->a, (size_t)m->n_a)
-             && read_doubles(f, m->onset, 2 * (size_t)m->n_theta) && read_doubles(f, raw, nv);
-        for (size_t i = 0; ok && i < nv / N_CH; i++) {
-            for (int k = 0; k < N_K - 1; k++) m->values[i * N_K + k] = raw[i * N_CH + K_FROM_CH[k]];
-            m->values[i * N_K + K_PAD] = 0.0;
+        int64_t *index = (int64_t *)malloc(sizeof(int64_t) * (size_t)m->n_theta);
+        double *raw = (double *)malloc(sizeof(double) * n_rows * per_row * N_CH);
+        m->values = (double *)malloc(sizeof(double) * (size_t)m->n_theta * per_row * N_K);
+        ok = m->a && m->onset && index && raw && m->values && read_doubles(f, m->a, (size_t)m->n_a)
+             && read_doubles(f, m->onset, 2 * (size_t)m->n_theta)
+             && fread(index, sizeof(int64_t), (size_t)m->n_theta, f) == (size_t)m->n_theta
+             && read_doubles(f, raw, n_rows * per_row * N_CH);
+        for (int64_t i = 0; ok && i < m->n_theta; i++) {
+            ok = index[i] >= 0 && (size_t)index[i] < n_rows;
+            const double *src = raw + (ok ? (size_t)index[i] : 0) * per_row * N_CH;
+            double *dst = m->values + (size_t)i * per_row * N_K;
+            for (size_t p = 0; ok && p < per_row; p++) {
+                for (int k = 0; k < N_K - 1; k++) dst[p * N_K + k] = src[p * N_CH + K_FROM_CH[k]];
+                dst[p * N_K + K_PAD] = 0.0;
+            }
         }
+        free(index);
         free(raw);
     }
     if (ok && m->has_te) {

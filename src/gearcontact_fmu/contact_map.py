@@ -536,8 +536,7 @@ def distinct_rows(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     index = np.empty(len(values), dtype=np.int64)
     for i, row in enumerate(flat):
         index[i] = first.setdefault(row.tobytes(), len(first))
-    keep = np.zeros(len(first), dtype=np.int64)
-    keep[index[::-1]] = np.arange(len(values))[::-1]         # each distinct row's first occurrence
+    keep = np.unique(index, return_index=True)[1]             # each distinct row's first occurrence, in order
     return np.ascontiguousarray(values[keep]), index
 
 

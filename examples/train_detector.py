@@ -110,7 +110,7 @@ def simulated_windows(dataset: Path, length: int):
     return np.array(X), np.array(y), np.array(split), np.array(runs), np.array(boxes)
 
 
-def record_windows(length: int, fs_model: float):
+def record_windows(length: int):
     """The measured healthy record cut into windows of ``length`` samples (half overlapping), after its filter
     start-up (rig.record.SKIP_S), as feature rows."""
     from drivetrain.rig import record as rec
@@ -184,7 +184,7 @@ def main(argv=None) -> int:
     det = forest().fit(X[train], faulty[train])
     p_fault = det.predict_proba(X)[:, list(det.classes_).index(True)]
     alarm = p_fault > threshold
-    R = record_windows(length, fs)
+    R = record_windows(length)
     p_rec = det.predict_proba(R)[:, list(det.classes_).index(True)]
     alarm_rec = p_rec > threshold
     fa_sim = float(np.mean(alarm[test & ~faulty]))

@@ -344,7 +344,7 @@ def _tabulate_by_pitch(pair, theta, a, grid: MapGrid, n_rev: int = 1, progress: 
 
 
 def map_workers() -> int:
-    """Processes that tabulate a map: $BEVEL_MAP_WORKERS, else every CPU."""
+    """Threads that tabulate a map (and build its two contact bodies): $BEVEL_MAP_WORKERS, else every CPU."""
     return max(1, int(os.environ.get("BEVEL_MAP_WORKERS", os.cpu_count() or 1)))
 
 

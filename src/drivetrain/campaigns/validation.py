@@ -51,6 +51,9 @@ import numpy as np
 
 from drivetrain.campaigns.provenance import commit_line
 from drivetrain.campaigns import GEARBOXES, excitation_check, record_check
+# check 6's second healthy run of a gearbox at each operating point, with a noise record of its own: the
+# detectability study's baseline (a monitoring system's reference from another day), named as there
+from drivetrain.campaigns.detectability import BASELINE
 from drivetrain.rig import indicators as ci
 from drivetrain.rig.data import PAPER_LOADS_NM, PAPER_MAX_LOAD_NM, PAPER_MAX_SPEED_RPM, PAPER_SPEEDS_RPM, TORQUE_SENSORS
 from drivetrain.rig.record import MEASURED_TRANSDUCER_NOISE_NM
@@ -90,11 +93,6 @@ def case_name(health: str, speed: float, load: float, realistic: bool = True, ge
     if not realistic:
         return f"ideal_{health}_{speed:g}rpm_{load:g}Nm"
     return f"realistic_{health}_{speed:g}rpm_{load:g}Nm_gb{gearbox}"
-
-
-#: the second healthy run of a gearbox at each operating point (check 6), with a noise record of its own: the
-#: reference a monitoring system measured on another day (the same word as the detectability study's)
-BASELINE = "baseline"
 
 
 def stiff_name(gearbox: int) -> str:
@@ -449,12 +447,12 @@ def sideband_level(f: np.ndarray, A: np.ndarray, f_gmf: float, f_msh: float) -> 
 
 def _best_indicators(runs: Runs, trios: list) -> dict:
     """Over the gearboxes' (baseline, healthy, faulty) runs ``trios``: the indicator column with the best
-    two-sided change score (rig.indicators.change_auc) and that score, the column with the best paired
-    separability against the healthy run (the rule before issue 41's review of check 6) and that, and how
-    many columns were compared (every run of every trio has a finite value)."""
+    two-sided change score (rig.indicators.change_auc) and that score, the best paired separability against
+    the healthy run (the rule before issue 41's review of check 6), and how many columns were compared
+    (every run of every trio has a finite value)."""
     feats = [tuple(runs.features(n) for n in trio) for trio in trios]
     cols = sorted(set.intersection(*(set(b) & set(h) & set(f) for b, h, f in feats))) if feats else []
-    out = {"indicator": "", "score": float("nan"), "paired_indicator": "", "paired": float("nan"), "columns": 0}
+    out = {"indicator": "", "score": float("nan"), "paired": float("nan"), "columns": 0}
     for col in cols:
         bv, hv, fv = (np.array([t[i][col] for t in feats], dtype=float) for i in range(3))
         if not (np.isfinite(bv).all() and np.isfinite(hv).all() and np.isfinite(fv).all()):
@@ -465,7 +463,7 @@ def _best_indicators(runs: Runs, trios: list) -> dict:
             out["indicator"], out["score"] = col, score
         sep = ci.separability(ci.paired_auc(hv, fv))
         if not math.isfinite(out["paired"]) or sep > out["paired"]:
-            out["paired_indicator"], out["paired"] = col, sep
+            out["paired"] = sep
     return out
 
 
@@ -490,8 +488,7 @@ def check_order(runs: Runs) -> CheckResult:
                           case_name(h, n, t, gearbox=g)) for g in runs.gearboxes]
                 complete = [x for x in trios if not _missing(runs, x)]
                 missing += len(trios) - len(complete)
-                best = _best_indicators(runs, complete) if complete else _best_indicators(runs, [])
-                cells[(h, n, t)] = {**best, "n": len(complete)}
+                cells[(h, n, t)] = {**_best_indicators(runs, complete), "n": len(complete)}
     n_cols = max((c["columns"] for c in cells.values()), default=0)
     chance = ci.chance_change(n_gb, max(n_cols, 1))
     chance_fw = ci.chance_change(n_gb, max(n_cols, 1) * len(cells))

@@ -12,7 +12,6 @@ close at s = +s_b/2. A driving pinion torque T > 0 is balanced by a mesh torque 
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -90,14 +89,16 @@ def resolve_meshes(gear: BevelGearParams, resolution: MeshResolution, health: st
 
 
 def _bodies(pinion: SurfaceMesh, wheel: SurfaceMesh) -> tuple:
-    """The two meshes' contact bodies (trees and kernel arrays), built side by side in two threads when
-    this process may use two CPUs (the tree kernels run without the GIL): a new fault's map builds both, the
-    wheel's 400,000 triangles in 0.8 s, the pinion's in 0.3 s."""
+    """The two meshes' contact bodies (trees and kernel arrays), built side by side in two threads when a map
+    build may use two (contact_map.map_workers: a sweep's single-core builders may not; the tree kernels run
+    without the GIL): a new fault's map builds both, the wheel's 400,000 triangles in 0.8 s, the pinion's in
+    0.3 s."""
+    from gearcontact_fmu.contact_map import map_workers     # (contact_map builds pairs: imported here)
+
     def body(m):
         return engine.PCMBody(m.vertices, m.faces, m.face_points, m.face_normals)
 
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    if cpus < 2:
+    if map_workers() < 2:
         return body(pinion), body(wheel)
     from concurrent.futures import ThreadPoolExecutor
 

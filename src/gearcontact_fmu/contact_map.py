@@ -664,7 +664,7 @@ def incremental_from_healthy(gear, health: str, mesh_files, fault_kwargs) -> boo
 def _build_map(gear, pcm, resolution, health, mesh_files, mesh_units, grid, fault_kwargs,
                healthy: ContactMap | None = None) -> ContactMap:
     pair = build_pcm_pair(gear, pcm, resolution, health, mesh_files.get("pinion"), mesh_files.get("wheel"),
-                          mesh_units, friction=True, damping=True, fault_kwargs=fault_kwargs)
+                          mesh_units, friction=True, damping=True, fault_kwargs=fault_kwargs, threads=map_workers())
     return compute_map(pair, grid, progress=True, healthy=healthy)
 
 
